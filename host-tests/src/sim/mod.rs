@@ -1,0 +1,4 @@
+//! The simulator: truth motion, sensor models, frame encoders (the core's own).
+pub mod fog;
+pub mod star;
+pub mod truth;

@@ -1,0 +1,121 @@
+//! Calibration table: binary and TOML forms round-trip; every corruption is refused;
+//! host tools name the file, line and field and never overwrite good data.
+
+use proptest::prelude::*;
+use ssis::calib::binary::{decode, encode, TABLE_LEN};
+use ssis::calib::{CalibrationTable, ObserverGains, TableError};
+use ssis_host::table;
+
+fn sample_table() -> CalibrationTable {
+    let mut t = CalibrationTable::DEFAULT;
+    t.revision = 42;
+    t.fog[0].bias_rad_s = 1.5e-6;
+    t.fog[1].scale_factor_error = -2e-5;
+    t.fog[2].thermal_t_rad_s = [1e-8, -2e-10, 3e-12];
+    t.fog[3].thermal_g_rad_s_per_degc_s = 4e-6;
+    t.fog[3].thermal_tg_rad_s_per_degc2_s = -1e-7;
+    t.misalignment.d42_rad = 1e-4;
+    t.misalignment.d13_rad = -3e-5;
+    t.st_mount_q = [0.5f64.sqrt(), 0.0, 0.5f64.sqrt(), 0.0];
+    t.observer.gains_override = Some(ObserverGains::critically_damped(60.0, 0.25));
+    t
+}
+
+#[test]
+fn binary_round_trip() {
+    let t = sample_table();
+    let b = encode(&t);
+    assert_eq!(b.len(), TABLE_LEN);
+    assert_eq!(decode(&b), Ok(t));
+    assert_eq!(decode(&encode(&CalibrationTable::DEFAULT)), Ok(CalibrationTable::DEFAULT));
+}
+
+#[test]
+fn toml_round_trip() {
+    let t = sample_table();
+    let text = table::to_toml(&t).expect("toml");
+    assert!(text.starts_with("format = \"ssis-calibration-table/1\""), "{text}");
+    assert_eq!(table::parse_toml(&text, "mem").expect("parse"), t);
+}
+
+#[test]
+fn every_single_and_double_bit_flip_is_refused() {
+    let b = encode(&sample_table());
+    let bits = TABLE_LEN * 8;
+    for i in 0..bits {
+        let mut c = b;
+        c[i / 8] ^= 1 << (i % 8);
+        assert!(decode(&c).is_err(), "single flip {i} accepted");
+    }
+    // All double flips within the first 96 bytes and a stride over the rest (the CRC-32
+    // detects every 2-bit error at this length; the stride keeps the test fast).
+    for i in (0..bits).step_by(7) {
+        for j in (i + 1..bits).step_by(13) {
+            let mut c = b;
+            c[i / 8] ^= 1 << (i % 8);
+            c[j / 8] ^= 1 << (j % 8);
+            assert!(decode(&c).is_err(), "double flip {i},{j} accepted");
+        }
+    }
+}
+
+#[test]
+fn every_truncation_is_refused() {
+    let b = encode(&sample_table());
+    for n in 0..TABLE_LEN {
+        assert_eq!(decode(&b[..n]), Err(TableError::Truncated), "truncation to {n}");
+    }
+}
+
+#[test]
+fn invalid_values_refused_even_with_good_crc() {
+    let mut t = sample_table();
+    t.fog[1].bias_rad_s = f64::NAN;
+    let mut buf = [0u8; TABLE_LEN];
+    // encode_into does not validate (a lab may want to see a bad table), decode does.
+    ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
+    assert_eq!(decode(&buf), Err(TableError::NotFinite));
+    let mut t = sample_table();
+    t.misalignment.d21_rad = 0.2;
+    ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
+    assert_eq!(decode(&buf), Err(TableError::OutOfRange));
+}
+
+#[test]
+fn toml_errors_name_line_and_field() {
+    let text = table::to_toml(&sample_table()).expect("toml");
+    let broken = text.replacen("revision = 42", "revision = \"forty-two\"", 1);
+    let e = table::parse_toml(&broken, "cal.toml").expect_err("refused").to_string();
+    assert!(e.contains("cal.toml") && e.contains("line") && e.contains("revision"), "{e}");
+    let unknown = text.replacen("revision = 42", "revision = 42\nrevison_typo = 1", 1);
+    let e = table::parse_toml(&unknown, "cal.toml").expect_err("refused").to_string();
+    assert!(e.contains("revison_typo"), "{e}");
+    let wrong_format = text.replacen("ssis-calibration-table/1", "ssis-calibration-table/9", 1);
+    let e = table::parse_toml(&wrong_format, "cal.toml").expect_err("refused").to_string();
+    assert!(e.contains("format"), "{e}");
+}
+
+#[test]
+fn a_refused_table_never_overwrites_good_data() {
+    let dir = std::env::temp_dir().join(format!("ssis-table-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let path = dir.join("cal.bin");
+    table::write_binary(&path, &sample_table()).expect("write");
+    let good = std::fs::read(&path).expect("read");
+    let mut bad = sample_table();
+    bad.fog[0].scale_factor_error = f64::INFINITY;
+    assert!(table::write_binary(&path, &bad).is_err());
+    assert_eq!(std::fs::read(&path).expect("read"), good);
+    assert_eq!(table::read_binary(&path).expect("decode"), sample_table());
+    std::fs::remove_dir_all(&dir).ok();
+}
+
+proptest! {
+    #[test]
+    fn random_bytes_never_decode_as_a_table(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {
+        // Random data essentially never carries the magic and a matching CRC.
+        if let Ok(t) = decode(&bytes) {
+            prop_assert!(t.validate().is_ok());
+        }
+    }
+}

@@ -1,0 +1,211 @@
+//! Binary form of the calibration table: what the firmware stores and loads.
+//!
+//! Little-endian, [`TABLE_LEN`] bytes:
+//!
+//! | offset | size | field |
+//! |---|---|---|
+//! | 0 | 4 | magic `SSCT` |
+//! | 4 | 2 | format version (u16) = [`FORMAT_VERSION`] |
+//! | 6 | 2 | payload length (u16) = [`PAYLOAD_LEN`] |
+//! | 8 | 4 | table revision (u32) |
+//! | 12 | 448 | 56 × f64, in the order of [`fields`] |
+//! | 460 | 1 | flags: bit0 observer gains override present; other bits 0 |
+//! | 461 | 3 | zero |
+//! | 464 | 4 | CRC-32/ISO-HDLC over bytes 0..464 (u32) |
+//!
+//! Decoding checks, in order: length, magic, version, declared length, CRC, then
+//! [`CalibrationTable::validate`]. A table that fails any check is refused whole.
+
+use super::{CalibrationTable, FogCal, Misalignment, ObserverConfig, ObserverGains, TableError, N_FOG};
+
+/// Magic bytes at the start of a stored table.
+pub const MAGIC: [u8; 4] = *b"SSCT";
+/// Format version written and read by this code.
+pub const FORMAT_VERSION: u16 = 1;
+/// Number of f64 fields.
+pub const N_F64: usize = 56;
+/// Bytes after the 8-byte header up to the CRC.
+pub const PAYLOAD_LEN: usize = 4 + 8 * N_F64 + 4;
+/// Total length of the binary table.
+pub const TABLE_LEN: usize = 8 + PAYLOAD_LEN + 4;
+/// CRC used for the table (CRC-32/ISO-HDLC, the zlib/Ethernet CRC).
+pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// The f64 fields of `t` in storage order: per FOG (bias, scale, T_ref, a1, a2, a3, g, h),
+/// then δ12 δ13 δ21 δ23 δ31 δ32 δ42 δ43, γ, the mount quaternion (w x y z), the G-filter
+/// time constant, ARW, RRW, star-tracker σ, star-tracker period, K_B (3), K_U (3).
+pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
+    let mut out = [0.0; N_F64];
+    let gains = t.observer.gains_override.unwrap_or(ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] });
+    let m = &t.misalignment;
+    let o = &t.observer;
+    let tail = [
+        m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad,
+        t.gamma_rad,
+    ];
+    let fogs = t.fog.iter().flat_map(|f| {
+        let [a1, a2, a3] = f.thermal_t_rad_s;
+        [
+            f.bias_rad_s,
+            f.scale_factor_error,
+            f.t_ref_degc,
+            a1,
+            a2,
+            a3,
+            f.thermal_g_rad_s_per_degc_s,
+            f.thermal_tg_rad_s_per_degc2_s,
+        ]
+    });
+    let rest = [t.t_rate_filter_s, o.arw_deg_sqrt_h, o.rrw_deg_h_sqrt_h, o.st_sigma_arcsec, o.st_period_s];
+    let all = fogs
+        .chain(tail)
+        .chain(t.st_mount_q)
+        .chain(rest)
+        .chain(gains.k_b)
+        .chain(gains.k_u_per_s);
+    for (slot, v) in out.iter_mut().zip(all) {
+        *slot = v;
+    }
+    out
+}
+
+/// Writes the binary table into `out`; returns the number of bytes written.
+pub fn encode_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableError> {
+    let buf = out.get_mut(..TABLE_LEN).ok_or(TableError::BufferTooSmall)?;
+    buf.fill(0);
+    let mut w = Cursor { buf, pos: 0 };
+    w.put(&MAGIC)?;
+    w.put(&FORMAT_VERSION.to_le_bytes())?;
+    w.put(&(PAYLOAD_LEN as u16).to_le_bytes())?;
+    w.put(&t.revision.to_le_bytes())?;
+    for v in fields(t) {
+        w.put(&v.to_le_bytes())?;
+    }
+    let flags: u8 = u8::from(t.observer.gains_override.is_some());
+    w.put(&[flags, 0, 0, 0])?;
+    let pos = w.pos;
+    let crc = CRC32.checksum(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
+    w.put(&crc.to_le_bytes())?;
+    Ok(w.pos)
+}
+
+/// Encodes into a fixed array.
+pub fn encode(t: &CalibrationTable) -> [u8; TABLE_LEN] {
+    let mut out = [0u8; TABLE_LEN];
+    // The array has exactly TABLE_LEN bytes, so encoding cannot fail; keep the zeroed
+    // (and therefore CRC-invalid) buffer if it ever did.
+    let _ = encode_into(t, &mut out);
+    out
+}
+
+/// Decodes and validates a binary table.
+pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
+    let buf = bytes.get(..TABLE_LEN).ok_or(TableError::Truncated)?;
+    let mut r = Reader { buf, pos: 0 };
+    if r.take::<4>()? != MAGIC {
+        return Err(TableError::BadMagic);
+    }
+    if u16::from_le_bytes(r.take::<2>()?) != FORMAT_VERSION {
+        return Err(TableError::UnsupportedVersion);
+    }
+    if usize::from(u16::from_le_bytes(r.take::<2>()?)) != PAYLOAD_LEN {
+        return Err(TableError::BadLength);
+    }
+    let body = buf.get(..TABLE_LEN - 4).ok_or(TableError::Truncated)?;
+    let stored = u32::from_le_bytes(
+        buf.get(TABLE_LEN - 4..)
+            .and_then(|s| s.try_into().ok())
+            .ok_or(TableError::Truncated)?,
+    );
+    if CRC32.checksum(body) != stored {
+        return Err(TableError::BadCrc);
+    }
+    let revision = u32::from_le_bytes(r.take::<4>()?);
+    let mut v = [0.0f64; N_F64];
+    for slot in v.iter_mut() {
+        *slot = f64::from_le_bytes(r.take::<8>()?);
+    }
+    let [flags, p0, p1, p2] = r.take::<4>()?;
+    if flags & !1 != 0 || p0 != 0 || p1 != 0 || p2 != 0 {
+        return Err(TableError::OutOfRange);
+    }
+    let t = from_fields(revision, &v, flags & 1 == 1);
+    t.validate()?;
+    Ok(t)
+}
+
+fn from_fields(revision: u32, v: &[f64; N_F64], gains_present: bool) -> CalibrationTable {
+    let mut it = v.iter().copied();
+    let mut next = || it.next().unwrap_or(f64::NAN);
+    let mut fog = [FogCal::IDEAL; N_FOG];
+    for f in fog.iter_mut() {
+        *f = FogCal {
+            bias_rad_s: next(),
+            scale_factor_error: next(),
+            t_ref_degc: next(),
+            thermal_t_rad_s: [next(), next(), next()],
+            thermal_g_rad_s_per_degc_s: next(),
+            thermal_tg_rad_s_per_degc2_s: next(),
+        };
+    }
+    let misalignment = Misalignment {
+        d12_rad: next(),
+        d13_rad: next(),
+        d21_rad: next(),
+        d23_rad: next(),
+        d31_rad: next(),
+        d32_rad: next(),
+        d42_rad: next(),
+        d43_rad: next(),
+    };
+    let gamma_rad = next();
+    let st_mount_q = [next(), next(), next(), next()];
+    let t_rate_filter_s = next();
+    let (arw, rrw, sig, per) = (next(), next(), next(), next());
+    let gains = ObserverGains { k_b: [next(), next(), next()], k_u_per_s: [next(), next(), next()] };
+    CalibrationTable {
+        revision,
+        fog,
+        misalignment,
+        gamma_rad,
+        st_mount_q,
+        t_rate_filter_s,
+        observer: ObserverConfig {
+            arw_deg_sqrt_h: arw,
+            rrw_deg_h_sqrt_h: rrw,
+            st_sigma_arcsec: sig,
+            st_period_s: per,
+            gains_override: if gains_present { Some(gains) } else { None },
+        },
+    }
+}
+
+struct Cursor<'a> {
+    buf: &'a mut [u8],
+    pos: usize,
+}
+
+impl Cursor<'_> {
+    fn put(&mut self, bytes: &[u8]) -> Result<(), TableError> {
+        let end = self.pos + bytes.len();
+        self.buf
+            .get_mut(self.pos..end)
+            .ok_or(TableError::BufferTooSmall)?
+            .copy_from_slice(bytes);
+        self.pos = end;
+        Ok(())
+    }
+}
+
+struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl Reader<'_> {
+    fn take<const N: usize>(&mut self) -> Result<[u8; N], TableError> {
+        let s = self.buf.get(self.pos..self.pos + N).ok_or(TableError::Truncated)?;
+        self.pos += N;
+        s.try_into().map_err(|_| TableError::Truncated)
+    }
+}

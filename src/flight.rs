@@ -1,0 +1,533 @@
+//! The fixed-rate flight step: read what arrived on every link, compensate, combine,
+//! integrate, observe, emit one output frame.
+//!
+//! [`FlightCore::step`] is what the timer tick calls (firmware) and what the host harness
+//! calls in replay; it is the same code. It never waits on a link, never allocates, never
+//! panics; every byte, frame or sample it could not use is counted and flagged in the
+//! output frame (see `docs/ICD.md` for the health and status bits).
+//!
+//! Two profiles ([`Profile`]): the spacecraft unit (four FOGs + star tracker, 5 ms,
+//! ±10 °/s) and the launch-vehicle unit (three FOGs, 1.25 ms, ±100 °/s).
+//!
+//! Timing convention: step n (n = 1, 2, …) integrates the FOG samples of the interval
+//! ((n−1)Δt, nΔt] of unit time; its output frame carries the time tag nΔt and Λ(nΔt).
+
+use heapless::Deque;
+use nalgebra::{Quaternion, Vector3, Vector4};
+
+use crate::attitude::{Attitude, Coning};
+use crate::calib::{CalibrationTable, N_FOG};
+use crate::combination::{Combiner, FogSet};
+use crate::compensation::{compensate_increment, TempRateEstimator};
+use crate::frames::decoder::StreamDecoder;
+use crate::frames::fog::FogFrame;
+use crate::frames::output::OutputFrame;
+use crate::frames::star::StarFrame;
+use crate::link::{drain, RxLink, TxLink};
+use crate::observer::{GainError, Observer, UpdateError};
+
+/// Steps of attitude history for star-tracker latency (64 × 5 ms = 320 ms).
+pub const HISTORY: usize = 64;
+/// Receive bytes read per link per step at most (four FOG frames' worth).
+pub const MAX_RX_BYTES_PER_STEP: usize = 128;
+/// Star-tracker silence after which the output flags an outage, µs.
+pub const ST_OUTAGE_US: u64 = 2_000_000;
+
+/// Operating profile of the unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Profile {
+    /// Step period, µs.
+    pub dt_us: u32,
+    /// FOGs fitted.
+    pub fogs: FogSet,
+    /// Measuring range, rad/s; a FOG reporting more is out of range for that step.
+    pub rate_limit_rad_s: f64,
+    /// Whether a star tracker is fitted.
+    pub star_tracker: bool,
+}
+
+impl Profile {
+    /// Spacecraft unit (SSIS): four FOGs, star tracker, 5 ms, ±10 °/s.
+    pub const SPACECRAFT: Profile = Profile {
+        dt_us: 5_000,
+        fogs: FogSet::ALL,
+        rate_limit_rad_s: 10.0 * core::f64::consts::PI / 180.0,
+        star_tracker: true,
+    };
+    /// Launch-vehicle unit (SIS): three FOGs, 1.25 ms, ±100 °/s.
+    pub const LAUNCH_VEHICLE: Profile = Profile {
+        dt_us: 1_250,
+        fogs: FogSet::TRIAD,
+        rate_limit_rad_s: 100.0 * core::f64::consts::PI / 180.0,
+        star_tracker: false,
+    };
+
+    /// Step period, s.
+    pub fn dt_s(&self) -> f64 {
+        f64::from(self.dt_us) * 1e-6
+    }
+}
+
+/// The links of one unit: a receive link per FOG slot, the star tracker, the output.
+/// Slots the profile does not fit are never read.
+pub struct Links<F, S, O> {
+    /// FOG1..FOG4.
+    pub fog: [F; N_FOG],
+    /// Star tracker.
+    pub star: S,
+    /// Framed output.
+    pub out: O,
+}
+
+/// Per-FOG health bits (output frame).
+pub mod health {
+    /// The FOG's sample was used in this step's combination.
+    pub const USED: u8 = 1 << 0;
+    /// No sample arrived for this step.
+    pub const MISSING: u8 = 1 << 1;
+    /// A frame from this FOG was rejected (CRC, format, id) since the last step.
+    pub const REJECTED: u8 = 1 << 2;
+    /// The FOG's own status reports a fault (light source, loop lock, temperature sensor).
+    pub const DEVICE_FAULT: u8 = 1 << 3;
+    /// The sample counter skipped (samples lost on the link).
+    pub const COUNTER_GAP: u8 = 1 << 4;
+    /// Rate outside the measuring range.
+    pub const OUT_OF_RANGE: u8 = 1 << 5;
+    /// Excluded by configuration or by the fault logic.
+    pub const EXCLUDED: u8 = 1 << 6;
+}
+
+/// Star-tracker status bits (output frame).
+pub mod st_status {
+    /// A frame arrived in this step.
+    pub const FRAME: u8 = 1 << 0;
+    /// An observer update was applied in this step.
+    pub const UPDATED: u8 = 1 << 1;
+    /// The attitude has been aligned by the star tracker.
+    pub const ALIGNED: u8 = 1 << 2;
+    /// A frame was refused in this step (invalid, stale, future, gated, bad).
+    pub const REFUSED: u8 = 1 << 3;
+    /// No accepted frame for more than 2 s: attitude propagates on gyros alone.
+    pub const OUTAGE: u8 = 1 << 4;
+}
+
+/// Output-frame flag bits (defined with the frame, `docs/ICD.md`).
+pub use crate::frames::output::flags;
+
+/// Counters carried in the output frame (saturating).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Counters {
+    /// FOG frames rejected by the decoders (all FOGs).
+    pub fog_frames_rejected: u32,
+    /// FOG samples that did not arrive in time (all FOGs).
+    pub fog_samples_missing: u32,
+    /// Star-tracker frames that updated the observer.
+    pub st_frames_accepted: u32,
+    /// Star-tracker frames rejected (decoder, invalid flag, stale, future).
+    pub st_frames_rejected: u32,
+    /// Star-tracker frames refused by the observer's gate.
+    pub st_updates_gated: u32,
+    /// Steps that overran their deadline (reported by the board).
+    pub overruns: u32,
+    /// Output frames that could not be written.
+    pub output_dropped: u32,
+    /// Link driver errors.
+    pub io_errors: u32,
+}
+
+/// Everything one step produced, in physical units (the output frame is its encoding).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StepOutput {
+    /// Unit time at the end of the integrated interval, µs.
+    pub time_us: u64,
+    /// Λ: ICS in 2ECS.
+    pub q: Quaternion<f64>,
+    /// Angular rate of the ICS, drift removed, rad/s.
+    pub rate_rad_s: Vector3<f64>,
+    /// Drift estimate Δω, rad/s.
+    pub drift_rad_s: Vector3<f64>,
+    /// Parity residual of the four compensated increments, rad (0 without four FOGs).
+    pub parity_rad: f64,
+    /// Per-FOG health bits ([`health`]).
+    pub fog_health: [u8; N_FOG],
+    /// Star-tracker status bits ([`st_status`]).
+    pub st_status: u8,
+    /// Flag bits ([`flags`]).
+    pub flags: u8,
+    /// FOGs combined this step.
+    pub fogs_used: FogSet,
+}
+
+/// Why the core could not be built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum CoreError {
+    /// The observer gains could not be computed from the table's figures.
+    Gains(GainError),
+    /// The fitted FOGs do not span 3-D space with this table's geometry.
+    Geometry,
+}
+
+impl From<GainError> for CoreError {
+    fn from(e: GainError) -> Self {
+        CoreError::Gains(e)
+    }
+}
+
+struct FogChannel {
+    decoder: StreamDecoder<FogFrame, 64>,
+    queue: Deque<FogFrame, 4>,
+    last_counter: Option<u16>,
+    temp: TempRateEstimator,
+    rejected_seen: u32,
+}
+
+/// The flight core: all state of one unit.
+pub struct FlightCore {
+    profile: Profile,
+    table: CalibrationTable,
+    table_defaulted: bool,
+    combiner: Combiner,
+    mount: Quaternion<f64>,
+    attitude: Attitude,
+    observer: Observer<HISTORY>,
+    fog: [FogChannel; N_FOG],
+    st_decoder: StreamDecoder<StarFrame, 96>,
+    st_rejected_seen: u32,
+    last_st_update_us: Option<u64>,
+    last_body_dtheta: Vector3<f64>,
+    counters: Counters,
+    step_index: u64,
+    out_counter: u16,
+    step_ticks: u16,
+    output_dropped_last: bool,
+    last_output: StepOutput,
+}
+
+impl FlightCore {
+    /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
+    /// was invalid and `table` is the default; flagged in every output frame).
+    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
+        let combiner = Combiner::new(&table.axes());
+        if combiner.solution(profile.fogs).is_err() {
+            return Err(CoreError::Geometry);
+        }
+        let observer = Observer::from_config(&table.observer)?;
+        let dt = profile.dt_s();
+        let channel = |_: usize| FogChannel {
+            decoder: StreamDecoder::new(),
+            queue: Deque::new(),
+            last_counter: None,
+            temp: TempRateEstimator::new(dt, table.t_rate_filter_s),
+            rejected_seen: 0,
+        };
+        Ok(FlightCore {
+            profile,
+            table: *table,
+            table_defaulted,
+            combiner,
+            mount: table.st_mount(),
+            attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
+            observer,
+            fog: [channel(0), channel(1), channel(2), channel(3)],
+            st_decoder: StreamDecoder::new(),
+            st_rejected_seen: 0,
+            last_st_update_us: None,
+            last_body_dtheta: Vector3::zeros(),
+            counters: Counters::default(),
+            step_index: 0,
+            out_counter: 0,
+            step_ticks: 0,
+            output_dropped_last: false,
+            last_output: StepOutput {
+                time_us: 0,
+                q: Quaternion::identity(),
+                rate_rad_s: Vector3::zeros(),
+                drift_rad_s: Vector3::zeros(),
+                parity_rad: 0.0,
+                fog_health: [0; N_FOG],
+                st_status: 0,
+                flags: 0,
+                fogs_used: FogSet(0),
+            },
+        })
+    }
+
+    /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
+    pub fn align(&mut self, q: Quaternion<f64>) {
+        self.attitude.set_quaternion(q);
+        self.observer.set_aligned();
+    }
+
+    /// The profile in use.
+    pub fn profile(&self) -> &Profile {
+        &self.profile
+    }
+
+    /// The calibration table in use.
+    pub fn table(&self) -> &CalibrationTable {
+        &self.table
+    }
+
+    /// Counters so far.
+    pub fn counters(&self) -> Counters {
+        self.counters
+    }
+
+    /// The observer (gains, statistics).
+    pub fn observer(&self) -> &Observer<HISTORY> {
+        &self.observer
+    }
+
+    /// The combiner (geometry, parity vector).
+    pub fn combiner(&self) -> &Combiner {
+        &self.combiner
+    }
+
+    /// Output of the last step.
+    pub fn last_output(&self) -> &StepOutput {
+        &self.last_output
+    }
+
+    /// Board: the previous step overran its deadline.
+    pub fn note_overrun(&mut self) {
+        self.counters.overruns = self.counters.overruns.saturating_add(1);
+    }
+
+    /// Board: how long the previous step took, in board ticks (goes into the frame).
+    pub fn set_step_ticks(&mut self, ticks: u16) {
+        self.step_ticks = ticks;
+    }
+
+    /// One fixed step. Reads every link, integrates, observes, writes one output frame.
+    pub fn step<F: RxLink, S: RxLink, O: TxLink>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
+        self.step_index = self.step_index.saturating_add(1);
+        let dt_s = self.profile.dt_s();
+        let now_us = self.step_index.saturating_mul(u64::from(self.profile.dt_us));
+
+        let (m, used, fog_health) = self.read_fogs(links, dt_s);
+        let mut degraded = used != self.profile.fogs;
+        let body = match self.combiner.combine(&m, used) {
+            Ok(v) => v,
+            Err(_) => {
+                // No usable gyro set this step: hold the last body increment.
+                degraded = true;
+                self.last_body_dtheta
+            }
+        };
+        self.last_body_dtheta = body;
+        let parity_rad = if used == FogSet::ALL { self.combiner.parity(&m) } else { 0.0 };
+
+        let drift = self.observer.drift_rad_s();
+        let corrected = body - drift * dt_s;
+        let _ = self.attitude.step(&corrected);
+        self.observer.record(now_us, self.attitude.quaternion());
+
+        let st = if self.profile.star_tracker { self.read_star(links, now_us) } else { 0 };
+
+        let mut fl = 0u8;
+        if self.profile.star_tracker {
+            fl |= flags::ST_IN_USE;
+        }
+        if degraded {
+            fl |= flags::DEGRADED;
+        }
+        if self.observer.converged() {
+            fl |= flags::CONVERGED;
+        }
+        if self.table_defaulted {
+            fl |= flags::TABLE_DEFAULTED;
+        }
+        if self.output_dropped_last {
+            fl |= flags::OUTPUT_DROPPED;
+        }
+        let out = StepOutput {
+            time_us: now_us,
+            q: self.attitude.quaternion(),
+            rate_rad_s: corrected / dt_s,
+            drift_rad_s: self.observer.drift_rad_s(),
+            parity_rad,
+            fog_health,
+            st_status: st,
+            flags: fl,
+            fogs_used: used,
+        };
+        self.last_output = out;
+        self.emit(&mut links.out, &out);
+        out
+    }
+
+    /// Drains every fitted FOG link and takes one sample per FOG.
+    fn read_fogs<F: RxLink, S, O>(&mut self, links: &mut Links<F, S, O>, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
+        let mut m = Vector4::zeros();
+        let mut used = FogSet(0);
+        let mut fog_health = [0u8; N_FOG];
+        let fitted = self.profile.fogs;
+        let limit = self.profile.rate_limit_rad_s;
+        for (i, ((ch, link), (mi, h))) in self
+            .fog
+            .iter_mut()
+            .zip(links.fog.iter_mut())
+            .zip(m.iter_mut().zip(fog_health.iter_mut()))
+            .enumerate()
+        {
+            if !fitted.contains(i) {
+                *h = health::EXCLUDED;
+                continue;
+            }
+            let queue = &mut ch.queue;
+            let decoder = &mut ch.decoder;
+            let mut wrong_id = false;
+            let rep = drain(link, MAX_RX_BYTES_PER_STEP, |bytes| {
+                decoder.push_slice(bytes, |r| {
+                    if let Ok(f) = r {
+                        if usize::from(f.fog_id) != i {
+                            wrong_id = true;
+                        } else if queue.is_full() {
+                            // Late backlog: keep the newest samples.
+                            let _ = queue.pop_front();
+                            let _ = queue.push_back(f);
+                        } else {
+                            let _ = queue.push_back(f);
+                        }
+                    }
+                });
+            });
+            self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
+            let s = ch.decoder.stats();
+            let rejected = s
+                .crc_errors
+                .saturating_add(s.kind_errors)
+                .saturating_add(s.field_errors)
+                .saturating_add(u32::from(wrong_id));
+            let new_rej = rejected.saturating_sub(ch.rejected_seen);
+            ch.rejected_seen = rejected;
+            if new_rej > 0 || wrong_id {
+                *h |= health::REJECTED;
+                self.counters.fog_frames_rejected = self.counters.fog_frames_rejected.saturating_add(new_rej.max(1));
+            }
+            let Some(frame) = ch.queue.pop_front() else {
+                *h |= health::MISSING;
+                self.counters.fog_samples_missing = self.counters.fog_samples_missing.saturating_add(1);
+                continue;
+            };
+            if let Some(last) = ch.last_counter {
+                let gap = frame.counter.wrapping_sub(last);
+                if gap != 1 {
+                    *h |= health::COUNTER_GAP;
+                }
+            }
+            ch.last_counter = Some(frame.counter);
+            let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
+            if frame.status & 0b0111 != 0 {
+                *h |= health::DEVICE_FAULT;
+                continue;
+            }
+            let Some(cal) = self.table.fog.get(i) else { continue };
+            let dtheta = compensate_increment(cal, frame.dtheta_rad(), dt_s, t_degc, g_degc_s);
+            if !dtheta.is_finite() || (dtheta / dt_s).abs() > limit {
+                *h |= health::OUT_OF_RANGE;
+                continue;
+            }
+            *mi = dtheta;
+            *h |= health::USED;
+            used = FogSet(used.0 | (1 << i));
+        }
+        (m, used, fog_health)
+    }
+
+    /// Drains the star-tracker link and applies every valid frame to the observer.
+    fn read_star<F, S: RxLink, O>(&mut self, links: &mut Links<F, S, O>, now_us: u64) -> u8 {
+        let mut status = 0u8;
+        let mut frames: Deque<StarFrame, 4> = Deque::new();
+        let decoder = &mut self.st_decoder;
+        let rep = drain(&mut links.star, MAX_RX_BYTES_PER_STEP, |bytes| {
+            decoder.push_slice(bytes, |r| {
+                if let Ok(f) = r {
+                    if frames.is_full() {
+                        let _ = frames.pop_front();
+                    }
+                    let _ = frames.push_back(f);
+                }
+            });
+        });
+        self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
+        let s = self.st_decoder.stats();
+        let rejected = s.crc_errors.saturating_add(s.kind_errors).saturating_add(s.field_errors);
+        let new_rej = rejected.saturating_sub(self.st_rejected_seen);
+        self.st_rejected_seen = rejected;
+        if new_rej > 0 {
+            status |= st_status::REFUSED;
+            self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(new_rej);
+        }
+        for f in frames.iter() {
+            status |= st_status::FRAME;
+            if !f.valid() {
+                status |= st_status::REFUSED;
+                self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+                continue;
+            }
+            let [w, x, y, z] = f.quaternion();
+            let q = Quaternion::new(w, x, y, z);
+            match self.observer.update(&mut self.attitude, now_us, f.time_us, &q, &self.mount) {
+                Ok(_) => {
+                    status |= st_status::UPDATED;
+                    self.last_st_update_us = Some(now_us);
+                    self.counters.st_frames_accepted = self.counters.st_frames_accepted.saturating_add(1);
+                }
+                Err(UpdateError::Gated) => {
+                    status |= st_status::REFUSED;
+                    self.counters.st_updates_gated = self.counters.st_updates_gated.saturating_add(1);
+                }
+                Err(_) => {
+                    status |= st_status::REFUSED;
+                    self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+                }
+            }
+        }
+        if self.observer.aligned() {
+            status |= st_status::ALIGNED;
+        }
+        let silent = match self.last_st_update_us {
+            Some(t) => now_us.saturating_sub(t) > ST_OUTAGE_US,
+            None => true,
+        };
+        if silent {
+            status |= st_status::OUTAGE;
+        }
+        status
+    }
+
+    /// Encodes and writes the output frame; a link that cannot take it is counted.
+    fn emit<O: TxLink>(&mut self, out: &mut O, o: &StepOutput) {
+        let c = &self.counters;
+        let sat = |v: u32| u16::try_from(v).unwrap_or(u16::MAX);
+        let frame = OutputFrame::from_physical(
+            o.flags,
+            self.out_counter,
+            o.time_us,
+            [o.q.w, o.q.i, o.q.j, o.q.k],
+            [o.rate_rad_s.x, o.rate_rad_s.y, o.rate_rad_s.z],
+            [o.drift_rad_s.x, o.drift_rad_s.y, o.drift_rad_s.z],
+            o.parity_rad,
+            o.fog_health,
+            o.st_status,
+            [
+                sat(c.fog_frames_rejected),
+                sat(c.fog_samples_missing),
+                sat(c.st_frames_accepted),
+                sat(c.st_frames_rejected),
+                sat(c.st_updates_gated),
+                sat(c.overruns),
+                self.step_ticks,
+            ],
+        );
+        self.out_counter = self.out_counter.wrapping_add(1);
+        let bytes = frame.to_bytes();
+        let ok = matches!(out.write_ready(), Ok(true)) && out.write_all(&bytes).is_ok();
+        self.output_dropped_last = !ok;
+        if !ok {
+            self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
+        }
+    }
+}

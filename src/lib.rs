@@ -1,0 +1,40 @@
+//! # ssis — flight core of a strapdown stellar-inertial attitude unit
+//!
+//! After Zlatkin et al., *The development of a high-precision strapdown inertial system
+//! based on medium-accuracy fiber-optic gyroscopes* (Hartron-Arkos). `no_std`, no heap,
+//! no panics: every fallible path returns a typed error and is counted.
+//!
+//! The modules follow the data through one fixed step ([`flight::FlightCore::step`]):
+//!
+//! | stage | module | in → out |
+//! |---|---|---|
+//! | frames in | [`link`], [`frames`] | RS-422 bytes → [`frames::fog::FogFrame`], [`frames::star::StarFrame`] |
+//! | compensation | [`compensation`] | raw angle increment, T, G → compensated increment per FOG |
+//! | combination | [`combination`] | 4 (or any 3) skewed axes → body increment + parity residual |
+//! | attitude | [`attitude`] | body increment → quaternion Λ (2ECS ← ICS), coning-corrected |
+//! | observer | [`observer`] | star-tracker Λ* → corrected Λ, drift estimate Δω (eq. 6) |
+//! | frames out | [`frames::output`] | state → framed output |
+//!
+//! The calibration table ([`calib`]) parameterises compensation, combination and the
+//! observer; it is the one definition shared with the simulator and the model lab.
+//! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
+#![no_std]
+#![cfg_attr(
+    not(test),
+    deny(
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::indexing_slicing,
+        clippy::panic
+    )
+)]
+
+pub mod attitude;
+pub mod calib;
+pub mod combination;
+pub mod compensation;
+pub mod flight;
+pub mod frames;
+pub mod link;
+pub mod math;
+pub mod observer;

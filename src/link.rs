@@ -1,0 +1,228 @@
+//! RS-422 links: one non-blocking byte stream per device, on the `embedded-io` traits.
+//!
+//! A receive link is anything that implements [`embedded_io::Read`] +
+//! [`embedded_io::ReadReady`]; the flight step only reads while `read_ready()` says bytes
+//! have arrived, so it never waits. A transmit link is [`embedded_io::Write`] +
+//! [`embedded_io::WriteReady`]. The firmware's UART drivers and the host's mock links
+//! implement these traits; nothing here is specific to a board.
+//!
+//! [`RxRing`] / [`TxRing`] are the interrupt-to-loop buffers: an ISR pushes (or pops)
+//! bytes inside a `critical-section`, the step reads (or writes) through a handle.
+
+use core::cell::RefCell;
+use core::convert::Infallible;
+
+use critical_section::Mutex;
+use heapless::Deque;
+
+/// A receive link: non-blocking byte source.
+pub trait RxLink: embedded_io::Read + embedded_io::ReadReady {}
+impl<T: embedded_io::Read + embedded_io::ReadReady> RxLink for T {}
+
+/// A transmit link: non-blocking byte sink.
+pub trait TxLink: embedded_io::Write + embedded_io::WriteReady {}
+impl<T: embedded_io::Write + embedded_io::WriteReady> TxLink for T {}
+
+/// What one drain of a receive link did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct DrainReport {
+    /// Bytes read.
+    pub bytes: usize,
+    /// Driver errors (each ends the drain for this step).
+    pub io_errors: u32,
+}
+
+/// Reads at most `max_bytes` that have already arrived on `link`, handing each chunk to
+/// `sink`. Never waits: stops when `read_ready()` is false, on an error, or at the bound.
+pub fn drain<L: RxLink>(link: &mut L, max_bytes: usize, mut sink: impl FnMut(&[u8])) -> DrainReport {
+    let mut report = DrainReport::default();
+    let mut buf = [0u8; 32];
+    // Bounded: each pass reads at least one byte or stops.
+    while report.bytes < max_bytes {
+        match link.read_ready() {
+            Ok(true) => {}
+            Ok(false) => break,
+            Err(_) => {
+                report.io_errors = report.io_errors.saturating_add(1);
+                break;
+            }
+        }
+        let want = (max_bytes - report.bytes).min(buf.len());
+        let Some(chunk) = buf.get_mut(..want) else { break };
+        match link.read(chunk) {
+            Ok(0) => break,
+            Ok(n) => {
+                if let Some(got) = chunk.get(..n) {
+                    sink(got);
+                }
+                report.bytes += n;
+            }
+            Err(_) => {
+                report.io_errors = report.io_errors.saturating_add(1);
+                break;
+            }
+        }
+    }
+    report
+}
+
+/// Receive buffer shared between a UART interrupt (producer) and the step (consumer).
+pub struct RxRing<const N: usize> {
+    inner: Mutex<RefCell<RingState<N>>>,
+}
+
+struct RingState<const N: usize> {
+    bytes: Deque<u8, N>,
+    overflows: u32,
+}
+
+impl<const N: usize> RxRing<N> {
+    /// An empty ring (usable in a `static`).
+    pub const fn new() -> Self {
+        RxRing { inner: Mutex::new(RefCell::new(RingState { bytes: Deque::new(), overflows: 0 })) }
+    }
+
+    /// Called from the interrupt: stores one received byte; a full ring drops it and
+    /// counts an overflow.
+    pub fn push(&self, byte: u8) {
+        critical_section::with(|cs| {
+            let mut s = self.inner.borrow_ref_mut(cs);
+            if s.bytes.push_back(byte).is_err() {
+                s.overflows = s.overflows.saturating_add(1);
+            }
+        });
+    }
+
+    /// Bytes dropped because the ring was full.
+    pub fn overflows(&self) -> u32 {
+        critical_section::with(|cs| self.inner.borrow_ref(cs).overflows)
+    }
+
+    /// The consumer's handle, which implements the receive-link traits.
+    pub fn reader(&self) -> RxRingReader<'_, N> {
+        RxRingReader { ring: self }
+    }
+}
+
+impl<const N: usize> Default for RxRing<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Consumer handle of an [`RxRing`].
+pub struct RxRingReader<'a, const N: usize> {
+    ring: &'a RxRing<N>,
+}
+
+impl<const N: usize> embedded_io::ErrorType for RxRingReader<'_, N> {
+    type Error = Infallible;
+}
+
+impl<const N: usize> embedded_io::ReadReady for RxRingReader<'_, N> {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(critical_section::with(|cs| !self.ring.inner.borrow_ref(cs).bytes.is_empty()))
+    }
+}
+
+impl<const N: usize> embedded_io::Read for RxRingReader<'_, N> {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
+        Ok(critical_section::with(|cs| {
+            let mut s = self.ring.inner.borrow_ref_mut(cs);
+            let mut n = 0;
+            for slot in buf.iter_mut() {
+                match s.bytes.pop_front() {
+                    Some(b) => {
+                        *slot = b;
+                        n += 1;
+                    }
+                    None => break,
+                }
+            }
+            n
+        }))
+    }
+}
+
+/// Transmit buffer: the step writes frames, the UART interrupt takes bytes.
+pub struct TxRing<const N: usize> {
+    inner: Mutex<RefCell<Deque<u8, N>>>,
+}
+
+impl<const N: usize> TxRing<N> {
+    /// An empty ring.
+    pub const fn new() -> Self {
+        TxRing { inner: Mutex::new(RefCell::new(Deque::new())) }
+    }
+
+    /// Called from the interrupt: the next byte to send, if any.
+    pub fn pop(&self) -> Option<u8> {
+        critical_section::with(|cs| self.inner.borrow_ref_mut(cs).pop_front())
+    }
+
+    /// Bytes waiting.
+    pub fn len(&self) -> usize {
+        critical_section::with(|cs| self.inner.borrow_ref(cs).len())
+    }
+
+    /// Whether nothing is waiting.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The producer's handle, which implements the transmit-link traits.
+    pub fn writer(&self) -> TxRingWriter<'_, N> {
+        TxRingWriter { ring: self }
+    }
+}
+
+impl<const N: usize> Default for TxRing<N> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Producer handle of a [`TxRing`]. `write` stores what fits and returns the count.
+pub struct TxRingWriter<'a, const N: usize> {
+    ring: &'a TxRing<N>,
+}
+
+impl<const N: usize> TxRingWriter<'_, N> {
+    /// Free space in bytes.
+    pub fn free(&self) -> usize {
+        critical_section::with(|cs| {
+            let d = self.ring.inner.borrow_ref(cs);
+            d.capacity() - d.len()
+        })
+    }
+}
+
+impl<const N: usize> embedded_io::ErrorType for TxRingWriter<'_, N> {
+    type Error = Infallible;
+}
+
+impl<const N: usize> embedded_io::WriteReady for TxRingWriter<'_, N> {
+    fn write_ready(&mut self) -> Result<bool, Infallible> {
+        Ok(self.free() > 0)
+    }
+}
+
+impl<const N: usize> embedded_io::Write for TxRingWriter<'_, N> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+        Ok(critical_section::with(|cs| {
+            let mut d = self.ring.inner.borrow_ref_mut(cs);
+            let mut n = 0;
+            for &b in buf {
+                if d.push_back(b).is_err() {
+                    break;
+                }
+                n += 1;
+            }
+            n
+        }))
+    }
+
+    fn flush(&mut self) -> Result<(), Infallible> {
+        Ok(())
+    }
+}

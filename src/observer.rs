@@ -1,0 +1,295 @@
+//! Observer: the paper's Luenberger observer with extended state, eq. (6),
+//!
+//! ```text
+//! Λ̇  = ½ Λ ∘ (ω* + K_B · vect(ΔΛ) − Δω)
+//! Δω̇ = −K_U · vect(ΔΛ),            ΔΛ = Λ⁻¹ ∘ Λ*
+//! ```
+//!
+//! discretised for star-tracker frames that arrive at their own rate (1–10 Hz) and late.
+//! Between frames Λ is propagated on the gyros with ω* − Δω ([`crate::attitude`]). At a
+//! frame with time tag t_s the observer
+//!
+//! 1. takes Λ(t_s) from its history of propagated attitudes (interpolated between the two
+//!    steps around t_s), so latency does not enter the mismatch;
+//! 2. forms the mismatch rotation vector e = 2 vect(ΔΛ) (exact: [`math::rotvec_from_quat`])
+//!    with Λ* taken back from the star-tracker frame to the ICS through the mount, eq. (5);
+//! 3. corrects Λ(t_s) by the body rotation K_B ⊙ e and the drift by Δω ← Δω − K_U ⊙ e,
+//!    and carries both corrections forward to the present step (and to the history).
+//!
+//! The gains are per update: K_B dimensionless, K_U in 1/s. [`steady_state_gains`] gives
+//! the steady-state Kalman gains of the per-axis model (attitude error, drift) for stated
+//! noise figures (Farrenkopf 1978); a fixed-gain observer with these gains matches the
+//! Kalman filter in steady state (NOTES.md: 4 Hz → K = [0.0224, 1.24e-5 /s]).
+
+use heapless::Deque;
+use nalgebra::{Quaternion, Vector3};
+
+use crate::attitude::Attitude;
+use crate::calib::{ObserverConfig, ObserverGains};
+use crate::math;
+
+const ARCSEC_RAD: f64 = core::f64::consts::PI / 180.0 / 3600.0;
+const DEG_RAD: f64 = core::f64::consts::PI / 180.0;
+
+/// Why gains could not be computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum GainError {
+    /// A noise figure is zero, negative or not finite.
+    BadFigures,
+    /// The Riccati iteration did not settle within its bound.
+    NotConverged,
+}
+
+/// Steady-state Kalman gains of the per-axis model x = (attitude error, drift error):
+/// F = [[1, −T], [0, 1]], Q from ARW σ_v and rate random walk σ_u, R = σ_st².
+/// Bounded iteration of the discrete Riccati equation.
+pub fn steady_state_gains(cfg: &ObserverConfig) -> Result<ObserverGains, GainError> {
+    let t = cfg.st_period_s;
+    let sv = cfg.arw_deg_sqrt_h * DEG_RAD / 60.0; // rad/√s
+    let su = cfg.rrw_deg_h_sqrt_h * DEG_RAD / 3600.0 / 60.0; // rad/s/√s
+    let r = (cfg.st_sigma_arcsec * ARCSEC_RAD) * (cfg.st_sigma_arcsec * ARCSEC_RAD);
+    let ok = |x: f64| x.is_finite() && x > 0.0;
+    if !(ok(t) && ok(sv) && ok(su) && ok(r)) {
+        return Err(GainError::BadFigures);
+    }
+    let q11 = sv * sv * t + su * su * t * t * t / 3.0;
+    let q12 = -su * su * t * t / 2.0;
+    let q22 = su * su * t;
+    // Start from a posterior that is surely larger than the steady state.
+    let (mut p11, mut p12, mut p22) = (r, 0.0, 1e-8);
+    let (mut k1, mut k2) = (0.0f64, 0.0f64);
+    for _ in 0..2_000_000u32 {
+        let m11 = p11 - 2.0 * t * p12 + t * t * p22 + q11;
+        let m12 = p12 - t * p22 + q12;
+        let m22 = p22 + q22;
+        let s = m11 + r;
+        let (n1, n2) = (m11 / s, m12 / s);
+        p11 = (1.0 - n1) * m11;
+        p12 = (1.0 - n1) * m12;
+        p22 = m22 - n2 * m12;
+        let settled = (n1 - k1).abs() <= 1e-13 * n1.abs() && (n2 - k2).abs() <= 1e-13 * n2.abs();
+        k1 = n1;
+        k2 = n2;
+        if settled {
+            return Ok(ObserverGains { k_b: [k1; 3], k_u_per_s: [-k2; 3] });
+        }
+    }
+    Err(GainError::NotConverged)
+}
+
+/// Why a star-tracker frame did not update the observer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum UpdateError {
+    /// Time tag older than the attitude history.
+    Stale,
+    /// Time tag later than the newest propagated attitude.
+    Future,
+    /// Mismatch larger than the gate once converged.
+    Gated,
+    /// Quaternion not finite or not unit.
+    BadQuaternion,
+}
+
+/// Counters of the observer's star-tracker updates.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ObserverStats {
+    /// Updates applied (including the initial alignment).
+    pub updates: u32,
+    /// Frames refused as older than the history.
+    pub stale: u32,
+    /// Frames refused as newer than the present step.
+    pub future: u32,
+    /// Frames refused by the gate.
+    pub gated: u32,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Sample {
+    time_us: u64,
+    q: Quaternion<f64>,
+}
+
+/// The observer of eq. (6). `H` attitudes of history bound the star-tracker latency it
+/// can absorb (H × step: 64 × 5 ms = 320 ms).
+#[derive(Debug, Clone)]
+pub struct Observer<const H: usize> {
+    gains: ObserverGains,
+    drift_rad_s: Vector3<f64>,
+    history: Deque<Sample, H>,
+    aligned: bool,
+    stats: ObserverStats,
+    innov_ms_rad2: f64,
+    sigma_st_rad: f64,
+    gate_rad: f64,
+}
+
+impl<const H: usize> Observer<H> {
+    /// A new observer with `gains`, expecting star-tracker noise `sigma_st_rad` (1σ).
+    pub fn new(gains: ObserverGains, sigma_st_rad: f64) -> Self {
+        Observer {
+            gains,
+            drift_rad_s: Vector3::zeros(),
+            history: Deque::new(),
+            aligned: false,
+            stats: ObserverStats::default(),
+            innov_ms_rad2: 0.0,
+            sigma_st_rad,
+            gate_rad: 1e-3,
+        }
+    }
+
+    /// From the table: its override gains if present, else the steady-state gains.
+    pub fn from_config(cfg: &ObserverConfig) -> Result<Self, GainError> {
+        let gains = match cfg.gains_override {
+            Some(g) => g,
+            None => steady_state_gains(cfg)?,
+        };
+        Ok(Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD))
+    }
+
+    /// Gains in use.
+    pub fn gains(&self) -> &ObserverGains {
+        &self.gains
+    }
+
+    /// Drift estimate Δω (ICS), rad/s.
+    pub fn drift_rad_s(&self) -> Vector3<f64> {
+        self.drift_rad_s
+    }
+
+    /// Sets the drift estimate (e.g. from a previous run).
+    pub fn set_drift_rad_s(&mut self, d: Vector3<f64>) {
+        self.drift_rad_s = d;
+    }
+
+    /// Whether the first star-tracker frame has aligned the attitude.
+    pub fn aligned(&self) -> bool {
+        self.aligned
+    }
+
+    /// Marks the attitude as aligned by other means (launch-vehicle pad alignment).
+    pub fn set_aligned(&mut self) {
+        self.aligned = true;
+    }
+
+    /// Converged: aligned, at least 40 updates, and the mean-square mismatch (per axis)
+    /// within 3σ of the star tracker's.
+    pub fn converged(&self) -> bool {
+        self.aligned
+            && self.stats.updates >= 40
+            && self.innov_ms_rad2 < 9.0 * self.sigma_st_rad * self.sigma_st_rad
+    }
+
+    /// Counters.
+    pub fn stats(&self) -> ObserverStats {
+        self.stats
+    }
+
+    /// Records the propagated attitude at the end of a step.
+    pub fn record(&mut self, time_us: u64, q: Quaternion<f64>) {
+        if self.history.is_full() {
+            let _ = self.history.pop_front();
+        }
+        let _ = self.history.push_back(Sample { time_us, q });
+    }
+
+    /// Propagated attitude at `time_us`, interpolated between recorded steps.
+    pub fn attitude_at(&self, time_us: u64) -> Result<Quaternion<f64>, UpdateError> {
+        let (first, last) = match (self.history.front(), self.history.back()) {
+            (Some(f), Some(l)) => (f, l),
+            _ => return Err(UpdateError::Stale),
+        };
+        if time_us < first.time_us {
+            return Err(UpdateError::Stale);
+        }
+        if time_us > last.time_us {
+            return Err(UpdateError::Future);
+        }
+        let mut prev = first;
+        for s in self.history.iter() {
+            if s.time_us >= time_us {
+                let span = s.time_us.saturating_sub(prev.time_us);
+                if span == 0 {
+                    return Ok(s.q);
+                }
+                let frac = (time_us - prev.time_us) as f64 / span as f64;
+                return Ok(math::nlerp(&prev.q, &s.q, frac));
+            }
+            prev = s;
+        }
+        Err(UpdateError::Future)
+    }
+
+    /// One star-tracker update: `q_st` is Λ* of the star-tracker frame, `mount` q_bs.
+    /// Corrects `att` (whose present time is `now_us`) and the drift estimate.
+    /// Returns the mismatch e (rad, ICS at t_s) that was used.
+    pub fn update(
+        &mut self,
+        att: &mut Attitude,
+        now_us: u64,
+        time_us: u64,
+        q_st: &Quaternion<f64>,
+        mount: &Quaternion<f64>,
+    ) -> Result<Vector3<f64>, UpdateError> {
+        let n2 = q_st.norm_squared();
+        if !n2.is_finite() || (n2 - 1.0).abs() > 1e-5 {
+            return Err(UpdateError::BadQuaternion);
+        }
+        let q_at = match self.attitude_at(time_us) {
+            Ok(q) => q,
+            Err(e) => {
+                match e {
+                    UpdateError::Stale => self.stats.stale = self.stats.stale.saturating_add(1),
+                    UpdateError::Future => self.stats.future = self.stats.future.saturating_add(1),
+                    _ => {}
+                }
+                return Err(e);
+            }
+        };
+        // Eq. (5): Λ* = Λ ∘ δΨ_Λ  →  Λ_ICS = Λ* ∘ q_bs⁻¹.
+        let q_meas = q_st * mount.conjugate();
+        if !self.aligned {
+            // First frame: align. C ∘ Λ(t_s) = Λ*, applied to the present and the history.
+            let c = q_meas * q_at.conjugate();
+            self.apply(att, now_us, time_us, &c, &Vector3::zeros());
+            self.aligned = true;
+            self.stats.updates = self.stats.updates.saturating_add(1);
+            return Ok(Vector3::zeros());
+        }
+        let e = math::rotvec_from_quat(&(q_at.conjugate() * q_meas));
+        if self.converged() && e.norm() > self.gate_rad {
+            self.stats.gated = self.stats.gated.saturating_add(1);
+            return Err(UpdateError::Gated);
+        }
+        let k_b = Vector3::from(self.gains.k_b);
+        let k_u = Vector3::from(self.gains.k_u_per_s);
+        let corr = math::mul_elem(&k_b, &e);
+        let d_drift = -math::mul_elem(&k_u, &e);
+        // Body correction at t_s as an inertial left factor: Λ(t_s) ∘ q(corr) ∘ Λ(t_s)⁻¹.
+        let c = q_at * math::quat_from_rotvec(&corr) * q_at.conjugate();
+        self.apply(att, now_us, time_us, &c, &d_drift);
+        self.drift_rad_s += d_drift;
+        let e2 = e.norm_squared() / 3.0;
+        self.innov_ms_rad2 = if self.stats.updates <= 1 { e2 } else { self.innov_ms_rad2 + 0.05 * (e2 - self.innov_ms_rad2) };
+        self.stats.updates = self.stats.updates.saturating_add(1);
+        Ok(e)
+    }
+
+    /// Left-multiplies by `c` every attitude at or after `t_s` (and the present one), and
+    /// removes the drift change `d_drift` integrated from t_s to each of them.
+    fn apply(&mut self, att: &mut Attitude, now_us: u64, t_s: u64, c: &Quaternion<f64>, d_drift: &Vector3<f64>) {
+        let fix = |q: &Quaternion<f64>, t_us: u64| {
+            let dt_s = t_us.saturating_sub(t_s) as f64 * 1e-6;
+            c * q * math::quat_from_rotvec(&(-d_drift * dt_s))
+        };
+        for s in self.history.iter_mut() {
+            if s.time_us >= t_s {
+                s.q = fix(&s.q, s.time_us);
+            }
+        }
+        let q_now = fix(&att.quaternion(), now_us);
+        att.set_quaternion(q_now);
+    }
+}
