@@ -45,13 +45,7 @@ pub struct Attitude {
 impl Attitude {
     /// Starts at `q` (normalised; identity if degenerate).
     pub fn new(q: Quaternion<f64>, coning: Coning) -> Self {
-        let mut a = Attitude {
-            q,
-            prev1: Vector3::zeros(),
-            prev2: Vector3::zeros(),
-            coning,
-            renorm_failures: 0,
-        };
+        let mut a = Attitude { q, prev1: Vector3::zeros(), prev2: Vector3::zeros(), coning, renorm_failures: 0 };
         if !math::normalize(&mut a.q) {
             a.renorm_failures = 1;
         }

@@ -52,13 +52,7 @@ impl TempRateEstimator {
     /// A tracker for samples every `dt_s` with time constant `tau_s`.
     pub fn new(dt_s: f64, tau_s: f64) -> Self {
         let r = if tau_s > dt_s { dt_s / tau_s } else { 1.0 };
-        TempRateEstimator {
-            t_degc: 0.0,
-            g_degc_s: 0.0,
-            alpha: 2.0 * r,
-            beta_per_s: r * r / dt_s,
-            started: false,
-        }
+        TempRateEstimator { t_degc: 0.0, g_degc_s: 0.0, alpha: 2.0 * r, beta_per_s: r * r / dt_s, started: false }
     }
 
     /// Feeds one temperature sample taken `dt_s` after the previous one; returns (T, G).

@@ -175,7 +175,7 @@ impl From<GainError> for CoreError {
 }
 
 struct FogChannel {
-    decoder: StreamDecoder<FogFrame, 64>,
+    decoder: StreamDecoder<FogFrame, 32>,
     queue: Deque<FogFrame, 4>,
     last_counter: Option<u16>,
     temp: TempRateEstimator,
@@ -192,7 +192,7 @@ pub struct FlightCore {
     attitude: Attitude,
     observer: Observer<HISTORY>,
     fog: [FogChannel; N_FOG],
-    st_decoder: StreamDecoder<StarFrame, 96>,
+    st_decoder: StreamDecoder<StarFrame, 64>,
     st_rejected_seen: u32,
     last_st_update_us: Option<u64>,
     last_body_dtheta: Vector3<f64>,
@@ -358,18 +358,18 @@ impl FlightCore {
     }
 
     /// Drains every fitted FOG link and takes one sample per FOG.
-    fn read_fogs<F: RxLink, S, O>(&mut self, links: &mut Links<F, S, O>, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
+    fn read_fogs<F: RxLink, S, O>(
+        &mut self,
+        links: &mut Links<F, S, O>,
+        dt_s: f64,
+    ) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
         let mut m = Vector4::zeros();
         let mut used = FogSet(0);
         let mut fog_health = [0u8; N_FOG];
         let fitted = self.profile.fogs;
         let limit = self.profile.rate_limit_rad_s;
-        for (i, ((ch, link), (mi, h))) in self
-            .fog
-            .iter_mut()
-            .zip(links.fog.iter_mut())
-            .zip(m.iter_mut().zip(fog_health.iter_mut()))
-            .enumerate()
+        for (i, ((ch, link), (mi, h))) in
+            self.fog.iter_mut().zip(links.fog.iter_mut()).zip(m.iter_mut().zip(fog_health.iter_mut())).enumerate()
         {
             if !fitted.contains(i) {
                 *h = health::EXCLUDED;

@@ -19,15 +19,7 @@
 //! observer; it is the one definition shared with the simulator and the model lab.
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
 #![no_std]
-#![cfg_attr(
-    not(test),
-    deny(
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::indexing_slicing,
-        clippy::panic
-    )
-)]
+#![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;
 pub mod calib;

@@ -33,11 +33,7 @@ pub fn quat_from_rotvec(phi_rad: &Vector3<f64>) -> Quaternion<f64> {
 /// Rotation vector (axis × angle, rad) of a quaternion, on the short way round
 /// (the sign of `q` is chosen so that the angle is in [0, π]).
 pub fn rotvec_from_quat(q: &Quaternion<f64>) -> Vector3<f64> {
-    let (w, v) = if q.w < 0.0 {
-        (-q.w, -q.imag())
-    } else {
-        (q.w, q.imag())
-    };
+    let (w, v) = if q.w < 0.0 { (-q.w, -q.imag()) } else { (q.w, q.imag()) };
     let s = v.norm();
     if s < 1e-6 {
         // angle = 2 atan2(s, w) ≈ 2 s / w (1 - s²/(3 w²)); relative error < 1e-13.

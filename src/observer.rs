@@ -177,9 +177,7 @@ impl<const H: usize> Observer<H> {
     /// Converged: aligned, at least 40 updates, and the mean-square mismatch (per axis)
     /// within 3σ of the star tracker's.
     pub fn converged(&self) -> bool {
-        self.aligned
-            && self.stats.updates >= 40
-            && self.innov_ms_rad2 < 9.0 * self.sigma_st_rad * self.sigma_st_rad
+        self.aligned && self.stats.updates >= 40 && self.innov_ms_rad2 < 9.0 * self.sigma_st_rad * self.sigma_st_rad
     }
 
     /// Counters.
@@ -272,7 +270,8 @@ impl<const H: usize> Observer<H> {
         self.apply(att, now_us, time_us, &c, &d_drift);
         self.drift_rad_s += d_drift;
         let e2 = e.norm_squared() / 3.0;
-        self.innov_ms_rad2 = if self.stats.updates <= 1 { e2 } else { self.innov_ms_rad2 + 0.05 * (e2 - self.innov_ms_rad2) };
+        self.innov_ms_rad2 =
+            if self.stats.updates <= 1 { e2 } else { self.innov_ms_rad2 + 0.05 * (e2 - self.innov_ms_rad2) };
         self.stats.updates = self.stats.updates.saturating_add(1);
         Ok(e)
     }

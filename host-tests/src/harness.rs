@@ -201,7 +201,11 @@ impl Summary {
         let _ = writeln!(s, "  attitude error 3σ (|mean|+3std), ″ {}", f3(self.att.three_sigma(), 2));
         let _ = writeln!(s, "  attitude error max, ″              {}", f3(self.att.max_abs(), 2));
         let _ = writeln!(s, "  rate error 3σ, °/h                 {}", f3(self.rate.three_sigma(), 4));
-        let _ = writeln!(s, "  drift estimate at end, °/h         {}", f3(self.drift_final_rad_s.map(|d| d * DEG_H_PER_RAD_S), 4));
+        let _ = writeln!(
+            s,
+            "  drift estimate at end, °/h         {}",
+            f3(self.drift_final_rad_s.map(|d| d * DEG_H_PER_RAD_S), 4)
+        );
         match self.converged_at_s {
             Some(t) => {
                 let _ = writeln!(s, "  observer converged at {t:.1} s");

@@ -13,10 +13,10 @@ impl AxisStats {
     /// Adds one sample.
     pub fn push(&mut self, e: [f64; 3]) {
         self.n += 1;
-        for k in 0..3 {
-            self.sum[k] += e[k];
-            self.sum_sq[k] += e[k] * e[k];
-            self.max_abs[k] = self.max_abs[k].max(e[k].abs());
+        for (k, v) in e.iter().enumerate() {
+            self.sum[k] += v;
+            self.sum_sq[k] += v * v;
+            self.max_abs[k] = self.max_abs[k].max(v.abs());
         }
     }
 

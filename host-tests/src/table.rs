@@ -27,9 +27,7 @@ pub fn parse_toml(text: &str, origin: &str) -> Result<CalibrationTable> {
     if f.format != TOML_FORMAT {
         bail!("{origin}: field `format`: expected \"{TOML_FORMAT}\", found \"{}\"", f.format);
     }
-    f.table
-        .validate()
-        .map_err(|e| anyhow::anyhow!("{origin}: table refused: {e:?}"))?;
+    f.table.validate().map_err(|e| anyhow::anyhow!("{origin}: table refused: {e:?}"))?;
     Ok(f.table)
 }
 

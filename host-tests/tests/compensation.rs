@@ -22,7 +22,11 @@ fn full_table(rng: &mut ChaCha20Rng) -> CalibrationTable {
             bias_rad_s: rng.random_range(-5e-6..5e-6),
             scale_factor_error: rng.random_range(-1e-3..1e-3),
             t_ref_degc: 25.0,
-            thermal_t_rad_s: [rng.random_range(-1e-7..1e-7), rng.random_range(-1e-8..1e-8), rng.random_range(-1e-9..1e-9)],
+            thermal_t_rad_s: [
+                rng.random_range(-1e-7..1e-7),
+                rng.random_range(-1e-8..1e-8),
+                rng.random_range(-1e-9..1e-9),
+            ],
             thermal_g_rad_s_per_degc_s: rng.random_range(-1e-5..1e-5),
             thermal_tg_rad_s_per_degc2_s: rng.random_range(-1e-6..1e-6),
         };
@@ -48,7 +52,8 @@ fn compensation_inverts_the_error_model() {
     for _ in 0..200 {
         let t = full_table(&mut rng);
         let axes = t.axes();
-        let w = Vector3::new(rng.random_range(-0.17..0.17), rng.random_range(-0.17..0.17), rng.random_range(-0.17..0.17));
+        let w =
+            Vector3::new(rng.random_range(-0.17..0.17), rng.random_range(-0.17..0.17), rng.random_range(-0.17..0.17));
         let temp = rng.random_range(10.0..40.0);
         let g = rng.random_range(-0.01..0.01);
         for (i, f) in t.fog.iter().enumerate() {
@@ -108,18 +113,26 @@ fn nominal_geometry_is_the_papers() {
     // First-order forms quoted in the paper's calibration equations (second-order terms
     // are ~(8·1e-4)²/2 = 3e-7; a wrong sign or index would show at 1e-4).
     let d = 1e-4;
-    let m = Misalignment { d12_rad: d, d13_rad: 2.0 * d, d21_rad: 3.0 * d, d23_rad: 4.0 * d, d31_rad: 5.0 * d, d32_rad: 6.0 * d, d42_rad: 7.0 * d, d43_rad: 8.0 * d };
+    let m = Misalignment {
+        d12_rad: d,
+        d13_rad: 2.0 * d,
+        d21_rad: 3.0 * d,
+        d23_rad: 4.0 * d,
+        d31_rad: 5.0 * d,
+        d32_rad: 6.0 * d,
+        d42_rad: 7.0 * d,
+        d43_rad: 8.0 * d,
+    };
     let s = m.axes(GAMMA_NOMINAL_RAD);
-    let lin = [
-        Vector3::new(1.0, 2.0 * d, -d),
-        Vector3::new(-4.0 * d, 1.0, 3.0 * d),
-        Vector3::new(6.0 * d, -5.0 * d, 1.0),
-    ];
+    let lin =
+        [Vector3::new(1.0, 2.0 * d, -d), Vector3::new(-4.0 * d, 1.0, 3.0 * d), Vector3::new(6.0 * d, -5.0 * d, 1.0)];
     for i in 0..3 {
         assert!((s[i] - lin[i]).norm() < 1e-6, "fog {}: {} vs {}", i + 1, s[i], lin[i]);
     }
     let (cg, sg, cg2, sg2) = (0.816497, 0.577350, 0.577351, 0.408248);
-    let s4 = -Vector3::new(cg2, cg2, sg) + Vector3::new(-sg2, -sg2, cg) * 7.0 * d + Vector3::new(1.0, -1.0, 0.0) * cg2 * 8.0 * d;
+    let s4 = -Vector3::new(cg2, cg2, sg)
+        + Vector3::new(-sg2, -sg2, cg) * 7.0 * d
+        + Vector3::new(1.0, -1.0, 0.0) * cg2 * 8.0 * d;
     assert!((s[3] - s4).norm() < 2e-6, "fog 4: {} vs {}", s[3], s4);
 }
 

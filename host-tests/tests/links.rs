@@ -47,7 +47,8 @@ fn corrupted_fog_and_star_bytes_are_counted_not_fatal() {
 fn a_silent_fog_is_flagged_and_the_other_three_carry_on() {
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
     core.align(Quaternion::identity());
-    let mut links = Links { fog: [0, 1, 2, 3].map(|_| MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() };
+    let mut links =
+        Links { fog: [0, 1, 2, 3].map(|_| MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() };
     let w = 1e-3; // rad/s about X
     for n in 1..=400u16 {
         for (i, l) in links.fog.iter_mut().enumerate() {
@@ -69,7 +70,11 @@ fn a_silent_fog_is_flagged_and_the_other_three_carry_on() {
 #[test]
 fn a_blocked_output_is_counted_and_flagged() {
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
-    let mut links = Links { fog: [0, 1, 2, 3].map(|_| MockLink::ideal()), star: MockLink::ideal(), out: MockSink { blocked: true, ..Default::default() } };
+    let mut links = Links {
+        fog: [0, 1, 2, 3].map(|_| MockLink::ideal()),
+        star: MockLink::ideal(),
+        out: MockSink { blocked: true, ..Default::default() },
+    };
     core.step(&mut links);
     links.out.blocked = false;
     let out = core.step(&mut links);

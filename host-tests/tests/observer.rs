@@ -84,7 +84,12 @@ fn fig7_bias_in_earth_pointing_shows_the_scale_factor_term() {
     }
     // The scale-factor term is real and of the predicted size on Y: −δK_y ω_y = 0.002 · (−ω_orb).
     let predicted = 0.002 * (-0.0638f64).to_radians();
-    assert!((target[1] - truth[1] - predicted).abs() < 0.05 * predicted.abs(), "{} vs {}", target[1] - truth[1], predicted);
+    assert!(
+        (target[1] - truth[1] - predicted).abs() < 0.05 * predicted.abs(),
+        "{} vs {}",
+        target[1] - truth[1],
+        predicted
+    );
 }
 
 #[test]

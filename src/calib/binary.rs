@@ -39,10 +39,7 @@ pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
     let gains = t.observer.gains_override.unwrap_or(ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] });
     let m = &t.misalignment;
     let o = &t.observer;
-    let tail = [
-        m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad,
-        t.gamma_rad,
-    ];
+    let tail = [m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad, t.gamma_rad];
     let fogs = t.fog.iter().flat_map(|f| {
         let [a1, a2, a3] = f.thermal_t_rad_s;
         [
@@ -57,12 +54,7 @@ pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
         ]
     });
     let rest = [t.t_rate_filter_s, o.arw_deg_sqrt_h, o.rrw_deg_h_sqrt_h, o.st_sigma_arcsec, o.st_period_s];
-    let all = fogs
-        .chain(tail)
-        .chain(t.st_mount_q)
-        .chain(rest)
-        .chain(gains.k_b)
-        .chain(gains.k_u_per_s);
+    let all = fogs.chain(tail).chain(t.st_mount_q).chain(rest).chain(gains.k_b).chain(gains.k_u_per_s);
     for (slot, v) in out.iter_mut().zip(all) {
         *slot = v;
     }
@@ -112,11 +104,8 @@ pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
         return Err(TableError::BadLength);
     }
     let body = buf.get(..TABLE_LEN - 4).ok_or(TableError::Truncated)?;
-    let stored = u32::from_le_bytes(
-        buf.get(TABLE_LEN - 4..)
-            .and_then(|s| s.try_into().ok())
-            .ok_or(TableError::Truncated)?,
-    );
+    let stored =
+        u32::from_le_bytes(buf.get(TABLE_LEN - 4..).and_then(|s| s.try_into().ok()).ok_or(TableError::Truncated)?);
     if CRC32.checksum(body) != stored {
         return Err(TableError::BadCrc);
     }
@@ -188,10 +177,7 @@ struct Cursor<'a> {
 impl Cursor<'_> {
     fn put(&mut self, bytes: &[u8]) -> Result<(), TableError> {
         let end = self.pos + bytes.len();
-        self.buf
-            .get_mut(self.pos..end)
-            .ok_or(TableError::BufferTooSmall)?
-            .copy_from_slice(bytes);
+        self.buf.get_mut(self.pos..end).ok_or(TableError::BufferTooSmall)?.copy_from_slice(bytes);
         self.pos = end;
         Ok(())
     }

@@ -107,12 +107,15 @@ fn real_main() -> Result<()> {
     }
 }
 
-fn run_scenario(path: &PathBuf, csv: Option<PathBuf>, every: u64) -> Result<()> {
+fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Result<()> {
     let sc = Scenario::from_file(path)?;
     let dt = sc.profile.profile().dt_s();
     let steps = (sc.duration_s / dt).round() as u64;
     let bar = ProgressBar::new(steps);
-    bar.set_style(ProgressStyle::with_template("{msg} [{bar:40}] {percent}% {eta} left").unwrap_or_else(|_| ProgressStyle::default_bar()));
+    bar.set_style(
+        ProgressStyle::with_template("{msg} [{bar:40}] {percent}% {eta} left")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
     bar.set_message(sc.name.clone());
     let mut writer = match &csv {
         Some(p) => {
@@ -123,8 +126,22 @@ fn run_scenario(path: &PathBuf, csv: Option<PathBuf>, every: u64) -> Result<()> 
     };
     if let Some((w, _)) = writer.as_mut() {
         w.write_record([
-            "t_s", "q0", "q1", "q2", "q3", "err_x_arcsec", "err_y_arcsec", "err_z_arcsec", "drift_x_deg_h", "drift_y_deg_h",
-            "drift_z_deg_h", "rate_err_x_deg_h", "rate_err_y_deg_h", "rate_err_z_deg_h", "flags", "st_status",
+            "t_s",
+            "q0",
+            "q1",
+            "q2",
+            "q3",
+            "err_x_arcsec",
+            "err_y_arcsec",
+            "err_z_arcsec",
+            "drift_x_deg_h",
+            "drift_y_deg_h",
+            "drift_z_deg_h",
+            "rate_err_x_deg_h",
+            "rate_err_y_deg_h",
+            "rate_err_z_deg_h",
+            "flags",
+            "st_status",
         ])?;
     }
     let started = Instant::now();
@@ -132,16 +149,29 @@ fn run_scenario(path: &PathBuf, csv: Option<PathBuf>, every: u64) -> Result<()> 
     let mut csv_err = None;
     let summary = run(&sc, |r| {
         n += 1;
-        if n % 2000 == 0 {
+        if n.is_multiple_of(2000) {
             bar.set_position(n);
         }
         if let Some((w, _)) = writer.as_mut() {
-            if n % every == 0 && csv_err.is_none() {
+            if n.is_multiple_of(every) && csv_err.is_none() {
                 let d = r.out.drift_rad_s * DEG_H_PER_RAD_S;
                 let rec = [
-                    r.t_s, r.out.q.w, r.out.q.i, r.out.q.j, r.out.q.k, r.att_err_arcsec[0], r.att_err_arcsec[1],
-                    r.att_err_arcsec[2], d.x, d.y, d.z, r.rate_err_deg_h[0], r.rate_err_deg_h[1], r.rate_err_deg_h[2],
-                    f64::from(r.out.flags), f64::from(r.out.st_status),
+                    r.t_s,
+                    r.out.q.w,
+                    r.out.q.i,
+                    r.out.q.j,
+                    r.out.q.k,
+                    r.att_err_arcsec[0],
+                    r.att_err_arcsec[1],
+                    r.att_err_arcsec[2],
+                    d.x,
+                    d.y,
+                    d.z,
+                    r.rate_err_deg_h[0],
+                    r.rate_err_deg_h[1],
+                    r.rate_err_deg_h[2],
+                    f64::from(r.out.flags),
+                    f64::from(r.out.st_status),
                 ];
                 if let Err(e) = w.write_record(rec.iter().map(|v| v.to_string())) {
                     csv_err = Some(e);

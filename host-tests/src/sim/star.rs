@@ -79,10 +79,17 @@ impl StarModel {
 
     /// Step `n` ended at `now_us` with truth Λ `q` and rate `rate`: takes a frame if one
     /// is due, and returns the bytes of every frame delivered by `now_us`.
-    pub fn step(&mut self, n: u64, now_us: u64, q: &Quaternion<f64>, rate: &Vector3<f64>, rng: &mut ChaCha20Rng) -> Vec<u8> {
+    pub fn step(
+        &mut self,
+        n: u64,
+        now_us: u64,
+        q: &Quaternion<f64>,
+        rate: &Vector3<f64>,
+        rng: &mut ChaCha20Rng,
+    ) -> Vec<u8> {
         let t_s = now_us as f64 * 1e-6;
         let in_outage = self.spec.outages.iter().any(|[a, b]| t_s >= *a && t_s < *b);
-        if self.spec.enabled && n % self.period_steps == 0 && !in_outage {
+        if self.spec.enabled && n.is_multiple_of(self.period_steps) && !in_outage {
             let noise = Vector3::from_fn(|_, _| self.sigma_rad * rng.sample::<f64, _>(StandardNormal));
             let q_st = q * self.true_mount * quat_from_rotvec(&noise);
             let valid = rate.norm().to_degrees() <= self.spec.max_rate_deg_s;

@@ -100,11 +100,7 @@ pub struct MotionSpec {
 impl MotionSpec {
     /// Orbital-rate Earth pointing for an orbit of `period_s`, plus `slews`.
     pub fn earth_pointing(period_s: f64, slews: Vec<Slew>) -> Self {
-        MotionSpec {
-            base_rate_deg_s: [0.0, -360.0 / period_s, 0.0],
-            slews,
-            ..Default::default()
-        }
+        MotionSpec { base_rate_deg_s: [0.0, -360.0 / period_s, 0.0], slews, ..Default::default() }
     }
 
     fn rigid_rate_accel(&self, t: f64) -> (Vector3<f64>, Vector3<f64>) {
@@ -144,11 +140,8 @@ pub struct Truth {
     substeps: usize,
 }
 
-const GL3: [(f64, f64); 3] = [
-    (-0.774_596_669_241_483_4, 5.0 / 9.0),
-    (0.0, 8.0 / 9.0),
-    (0.774_596_669_241_483_4, 5.0 / 9.0),
-];
+const GL3: [(f64, f64); 3] =
+    [(-0.774_596_669_241_483_4, 5.0 / 9.0), (0.0, 8.0 / 9.0), (0.774_596_669_241_483_4, 5.0 / 9.0)];
 
 impl Truth {
     /// Starts the motion at t = 0.
@@ -235,11 +228,8 @@ impl Truth {
             // Gauss–Legendre increment, rates with modes interpolated linearly in the sub-step.
             for (xi, wgt) in GL3 {
                 let f = 0.5 * (1.0 + xi);
-                let mm: Vec<(f64, f64)> = m0
-                    .iter()
-                    .zip(&end_modes)
-                    .map(|(a, b)| (a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1)))
-                    .collect();
+                let mm: Vec<(f64, f64)> =
+                    m0.iter().zip(&end_modes).map(|(a, b)| (a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1))).collect();
                 dth += self.rate(ta + f * h, &mm) * (0.5 * h * wgt);
             }
             // RK4 on Λ̇ = ½ Λ ∘ ω.

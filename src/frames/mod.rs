@@ -1,0 +1,276 @@
+//! Framing of the RS-422 links: FOG samples in, star-tracker solutions in, state out.
+//!
+//! Byte-by-byte layouts, units and example frames are in `docs/ICD.md`; this module is
+//! their one implementation.
+//!
+//! What it provides:
+//! - the common envelope of every frame: [`SYNC`] (`EB 90`), one kind byte
+//!   ([`kind`]), the fields (little-endian), and a CRC-16/CCITT-FALSE ([`CRC16`]) over
+//!   everything before it, sent little-endian;
+//! - the [`Frame`] trait: one generic envelope codec ([`Frame::encode_into`],
+//!   [`Frame::decode`]) around each type's field codec, so that one streaming decoder
+//!   serves every frame type;
+//! - the frames: [`fog::FogFrame`] (16 bytes), [`star::StarFrame`] (32 bytes),
+//!   [`output::OutputFrame`] (79 bytes), each with raw-count fields, physical-unit
+//!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
+//! - [`decoder::StreamDecoder`]: a fixed-capacity byte-stream decoder that hunts for
+//!   sync, checks kind, CRC and fields, counts every rejection and resynchronises inside
+//!   rejected bytes, so a frame that follows garbage is not lost.
+//!
+//! Nothing here allocates, panics or loops without bound.
+
+pub mod decoder;
+pub mod fog;
+pub mod output;
+pub mod star;
+
+/// The two sync bytes that open every frame.
+pub const SYNC: [u8; 2] = [0xEB, 0x90];
+
+/// Frame-kind bytes (byte 2 of every frame).
+pub mod kind {
+    /// FOG sample frame ([`super::fog::FogFrame`]).
+    pub const FOG: u8 = 0x10;
+    /// Star-tracker frame ([`super::star::StarFrame`]).
+    pub const STAR: u8 = 0x20;
+    /// Output frame ([`super::output::OutputFrame`]).
+    pub const OUTPUT: u8 = 0x30;
+}
+
+/// Bytes before the fields: sync (2) and kind (1).
+pub const HEADER_LEN: usize = 3;
+/// Bytes of the trailing CRC.
+pub const CRC_LEN: usize = 2;
+/// Envelope overhead of every frame: header and CRC.
+pub const OVERHEAD_LEN: usize = HEADER_LEN + CRC_LEN;
+
+/// The frame CRC: CRC-16/CCITT-FALSE (a.k.a. CRC-16/IBM-3740): polynomial 0x1021,
+/// init 0xFFFF, no reflection, xorout 0x0000; check value of `"123456789"` is 0x29B1.
+/// Computed over every byte before the CRC (sync and kind included), sent little-endian.
+pub const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
+
+/// Why a frame was rejected.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum DecodeError {
+    /// The CRC does not match the bytes.
+    BadCrc,
+    /// The kind byte is not the expected frame type.
+    BadKind,
+    /// A field is out of its range (id, reserved bits, quaternion norm, ...).
+    BadField,
+    /// The bytes do not start with [`SYNC`].
+    BadSync,
+    /// The slice is not exactly one frame long.
+    BadLength,
+}
+
+/// Why a frame could not be encoded.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum EncodeError {
+    /// The output buffer is shorter than [`Frame::LEN`].
+    BufferTooSmall,
+}
+
+/// One frame type: its kind byte, its length and the codec of its fields.
+///
+/// A type implements only the field codec ([`Frame::write_fields`],
+/// [`Frame::read_fields`]); the envelope (sync, kind, CRC) is the same for all and is
+/// done once by the provided [`Frame::encode_into`] and [`Frame::decode`].
+pub trait Frame: Sized {
+    /// The kind byte (see [`kind`]).
+    const KIND: u8;
+    /// Total frame length in bytes, sync and CRC included.
+    const LEN: usize;
+
+    /// Writes the fields (the `LEN - 5` bytes between kind and CRC) to `w`.
+    fn write_fields(&self, w: &mut FieldWriter<'_>);
+
+    /// Reads and validates the fields from `r` (exactly `LEN - 5` bytes).
+    fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError>;
+
+    /// Encodes the frame into the first [`Frame::LEN`] bytes of `out`; returns the
+    /// number of bytes written (`LEN`). Fields are encoded as they are: a field out of
+    /// range gives a frame that [`Frame::decode`] rejects.
+    ///
+    /// # Errors
+    /// [`EncodeError::BufferTooSmall`] if `out` is shorter than `LEN`.
+    fn encode_into(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
+        let frame = out.get_mut(..Self::LEN).ok_or(EncodeError::BufferTooSmall)?;
+        let (covered, crc) = frame.split_last_chunk_mut::<CRC_LEN>().ok_or(EncodeError::BufferTooSmall)?;
+        let (head, body) = covered.split_first_chunk_mut::<HEADER_LEN>().ok_or(EncodeError::BufferTooSmall)?;
+        let [s0, s1] = SYNC;
+        *head = [s0, s1, Self::KIND];
+        let mut w = FieldWriter::new(body);
+        self.write_fields(&mut w);
+        if !w.is_complete() {
+            // Only a field codec that disagrees with LEN gets here.
+            return Err(EncodeError::BufferTooSmall);
+        }
+        *crc = CRC16.checksum(covered).to_le_bytes();
+        Ok(Self::LEN)
+    }
+
+    /// Decodes one frame: `frame` is exactly [`Frame::LEN`] bytes, sync and CRC included.
+    /// Checks, in order: length, sync, kind, CRC, fields.
+    ///
+    /// # Errors
+    /// The first check that fails, as a [`DecodeError`].
+    fn decode(frame: &[u8]) -> Result<Self, DecodeError> {
+        let body = check_envelope(frame, Self::KIND, Self::LEN)?;
+        let mut r = FieldReader::new(body);
+        let f = Self::read_fields(&mut r)?;
+        if r.remaining() != 0 {
+            return Err(DecodeError::BadLength);
+        }
+        Ok(f)
+    }
+}
+
+/// Checks length, sync, kind and CRC of `frame`; returns its field bytes.
+///
+/// # Errors
+/// [`DecodeError::BadLength`], [`DecodeError::BadSync`], [`DecodeError::BadKind`] or
+/// [`DecodeError::BadCrc`], the first that applies.
+pub fn check_envelope(frame: &[u8], kind: u8, len: usize) -> Result<&[u8], DecodeError> {
+    if frame.len() != len {
+        return Err(DecodeError::BadLength);
+    }
+    let (covered, crc) = frame.split_last_chunk::<CRC_LEN>().ok_or(DecodeError::BadLength)?;
+    let (head, body) = covered.split_first_chunk::<HEADER_LEN>().ok_or(DecodeError::BadLength)?;
+    let [s0, s1, k] = *head;
+    if [s0, s1] != SYNC {
+        return Err(DecodeError::BadSync);
+    }
+    if k != kind {
+        return Err(DecodeError::BadKind);
+    }
+    if CRC16.checksum(covered) != u16::from_le_bytes(*crc) {
+        return Err(DecodeError::BadCrc);
+    }
+    Ok(body)
+}
+
+/// Little-endian writer over a frame's field bytes (used by [`Frame::write_fields`]).
+///
+/// Writing past the end is not an error at the call: the bytes are dropped and the
+/// writer remembers it, so [`Frame::encode_into`] reports it.
+pub struct FieldWriter<'a> {
+    rest: &'a mut [u8],
+    overflow: bool,
+}
+
+impl<'a> FieldWriter<'a> {
+    /// A writer over `buf`.
+    pub fn new(buf: &'a mut [u8]) -> Self {
+        FieldWriter { rest: buf, overflow: false }
+    }
+
+    /// Writes `bytes` as they are.
+    pub fn bytes<const N: usize>(&mut self, bytes: [u8; N]) {
+        let rest = core::mem::take(&mut self.rest);
+        if rest.len() < N {
+            self.overflow = true;
+            self.rest = rest;
+            return;
+        }
+        if let Some((head, tail)) = rest.split_first_chunk_mut::<N>() {
+            *head = bytes;
+            self.rest = tail;
+        }
+    }
+
+    /// Writes a `u8`.
+    pub fn u8(&mut self, v: u8) {
+        self.bytes([v]);
+    }
+
+    /// Writes a `u16`, little-endian.
+    pub fn u16(&mut self, v: u16) {
+        self.bytes(v.to_le_bytes());
+    }
+
+    /// Writes an `i16`, little-endian.
+    pub fn i16(&mut self, v: i16) {
+        self.bytes(v.to_le_bytes());
+    }
+
+    /// Writes an `i32`, little-endian.
+    pub fn i32(&mut self, v: i32) {
+        self.bytes(v.to_le_bytes());
+    }
+
+    /// Writes a `u64`, little-endian.
+    pub fn u64(&mut self, v: u64) {
+        self.bytes(v.to_le_bytes());
+    }
+
+    /// Whether every byte was written and nothing overflowed.
+    pub fn is_complete(&self) -> bool {
+        !self.overflow && self.rest.is_empty()
+    }
+}
+
+/// Little-endian reader over a frame's field bytes (used by [`Frame::read_fields`]).
+/// Reading past the end gives [`DecodeError::BadLength`].
+pub struct FieldReader<'a> {
+    rest: &'a [u8],
+}
+
+impl<'a> FieldReader<'a> {
+    /// A reader over `buf`.
+    pub fn new(buf: &'a [u8]) -> Self {
+        FieldReader { rest: buf }
+    }
+
+    /// Reads `N` bytes as they are.
+    pub fn bytes<const N: usize>(&mut self) -> Result<[u8; N], DecodeError> {
+        let (head, tail) = self.rest.split_first_chunk::<N>().ok_or(DecodeError::BadLength)?;
+        self.rest = tail;
+        Ok(*head)
+    }
+
+    /// Reads a `u8`.
+    pub fn u8(&mut self) -> Result<u8, DecodeError> {
+        self.bytes::<1>().map(|[b]| b)
+    }
+
+    /// Reads a little-endian `u16`.
+    pub fn u16(&mut self) -> Result<u16, DecodeError> {
+        self.bytes().map(u16::from_le_bytes)
+    }
+
+    /// Reads a little-endian `i16`.
+    pub fn i16(&mut self) -> Result<i16, DecodeError> {
+        self.bytes().map(i16::from_le_bytes)
+    }
+
+    /// Reads a little-endian `i32`.
+    pub fn i32(&mut self) -> Result<i32, DecodeError> {
+        self.bytes().map(i32::from_le_bytes)
+    }
+
+    /// Reads a little-endian `u64`.
+    pub fn u64(&mut self) -> Result<u64, DecodeError> {
+        self.bytes().map(u64::from_le_bytes)
+    }
+
+    /// Bytes not read yet.
+    pub fn remaining(&self) -> usize {
+        self.rest.len()
+    }
+}
+
+/// `value / lsb` rounded to the nearest count (ties away from zero), saturated to the
+/// `i32` range; NaN gives 0.
+pub fn counts_i32(value: f64, lsb: f64) -> i32 {
+    // `as` saturates and maps NaN to 0.
+    libm::round(value / lsb) as i32
+}
+
+/// `value / lsb` rounded to the nearest count (ties away from zero), saturated to the
+/// `i16` range; NaN gives 0.
+pub fn counts_i16(value: f64, lsb: f64) -> i16 {
+    libm::round(value / lsb) as i16
+}
