@@ -9,8 +9,9 @@
 //! Two profiles ([`Profile`]): the spacecraft unit (four FOGs + star tracker, 5 ms,
 //! ±10 °/s) and the launch-vehicle unit (three FOGs, 1.25 ms, ±100 °/s).
 //!
-//! Timing convention: step n (n = 1, 2, …) integrates the FOG samples of the interval
-//! ((n−1)Δt, nΔt] of unit time; its output frame carries the time tag nΔt and Λ(nΔt).
+//! Timing convention: unit time is the FOG sample clock. The sample with counter k covers
+//! ((k−1)Δt, kΔt] of unit time (counters unwrapped from u16); the step that integrates it
+//! emits the time tag kΔt and Λ(kΔt). Star-tracker time tags are in the same time.
 
 use heapless::Deque;
 use nalgebra::{Quaternion, Vector3, Vector4};
@@ -68,11 +69,20 @@ impl Profile {
     }
 }
 
-/// The links of one unit: a receive link per FOG slot, the star tracker, the output.
-/// Slots the profile does not fit are never read.
+/// How the FOGs are wired.
+pub enum FogLinks<F> {
+    /// One link per FOG slot (FOG1..FOG4); frames must carry the slot's `fog_id`.
+    PerFog([F; N_FOG]),
+    /// One multi-drop (RS-485-style) bus carrying every FOG's frames, told apart by
+    /// their `fog_id`.
+    Bus(F),
+}
+
+/// The links of one unit: the FOGs, the star tracker, the output.
+/// FOG slots the profile does not fit are never read.
 pub struct Links<F, S, O> {
     /// FOG1..FOG4.
-    pub fog: [F; N_FOG],
+    pub fog: FogLinks<F>,
     /// Star tracker.
     pub star: S,
     /// Framed output.
@@ -89,7 +99,7 @@ pub mod health {
     pub const REJECTED: u8 = 1 << 2;
     /// The FOG's own status reports a fault (light source, loop lock, temperature sensor).
     pub const DEVICE_FAULT: u8 = 1 << 3;
-    /// The sample counter skipped (samples lost on the link).
+    /// The sample counter skipped, or a stale sample was discarded (samples lost or late).
     pub const COUNTER_GAP: u8 = 1 << 4;
     /// Rate outside the measuring range.
     pub const OUT_OF_RANGE: u8 = 1 << 5;
@@ -105,7 +115,7 @@ pub mod st_status {
     pub const UPDATED: u8 = 1 << 1;
     /// The attitude has been aligned by the star tracker.
     pub const ALIGNED: u8 = 1 << 2;
-    /// A frame was refused in this step (invalid, stale, future, gated, bad).
+    /// A frame was refused in this step (invalid, stale, too far ahead, gated, bad).
     pub const REFUSED: u8 = 1 << 3;
     /// No accepted frame for more than 2 s: attitude propagates on gyros alone.
     pub const OUTAGE: u8 = 1 << 4;
@@ -123,7 +133,7 @@ pub struct Counters {
     pub fog_samples_missing: u32,
     /// Star-tracker frames that updated the observer.
     pub st_frames_accepted: u32,
-    /// Star-tracker frames rejected (decoder, invalid flag, stale, future).
+    /// Star-tracker frames rejected (decoder, invalid flag, stale, too far ahead).
     pub st_frames_rejected: u32,
     /// Star-tracker frames refused by the observer's gate.
     pub st_updates_gated: u32,
@@ -133,6 +143,8 @@ pub struct Counters {
     pub output_dropped: u32,
     /// Link driver errors.
     pub io_errors: u32,
+    /// FOG frames that arrived too late for their sample and were discarded.
+    pub fog_samples_stale: u32,
 }
 
 /// Everything one step produced, in physical units (the output frame is its encoding).
@@ -176,10 +188,26 @@ impl From<GainError> for CoreError {
 
 struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
-    queue: Deque<FogFrame, 4>,
-    last_counter: Option<u16>,
+    queue: Deque<FogFrame, FOG_QUEUE>,
     temp: TempRateEstimator,
     rejected_seen: u32,
+    wrong_id: bool,
+}
+
+/// FOG samples a channel holds ahead of the step (absorbs jitter and late links).
+pub const FOG_QUEUE: usize = 4;
+/// Star-tracker frames held until the attitude reaches their time tag.
+pub const ST_PENDING: usize = 4;
+/// A star-tracker time tag further ahead of the unit's time than this is refused, µs.
+pub const ST_MAX_LEAD_US: u64 = 1_000_000;
+
+/// Where the unit is in the FOG sample sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct SampleClock {
+    /// Counter of the next sample to integrate (None before the first frame).
+    expected: Option<u16>,
+    /// Index of the last integrated sample since start (its end time is index × Δt).
+    index: u64,
 }
 
 /// The flight core: all state of one unit.
@@ -192,12 +220,15 @@ pub struct FlightCore {
     attitude: Attitude,
     observer: Observer<HISTORY>,
     fog: [FogChannel; N_FOG],
+    bus_decoder: StreamDecoder<FogFrame, 32>,
+    bus_rejected_seen: u32,
+    clock: SampleClock,
     st_decoder: StreamDecoder<StarFrame, 64>,
+    st_pending: Deque<StarFrame, ST_PENDING>,
     st_rejected_seen: u32,
     last_st_update_us: Option<u64>,
     last_body_dtheta: Vector3<f64>,
     counters: Counters,
-    step_index: u64,
     out_counter: u16,
     step_ticks: u16,
     output_dropped_last: bool,
@@ -217,9 +248,9 @@ impl FlightCore {
         let channel = |_: usize| FogChannel {
             decoder: StreamDecoder::new(),
             queue: Deque::new(),
-            last_counter: None,
             temp: TempRateEstimator::new(dt, table.t_rate_filter_s),
             rejected_seen: 0,
+            wrong_id: false,
         };
         Ok(FlightCore {
             profile,
@@ -230,12 +261,15 @@ impl FlightCore {
             attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
             observer,
             fog: [channel(0), channel(1), channel(2), channel(3)],
+            bus_decoder: StreamDecoder::new(),
+            bus_rejected_seen: 0,
+            clock: SampleClock { expected: None, index: 0 },
             st_decoder: StreamDecoder::new(),
+            st_pending: Deque::new(),
             st_rejected_seen: 0,
             last_st_update_us: None,
             last_body_dtheta: Vector3::zeros(),
             counters: Counters::default(),
-            step_index: 0,
             out_counter: 0,
             step_ticks: 0,
             output_dropped_last: false,
@@ -299,13 +333,19 @@ impl FlightCore {
         self.step_ticks = ticks;
     }
 
-    /// One fixed step. Reads every link, integrates, observes, writes one output frame.
+    /// One fixed step. Reads every link, integrates one FOG sample, observes, writes one
+    /// output frame.
+    ///
+    /// Unit time is the FOG sample clock: the FOGs are sampled on the unit's sync pulse
+    /// and number their samples, so the step integrates the sample with the next counter
+    /// and its time tag is that sample's end, index × Δt, however the frames were
+    /// delayed on the links. A sample that did not arrive is flagged missing and its
+    /// interval bridged with the last body increment.
     pub fn step<F: RxLink, S: RxLink, O: TxLink>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
-        self.step_index = self.step_index.saturating_add(1);
         let dt_s = self.profile.dt_s();
-        let now_us = self.step_index.saturating_mul(u64::from(self.profile.dt_us));
-
-        let (m, used, fog_health) = self.read_fogs(links, dt_s);
+        self.receive_fogs(&mut links.fog);
+        let (m, used, fog_health) = self.take_sample(dt_s);
+        let now_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
         let mut degraded = used != self.profile.fogs;
         let body = match self.combiner.combine(&m, used) {
             Ok(v) => v,
@@ -323,7 +363,7 @@ impl FlightCore {
         let _ = self.attitude.step(&corrected);
         self.observer.record(now_us, self.attitude.quaternion());
 
-        let st = if self.profile.star_tracker { self.read_star(links, now_us) } else { 0 };
+        let st = if self.profile.star_tracker { self.read_star(&mut links.star, now_us) } else { 0 };
 
         let mut fl = 0u8;
         if self.profile.star_tracker {
@@ -357,67 +397,140 @@ impl FlightCore {
         out
     }
 
-    /// Drains every fitted FOG link and takes one sample per FOG.
-    fn read_fogs<F: RxLink, S, O>(
-        &mut self,
-        links: &mut Links<F, S, O>,
-        dt_s: f64,
-    ) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
+    /// Drains the FOG links (or the bus) into the per-FOG sample queues.
+    fn receive_fogs<F: RxLink>(&mut self, fog_links: &mut FogLinks<F>) {
+        let fitted = self.profile.fogs;
+        match fog_links {
+            FogLinks::PerFog(links) => {
+                for (i, (ch, link)) in self.fog.iter_mut().zip(links.iter_mut()).enumerate() {
+                    if !fitted.contains(i) {
+                        continue;
+                    }
+                    let FogChannel { decoder, queue, wrong_id, .. } = ch;
+                    let rep = drain(link, MAX_RX_BYTES_PER_STEP, |bytes| {
+                        decoder.push_slice(bytes, |r| {
+                            if let Ok(f) = r {
+                                if usize::from(f.fog_id) == i {
+                                    enqueue(queue, f);
+                                } else {
+                                    *wrong_id = true;
+                                }
+                            }
+                        });
+                    });
+                    self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
+                }
+            }
+            FogLinks::Bus(link) => {
+                let decoder = &mut self.bus_decoder;
+                let channels = &mut self.fog;
+                let rep = drain(link, N_FOG * MAX_RX_BYTES_PER_STEP, |bytes| {
+                    decoder.push_slice(bytes, |r| {
+                        if let Ok(f) = r {
+                            let i = usize::from(f.fog_id);
+                            if let Some(ch) = channels.get_mut(i).filter(|_| fitted.contains(i)) {
+                                enqueue(&mut ch.queue, f);
+                            }
+                        }
+                    });
+                });
+                self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
+                let rejected = self.bus_decoder.stats().rejected();
+                let new_rej = rejected.saturating_sub(self.bus_rejected_seen);
+                self.bus_rejected_seen = rejected;
+                self.counters.fog_frames_rejected = self.counters.fog_frames_rejected.saturating_add(new_rej);
+            }
+        }
+    }
+
+    /// Takes the sample with the expected counter from every fitted FOG and compensates
+    /// it. Returns the compensated increments, the FOGs that gave one, and health bits.
+    fn take_sample(&mut self, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
+        let fitted = self.profile.fogs;
+        let mut health_bits = [0u8; N_FOG];
+        // Counter of this step's sample: the expected one, or (first frame, or every FOG
+        // has moved past it) the oldest counter waiting.
+        let oldest = self
+            .fog
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| fitted.contains(*i))
+            .filter_map(|(_, ch)| ch.queue.front().map(|f| f.counter))
+            .min_by_key(|c| self.clock.expected.map_or(0, |e| c.wrapping_sub(e)));
+        let target = match (self.clock.expected, oldest) {
+            (Some(e), Some(o)) if o.wrapping_sub(e) < 0x8000 && o != e => {
+                // Every waiting sample is newer: samples e..o were lost on all links.
+                let all_newer = self.fog.iter().enumerate().filter(|(i, _)| fitted.contains(*i)).all(|(_, ch)| {
+                    ch.queue.front().is_none_or(|f| f.counter.wrapping_sub(e) < 0x8000 && f.counter != e)
+                });
+                if all_newer && self.fog.iter().all(|ch| ch.queue.iter().all(|f| f.counter != e)) {
+                    for h in health_bits.iter_mut() {
+                        *h |= health::COUNTER_GAP;
+                    }
+                    let lost = u32::from(o.wrapping_sub(e));
+                    self.counters.fog_samples_missing =
+                        self.counters.fog_samples_missing.saturating_add(lost.saturating_mul(fitted.count()));
+                    self.clock.index = self.clock.index.saturating_add(u64::from(o.wrapping_sub(e)));
+                    o
+                } else {
+                    e
+                }
+            }
+            (Some(e), _) => e,
+            (None, Some(o)) => {
+                self.clock.index = u64::from(o).saturating_sub(1);
+                o
+            }
+            (None, None) => {
+                // No sample yet since start: the sample clock has not started.
+                for (i, h) in health_bits.iter_mut().enumerate() {
+                    *h = if fitted.contains(i) { health::MISSING } else { health::EXCLUDED };
+                }
+                return (Vector4::zeros(), FogSet(0), health_bits);
+            }
+        };
+        self.clock.index = self.clock.index.saturating_add(1);
+        self.clock.expected = Some(target.wrapping_add(1));
+
         let mut m = Vector4::zeros();
         let mut used = FogSet(0);
-        let mut fog_health = [0u8; N_FOG];
-        let fitted = self.profile.fogs;
         let limit = self.profile.rate_limit_rad_s;
-        for (i, ((ch, link), (mi, h))) in
-            self.fog.iter_mut().zip(links.fog.iter_mut()).zip(m.iter_mut().zip(fog_health.iter_mut())).enumerate()
-        {
+        for (i, ((ch, h), mi)) in self.fog.iter_mut().zip(health_bits.iter_mut()).zip(m.iter_mut()).enumerate() {
             if !fitted.contains(i) {
                 *h = health::EXCLUDED;
                 continue;
             }
-            let queue = &mut ch.queue;
-            let decoder = &mut ch.decoder;
-            let mut wrong_id = false;
-            let rep = drain(link, MAX_RX_BYTES_PER_STEP, |bytes| {
-                decoder.push_slice(bytes, |r| {
-                    if let Ok(f) = r {
-                        if usize::from(f.fog_id) != i {
-                            wrong_id = true;
-                        } else if queue.is_full() {
-                            // Late backlog: keep the newest samples.
-                            let _ = queue.pop_front();
-                            let _ = queue.push_back(f);
-                        } else {
-                            let _ = queue.push_back(f);
-                        }
-                    }
-                });
-            });
-            self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
-            let s = ch.decoder.stats();
-            let rejected = s
-                .crc_errors
-                .saturating_add(s.kind_errors)
-                .saturating_add(s.field_errors)
-                .saturating_add(u32::from(wrong_id));
+            let rejected = ch.decoder.stats().rejected().saturating_add(u32::from(ch.wrong_id));
             let new_rej = rejected.saturating_sub(ch.rejected_seen);
             ch.rejected_seen = rejected;
-            if new_rej > 0 || wrong_id {
+            if new_rej > 0 {
                 *h |= health::REJECTED;
-                self.counters.fog_frames_rejected = self.counters.fog_frames_rejected.saturating_add(new_rej.max(1));
+                self.counters.fog_frames_rejected = self.counters.fog_frames_rejected.saturating_add(new_rej);
             }
-            let Some(frame) = ch.queue.pop_front() else {
+            ch.wrong_id = false;
+            // Discard samples older than the target (they came too late).
+            let mut stale = 0u32;
+            while let Some(f) = ch.queue.front() {
+                let age = target.wrapping_sub(f.counter);
+                if age == 0 || age >= 0x8000 {
+                    break;
+                }
+                let _ = ch.queue.pop_front();
+                stale += 1;
+            }
+            if stale > 0 {
+                *h |= health::COUNTER_GAP;
+                self.counters.fog_samples_stale = self.counters.fog_samples_stale.saturating_add(stale);
+            }
+            let frame = match ch.queue.front() {
+                Some(f) if f.counter == target => ch.queue.pop_front(),
+                _ => None,
+            };
+            let Some(frame) = frame else {
                 *h |= health::MISSING;
                 self.counters.fog_samples_missing = self.counters.fog_samples_missing.saturating_add(1);
                 continue;
             };
-            if let Some(last) = ch.last_counter {
-                let gap = frame.counter.wrapping_sub(last);
-                if gap != 1 {
-                    *h |= health::COUNTER_GAP;
-                }
-            }
-            ch.last_counter = Some(frame.counter);
             let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
             if frame.status & 0b0111 != 0 {
                 *h |= health::DEVICE_FAULT;
@@ -433,57 +546,54 @@ impl FlightCore {
             *h |= health::USED;
             used = FogSet(used.0 | (1 << i));
         }
-        (m, used, fog_health)
+        (m, used, health_bits)
     }
 
-    /// Drains the star-tracker link and applies every valid frame to the observer.
-    fn read_star<F, S: RxLink, O>(&mut self, links: &mut Links<F, S, O>, now_us: u64) -> u8 {
+    /// Drains the star-tracker link and applies every valid frame whose time tag the
+    /// propagated attitude has reached; later ones wait (up to [`ST_PENDING`]).
+    fn read_star<S: RxLink>(&mut self, star: &mut S, now_us: u64) -> u8 {
         let mut status = 0u8;
-        let mut frames: Deque<StarFrame, 4> = Deque::new();
         let decoder = &mut self.st_decoder;
-        let rep = drain(&mut links.star, MAX_RX_BYTES_PER_STEP, |bytes| {
+        let pending = &mut self.st_pending;
+        let mut overflow = 0u32;
+        let mut arrived = false;
+        let rep = drain(star, MAX_RX_BYTES_PER_STEP, |bytes| {
             decoder.push_slice(bytes, |r| {
                 if let Ok(f) = r {
-                    if frames.is_full() {
-                        let _ = frames.pop_front();
+                    arrived = true;
+                    if pending.is_full() {
+                        let _ = pending.pop_front();
+                        overflow += 1;
                     }
-                    let _ = frames.push_back(f);
+                    let _ = pending.push_back(f);
                 }
             });
         });
         self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
-        let s = self.st_decoder.stats();
-        let rejected = s.crc_errors.saturating_add(s.kind_errors).saturating_add(s.field_errors);
-        let new_rej = rejected.saturating_sub(self.st_rejected_seen);
-        self.st_rejected_seen = rejected;
+        if arrived {
+            status |= st_status::FRAME;
+        }
+        let decoded_rej = self.st_decoder.stats().rejected();
+        let new_rej = decoded_rej.saturating_sub(self.st_rejected_seen).saturating_add(overflow);
+        self.st_rejected_seen = decoded_rej;
         if new_rej > 0 {
             status |= st_status::REFUSED;
             self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(new_rej);
         }
-        for f in frames.iter() {
-            status |= st_status::FRAME;
-            if !f.valid() {
-                status |= st_status::REFUSED;
-                self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
-                continue;
-            }
-            let [w, x, y, z] = f.quaternion();
-            let q = Quaternion::new(w, x, y, z);
-            match self.observer.update(&mut self.attitude, now_us, f.time_us, &q, &self.mount) {
-                Ok(_) => {
-                    status |= st_status::UPDATED;
-                    self.last_st_update_us = Some(now_us);
-                    self.counters.st_frames_accepted = self.counters.st_frames_accepted.saturating_add(1);
-                }
-                Err(UpdateError::Gated) => {
-                    status |= st_status::REFUSED;
-                    self.counters.st_updates_gated = self.counters.st_updates_gated.saturating_add(1);
-                }
-                Err(_) => {
+        // Bounded: at most ST_PENDING frames are examined.
+        for _ in 0..ST_PENDING {
+            let Some(f) = self.st_pending.front().copied() else { break };
+            if f.time_us > now_us {
+                if f.time_us - now_us > ST_MAX_LEAD_US {
+                    let _ = self.st_pending.pop_front();
                     status |= st_status::REFUSED;
                     self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+                    continue;
                 }
+                break;
             }
+            let _ = self.st_pending.pop_front();
+            status |= self.apply_star(&f, now_us);
         }
         if self.observer.aligned() {
             status |= st_status::ALIGNED;
@@ -496,6 +606,31 @@ impl FlightCore {
             status |= st_status::OUTAGE;
         }
         status
+    }
+
+    /// One star-tracker frame into the observer; returns status bits.
+    fn apply_star(&mut self, f: &StarFrame, now_us: u64) -> u8 {
+        if !f.valid() {
+            self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+            return st_status::REFUSED;
+        }
+        let [w, x, y, z] = f.quaternion();
+        let q = Quaternion::new(w, x, y, z);
+        match self.observer.update(&mut self.attitude, now_us, f.time_us, &q, &self.mount) {
+            Ok(_) => {
+                self.last_st_update_us = Some(now_us);
+                self.counters.st_frames_accepted = self.counters.st_frames_accepted.saturating_add(1);
+                st_status::UPDATED
+            }
+            Err(UpdateError::Gated) => {
+                self.counters.st_updates_gated = self.counters.st_updates_gated.saturating_add(1);
+                st_status::REFUSED
+            }
+            Err(_) => {
+                self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+                st_status::REFUSED
+            }
+        }
     }
 
     /// Encodes and writes the output frame; a link that cannot take it is counted.
@@ -530,4 +665,12 @@ impl FlightCore {
             self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
         }
     }
+}
+
+/// Queues a FOG sample; a full queue drops its oldest (late backlog).
+fn enqueue(queue: &mut Deque<FogFrame, FOG_QUEUE>, f: FogFrame) {
+    if queue.is_full() {
+        let _ = queue.pop_front();
+    }
+    let _ = queue.push_back(f);
 }

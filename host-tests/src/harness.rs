@@ -13,7 +13,7 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::compensation::compensate_increment;
-use ssis::flight::{Counters, FlightCore, Links, StepOutput};
+use ssis::flight::{Counters, FlightCore, FogLinks, Links, StepOutput};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
 use ssis::math::rotvec_from_quat;
@@ -29,7 +29,7 @@ use crate::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 /// One step of a run as seen by the harness.
 #[derive(Debug, Clone, Copy)]
 pub struct Record {
-    /// Time, s.
+    /// Time tag of the step's output (end of the integrated sample), s.
     pub t_s: f64,
     /// Truth Λ.
     pub q_true: Quaternion<f64>,
@@ -43,6 +43,15 @@ pub struct Record {
     pub rate_err_deg_h: [f64; 3],
     /// True body rate, rad/s.
     pub rate_true_rad_s: [f64; 3],
+}
+
+/// Truth of one sample, kept until the core's output for it comes out.
+struct PastStep {
+    n: u64,
+    q: Quaternion<f64>,
+    dtheta: Vector3<f64>,
+    m_sys: Vector4<f64>,
+    rate: Vector3<f64>,
 }
 
 /// What a run measured.
@@ -94,11 +103,9 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
     }
     let mut star = StarModel::new(&sc.star_tracker, profile.dt_us, table.st_mount());
     let seed = sc.seed.wrapping_mul(0x9E37_79B9_7F4A_7C15);
-    let mut links = Links {
-        fog: [0u64, 1, 2, 3].map(|i| MockLink::new(sc.links.fog, seed ^ (i + 1))),
-        star: MockLink::new(sc.links.star, seed ^ 99),
-        out: MockSink::default(),
-    };
+    let mut fog_links = [0u64, 1, 2, 3].map(|i| MockLink::new(sc.links.fog, seed ^ (i + 1)));
+    let mut star_link = MockLink::new(sc.links.star, seed ^ 99);
+    let mut out_link = MockSink::default();
     let mut out_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let steps = (sc.duration_s / dt_s).round() as u64;
     let mut att = AxisStats::default();
@@ -106,27 +113,33 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
     let mut converged_at = None;
     let (mut frames_out, mut frames_bad, mut mismatch) = (0u64, 0u64, 0u64);
     let mut last = None;
+    let mut past: std::collections::VecDeque<PastStep> = std::collections::VecDeque::new();
     for n in 1..=steps {
-        for l in links.fog.iter_mut() {
+        for l in fog_links.iter_mut() {
             l.tick();
         }
-        links.star.tick();
+        star_link.tick();
         let ts = truth.advance(dt_s);
         let now_us = n * u64::from(profile.dt_us);
         let sample = fogs.sample(&ts.dtheta_rad, ts.t_s, dt_s, &mut rng);
-        for (i, (link, f)) in links.fog.iter_mut().zip(sample.frames.iter()).enumerate() {
+        for (i, (link, f)) in fog_links.iter_mut().zip(sample.frames.iter()).enumerate() {
             if profile.fogs.contains(i) {
                 link.send(&f.to_bytes());
             }
         }
         let st_bytes = star.step(n, now_us, &ts.q, &ts.rate_rad_s, &mut rng);
         if profile.star_tracker {
-            links.star.send(&st_bytes);
+            star_link.send(&st_bytes);
         }
-        let out = core.step(&mut links);
+        let out = {
+            let mut links =
+                Links { fog: FogLinks::PerFog(fog_links.each_mut()), star: &mut star_link, out: &mut out_link };
+            core.step(&mut links)
+        };
+        last = Some(out);
 
         // Output frames: decode what the core wrote and check it is this step's output.
-        let bytes = std::mem::take(&mut links.out.bytes);
+        let bytes = std::mem::take(&mut out_link.bytes);
         out_dec.push_slice(&bytes, |r| match r {
             Ok(f) => {
                 frames_out += 1;
@@ -137,32 +150,40 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
             Err(_) => frames_bad += 1,
         });
 
-        // Errors against truth.
-        let e = rotvec_from_quat(&(ts.q.conjugate() * out.q)) * ARCSEC_PER_RAD;
+        // Truth of the sample this step integrated (by its time tag: links may delay).
         let m_sys = Vector4::from_fn(|i, _| {
             compensate_increment(&table.fog[i], sample.raw_sys_rad[i], dt_s, sample.t_degc, sample.g_degc_s)
         });
-        let body_sys = core.combiner().combine(&m_sys, out.fogs_used).unwrap_or(ts.dtheta_rad);
-        let drift_sys: Vector3<f64> = (body_sys - ts.dtheta_rad) / dt_s;
+        past.push_back(PastStep { n, q: ts.q, dtheta: ts.dtheta_rad, m_sys, rate: ts.rate_rad_s });
+        if past.len() > 64 {
+            past.pop_front();
+        }
+        let k = out.time_us / u64::from(profile.dt_us);
+        let Some(p) = past.iter().find(|p| p.n == k) else {
+            // No sample integrated yet (links still delivering the first frames).
+            continue;
+        };
+        let e = rotvec_from_quat(&(p.q.conjugate() * out.q)) * ARCSEC_PER_RAD;
+        let body_sys = core.combiner().combine(&p.m_sys, out.fogs_used).unwrap_or(p.dtheta);
+        let drift_sys: Vector3<f64> = (body_sys - p.dtheta) / dt_s;
         let rerr = (out.drift_rad_s - drift_sys) * DEG_H_PER_RAD_S;
         let rec = Record {
-            t_s: ts.t_s,
-            q_true: ts.q,
+            t_s: k as f64 * dt_s,
+            q_true: p.q,
             out,
             att_err_arcsec: [e.x, e.y, e.z],
             drift_sys_rad_s: [drift_sys.x, drift_sys.y, drift_sys.z],
             rate_err_deg_h: [rerr.x, rerr.y, rerr.z],
-            rate_true_rad_s: [ts.rate_rad_s.x, ts.rate_rad_s.y, ts.rate_rad_s.z],
+            rate_true_rad_s: [p.rate.x, p.rate.y, p.rate.z],
         };
         if converged_at.is_none() && out.flags & ssis::flight::flags::CONVERGED != 0 {
-            converged_at = Some(ts.t_s);
+            converged_at = Some(rec.t_s);
         }
-        if ts.t_s >= sc.settle_s {
+        if rec.t_s >= sc.settle_s {
             att.push(rec.att_err_arcsec);
             rate.push(rec.rate_err_deg_h);
         }
         on_step(&rec);
-        last = Some(out);
     }
     Ok(Summary {
         name: sc.name.clone(),
@@ -177,8 +198,8 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
         frames_out,
         frames_out_bad: frames_bad,
         frames_out_mismatch: mismatch,
-        fog_links: [0, 1, 2, 3].map(|i| links.fog[i].stats()),
-        star_link: links.star.stats(),
+        fog_links: [0, 1, 2, 3].map(|i| fog_links[i].stats()),
+        star_link: star_link.stats(),
         fog_random_bias_deg_h: fogs.random_bias_rad_s().map(|b| b * DEG_H_PER_RAD_S),
     })
 }

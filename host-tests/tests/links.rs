@@ -3,7 +3,7 @@
 
 use nalgebra::Quaternion;
 use ssis::calib::CalibrationTable;
-use ssis::flight::{health, FlightCore, Links, Profile};
+use ssis::flight::{health, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::fog::FogFrame;
 use ssis::link::{RxRing, TxRing};
 use ssis_host::harness::run;
@@ -47,11 +47,15 @@ fn corrupted_fog_and_star_bytes_are_counted_not_fatal() {
 fn a_silent_fog_is_flagged_and_the_other_three_carry_on() {
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
     core.align(Quaternion::identity());
-    let mut links =
-        Links { fog: [0, 1, 2, 3].map(|_| MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() };
+    let mut links = Links {
+        fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())),
+        star: MockLink::ideal(),
+        out: MockSink::default(),
+    };
     let w = 1e-3; // rad/s about X
     for n in 1..=400u16 {
-        for (i, l) in links.fog.iter_mut().enumerate() {
+        let FogLinks::PerFog(fogs) = &mut links.fog else { unreachable!() };
+        for (i, l) in fogs.iter_mut().enumerate() {
             if i == 2 {
                 continue; // FOG3 silent
             }
@@ -71,7 +75,7 @@ fn a_silent_fog_is_flagged_and_the_other_three_carry_on() {
 fn a_blocked_output_is_counted_and_flagged() {
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
     let mut links = Links {
-        fog: [0, 1, 2, 3].map(|_| MockLink::ideal()),
+        fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())),
         star: MockLink::ideal(),
         out: MockSink { blocked: true, ..Default::default() },
     };
@@ -116,4 +120,63 @@ fn launch_vehicle_profile_runs_three_fogs_at_1_25_ms() {
     // Free inertial on ideal-but-noisy gyros for 20 s: a few arcsec at most.
     assert!(s.att.max_abs().iter().all(|e| *e < 5.0), "{:?}", s.att.max_abs());
     let _ = Profile::LAUNCH_VEHICLE;
+}
+
+/// Runs a 60 s scenario with FOG link impairments `imp`; returns the summary.
+fn run_with_fog_links(imp: Impairments) -> ssis_host::harness::Summary {
+    let mut sc = short_scenario();
+    sc.duration_s = 60.0;
+    sc.links.fog = imp;
+    sc.star_tracker.latency_ms = 40.0;
+    run(&sc, |_| {}).expect("run")
+}
+
+#[test]
+fn constant_link_latency_costs_nothing_but_startup() {
+    // Frames arrive 3 steps late on every FOG link: the sample clock follows the FOG
+    // counters, so nothing is discarded and the time tags stay those of the samples.
+    let ideal = run_with_fog_links(Impairments::default());
+    let late = run_with_fog_links(Impairments { delay_steps: 3, ..Default::default() });
+    println!("{}\n{}", ideal.report(), late.report());
+    assert_eq!(late.counters.fog_samples_stale, 0);
+    // Only the three steps before the first sample lack data.
+    assert_eq!(late.counters.fog_samples_missing, 0);
+    assert!(late.att.max_abs().iter().zip(ideal.att.max_abs()).all(|(a, b)| (a - b).abs() < 0.5));
+}
+
+#[test]
+fn the_fog_bus_gives_the_same_output_as_separate_links() {
+    // Same frames, one multi-drop link instead of four: bit-identical output.
+    use rand::SeedableRng;
+    use ssis::frames::output::OutputFrame;
+    use ssis_host::sim::fog::{FogModel, FogSpec};
+    use ssis_host::sim::truth::{MotionSpec, Truth};
+    let mut rng = rand_chacha::ChaCha20Rng::seed_from_u64(3);
+    let mut truth = Truth::new(MotionSpec::earth_pointing(5640.0, Vec::new()));
+    let mut fogs = FogModel::new(&FogSpec::paper_post_calibration(), &mut rng);
+    let t = CalibrationTable::DEFAULT;
+    let mut a = FlightCore::new(Profile::SPACECRAFT, &t, false).expect("core");
+    let mut b = FlightCore::new(Profile::SPACECRAFT, &t, false).expect("core");
+    a.align(Quaternion::identity());
+    b.align(Quaternion::identity());
+    let mut per = Links {
+        fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())),
+        star: MockLink::ideal(),
+        out: MockSink::default(),
+    };
+    let mut bus = Links { fog: FogLinks::Bus(MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() };
+    for _ in 0..2000 {
+        let ts = truth.advance(0.005);
+        let s = fogs.sample(&ts.dtheta_rad, ts.t_s, 0.005, &mut rng);
+        let (FogLinks::PerFog(ls), FogLinks::Bus(l)) = (&mut per.fog, &mut bus.fog) else { unreachable!() };
+        for (i, f) in s.frames.iter().enumerate() {
+            ls[i].send(&f.to_bytes());
+            l.send(&f.to_bytes());
+        }
+        let oa = a.step(&mut per);
+        let ob = b.step(&mut bus);
+        assert_eq!(oa, ob);
+    }
+    assert_eq!(per.out.bytes, bus.out.bytes);
+    assert_eq!(per.out.bytes.len(), 2000 * OutputFrame::LEN);
 }

@@ -12,7 +12,7 @@ use clap::Parser;
 use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use ssis::calib::CalibrationTable;
-use ssis::flight::{FlightCore, Links, Profile};
+use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis_host::sim::fog::{FogModel, FogSpec};
 use ssis_host::sim::star::{StarModel, StarSpec};
 use ssis_host::sim::truth::{MotionSpec, Truth};
@@ -102,28 +102,32 @@ fn main() {
     let mut fogs = FogModel::new(&FogSpec::paper_post_calibration(), &mut rng);
     let table = CalibrationTable::DEFAULT;
     let mut star = StarModel::new(&StarSpec::default(), profile.dt_us, table.st_mount());
-    let mut links = Links { fog: [0, 1, 2, 3].map(|_| Replay::new()), star: Replay::new(), out: Count(0) };
+    let mut fog = [0, 1, 2, 3].map(|_| Replay::new());
+    let mut star_link = Replay::new();
     eprintln!("generating {} steps of frames...", args.steps);
     for n in 1..=args.steps as u64 {
         let ts = truth.advance(dt);
         let s = fogs.sample(&ts.dtheta_rad, ts.t_s, dt, &mut rng);
-        for (l, f) in links.fog.iter_mut().zip(s.frames.iter()) {
+        for (l, f) in fog.iter_mut().zip(s.frames.iter()) {
             l.record(&f.to_bytes());
         }
         let b = star.step(n, n * u64::from(profile.dt_us), &ts.q, &ts.rate_rad_s, &mut rng);
-        links.star.record(&b);
+        star_link.record(&b);
     }
     let mut best = f64::INFINITY;
     for _ in 0..args.repeat.max(1) {
-        for l in links.fog.iter_mut() {
+        for l in fog.iter_mut() {
             l.rewind();
         }
-        links.star.rewind();
+        star_link.rewind();
+        let mut links = Links { fog: FogLinks::PerFog(fog.each_mut()), star: &mut star_link, out: Count(0) };
         let mut core = FlightCore::new(profile, &table, false).expect("core");
         let t0 = Instant::now();
         for _ in 0..args.steps {
-            for l in links.fog.iter_mut() {
-                l.release();
+            if let FogLinks::PerFog(ls) = &mut links.fog {
+                for l in ls.iter_mut() {
+                    l.release();
+                }
             }
             links.star.release();
             std::hint::black_box(core.step(&mut links));
