@@ -659,12 +659,33 @@ impl FlightCore {
         );
         self.out_counter = self.out_counter.wrapping_add(1);
         let bytes = frame.to_bytes();
-        let ok = matches!(out.write_ready(), Ok(true)) && out.write_all(&bytes).is_ok();
+        let ok = write_frame(out, &bytes);
         self.output_dropped_last = !ok;
         if !ok {
             self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
         }
     }
+}
+
+/// Writes `bytes` without waiting: `true` if all of it was taken. Never calls
+/// `write_all` (whose default panics when a non-blocking sink takes nothing); a sink
+/// that fills part-way leaves a truncated frame, which the receiver's decoder rejects.
+fn write_frame<O: TxLink>(out: &mut O, bytes: &[u8]) -> bool {
+    let mut rest = bytes;
+    // Bounded: each pass takes at least one byte or stops.
+    for _ in 0..bytes.len() {
+        if rest.is_empty() {
+            break;
+        }
+        if !matches!(out.write_ready(), Ok(true)) {
+            return false;
+        }
+        match out.write(rest) {
+            Ok(n) if n > 0 => rest = rest.get(n..).unwrap_or(&[]),
+            _ => return false,
+        }
+    }
+    rest.is_empty()
 }
 
 /// Queues a FOG sample; a full queue drops its oldest (late backlog).

@@ -74,12 +74,13 @@ pub struct RxRing<const N: usize> {
 struct RingState<const N: usize> {
     bytes: Deque<u8, N>,
     overflows: u32,
+    received: u32,
 }
 
 impl<const N: usize> RxRing<N> {
     /// An empty ring (usable in a `static`).
     pub const fn new() -> Self {
-        RxRing { inner: Mutex::new(RefCell::new(RingState { bytes: Deque::new(), overflows: 0 })) }
+        RxRing { inner: Mutex::new(RefCell::new(RingState { bytes: Deque::new(), overflows: 0, received: 0 })) }
     }
 
     /// Called from the interrupt: stores one received byte; a full ring drops it and
@@ -87,10 +88,16 @@ impl<const N: usize> RxRing<N> {
     pub fn push(&self, byte: u8) {
         critical_section::with(|cs| {
             let mut s = self.inner.borrow_ref_mut(cs);
+            s.received = s.received.wrapping_add(1);
             if s.bytes.push_back(byte).is_err() {
                 s.overflows = s.overflows.saturating_add(1);
             }
         });
+    }
+
+    /// Bytes received since start (wrapping), including any dropped.
+    pub fn received(&self) -> u32 {
+        critical_section::with(|cs| self.inner.borrow_ref(cs).received)
     }
 
     /// Bytes dropped because the ring was full.

@@ -13,6 +13,8 @@
 
 pub mod harness;
 pub mod mock;
+pub mod plot;
+pub mod qemu;
 pub mod scenario;
 pub mod sim;
 pub mod stats;

@@ -19,6 +19,7 @@
 //!
 //! Nothing here allocates, panics or loops without bound.
 
+pub mod control;
 pub mod decoder;
 pub mod fog;
 pub mod output;
@@ -35,6 +36,8 @@ pub mod kind {
     pub const STAR: u8 = 0x20;
     /// Output frame ([`super::output::OutputFrame`]).
     pub const OUTPUT: u8 = 0x30;
+    /// Control frame (test and ground equipment → unit).
+    pub const CONTROL: u8 = 0x40;
 }
 
 /// Bytes before the fields: sync (2) and kind (1).
@@ -201,6 +204,11 @@ impl<'a> FieldWriter<'a> {
         self.bytes(v.to_le_bytes());
     }
 
+    /// Writes a `u32`, little-endian.
+    pub fn u32(&mut self, v: u32) {
+        self.bytes(v.to_le_bytes());
+    }
+
     /// Writes a `u64`, little-endian.
     pub fn u64(&mut self, v: u64) {
         self.bytes(v.to_le_bytes());
@@ -249,6 +257,11 @@ impl<'a> FieldReader<'a> {
     /// Reads a little-endian `i32`.
     pub fn i32(&mut self) -> Result<i32, DecodeError> {
         self.bytes().map(i32::from_le_bytes)
+    }
+
+    /// Reads a little-endian `u32`.
+    pub fn u32(&mut self) -> Result<u32, DecodeError> {
+        self.bytes().map(u32::from_le_bytes)
     }
 
     /// Reads a little-endian `u64`.

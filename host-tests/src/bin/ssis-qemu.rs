@@ -1,0 +1,136 @@
+//! `ssis-qemu`: run a scenario on the firmware in QEMU (mps2-an500), fed by the
+//! simulator over the emulated UARTs, and report against truth. `--help` for options.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use ssis_host::plot::{write_svg, PlotPoint};
+use ssis_host::qemu::{build_firmware, default_elf, elf_sizes, run_qemu, QemuOptions};
+use ssis_host::scenario::Scenario;
+use ssis_host::DEG_H_PER_RAD_S;
+
+#[derive(Parser)]
+#[command(name = "ssis-qemu", version, about = "Run a simulated flight on the firmware in QEMU")]
+struct Args {
+    /// Scenario file (TOML).
+    scenario: PathBuf,
+    /// Firmware ELF (default: build it and use target/thumbv7em-none-eabihf/release/ssis-fw).
+    #[arg(long)]
+    elf: Option<PathBuf>,
+    /// Lockstep: step on control frames and compare every output frame with the
+    /// in-process flight core (deterministic; not real time).
+    #[arg(long)]
+    lockstep: bool,
+    /// Count instructions (-icount shift=0): step times are then instructions.
+    #[arg(long)]
+    icount: bool,
+    /// Flip one bit in every N-th byte sent on every link.
+    #[arg(long, default_value_t = 0)]
+    corrupt_every: u64,
+    /// Output directory for the CSV log and the SVG plot.
+    #[arg(long, default_value = "out")]
+    out: PathBuf,
+    /// Shorten the scenario to this many seconds.
+    #[arg(long)]
+    duration: Option<f64>,
+}
+
+fn main() -> ExitCode {
+    match real_main() {
+        Ok(true) => ExitCode::SUCCESS,
+        Ok(false) => ExitCode::FAILURE,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn real_main() -> Result<bool> {
+    let a = Args::parse();
+    let mut sc = Scenario::from_file(&a.scenario)?;
+    if let Some(d) = a.duration {
+        sc.duration_s = d;
+        sc.settle_s = sc.settle_s.min(d / 2.0);
+    }
+    let elf = match a.elf {
+        Some(e) => e,
+        None => {
+            build_firmware()?;
+            default_elf()
+        }
+    };
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let csv_path = a.out.join(format!("{}-qemu.csv", sc.name));
+    let tmp = csv_path.with_extension("partial");
+    let mut w = csv::Writer::from_path(&tmp)?;
+    w.write_record([
+        "t_s",
+        "q0",
+        "q1",
+        "q2",
+        "q3",
+        "err_x_arcsec",
+        "err_y_arcsec",
+        "err_z_arcsec",
+        "drift_x_deg_h",
+        "drift_y_deg_h",
+        "drift_z_deg_h",
+        "rate_err_x_deg_h",
+        "rate_err_y_deg_h",
+        "rate_err_z_deg_h",
+        "flags",
+        "st_status",
+        "step_ticks",
+    ])?;
+    let mut points = Vec::new();
+    let mut n = 0u64;
+    let opts = QemuOptions {
+        elf: elf.clone(),
+        lockstep: a.lockstep,
+        icount: a.icount,
+        corrupt_every: a.corrupt_every,
+        progress: true,
+    };
+    let s = run_qemu(&sc, &opts, |r| {
+        n += 1;
+        if n.is_multiple_of(20) {
+            let d = r.out.drift_rad_s * DEG_H_PER_RAD_S;
+            let rec = [
+                r.t_s,
+                r.out.q.w,
+                r.out.q.i,
+                r.out.q.j,
+                r.out.q.k,
+                r.att_err_arcsec[0],
+                r.att_err_arcsec[1],
+                r.att_err_arcsec[2],
+                d.x,
+                d.y,
+                d.z,
+                r.rate_err_deg_h[0],
+                r.rate_err_deg_h[1],
+                r.rate_err_deg_h[2],
+                f64::from(r.out.flags),
+                f64::from(r.out.st_status),
+                f64::from(r.out.step_ticks),
+            ];
+            let _ = w.write_record(rec.iter().map(|v| v.to_string()));
+            points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
+        }
+    })?;
+    w.flush()?;
+    drop(w);
+    std::fs::rename(&tmp, &csv_path)?;
+    let svg = a.out.join(format!("{}-qemu.svg", sc.name));
+    write_svg(&svg, &format!("{} on ssis-fw in QEMU", sc.name), &points)?;
+    print!("{}", s.report());
+    if let Ok((flash, ram)) = elf_sizes(&elf) {
+        println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
+    }
+    println!("wrote {} and {}", csv_path.display(), svg.display());
+    let clean = s.exit_code == Some(0) && s.frames_out_bad == 0 && s.differing_frames == 0 && s.frames_out > 0;
+    Ok(clean)
+}

@@ -1,0 +1,535 @@
+//! The QEMU runner: the firmware ELF on `qemu-system-arm -machine mps2-an500`, fed by
+//! the simulator over the emulated UARTs, its output frames decoded and compared with
+//! truth.
+//!
+//! UART mapping (`docs/ICD.md`): UART0 = output frames out / control frames in,
+//! UART1 = FOG bus, UART2 = star tracker. Each is a Unix socket the runner listens on
+//! and QEMU connects to. The firmware's defmt log comes over semihosting on QEMU's
+//! stdout and is decoded with the ELF's defmt table.
+//!
+//! Two pacings:
+//! - real time: the firmware steps on its own 5 ms SysTick; the runner sends each step's
+//!   frames at the real rate, a few steps ahead (the unit's time is its FOG sample
+//!   clock, so the lead costs nothing), and never more than [`MAX_LEAD`] steps ahead of
+//!   the outputs it has received;
+//! - lockstep: the runner sends a step's bytes and a STEP control frame naming the byte
+//!   totals, and waits for that step's output. Deterministic: the runner also runs the
+//!   same `FlightCore` in-process on the same bytes and compares every output frame.
+
+use std::io::{Read, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use ssis::calib::binary;
+use ssis::flight::{st_status, FlightCore, FogLinks, Links};
+use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::output::OutputFrame;
+
+use crate::harness::{error_table, Evaluator, Observed, Record, Simulation};
+use crate::mock::{MockLink, MockSink};
+use crate::scenario::Scenario;
+use crate::stats::AxisStats;
+
+/// Steps the runner may be ahead of the outputs it has received (real time).
+pub const MAX_LEAD: u64 = 3;
+/// Steps of frames sent before the first output is awaited (real time).
+pub const LEAD: u64 = 2;
+/// Instructions per SysTick tick under `-icount shift=0` (25 MHz SysTick, 1 GHz virtual).
+pub const INSTR_PER_TICK: f64 = 40.0;
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct QemuOptions {
+    /// Firmware ELF.
+    pub elf: PathBuf,
+    /// Lockstep (deterministic, with the in-process comparison) instead of real time.
+    pub lockstep: bool,
+    /// `-icount shift=0`: one instruction per ns of virtual time, for instruction counts.
+    pub icount: bool,
+    /// Bytes to corrupt: flip one bit in every N-th byte sent on every link (0 = none).
+    pub corrupt_every: u64,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// What a QEMU run measured.
+#[derive(Debug, Clone, Default)]
+pub struct QemuSummary {
+    /// Scenario name.
+    pub name: String,
+    /// Steps sent.
+    pub steps: u64,
+    /// Simulated time, s.
+    pub duration_s: f64,
+    /// Settling time, s.
+    pub settle_s: f64,
+    /// Attitude error after settling, arcsec.
+    pub att: AxisStats,
+    /// Rate error after settling, °/h.
+    pub rate: AxisStats,
+    /// Convergence time, s.
+    pub converged_at_s: Option<f64>,
+    /// Last drift estimate, rad/s.
+    pub drift_final_rad_s: [f64; 3],
+    /// FOG frames sent.
+    pub fog_frames_in: u64,
+    /// Star-tracker frames sent.
+    pub st_frames_in: u64,
+    /// Output frames decoded.
+    pub frames_out: u64,
+    /// Output bytes that did not decode.
+    pub frames_out_bad: u64,
+    /// The unit's counters from its last output frame.
+    pub last_frame: OutputFrame,
+    /// Lockstep: output frames identical to the in-process core's.
+    pub equal_frames: u64,
+    /// Lockstep: output frames that differ from the in-process core's.
+    pub differing_frames: u64,
+    /// Step time (ticks) of steps without / with a star-tracker update.
+    pub step_ticks: AxisStats,
+    /// Largest step time, ticks, without / with a star-tracker update.
+    pub step_ticks_max: [u32; 2],
+    /// Mean step time, ticks, without / with a star-tracker update, and counts.
+    pub step_ticks_mean: [f64; 2],
+    /// Steps counted in the means.
+    pub step_counts: [u64; 2],
+    /// Decoded defmt log lines.
+    pub log: Vec<String>,
+    /// QEMU's exit status (0 = the firmware ended the run cleanly).
+    pub exit_code: Option<i32>,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Whether instruction counting was on.
+    pub icount: bool,
+}
+
+impl QemuSummary {
+    /// A report a person can read.
+    pub fn report(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "scenario  {}  in QEMU mps2-an500 ({:.0} s simulated, {} steps, wall {:.1} s)",
+            self.name, self.duration_s, self.steps, self.wall_s
+        );
+        s.push_str(&error_table(self.settle_s, &self.att, &self.rate, self.drift_final_rad_s, self.converged_at_s));
+        let c = &self.last_frame.counters;
+        let _ = writeln!(
+            s,
+            "frames in: FOG {} star {}; out: {} decoded, {} bad bytes",
+            self.fog_frames_in, self.st_frames_in, self.frames_out, self.frames_out_bad
+        );
+        let _ = writeln!(
+            s,
+            "unit counters: FOG rejected {}, missing {}; star accepted {}, rejected {}, gated {}; overruns {}",
+            c.fog_frames_rejected,
+            c.fog_samples_missing,
+            c.st_frames_accepted,
+            c.st_frames_rejected,
+            c.st_updates_gated,
+            c.overruns
+        );
+        let unit = if self.icount { "instructions" } else { "SysTick ticks (40 ns)" };
+        let k = if self.icount { INSTR_PER_TICK } else { 1.0 };
+        let _ = writeln!(
+            s,
+            "step time, {unit}: mean {:.0} / worst {:.0} (no star update, {} steps); mean {:.0} / worst {:.0} (star update, {} steps)",
+            self.step_ticks_mean[0] * k,
+            f64::from(self.step_ticks_max[0]) * k,
+            self.step_counts[0],
+            self.step_ticks_mean[1] * k,
+            f64::from(self.step_ticks_max[1]) * k,
+            self.step_counts[1]
+        );
+        if self.equal_frames + self.differing_frames > 0 {
+            let _ = writeln!(
+                s,
+                "host/QEMU equivalence: {} output frames identical, {} different",
+                self.equal_frames, self.differing_frames
+            );
+        }
+        for l in &self.log {
+            let _ = writeln!(s, "firmware: {l}");
+        }
+        let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        s
+    }
+}
+
+/// The firmware ELF built by `cargo build --release` at the repository root.
+pub fn default_elf() -> PathBuf {
+    repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw")
+}
+
+/// The repository root (the parent of `host-tests`).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().map(Path::to_path_buf).unwrap_or_default()
+}
+
+/// Builds the firmware (release, thumb target) if it is out of date.
+pub fn build_firmware() -> Result<PathBuf> {
+    let status = Command::new("cargo")
+        .args(["build", "--release", "--quiet", "--bin", "ssis-fw"])
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")?;
+    if !status.success() {
+        bail!("building the firmware failed ({status})");
+    }
+    Ok(default_elf())
+}
+
+struct Qemu {
+    child: Child,
+    dir: PathBuf,
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<UnixStream> {
+    listener.set_nonblocking(true)?;
+    let t0 = Instant::now();
+    loop {
+        match listener.accept() {
+            Ok((s, _)) => {
+                s.set_nonblocking(false)?;
+                return Ok(s);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if let Some(st) = child.try_wait()? {
+                    bail!("qemu-system-arm exited ({st}) before connecting {what}");
+                }
+                if t0.elapsed() > Duration::from_secs(20) {
+                    bail!("qemu-system-arm did not connect {what} within 20 s");
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+/// Flips one bit in every `every`-th byte (counted over the link's life).
+struct Corrupter {
+    every: u64,
+    count: u64,
+}
+
+impl Corrupter {
+    fn apply(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let mut v = bytes.to_vec();
+        if self.every > 0 {
+            for b in v.iter_mut() {
+                self.count += 1;
+                if self.count.is_multiple_of(self.every) {
+                    *b ^= 1 << (self.count % 8);
+                }
+            }
+        }
+        v
+    }
+}
+
+/// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
+pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
+    if Command::new("qemu-system-arm").arg("--version").stdout(Stdio::null()).status().is_err() {
+        bail!("qemu-system-arm not found: install it (Debian: apt-get install qemu-system-arm), or run `bash .ci/run` once");
+    }
+    anyhow::ensure!(
+        opts.elf.exists(),
+        "firmware ELF {} missing: run `cargo build --release` at the root",
+        opts.elf.display()
+    );
+    let mut sim = Simulation::new(sc)?;
+    anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
+    let mut eval = Evaluator::new(&sim);
+    let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{}", std::process::id(), sc.seed));
+    std::fs::create_dir_all(&dir)?;
+    let table_path = dir.join("table.bin");
+    std::fs::write(&table_path, binary::encode(&sim.table))?;
+    let socks: Vec<PathBuf> = (0..3).map(|i| dir.join(format!("uart{i}.sock"))).collect();
+    let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]);
+    cmd.args(["-semihosting-config", "enable=on,target=native"]);
+    if opts.icount {
+        cmd.args(["-icount", "shift=0"]);
+    }
+    for (i, p) in socks.iter().enumerate() {
+        cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
+        cmd.args(["-serial", &format!("chardev:u{i}")]);
+    }
+    cmd.args(["-device", &format!("loader,file={},addr=0x10000", table_path.display())]);
+    cmd.arg("-kernel").arg(&opts.elf);
+    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    let child = cmd.spawn().context("cannot start qemu-system-arm")?;
+    let mut q = Qemu { child, dir };
+    let mut stdout = q.child.stdout.take().context("no stdout")?;
+    let log_thread = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stdout.read_to_end(&mut buf);
+        buf
+    });
+    let mut ctl = accept(&listeners[0], &mut q.child, "UART0")?;
+    let mut fog = accept(&listeners[1], &mut q.child, "UART1")?;
+    let mut star = accept(&listeners[2], &mut q.child, "UART2")?;
+    let (tx, rx) = mpsc::channel::<Vec<u8>>();
+    let mut reader = ctl.try_clone()?;
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 || tx.send(buf[..n].to_vec()).is_err() {
+                break;
+            }
+        }
+    });
+
+    let started = Instant::now();
+    let bar = progress_bar(opts.progress, sim.steps, &sc.name);
+    let mut out_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut s = QemuSummary {
+        name: sc.name.clone(),
+        steps: sim.steps,
+        duration_s: sc.duration_s,
+        settle_s: sc.settle_s,
+        icount: opts.icount,
+        ..Default::default()
+    };
+    let (mut fog_total, mut st_total) = (0u32, 0u32);
+    let mut fog_corrupt = Corrupter { every: opts.corrupt_every, count: 0 };
+    let mut st_corrupt = Corrupter { every: opts.corrupt_every, count: 0 };
+    // Lockstep reference: the same core in-process on the same bytes.
+    let mut reference = if opts.lockstep {
+        ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        Some((
+            FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?,
+            MockLink::ideal(),
+            MockLink::ideal(),
+            MockSink::default(),
+        ))
+    } else {
+        None
+    };
+    let mut ref_frames: std::collections::VecDeque<Vec<u8>> = Default::default();
+    let mut ticks = [AxisStats::default(), AxisStats::default()];
+    let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
+    let mut last_drift = [0.0; 3];
+    let mut handle = |f: OutputFrame,
+                      s: &mut QemuSummary,
+                      eval: &mut Evaluator,
+                      ref_frames: &mut std::collections::VecDeque<Vec<u8>>| {
+        s.frames_out += 1;
+        if let Some(r) = ref_frames.pop_front() {
+            // The board fills in its own step time and overruns; everything else must be
+            // bit-identical to the in-process core's frame.
+            let mut mine = f;
+            mine.counters.step_ticks = 0;
+            mine.counters.overruns = 0;
+            if r.as_slice() == mine.to_bytes().as_slice() {
+                s.equal_frames += 1;
+            } else {
+                s.differing_frames += 1;
+            }
+        }
+        let o = Observed::from(&f);
+        let k = usize::from(o.st_status & st_status::UPDATED != 0);
+        if s.frames_out > 1 {
+            // The frame carries the time of the step before it.
+            ticks[k].push([f64::from(o.step_ticks); 3]);
+            s.step_ticks_max[k] = s.step_ticks_max[k].max(u32::from(o.step_ticks));
+        }
+        last_drift = f.drift_rad_s();
+        s.last_frame = f;
+        if let Some(rec) = eval.evaluate(&o) {
+            on_step(&rec);
+        }
+    };
+    while let Some(input) = sim.next_step() {
+        let n = input.n;
+        if !opts.lockstep {
+            // Real time: the frames of step n go out LEAD steps before its tick, and never
+            // more than MAX_LEAD steps ahead of the outputs received.
+            let due = started + dt * (n.saturating_sub(LEAD) as u32);
+            loop {
+                while let Ok(b) = rx.try_recv() {
+                    out_dec.push_slice(&b, |r| match r {
+                        Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
+                        Err(_) => s.frames_out_bad += 1,
+                    });
+                }
+                if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
+                    break;
+                }
+                if let Some(st) = q.child.try_wait()? {
+                    bail!("QEMU exited early ({st})");
+                }
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        let mut fog_bytes = Vec::with_capacity(64);
+        for (i, f) in input.fog_frames.iter().enumerate() {
+            if sim.profile.fogs.contains(i) {
+                fog_bytes.extend_from_slice(f);
+                s.fog_frames_in += 1;
+            }
+        }
+        s.st_frames_in += (input.st_bytes.len() / ssis::frames::star::StarFrame::LEN) as u64;
+        let fog_sent = fog_corrupt.apply(&fog_bytes);
+        let st_sent = st_corrupt.apply(&input.st_bytes);
+        fog.write_all(&fog_sent)?;
+        star.write_all(&st_sent)?;
+        fog_total = fog_total.wrapping_add(fog_sent.len() as u32);
+        st_total = st_total.wrapping_add(st_sent.len() as u32);
+        eval.push_truth(input.truth);
+        if let Some((core, fl, sl, out)) = reference.as_mut() {
+            fl.send(&fog_sent);
+            sl.send(&st_sent);
+            let mut links = Links { fog: FogLinks::Bus(&mut *fl), star: &mut *sl, out: &mut *out };
+            core.step(&mut links);
+            ref_frames.push_back(std::mem::take(&mut out.bytes));
+            let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
+            ctl.write_all(&step.to_bytes())?;
+            let before = s.frames_out;
+            let t0 = Instant::now();
+            while s.frames_out == before {
+                match rx.recv_timeout(Duration::from_secs(10)) {
+                    Ok(b) => out_dec.push_slice(&b, |r| match r {
+                        Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
+                        Err(_) => s.frames_out_bad += 1,
+                    }),
+                    Err(_) => bail!("no output frame for step {n} within {:?}", t0.elapsed()),
+                }
+            }
+        }
+        if let Some(b) = &bar {
+            if n.is_multiple_of(200) {
+                b.set_position(n);
+            }
+        }
+    }
+    // Collect what is still coming, then end the run.
+    let t_end = Instant::now();
+    while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
+        if let Ok(b) = rx.recv_timeout(Duration::from_millis(50)) {
+            out_dec.push_slice(&b, |r| match r {
+                Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
+                Err(_) => s.frames_out_bad += 1,
+            });
+        }
+    }
+    ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
+    let t_exit = Instant::now();
+    let status = loop {
+        if let Some(st) = q.child.try_wait()? {
+            break Some(st);
+        }
+        if t_exit.elapsed() > Duration::from_secs(10) {
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    while let Ok(b) = rx.try_recv() {
+        out_dec.push_slice(&b, |r| match r {
+            Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
+            Err(_) => s.frames_out_bad += 1,
+        });
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    s.exit_code = status.and_then(|st| st.code());
+    let _ = q.child.kill();
+    let log = log_thread.join().unwrap_or_default();
+    s.log = decode_defmt(&opts.elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
+    for (k, t) in ticks.iter().enumerate() {
+        s.step_ticks_mean[k] = t.mean()[0];
+        s.step_counts[k] = t.count();
+    }
+    s.step_ticks = ticks[0];
+    s.att = eval.att;
+    s.rate = eval.rate;
+    s.converged_at_s = eval.converged_at_s;
+    s.drift_final_rad_s = last_drift;
+    s.wall_s = started.elapsed().as_secs_f64();
+    Ok(s)
+}
+
+fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let b = indicatif::ProgressBar::new(steps);
+    if let Ok(st) = indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {percent}% {elapsed} / {duration}") {
+        b.set_style(st);
+    }
+    b.set_message(format!("{name} in QEMU"));
+    Some(b)
+}
+
+/// Decodes the firmware's defmt stream with the ELF's table.
+pub fn decode_defmt(elf: &Path, bytes: &[u8]) -> Result<Vec<String>> {
+    let elf_bytes = std::fs::read(elf)?;
+    let table = defmt_decoder::Table::parse(&elf_bytes)?.context("no defmt table in the ELF")?;
+    let mut dec = table.new_stream_decoder();
+    dec.received(bytes);
+    let mut out = Vec::new();
+    loop {
+        match dec.decode() {
+            Ok(f) => out.push(f.display_message().to_string()),
+            Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+            Err(defmt_decoder::DecodeError::Malformed) => {
+                out.push("(malformed defmt frame)".into());
+                break;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Flash and static RAM of the ELF: (flash bytes, RAM bytes of .data + .bss + .uninit).
+pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
+    use object::{Object, ObjectSection};
+    let data = std::fs::read(elf)?;
+    let file = object::File::parse(&*data)?;
+    let (mut flash, mut ram) = (0u64, 0u64);
+    for sec in file.sections() {
+        let name = sec.name().unwrap_or("");
+        match name {
+            ".vector_table" | ".text" | ".rodata" => flash += sec.size(),
+            ".data" => {
+                flash += sec.size();
+                ram += sec.size();
+            }
+            ".bss" | ".uninit" => ram += sec.size(),
+            _ => {}
+        }
+    }
+    Ok((flash, ram))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn decode_log_file() {
+        if let Ok(p) = std::env::var("SSIS_DEFMT_LOG") {
+            let bytes = std::fs::read(&p).expect("log");
+            for l in super::decode_defmt(&super::default_elf(), &bytes).expect("decode") {
+                println!("{l}");
+            }
+        }
+    }
+}

@@ -1,0 +1,224 @@
+//! Board: QEMU `mps2-an500` (Cortex-M7, FPv5-D16). Everything that touches hardware is
+//! here; the flight core knows only the link traits.
+//!
+//! - CMSDK APB UARTs (QEMU `hw/char/cmsdk-apb-uart.c`), RX interrupt-driven into
+//!   [`RxRing`]s; the output is written from a [`TxRing`] by [`pump_tx`].
+//!   | UART | base | RX/TX IRQ | use |
+//!   |---|---|---|---|
+//!   | 0 | 0x4000_4000 | 0 / 1 | output frames (TX), control frames (RX) |
+//!   | 1 | 0x4000_5000 | 2 / 3 | FOG bus: all four FOGs, told apart by `fog_id` |
+//!   | 2 | 0x4000_6000 | 4 / 5 | star tracker (RX) |
+//! - SysTick at 25 MHz: the step tick (5 ms = 125,000 ticks) and the step-time measure.
+//! - Semihosting: defmt log output and the exit code of a QEMU run.
+//! - A painted stack for the high-water mark.
+#![allow(unsafe_code)]
+
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::{NVIC, SYST};
+use cortex_m_rt::exception;
+use ssis::link::{RxRing, TxRing};
+
+/// SysTick clock of the board, Hz (QEMU mps2: SYSCLK 25 MHz).
+pub const SYSCLK_HZ: u32 = 25_000_000;
+
+/// FOG bus receive buffer (four FOG frames per step, several steps of margin).
+pub static FOG_RX: RxRing<512> = RxRing::new();
+/// Star-tracker receive buffer.
+pub static ST_RX: RxRing<256> = RxRing::new();
+/// Control receive buffer (UART0 RX).
+pub static CTL_RX: RxRing<64> = RxRing::new();
+/// Output transmit buffer (two output frames).
+pub static OUT_TX: TxRing<256> = TxRing::new();
+
+/// SysTick interrupts since start.
+static TICKS: AtomicU32 = AtomicU32::new(0);
+
+const UART_BASE: [usize; 3] = [0x4000_4000, 0x4000_5000, 0x4000_6000];
+const DATA: usize = 0x00;
+const STATE: usize = 0x04;
+const CTRL: usize = 0x08;
+const INTSTATUS: usize = 0x0C;
+const BAUDDIV: usize = 0x10;
+const STATE_TX_FULL: u32 = 1 << 0;
+const STATE_RX_FULL: u32 = 1 << 1;
+const CTRL_TX_EN: u32 = 1 << 0;
+const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INT_EN: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
+
+fn reg(uart: usize, off: usize) -> *mut u32 {
+    (UART_BASE.get(uart).copied().unwrap_or(UART_BASE[0]) + off) as *mut u32
+}
+
+fn read(uart: usize, off: usize) -> u32 {
+    // SAFETY: a CMSDK UART register of this board, 4-byte aligned, always mapped.
+    unsafe { core::ptr::read_volatile(reg(uart, off)) }
+}
+
+fn write(uart: usize, off: usize, v: u32) {
+    // SAFETY: as in `read`.
+    unsafe { core::ptr::write_volatile(reg(uart, off), v) }
+}
+
+/// Brings up the UARTs, their interrupts and the step tick of `step_us`.
+pub fn init(mut syst: SYST, step_us: u32) {
+    for uart in 0..3 {
+        write(uart, BAUDDIV, 16);
+        write(uart, CTRL, CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN);
+    }
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(SYSCLK_HZ / 1_000_000 * step_us - 1);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+    for irq in [0u16, 2, 4] {
+        // SAFETY: the handlers below only touch the critical-section rings.
+        unsafe { NVIC::unmask(Irq(irq)) };
+    }
+}
+
+/// Ticks of the step period (the SysTick reload + 1).
+pub fn ticks_per_step() -> u32 {
+    SYST::get_reload() + 1
+}
+
+/// SysTick current value (counts down from the reload).
+pub fn systick_now() -> u32 {
+    SYST::get_current()
+}
+
+/// SysTick interrupts so far.
+pub fn ticks() -> u32 {
+    TICKS.load(Ordering::Acquire)
+}
+
+/// Sends what fits of the output buffer; never waits.
+pub fn pump_tx() {
+    // Bounded by the ring's size.
+    for _ in 0..256 {
+        if read(0, STATE) & STATE_TX_FULL != 0 {
+            break;
+        }
+        match OUT_TX.pop() {
+            Some(b) => write(0, DATA, u32::from(b)),
+            None => break,
+        }
+    }
+}
+
+/// Moves received bytes of `uart` into `ring` and clears the interrupt.
+fn rx_isr<const N: usize>(uart: usize, ring: &RxRing<N>) {
+    // Clear first, then drain: a byte that lands after the clear raises the interrupt
+    // again, so none is left sitting in the (one-byte) receive register unseen.
+    write(uart, INTSTATUS, INT_RX);
+    // Bounded: QEMU's CMSDK UART holds one byte; real ones a few.
+    for _ in 0..16 {
+        if read(uart, STATE) & STATE_RX_FULL == 0 {
+            break;
+        }
+        ring.push((read(uart, DATA) & 0xFF) as u8);
+    }
+}
+
+/// Main-loop backstop: drains any receive register still full (costs two reads per
+/// UART when idle).
+pub fn poll_rx() {
+    cortex_m::interrupt::free(|_| {
+        rx_isr(0, &CTL_RX);
+        rx_isr(1, &FOG_RX);
+        rx_isr(2, &ST_RX);
+    });
+}
+
+#[derive(Clone, Copy)]
+struct Irq(u16);
+
+// SAFETY: the numbers are this board's external interrupt lines.
+unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+#[exception]
+fn SysTick() {
+    TICKS.fetch_add(1, Ordering::Release);
+}
+
+/// External interrupts arrive here (no device crate): dispatch on the IRQ number.
+#[exception]
+unsafe fn DefaultHandler(irqn: i16) {
+    match irqn {
+        0 => rx_isr(0, &CTL_RX),
+        2 => rx_isr(1, &FOG_RX),
+        4 => rx_isr(2, &ST_RX),
+        _ => {}
+    }
+}
+
+#[exception]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    defmt::error!("hard fault");
+    exit(false)
+}
+
+/// Ends a QEMU run with the given outcome (semihosting); on hardware it would not
+/// return either.
+pub fn exit(success: bool) -> ! {
+    let code =
+        if success { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
+    cortex_m_semihosting::debug::exit(code);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+const PAINT: u32 = 0x5AFE_C0DE;
+
+extern "C" {
+    static mut __sheap: u32;
+    static _stack_start: u32;
+    static _calib_start: u8;
+}
+
+/// Paints the free RAM between the statics and the current stack pointer (less a
+/// margin), so [`stack_high_water`] can tell how deep the stack went.
+pub fn paint_stack() {
+    let start = core::ptr::addr_of_mut!(__sheap) as usize;
+    let sp = cortex_m::register::msp::read() as usize;
+    let mut p = start;
+    // Bounded: from the end of the statics to 256 bytes below the stack pointer.
+    while p + 4 <= sp.saturating_sub(256) {
+        // SAFETY: [start, sp − 256) is unused RAM between the statics and the stack.
+        unsafe { core::ptr::write_volatile(p as *mut u32, PAINT) };
+        p += 4;
+    }
+}
+
+/// Deepest stack use so far, bytes.
+pub fn stack_high_water() -> u32 {
+    let start = core::ptr::addr_of_mut!(__sheap) as usize;
+    let top = core::ptr::addr_of!(_stack_start) as usize;
+    let mut p = start;
+    while p < top {
+        // SAFETY: inside RAM, word aligned.
+        if unsafe { core::ptr::read_volatile(p as *const u32) } != PAINT {
+            break;
+        }
+        p += 4;
+    }
+    (top - p) as u32
+}
+
+/// RAM taken by statics (.data + .bss), bytes.
+pub fn static_ram() -> u32 {
+    (core::ptr::addr_of_mut!(__sheap) as usize - 0x2000_0000) as u32
+}
+
+/// The stored calibration table (4 KiB region at `_calib_start`).
+pub fn calib_bytes() -> &'static [u8] {
+    // SAFETY: the CALIB region of memory.x, 4 KiB, always mapped, read-only here.
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), 4096) }
+}
