@@ -195,7 +195,9 @@ struct FogChannel {
 }
 
 /// FOG samples a channel holds ahead of the step (absorbs jitter and late links).
-pub const FOG_QUEUE: usize = 4;
+pub const FOG_QUEUE: usize = 8;
+/// Steps a sample is waited for when a FOG that delivered the previous one owes it.
+pub const MAX_WAIT_STEPS: u32 = 2;
 /// Star-tracker frames held until the attitude reaches their time tag.
 pub const ST_PENDING: usize = 4;
 /// A star-tracker time tag further ahead of the unit's time than this is refused, µs.
@@ -223,6 +225,9 @@ pub struct FlightCore {
     bus_decoder: StreamDecoder<FogFrame, 32>,
     bus_rejected_seen: u32,
     clock: SampleClock,
+    last_present: FogSet,
+    waited: u32,
+    gap: bool,
     st_decoder: StreamDecoder<StarFrame, 64>,
     st_pending: Deque<StarFrame, ST_PENDING>,
     st_rejected_seen: u32,
@@ -264,6 +269,9 @@ impl FlightCore {
             bus_decoder: StreamDecoder::new(),
             bus_rejected_seen: 0,
             clock: SampleClock { expected: None, index: 0 },
+            last_present: profile.fogs,
+            waited: 0,
+            gap: false,
             st_decoder: StreamDecoder::new(),
             st_pending: Deque::new(),
             st_rejected_seen: 0,
@@ -333,35 +341,64 @@ impl FlightCore {
         self.step_ticks = ticks;
     }
 
-    /// One fixed step. Reads every link, integrates one FOG sample, observes, writes one
-    /// output frame.
+    /// One fixed step. Reads every link, integrates the FOG samples that are due,
+    /// observes, writes one output frame.
     ///
     /// Unit time is the FOG sample clock: the FOGs are sampled on the unit's sync pulse
-    /// and number their samples, so the step integrates the sample with the next counter
-    /// and its time tag is that sample's end, index × Δt, however the frames were
-    /// delayed on the links. A sample that did not arrive is flagged missing and its
-    /// interval bridged with the last body increment.
+    /// and number their samples, so a sample's end is at index × Δt however its frames
+    /// were delayed on the links. Each step integrates, in order, every sample that is
+    /// complete (usually one; more after a delay, catching up) and emits the time tag of
+    /// the last. A sample still owed by a FOG that delivered the previous one is waited
+    /// for up to [`MAX_WAIT_STEPS`] steps; then it is integrated with the FOGs that have
+    /// it, the others flagged missing. With no FOG data at all for longer, the interval
+    /// is bridged with the last body increment so time and attitude keep moving.
     pub fn step<F: RxLink, S: RxLink, O: TxLink>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
         let dt_s = self.profile.dt_s();
         self.receive_fogs(&mut links.fog);
-        let (m, used, fog_health) = self.take_sample(dt_s);
-        let now_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
-        let mut degraded = used != self.profile.fogs;
-        let body = match self.combiner.combine(&m, used) {
-            Ok(v) => v,
-            Err(_) => {
-                // No usable gyro set this step: hold the last body increment.
-                degraded = true;
-                self.last_body_dtheta
+        let mut fog_health = [0u8; N_FOG];
+        let mut used = FogSet(0);
+        let mut parity_rad = 0.0;
+        let mut corrected = self.last_body_dtheta - self.observer.drift_rad_s() * dt_s;
+        let mut integrated = 0u32;
+        let mut degraded = false;
+        // Bounded: at most one pass per queued sample.
+        for _ in 0..FOG_QUEUE {
+            let Some(target) = self.next_sample() else { break };
+            let (m, u, h) = self.take_sample(target, dt_s);
+            for (acc, bits) in fog_health.iter_mut().zip(h) {
+                *acc |= bits;
             }
-        };
-        self.last_body_dtheta = body;
-        let parity_rad = if used == FogSet::ALL { self.combiner.parity(&m) } else { 0.0 };
-
-        let drift = self.observer.drift_rad_s();
-        let corrected = body - drift * dt_s;
-        let _ = self.attitude.step(&corrected);
-        self.observer.record(now_us, self.attitude.quaternion());
+            used = u;
+            degraded |= u != self.profile.fogs;
+            let body = match self.combiner.combine(&m, u) {
+                Ok(v) => v,
+                Err(_) => {
+                    // No usable gyro set in this sample: hold the last body increment.
+                    degraded = true;
+                    self.last_body_dtheta
+                }
+            };
+            self.last_body_dtheta = body;
+            parity_rad = if u == FogSet::ALL { self.combiner.parity(&m) } else { 0.0 };
+            corrected = body - self.observer.drift_rad_s() * dt_s;
+            let _ = self.attitude.step(&corrected);
+            let t_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
+            self.observer.record(t_us, self.attitude.quaternion());
+            integrated += 1;
+            self.waited = 0;
+            if self.last_present.0 == 0 {
+                // A bridged sample (no FOG data): one per step.
+                break;
+            }
+        }
+        if integrated == 0 {
+            self.waited = self.waited.saturating_add(1);
+            degraded = true;
+            for (i, h) in fog_health.iter_mut().enumerate() {
+                *h = if self.profile.fogs.contains(i) { health::MISSING } else { health::EXCLUDED };
+            }
+        }
+        let now_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
 
         let st = if self.profile.star_tracker { self.read_star(&mut links.star, now_us) } else { 0 };
 
@@ -443,57 +480,70 @@ impl FlightCore {
         }
     }
 
-    /// Takes the sample with the expected counter from every fitted FOG and compensates
-    /// it. Returns the compensated increments, the FOGs that gave one, and health bits.
-    fn take_sample(&mut self, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
+    /// Counter of the next sample to integrate now, or `None` to wait for it.
+    fn next_sample(&mut self) -> Option<u16> {
+        let fitted = self.profile.fogs;
+        let fogs = || self.fog.iter().enumerate().filter(move |(i, _)| fitted.contains(*i)).map(|(_, ch)| ch);
+        let Some(e) = self.clock.expected else {
+            // Before the first sample: start at the oldest one waiting, if any.
+            let first = fogs().filter_map(|ch| ch.queue.front().map(|f| f.counter)).min()?;
+            self.clock.index = u64::from(first).saturating_sub(1);
+            self.clock.expected = Some(first);
+            return Some(first);
+        };
+        // Per FOG: has sample e queued, has only newer ones (e lost), or has nothing yet.
+        let newer = |c: u16| c != e && c.wrapping_sub(e) < 0x8000;
+        let mut have = 0u8;
+        let mut past = 0u8;
+        let mut oldest_newer: Option<u16> = None;
+        for (i, ch) in self.fog.iter().enumerate().filter(|(i, _)| fitted.contains(*i)) {
+            if ch.queue.iter().any(|f| f.counter == e) {
+                have |= 1 << i;
+            } else if let Some(c) = ch.queue.iter().map(|f| f.counter).find(|c| newer(*c)) {
+                past |= 1 << i;
+                let older = oldest_newer.is_none_or(|o| c.wrapping_sub(e) < o.wrapping_sub(e));
+                if older {
+                    oldest_newer = Some(c);
+                }
+            }
+        }
+        let owed = self.last_present.0 & fitted.0 & !(have | past);
+        if have == 0 && past != 0 && (owed == 0 || self.waited >= MAX_WAIT_STEPS) {
+            // Sample e was lost on every link: jump to the oldest newer one.
+            let o = oldest_newer?;
+            let lost = o.wrapping_sub(e);
+            self.counters.fog_samples_missing =
+                self.counters.fog_samples_missing.saturating_add(u32::from(lost).saturating_mul(fitted.count()));
+            self.clock.index = self.clock.index.saturating_add(u64::from(lost));
+            self.clock.expected = Some(o);
+            self.gap = true;
+            return Some(o);
+        }
+        if have != 0 && (owed == 0 || self.waited >= MAX_WAIT_STEPS) {
+            return Some(e);
+        }
+        if have == 0 && past == 0 && self.waited >= MAX_WAIT_STEPS {
+            // No FOG data at all: bridge this sample so time keeps moving.
+            return Some(e);
+        }
+        None
+    }
+
+    /// Takes sample `target` from every fitted FOG that has it and compensates it.
+    /// Returns the compensated increments, the FOGs that gave one, and health bits.
+    fn take_sample(&mut self, target: u16, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
         let fitted = self.profile.fogs;
         let mut health_bits = [0u8; N_FOG];
-        // Counter of this step's sample: the expected one, or (first frame, or every FOG
-        // has moved past it) the oldest counter waiting.
-        let oldest = self
-            .fog
-            .iter()
-            .enumerate()
-            .filter(|(i, _)| fitted.contains(*i))
-            .filter_map(|(_, ch)| ch.queue.front().map(|f| f.counter))
-            .min_by_key(|c| self.clock.expected.map_or(0, |e| c.wrapping_sub(e)));
-        let target = match (self.clock.expected, oldest) {
-            (Some(e), Some(o)) if o.wrapping_sub(e) < 0x8000 && o != e => {
-                // Every waiting sample is newer: samples e..o were lost on all links.
-                let all_newer = self.fog.iter().enumerate().filter(|(i, _)| fitted.contains(*i)).all(|(_, ch)| {
-                    ch.queue.front().is_none_or(|f| f.counter.wrapping_sub(e) < 0x8000 && f.counter != e)
-                });
-                if all_newer && self.fog.iter().all(|ch| ch.queue.iter().all(|f| f.counter != e)) {
-                    for h in health_bits.iter_mut() {
-                        *h |= health::COUNTER_GAP;
-                    }
-                    let lost = u32::from(o.wrapping_sub(e));
-                    self.counters.fog_samples_missing =
-                        self.counters.fog_samples_missing.saturating_add(lost.saturating_mul(fitted.count()));
-                    self.clock.index = self.clock.index.saturating_add(u64::from(o.wrapping_sub(e)));
-                    o
-                } else {
-                    e
-                }
+        if core::mem::take(&mut self.gap) {
+            for h in health_bits.iter_mut() {
+                *h |= health::COUNTER_GAP;
             }
-            (Some(e), _) => e,
-            (None, Some(o)) => {
-                self.clock.index = u64::from(o).saturating_sub(1);
-                o
-            }
-            (None, None) => {
-                // No sample yet since start: the sample clock has not started.
-                for (i, h) in health_bits.iter_mut().enumerate() {
-                    *h = if fitted.contains(i) { health::MISSING } else { health::EXCLUDED };
-                }
-                return (Vector4::zeros(), FogSet(0), health_bits);
-            }
-        };
+        }
         self.clock.index = self.clock.index.saturating_add(1);
         self.clock.expected = Some(target.wrapping_add(1));
-
         let mut m = Vector4::zeros();
         let mut used = FogSet(0);
+        let mut present = FogSet(0);
         let limit = self.profile.rate_limit_rad_s;
         for (i, ((ch, h), mi)) in self.fog.iter_mut().zip(health_bits.iter_mut()).zip(m.iter_mut()).enumerate() {
             if !fitted.contains(i) {
@@ -531,6 +581,7 @@ impl FlightCore {
                 self.counters.fog_samples_missing = self.counters.fog_samples_missing.saturating_add(1);
                 continue;
             };
+            present = FogSet(present.0 | (1 << i));
             let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
             if frame.status & 0b0111 != 0 {
                 *h |= health::DEVICE_FAULT;
@@ -546,6 +597,7 @@ impl FlightCore {
             *h |= health::USED;
             used = FogSet(used.0 | (1 << i));
         }
+        self.last_present = present;
         (m, used, health_bits)
     }
 

@@ -36,9 +36,9 @@ use crate::scenario::Scenario;
 use crate::stats::AxisStats;
 
 /// Steps the runner may be ahead of the outputs it has received (real time).
-pub const MAX_LEAD: u64 = 3;
+pub const MAX_LEAD: u64 = 6;
 /// Steps of frames sent before the first output is awaited (real time).
-pub const LEAD: u64 = 2;
+pub const LEAD: u64 = 4;
 /// Instructions per SysTick tick under `-icount shift=0` (25 MHz SysTick, 1 GHz virtual).
 pub const INSTR_PER_TICK: f64 = 40.0;
 
@@ -51,7 +51,8 @@ pub struct QemuOptions {
     pub lockstep: bool,
     /// `-icount shift=0`: one instruction per ns of virtual time, for instruction counts.
     pub icount: bool,
-    /// Bytes to corrupt: flip one bit in every N-th byte sent on every link (0 = none).
+    /// Damage every N-th byte sent on every link, alternately a bit flip and a drop
+    /// (0 = none).
     pub corrupt_every: u64,
     /// Show a progress bar.
     pub progress: bool,
@@ -223,7 +224,8 @@ fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<Unix
     }
 }
 
-/// Flips one bit in every `every`-th byte (counted over the link's life).
+/// Damages every `every`-th byte (counted over the link's life): alternately flips one
+/// of its bits and drops it.
 struct Corrupter {
     every: u64,
     count: u64,
@@ -231,13 +233,16 @@ struct Corrupter {
 
 impl Corrupter {
     fn apply(&mut self, bytes: &[u8]) -> Vec<u8> {
-        let mut v = bytes.to_vec();
-        if self.every > 0 {
-            for b in v.iter_mut() {
-                self.count += 1;
-                if self.count.is_multiple_of(self.every) {
-                    *b ^= 1 << (self.count % 8);
+        let mut v = Vec::with_capacity(bytes.len());
+        for &b in bytes {
+            self.count += 1;
+            if self.every > 0 && self.count.is_multiple_of(self.every) {
+                if (self.count / self.every) % 2 == 0 {
+                    continue; // dropped
                 }
+                v.push(b ^ (1 << (self.count % 8)));
+            } else {
+                v.push(b);
             }
         }
         v
@@ -257,7 +262,10 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut sim = Simulation::new(sc)?;
     anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let mut eval = Evaluator::new(&sim);
-    let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{}", std::process::id(), sc.seed));
+    static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
     let table_path = dir.join("table.bin");
     std::fs::write(&table_path, binary::encode(&sim.table))?;

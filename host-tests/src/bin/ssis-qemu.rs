@@ -26,7 +26,7 @@ struct Args {
     /// Count instructions (-icount shift=0): step times are then instructions.
     #[arg(long)]
     icount: bool,
-    /// Flip one bit in every N-th byte sent on every link.
+    /// Damage every N-th byte sent on every link (alternately a bit flip and a drop).
     #[arg(long, default_value_t = 0)]
     corrupt_every: u64,
     /// Output directory for the CSV log and the SVG plot.

@@ -1,0 +1,60 @@
+//! The firmware in QEMU (mps2-an500), fed over the emulated UARTs. Needs
+//! `qemu-system-arm` (the README's test command installs it); builds the firmware.
+//! - lockstep: every output frame bit-identical to the in-process core's (host/QEMU
+//!   equivalence), also with damaged links;
+//! - real time: the firmware's own 5 ms tick, no overruns, attitude within bounds.
+
+use std::path::Path;
+
+use ssis_host::qemu::{build_firmware, run_qemu, QemuOptions, QemuSummary};
+use ssis_host::scenario::Scenario;
+
+/// One QEMU at a time: the real-time run must not share the two cores.
+static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn run(duration_s: f64, lockstep: bool, corrupt_every: u64) -> QemuSummary {
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = build_firmware().expect("firmware builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = duration_s;
+    sc.settle_s = duration_s / 2.0;
+    let opts = QemuOptions { elf, lockstep, icount: false, corrupt_every, progress: false };
+    let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
+    println!("{}", s.report());
+    s
+}
+
+#[test]
+fn host_and_qemu_give_identical_output_frames() {
+    let s = run(10.0, true, 0);
+    assert_eq!(s.exit_code, Some(0), "firmware did not end cleanly");
+    assert_eq!(s.frames_out, s.steps);
+    assert_eq!(s.equal_frames, s.steps, "{} frames differ", s.differing_frames);
+    assert_eq!(s.differing_frames, 0);
+}
+
+#[test]
+fn damaged_bytes_in_qemu_are_counted_and_flagged_never_a_fault() {
+    // Every 401st byte on every link damaged (about 3 % of FOG frames).
+    let s = run(10.0, true, 401);
+    assert_eq!(s.exit_code, Some(0), "firmware faulted");
+    assert_eq!(s.frames_out, s.steps, "a step lost its output");
+    let c = s.last_frame.counters;
+    assert!(c.fog_frames_rejected > 20, "FOG rejections not counted: {c:?}");
+    assert!(c.fog_samples_missing > 20, "missing FOG samples not counted: {c:?}");
+    // Still the same frames as the host core fed the same damaged bytes.
+    assert_eq!(s.differing_frames, 0);
+    assert!(s.att.max_abs().iter().all(|e| *e < 30.0), "attitude {:?}", s.att.max_abs());
+}
+
+#[test]
+fn real_time_run_keeps_its_deadline() {
+    let s = run(10.0, false, 0);
+    assert_eq!(s.exit_code, Some(0));
+    assert!(s.frames_out + 5 >= s.steps, "outputs {} of {}", s.frames_out, s.steps);
+    assert_eq!(s.last_frame.counters.overruns, 0, "overruns");
+    assert_eq!(s.frames_out_bad, 0);
+    let att = s.att.three_sigma();
+    assert!(att.iter().all(|e| *e <= 10.0), "attitude 3σ {att:?}");
+}
