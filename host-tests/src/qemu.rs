@@ -237,7 +237,7 @@ impl Corrupter {
         for &b in bytes {
             self.count += 1;
             if self.every > 0 && self.count.is_multiple_of(self.every) {
-                if (self.count / self.every) % 2 == 0 {
+                if (self.count / self.every).is_multiple_of(2) {
                     continue; // dropped
                 }
                 v.push(b ^ (1 << (self.count % 8)));
