@@ -136,17 +136,20 @@ impl<const N: usize> embedded_io::Read for RxRingReader<'_, N> {
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
         Ok(critical_section::with(|cs| {
             let mut s = self.ring.inner.borrow_ref_mut(cs);
-            let mut n = 0;
-            for slot in buf.iter_mut() {
-                match s.bytes.pop_front() {
-                    Some(b) => {
-                        *slot = b;
-                        n += 1;
-                    }
-                    None => break,
-                }
+            // Copy whole runs out of the ring's two contiguous halves.
+            let (a, b) = s.bytes.as_slices();
+            let na = a.len().min(buf.len());
+            let nb = b.len().min(buf.len() - na);
+            if let (Some(da), Some(sa)) = (buf.get_mut(..na), a.get(..na)) {
+                da.copy_from_slice(sa);
             }
-            n
+            if let (Some(db), Some(sb)) = (buf.get_mut(na..na + nb), b.get(..nb)) {
+                db.copy_from_slice(sb);
+            }
+            for _ in 0..na + nb {
+                let _ = s.bytes.pop_front();
+            }
+            na + nb
         }))
     }
 }

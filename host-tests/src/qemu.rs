@@ -336,6 +336,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut ticks = [AxisStats::default(), AxisStats::default()];
     let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
     let mut last_drift = [0.0; 3];
+    let mut prev_st_updated = false;
     let mut handle = |f: OutputFrame,
                       s: &mut QemuSummary,
                       eval: &mut Evaluator,
@@ -354,12 +355,13 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             }
         }
         let o = Observed::from(&f);
-        let k = usize::from(o.st_status & st_status::UPDATED != 0);
         if s.frames_out > 1 {
-            // The frame carries the time of the step before it.
+            // A frame carries the time of the step before it: class by that step's status.
+            let k = usize::from(prev_st_updated);
             ticks[k].push([f64::from(o.step_ticks); 3]);
             s.step_ticks_max[k] = s.step_ticks_max[k].max(u32::from(o.step_ticks));
         }
+        prev_st_updated = o.st_status & st_status::UPDATED != 0;
         last_drift = f.drift_rad_s();
         s.last_frame = f;
         if let Some(rec) = eval.evaluate(&o) {

@@ -278,12 +278,23 @@ impl<'a> FieldReader<'a> {
 /// `value / lsb` rounded to the nearest count (ties away from zero), saturated to the
 /// `i32` range; NaN gives 0.
 pub fn counts_i32(value: f64, lsb: f64) -> i32 {
-    // `as` saturates and maps NaN to 0.
-    libm::round(value / lsb) as i32
+    // Round half away from zero by adding ±0.5 and truncating: exact for |x| < 2^52, and
+    // `as` saturates and maps NaN to 0 (libm::round is a software routine on the M7).
+    round_half_away(value / lsb) as i32
 }
 
 /// `value / lsb` rounded to the nearest count (ties away from zero), saturated to the
 /// `i16` range; NaN gives 0.
 pub fn counts_i16(value: f64, lsb: f64) -> i16 {
-    libm::round(value / lsb) as i16
+    round_half_away(value / lsb) as i16
+}
+
+/// x rounded half away from zero, as f64 (truncation happens in the caller's `as`).
+#[inline]
+fn round_half_away(x: f64) -> f64 {
+    if x >= 0.0 {
+        x + 0.5
+    } else {
+        x - 0.5
+    }
 }
