@@ -85,6 +85,8 @@ pub struct QemuSummary {
     pub frames_out: u64,
     /// Output bytes that did not decode.
     pub frames_out_bad: u64,
+    /// Lockstep: frames the firmware sent on its own tick before the first sample.
+    pub frames_before_data: u64,
     /// The unit's counters from its last output frame.
     pub last_frame: OutputFrame,
     /// Lockstep: output frames identical to the in-process core's.
@@ -337,10 +339,16 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
     let mut last_drift = [0.0; 3];
     let mut prev_st_updated = false;
+    let lockstep = opts.lockstep;
     let mut handle = |f: OutputFrame,
                       s: &mut QemuSummary,
                       eval: &mut Evaluator,
                       ref_frames: &mut std::collections::VecDeque<Vec<u8>>| {
+        if lockstep && f.time_us == 0 {
+            // Sent on the firmware's own tick before lockstep began: no sample yet.
+            s.frames_before_data += 1;
+            return;
+        }
         s.frames_out += 1;
         if let Some(r) = ref_frames.pop_front() {
             // The board fills in its own step time and overruns; everything else must be

@@ -452,7 +452,8 @@ fn icd_example_frames() {
     for (name, hex) in [("FOG", &fog), ("star-tracker", &star), ("output", &out)] {
         assert!(ICD.contains(hex.as_str()), "docs/ICD.md lacks the {name} example:\n{hex}");
     }
-    assert!(ICD.contains("## Links and UART mapping\n\nDefined with the firmware (issue 3)."));
+    assert!(ICD.contains("## Links and UART mapping") && ICD.contains("| UART1 | 0x4000_5000 |"));
+    assert!(ICD.contains("## Control frame (kind 0x40, 16 bytes)"));
     assert!(ICD.contains("## Calibration table\n\nSee docs/CALIBRATION.md."));
     assert!(ICD.contains("0x29B1"));
 }

@@ -49,12 +49,38 @@ fn damaged_bytes_in_qemu_are_counted_and_flagged_never_a_fault() {
 }
 
 #[test]
-fn real_time_run_keeps_its_deadline() {
+fn real_time_run_keeps_up() {
+    // The firmware on its own 5 ms SysTick, frames streamed at the real rate. QEMU's
+    // virtual time follows the host clock and the emulated UART takes one byte per
+    // main-loop turn, so on a busy host some samples come later than the two-step wait
+    // or a step is late: the unit must count and flag that, keep running, and keep its
+    // accuracy. (The deterministic deadline check is the instruction-counted test below.)
     let s = run(10.0, false, 0);
     assert_eq!(s.exit_code, Some(0));
     assert!(s.frames_out + 5 >= s.steps, "outputs {} of {}", s.frames_out, s.steps);
-    assert_eq!(s.last_frame.counters.overruns, 0, "overruns");
+    let c = s.last_frame.counters;
+    println!("real time on this host: overruns {}, FOG samples missing {}", c.overruns, c.fog_samples_missing);
     assert_eq!(s.frames_out_bad, 0);
     let att = s.att.three_sigma();
     assert!(att.iter().all(|e| *e <= 10.0), "attitude 3σ {att:?}");
+}
+
+#[test]
+fn every_step_meets_its_deadline_in_counted_instructions() {
+    // Deterministic deadline check: with -icount every step's time is its instruction
+    // count (40 per SysTick tick); the worst must fit the 5 ms step (125,000 ticks) with
+    // room to spare, and the unit reports no overrun.
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = build_firmware().expect("firmware builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = 5.0;
+    sc.settle_s = 2.5;
+    let opts = QemuOptions { elf, lockstep: true, icount: true, corrupt_every: 0, progress: false };
+    let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
+    println!("{}", s.report());
+    let worst = s.step_ticks_max[0].max(s.step_ticks_max[1]);
+    assert!(worst > 0 && worst < 125_000 / 10, "worst step {worst} ticks");
+    assert_eq!(s.last_frame.counters.overruns, 0);
+    assert_eq!(s.differing_frames, 0);
 }
