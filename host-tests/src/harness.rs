@@ -431,3 +431,51 @@ pub fn error_table(
     }
     s
 }
+
+/// Columns of the per-step CSV log written by `ssis-sim run` and `ssis-qemu`.
+pub const CSV_HEADER: [&str; 17] = [
+    "t_s",
+    "q0",
+    "q1",
+    "q2",
+    "q3",
+    "err_x_arcsec",
+    "err_y_arcsec",
+    "err_z_arcsec",
+    "drift_x_deg_h",
+    "drift_y_deg_h",
+    "drift_z_deg_h",
+    "rate_err_x_deg_h",
+    "rate_err_y_deg_h",
+    "rate_err_z_deg_h",
+    "flags",
+    "st_status",
+    "step_ticks",
+];
+
+impl Record {
+    /// The record as one CSV row, in the order of [`CSV_HEADER`].
+    pub fn csv_row(&self) -> [String; 17] {
+        let d = self.out.drift_rad_s * DEG_H_PER_RAD_S;
+        [
+            self.t_s,
+            self.out.q.w,
+            self.out.q.i,
+            self.out.q.j,
+            self.out.q.k,
+            self.att_err_arcsec[0],
+            self.att_err_arcsec[1],
+            self.att_err_arcsec[2],
+            d.x,
+            d.y,
+            d.z,
+            self.rate_err_deg_h[0],
+            self.rate_err_deg_h[1],
+            self.rate_err_deg_h[2],
+            f64::from(self.out.flags),
+            f64::from(self.out.st_status),
+            f64::from(self.out.step_ticks),
+        ]
+        .map(|v| v.to_string())
+    }
+}

@@ -6,10 +6,10 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use ssis_host::harness::CSV_HEADER;
 use ssis_host::plot::{write_svg, PlotPoint};
 use ssis_host::qemu::{build_firmware, default_elf, elf_sizes, run_qemu, QemuOptions};
 use ssis_host::scenario::Scenario;
-use ssis_host::DEG_H_PER_RAD_S;
 
 #[derive(Parser)]
 #[command(name = "ssis-qemu", version, about = "Run a simulated flight on the firmware in QEMU")]
@@ -66,25 +66,7 @@ fn real_main() -> Result<bool> {
     let csv_path = a.out.join(format!("{}-qemu.csv", sc.name));
     let tmp = csv_path.with_extension("partial");
     let mut w = csv::Writer::from_path(&tmp)?;
-    w.write_record([
-        "t_s",
-        "q0",
-        "q1",
-        "q2",
-        "q3",
-        "err_x_arcsec",
-        "err_y_arcsec",
-        "err_z_arcsec",
-        "drift_x_deg_h",
-        "drift_y_deg_h",
-        "drift_z_deg_h",
-        "rate_err_x_deg_h",
-        "rate_err_y_deg_h",
-        "rate_err_z_deg_h",
-        "flags",
-        "st_status",
-        "step_ticks",
-    ])?;
+    w.write_record(CSV_HEADER)?;
     let mut points = Vec::new();
     let mut n = 0u64;
     let opts = QemuOptions {
@@ -97,27 +79,7 @@ fn real_main() -> Result<bool> {
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;
         if n.is_multiple_of(20) {
-            let d = r.out.drift_rad_s * DEG_H_PER_RAD_S;
-            let rec = [
-                r.t_s,
-                r.out.q.w,
-                r.out.q.i,
-                r.out.q.j,
-                r.out.q.k,
-                r.att_err_arcsec[0],
-                r.att_err_arcsec[1],
-                r.att_err_arcsec[2],
-                d.x,
-                d.y,
-                d.z,
-                r.rate_err_deg_h[0],
-                r.rate_err_deg_h[1],
-                r.rate_err_deg_h[2],
-                f64::from(r.out.flags),
-                f64::from(r.out.st_status),
-                f64::from(r.out.step_ticks),
-            ];
-            let _ = w.write_record(rec.iter().map(|v| v.to_string()));
+            let _ = w.write_record(r.csv_row());
             points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
         }
     })?;

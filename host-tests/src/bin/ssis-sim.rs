@@ -10,9 +10,9 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use ssis::calib::{CalibrationTable, ObserverConfig};
 use ssis::observer::steady_state_gains;
-use ssis_host::harness::run;
+use ssis_host::harness::{run, CSV_HEADER};
 use ssis_host::scenario::Scenario;
-use ssis_host::{table, ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
+use ssis_host::table;
 
 #[derive(Parser)]
 #[command(name = "ssis-sim", version, about = "Host simulator and tools for the ssis flight core")]
@@ -125,24 +125,7 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
         None => None,
     };
     if let Some((w, _)) = writer.as_mut() {
-        w.write_record([
-            "t_s",
-            "q0",
-            "q1",
-            "q2",
-            "q3",
-            "err_x_arcsec",
-            "err_y_arcsec",
-            "err_z_arcsec",
-            "drift_x_deg_h",
-            "drift_y_deg_h",
-            "drift_z_deg_h",
-            "rate_err_x_deg_h",
-            "rate_err_y_deg_h",
-            "rate_err_z_deg_h",
-            "flags",
-            "st_status",
-        ])?;
+        w.write_record(CSV_HEADER)?;
     }
     let started = Instant::now();
     let mut n = 0u64;
@@ -154,26 +137,7 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
         }
         if let Some((w, _)) = writer.as_mut() {
             if n.is_multiple_of(every) && csv_err.is_none() {
-                let d = r.out.drift_rad_s * DEG_H_PER_RAD_S;
-                let rec = [
-                    r.t_s,
-                    r.out.q.w,
-                    r.out.q.i,
-                    r.out.q.j,
-                    r.out.q.k,
-                    r.att_err_arcsec[0],
-                    r.att_err_arcsec[1],
-                    r.att_err_arcsec[2],
-                    d.x,
-                    d.y,
-                    d.z,
-                    r.rate_err_deg_h[0],
-                    r.rate_err_deg_h[1],
-                    r.rate_err_deg_h[2],
-                    f64::from(r.out.flags),
-                    f64::from(r.out.st_status),
-                ];
-                if let Err(e) = w.write_record(rec.iter().map(|v| v.to_string())) {
+                if let Err(e) = w.write_record(r.csv_row()) {
                     csv_err = Some(e);
                 }
             }
@@ -191,7 +155,6 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     print!("{}", summary.report());
     let wall = started.elapsed().as_secs_f64();
     println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s / wall);
-    let _ = ARCSEC_PER_RAD;
     Ok(())
 }
 
