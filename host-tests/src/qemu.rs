@@ -324,7 +324,24 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut st_corrupt = Corrupter { every: opts.corrupt_every, count: 0 };
     // Lockstep reference: the same core in-process on the same bytes.
     let mut reference = if opts.lockstep {
+        // First a frame from the firmware's own tick: it has booted and is in its loop.
+        match rx.recv_timeout(Duration::from_secs(20)) {
+            Ok(b) => s.frames_before_data += (b.len() / OutputFrame::LEN) as u64,
+            Err(_) => bail!("no output from the firmware within 20 s of boot"),
+        }
         ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
+        // sensor byte may go out before that, or it would integrate a sample on a tick.
+        // In lockstep it is silent between STEPs: wait for 100 ms of silence (10 s cap).
+        // Frames of that time carry no sample (time tag 0) and are set aside.
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(10) {
+            match rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(b) => s.frames_before_data += (b.len() / OutputFrame::LEN) as u64,
+                Err(mpsc::RecvTimeoutError::Timeout) => break,
+                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed UART0"),
+            }
+        }
         Some((
             FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?,
             MockLink::ideal(),
@@ -351,15 +368,19 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         }
         s.frames_out += 1;
         if let Some(r) = ref_frames.pop_front() {
-            // The board fills in its own step time and overruns; everything else must be
-            // bit-identical to the in-process core's frame.
-            let mut mine = f;
-            mine.counters.step_ticks = 0;
-            mine.counters.overruns = 0;
-            if r.as_slice() == mine.to_bytes().as_slice() {
-                s.equal_frames += 1;
-            } else {
-                s.differing_frames += 1;
+            // The board fills in its own step time and overruns, and its frame counter
+            // also counts the frames sent on its own tick before lockstep; everything
+            // else must be bit-identical to the in-process core's frame.
+            let mask = |mut x: OutputFrame| {
+                x.counter = 0;
+                x.counters.step_ticks = 0;
+                x.counters.overruns = 0;
+                x
+            };
+            use ssis::frames::Frame;
+            match OutputFrame::decode(&r) {
+                Ok(rf) if mask(rf) == mask(f) => s.equal_frames += 1,
+                _ => s.differing_frames += 1,
             }
         }
         let o = Observed::from(&f);
