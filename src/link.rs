@@ -13,7 +13,6 @@ use core::cell::RefCell;
 use core::convert::Infallible;
 
 use critical_section::Mutex;
-use heapless::Deque;
 
 /// A receive link: non-blocking byte source.
 pub trait RxLink: embedded_io::Read + embedded_io::ReadReady {}
@@ -66,13 +65,93 @@ pub fn drain<L: RxLink>(link: &mut L, max_bytes: usize, mut sink: impl FnMut(&[u
     report
 }
 
+/// A fixed byte FIFO with whole-run copies in and out (at most two `copy_from_slice` each
+/// way), so a step moves a frame with a couple of memcpys instead of a loop per byte.
+struct ByteFifo<const N: usize> {
+    buf: [u8; N],
+    /// Index of the oldest byte.
+    head: usize,
+    /// Bytes stored.
+    len: usize,
+}
+
+impl<const N: usize> ByteFifo<N> {
+    const fn new() -> Self {
+        ByteFifo { buf: [0; N], head: 0, len: 0 }
+    }
+
+    fn free(&self) -> usize {
+        N - self.len
+    }
+
+    /// Stores one byte; `false` when full.
+    fn push(&mut self, byte: u8) -> bool {
+        if self.len >= N {
+            return false;
+        }
+        let i = self.head + self.len;
+        let i = if i >= N { i - N } else { i };
+        if let Some(slot) = self.buf.get_mut(i) {
+            *slot = byte;
+            self.len += 1;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Removes the oldest byte.
+    fn pop(&mut self) -> Option<u8> {
+        if self.len == 0 {
+            return None;
+        }
+        let b = self.buf.get(self.head).copied();
+        self.head = if self.head + 1 >= N { 0 } else { self.head + 1 };
+        self.len -= 1;
+        b
+    }
+
+    /// Moves up to `out.len()` of the oldest bytes into `out`; returns the count.
+    fn pop_into(&mut self, out: &mut [u8]) -> usize {
+        let n = self.len.min(out.len());
+        let first = n.min(N - self.head);
+        let (o1, o2) = out.split_at_mut(first);
+        if let (Some(d), Some(s)) = (Some(o1), self.buf.get(self.head..self.head + first)) {
+            d.copy_from_slice(s);
+        }
+        if let (Some(d), Some(s)) = (o2.get_mut(..n - first), self.buf.get(..n - first)) {
+            d.copy_from_slice(s);
+        }
+        let h = self.head + n;
+        self.head = if h >= N { h - N } else { h };
+        self.len -= n;
+        n
+    }
+
+    /// Appends as much of `data` as fits; returns the count.
+    fn push_from(&mut self, data: &[u8]) -> usize {
+        let n = self.free().min(data.len());
+        let tail = self.head + self.len;
+        let tail = if tail >= N { tail - N } else { tail };
+        let first = n.min(N - tail);
+        if let (Some(d), Some(s)) = (self.buf.get_mut(tail..tail + first), data.get(..first)) {
+            d.copy_from_slice(s);
+        }
+        if let (Some(d), Some(s)) = (self.buf.get_mut(..n - first), data.get(first..n)) {
+            d.copy_from_slice(s);
+        }
+        self.len += n;
+        n
+    }
+}
+
 /// Receive buffer shared between a UART interrupt (producer) and the step (consumer).
 pub struct RxRing<const N: usize> {
     inner: Mutex<RefCell<RingState<N>>>,
 }
 
 struct RingState<const N: usize> {
-    bytes: Deque<u8, N>,
+    bytes: ByteFifo<N>,
     overflows: u32,
     received: u32,
 }
@@ -80,7 +159,7 @@ struct RingState<const N: usize> {
 impl<const N: usize> RxRing<N> {
     /// An empty ring (usable in a `static`).
     pub const fn new() -> Self {
-        RxRing { inner: Mutex::new(RefCell::new(RingState { bytes: Deque::new(), overflows: 0, received: 0 })) }
+        RxRing { inner: Mutex::new(RefCell::new(RingState { bytes: ByteFifo::new(), overflows: 0, received: 0 })) }
     }
 
     /// Called from the interrupt: stores one received byte; a full ring drops it and
@@ -89,7 +168,7 @@ impl<const N: usize> RxRing<N> {
         critical_section::with(|cs| {
             let mut s = self.inner.borrow_ref_mut(cs);
             s.received = s.received.wrapping_add(1);
-            if s.bytes.push_back(byte).is_err() {
+            if !s.bytes.push(byte) {
                 s.overflows = s.overflows.saturating_add(1);
             }
         });
@@ -128,51 +207,35 @@ impl<const N: usize> embedded_io::ErrorType for RxRingReader<'_, N> {
 
 impl<const N: usize> embedded_io::ReadReady for RxRingReader<'_, N> {
     fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(critical_section::with(|cs| !self.ring.inner.borrow_ref(cs).bytes.is_empty()))
+        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref(cs).bytes.len > 0))
     }
 }
 
 impl<const N: usize> embedded_io::Read for RxRingReader<'_, N> {
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        Ok(critical_section::with(|cs| {
-            let mut s = self.ring.inner.borrow_ref_mut(cs);
-            // Copy whole runs out of the ring's two contiguous halves.
-            let (a, b) = s.bytes.as_slices();
-            let na = a.len().min(buf.len());
-            let nb = b.len().min(buf.len() - na);
-            if let (Some(da), Some(sa)) = (buf.get_mut(..na), a.get(..na)) {
-                da.copy_from_slice(sa);
-            }
-            if let (Some(db), Some(sb)) = (buf.get_mut(na..na + nb), b.get(..nb)) {
-                db.copy_from_slice(sb);
-            }
-            for _ in 0..na + nb {
-                let _ = s.bytes.pop_front();
-            }
-            na + nb
-        }))
+        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref_mut(cs).bytes.pop_into(buf)))
     }
 }
 
 /// Transmit buffer: the step writes frames, the UART interrupt takes bytes.
 pub struct TxRing<const N: usize> {
-    inner: Mutex<RefCell<Deque<u8, N>>>,
+    inner: Mutex<RefCell<ByteFifo<N>>>,
 }
 
 impl<const N: usize> TxRing<N> {
     /// An empty ring.
     pub const fn new() -> Self {
-        TxRing { inner: Mutex::new(RefCell::new(Deque::new())) }
+        TxRing { inner: Mutex::new(RefCell::new(ByteFifo::new())) }
     }
 
     /// Called from the interrupt: the next byte to send, if any.
     pub fn pop(&self) -> Option<u8> {
-        critical_section::with(|cs| self.inner.borrow_ref_mut(cs).pop_front())
+        critical_section::with(|cs| self.inner.borrow_ref_mut(cs).pop())
     }
 
     /// Bytes waiting.
     pub fn len(&self) -> usize {
-        critical_section::with(|cs| self.inner.borrow_ref(cs).len())
+        critical_section::with(|cs| self.inner.borrow_ref(cs).len)
     }
 
     /// Whether nothing is waiting.
@@ -200,10 +263,7 @@ pub struct TxRingWriter<'a, const N: usize> {
 impl<const N: usize> TxRingWriter<'_, N> {
     /// Free space in bytes.
     pub fn free(&self) -> usize {
-        critical_section::with(|cs| {
-            let d = self.ring.inner.borrow_ref(cs);
-            d.capacity() - d.len()
-        })
+        critical_section::with(|cs| self.ring.inner.borrow_ref(cs).free())
     }
 }
 
@@ -219,17 +279,7 @@ impl<const N: usize> embedded_io::WriteReady for TxRingWriter<'_, N> {
 
 impl<const N: usize> embedded_io::Write for TxRingWriter<'_, N> {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        Ok(critical_section::with(|cs| {
-            let mut d = self.ring.inner.borrow_ref_mut(cs);
-            let mut n = 0;
-            for &b in buf {
-                if d.push_back(b).is_err() {
-                    break;
-                }
-                n += 1;
-            }
-            n
-        }))
+        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref_mut(cs).push_from(buf)))
     }
 
     fn flush(&mut self) -> Result<(), Infallible> {

@@ -283,6 +283,11 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
         cmd.args(["-serial", &format!("chardev:u{i}")]);
     }
+    // Extra QEMU arguments for profiling (for example `-d in_asm,exec,nochain -D trace.log`,
+    // read by `scripts/qemu-profile`); whitespace-separated.
+    if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
+        cmd.args(extra.split_whitespace());
+    }
     cmd.args(["-device", &format!("loader,file={},addr=0x10000", table_path.display())]);
     cmd.arg("-kernel").arg(&opts.elf);
     cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());

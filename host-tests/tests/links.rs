@@ -107,6 +107,49 @@ fn isr_rings_carry_bytes_and_count_overflow() {
     assert_eq!(tx.len(), 3);
 }
 
+proptest::proptest! {
+    /// The rings copy whole runs in and out across the wrap; any mix of single bytes and
+    /// runs must behave as a plain FIFO of capacity 7 that drops (RX) or refuses (TX)
+    /// what does not fit.
+    #[test]
+    fn isr_rings_behave_as_bounded_fifos(ops in proptest::collection::vec((0u8..4, 0usize..12), 1..200)) {
+        use embedded_io::{Read, Write};
+        use std::collections::VecDeque;
+        let rx: RxRing<7> = RxRing::new();
+        let tx: TxRing<7> = TxRing::new();
+        let (mut r, mut w) = (rx.reader(), tx.writer());
+        let (mut mrx, mut mtx) = (VecDeque::new(), VecDeque::new());
+        let (mut dropped, mut next) = (0u32, 0u8);
+        for (op, n) in ops {
+            let data: Vec<u8> = (0..n).map(|i| next.wrapping_add(i as u8)).collect();
+            next = next.wrapping_add(n as u8);
+            match op {
+                0 => for &b in &data {
+                    rx.push(b);
+                    if mrx.len() < 7 { mrx.push_back(b) } else { dropped += 1 }
+                },
+                1 => {
+                    let mut buf = vec![0u8; n];
+                    let got = r.read(&mut buf).expect("read");
+                    let want: Vec<u8> = (0..n.min(mrx.len())).filter_map(|_| mrx.pop_front()).collect();
+                    proptest::prop_assert_eq!(&buf[..got], &want[..]);
+                }
+                2 => {
+                    let put = w.write(&data).expect("write");
+                    proptest::prop_assert_eq!(put, n.min(7 - mtx.len()));
+                    mtx.extend(&data[..put]);
+                }
+                _ => for _ in 0..n {
+                    proptest::prop_assert_eq!(tx.pop(), mtx.pop_front());
+                },
+            }
+            proptest::prop_assert_eq!(rx.overflows(), dropped);
+            proptest::prop_assert_eq!(tx.len(), mtx.len());
+            proptest::prop_assert_eq!(w.free(), 7 - mtx.len());
+        }
+    }
+}
+
 #[test]
 fn launch_vehicle_profile_runs_three_fogs_at_1_25_ms() {
     let mut sc = short_scenario();
