@@ -17,13 +17,14 @@ use heapless::Deque;
 use nalgebra::{Quaternion, Vector3, Vector4};
 
 use crate::attitude::{Attitude, Coning};
-use crate::calib::{CalibrationTable, N_FOG};
+use crate::calib::{CalibrationTable, FogCal, N_FOG};
 use crate::combination::{Combiner, FogSet};
 use crate::compensation::{compensate_increment, TempRateEstimator};
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::FogFrame;
 use crate::frames::output::OutputFrame;
 use crate::frames::star::StarFrame;
+use crate::frames::Frame;
 use crate::link::{drain, RxLink, TxLink};
 use crate::observer::{GainError, Observer, UpdateError};
 
@@ -190,10 +191,14 @@ struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
     queue: Deque<FogFrame, FOG_QUEUE>,
     temp: TempRateEstimator,
+    /// Decoder rejections already counted.
     rejected_seen: u32,
-    wrong_id: bool,
+    /// Frames rejected (by the decoder, or for a wrong FOG id) since the last sample taken.
+    rejected_new: u32,
 }
 
+/// Bytes read from a link per chunk.
+const RX_CHUNK: usize = 64;
 /// FOG samples a channel holds ahead of the step (absorbs jitter and late links).
 pub const FOG_QUEUE: usize = 8;
 /// Steps a sample is waited for when a FOG that delivered the previous one owes it.
@@ -229,6 +234,10 @@ pub struct FlightCore {
     waited: u32,
     gap: bool,
     st_decoder: StreamDecoder<StarFrame, 64>,
+    /// Chunk buffer for draining the links (kept, so a step does not clear one).
+    rx_scratch: [u8; RX_CHUNK],
+    /// The output frame's bytes (kept, so a step does not clear them).
+    out_buf: [u8; OutputFrame::LEN],
     st_pending: Deque<StarFrame, ST_PENDING>,
     st_rejected_seen: u32,
     last_st_update_us: Option<u64>,
@@ -255,7 +264,7 @@ impl FlightCore {
             queue: Deque::new(),
             temp: TempRateEstimator::new(dt, table.t_rate_filter_s),
             rejected_seen: 0,
-            wrong_id: false,
+            rejected_new: 0,
         };
         Ok(FlightCore {
             profile,
@@ -273,6 +282,8 @@ impl FlightCore {
             waited: 0,
             gap: false,
             st_decoder: StreamDecoder::new(),
+            rx_scratch: [0; RX_CHUNK],
+            out_buf: [0; OutputFrame::LEN],
             st_pending: Deque::new(),
             st_rejected_seen: 0,
             last_st_update_us: None,
@@ -439,29 +450,33 @@ impl FlightCore {
         let fitted = self.profile.fogs;
         match fog_links {
             FogLinks::PerFog(links) => {
+                let rx_scratch = &mut self.rx_scratch;
                 for (i, (ch, link)) in self.fog.iter_mut().zip(links.iter_mut()).enumerate() {
                     if !fitted.contains(i) {
                         continue;
                     }
-                    let FogChannel { decoder, queue, wrong_id, .. } = ch;
-                    let rep = drain(link, MAX_RX_BYTES_PER_STEP, |bytes| {
+                    let FogChannel { decoder, queue, rejected_seen, rejected_new, .. } = ch;
+                    let rep = drain(link, MAX_RX_BYTES_PER_STEP, rx_scratch, |bytes| {
                         decoder.push_slice(bytes, |r| {
                             if let Ok(f) = r {
                                 if usize::from(f.fog_id) == i {
                                     enqueue(queue, f);
                                 } else {
-                                    *wrong_id = true;
+                                    *rejected_new = rejected_new.saturating_add(1);
                                 }
                             }
                         });
                     });
+                    let total = decoder.stats().rejected();
+                    *rejected_new = rejected_new.saturating_add(total.saturating_sub(*rejected_seen));
+                    *rejected_seen = total;
                     self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
                 }
             }
             FogLinks::Bus(link) => {
                 let decoder = &mut self.bus_decoder;
                 let channels = &mut self.fog;
-                let rep = drain(link, N_FOG * MAX_RX_BYTES_PER_STEP, |bytes| {
+                let rep = drain(link, N_FOG * MAX_RX_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
                     decoder.push_slice(bytes, |r| {
                         if let Ok(f) = r {
                             let i = usize::from(f.fog_id);
@@ -492,18 +507,31 @@ impl FlightCore {
             return Some(first);
         };
         // Per FOG: has sample e queued, has only newer ones (e lost), or has nothing yet.
-        let newer = |c: u16| c != e && c.wrapping_sub(e) < 0x8000;
+        // A FOG's frames arrive in counter order, so the first queued frame that is not
+        // older than e decides (older ones are discarded as stale by `take_sample`).
         let mut have = 0u8;
         let mut past = 0u8;
         let mut oldest_newer: Option<u16> = None;
-        for (i, ch) in self.fog.iter().enumerate().filter(|(i, _)| fitted.contains(*i)) {
-            if ch.queue.iter().any(|f| f.counter == e) {
-                have |= 1 << i;
-            } else if let Some(c) = ch.queue.iter().map(|f| f.counter).find(|c| newer(*c)) {
-                past |= 1 << i;
-                let older = oldest_newer.is_none_or(|o| c.wrapping_sub(e) < o.wrapping_sub(e));
-                if older {
-                    oldest_newer = Some(c);
+        for (i, ch) in self.fog.iter().enumerate() {
+            let bit = 1u8 << i;
+            if fitted.0 & bit == 0 {
+                continue;
+            }
+            let Some(front) = ch.queue.front() else { continue };
+            let mut ahead = front.counter.wrapping_sub(e);
+            if ahead >= 0x8000 {
+                // Stale frames first (rare): look past them.
+                match ch.queue.iter().map(|f| f.counter.wrapping_sub(e)).find(|&d| d < 0x8000) {
+                    Some(d) => ahead = d,
+                    None => continue,
+                }
+            }
+            if ahead == 0 {
+                have |= bit;
+            } else {
+                past |= bit;
+                if oldest_newer.is_none_or(|o| ahead < o.wrapping_sub(e)) {
+                    oldest_newer = Some(e.wrapping_add(ahead));
                 }
             }
         }
@@ -533,72 +561,33 @@ impl FlightCore {
     /// Returns the compensated increments, the FOGs that gave one, and health bits.
     fn take_sample(&mut self, target: u16, dt_s: f64) -> (Vector4<f64>, FogSet, [u8; N_FOG]) {
         let fitted = self.profile.fogs;
-        let mut health_bits = [0u8; N_FOG];
-        if core::mem::take(&mut self.gap) {
-            for h in health_bits.iter_mut() {
-                *h |= health::COUNTER_GAP;
-            }
-        }
+        let gap = if core::mem::take(&mut self.gap) { health::COUNTER_GAP } else { 0 };
         self.clock.index = self.clock.index.saturating_add(1);
         self.clock.expected = Some(target.wrapping_add(1));
-        let mut m = Vector4::zeros();
-        let mut used = FogSet(0);
-        let mut present = FogSet(0);
-        let limit = self.profile.rate_limit_rad_s;
-        for (i, ((ch, h), mi)) in self.fog.iter_mut().zip(health_bits.iter_mut()).zip(m.iter_mut()).enumerate() {
-            if !fitted.contains(i) {
-                *h = health::EXCLUDED;
+        let mut m = [0.0f64; N_FOG];
+        let mut health_bits = [health::EXCLUDED; N_FOG];
+        let mut used = 0u8;
+        let mut present = 0u8;
+        let limit_rad = self.profile.rate_limit_rad_s * dt_s;
+        for (i, ((ch, cal), (mi, hi))) in
+            self.fog.iter_mut().zip(&self.table.fog).zip(m.iter_mut().zip(health_bits.iter_mut())).enumerate()
+        {
+            let bit = 1u8 << i;
+            if fitted.0 & bit == 0 {
                 continue;
             }
-            let rejected = ch.decoder.stats().rejected().saturating_add(u32::from(ch.wrong_id));
-            let new_rej = rejected.saturating_sub(ch.rejected_seen);
-            ch.rejected_seen = rejected;
-            if new_rej > 0 {
-                *h |= health::REJECTED;
-                self.counters.fog_frames_rejected = self.counters.fog_frames_rejected.saturating_add(new_rej);
-            }
-            ch.wrong_id = false;
-            // Discard samples older than the target (they came too late).
-            let mut stale = 0u32;
-            while let Some(f) = ch.queue.front() {
-                let age = target.wrapping_sub(f.counter);
-                if age == 0 || age >= 0x8000 {
-                    break;
+            let (h, taken) = take_one(ch, cal, target, dt_s, limit_rad, &mut self.counters);
+            *hi = h | gap;
+            if let Some(dtheta) = taken {
+                present |= bit;
+                if let Some(d) = dtheta {
+                    *mi = d;
+                    used |= bit;
                 }
-                let _ = ch.queue.pop_front();
-                stale += 1;
             }
-            if stale > 0 {
-                *h |= health::COUNTER_GAP;
-                self.counters.fog_samples_stale = self.counters.fog_samples_stale.saturating_add(stale);
-            }
-            let frame = match ch.queue.front() {
-                Some(f) if f.counter == target => ch.queue.pop_front(),
-                _ => None,
-            };
-            let Some(frame) = frame else {
-                *h |= health::MISSING;
-                self.counters.fog_samples_missing = self.counters.fog_samples_missing.saturating_add(1);
-                continue;
-            };
-            present = FogSet(present.0 | (1 << i));
-            let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
-            if frame.status & 0b0111 != 0 {
-                *h |= health::DEVICE_FAULT;
-                continue;
-            }
-            let Some(cal) = self.table.fog.get(i) else { continue };
-            let dtheta = compensate_increment(cal, frame.dtheta_rad(), dt_s, t_degc, g_degc_s);
-            if !dtheta.is_finite() || (dtheta / dt_s).abs() > limit {
-                *h |= health::OUT_OF_RANGE;
-                continue;
-            }
-            *mi = dtheta;
-            *h |= health::USED;
-            used = FogSet(used.0 | (1 << i));
         }
-        self.last_present = present;
-        (m, used, health_bits)
+        self.last_present = FogSet(present);
+        (Vector4::from(m), FogSet(used), health_bits)
     }
 
     /// Drains the star-tracker link and applies every valid frame whose time tag the
@@ -609,7 +598,7 @@ impl FlightCore {
         let pending = &mut self.st_pending;
         let mut overflow = 0u32;
         let mut arrived = false;
-        let rep = drain(star, MAX_RX_BYTES_PER_STEP, |bytes| {
+        let rep = drain(star, MAX_RX_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
             decoder.push_slice(bytes, |r| {
                 if let Ok(f) = r {
                     arrived = true;
@@ -710,13 +699,67 @@ impl FlightCore {
             ],
         );
         self.out_counter = self.out_counter.wrapping_add(1);
-        let bytes = frame.to_bytes();
-        let ok = write_frame(out, &bytes);
+        let ok = frame.encode_into(&mut self.out_buf).is_ok() && write_frame(out, &self.out_buf);
         self.output_dropped_last = !ok;
         if !ok {
             self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
         }
     }
+}
+
+/// One FOG's part of [`FlightCore::take_sample`]: takes sample `target` from the channel's
+/// queue (discarding older ones as stale, leaving a newer one queued) and compensates it.
+/// Returns the health bits and, if the sample was there, the compensated increment
+/// (`None` inside when the FOG reports a fault or the value is out of range).
+fn take_one(
+    ch: &mut FogChannel,
+    cal: &FogCal,
+    target: u16,
+    dt_s: f64,
+    limit_rad: f64,
+    counters: &mut Counters,
+) -> (u8, Option<Option<f64>>) {
+    let mut h = 0u8;
+    let new_rej = core::mem::take(&mut ch.rejected_new);
+    if new_rej > 0 {
+        h |= health::REJECTED;
+        counters.fog_frames_rejected = counters.fog_frames_rejected.saturating_add(new_rej);
+    }
+    let mut stale = 0u32;
+    let mut frame = None;
+    // Bounded by the queue length.
+    for _ in 0..FOG_QUEUE {
+        let Some(f) = ch.queue.pop_front() else { break };
+        let age = target.wrapping_sub(f.counter);
+        if age == 0 {
+            frame = Some(f);
+            break;
+        }
+        if age >= 0x8000 {
+            // Newer than the target: it waits for its own step (room is certain: it was
+            // just taken out).
+            let _ = ch.queue.push_front(f);
+            break;
+        }
+        stale += 1;
+    }
+    if stale > 0 {
+        h |= health::COUNTER_GAP;
+        counters.fog_samples_stale = counters.fog_samples_stale.saturating_add(stale);
+    }
+    let Some(frame) = frame else {
+        counters.fog_samples_missing = counters.fog_samples_missing.saturating_add(1);
+        return (h | health::MISSING, None);
+    };
+    let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
+    if frame.status & 0b0111 != 0 {
+        return (h | health::DEVICE_FAULT, Some(None));
+    }
+    let dtheta = compensate_increment(cal, frame.dtheta_rad(), dt_s, t_degc, g_degc_s);
+    if !dtheta.is_finite() || dtheta.abs() > limit_rad {
+        return (h | health::OUT_OF_RANGE, Some(None));
+    }
+    (h | health::USED, Some(Some(dtheta)))
 }
 
 /// Writes `bytes` without waiting: `true` if all of it was taken. Never calls

@@ -33,9 +33,19 @@ pub struct DrainReport {
 
 /// Reads at most `max_bytes` that have already arrived on `link`, handing each chunk to
 /// `sink`. Never waits: stops when `read_ready()` is false, on an error, or at the bound.
-pub fn drain<L: RxLink>(link: &mut L, max_bytes: usize, mut sink: impl FnMut(&[u8])) -> DrainReport {
+/// Chunks are read through `scratch` (the caller's buffer, kept between calls so a step
+/// does not clear one); an empty `scratch` reads nothing.
+pub fn drain<L: RxLink>(
+    link: &mut L,
+    max_bytes: usize,
+    scratch: &mut [u8],
+    mut sink: impl FnMut(&[u8]),
+) -> DrainReport {
     let mut report = DrainReport::default();
-    let mut buf = [0u8; 32];
+    let buf = scratch;
+    if buf.is_empty() {
+        return report;
+    }
     // Bounded: each pass reads at least one byte or stops.
     while report.bytes < max_bytes {
         match link.read_ready() {
@@ -108,6 +118,9 @@ impl<const N: usize> ByteFifo<N> {
         let b = self.buf.get(self.head).copied();
         self.head = if self.head + 1 >= N { 0 } else { self.head + 1 };
         self.len -= 1;
+        if self.len == 0 {
+            self.head = 0;
+        }
         b
     }
 
@@ -125,6 +138,10 @@ impl<const N: usize> ByteFifo<N> {
         let h = self.head + n;
         self.head = if h >= N { h - N } else { h };
         self.len -= n;
+        if self.len == 0 {
+            // Restart at the front: the next run is copied whole and word-aligned.
+            self.head = 0;
+        }
         n
     }
 

@@ -30,7 +30,7 @@ use core::marker::PhantomData;
 
 use heapless::Vec;
 
-use super::{DecodeError, Frame, HEADER_LEN, OVERHEAD_LEN, SYNC};
+use super::{DecodeError, Frame, OVERHEAD_LEN, SYNC};
 
 /// What a decoder has seen so far (saturating counters).
 ///
@@ -131,7 +131,7 @@ impl<F: Frame, const CAP: usize> StreamDecoder<F, CAP> {
                 self.count_skipped(start);
                 rest = rest.get(start..).unwrap_or(&[]);
                 if let Some(candidate) = rest.get(..F::LEN) {
-                    if candidate.get(..HEADER_LEN) == Some(&header::<F>()[..]) {
+                    if matches!(*candidate, [s0, s1, k, ..] if [s0, s1, k] == header::<F>()) {
                         if let Ok(frame) = F::decode(candidate) {
                             self.stats.frames_ok = self.stats.frames_ok.saturating_add(1);
                             on_frame(Ok(frame));

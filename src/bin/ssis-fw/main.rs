@@ -65,6 +65,7 @@ fn main() -> ! {
     let mut ctl_reader = board::CTL_RX.reader();
     let mut ctl: StreamDecoder<ControlFrame, 32> = StreamDecoder::new();
     let mut steps_due: Deque<ControlFrame, 8> = Deque::new();
+    let mut ctl_scratch = [0u8; 32];
     let mut lockstep = false;
     let mut end = false;
     let mut handled = board::ticks();
@@ -73,7 +74,7 @@ fn main() -> ! {
 
     loop {
         board::poll_rx();
-        let _ = drain(&mut ctl_reader, 64, |bytes| {
+        let _ = drain(&mut ctl_reader, 64, &mut ctl_scratch, |bytes| {
             ctl.push_slice(bytes, |r| {
                 if let Ok(c) = r {
                     match c.command {
