@@ -10,8 +10,11 @@
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
+//!   sessions and exports the calibration table (`docs/LAB.md`).
 
 pub mod harness;
+pub mod lab;
 pub mod mock;
 pub mod plot;
 pub mod qemu;

@@ -1,0 +1,60 @@
+//! The model lab: compare the FOG error model with ground-test sessions, find the
+//! physical effect it lacks, add it, and watch the held-out error fall.
+//!
+//! Capabilities (one file per concern):
+//! - [`session`]: reads a session CSV (`docs/SESSION-FORMAT.md`) streamed through the
+//!   `csv` crate; a bad file is refused with its file, line and column named.
+//! - [`model`]: the error model as data, a versioned TOML file (`ssis-error-model/1`) with a
+//!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
+//!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's
+//!   eqs. 1–3), aging; plus sinusoids and user expressions over session columns).
+//! - [`fit`]: least squares linear in the coefficients (nalgebra QR, rank-deficient
+//!   regressors dropped and reported), held-out time blocks.
+//! - [`diagnose`]: candidate terms tested by nested-model F-tests on held-out blocks,
+//!   Benjamini–Hochberg FDR control, the paper's two-factor ANOVA (T × G, Tables 1–2).
+//! - [`plot`]: residual plots (SVG) and the history of model versions.
+//! - [`export`]: the calibration table the firmware loads, from the onboard terms.
+//! - [`simulate`]: a session generator with known effects, for tests and demos.
+//! - [`report`]: one self-contained HTML page of a session's loop.
+
+pub mod diagnose;
+pub mod export;
+pub mod fit;
+pub mod model;
+pub mod plot;
+pub mod report;
+pub mod session;
+pub mod simulate;
+
+/// Errors of the lab library. Each names the file (and line, column) where it can.
+#[derive(Debug, thiserror::Error)]
+pub enum LabError {
+    /// A session file that cannot be read or is malformed.
+    #[error(transparent)]
+    Session(#[from] session::SessionError),
+    /// A model file that is malformed, or a term the session cannot feed.
+    #[error("{0}")]
+    Model(String),
+    /// A file that cannot be written.
+    #[error("{path}: cannot write: {source}")]
+    Write {
+        /// The file.
+        path: String,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// Anything the numerics refuse (too few samples, nothing to fit).
+    #[error("{0}")]
+    Numeric(String),
+}
+
+/// Result of the lab library.
+pub type LabResult<T> = Result<T, LabError>;
+
+/// Writes `bytes` to `path` through a temporary file and a rename (never a half file).
+pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> LabResult<()> {
+    crate::table::write_atomic(path, bytes).map_err(|e| LabError::Write {
+        path: path.display().to_string(),
+        source: std::io::Error::other(format!("{e:#}")),
+    })
+}

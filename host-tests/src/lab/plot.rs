@@ -1,0 +1,1 @@
+//! Plots (SVG through plotters): residuals against each quantity, and the model history.
