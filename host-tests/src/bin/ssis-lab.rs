@@ -1,1 +1,428 @@
-fn main() {}
+//! `ssis-lab`: the model lab for calibration engineers (`docs/LAB.md`).
+//!
+//! Compare the FOG error model with a ground-test session, see where it fails, learn which
+//! effect is missing, add it, watch the held-out error fall, export the flight table.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use ssis_host::lab::diagnose::{diagnose, f_critical, Diagnosis, Options};
+use ssis_host::lab::export::to_table;
+use ssis_host::lab::fit::{
+    add_term, evaluate_model, fit_model, held_out_rms, history_files, pooled, split, version_path,
+};
+use ssis_host::lab::model::{prepare, Kind, Model};
+use ssis_host::lab::plot::{history_svg, residual_svg, write_svg};
+use ssis_host::lab::session::{read_session, Session};
+use ssis_host::lab::{report, simulate};
+use ssis_host::DEG_H_PER_RAD_S;
+
+#[derive(Parser)]
+#[command(
+    name = "ssis-lab",
+    version,
+    about = "Model lab: fit, diagnose and extend the FOG error model on ground-test sessions"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Write a new model (version 1) with the given catalog terms and no coefficients.
+    Init {
+        /// Model file to create (refused if it exists), e.g. model.v1.toml.
+        model: PathBuf,
+        /// Comma-separated terms (catalog names, `sinusoid:F_HZ`, or expressions).
+        #[arg(long, default_value = "bias,scale_factor,misalignment")]
+        terms: String,
+        /// Reference temperature of the thermal terms, °C.
+        #[arg(long, default_value_t = 25.0)]
+        t_ref_degc: f64,
+        /// Window of the temperature-rate estimate G, s (0: 2 × sample interval, at least 60 s).
+        #[arg(long, default_value_t = 0.0)]
+        g_window_s: f64,
+    },
+    /// Fit (or evaluate) the model on a session: residual RMS, max, explained fraction, plots.
+    Compare {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV (docs/SESSION-FORMAT.md).
+        #[arg(long)]
+        session: PathBuf,
+        /// Use the model's coefficients as they are instead of fitting them.
+        #[arg(long)]
+        evaluate: bool,
+        /// Directory for the residual plots (one SVG per FOG).
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Number of time blocks for the held-out figures.
+        #[arg(long, default_value_t = ssis_host::lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Rank the effects the model lacks by held-out F-tests (Benjamini–Hochberg FDR).
+    Diagnose {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// False-discovery-rate level.
+        #[arg(long, default_value_t = 0.01)]
+        level: f64,
+        /// Number of time blocks (even ones train, odd ones test).
+        #[arg(long, default_value_t = ssis_host::lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Add a term, refit, write the next model version (never overwrites) and show the history.
+    Add {
+        /// Catalog name, `sinusoid:F_HZ`, or an expression over session columns.
+        term: String,
+        /// Model file (any version; the next version is written beside it as STEM.vN.toml).
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// Number of time blocks.
+        #[arg(long, default_value_t = ssis_host::lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Write the calibration table the firmware loads (TOML and/or binary) from a fitted model.
+    Export {
+        /// Fitted model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Table whose other fields (geometry, star tracker, observer) are kept; default: the nominal table.
+        #[arg(long)]
+        base: Option<PathBuf>,
+        /// TOML table to write.
+        #[arg(long)]
+        toml: Option<PathBuf>,
+        /// Binary table to write.
+        #[arg(long)]
+        bin: Option<PathBuf>,
+    },
+    /// One self-contained HTML page: fit, diagnosis, history and residual plots.
+    Report {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// HTML file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Write a simulated session with a known hidden effect (for trying the lab).
+    Simulate {
+        /// magnetic, thermal, asymmetry, sin2psi or flight.
+        preset: String,
+        /// CSV file to write.
+        out: PathBuf,
+        /// Random seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Leave the hidden effect out.
+        #[arg(long)]
+        no_hidden: bool,
+    },
+}
+
+fn dh(v: f64) -> f64 {
+    v * DEG_H_PER_RAD_S
+}
+
+fn load_session(path: &Path) -> Result<Session> {
+    let pb = ProgressBar::new(0)
+        .with_style(ProgressStyle::with_template("reading {msg} {bar:30} {bytes}/{total_bytes}").expect("template"));
+    pb.set_message(path.display().to_string());
+    let s = read_session(path, Some(&pb));
+    pb.finish_and_clear();
+    s.context("session refused")
+}
+
+fn load_model(path: &Path) -> Result<Model> {
+    Model::read(path).context("model refused")
+}
+
+fn spinner(msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new_spinner();
+    pb.set_message(msg.to_string());
+    pb.enable_steady_tick(Duration::from_millis(120));
+    pb
+}
+
+fn print_diagnosis(d: &Diagnosis) {
+    println!(
+        "held-out blocks: {} training samples, {} test samples; Benjamini-Hochberg at {} %",
+        d.n_train,
+        d.n_test,
+        100.0 * d.fdr_level
+    );
+    println!(
+        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  origin",
+        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop"
+    );
+    for (r, c) in d.candidates.iter().enumerate() {
+        println!(
+            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {}{}",
+            r + 1,
+            c.kind.label(),
+            c.p_value,
+            dh(c.before_rad_s),
+            dh(c.after_rad_s),
+            100.0 * (1.0 - c.after_rad_s / c.before_rad_s),
+            c.origin,
+            if c.significant { "  ** significant" } else { "" }
+        );
+    }
+    for (k, why) in &d.skipped {
+        println!("      {k:<34} not tested: {why}");
+    }
+    match d.significant().next() {
+        None => println!("no significant missing effect (level {} %)", 100.0 * d.fdr_level),
+        Some(c) => {
+            println!("most significant missing effect: {}  (ssis-lab add '{}' ...)", c.kind.label(), arg_of(&c.kind))
+        }
+    }
+    for a in &d.anova {
+        println!(
+            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} degC, G at {:.4}/{:.4} degC/min:",
+            a.fog,
+            a.cells,
+            a.t_edges_degc[0],
+            a.t_edges_degc[1],
+            a.g_edges_degc_s[0] * 60.0,
+            a.g_edges_degc_s[1] * 60.0
+        );
+        for (name, f) in [("F_T ", a.f_t), ("F_G ", a.f_g), ("F_TG", a.f_tg)] {
+            println!(
+                "    {name} = {:>9.2}  (nu {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
+                f.0,
+                f.1,
+                f.2,
+                f.3,
+                f_critical(0.05, f.1, f.2),
+                f_critical(0.01, f.1, f.2)
+            );
+        }
+    }
+}
+
+fn arg_of(k: &Kind) -> String {
+    match k {
+        Kind::Catalog(c) => c.name().to_string(),
+        Kind::Sinusoid(f) => format!("sinusoid:{f:e}"),
+        Kind::Expr(e) => e.clone(),
+    }
+}
+
+/// One model version on a session: version, pooled held-out RMS °/h, per FOG °/h, terms.
+type HistoryRow = (u32, f64, Vec<f64>, String);
+
+/// Every version of the model on `session`.
+fn history(model_path: &Path, session: &Session, blocks: usize) -> Result<Vec<HistoryRow>> {
+    let sp = split(session.len(), blocks);
+    let mut out = Vec::new();
+    for (v, p) in history_files(model_path) {
+        let m = load_model(&p)?;
+        let prep = prepare(session, &m);
+        let r = held_out_rms(&m.kinds(), &prep, &sp)?;
+        let terms = m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ");
+        out.push((v, dh(pooled(&r)), r.iter().map(|x| dh(*x)).collect(), terms));
+    }
+    Ok(out)
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::Init { model, terms, t_ref_degc, g_window_s } => {
+            if model.exists() {
+                bail!("{} exists: the lab never overwrites a model", model.display());
+            }
+            let kinds = terms.split(',').map(|t| Kind::parse_arg(t.trim())).collect::<Result<Vec<_>, _>>()?;
+            let mut m = Model::new(&kinds);
+            m.t_ref_degc = t_ref_degc;
+            m.g_window_s = g_window_s;
+            m.note = "v1: starting model".into();
+            ssis_host::lab::write_atomic(&model, m.to_toml().as_bytes())?;
+            println!("wrote {} (version 1: {terms})", model.display());
+        }
+        Cmd::Compare { model, session, evaluate, plots, blocks } => {
+            let m = load_model(&model)?;
+            let s = load_session(&session)?;
+            let f = if evaluate { evaluate_model(&m, &s)? } else { fit_model(&m, &s)? };
+            let prep = prepare(&s, &m);
+            let ho = held_out_rms(&m.kinds(), &prep, &split(s.len(), blocks))?;
+            println!(
+                "{} on {} ({} samples, {}): {}",
+                model.display(),
+                s.file,
+                s.len(),
+                if evaluate { "evaluated with its coefficients" } else { "fitted on all samples" },
+                m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ")
+            );
+            println!(
+                "{:>4} {:>14} {:>14} {:>14} {:>10} {:>16}",
+                "FOG", "error deg/h", "residual deg/h", "max deg/h", "explained", "held-out deg/h"
+            );
+            for (i, x) in f.summary.iter().enumerate() {
+                println!(
+                    "{i:>4} {:>14.5} {:>14.5} {:>14.5} {:>9.1}% {:>16.5}",
+                    dh(x.rms_error_rad_s),
+                    dh(x.rms_residual_rad_s),
+                    dh(x.max_abs_residual_rad_s),
+                    100.0 * x.explained,
+                    dh(ho[i])
+                );
+            }
+            if !f.not_identified.is_empty() {
+                println!("not identifiable in this session (left at zero): {}", f.not_identified.join(", "));
+            }
+            for (t, k) in f.model.kinds().iter().enumerate() {
+                for (fog, c) in f.model.terms[t].coef.iter().enumerate() {
+                    let labels = k.regressor_labels(fog);
+                    let text: Vec<String> =
+                        c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+                    println!("  {:<24} FOG{fog}: {}", k.label(), text.join(", "));
+                }
+            }
+            if let Some(dir) = plots {
+                std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+                for fog in 0..s.fogs.len() {
+                    let p = dir.join(format!("residual-fog{fog}.svg"));
+                    write_svg(&p, &residual_svg(&s, &f, fog)?)?;
+                    println!("wrote {}", p.display());
+                }
+            }
+        }
+        Cmd::Diagnose { model, session, level, blocks } => {
+            let m = load_model(&model)?;
+            let s = load_session(&session)?;
+            let pb = spinner("testing candidate terms on held-out blocks");
+            let d = diagnose(&m, &s, &Options { n_blocks: blocks, fdr_level: level, ..Options::default() });
+            pb.finish_and_clear();
+            print_diagnosis(&d?);
+        }
+        Cmd::Add { term, model, session, blocks } => {
+            let m = load_model(&model)?;
+            let s = load_session(&session)?;
+            let kind = Kind::parse_arg(&term)?;
+            let pb = spinner("refitting");
+            let out = add_term(&m, &kind, &s, blocks);
+            pb.finish_and_clear();
+            let mut out = out?;
+            let newest = history_files(&model).last().map_or(0, |v| v.0).max(m.version);
+            if newest > m.version {
+                println!("note: {} is version {}, newer versions exist up to {newest}", model.display(), m.version);
+            }
+            out.model.version = newest + 1;
+            out.model.note = format!("v{}: v{} + {}", out.model.version, m.version, kind.label());
+            let path = version_path(&model, out.model.version);
+            if path.exists() {
+                bail!("{} exists: the lab never overwrites a model", path.display());
+            }
+            println!("held-out residual RMS, deg/h ({} blocks):", blocks);
+            println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
+            for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
+                println!("{i:>4} {:>12.5} {:>12.5} {:>7.1}%", dh(*b), dh(*a), 100.0 * (1.0 - a / b));
+            }
+            let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
+            println!(" all {:>12.5} {:>12.5} {:>7.1}%", dh(b), dh(a), 100.0 * (1.0 - a / b));
+            let t = out.model.terms.len() - 1;
+            for (fog, c) in out.model.terms[t].coef.iter().enumerate() {
+                let labels = kind.regressor_labels(fog);
+                let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+                println!("  {} FOG{fog}: {}", kind.label(), text.join(", "));
+            }
+            if !out.not_identified.is_empty() {
+                println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
+            }
+            ssis_host::lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
+            println!("wrote {} (version {})", path.display(), out.model.version);
+            let h = history(&path, &s, blocks)?;
+            println!("history on {} (held-out RMS, deg/h):", s.file);
+            for (v, r, per, terms) in &h {
+                let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
+                println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
+            }
+            let svg_path = path.with_file_name(format!("{}.history.svg", ssis_host::lab::fit::model_stem(&path)));
+            let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
+            write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", s.file), &pts)?)?;
+            println!("wrote {}", svg_path.display());
+        }
+        Cmd::Export { model, base, toml, bin } => {
+            let m = load_model(&model)?;
+            if m.fit.is_none() && m.terms.iter().all(|t| t.coef.is_empty()) {
+                bail!("{}: the model has no coefficients: fit it first (ssis-lab add or compare)", model.display());
+            }
+            let base_table = match &base {
+                Some(p) => ssis_host::table::read_toml(p)?,
+                None => ssis::calib::CalibrationTable::DEFAULT,
+            };
+            let e = to_table(&m, &base_table)?;
+            if toml.is_none() && bin.is_none() {
+                bail!("nothing to write: give --toml and/or --bin");
+            }
+            if let Some(p) = &toml {
+                ssis_host::table::write_toml(p, &e.table)?;
+                println!("wrote {}", p.display());
+            }
+            if let Some(p) = &bin {
+                ssis_host::table::write_binary(p, &e.table)?;
+                println!("wrote {}", p.display());
+            }
+            println!("applied onboard: {}", e.applied.join(", "));
+            if let Some(f) = m.fit.as_ref().filter(|f| !f.not_identified.is_empty()) {
+                println!(
+                    "WARNING: {} could not identify {} (exported as 0; their constant part is in the bias)",
+                    f.session,
+                    f.not_identified.join(", ")
+                );
+            }
+            if e.not_applied.is_empty() {
+                println!("every term of the model is applied onboard");
+            }
+            for (k, why) in &e.not_applied {
+                println!("NOT applied onboard: {k}: {why}");
+            }
+        }
+        Cmd::Report { model, session, out } => {
+            let m = load_model(&model)?;
+            let s = load_session(&session)?;
+            let pb = spinner("fitting and diagnosing");
+            let f = fit_model(&m, &s)?;
+            let d = diagnose(&m, &s, &Options::default())?;
+            let h: Vec<(u32, f64)> =
+                history(&model, &s, ssis_host::lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
+            pb.finish_and_clear();
+            ssis_host::lab::write_atomic(&out, report::render(&s, &f, &d, &h)?.as_bytes())?;
+            println!("wrote {}", out.display());
+        }
+        Cmd::Simulate { preset, out, seed, no_hidden } => {
+            let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {
+                bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight");
+            };
+            let sim = simulate::generate(&spec);
+            sim.write_csv(&out)?;
+            println!(
+                "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?})",
+                out.display(),
+                sim.rows.len(),
+                spec.dt_s,
+                dh(sim.truth.noise_rad_s),
+                spec.hidden
+            );
+        }
+    }
+    Ok(())
+}

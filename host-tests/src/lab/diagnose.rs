@@ -98,7 +98,7 @@ pub struct Anova {
     pub f_tg: (f64, usize, usize, f64),
     /// T level edges (tertiles), °C.
     pub t_edges_degc: [f64; 2],
-    /// G level edges (tertiles), °C/s.
+    /// G level edges (±a tenth of the 95th percentile of |G|), °C/s.
     pub g_edges_degc_s: [f64; 2],
 }
 
@@ -371,7 +371,12 @@ fn anova_fog(p: &Prepared, kinds: &[Kind], fog: usize) -> Option<Anova> {
     let all: Vec<usize> = (0..g.len()).collect();
     let d = design(kinds, p, fog).ok()?;
     let res = residual(&d, &p.y[fog], &lstsq(&d.cols, &p.y[fog], &all).coef);
-    let (te, ge) = (tertiles(dt), tertiles(g));
+    // T levels at its tertiles; G levels falling / steady / rising, steady meaning |G| within
+    // a tenth of the 95th percentile of |G| (the paper's G levels are set rates and holds).
+    let mut ag: Vec<f64> = g.iter().map(|v| v.abs()).collect();
+    ag.sort_by(f64::total_cmp);
+    let eps = 0.1 * ag[ag.len() * 95 / 100];
+    let (te, ge) = (tertiles(dt), [-eps, eps]);
     let mut sum = [[0.0f64; 3]; 3];
     let mut cnt = [[0usize; 3]; 3];
     for j in 0..g.len() {

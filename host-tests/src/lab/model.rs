@@ -323,7 +323,7 @@ impl Model {
             }
             seen.push(k);
         }
-        if !(m.g_window_s >= 0.0) {
+        if m.g_window_s.is_nan() || m.g_window_s < 0.0 {
             return Err(LabError::Model(format!("{origin}: `g_window_s` must be 0 (automatic) or positive")));
         }
         Ok(m)

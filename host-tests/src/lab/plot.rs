@@ -1,1 +1,113 @@
-//! Plots (SVG through plotters): residuals against each quantity, and the model history.
+//! Plots (SVG through plotters, no fonts needed): residuals against each quantity a
+//! session has, and the held-out RMS across model versions.
+
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::fit::Fitted;
+use super::model::{effective_g_window_s, loop_plane, prepare, Model};
+use super::session::Session;
+use super::{LabError, LabResult};
+use crate::DEG_H_PER_RAD_S;
+
+fn perr(e: impl std::fmt::Display) -> LabError {
+    LabError::Numeric(format!("plot: {e}"))
+}
+
+/// The x axes a residual is plotted against for FOG `fog`: (label, values).
+fn x_axes(session: &Session, model: &Model, fog: usize) -> Vec<(String, Vec<f64>)> {
+    let p = prepare(session, model);
+    let mut v = vec![("time, h".to_string(), session.t_s().iter().map(|t| t / 3600.0).collect())];
+    if let (Some(d), Some(g)) = (&p.dtemp_degc[fog], &p.g_degc_s[fog]) {
+        v.push(("T, degC".into(), d.iter().map(|x| x + p.t_ref_degc).collect()));
+        let w = effective_g_window_s(session, model);
+        v.push((format!("G = dT/dt, degC/min ({w:.0} s window)"), g.iter().map(|x| x * 60.0).collect()));
+    }
+    if let Some(psi) = session.column("psi_rad") {
+        v.push(("azimuth psi, deg".into(), psi.iter().map(|x| x.to_degrees()).collect()));
+    }
+    v.push(("input rate along the axis, deg/s".into(), p.r[fog].iter().map(|x| x.to_degrees()).collect()));
+    if let Some(b) = &session.field_nt {
+        let u = loop_plane(fog)[0];
+        v.push((
+            "field across the axis B.u, nT".into(),
+            b.iter().map(|x| u.x * x[0] + u.y * x[1] + u.z * x[2]).collect(),
+        ));
+    }
+    v
+}
+
+/// Residual of FOG `fog` against every quantity of the session, as an SVG string.
+pub fn residual_svg(session: &Session, fitted: &Fitted, fog: usize) -> LabResult<String> {
+    let axes = x_axes(session, &fitted.model, fog);
+    let res: Vec<f64> = fitted.residual[fog].iter().map(|v| v * DEG_H_PER_RAD_S).collect();
+    let stride = res.len().div_ceil(4000).max(1);
+    let mut svg = String::new();
+    {
+        let rows = axes.len().div_ceil(2) as u32;
+        let root = SVGBackend::with_string(&mut svg, (1000, 260 * rows + 40)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let root = root
+            .titled(
+                &format!("{}: FOG{fog} residual, deg/h (model v{})", session.file, fitted.model.version),
+                ("sans-serif", 18),
+            )
+            .map_err(perr)?;
+        let areas = root.split_evenly((rows as usize, 2));
+        let lim = res.iter().fold(1e-9f64, |m, v| m.max(v.abs())) * 1.05;
+        for ((label, x), area) in axes.iter().zip(areas.iter()) {
+            let (lo, hi) = x.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+            let (lo, hi) = if hi > lo { (lo, hi) } else { (lo - 1.0, hi + 1.0) };
+            let mut chart = ChartBuilder::on(area)
+                .margin(8)
+                .x_label_area_size(30)
+                .y_label_area_size(55)
+                .caption(label, ("sans-serif", 14))
+                .build_cartesian_2d(lo..hi, -lim..lim)
+                .map_err(perr)?;
+            chart.configure_mesh().x_labels(6).y_labels(5).draw().map_err(perr)?;
+            chart
+                .draw_series(
+                    x.iter().zip(&res).step_by(stride).map(|(&a, &b)| Circle::new((a, b), 2, BLUE.mix(0.5).filled())),
+                )
+                .map_err(perr)?;
+        }
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
+/// Held-out RMS (pooled over FOGs, °/h) per model version, as an SVG string.
+pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (800, 420)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let vmax = points.iter().fold(1e-9f64, |m, p| m.max(p.1)) * 1.1;
+        let (v0, v1) = (points.first().map_or(1, |p| p.0), points.last().map_or(1, |p| p.0));
+        let mut chart = ChartBuilder::on(&root)
+            .margin(12)
+            .caption(title, ("sans-serif", 16))
+            .x_label_area_size(35)
+            .y_label_area_size(60)
+            .build_cartesian_2d((v0 as f64 - 0.5)..(v1 as f64 + 0.5), 0.0..vmax)
+            .map_err(perr)?;
+        chart
+            .configure_mesh()
+            .x_desc("model version")
+            .y_desc("held-out residual RMS, deg/h")
+            .x_labels(points.len().max(2))
+            .draw()
+            .map_err(perr)?;
+        chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0 as f64, p.1)), &RED)).map_err(perr)?;
+        chart.draw_series(points.iter().map(|p| Circle::new((p.0 as f64, p.1), 4, RED.filled()))).map_err(perr)?;
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
+/// Writes an SVG string atomically.
+pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
+    super::write_atomic(path, svg.as_bytes())
+}
