@@ -369,7 +369,7 @@ impl FlightCore {
         let mut fog_health = [0u8; N_FOG];
         let mut used = FogSet(0);
         let mut parity_rad = 0.0;
-        let mut corrected = self.last_body_dtheta - self.observer.drift_rad_s() * dt_s;
+        let mut corrected = Vector3::zeros();
         let mut integrated = 0u32;
         let mut degraded = false;
         // Bounded: at most one pass per queued sample.
@@ -403,6 +403,8 @@ impl FlightCore {
             }
         }
         if integrated == 0 {
+            // Nothing integrated: the output rate is the last body increment, corrected.
+            corrected = self.last_body_dtheta - self.observer.drift_rad_s() * dt_s;
             self.waited = self.waited.saturating_add(1);
             degraded = true;
             for (i, h) in fog_health.iter_mut().enumerate() {
@@ -498,6 +500,10 @@ impl FlightCore {
     /// Counter of the next sample to integrate now, or `None` to wait for it.
     fn next_sample(&mut self) -> Option<u16> {
         let fitted = self.profile.fogs;
+        if self.waited < MAX_WAIT_STEPS && self.fog.iter().all(|ch| ch.queue.is_empty()) {
+            // Nothing queued (the usual case once this step's sample is taken).
+            return None;
+        }
         let fogs = || self.fog.iter().enumerate().filter(move |(i, _)| fitted.contains(*i)).map(|(_, ch)| ch);
         let Some(e) = self.clock.expected else {
             // Before the first sample: start at the oldest one waiting, if any.
@@ -614,7 +620,8 @@ impl FlightCore {
         if arrived {
             status |= st_status::FRAME;
         }
-        let decoded_rej = self.st_decoder.stats().rejected();
+        // The decoder's counts change only with bytes.
+        let decoded_rej = if rep.bytes > 0 { self.st_decoder.stats().rejected() } else { self.st_rejected_seen };
         let new_rej = decoded_rej.saturating_sub(self.st_rejected_seen).saturating_add(overflow);
         self.st_rejected_seen = decoded_rej;
         if new_rej > 0 {

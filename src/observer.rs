@@ -205,19 +205,24 @@ impl<const H: usize> Observer<H> {
         if time_us > last.time_us {
             return Err(UpdateError::Future);
         }
-        let mut prev = first;
-        for s in self.history.iter() {
-            if s.time_us >= time_us {
-                let span = s.time_us.saturating_sub(prev.time_us);
+        // From the newest entry back: a time tag lags the present by the star tracker's
+        // latency, a few entries, so this is shorter than a scan from the oldest.
+        let mut next = last;
+        for s in self.history.iter().rev() {
+            if s.time_us <= time_us {
+                let span = next.time_us.saturating_sub(s.time_us);
                 if span == 0 {
                     return Ok(s.q);
                 }
-                let frac = (time_us - prev.time_us) as f64 / span as f64;
-                return Ok(math::nlerp(&prev.q, &s.q, frac));
+                // u32 µs (71 min) covers any span here; u32 → f64 is one instruction on
+                // the M7, u64 → f64 a library call.
+                let us = |d: u64| f64::from(u32::try_from(d).unwrap_or(u32::MAX));
+                let frac = us(time_us - s.time_us) / us(span);
+                return Ok(math::nlerp(&s.q, &next.q, frac));
             }
-            prev = s;
+            next = s;
         }
-        Err(UpdateError::Future)
+        Err(UpdateError::Stale)
     }
 
     /// One star-tracker update: `q_st` is Λ* of the star-tracker frame, `mount` q_bs.
@@ -280,13 +285,15 @@ impl<const H: usize> Observer<H> {
     /// removes the drift change `d_drift` integrated from t_s to each of them.
     fn apply(&mut self, att: &mut Attitude, now_us: u64, t_s: u64, c: &Quaternion<f64>, d_drift: &Vector3<f64>) {
         let fix = |q: &Quaternion<f64>, t_us: u64| {
-            let dt_s = t_us.saturating_sub(t_s) as f64 * 1e-6;
+            let dt_s = f64::from(u32::try_from(t_us.saturating_sub(t_s)).unwrap_or(u32::MAX)) * 1e-6;
             c * q * math::quat_from_rotvec(&(-d_drift * dt_s))
         };
-        for s in self.history.iter_mut() {
-            if s.time_us >= t_s {
-                s.q = fix(&s.q, s.time_us);
+        // Entries are in time order: walk back from the newest to t_s.
+        for s in self.history.iter_mut().rev() {
+            if s.time_us < t_s {
+                break;
             }
+            s.q = fix(&s.q, s.time_us);
         }
         let q_now = fix(&att.quaternion(), now_us);
         att.set_quaternion(q_now);

@@ -127,15 +127,22 @@ impl<F: Frame, const CAP: usize> StreamDecoder<F, CAP> {
         // Bounded: every pass consumes at least one byte of `rest`.
         while !rest.is_empty() {
             if self.buf.is_empty() {
-                let start = rest.iter().position(|&b| b == SYNC[0]).unwrap_or(rest.len());
-                self.count_skipped(start);
-                rest = rest.get(start..).unwrap_or(&[]);
-                if let Some(candidate) = rest.get(..F::LEN) {
+                let Some(start) = rest.iter().position(|&b| b == SYNC[0]) else {
+                    self.count_skipped(rest.len());
+                    return;
+                };
+                if start > 0 {
+                    self.count_skipped(start);
+                    if let Some((_, from_sync)) = rest.split_at_checked(start) {
+                        rest = from_sync;
+                    }
+                }
+                if let Some((candidate, after)) = rest.split_at_checked(F::LEN) {
                     if matches!(*candidate, [s0, s1, k, ..] if [s0, s1, k] == header::<F>()) {
                         if let Ok(frame) = F::decode(candidate) {
                             self.stats.frames_ok = self.stats.frames_ok.saturating_add(1);
                             on_frame(Ok(frame));
-                            rest = rest.get(F::LEN..).unwrap_or(&[]);
+                            rest = after;
                             continue;
                         }
                     }

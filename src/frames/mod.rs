@@ -172,15 +172,13 @@ impl<'a> FieldWriter<'a> {
 
     /// Writes `bytes` as they are.
     pub fn bytes<const N: usize>(&mut self, bytes: [u8; N]) {
-        let rest = core::mem::take(&mut self.rest);
-        if rest.len() < N {
-            self.overflow = true;
-            self.rest = rest;
-            return;
-        }
-        if let Some((head, tail)) = rest.split_first_chunk_mut::<N>() {
-            *head = bytes;
-            self.rest = tail;
+        match core::mem::take(&mut self.rest).split_first_chunk_mut::<N>() {
+            Some((head, tail)) => {
+                *head = bytes;
+                self.rest = tail;
+            }
+            // The frame is refused by `is_complete`; the bytes left do not matter.
+            None => self.overflow = true,
         }
     }
 
