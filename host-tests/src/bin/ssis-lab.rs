@@ -16,6 +16,7 @@ use ssis_host::lab::fit::{
 };
 use ssis_host::lab::model::{prepare, Kind, Model};
 use ssis_host::lab::plot::{history_svg, residual_svg, write_svg};
+use ssis_host::lab::replay::replay;
 use ssis_host::lab::session::{read_session, Session};
 use ssis_host::lab::{report, simulate};
 use ssis_host::DEG_H_PER_RAD_S;
@@ -121,9 +122,19 @@ enum Cmd {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Replay a session through the flight core (FlightCore::step) with a calibration table:
+    /// the core's body-rate error against the session's reference.
+    Replay {
+        /// Session CSV with equally spaced rows (one core step per row).
+        #[arg(long)]
+        session: PathBuf,
+        /// Calibration table, binary (.bin) or TOML; default: the nominal table (no error terms).
+        #[arg(long)]
+        table: Option<PathBuf>,
+    },
     /// Write a simulated session with a known hidden effect (for trying the lab).
     Simulate {
-        /// magnetic, thermal, asymmetry, sin2psi or flight.
+        /// magnetic, thermal, asymmetry, sin2psi, flight or replay.
         preset: String,
         /// CSV file to write.
         out: PathBuf,
@@ -408,9 +419,42 @@ fn main() -> Result<()> {
             ssis_host::lab::write_atomic(&out, report::render(&s, &f, &d, &h)?.as_bytes())?;
             println!("wrote {}", out.display());
         }
+        Cmd::Replay { session, table } => {
+            let s = load_session(&session)?;
+            let t = match &table {
+                Some(p) if p.extension().is_some_and(|e| e == "bin") => ssis_host::table::read_binary(p)?,
+                Some(p) => ssis_host::table::read_toml(p)?,
+                None => ssis::calib::CalibrationTable::DEFAULT,
+            };
+            let pb = spinner("replaying through the flight core");
+            let r = replay(&s, &t);
+            pb.finish_and_clear();
+            let r = r.with_context(|| format!("cannot replay {}", session.display()))?;
+            let n = r.error_rad_s.len() as f64;
+            let axis = |a: usize| dh((r.error_rad_s.iter().map(|e| e[a] * e[a]).sum::<f64>() / n).sqrt());
+            println!(
+                "{} through FlightCore::step() with {} ({} steps of {} s, {} FOGs)",
+                s.file,
+                table.as_ref().map_or("the nominal table".to_string(), |p| p.display().to_string()),
+                r.error_rad_s.len(),
+                f64::from(r.dt_us) * 1e-6,
+                r.profile.fogs.count()
+            );
+            println!(
+                "body rate error RMS, deg/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
+                axis(0),
+                axis(1),
+                axis(2),
+                dh(r.rms_error_rad_s(None))
+            );
+            println!(
+                "steps with a FOG not used: {}; output frames {} ({} bad)",
+                r.steps_degraded, r.frames_out, r.frames_out_bad
+            );
+        }
         Cmd::Simulate { preset, out, seed, no_hidden } => {
             let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {
-                bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight");
+                bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight, replay");
             };
             let sim = simulate::generate(&spec);
             sim.write_csv(&out)?;

@@ -16,12 +16,15 @@
 //! - [`export`]: the calibration table the firmware loads, from the onboard terms.
 //! - [`simulate`]: a session generator with known effects, for tests and demos.
 //! - [`report`]: one self-contained HTML page of a session's loop.
+//! - [`replay`]: a session turned into FOG frames and replayed through the flight core
+//!   (`FlightCore::step`) with a calibration table: the round trip from the lab to flight.
 
 pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod model;
 pub mod plot;
+pub mod replay;
 pub mod report;
 pub mod session;
 pub mod simulate;

@@ -44,11 +44,13 @@ pub enum Motion {
         /// One entry per series (turn).
         screened: Vec<bool>,
     },
-    /// Rate table: the 24 settings (about X, Y, Z in turn, at ±1, ±2, ±5, ±10 °/s) in a cycle,
-    /// `dwell_rows` samples each, the cycle repeated until the session ends.
+    /// Rate table: the 24 settings (about X, Y, Z in turn, at ±0.1, ±0.2, ±0.5, ±1 × `peak_deg_s`)
+    /// in a cycle, `dwell_rows` samples each, the cycle repeated until the session ends.
     RateTable {
         /// Samples per rate.
         dwell_rows: usize,
+        /// Highest table rate, °/s (10 for the presets).
+        peak_deg_s: f64,
     },
 }
 
@@ -285,7 +287,7 @@ pub fn generate(spec: &Spec) -> SimSession {
     }
     header.push("chamber_rh_pct".into());
     let mut humidity = 40.0;
-    let rates_deg_s: [f64; 8] = [1.0, -1.0, 2.0, -2.0, 5.0, -5.0, 10.0, -10.0];
+    let rate_fractions: [f64; 8] = [0.1, -0.1, 0.2, -0.2, 0.5, -0.5, 1.0, -1.0];
     let mut rows = Vec::with_capacity(spec.rows);
     for j in 0..spec.rows {
         let t_end = (j + 1) as f64 * spec.dt_s;
@@ -297,10 +299,10 @@ pub fn generate(spec: &Spec) -> SimSession {
                 let psi = (pos % 24) as f64 * 15f64.to_radians();
                 (earth_rate_ics(psi, KHARKOV_LAT_RAD), psi, screened.get(series).copied().unwrap_or(false))
             }
-            Motion::RateTable { dwell_rows } => {
-                let setting = (j / dwell_rows.max(&1)) % (3 * rates_deg_s.len());
-                let axis = setting / rates_deg_s.len();
-                let rate = rates_deg_s[setting % rates_deg_s.len()].to_radians();
+            Motion::RateTable { dwell_rows, peak_deg_s } => {
+                let setting = (j / dwell_rows.max(&1)) % (3 * rate_fractions.len());
+                let axis = setting / rate_fractions.len();
+                let rate = (peak_deg_s * rate_fractions[setting % rate_fractions.len()]).to_radians();
                 let mut w = [0.0; 3];
                 // The table axis is vertical: the Earth's vertical rate adds along it.
                 w[axis] = rate + EARTH_RATE_RAD_S * KHARKOV_LAT_RAD.sin();
@@ -381,7 +383,8 @@ impl SimSession {
 }
 
 /// The sessions of the lab's tests and demos, by name: `magnetic`, `thermal`, `asymmetry`,
-/// `sin2psi`, `flight` (thermal rate table with the whole onboard model); `hidden = false`
+/// `sin2psi`, `flight` (thermal rate table with the whole onboard model), `replay` (the same at
+/// 0.5-s samples, one flight-core step per row); `hidden = false`
 /// gives the same session with no hidden effect.
 pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
     let pick = |h: Hidden| if hidden { h } else { Hidden::None };
@@ -412,7 +415,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             seed,
             dt_s: 60.0,
             rows: 240,
-            motion: Motion::RateTable { dwell_rows: 1 },
+            motion: Motion::RateTable { dwell_rows: 1, peak_deg_s: 10.0 },
             thermal: Thermal::Constant(23.0),
             field_columns: false,
             hidden: pick(Hidden::SfAsymmetry),
@@ -431,7 +434,19 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             seed,
             dt_s: 300.0,
             rows: 576,
-            motion: Motion::RateTable { dwell_rows: 1 },
+            motion: Motion::RateTable { dwell_rows: 1, peak_deg_s: 10.0 },
+            thermal: Thermal::Chamber,
+            field_columns: false,
+            hidden: if hidden { Hidden::FullThermal } else { Hidden::None },
+        },
+        // The same, sampled at 0.5 s with the table at up to ±3 °/s, 1 min per setting, for
+        // 12 h: every row's increment fits a FOG frame (|Δθ| < 2^-5 rad), so the flight core
+        // can replay the session one row per step (`super::replay`).
+        "replay" => Spec {
+            seed,
+            dt_s: 0.5,
+            rows: 86_400,
+            motion: Motion::RateTable { dwell_rows: 120, peak_deg_s: 3.0 },
             thermal: Thermal::Chamber,
             field_columns: false,
             hidden: if hidden { Hidden::FullThermal } else { Hidden::None },
