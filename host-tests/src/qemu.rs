@@ -56,6 +56,9 @@ pub struct QemuOptions {
     pub corrupt_every: u64,
     /// Show a progress bar.
     pub progress: bool,
+    /// Fault injection (lockstep, firmware built with `test-hooks`): at this step send
+    /// `STALL` instead of `STEP`, then wait for the watchdog to end the run.
+    pub stall_at_step: Option<u64>,
 }
 
 /// What a QEMU run measured.
@@ -105,6 +108,9 @@ pub struct QemuSummary {
     pub log: Vec<String>,
     /// QEMU's exit status (0 = the firmware ended the run cleanly).
     pub exit_code: Option<i32>,
+    /// With an injected stall (see [`QemuOptions::stall_at_step`]): the time from the
+    /// STALL command to QEMU's exit, s (`None`: still running after 20 s, stopped).
+    pub stalled_exit_s: Option<f64>,
     /// Wall time, s.
     pub wall_s: f64,
     /// Whether instruction counting was on.
@@ -188,6 +194,24 @@ pub fn build_firmware() -> Result<PathBuf> {
         bail!("building the firmware failed ({status})");
     }
     Ok(default_elf())
+}
+
+/// Builds the firmware with the `test-hooks` feature (fault injection) into its own
+/// target directory, so the flight build is left alone; returns the ELF path.
+pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
+    let dir = repo_root().join("target/test-hooks");
+    let status = Command::new("cargo")
+        .args(["build", "--release", "--quiet", "--bin", "ssis-fw", "--features", "test-hooks", "--target-dir"])
+        .arg(&dir)
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")?;
+    if !status.success() {
+        bail!("building the firmware with test hooks failed ({status})");
+    }
+    Ok(dir.join("thumbv7em-none-eabihf/release/ssis-fw"))
 }
 
 struct Qemu {
@@ -279,6 +303,8 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     if opts.icount {
         cmd.args(["-icount", "shift=0"]);
     }
+    // A watchdog reset ends the run (a flight unit would reboot; here that would hide it).
+    cmd.args(["-action", "watchdog=poweroff"]);
     for (i, p) in socks.iter().enumerate() {
         cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
         cmd.args(["-serial", &format!("chardev:u{i}")]);
@@ -445,6 +471,26 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             let mut links = Links { fog: FogLinks::Bus(&mut *fl), star: &mut *sl, out: &mut *out };
             core.step(&mut links);
             ref_frames.push_back(std::mem::take(&mut out.bytes));
+            if opts.stall_at_step == Some(n) {
+                ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
+                let t_stall = Instant::now();
+                // QEMU ends at the watchdog reset; give up (and stop it) after 20 s.
+                let status = loop {
+                    if let Some(st) = q.child.try_wait()? {
+                        break Some(st);
+                    }
+                    if t_stall.elapsed() > Duration::from_secs(20) {
+                        let _ = q.child.kill();
+                        break None;
+                    }
+                    std::thread::sleep(Duration::from_millis(5));
+                };
+                s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
+                s.exit_code = status.and_then(|st| st.code());
+                let log = log_thread.join().unwrap_or_default();
+                s.log = decode_defmt(&opts.elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
+                return Ok(s);
+            }
             let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
             ctl.write_all(&step.to_bytes())?;
             let before = s.frames_out;

@@ -2,7 +2,8 @@
 //! `qemu-system-arm` (the README's test command installs it); builds the firmware.
 //! - lockstep: every output frame bit-identical to the in-process core's (host/QEMU
 //!   equivalence), also with damaged links;
-//! - real time: the firmware's own 5 ms tick, no overruns, attitude within bounds.
+//! - real time: the firmware's own 5 ms tick, no overruns, attitude within bounds;
+//! - fault injection: a stalled main loop is caught by the watchdog.
 
 use std::path::Path;
 
@@ -19,7 +20,7 @@ fn run(duration_s: f64, lockstep: bool, corrupt_every: u64) -> QemuSummary {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = duration_s;
     sc.settle_s = duration_s / 2.0;
-    let opts = QemuOptions { elf, lockstep, icount: false, corrupt_every, progress: false };
+    let opts = QemuOptions { elf, lockstep, icount: false, corrupt_every, progress: false, stall_at_step: None };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     s
@@ -32,6 +33,7 @@ fn host_and_qemu_give_identical_output_frames() {
     assert_eq!(s.frames_out, s.steps);
     assert_eq!(s.equal_frames, s.steps, "{} frames differ", s.differing_frames);
     assert_eq!(s.differing_frames, 0);
+    assert!(s.log.iter().any(|l| l == "watchdog_warnings 0"), "the fed watchdog never warned: {:?}", s.log);
 }
 
 #[test]
@@ -76,11 +78,40 @@ fn every_step_meets_its_deadline_in_counted_instructions() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
     sc.settle_s = 2.5;
-    let opts = QemuOptions { elf, lockstep: true, icount: true, corrupt_every: 0, progress: false };
+    let opts =
+        QemuOptions { elf, lockstep: true, icount: true, corrupt_every: 0, progress: false, stall_at_step: None };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     let worst = s.step_ticks_max[0].max(s.step_ticks_max[1]);
     assert!(worst > 0 && worst < 125_000 / 10, "worst step {worst} ticks");
     assert_eq!(s.last_frame.counters.overruns, 0);
     assert_eq!(s.differing_frames, 0);
+}
+
+#[test]
+fn a_stalled_main_loop_is_caught_by_the_watchdog() {
+    // Fault injection (firmware built with `test-hooks`): after 2 s of lockstep flight the
+    // runner sends STALL; the main loop stops feeding the watchdog. The watchdog must
+    // warn (NMI) after one period and end the run (reset, QEMU `-action
+    // watchdog=poweroff`) after the second: two periods of 10 steps, 100 ms.
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = ssis_host::qemu::build_firmware_with_test_hooks().expect("firmware with test hooks builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = 5.0;
+    sc.settle_s = 2.5;
+    let opts =
+        QemuOptions { elf, lockstep: true, icount: false, corrupt_every: 0, progress: false, stall_at_step: Some(400) };
+    let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
+    for l in &s.log {
+        println!("firmware: {l}");
+    }
+    let t = s.stalled_exit_s.expect("the run ended at the stall");
+    println!("QEMU ended {t:.3} s after STALL, exit {:?}", s.exit_code);
+    assert!(s.log.iter().any(|l| l.contains("main loop stalled")), "the hook ran");
+    assert!(s.log.iter().any(|l| l.contains("watchdog:")), "the watchdog warned before the reset");
+    assert!(!s.log.iter().any(|l| l.starts_with("steps ")), "no END report: the run did not end normally");
+    // Virtual time does not run ahead of the host's: the reset cannot come before two
+    // periods; it should come soon after.
+    assert!((0.09..2.0).contains(&t), "watchdog reset {t} s after the stall (expected 0.1 s)");
 }

@@ -13,6 +13,7 @@
 //! | 14 | 2 | crc | u16 | CRC16 over bytes 0..14 |
 //!
 //! In lockstep the unit steps once per `STEP`, after it has received the totals named.
+//! `STALL` exists for the watchdog test and is acted on only by a `test-hooks` build.
 
 use super::{kind, DecodeError, FieldReader, FieldWriter, Frame};
 
@@ -27,6 +28,9 @@ pub mod command {
     pub const STEP: u8 = 2;
     /// Report and end the run (under QEMU: exit with success).
     pub const END: u8 = 3;
+    /// Fault injection: stop feeding the watchdog (the main loop spins). Honoured only
+    /// by firmware built with the `test-hooks` feature; others ignore it.
+    pub const STALL: u8 = 4;
 }
 
 /// One control frame.
@@ -69,7 +73,7 @@ impl Frame for ControlFrame {
 
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError> {
         let command = r.u8()?;
-        if !(command::LOCKSTEP..=command::END).contains(&command) {
+        if !(command::LOCKSTEP..=command::STALL).contains(&command) {
             return Err(DecodeError::BadField);
         }
         Ok(ControlFrame { command, fog_bytes: r.u32()?, st_bytes: r.u32()?, arg: r.u16()? })

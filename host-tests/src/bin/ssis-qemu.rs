@@ -75,6 +75,7 @@ fn real_main() -> Result<bool> {
         icount: a.icount,
         corrupt_every: a.corrupt_every,
         progress: true,
+        stall_at_step: None,
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;

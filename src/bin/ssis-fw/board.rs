@@ -9,6 +9,10 @@
 //!   | 1 | 0x4000_5000 | 2 / 3 | FOG bus: all four FOGs, told apart by `fog_id` |
 //!   | 2 | 0x4000_6000 | 4 / 5 | star tracker (RX) |
 //! - SysTick at 25 MHz: the step tick (5 ms = 125,000 ticks) and the step-time measure.
+//! - CMSDK APB watchdog (QEMU `hw/watchdog/cmsdk-apb-watchdog.c`, 0x4000_8000, clocked
+//!   at 25 MHz, interrupt wired to NMI): the main loop feeds it on every pass; after one
+//!   timeout without a feed the NMI logs a warning, after a second one the watchdog
+//!   resets the unit (QEMU: its `-action watchdog=` choice).
 //! - Semihosting: defmt log output and the exit code of a QEMU run.
 //! - A painted stack for the high-water mark.
 #![allow(unsafe_code)]
@@ -156,6 +160,52 @@ unsafe fn DefaultHandler(irqn: i16) {
         4 => rx_isr(2, &ST_RX),
         _ => {}
     }
+}
+
+const WDOG_BASE: usize = 0x4000_8000;
+const WDOG_LOAD: usize = 0x000;
+const WDOG_CONTROL: usize = 0x008;
+const WDOG_INTCLR: usize = 0x00C;
+const WDOG_LOCK: usize = 0xC00;
+const WDOG_UNLOCK_KEY: u32 = 0x1ACC_E551;
+const WDOG_INTEN: u32 = 1 << 0;
+const WDOG_RESEN: u32 = 1 << 1;
+
+/// Watchdog warnings (first timeouts, each an NMI) since start.
+static WATCHDOG_WARNINGS: AtomicU32 = AtomicU32::new(0);
+
+fn wdog_write(off: usize, v: u32) {
+    // SAFETY: a register of the board's watchdog, a 32-bit MMIO location.
+    unsafe { core::ptr::write_volatile((WDOG_BASE + off) as *mut u32, v) }
+}
+
+/// Starts the watchdog with `timeout_us` per stage (warning NMI, then reset).
+pub fn watchdog_start(timeout_us: u32) {
+    wdog_write(WDOG_LOCK, WDOG_UNLOCK_KEY);
+    wdog_write(WDOG_LOAD, SYSCLK_HZ / 1_000_000 * timeout_us);
+    wdog_write(WDOG_CONTROL, WDOG_INTEN | WDOG_RESEN);
+    wdog_write(WDOG_LOCK, 0);
+}
+
+/// Feeds the watchdog: clears a pending warning and reloads the counter.
+pub fn watchdog_feed() {
+    wdog_write(WDOG_LOCK, WDOG_UNLOCK_KEY);
+    wdog_write(WDOG_INTCLR, 1);
+    wdog_write(WDOG_LOCK, 0);
+}
+
+/// Watchdog warnings so far.
+pub fn watchdog_warnings() -> u32 {
+    WATCHDOG_WARNINGS.load(Ordering::Relaxed)
+}
+
+/// First watchdog timeout: the main loop has not fed it for one period. Logged and
+/// counted; it is not cleared here, so if the loop does not recover the watchdog resets
+/// the unit at the second timeout.
+#[exception]
+unsafe fn NonMaskableInt() {
+    WATCHDOG_WARNINGS.fetch_add(1, Ordering::Relaxed);
+    defmt::warn!("watchdog: the main loop has not run for one watchdog period; reset at the next");
 }
 
 #[exception]

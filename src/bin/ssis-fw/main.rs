@@ -21,6 +21,9 @@ use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::link::drain;
 
+/// Watchdog period in steps (warning after one period, reset after two).
+const WATCHDOG_STEPS: u32 = 10;
+
 #[panic_handler]
 fn panic(_info: &core::panic::PanicInfo) -> ! {
     defmt::error!("panic");
@@ -59,6 +62,8 @@ fn main() -> ! {
     };
     defmt::info!("ssis-fw up: table revision {}, defaulted {}, step {} us", table.revision, defaulted, profile.dt_us);
     board::init(cp.SYST, profile.dt_us);
+    // Ten steps without a pass of the loop give the warning, twenty the reset.
+    board::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
 
     let mut links =
         Links { fog: FogLinks::Bus(board::FOG_RX.reader()), star: board::ST_RX.reader(), out: board::OUT_TX.writer() };
@@ -68,6 +73,7 @@ fn main() -> ! {
     let mut ctl_scratch = [0u8; 32];
     let mut lockstep = false;
     let mut end = false;
+    let mut stall = false;
     let mut handled = board::ticks();
     let mut times = StepTimes::default();
     let period = board::ticks_per_step();
@@ -83,6 +89,7 @@ fn main() -> ! {
                             let _ = steps_due.push_back(c);
                         }
                         command::END => end = true,
+                        command::STALL if cfg!(feature = "test-hooks") => stall = true,
                         _ => {}
                     }
                 }
@@ -129,6 +136,14 @@ fn main() -> ! {
             }
         }
         board::pump_tx();
+        if stall {
+            defmt::error!("test hook: main loop stalled on command");
+            // Ends only by the watchdog: this is the fault being injected.
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
+        board::watchdog_feed();
         if end && board::OUT_TX.is_empty() {
             report(&core, &times);
             board::exit(true);
@@ -152,6 +167,7 @@ fn report(core: &FlightCore, t: &StepTimes) {
         t.max_st
     );
     defmt::info!("stack_high_water_bytes {} static_ram_bytes {}", board::stack_high_water(), board::static_ram());
+    defmt::info!("watchdog_warnings {}", board::watchdog_warnings());
     defmt::info!(
         "counters fog_rejected {} fog_missing {} fog_stale {} st_accepted {} st_rejected {} overruns {} out_dropped {} rx_overflows {}",
         c.fog_frames_rejected,
