@@ -475,16 +475,10 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
                 ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
                 let t_stall = Instant::now();
                 // QEMU ends at the watchdog reset; give up (and stop it) after 20 s.
-                let status = loop {
-                    if let Some(st) = q.child.try_wait()? {
-                        break Some(st);
-                    }
-                    if t_stall.elapsed() > Duration::from_secs(20) {
-                        let _ = q.child.kill();
-                        break None;
-                    }
-                    std::thread::sleep(Duration::from_millis(5));
-                };
+                let status = wait_exit(&mut q.child, Duration::from_secs(20))?;
+                if status.is_none() {
+                    let _ = q.child.kill();
+                }
                 s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
                 s.exit_code = status.and_then(|st| st.code());
                 let log = log_thread.join().unwrap_or_default();
@@ -522,16 +516,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         }
     }
     ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
-    let t_exit = Instant::now();
-    let status = loop {
-        if let Some(st) = q.child.try_wait()? {
-            break Some(st);
-        }
-        if t_exit.elapsed() > Duration::from_secs(10) {
-            break None;
-        }
-        std::thread::sleep(Duration::from_millis(10));
-    };
+    let status = wait_exit(&mut q.child, Duration::from_secs(10))?;
     while let Ok(b) = rx.try_recv() {
         out_dec.push_slice(&b, |r| match r {
             Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
@@ -556,6 +541,20 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     s.drift_final_rad_s = last_drift;
     s.wall_s = started.elapsed().as_secs_f64();
     Ok(s)
+}
+
+/// Waits up to `timeout` for QEMU to exit; `None` if it is still running.
+fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process::ExitStatus>> {
+    let t0 = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait()? {
+            return Ok(Some(st));
+        }
+        if t0.elapsed() > timeout {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
 }
 
 fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {
