@@ -221,7 +221,8 @@ struct SampleClock {
 pub struct FlightCore {
     profile: Profile,
     table: CalibrationTable,
-    table_defaulted: bool,
+    /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
+    fixed_flags: u8,
     combiner: Combiner,
     mount: Quaternion<f64>,
     attitude: Attitude,
@@ -269,7 +270,8 @@ impl FlightCore {
         Ok(FlightCore {
             profile,
             table: *table,
-            table_defaulted,
+            fixed_flags: if profile.star_tracker { flags::ST_IN_USE } else { 0 }
+                | if table_defaulted { flags::TABLE_DEFAULTED } else { 0 },
             combiner,
             mount: table.st_mount(),
             attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
@@ -320,6 +322,11 @@ impl FlightCore {
     /// The calibration table in use.
     pub fn table(&self) -> &CalibrationTable {
         &self.table
+    }
+
+    /// Records a failed power-on built-in test: flagged in every output frame from now on.
+    pub fn note_bit_failure(&mut self) {
+        self.fixed_flags |= flags::BIT_FAILED;
     }
 
     /// Counters so far.
@@ -415,18 +422,12 @@ impl FlightCore {
 
         let st = if self.profile.star_tracker { self.read_star(&mut links.star, now_us) } else { 0 };
 
-        let mut fl = 0u8;
-        if self.profile.star_tracker {
-            fl |= flags::ST_IN_USE;
-        }
+        let mut fl = self.fixed_flags;
         if degraded {
             fl |= flags::DEGRADED;
         }
         if self.observer.converged() {
             fl |= flags::CONVERGED;
-        }
-        if self.table_defaulted {
-            fl |= flags::TABLE_DEFAULTED;
         }
         if self.output_dropped_last {
             fl |= flags::OUTPUT_DROPPED;

@@ -18,10 +18,12 @@
 //! The calibration table ([`calib`]) parameterises compensation, combination and the
 //! observer; it is the one definition shared with the simulator and the model lab.
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
+//! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
 #![no_std]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;
+pub mod bit;
 pub mod calib;
 pub mod combination;
 pub mod compensation;

@@ -183,17 +183,51 @@ pub fn repo_root() -> PathBuf {
 
 /// Builds the firmware (release, thumb target) if it is out of date.
 pub fn build_firmware() -> Result<PathBuf> {
+    build_target_bin("ssis-fw")
+}
+
+/// Builds a target binary of the root crate (release) and returns its ELF path.
+pub fn build_target_bin(name: &str) -> Result<PathBuf> {
     let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", "ssis-fw"])
+        .args(["build", "--release", "--quiet", "--bin", name])
         .current_dir(repo_root())
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("CARGO_BUILD_TARGET")
         .status()
         .context("cannot run cargo to build the firmware")?;
     if !status.success() {
-        bail!("building the firmware failed ({status})");
+        bail!("building {name} failed ({status})");
     }
-    Ok(default_elf())
+    Ok(repo_root().join("target/thumbv7em-none-eabihf/release").join(name))
+}
+
+/// Runs a target binary that needs no link (an on-target test) in QEMU until it exits
+/// through semihosting or `timeout` passes; returns its exit code (`None`: stopped at the
+/// timeout) and its decoded defmt log.
+pub fn run_bare(elf: &Path, timeout: Duration) -> Result<(Option<i32>, Vec<String>)> {
+    let mut child = Command::new("qemu-system-arm")
+        .args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"])
+        .args(["-serial", "null", "-semihosting-config", "enable=on,target=native"])
+        .arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .context("cannot start qemu-system-arm")?;
+    let mut stdout = child.stdout.take().context("no stdout")?;
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stdout.read_to_end(&mut buf);
+        buf
+    });
+    let status = wait_exit(&mut child, timeout)?;
+    if status.is_none() {
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    let log = reader.join().unwrap_or_default();
+    Ok((status.and_then(|s| s.code()), decode_defmt(elf, &log)?))
 }
 
 /// Builds the firmware with the `test-hooks` feature (fault injection) into its own

@@ -3,7 +3,9 @@
 //! - lockstep: every output frame bit-identical to the in-process core's (host/QEMU
 //!   equivalence), also with damaged links;
 //! - real time: the firmware's own 5 ms tick, no overruns, attitude within bounds;
-//! - fault injection: a stalled main loop is caught by the watchdog.
+//! - fault injection: a stalled main loop is caught by the watchdog;
+//! - the on-target test binary (`ssis-selftest`): built-in test and a replay digest equal
+//!   to the host's.
 
 use std::path::Path;
 
@@ -114,4 +116,28 @@ fn a_stalled_main_loop_is_caught_by_the_watchdog() {
     // Virtual time does not run ahead of the host's: the reset cannot come before two
     // periods; it should come soon after.
     assert!((0.09..2.0).contains(&t), "watchdog reset {t} s after the stall (expected 0.1 s)");
+}
+
+#[test]
+fn on_target_self_test_passes_and_replays_the_host_bit_for_bit() {
+    // The on-target test binary: the built-in test must pass on the Cortex-M7, and its
+    // 2,000-step replay of the whole core must give the digest the host computes with the
+    // same code (output bytes and final attitude, bit for bit).
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    assert_eq!(ssis::bit::power_on(), Ok(()), "the built-in test fails on the host");
+    let host = ssis::bit::replay_digest(2_000);
+    assert_eq!(host.steps, 2_000);
+    let elf = ssis_host::qemu::build_target_bin("ssis-selftest").expect("self-test builds");
+    let (code, log) =
+        ssis_host::qemu::run_bare(&elf, std::time::Duration::from_secs(60)).expect("QEMU runs the self-test");
+    for l in &log {
+        println!("target: {l}");
+    }
+    assert_eq!(code, Some(0), "self-test exit code");
+    assert!(log.iter().any(|l| l == "bit ok"), "built-in test on target");
+    let [w, x, y, z] = host.q_bits;
+    let expected =
+        format!("replay steps {} output_crc {:08x} q {w:016x} {x:016x} {y:016x} {z:016x}", host.steps, host.output_crc);
+    println!("host:   {expected}");
+    assert!(log.contains(&expected), "target replay differs from the host's");
 }

@@ -52,6 +52,8 @@ pub mod flags {
     pub const TABLE_DEFAULTED: u8 = 1 << 3;
     /// The output frame of the previous step was dropped.
     pub const OUTPUT_DROPPED: u8 = 1 << 4;
+    /// The power-on built-in test ([`crate::bit::power_on`]) failed.
+    pub const BIT_FAILED: u8 = 1 << 5;
 }
 
 /// The counters at the end of the output frame, in frame order (saturating u16 each).

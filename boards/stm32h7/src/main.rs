@@ -65,6 +65,11 @@ fn main() -> ! {
             park()
         }
     };
+    // Power-on built-in test: logged and flagged in every output frame on failure.
+    if let Err(e) = ssis::bit::power_on() {
+        defmt::error!("built-in test failed: {}", e);
+        core.note_bit_failure();
+    }
     hw.feed_watchdog();
     defmt::info!(
         "ssis-fw-stm32h7 up: reset {}, core {} Hz from {}, table revision {} (defaulted {}), step {} us",

@@ -61,6 +61,12 @@ fn main() -> ! {
         }
     };
     defmt::info!("ssis-fw up: table revision {}, defaulted {}, step {} us", table.revision, defaulted, profile.dt_us);
+    // Power-on built-in test: a failure is logged and flagged in every output frame; the
+    // unit still flies (the ground decides).
+    if let Err(e) = ssis::bit::power_on() {
+        defmt::error!("built-in test failed: {}", e);
+        core.note_bit_failure();
+    }
     board::init(cp.SYST, profile.dt_us);
     // Ten steps without a pass of the loop give the warning, twenty the reset.
     board::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
