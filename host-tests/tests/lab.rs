@@ -6,11 +6,11 @@
 use std::path::{Path, PathBuf};
 
 use ssis_host::lab::diagnose::{diagnose, Options};
-use ssis_host::lab::fit::{add_term, fit_model, pooled, DEFAULT_BLOCKS};
-use ssis_host::lab::model::prepare;
+use ssis_host::lab::fit::{add_term, fit_model, pooled, residuals, DEFAULT_BLOCKS};
 use ssis_host::lab::model::{Catalog, Kind, Model};
 use ssis_host::lab::session::{read_session, Session};
 use ssis_host::lab::simulate::{generate, preset, SimSession};
+use ssis_host::lab::stream::prepare;
 use ssis_host::DEG_H_PER_RAD_S;
 
 fn scratch(name: &str) -> PathBuf {
@@ -200,7 +200,8 @@ fn d_round_trip_to_flight() {
     ssis_host::table::write_binary(&bp, &e.table).unwrap();
     let table = ssis_host::table::read_binary(&bp).unwrap();
     assert_eq!(table, ssis_host::table::read_toml(&tp).unwrap());
-    let prep = prepare(&s, &fitted.model);
+    let prep = prepare(&s, &fitted.model).unwrap();
+    let residual = residuals(&fitted.model, &s).unwrap();
     let axes = table.axes();
     let nominal = ssis_host::lab::session::nominal_axes();
     let floor = sim.truth.noise_rad_s;
@@ -250,7 +251,7 @@ fn d_round_trip_to_flight() {
     };
     let (p0, p1) = (pinv(&nominal), pinv(&axes));
     let predicted: Vec<Vector3<f64>> = (0..s.len())
-        .map(|j| p1 * Vector4::from_fn(|i, _| fitted.residual[i][j] / (1.0 + table.fog[i].scale_factor_error)))
+        .map(|j| p1 * Vector4::from_fn(|i, _| residual[i][j] / (1.0 + table.fog[i].scale_factor_error)))
         .collect();
     let n = s.len() as f64;
     let lb =
@@ -495,4 +496,64 @@ fn f_report_renders_in_headless_chromium() {
     }
     let h2 = check.lines().find_map(|l| l.strip_prefix("h2 ")).unwrap_or("");
     assert_eq!(h2, "Fit|Diagnosis|History|Residuals", "sections");
+}
+
+/// The session reader's number parser gives exactly what `str::parse::<f64>` gives, for the
+/// forms a logger writes and for odd ones (long mantissas, large exponents, signs, no digits
+/// before or after the point), and refuses what it refuses.
+#[test]
+fn g_number_parser_matches_the_standard_library() {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
+    let mut texts: Vec<String> = [
+        "0",
+        "-0",
+        "+1",
+        "1.",
+        ".5",
+        "-.5e-3",
+        "1e22",
+        "1e23",
+        "9007199254740993",
+        "123456789012345678901",
+        "0.000000000000000000001234",
+        "1.7976931348623157e308",
+        "5e-324",
+        "inf",
+        "-inf",
+        "nan",
+        "1e",
+        "e5",
+        "-",
+        ".",
+        "1.2.3",
+        "12345678.12345678",
+        "00000000000000000000001",
+        "3.14159265358979323846",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    for _ in 0..200_000 {
+        let v: f64 = rng.random_range(-1e6..1e6) * 10f64.powi(rng.random_range(-30..30));
+        texts.push(match rng.random_range(0..5) {
+            0 => format!("{v:e}"),
+            1 => format!("{v:.9e}"),
+            2 => format!("{v:.4}"),
+            3 => format!("{v}"),
+            _ => format!("{:.*}", rng.random_range(0..20), v),
+        });
+    }
+    for t in &texts {
+        let std = t.parse::<f64>();
+        let ours = ssis_host::lab::session::parse_number(t.as_bytes()).filter(|(_, used)| *used == t.len());
+        match (std, ours) {
+            (Ok(a), Some((b, _))) => {
+                assert!(a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan()), "{t}: {a} vs {b}")
+            }
+            (Err(_), None) => {}
+            (a, b) => panic!("{t}: std {a:?}, ours {b:?}"),
+        }
+    }
+    println!("{} numbers parsed bit for bit as str::parse does", texts.len());
 }

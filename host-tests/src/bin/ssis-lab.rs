@@ -9,15 +9,18 @@ use std::time::Duration;
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use ssis_host::lab::diagnose::{diagnose, f_critical, Diagnosis, Options};
+use ssis_host::lab::diagnose::{
+    candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options,
+};
 use ssis_host::lab::export::to_table;
 use ssis_host::lab::fit::{
-    add_term, evaluate_model, fit_model, held_out_rms, history_files, pooled, split, version_path,
+    add_term, compare, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
 };
-use ssis_host::lab::model::{prepare, Kind, Model};
+use ssis_host::lab::model::{Kind, Model};
 use ssis_host::lab::plot::{history_svg, residual_svg, write_svg};
 use ssis_host::lab::replay::replay;
 use ssis_host::lab::session::{read_session, Session};
+use ssis_host::lab::stream::{digest, Source};
 use ssis_host::lab::{report, simulate};
 use ssis_host::DEG_H_PER_RAD_S;
 
@@ -152,12 +155,29 @@ fn dh(v: f64) -> f64 {
 }
 
 fn load_session(path: &Path) -> Result<Session> {
-    let pb = ProgressBar::new(0)
-        .with_style(ProgressStyle::with_template("reading {msg} {bar:30} {bytes}/{total_bytes}").expect("template"));
-    pb.set_message(path.display().to_string());
+    let pb = bytes_bar(path, "reading");
     let s = read_session(path, Some(&pb));
     pb.finish_and_clear();
     s.context("session refused")
+}
+
+/// A progress bar over the bytes of a session file.
+fn bytes_bar(path: &Path, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{prefix} {msg} {bar:30} {bytes}/{total_bytes} {bytes_per_sec}")
+            .expect("template"),
+    );
+    pb.set_prefix(what.to_string());
+    pb.set_message(path.display().to_string());
+    pb
+}
+
+/// Runs `f` with a progress bar over the file's bytes; the error says the session was refused.
+fn pass<T>(path: &Path, what: &str, f: impl FnOnce(&ProgressBar) -> ssis_host::lab::LabResult<T>) -> Result<T> {
+    let pb = bytes_bar(path, what);
+    let out = f(&pb);
+    pb.finish_and_clear();
+    out.with_context(|| format!("{what} {}", path.display()))
 }
 
 fn load_model(path: &Path) -> Result<Model> {
@@ -239,18 +259,20 @@ fn arg_of(k: &Kind) -> String {
 /// One model version on a session: version, pooled held-out RMS °/h, per FOG °/h, terms.
 type HistoryRow = (u32, f64, Vec<f64>, String);
 
-/// Every version of the model on `session`.
-fn history(model_path: &Path, session: &Session, blocks: usize) -> Result<Vec<HistoryRow>> {
-    let sp = split(session.len(), blocks);
-    let mut out = Vec::new();
-    for (v, p) in history_files(model_path) {
-        let m = load_model(&p)?;
-        let prep = prepare(session, &m);
-        let r = held_out_rms(&m.kinds(), &prep, &sp)?;
-        let terms = m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ");
-        out.push((v, dh(pooled(&r)), r.iter().map(|x| dh(*x)).collect(), terms));
-    }
-    Ok(out)
+/// Every version of the model on the session (one pass for all of them).
+fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<HistoryRow>> {
+    let files = history_files(model_path);
+    let models = files.iter().map(|(_, p)| load_model(p)).collect::<Result<Vec<_>>>()?;
+    let rms = pass(session, "history on", |pb| held_out_many(&models, Source::File(session), blocks, Some(pb)))?;
+    Ok(files
+        .iter()
+        .zip(&models)
+        .zip(rms)
+        .map(|(((v, _), m), r)| {
+            let terms = m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ");
+            (*v, dh(pooled(&r)), r.iter().map(|x| dh(*x)).collect(), terms)
+        })
+        .collect())
 }
 
 fn main() -> Result<()> {
@@ -270,15 +292,14 @@ fn main() -> Result<()> {
         }
         Cmd::Compare { model, session, evaluate, plots, blocks } => {
             let m = load_model(&model)?;
-            let s = load_session(&session)?;
-            let f = if evaluate { evaluate_model(&m, &s)? } else { fit_model(&m, &s)? };
-            let prep = prepare(&s, &m);
-            let ho = held_out_rms(&m.kinds(), &prep, &split(s.len(), blocks))?;
+            let c =
+                pass(&session, "comparing on", |pb| compare(&m, Source::File(&session), evaluate, blocks, Some(pb)))?;
+            let (f, ho) = (&c.fitted, &c.held_out_rad_s);
             println!(
                 "{} on {} ({} samples, {}): {}",
                 model.display(),
-                s.file,
-                s.len(),
+                session.display(),
+                f.sample.of_rows,
                 if evaluate { "evaluated with its coefficients" } else { "fitted on all samples" },
                 m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ")
             );
@@ -309,29 +330,28 @@ fn main() -> Result<()> {
             }
             if let Some(dir) = plots {
                 std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-                for fog in 0..s.fogs.len() {
+                if f.sample.of_rows > f.sample.residual[0].len() {
+                    println!("plots: {} of the {} samples", f.sample.residual[0].len(), f.sample.of_rows);
+                }
+                for fog in 0..f.summary.len() {
                     let p = dir.join(format!("residual-fog{fog}.svg"));
-                    write_svg(&p, &residual_svg(&s, &f, fog)?)?;
+                    write_svg(&p, &residual_svg(&session.display().to_string(), f, fog)?)?;
                     println!("wrote {}", p.display());
                 }
             }
         }
         Cmd::Diagnose { model, session, level, blocks } => {
             let m = load_model(&model)?;
-            let s = load_session(&session)?;
-            let pb = spinner("testing candidate terms on held-out blocks");
-            let d = diagnose(&m, &s, &Options { n_blocks: blocks, fdr_level: level, ..Options::default() });
-            pb.finish_and_clear();
-            print_diagnosis(&d?);
+            let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
+            let d = pass(&session, "diagnosing on", |pb| {
+                diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb))
+            })?;
+            print_diagnosis(&d);
         }
         Cmd::Add { term, model, session, blocks } => {
             let m = load_model(&model)?;
-            let s = load_session(&session)?;
             let kind = Kind::parse_arg(&term)?;
-            let pb = spinner("refitting");
-            let out = add_term(&m, &kind, &s, blocks);
-            pb.finish_and_clear();
-            let mut out = out?;
+            let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
             let newest = history_files(&model).last().map_or(0, |v| v.0).max(m.version);
             if newest > m.version {
                 println!("note: {} is version {}, newer versions exist up to {newest}", model.display(), m.version);
@@ -360,15 +380,15 @@ fn main() -> Result<()> {
             }
             ssis_host::lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
             println!("wrote {} (version {})", path.display(), out.model.version);
-            let h = history(&path, &s, blocks)?;
-            println!("history on {} (held-out RMS, deg/h):", s.file);
+            let h = history(&path, &session, blocks)?;
+            println!("history on {} (held-out RMS, deg/h):", session.display());
             for (v, r, per, terms) in &h {
                 let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
                 println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
             }
             let svg_path = path.with_file_name(format!("{}.history.svg", ssis_host::lab::fit::model_stem(&path)));
             let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
-            write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", s.file), &pts)?)?;
+            write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", session.display()), &pts)?)?;
             println!("wrote {}", svg_path.display());
         }
         Cmd::Export { model, base, toml, bin } => {
@@ -409,14 +429,15 @@ fn main() -> Result<()> {
         }
         Cmd::Report { model, session, out } => {
             let m = load_model(&model)?;
-            let s = load_session(&session)?;
-            let pb = spinner("fitting and diagnosing");
-            let f = fit_model(&m, &s)?;
-            let d = diagnose(&m, &s, &Options::default())?;
+            let opt = Options::default();
+            let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
+                let terms = candidate_terms(&Source::File(&session).shape()?.header);
+                let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
+                Ok((fit_digest(&m, &dg)?, diagnose_digest(&m, &dg, &opt)?))
+            })?;
             let h: Vec<(u32, f64)> =
-                history(&model, &s, ssis_host::lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
-            pb.finish_and_clear();
-            ssis_host::lab::write_atomic(&out, report::render(&s, &f, &d, &h)?.as_bytes())?;
+                history(&model, &session, ssis_host::lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
+            ssis_host::lab::write_atomic(&out, report::render(&session.display().to_string(), &f, &d, &h)?.as_bytes())?;
             println!("wrote {}", out.display());
         }
         Cmd::Replay { session, table } => {

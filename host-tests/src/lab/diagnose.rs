@@ -19,13 +19,21 @@
 //!
 //! Also, when the session has FOG temperatures with both T and G = dT/dt varying, the
 //! paper's two-factor analysis of variance (T × G, its Tables 1–2) on the current model's
-//! residual, with T and G each cut into three levels at their tertiles.
+//! residual, with T in three levels at its tertiles and G falling / steady / rising.
+//!
+//! Everything comes from one pass over the session ([`super::stream::digest`]): the F-tests,
+//! predicted drops and column correlations from the per-block sums, exactly. What needs
+//! rows (the spectral search, the spectral candidate's own test, the ANOVA) uses the rows
+//! the pass kept: every row of a session up to [`super::stream::DEFAULT_KEEP`] samples, a
+//! systematic sample of a longer one (then the spectral candidate is tested on the kept
+//! rows of the test blocks, and its origin says so).
 
+use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::fit::{design, lstsq, residual, rms, split, Split};
-use super::model::{prepare, regressors, Catalog, Kind, Model, Prepared};
-use super::session::Session;
+use super::fit::{design, design_gram, held_out, kept_residual, lstsq_gram, pooled, spec_for, trains, Design, Sums};
+use super::model::{Catalog, Kind, Model};
+use super::stream::{digest, Digest, Gram, Source};
 use super::LabResult;
 
 /// Options of a diagnosis.
@@ -143,32 +151,31 @@ pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
     FisherSnedecor::new(d1 as f64, d2 as f64).map_or(f64::NAN, |d| d.inverse_cdf(1.0 - q))
 }
 
-/// Tests one candidate on one FOG.
-fn test_fog(base: &[Vec<f64>], cand: Vec<Vec<f64>>, y: &[f64], sp: &Split, base_ho: f64) -> Option<FogTest> {
-    let mut cols: Vec<Vec<f64>> = base.to_vec();
-    cols.extend(cand);
-    let ls0 = lstsq(base, y, &sp.test);
-    let ls1 = lstsq(&cols, y, &sp.test);
+/// Tests one candidate (functionals `cand`) on one FOG against the base design `base` (y
+/// last): F on the test blocks, held-out RMS after on the test blocks of a training fit.
+fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], base_ho: f64) -> Option<FogTest> {
+    let cols = base.with(cand);
+    let ls0 = lstsq_gram(&design_gram(&s.test, &base.cols), s.test.n);
+    let ls1 = lstsq_gram(&design_gram(&s.test, &cols), s.test.n);
     let q = ls1.p.checked_sub(ls0.p).filter(|&q| q > 0)?;
     let df2 = ls1.n.checked_sub(ls1.p).filter(|&d| d > 0)?;
     let f = ((ls0.sse - ls1.sse) / q as f64) / (ls1.sse / df2 as f64);
-    let tr = lstsq(&cols, y, &sp.train);
-    let d = super::fit::Design { cols, owner: Vec::new() };
-    let after = rms(&residual(&d, y, &tr.coef), &sp.test);
+    let (after, _) = held_out(s, &cols);
     Some(FogTest { f, df1: q, df2, p: f_sf(f, q, df2), before_rad_s: base_ho, after_rad_s: after })
 }
 
-/// Strongest sinusoid in the training residuals (pooled over FOGs): frequency, Hz.
-fn spectral_peak(p: &Prepared, train_res: &[Vec<f64>], sp: &Split, max_f: usize, exclude: &[f64]) -> Option<f64> {
-    let t = p.session.t_s();
-    let stride = sp.train.len().div_ceil(20_000).max(1);
-    let rows: Vec<usize> = sp.train.iter().copied().step_by(stride).collect();
+/// Strongest sinusoid in the training residuals at the kept rows (pooled over FOGs): Hz.
+fn spectral_peak(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Option<f64> {
+    let train: Vec<usize> = (0..d.kept.rows.len()).filter(|&k| trains(d.kept.block[k])).collect();
+    let stride = train.len().div_ceil(20_000).max(1);
+    let rows: Vec<usize> = train.into_iter().step_by(stride).collect();
     if rows.len() < 8 {
         return None;
     }
-    let span = t[t.len() - 1] - t[0];
+    let t = &d.kept.t_s;
+    let span = d.t_span_s[1] - d.t_span_s[0];
     let f_min = 1.5 / span;
-    let f_max = 0.5 / (p.session.median_dt_s() * stride as f64);
+    let f_max = 0.5 / (d.dt_s * (stride * d.kept.stride) as f64);
     if f_max <= f_min {
         return None;
     }
@@ -180,20 +187,24 @@ fn spectral_peak(p: &Prepared, train_res: &[Vec<f64>], sp: &Split, max_f: usize,
             continue;
         }
         let w = 2.0 * std::f64::consts::PI * f;
-        let sc: Vec<(f64, f64)> = rows.iter().map(|&j| (w * t[j]).sin_cos()).collect();
-        let mut power = 0.0;
-        for res in train_res {
-            // Regress the residual on (1, sin, cos): the drop in its sum of squares.
-            let mut a = nalgebra::Matrix3::<f64>::zeros();
-            let mut b = nalgebra::Vector3::<f64>::zeros();
-            for (&j, &(s, c)) in rows.iter().zip(&sc) {
-                let x = nalgebra::Vector3::new(1.0, s, c);
-                a += x * x.transpose();
-                b += x * res[j];
+        // Regress each residual on (1, sin, cos): the drop in its sum of squares. The normal
+        // matrix is the same for every FOG.
+        let mut a = nalgebra::Matrix3::<f64>::zeros();
+        let mut bs = vec![nalgebra::Vector3::<f64>::zeros(); train_res.len()];
+        for &j in &rows {
+            let (s, c) = (w * t[j]).sin_cos();
+            let x = nalgebra::Vector3::new(1.0, s, c);
+            a += x * x.transpose();
+            for (b, res) in bs.iter_mut().zip(train_res) {
+                *b += x * res[j];
             }
-            if let Some(sol) = a.lu().solve(&b) {
+        }
+        let lu = a.lu();
+        let mut power = 0.0;
+        for b in &bs {
+            if let Some(sol) = lu.solve(b) {
                 let mean = b[0] / rows.len() as f64;
-                power += sol.dot(&b) - mean * b[0];
+                power += sol.dot(b) - mean * b[0];
             }
         }
         if power > best.0 {
@@ -203,22 +214,79 @@ fn spectral_peak(p: &Prepared, train_res: &[Vec<f64>], sp: &Split, max_f: usize,
     best.1
 }
 
-/// Diagnoses `model` on `session`.
-pub fn diagnose(model: &Model, session: &Session, opt: &Options) -> LabResult<Diagnosis> {
-    let p = prepare(session, model);
+/// Sums over the kept rows of FOG `fog` of the basis extended by sin 2πft and cos 2πft.
+fn kept_sums_with_sinusoid(d: &Digest, fog: usize, f_hz: f64) -> Sums {
+    let m = d.basis.m;
+    let mut s = Sums { all: Gram::new(m + 2), train: Gram::new(m + 2), test: Gram::new(m + 2) };
+    let mut z = vec![0.0; m + 2];
+    for (k, zk) in d.kept.z[fog].chunks_exact(m).enumerate() {
+        z[..m].copy_from_slice(zk);
+        let (sn, cs) = (2.0 * std::f64::consts::PI * f_hz * d.kept.t_s[k]).sin_cos();
+        (z[m], z[m + 1]) = (sn, cs);
+        let g = if trains(d.kept.block[k]) { &mut s.train } else { &mut s.test };
+        for a in 0..m + 2 {
+            for b in a..m + 2 {
+                g.upper[a * (m + 2) + b] += z[a] * z[b];
+            }
+        }
+        g.n += 1;
+    }
+    s.all.add(&s.train);
+    s.all.add(&s.test);
+    s
+}
+
+/// Diagnoses `model` on a session (one pass).
+pub fn diagnose<'a>(model: &Model, source: impl Into<Source<'a>>, opt: &Options) -> LabResult<Diagnosis> {
+    diagnose_with_progress(model, source, opt, None)
+}
+
+/// [`diagnose`] with a progress bar over the bytes of the session file.
+pub fn diagnose_with_progress<'a>(
+    model: &Model,
+    source: impl Into<Source<'a>>,
+    opt: &Options,
+    progress: Option<&ProgressBar>,
+) -> LabResult<Diagnosis> {
+    let source = source.into();
+    let terms = candidate_terms(&source.shape()?.header);
+    let d = digest(source, &spec_for(model, &terms, opt.n_blocks), progress)?;
+    diagnose_digest(model, &d, opt)
+}
+
+/// Every term a diagnosis may test on a session with `header`: the catalog and each user
+/// column (the pass that feeds [`diagnose_digest`] needs them all).
+pub fn candidate_terms(header: &super::session::Header) -> Vec<Kind> {
+    let mut v: Vec<Kind> = Catalog::ALL.iter().map(|c| Kind::Catalog(*c)).collect();
+    v.extend(
+        header
+            .names
+            .iter()
+            .zip(&header.roles)
+            .filter(|(_, r)| **r == super::session::Role::Extra)
+            .map(|(n, _)| Kind::Expr(n.clone())),
+    );
+    v
+}
+
+/// Diagnoses `model` on a digest whose pass had slots for every user column.
+pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Diagnosis> {
     let kinds = model.kinds();
-    let n_fog = session.fogs.len();
-    let sp = split(session.len(), opt.n_blocks);
+    let n_fog = d.basis.n_fog;
     let mut bases = Vec::new();
+    let mut sums = Vec::new();
     let mut train_res = Vec::new();
+    let mut train_coef = Vec::new();
     let mut base_ho = Vec::new();
     for fog in 0..n_fog {
-        let d = design(&kinds, &p, fog)?;
-        let tr = lstsq(&d.cols, &p.y[fog], &sp.train);
-        let res = residual(&d, &p.y[fog], &tr.coef);
-        base_ho.push(rms(&res, &sp.test));
-        train_res.push(res);
-        bases.push(d.cols);
+        let des = design(d, &kinds, fog)?;
+        let s = Sums::of(d, fog);
+        let (ho, tr) = held_out(&s, &des.cols);
+        base_ho.push(ho);
+        train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
+        train_coef.push(tr.coef);
+        bases.push(des);
+        sums.push(s);
     }
 
     // Candidate list.
@@ -229,58 +297,48 @@ pub fn diagnose(model: &Model, session: &Session, opt: &Options) -> LabResult<Di
             list.push((Kind::Catalog(c), "catalog".into()));
         }
     }
-    let existing_f: Vec<f64> =
-        kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
-    if let Some(f) = spectral_peak(&p, &train_res, &sp, opt.max_frequencies, &existing_f) {
-        list.push((
-            Kind::Sinusoid(f),
-            format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0),
-        ));
-    }
     let used_vars: Vec<String> = kinds
         .iter()
         .filter_map(|k| if let Kind::Expr(e) = k { Some(e.clone()) } else { None })
         .flat_map(|e| {
             use exmex::Express;
-            exmex::parse::<f64>(&e).map(|x| x.var_names().to_vec()).unwrap_or_default()
+            exmex::parse::<f64>(&e).map(|x| x.var_names().to_vec()).unwrap_or_else(|_| vec![e.clone()])
         })
         .collect();
-    let mut cols: Vec<(f64, String)> = session
-        .extra_columns()
-        .into_iter()
-        .filter(|c| !used_vars.iter().any(|u| u == c))
-        .map(|c| {
-            let x = session.column(c).unwrap_or(&[]);
-            let r: f64 = train_res.iter().map(|res| correlation(x, res, &sp.train).abs()).fold(0.0, f64::max);
-            (r, c.to_string())
-        })
-        .collect();
+    let mut cols: Vec<(f64, String)> = Vec::new();
+    for c in d.extra_columns.iter().filter(|c| !used_vars.contains(c)) {
+        let kind = Kind::Expr(c.clone());
+        let mut r = 0.0f64;
+        for fog in 0..n_fog {
+            let Ok(x) = d.basis.functionals(&kind, fog) else { continue };
+            let res = residual_functional(&bases[fog], &train_coef[fog]);
+            let unit = d.shifted(fog, &{
+                let mut v = vec![0.0; d.basis.m];
+                v[super::stream::ONE] = 1.0;
+                v
+            });
+            let a = design_gram(&sums[fog].train, &[unit, d.shifted(fog, &x[0]), res]);
+            r = r.max(correlation(&a).abs());
+        }
+        cols.push((r, c.clone()));
+    }
     cols.sort_by(|a, b| b.0.total_cmp(&a.0));
     for (r, c) in cols.into_iter().take(opt.max_columns) {
         list.push((Kind::Expr(c), format!("unused column, |r| = {r:.2} with the training residual")));
     }
 
-    // Tests.
+    // Tests on the sums.
     let mut cands = Vec::new();
-    for (kind, origin) in list {
-        let mut per_fog = Vec::new();
-        let mut why = None;
-        for fog in 0..n_fog {
-            match regressors(&kind, &p, fog) {
-                Ok(x) => per_fog.push(test_fog(&bases[fog], x, &p.y[fog], &sp, base_ho[fog])),
-                Err(e) => {
-                    why = Some(e.to_string());
-                    per_fog.push(None);
-                }
-            }
-        }
+    let mut consider = |kind: Kind, origin: String, per_fog: Vec<Option<FogTest>>, why: Option<String>| {
         let tested: Vec<&FogTest> = per_fog.iter().flatten().collect();
         if tested.is_empty() {
             skipped.push((kind.label(), why.unwrap_or_else(|| "not identifiable in this session".into())));
-            continue;
+            return;
         }
         let pmin = tested.iter().map(|t| t.p).fold(1.0, f64::min);
         let n_tested = tested.len() as f64;
+        let before: Vec<f64> =
+            per_fog.iter().enumerate().map(|(i, t)| t.as_ref().map_or(base_ho[i], |t| t.before_rad_s)).collect();
         let after: Vec<f64> =
             per_fog.iter().enumerate().map(|(i, t)| t.as_ref().map_or(base_ho[i], |t| t.after_rad_s)).collect();
         cands.push(Candidate {
@@ -288,10 +346,56 @@ pub fn diagnose(model: &Model, session: &Session, opt: &Options) -> LabResult<Di
             origin,
             per_fog,
             p_value: (pmin * n_tested).min(1.0),
-            before_rad_s: super::fit::pooled(&base_ho),
-            after_rad_s: super::fit::pooled(&after),
+            before_rad_s: pooled(&before),
+            after_rad_s: pooled(&after),
             significant: false,
         });
+    };
+    for (kind, origin) in list {
+        let mut per_fog = Vec::new();
+        let mut why = None;
+        for fog in 0..n_fog {
+            match d.basis.functionals(&kind, fog) {
+                Ok(x) => {
+                    let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
+                    per_fog.push(test_fog(&sums[fog], &bases[fog], &x, base_ho[fog]))
+                }
+                Err(e) => {
+                    why = Some(e);
+                    per_fog.push(None);
+                }
+            }
+        }
+        consider(kind, origin, per_fog, why);
+    }
+    // The strongest spectral line of the training residual, tested on the kept rows.
+    let existing_f: Vec<f64> =
+        kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
+    if let Some(f) = spectral_peak(d, &train_res, opt.max_frequencies, &existing_f) {
+        let m = d.basis.m;
+        let pad = |v: &Vec<f64>| {
+            let mut w = v.clone();
+            w.extend([0.0, 0.0]);
+            w
+        };
+        let unit = |k: usize| {
+            let mut w = vec![0.0; m + 2];
+            w[k] = 1.0;
+            w
+        };
+        let per_fog = (0..n_fog)
+            .map(|fog| {
+                let s = kept_sums_with_sinusoid(d, fog, f);
+                let base = Design { cols: bases[fog].cols.iter().map(pad).collect(), owner: bases[fog].owner.clone() };
+                let (before, _) = held_out(&s, &base.cols);
+                test_fog(&s, &base, &[unit(m), unit(m + 1)], before)
+            })
+            .collect();
+        let mut origin = format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0);
+        if !d.all_kept() {
+            origin.push_str(&format!(" (tested on the {} kept rows)", d.kept.rows.len()));
+        }
+        consider(Kind::Sinusoid(f), origin, per_fog, None);
     }
     cands.sort_by(|a, b| a.p_value.total_cmp(&b.p_value).then(a.after_rad_s.total_cmp(&b.after_rad_s)));
     let pv: Vec<f64> = cands.iter().map(|c| c.p_value).collect();
@@ -299,39 +403,52 @@ pub fn diagnose(model: &Model, session: &Session, opt: &Options) -> LabResult<Di
     for c in cands.iter_mut().take(k) {
         c.significant = true;
     }
-    let anova = (0..n_fog).filter_map(|fog| anova_fog(&p, &kinds, fog)).collect();
+    let anova = (0..n_fog).filter_map(|fog| anova_fog(d, &bases[fog], &sums[fog], fog)).collect();
+    let (n_train, n_test) = (sums[0].train.n, sums[0].test.n);
     Ok(Diagnosis {
         candidates: cands,
         skipped,
         anova,
         base_rms_rad_s: base_ho,
         fdr_level: opt.fdr_level,
-        n_train: sp.train.len(),
-        n_test: sp.test.len(),
+        n_train,
+        n_test,
     })
+}
+
+/// The functional y − Σ c x of a design's residual.
+fn residual_functional(des: &Design, coef: &[f64]) -> Vec<f64> {
+    let k = des.k();
+    let mut l = des.cols[k].clone();
+    for (c, x) in coef.iter().zip(&des.cols[..k]) {
+        for (a, b) in l.iter_mut().zip(x) {
+            *a -= c * b;
+        }
+    }
+    l
+}
+
+/// Correlation of x and y from the normal-equation matrix of (1, x, y).
+fn correlation(a: &nalgebra::DMatrix<f64>) -> f64 {
+    let n = a[(0, 0)];
+    if n <= 0.0 {
+        return 0.0;
+    }
+    let (mx, my) = (a[(0, 1)] / n, a[(0, 2)] / n);
+    let sxx = a[(1, 1)] - n * mx * mx;
+    let syy = a[(2, 2)] - n * my * my;
+    let sxy = a[(1, 2)] - n * mx * my;
+    if sxx > 0.0 && syy > 0.0 {
+        sxy / (sxx * syy).sqrt()
+    } else {
+        0.0
+    }
 }
 
 /// Number of hypotheses rejected by Benjamini–Hochberg at level `q` (p-values sorted ascending).
 pub fn benjamini_hochberg(sorted_p: &[f64], q: f64) -> usize {
     let m = sorted_p.len() as f64;
     sorted_p.iter().enumerate().filter(|(i, &p)| p <= (*i as f64 + 1.0) / m * q).map(|(i, _)| i + 1).max().unwrap_or(0)
-}
-
-fn correlation(x: &[f64], y: &[f64], rows: &[usize]) -> f64 {
-    let n = rows.len() as f64;
-    let (mx, my) = (rows.iter().map(|&j| x[j]).sum::<f64>() / n, rows.iter().map(|&j| y[j]).sum::<f64>() / n);
-    let (mut sxy, mut sxx, mut syy) = (0.0, 0.0, 0.0);
-    for &j in rows {
-        let (a, b) = (x[j] - mx, y[j] - my);
-        sxy += a * b;
-        sxx += a * a;
-        syy += b * b;
-    }
-    if sxx > 0.0 && syy > 0.0 {
-        sxy / (sxx * syy).sqrt()
-    } else {
-        0.0
-    }
 }
 
 fn tertiles(v: &[f64]) -> [f64; 2] {
@@ -350,7 +467,8 @@ fn level(x: f64, e: &[f64; 2]) -> usize {
     }
 }
 
-/// The paper's two-factor ANOVA on the residual of `kinds` fitted on all rows.
+/// The paper's two-factor ANOVA on the residual of the base design fitted on all rows, at
+/// the kept rows (every row of a session up to [`super::stream::DEFAULT_KEEP`] samples).
 ///
 /// Cell (j, g) holds the residuals with T in level j and G in level g. With cell means Ȳ_jg,
 /// level means Ȳ_j, Ȳ'_g and the grand mean Ȳ (the paper's formulas, weighted by the cell
@@ -358,8 +476,9 @@ fn level(x: f64, e: &[f64; 2]) -> usize {
 /// approximate): s_ε² within cells (ν_ε = M − n), s_T² and s_G² between levels
 /// (ν_T = u₁ − 1, ν_G = u₂ − 1), s_TG² of the interaction (ν_TG = n − u₁ − u₂ + 1), and
 /// F_T = s_T²/s_TG², F_G = s_G²/s_TG², F_TG = s_TG²/s_ε² as in the paper.
-fn anova_fog(p: &Prepared, kinds: &[Kind], fog: usize) -> Option<Anova> {
-    let (dt, g) = (p.dtemp_degc[fog].as_ref()?, p.g_degc_s[fog].as_ref()?);
+fn anova_fog(d: &Digest, base: &Design, sums: &Sums, fog: usize) -> Option<Anova> {
+    let (temp, g) = d.kept.temp[fog].as_ref()?;
+    let dt: Vec<f64> = temp.iter().map(|t| t - d.basis.t_ref_degc).collect();
     let (tmin, tmax) = dt.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
     let gstd = {
         let m = g.iter().sum::<f64>() / g.len() as f64;
@@ -368,15 +487,14 @@ fn anova_fog(p: &Prepared, kinds: &[Kind], fog: usize) -> Option<Anova> {
     if tmax - tmin < 1.0 || gstd < 1e-6 || g.len() < 30 {
         return None;
     }
-    let all: Vec<usize> = (0..g.len()).collect();
-    let d = design(kinds, p, fog).ok()?;
-    let res = residual(&d, &p.y[fog], &lstsq(&d.cols, &p.y[fog], &all).coef);
+    let fit = lstsq_gram(&design_gram(&sums.all, &base.cols), sums.all.n);
+    let res = kept_residual(d, fog, &base.cols, &fit.coef);
     // T levels at its tertiles; G levels falling / steady / rising, steady meaning |G| within
     // a tenth of the 95th percentile of |G| (the paper's G levels are set rates and holds).
     let mut ag: Vec<f64> = g.iter().map(|v| v.abs()).collect();
     ag.sort_by(f64::total_cmp);
     let eps = 0.1 * ag[ag.len() * 95 / 100];
-    let (te, ge) = (tertiles(dt), [-eps, eps]);
+    let (te, ge) = (tertiles(&dt), [-eps, eps]);
     let mut sum = [[0.0f64; 3]; 3];
     let mut cnt = [[0usize; 3]; 3];
     for j in 0..g.len() {
@@ -434,7 +552,7 @@ fn anova_fog(p: &Prepared, kinds: &[Kind], fog: usize) -> Option<Anova> {
         f_t: (ft, nu_t, nu_tg, f_sf(ft, nu_t, nu_tg)),
         f_g: (fg, nu_g, nu_tg, f_sf(fg, nu_g, nu_tg)),
         f_tg: (ftg, nu_tg, nu_e, f_sf(ftg, nu_tg, nu_e)),
-        t_edges_degc: [te[0] + p.t_ref_degc, te[1] + p.t_ref_degc],
+        t_edges_degc: [te[0] + d.basis.t_ref_degc, te[1] + d.basis.t_ref_degc],
         g_edges_degc_s: ge,
     })
 }

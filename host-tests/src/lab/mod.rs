@@ -2,14 +2,18 @@
 //! physical effect it lacks, add it, and watch the held-out error fall.
 //!
 //! Capabilities (one file per concern):
-//! - [`session`]: reads a session CSV (`docs/SESSION-FORMAT.md`) streamed through the
-//!   `csv` crate; a bad file is refused with its file, line and column named.
+//! - [`session`]: reads a session CSV (`docs/SESSION-FORMAT.md`), streamed line by line with
+//!   an in-place number parser; a bad file is refused with its file, line and column named.
+//! - [`stream`]: one pass over a session: a small basis vector per row and FOG, summed into
+//!   per-block Gram matrices (memory independent of the number of rows), G = dT/dt over a
+//!   bounded look-ahead, a systematic sample of rows kept for plots.
 //! - [`model`]: the error model as data, a versioned TOML file (`ssis-error-model/1`) with a
 //!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
 //!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's
 //!   eqs. 1–3), aging; plus sinusoids and user expressions over session columns).
-//! - [`fit`]: least squares linear in the coefficients (nalgebra QR, rank-deficient
-//!   regressors dropped and reported), held-out time blocks.
+//! - [`fit`]: least squares linear in the coefficients from the pass's sums (Cholesky of the
+//!   scaled normal equations, rank-deficient regressors dropped and reported), held-out time
+//!   blocks.
 //! - [`diagnose`]: candidate terms tested by nested-model F-tests on held-out blocks,
 //!   Benjamini–Hochberg FDR control, the paper's two-factor ANOVA (T × G, Tables 1–2).
 //! - [`plot`]: residual plots (SVG) and the history of model versions.
@@ -28,6 +32,7 @@ pub mod replay;
 pub mod report;
 pub mod session;
 pub mod simulate;
+pub mod stream;
 
 /// Errors of the lab library. Each names the file (and line, column) where it can.
 #[derive(Debug, thiserror::Error)]

@@ -28,7 +28,7 @@
 use serde::{Deserialize, Serialize};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
-use super::session::{nominal_axes, Session};
+use super::session::nominal_axes;
 use super::{LabError, LabResult};
 
 /// Format tag of a model file.
@@ -347,88 +347,13 @@ impl Model {
     }
 }
 
-/// Session quantities that every term is built from, for one model's T_ref and G window.
-#[derive(Debug, Clone)]
-pub struct Prepared<'a> {
-    /// The session.
-    pub session: &'a Session,
-    /// Error of each FOG, y_i = ω_i,raw − s_i⁰·ω_ref, rad/s.
-    pub y: Vec<Vec<f64>>,
-    /// Nominal input rate of each FOG, r_i = s_i⁰·ω_ref, rad/s.
-    pub r: Vec<Vec<f64>>,
-    /// ΔT = T_i − T_ref per FOG, °C.
-    pub dtemp_degc: Vec<Option<Vec<f64>>>,
-    /// G_i, °C/s.
-    pub g_degc_s: Vec<Option<Vec<f64>>>,
-    /// Reference temperature used, °C.
-    pub t_ref_degc: f64,
-}
-
 /// Temperature rate G = dT/dt: at each sample the slope of the least-squares line through
 /// the temperature samples within ±`window_s`/2 (at least the two neighbours; one-sided at
-/// the ends). O(n) through prefix sums. A local line, not a raw difference: the frame's
-/// 1/256 °C quantisation would otherwise dominate at short sample intervals.
+/// the ends). A local line, not a raw difference: the frame's 1/256 °C quantisation would
+/// otherwise dominate at short sample intervals. Computed by the passes over a session
+/// ([`super::stream`], running sums over the window); this is the same code on one series.
 pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
-    let n = t_s.len();
-    if n < 2 {
-        return vec![0.0; n];
-    }
-    let (t0, temp0) = (t_s[0], temp_degc[0]);
-    let mut p = vec![[0.0f64; 5]; n + 1]; // Σ1, Σu, Σv, Σu², Σuv with u = t − t0, v = T − T0
-    for j in 0..n {
-        let (u, v) = (t_s[j] - t0, temp_degc[j] - temp0);
-        let q = p[j];
-        p[j + 1] = [q[0] + 1.0, q[1] + u, q[2] + v, q[3] + u * u, q[4] + u * v];
-    }
-    let half = window_s / 2.0 * (1.0 + 1e-9);
-    let (mut lo, mut hi) = (0usize, 0usize);
-    (0..n)
-        .map(|j| {
-            while t_s[lo] < t_s[j] - half {
-                lo += 1;
-            }
-            while hi + 1 < n && t_s[hi + 1] <= t_s[j] + half {
-                hi += 1;
-            }
-            let (a, b) = if hi > lo { (lo, hi) } else { (j.saturating_sub(1), (j + 1).min(n - 1)) };
-            let s: Vec<f64> = (0..5).map(|m| p[b + 1][m] - p[a][m]).collect();
-            let den = s[0] * s[3] - s[1] * s[1];
-            if den.abs() < 1e-300 {
-                0.0
-            } else {
-                (s[0] * s[4] - s[1] * s[2]) / den
-            }
-        })
-        .collect()
-}
-
-/// The G window in use: the model's `g_window_s`, or max(2 × median Δt, 60 s) when it is 0.
-pub fn effective_g_window_s(session: &Session, model: &Model) -> f64 {
-    if model.g_window_s > 0.0 {
-        model.g_window_s
-    } else {
-        (2.0 * session.median_dt_s()).max(60.0)
-    }
-}
-
-/// Computes y, r, ΔT and G for `session` with the model's T_ref and G window.
-pub fn prepare<'a>(session: &'a Session, model: &Model) -> Prepared<'a> {
-    let axes = nominal_axes();
-    let t = session.t_s();
-    let mut y = Vec::new();
-    let mut r = Vec::new();
-    let mut dtemp = Vec::new();
-    let mut g = Vec::new();
-    let window_s = effective_g_window_s(session, model);
-    for (i, f) in session.fogs.iter().enumerate() {
-        let s = axes[i.min(3)];
-        let ri: Vec<f64> = session.ref_rad_s.iter().map(|w| s.x * w[0] + s.y * w[1] + s.z * w[2]).collect();
-        y.push(f.rate_rad_s.iter().zip(&ri).map(|(a, b)| a - b).collect());
-        r.push(ri);
-        dtemp.push(f.t_degc.as_ref().map(|tc| tc.iter().map(|v| v - model.t_ref_degc).collect()));
-        g.push(f.t_degc.as_ref().map(|tc| temperature_rate(t, tc, window_s)));
-    }
-    Prepared { session, y, r, dtemp_degc: dtemp, g_degc_s: g, t_ref_degc: model.t_ref_degc }
+    super::stream::temperature_rate(t_s, temp_degc, window_s)
 }
 
 /// Sets angle `k` (0 or 1, the order of [`MISALIGNMENT_ANGLES`]) of FOG `fog` in `m`.
@@ -483,108 +408,4 @@ pub fn loop_plane(fog: usize) -> [nalgebra::Vector3<f64>; 2] {
             [u, nominal_axes()[3].cross(&u)]
         }
     }
-}
-
-/// The regressor columns of `kind` for FOG `fog`.
-pub fn regressors(kind: &Kind, p: &Prepared, fog: usize) -> LabResult<Vec<Vec<f64>>> {
-    let s = p.session;
-    let n = s.len();
-    let need_t = |what: &str| -> LabResult<(&Vec<f64>, &Vec<f64>)> {
-        match (&p.dtemp_degc[fog], &p.g_degc_s[fog]) {
-            (Some(d), Some(g)) => Ok((d, g)),
-            _ => Err(LabError::Model(format!(
-                "{}: term `{what}` needs the temperature of FOG {fog} (column `fog{fog}_t_degc`)",
-                s.file
-            ))),
-        }
-    };
-    let r = &p.r[fog];
-    Ok(match kind {
-        Kind::Catalog(c) => match c {
-            Catalog::Bias => vec![vec![1.0; n]],
-            Catalog::ScaleFactor => vec![r.clone()],
-            Catalog::SfAsymmetry => vec![r.iter().map(|v| v.abs()).collect()],
-            Catalog::SfNonlinearity => vec![r.iter().map(|v| v * v).collect()],
-            Catalog::Misalignment => {
-                if fog > 3 {
-                    return Err(LabError::Model(format!("{}: misalignment is defined for FOGs 0–3", s.file)));
-                }
-                misalignment_partials(fog)
-                    .iter()
-                    .map(|d| s.ref_rad_s.iter().map(|w| d.x * w[0] + d.y * w[1] + d.z * w[2]).collect())
-                    .collect()
-            }
-            Catalog::ThermalT1 => vec![need_t(c.name())?.0.clone()],
-            Catalog::ThermalT2 => vec![need_t(c.name())?.0.iter().map(|d| d * d).collect()],
-            Catalog::ThermalT3 => vec![need_t(c.name())?.0.iter().map(|d| d * d * d).collect()],
-            Catalog::TempRate => vec![need_t(c.name())?.1.clone()],
-            Catalog::TTimesG => {
-                let (d, g) = need_t(c.name())?;
-                vec![d.iter().zip(g).map(|(a, b)| a * b).collect()]
-            }
-            Catalog::Magnetic => {
-                let b = s.field_nt.as_ref().ok_or_else(|| {
-                    LabError::Model(format!("{}: term `magnetic` needs columns `b_x_nt`, `b_y_nt`, `b_z_nt`", s.file))
-                })?;
-                loop_plane(fog)
-                    .iter()
-                    .map(|u| b.iter().map(|v| u.x * v[0] + u.y * v[1] + u.z * v[2]).collect())
-                    .collect()
-            }
-            Catalog::Aging => {
-                let t0 = s.t_s()[0];
-                vec![s.t_s().iter().map(|t| (t - t0) / 3600.0).collect()]
-            }
-        },
-        Kind::Sinusoid(f) => {
-            let w = 2.0 * std::f64::consts::PI * f;
-            vec![s.t_s().iter().map(|t| (w * t).sin()).collect(), s.t_s().iter().map(|t| (w * t).cos()).collect()]
-        }
-        Kind::Expr(e) => vec![eval_expression(e, p, fog)?],
-    })
-}
-
-/// Evaluates a user expression on every sample for FOG `fog`.
-pub fn eval_expression(expr: &str, p: &Prepared, fog: usize) -> LabResult<Vec<f64>> {
-    use exmex::Express;
-    let s = p.session;
-    let ex = exmex::parse::<f64>(expr).map_err(|e| LabError::Model(format!("expression `{expr}`: {e}")))?;
-    let fog_col = vec![fog as f64; s.len()];
-    let t_abs: Option<Vec<f64>> = p.dtemp_degc[fog].as_ref().map(|d| d.iter().map(|v| v + p.t_ref_degc).collect());
-    let mut sources: Vec<&[f64]> = Vec::new();
-    for v in ex.var_names() {
-        let src: Option<&[f64]> = match v.as_str() {
-            "rate_rad_s" => Some(&p.r[fog]),
-            "t_degc" => t_abs.as_deref(),
-            "dt_degc" => p.dtemp_degc[fog].as_deref(),
-            "g_degc_s" => p.g_degc_s[fog].as_deref(),
-            "fog" => Some(&fog_col),
-            name => s.column(name),
-        };
-        sources.push(src.ok_or_else(|| {
-            LabError::Model(format!(
-                "expression `{expr}`: `{v}` is not a column of {} (columns: {}; per FOG: rate_rad_s, t_degc, dt_degc, \
-                 g_degc_s, fog)",
-                s.file,
-                s.names.join(", ")
-            ))
-        })?);
-    }
-    let mut vals = vec![0.0; sources.len()];
-    let mut out = Vec::with_capacity(s.len());
-    for j in 0..s.len() {
-        for (v, src) in vals.iter_mut().zip(&sources) {
-            *v = src[j];
-        }
-        let x = ex.eval(&vals).map_err(|e| LabError::Model(format!("expression `{expr}` at sample {j}: {e}")))?;
-        if !x.is_finite() {
-            return Err(LabError::Model(format!(
-                "expression `{expr}` is not finite at t = {} s ({}, sample {j})",
-                s.t_s()[j],
-                s.file
-            )));
-        }
-        out.push(x);
-    }
-    Ok(out)
 }

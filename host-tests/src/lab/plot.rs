@@ -6,8 +6,6 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::fit::Fitted;
-use super::model::{effective_g_window_s, loop_plane, prepare, Model};
-use super::session::Session;
 use super::{LabError, LabResult};
 use crate::DEG_H_PER_RAD_S;
 
@@ -15,33 +13,11 @@ fn perr(e: impl std::fmt::Display) -> LabError {
     LabError::Numeric(format!("plot: {e}"))
 }
 
-/// The x axes a residual is plotted against for FOG `fog`: (label, values).
-fn x_axes(session: &Session, model: &Model, fog: usize) -> Vec<(String, Vec<f64>)> {
-    let p = prepare(session, model);
-    let mut v = vec![("time, h".to_string(), session.t_s().iter().map(|t| t / 3600.0).collect())];
-    if let (Some(d), Some(g)) = (&p.dtemp_degc[fog], &p.g_degc_s[fog]) {
-        v.push(("T, degC".into(), d.iter().map(|x| x + p.t_ref_degc).collect()));
-        let w = effective_g_window_s(session, model);
-        v.push((format!("G = dT/dt, degC/min ({w:.0} s window)"), g.iter().map(|x| x * 60.0).collect()));
-    }
-    if let Some(psi) = session.column("psi_rad") {
-        v.push(("azimuth psi, deg".into(), psi.iter().map(|x| x.to_degrees()).collect()));
-    }
-    v.push(("input rate along the axis, deg/s".into(), p.r[fog].iter().map(|x| x.to_degrees()).collect()));
-    if let Some(b) = &session.field_nt {
-        let u = loop_plane(fog)[0];
-        v.push((
-            "field across the axis B.u, nT".into(),
-            b.iter().map(|x| u.x * x[0] + u.y * x[1] + u.z * x[2]).collect(),
-        ));
-    }
-    v
-}
-
-/// Residual of FOG `fog` against every quantity of the session, as an SVG string.
-pub fn residual_svg(session: &Session, fitted: &Fitted, fog: usize) -> LabResult<String> {
-    let axes = x_axes(session, &fitted.model, fog);
-    let res: Vec<f64> = fitted.residual[fog].iter().map(|v| v * DEG_H_PER_RAD_S).collect();
+/// Residual of FOG `fog` against every quantity of the session (at the rows the pass kept:
+/// every row of a session up to [`super::stream::DEFAULT_KEEP`] samples), as an SVG string.
+pub fn residual_svg(file: &str, fitted: &Fitted, fog: usize) -> LabResult<String> {
+    let axes = &fitted.sample.axes[fog];
+    let res: Vec<f64> = fitted.sample.residual[fog].iter().map(|v| v * DEG_H_PER_RAD_S).collect();
     let stride = res.len().div_ceil(4000).max(1);
     let mut svg = String::new();
     {
@@ -49,10 +25,7 @@ pub fn residual_svg(session: &Session, fitted: &Fitted, fog: usize) -> LabResult
         let root = SVGBackend::with_string(&mut svg, (1000, 260 * rows + 40)).into_drawing_area();
         root.fill(&WHITE).map_err(perr)?;
         let root = root
-            .titled(
-                &format!("{}: FOG{fog} residual, deg/h (model v{})", session.file, fitted.model.version),
-                ("sans-serif", 18),
-            )
+            .titled(&format!("{file}: FOG{fog} residual, deg/h (model v{})", fitted.model.version), ("sans-serif", 18))
             .map_err(perr)?;
         let areas = root.split_evenly((rows as usize, 2));
         let lim = res.iter().fold(1e-9f64, |m, v| m.max(v.abs())) * 1.05;

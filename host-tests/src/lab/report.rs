@@ -4,7 +4,6 @@
 use super::diagnose::Diagnosis;
 use super::fit::Fitted;
 use super::plot::{history_svg, residual_svg};
-use super::session::Session;
 use super::LabResult;
 use crate::DEG_H_PER_RAD_S;
 
@@ -14,11 +13,11 @@ pub fn esc(s: &str) -> String {
 }
 
 /// The page. `history` is (version, pooled held-out RMS, °/h) per model version.
-pub fn render(session: &Session, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f64)]) -> LabResult<String> {
+pub fn render(file: &str, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f64)]) -> LabResult<String> {
     let mut h = String::new();
     let m = &fitted.model;
     h.push_str("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">");
-    h.push_str(&format!("<title>ssis-lab: {}</title>", esc(&session.file)));
+    h.push_str(&format!("<title>ssis-lab: {}</title>", esc(file)));
     h.push_str(
         "<style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse;margin:1em 0}\
          td,th{border:1px solid #999;padding:3px 8px;text-align:right}th{background:#eee}td.l{text-align:left}\
@@ -26,9 +25,9 @@ pub fn render(session: &Session, fitted: &Fitted, diag: &Diagnosis, history: &[(
     );
     h.push_str(&format!(
         "<h1>Model lab: {}</h1><p>{} samples, {} FOGs; model version {} with terms: {}.</p>\n",
-        esc(&session.file),
-        session.len(),
-        session.fogs.len(),
+        esc(file),
+        fitted.sample.of_rows,
+        fitted.summary.len(),
         m.version,
         esc(&m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", "))
     ));
@@ -92,8 +91,16 @@ pub fn render(session: &Session, fitted: &Fitted, diag: &Diagnosis, history: &[(
         h.push_str(&history_svg("held-out RMS by model version", history)?);
     }
     h.push_str("<h2>Residuals</h2>\n");
-    for fog in 0..session.fogs.len() {
-        h.push_str(&format!("<div>{}</div>\n", residual_svg(session, fitted, fog)?));
+    let kept = fitted.sample.residual.first().map_or(0, Vec::len);
+    if fitted.sample.of_rows > kept {
+        h.push_str(&format!(
+            "<p>The plots show {kept} of the {} samples (a systematic sample); the largest residual is over {} \
+             samples.</p>\n",
+            fitted.sample.of_rows, fitted.max_over_rows
+        ));
+    }
+    for fog in 0..fitted.summary.len() {
+        h.push_str(&format!("<div>{}</div>\n", residual_svg(file, fitted, fog)?));
     }
     h.push_str("</body></html>\n");
     Ok(h)

@@ -1,9 +1,15 @@
 //! Session files: CSV with a header naming each column and its unit (`docs/SESSION-FORMAT.md`).
 //!
-//! The file is streamed record by record through the `csv` crate (never read whole into a
-//! string); the columns are kept as `f64` vectors. Every refusal names the file, the line
+//! [`RowReader`] streams the file line by line through a fixed buffer (never read whole)
+//! and parses each number in place ([`parse_number`]: exact for the decimal forms a logger
+//! writes, the standard library's parser for anything else, so every value is the one
+//! `str::parse::<f64>` gives). [`Converter`] turns a row into a sample (rates from increments,
+//! the reference rate from the turntable geometry). The lab's passes over a session
+//! (`super::stream`) read it this way; [`read_session`] keeps it in memory as `f64` columns
+//! for the tools that want every row (replay, tests). Every refusal names the file, the line
 //! and, where there is one, the column (1-based, with its header name).
 
+use std::io::Read;
 use std::path::Path;
 
 use indicatif::ProgressBar;
@@ -197,16 +203,26 @@ impl Session {
         self.names.iter().zip(&self.roles).filter(|(_, r)| **r == Role::Extra).map(|(n, _)| n.as_str()).collect()
     }
 
-    /// Median sample interval, s.
+    /// The session's sample interval, s ([`median_interval_s`]).
     pub fn median_dt_s(&self) -> f64 {
-        let t = self.t_s();
-        let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-        if d.is_empty() {
-            return 1.0;
-        }
-        d.sort_by(f64::total_cmp);
-        d[d.len() / 2]
+        median_interval_s(self.t_s())
     }
+}
+
+/// Intervals [`median_interval_s`] looks at.
+pub const INTERVALS_FOR_MEDIAN: usize = 1000;
+
+/// The sample interval of a session: the median of its first [`INTERVALS_FOR_MEDIAN`] sample
+/// intervals, s (1 s with fewer than two samples). Known after the first rows, so a pass over
+/// a file can use it before it ends.
+pub fn median_interval_s(t_s: &[f64]) -> f64 {
+    let n = t_s.len().min(INTERVALS_FOR_MEDIAN + 1);
+    let mut d: Vec<f64> = t_s[..n].windows(2).map(|w| w[1] - w[0]).collect();
+    if d.is_empty() {
+        return 1.0;
+    }
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
 }
 
 /// Nominal sensitive axes s_i of the unit (misalignment zero, γ nominal), ICS.
@@ -222,12 +238,157 @@ pub fn earth_rate_ics(psi_rad: f64, lat_rad: f64) -> [f64; 3] {
     [n * psi_rad.cos(), n * psi_rad.sin(), u]
 }
 
-struct Reader<'a> {
-    file: &'a str,
-    names: Vec<String>,
+const POW10: [f64; 23] = [
+    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20,
+    1e21, 1e22,
+];
+
+/// Takes the decimal digits of `b` from `i` into `m` (m·10 + digit each, wrapping: the
+/// caller checks the count); returns the index after them. Eight bytes at a time where it
+/// can: the first byte that is not a digit has its high bit set in
+/// (x + 0x46…) | (x − 0x30…) (bytes before it, digits, neither carry nor borrow).
+#[inline(always)]
+fn digits(b: &[u8], mut i: usize, m: &mut u64) -> usize {
+    while i + 8 <= b.len() {
+        let v = u64::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3], b[i + 4], b[i + 5], b[i + 6], b[i + 7]]);
+        let stop =
+            (v.wrapping_add(0x4646_4646_4646_4646) | v.wrapping_sub(0x3030_3030_3030_3030)) & 0x8080_8080_8080_8080;
+        let k = if stop == 0 { 8 } else { (stop.trailing_zeros() / 8) as usize };
+        if k == 0 {
+            return i;
+        }
+        // The k digits, right-aligned behind '0's, then three SWAR steps (pairs, quads, all).
+        let d = if k == 8 { v } else { (v << (8 * (8 - k))) | (0x3030_3030_3030_3030 >> (8 * k)) };
+        let d = d.wrapping_sub(0x3030_3030_3030_3030);
+        let d = d.wrapping_mul(10).wrapping_add(d >> 8) & 0x00FF_00FF_00FF_00FF;
+        let d = d.wrapping_mul(100).wrapping_add(d >> 16) & 0x0000_FFFF_0000_FFFF;
+        let d = d.wrapping_mul(10_000).wrapping_add(d >> 32) & 0xFFFF_FFFF;
+        *m = m.wrapping_mul(POW10_U64[k]).wrapping_add(d);
+        i += k;
+        if k < 8 {
+            return i;
+        }
+    }
+    while i < b.len() && b[i].is_ascii_digit() {
+        *m = m.wrapping_mul(10).wrapping_add(u64::from(b[i] - b'0'));
+        i += 1;
+    }
+    i
 }
 
-impl Reader<'_> {
+const POW10_U64: [u64; 9] = [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000];
+
+/// Parses the number at the start of `b` (spaces already skipped), returning the value and
+/// the bytes it took, or `None` when `b` does not start with one. `b` may go on past the
+/// field (the number ends at the first byte that cannot continue it).
+///
+/// Decimal forms `[+-]digits[.digits][(e|E)[+-]digits]` with at most 19 mantissa digits whose
+/// value m < 2^53 and a decimal exponent |e| ≤ 22 are computed as m·10^e or m/10^−e: both
+/// operands are exact, so the one rounding gives the correctly rounded value, the same as
+/// `str::parse::<f64>` (Clinger's fast path). Anything else (more digits, larger exponents,
+/// `inf`, `nan`) goes to `str::parse`.
+pub fn parse_number(b: &[u8]) -> Option<(f64, usize)> {
+    let n = b.len();
+    let mut i = 0;
+    let neg = n > 0 && b[0] == b'-';
+    if n > 0 && (b[0] == b'-' || b[0] == b'+') {
+        i = 1;
+    }
+    let mut m: u64 = 0;
+    let d0 = i;
+    i = digits(b, i, &mut m);
+    let mut nd = i - d0;
+    let mut exp: i32 = 0;
+    if i < n && b[i] == b'.' {
+        let f0 = i + 1;
+        i = digits(b, f0, &mut m);
+        nd += i - f0;
+        exp = -((i - f0) as i32);
+    }
+    if nd == 0 {
+        return slow_number(b);
+    }
+    if i < n && (b[i] == b'e' || b[i] == b'E') {
+        let mut j = i + 1;
+        let eneg = j < n && b[j] == b'-';
+        if j < n && (b[j] == b'-' || b[j] == b'+') {
+            j += 1;
+        }
+        let e0 = j;
+        let mut e: i32 = 0;
+        while j < n && b[j].is_ascii_digit() {
+            e = e.saturating_mul(10).saturating_add(i32::from(b[j] - b'0'));
+            j += 1;
+        }
+        if j == e0 {
+            return slow_number(b);
+        }
+        exp = exp.saturating_add(if eneg { -e } else { e });
+        i = j;
+    }
+    if nd > 19 || m >= 1 << 53 || exp.unsigned_abs() > 22 {
+        return slow_number(b);
+    }
+    let v = m as f64;
+    let v = if exp >= 0 { v * POW10[exp as usize] } else { v / POW10[(-exp) as usize] };
+    Some((if neg { -v } else { v }, i))
+}
+
+/// `str::parse` on `b` up to the end of its field.
+fn slow_number(b: &[u8]) -> Option<(f64, usize)> {
+    let end = b.iter().position(|&c| matches!(c, b',' | b' ' | b'\t' | b'\r' | b'\n')).unwrap_or(b.len());
+    let text = std::str::from_utf8(&b[..end]).ok()?;
+    text.parse::<f64>().ok().map(|v| (v, end))
+}
+
+/// The columns of a session by role, from its header.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Layout {
+    /// Number of FOGs.
+    pub n_fog: usize,
+    /// Column of `t_s`.
+    pub t: usize,
+    /// Column of each FOG's output and whether it is an increment (`fogN_rad`).
+    pub fog: Vec<(usize, bool)>,
+    /// Column of each FOG's temperature.
+    pub fog_temp: Vec<Option<usize>>,
+    /// Columns of `ref_x_rad_s`, `ref_y_rad_s`, `ref_z_rad_s` (form 1).
+    pub reference: Option<[usize; 3]>,
+    /// Columns of `psi_rad`, `lat_rad` (form 2).
+    pub turntable: Option<[usize; 2]>,
+    /// Column of `table_rate_rad_s`.
+    pub table_rate: Option<usize>,
+    /// Columns of `b_x_nt`, `b_y_nt`, `b_z_nt`.
+    pub field: Option<[usize; 3]>,
+}
+
+impl Layout {
+    /// Whether the FOG outputs are increments (the first row is then dropped).
+    pub fn increments(&self) -> bool {
+        self.fog.iter().any(|f| f.1)
+    }
+}
+
+/// A session's header: names, roles and the column layout.
+#[derive(Debug, Clone)]
+pub struct Header {
+    /// The file name as given.
+    pub file: String,
+    /// Column names in file order.
+    pub names: Vec<String>,
+    /// Role of each column.
+    pub roles: Vec<Role>,
+    /// Columns by role.
+    pub layout: Layout,
+    /// Line of the header (after comments), 1-based.
+    pub line: u64,
+}
+
+impl Header {
+    fn empty(file: &str) -> Header {
+        Header { file: file.to_string(), names: Vec::new(), roles: Vec::new(), layout: Layout::default(), line: 0 }
+    }
+
     fn err(
         &self,
         kind: SessionErrorKind,
@@ -237,241 +398,652 @@ impl Reader<'_> {
     ) -> SessionError {
         SessionError {
             kind,
-            file: self.file.to_string(),
+            file: self.file.clone(),
             line,
             column: column.map(|k| (k + 1, self.names.get(k).cloned().unwrap_or_default())),
             message: message.into(),
         }
     }
-}
 
-/// Reads and checks a session file. `progress`, when given, advances with the bytes read.
-pub fn read_session(path: &Path, progress: Option<&ProgressBar>) -> Result<Session, SessionError> {
-    let file = path.display().to_string();
-    let io = |e: &dyn std::fmt::Display| SessionError {
-        kind: SessionErrorKind::Io,
-        file: file.clone(),
-        line: 0,
-        column: None,
-        message: format!("cannot read: {e}"),
-    };
-    let f = std::fs::File::open(path).map_err(|e| io(&e))?;
-    if let (Some(pb), Ok(m)) = (progress, f.metadata()) {
-        pb.set_length(m.len());
-    }
-    let mut rdr = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .flexible(true)
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(std::io::BufReader::new(f));
-    let mut rec = csv::ByteRecord::new();
-    let mut r = Reader { file: &file, names: Vec::new() };
-    // Header: the first record that is not a comment.
-    let has_header = rdr.read_byte_record(&mut rec).map_err(|e| io(&e))?;
-    if !has_header || rec.iter().all(|f| f.is_empty()) {
-        return Err(r.err(
-            SessionErrorKind::Empty,
-            1,
-            None,
-            "the file is empty: expected a header line naming the columns",
-        ));
-    }
-    let header_line = rec.position().map_or(1, |p| p.line());
-    for (k, f) in rec.iter().enumerate() {
-        let name = String::from_utf8_lossy(f).to_string();
-        if r.names.contains(&name) {
-            r.names.push(name);
-            return Err(r.err(SessionErrorKind::BadHeader, header_line, Some(k), "this column name is given twice"));
+    /// A header of any numeric CSV with a `t_s` column and the `required` ones (every column
+    /// a user column; for logs that are not sessions, `super::framelog`).
+    pub fn plain(file: &str, names: Vec<String>, line: u64, required: &[&str]) -> Result<Header, SessionError> {
+        let mut h = Header::empty(file);
+        h.line = line;
+        h.roles = names.iter().map(|n| if n == "t_s" { Role::Time } else { Role::Extra }).collect();
+        h.names = names;
+        for r in std::iter::once(&"t_s").chain(required) {
+            if !h.names.iter().any(|n| n == r) {
+                return Err(h.err(SessionErrorKind::MissingColumn, line, None, format!("missing column `{r}`")));
+            }
         }
-        r.names.push(name);
+        h.layout.t = h.names.iter().position(|n| n == "t_s").unwrap_or(0);
+        Ok(h)
     }
-    let mut roles = Vec::with_capacity(r.names.len());
-    for (k, name) in r.names.iter().enumerate() {
-        match classify(name) {
-            Ok(role) => roles.push(role),
-            Err((kind, why)) => return Err(r.err(kind, header_line, Some(k), why)),
+
+    /// Classifies and checks the header names (`line` is the header's line number).
+    pub fn parse(file: &str, names: Vec<String>, line: u64) -> Result<Header, SessionError> {
+        let mut h = Header::empty(file);
+        h.line = line;
+        for (k, name) in names.into_iter().enumerate() {
+            let twice = h.names.contains(&name);
+            h.names.push(name);
+            if twice {
+                return Err(h.err(SessionErrorKind::BadHeader, line, Some(k), "this column name is given twice"));
+            }
         }
-    }
-    let missing = |what: &str| r.err(SessionErrorKind::MissingColumn, header_line, None, what.to_string());
-    if !roles.contains(&Role::Time) {
-        return Err(missing("missing column `t_s` (sample time, s)"));
-    }
-    let n_fog = roles
-        .iter()
-        .filter_map(|r| match r {
-            Role::FogRate(i) | Role::FogIncrement(i) => Some(i + 1),
-            _ => None,
-        })
-        .max()
-        .unwrap_or(0);
-    if n_fog == 0 {
-        return Err(missing("missing column `fog0_rad_s` (or `fog0_rad`): the session has no FOG output"));
-    }
-    for i in 0..n_fog {
-        if !roles.iter().any(|r| matches!(r, Role::FogRate(j) | Role::FogIncrement(j) if *j == i)) {
-            return Err(missing(&format!("missing column `fog{i}_rad_s` (FOGs are numbered from 0 without gaps)")));
+        for (k, name) in h.names.iter().enumerate() {
+            match classify(name) {
+                Ok(role) => h.roles.push(role),
+                Err((kind, why)) => return Err(h.err(kind, line, Some(k), why)),
+            }
         }
-        if roles.contains(&Role::FogRate(i)) && roles.contains(&Role::FogIncrement(i)) {
-            let k = roles.iter().position(|r| *r == Role::FogIncrement(i)).unwrap_or(0);
-            return Err(r.err(
-                SessionErrorKind::BadHeader,
-                header_line,
-                Some(k),
-                "FOG given both as rate and increment",
+        let roles = &h.roles;
+        let pos = |role: Role| roles.iter().position(|r| *r == role);
+        let missing = |what: &str| h.err(SessionErrorKind::MissingColumn, line, None, what.to_string());
+        let Some(t) = pos(Role::Time) else { return Err(missing("missing column `t_s` (sample time, s)")) };
+        let n_fog = roles
+            .iter()
+            .filter_map(|r| match r {
+                Role::FogRate(i) | Role::FogIncrement(i) => Some(i + 1),
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0);
+        if n_fog == 0 {
+            return Err(missing("missing column `fog0_rad_s` (or `fog0_rad`): the session has no FOG output"));
+        }
+        let mut fog = Vec::new();
+        for i in 0..n_fog {
+            match (pos(Role::FogRate(i)), pos(Role::FogIncrement(i))) {
+                (Some(_), Some(k)) => {
+                    return Err(h.err(
+                        SessionErrorKind::BadHeader,
+                        line,
+                        Some(k),
+                        "FOG given both as rate and increment",
+                    ))
+                }
+                (Some(k), None) => fog.push((k, false)),
+                (None, Some(k)) => fog.push((k, true)),
+                (None, None) => {
+                    return Err(missing(&format!(
+                        "missing column `fog{i}_rad_s` (FOGs are numbered from 0 without gaps)"
+                    )))
+                }
+            }
+        }
+        for (k, role) in roles.iter().enumerate() {
+            if let Role::FogTemp(i) = role {
+                if *i >= n_fog {
+                    return Err(h.err(
+                        SessionErrorKind::BadHeader,
+                        line,
+                        Some(k),
+                        "temperature of a FOG with no output",
+                    ));
+                }
+            }
+        }
+        let three = |f: fn(usize) -> Role| -> Option<Vec<usize>> { (0..3).map(|a| pos(f(a))).collect() };
+        let any3 = |f: fn(usize) -> Role| (0..3).any(|a| pos(f(a)).is_some());
+        let reference = three(Role::Reference);
+        if any3(Role::Reference) && reference.is_none() {
+            return Err(missing("the reference rate needs all three of `ref_x_rad_s`, `ref_y_rad_s`, `ref_z_rad_s`"));
+        }
+        let field = three(Role::Field);
+        if any3(Role::Field) && field.is_none() {
+            return Err(missing("the magnetic field needs all three of `b_x_nt`, `b_y_nt`, `b_z_nt`"));
+        }
+        let turntable = pos(Role::Psi).zip(pos(Role::Lat)).map(|(a, b)| [a, b]);
+        if reference.is_none() && turntable.is_none() {
+            return Err(missing(
+                "missing reference: give `ref_x_rad_s`, `ref_y_rad_s`, `ref_z_rad_s`, or `psi_rad` and `lat_rad` \
+                 (Earth rate on a turntable, plus `table_rate_rad_s` if it turns)",
             ));
         }
+        let arr3 = |v: Vec<usize>| [v[0], v[1], v[2]];
+        h.layout = Layout {
+            n_fog,
+            t,
+            fog,
+            fog_temp: (0..n_fog).map(|i| pos(Role::FogTemp(i))).collect(),
+            reference: reference.map(arr3),
+            turntable,
+            table_rate: pos(Role::TableRate),
+            field: field.map(arr3),
+        };
+        Ok(h)
     }
-    for (k, role) in roles.iter().enumerate() {
-        if let Role::FogTemp(i) = role {
-            if *i >= n_fog {
-                return Err(r.err(
-                    SessionErrorKind::BadHeader,
-                    header_line,
-                    Some(k),
-                    "temperature of a FOG with no output",
-                ));
+}
+
+/// Parses the data line `data[a..b]` into `values` (one per column) the fast way: each field
+/// a number [`parse_number`] takes whole and finite, fields separated by `,` with optional
+/// spaces. Numbers are read from `data[p..]` (what follows the line lets the digit scan take
+/// eight bytes at a time; the line's end stops it). `false` on anything else (then
+/// [`check_line`] decides).
+fn parse_line(data: &[u8], a: usize, b: usize, values: &mut [f64]) -> bool {
+    let ncol = values.len();
+    let mut p = a;
+    for (k, v) in values.iter_mut().enumerate() {
+        while p < b && (data[p] == b' ' || data[p] == b'\t') {
+            p += 1;
+        }
+        let Some((x, used)) = parse_number(&data[p..]) else { return false };
+        if used == 0 || !x.is_finite() || p + used > b {
+            return false;
+        }
+        *v = x;
+        p += used;
+        while p < b && (data[p] == b' ' || data[p] == b'\t' || data[p] == b'\r') {
+            p += 1;
+        }
+        if k + 1 < ncol {
+            if p >= b || data[p] != b',' {
+                return false;
             }
+            p += 1;
         }
     }
-    let has_ref: Vec<bool> = (0..3).map(|a| roles.contains(&Role::Reference(a))).collect();
-    let has_field: Vec<bool> = (0..3).map(|a| roles.contains(&Role::Field(a))).collect();
-    if has_ref.iter().any(|&b| b) && !has_ref.iter().all(|&b| b) {
-        return Err(missing("the reference rate needs all three of `ref_x_rad_s`, `ref_y_rad_s`, `ref_z_rad_s`"));
+    p == b
+}
+
+/// The careful reading of a data line: fields split at `,` and trimmed, the field count
+/// checked first, then each value. Fills `values` and returns `None` when the line is good,
+/// else what is wrong: kind, 0-based column, message.
+fn check_line(line: &[u8], values: &mut [f64]) -> Option<(SessionErrorKind, usize, String)> {
+    let ncol = values.len();
+    let mut k = 0;
+    let mut bad: Option<(usize, String)> = None;
+    for field in line.split(|&c| c == b',') {
+        if k < ncol && bad.is_none() {
+            let f = trim(field);
+            match parse_number(f) {
+                Some((v, used)) if used == f.len() && v.is_finite() => values[k] = v,
+                Some((_, used)) if used == f.len() => {
+                    bad = Some((k, format!("`{}` is not a finite number", String::from_utf8_lossy(f))))
+                }
+                _ if f.is_empty() => bad = Some((k, "empty value, expected a number".into())),
+                _ => bad = Some((k, format!("`{}` is not a number", String::from_utf8_lossy(f)))),
+            }
+        }
+        k += 1;
     }
-    if has_field.iter().any(|&b| b) && !has_field.iter().all(|&b| b) {
-        return Err(missing("the magnetic field needs all three of `b_x_nt`, `b_y_nt`, `b_z_nt`"));
+    if k != ncol {
+        return Some(if k < ncol {
+            (
+                SessionErrorKind::FieldCount,
+                k,
+                format!("value missing: the line has {k} fields, the header {ncol} (truncated line?)"),
+            )
+        } else {
+            (SessionErrorKind::FieldCount, ncol - 1, format!("the line has {k} fields, the header only {ncol}"))
+        });
     }
-    let earth_ref = roles.contains(&Role::Psi) && roles.contains(&Role::Lat);
-    if !has_ref[0] && !earth_ref {
-        return Err(missing(
-            "missing reference: give `ref_x_rad_s`, `ref_y_rad_s`, `ref_z_rad_s`, or `psi_rad` and `lat_rad` \
-             (Earth rate on a turntable, plus `table_rate_rad_s` if it turns)",
-        ));
+    bad.map(|(col, msg)| (SessionErrorKind::BadNumber, col, msg))
+}
+
+/// Bytes read from the file at a time.
+const READ_CHUNK: usize = 1 << 20;
+
+/// Streams the data rows of a session file: each row's values in file column order, checked
+/// (field count, numbers, finite, time increasing). At the end of the file it refuses a
+/// session with too few rows.
+pub struct RowReader {
+    header: Header,
+    file: std::fs::File,
+    buf: Vec<u8>,
+    start: usize,
+    end: usize,
+    eof: bool,
+    line: u64,
+    values: Vec<f64>,
+    last_t: f64,
+    rows: u64,
+    bytes: u64,
+}
+
+/// A line of a file: whether it is blank or a comment (skipped everywhere).
+fn skipped_line(line: &[u8]) -> bool {
+    line.first() == Some(&b'#') || line.iter().all(|c| c.is_ascii_whitespace())
+}
+
+fn trim(mut b: &[u8]) -> &[u8] {
+    while let [first, rest @ ..] = b {
+        if *first == b' ' || *first == b'\t' {
+            b = rest;
+        } else {
+            break;
+        }
+    }
+    while let [rest @ .., last] = b {
+        if *last == b' ' || *last == b'\t' || *last == b'\r' {
+            b = rest;
+        } else {
+            break;
+        }
+    }
+    b
+}
+
+impl RowReader {
+    /// Opens a session file and reads its header (comment lines before it are skipped).
+    pub fn open(path: &Path) -> Result<RowReader, SessionError> {
+        Self::open_with(path, Header::parse)
     }
 
-    // Rows.
-    let ncol = r.names.len();
-    let t_col = roles.iter().position(|r| *r == Role::Time).unwrap_or(0);
-    let mut cols: Vec<Vec<f64>> = vec![Vec::new(); ncol];
-    let mut last_t = f64::NEG_INFINITY;
-    let mut rows = 0u64;
-    loop {
-        match rdr.read_byte_record(&mut rec) {
-            Ok(true) => {}
-            Ok(false) => break,
-            Err(e) => {
-                let line = e.position().map_or(0, |p| p.line());
-                return Err(r.err(SessionErrorKind::BadNumber, line, None, format!("unreadable line: {e}")));
-            }
-        }
-        let line = rec.position().map_or(0, |p| p.line());
-        if rec.len() == 1 && rec.get(0).is_some_and(|f| f.is_empty()) {
-            continue; // blank line
-        }
-        if rec.len() != ncol {
-            let (col, what) = if rec.len() < ncol { (rec.len(), "missing") } else { (ncol.saturating_sub(1), "extra") };
-            let msg = if rec.len() < ncol {
-                format!("value {what}: the line has {} fields, the header {ncol} (truncated line?)", rec.len())
-            } else {
-                format!("the line has {} fields, the header only {ncol}", rec.len())
+    /// Opens any numeric CSV whose header `make` accepts (file, names, line).
+    pub fn open_with(
+        path: &Path,
+        make: impl FnOnce(&str, Vec<String>, u64) -> Result<Header, SessionError>,
+    ) -> Result<RowReader, SessionError> {
+        let file_name = path.display().to_string();
+        let io = |e: &dyn std::fmt::Display| SessionError {
+            kind: SessionErrorKind::Io,
+            file: file_name.clone(),
+            line: 0,
+            column: None,
+            message: format!("cannot read: {e}"),
+        };
+        let file = std::fs::File::open(path).map_err(|e| io(&e))?;
+        let mut r = RowReader {
+            header: Header::empty(&file_name),
+            file,
+            buf: vec![0; READ_CHUNK],
+            start: 0,
+            end: 0,
+            eof: false,
+            line: 0,
+            values: Vec::new(),
+            last_t: f64::NEG_INFINITY,
+            rows: 0,
+            bytes: 0,
+        };
+        let names = loop {
+            let Some((a, b)) = r.next_line().map_err(|e| io(&e))? else {
+                return Err(SessionError {
+                    kind: SessionErrorKind::Empty,
+                    file: file_name,
+                    line: 1,
+                    column: None,
+                    message: "the file is empty: expected a header line naming the columns".into(),
+                });
             };
-            return Err(r.err(SessionErrorKind::FieldCount, line, Some(col), msg));
-        }
-        for (k, f) in rec.iter().enumerate() {
-            let text = std::str::from_utf8(f).unwrap_or("");
-            let v: f64 = match text.parse() {
-                Ok(v) => v,
-                Err(_) => {
-                    let shown = String::from_utf8_lossy(f);
-                    let msg = if shown.is_empty() {
-                        "empty value, expected a number".to_string()
-                    } else {
-                        format!("`{shown}` is not a number")
-                    };
-                    return Err(r.err(SessionErrorKind::BadNumber, line, Some(k), msg));
+            let line = &r.buf[a..b];
+            if !skipped_line(line) {
+                break line.split(|&c| c == b',').map(|f| String::from_utf8_lossy(trim(f)).to_string()).collect();
+            }
+        };
+        r.header = make(&file_name, names, r.line)?;
+        r.values = vec![0.0; r.header.names.len()];
+        Ok(r)
+    }
+
+    /// The header.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// Line number of the last line returned, 1-based.
+    pub fn line(&self) -> u64 {
+        self.line
+    }
+
+    /// Bytes of the file consumed so far.
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    /// The next line without its `\n`, as a range of the buffer (which grows for a line
+    /// longer than it).
+    fn next_line(&mut self) -> std::io::Result<Option<(usize, usize)>> {
+        loop {
+            if let Some(k) = memchr::memchr(b'\n', &self.buf[self.start..self.end]) {
+                let (a, b) = (self.start, self.start + k);
+                self.start = b + 1;
+                self.line += 1;
+                self.bytes += (k + 1) as u64;
+                return Ok(Some((a, b)));
+            }
+            if self.eof {
+                if self.start < self.end {
+                    let (a, b) = (self.start, self.end);
+                    self.start = self.end;
+                    self.line += 1;
+                    self.bytes += (b - a) as u64;
+                    return Ok(Some((a, b)));
                 }
-            };
-            if !v.is_finite() {
-                return Err(r.err(
-                    SessionErrorKind::BadNumber,
-                    line,
-                    Some(k),
-                    format!("`{text}` is not a finite number"),
-                ));
+                return Ok(None);
             }
-            cols[k].push(v);
-        }
-        let t = cols[t_col][cols[t_col].len() - 1];
-        if t <= last_t {
-            return Err(r.err(SessionErrorKind::BadValue, line, Some(t_col), "time does not increase"));
-        }
-        last_t = t;
-        rows += 1;
-        if let Some(pb) = progress {
-            if rows.is_multiple_of(8192) {
-                pb.set_position(rec.position().map_or(0, |p| p.byte()));
+            // Move the partial line to the front and fill the rest.
+            self.buf.copy_within(self.start..self.end, 0);
+            self.end -= self.start;
+            self.start = 0;
+            if self.end == self.buf.len() {
+                self.buf.resize(self.buf.len() * 2, 0);
             }
+            let k = self.file.read(&mut self.buf[self.end..])?;
+            if k == 0 {
+                self.eof = true;
+            }
+            self.end += k;
         }
     }
-    let increments = roles.iter().any(|r| matches!(r, Role::FogIncrement(_)));
-    let min_rows = if increments { 3 } else { 2 };
-    if (rows as usize) < min_rows {
-        return Err(r.err(SessionErrorKind::NoRows, header_line, None, format!("fewer than {min_rows} data rows")));
+
+    /// The next data row (values in file column order), or `None` after the last.
+    pub fn next_row(&mut self) -> Result<Option<&[f64]>, SessionError> {
+        let t_col = self.header.layout.t;
+        loop {
+            let (a, b) = match self.next_line() {
+                Ok(Some(l)) => l,
+                Ok(None) => break,
+                Err(e) => {
+                    return Err(self.header.err(SessionErrorKind::Io, self.line, None, format!("cannot read: {e}")))
+                }
+            };
+            let line = &self.buf[a..b];
+            if skipped_line(line) {
+                continue;
+            }
+            if !parse_line(&self.buf[..self.end], a, b, &mut self.values) {
+                // Something unusual: the careful path, which also words the refusal.
+                let line_no = self.line;
+                if let Some((kind, col, msg)) = check_line(&self.buf[a..b], &mut self.values) {
+                    return Err(self.header.err(kind, line_no, Some(col), msg));
+                }
+            }
+            let t = self.values[t_col];
+            if t <= self.last_t {
+                let line_no = self.line;
+                return Err(self.header.err(
+                    SessionErrorKind::BadValue,
+                    line_no,
+                    Some(t_col),
+                    "time does not increase",
+                ));
+            }
+            self.last_t = t;
+            self.rows += 1;
+            return Ok(Some(&self.values));
+        }
+        let min_rows = if self.header.layout.increments() { 3 } else { 2 };
+        if self.rows < min_rows {
+            return Err(self.header.err(
+                SessionErrorKind::NoRows,
+                self.header.line,
+                None,
+                format!("fewer than {min_rows} data rows"),
+            ));
+        }
+        Ok(None)
+    }
+}
+
+/// One sample of a session, in the model's quantities.
+#[derive(Debug, Clone, Default)]
+pub struct Sample {
+    /// Time (end of the sample interval), s.
+    pub t_s: f64,
+    /// Raw rate of each FOG, rad/s.
+    pub rate_rad_s: Vec<f64>,
+    /// Temperature of each FOG, °C (NaN where the session has none).
+    pub t_degc: Vec<f64>,
+    /// Reference rate of the ICS, ICS components, rad/s.
+    pub ref_rad_s: [f64; 3],
+    /// Magnetic induction, nT (zeros without field columns).
+    pub field_nt: [f64; 3],
+    /// Every column's value in file order (increments as they are in the file).
+    pub values: Vec<f64>,
+}
+
+impl Sample {
+    /// Copies `o` into `self`, reusing its allocations.
+    pub fn copy_from(&mut self, o: &Sample) {
+        self.t_s = o.t_s;
+        self.rate_rad_s.clone_from(&o.rate_rad_s);
+        self.t_degc.clone_from(&o.t_degc);
+        self.ref_rad_s = o.ref_rad_s;
+        self.field_nt = o.field_nt;
+        self.values.clone_from(&o.values);
+    }
+}
+
+/// Turns rows into samples: FOG increments into rates over (t_{k−1}, t_k] (the first row of
+/// an increment session has no interval and gives no sample), the turntable geometry into
+/// the reference rate.
+#[derive(Debug, Clone)]
+pub struct Converter {
+    layout: Layout,
+    last_t: Option<f64>,
+}
+
+impl Converter {
+    /// For sessions with `layout`.
+    pub fn new(layout: &Layout) -> Converter {
+        Converter { layout: layout.clone(), last_t: None }
+    }
+
+    /// Fills `out` from `row`; `false` when the row gives no sample (first row of increments).
+    pub fn convert(&mut self, row: &[f64], out: &mut Sample) -> bool {
+        let l = &self.layout;
+        let t = row[l.t];
+        let prev = self.last_t.replace(t);
+        if l.increments() && prev.is_none() {
+            return false;
+        }
+        out.t_s = t;
+        out.rate_rad_s.resize(l.n_fog, 0.0);
+        out.t_degc.resize(l.n_fog, f64::NAN);
+        for (i, &(k, inc)) in l.fog.iter().enumerate() {
+            out.rate_rad_s[i] = if inc { row[k] / (t - prev.unwrap_or(t)) } else { row[k] };
+            out.t_degc[i] = l.fog_temp[i].map_or(f64::NAN, |c| row[c]);
+        }
+        out.ref_rad_s = match (l.reference, l.turntable) {
+            (Some([x, y, z]), _) => [row[x], row[y], row[z]],
+            (None, Some([psi, lat])) => {
+                let mut w = earth_rate_ics(row[psi], row[lat]);
+                w[2] += l.table_rate.map_or(0.0, |c| row[c]);
+                w
+            }
+            (None, None) => [0.0; 3],
+        };
+        out.field_nt = l.field.map_or([0.0; 3], |[x, y, z]| [row[x], row[y], row[z]]);
+        out.values.clear();
+        out.values.extend_from_slice(row);
+        true
+    }
+}
+
+/// Collects samples into a [`Session`].
+struct Builder {
+    cols: Vec<Vec<f64>>,
+    rates: Vec<Vec<f64>>,
+    reference: Vec<[f64; 3]>,
+    field: Vec<[f64; 3]>,
+}
+
+impl Builder {
+    fn new(h: &Header) -> Builder {
+        Builder {
+            cols: vec![Vec::new(); h.names.len()],
+            rates: vec![Vec::new(); h.layout.n_fog],
+            reference: Vec::new(),
+            field: Vec::new(),
+        }
+    }
+
+    fn push(&mut self, s: &Sample) {
+        for (c, v) in self.cols.iter_mut().zip(&s.values) {
+            c.push(*v);
+        }
+        for (r, v) in self.rates.iter_mut().zip(&s.rate_rad_s) {
+            r.push(*v);
+        }
+        self.reference.push(s.ref_rad_s);
+        self.field.push(s.field_nt);
+    }
+
+    fn finish(self, h: &Header) -> Session {
+        let l = &h.layout;
+        let cols = self.cols;
+        let fogs = self
+            .rates
+            .into_iter()
+            .enumerate()
+            .map(|(i, rate_rad_s)| FogData { rate_rad_s, t_degc: l.fog_temp[i].map(|c| cols[c].clone()) })
+            .collect();
+        Session {
+            file: h.file.clone(),
+            names: h.names.clone(),
+            cols,
+            roles: h.roles.clone(),
+            fogs,
+            ref_rad_s: self.reference,
+            field_nt: l.field.map(|_| self.field),
+        }
+    }
+}
+
+/// Reads and checks a whole session file into memory. `progress`, when given, advances with
+/// the bytes read.
+pub fn read_session(path: &Path, progress: Option<&ProgressBar>) -> Result<Session, SessionError> {
+    let mut rr = RowReader::open(path)?;
+    if let (Some(pb), Ok(m)) = (progress, std::fs::metadata(path)) {
+        pb.set_length(m.len());
+    }
+    let h = rr.header().clone();
+    let mut conv = Converter::new(&h.layout);
+    let mut sample = Sample::default();
+    let mut b = Builder::new(&h);
+    let mut rows = 0u64;
+    while let Some(row) = rr.next_row()? {
+        if conv.convert(row, &mut sample) {
+            b.push(&sample);
+        }
+        rows += 1;
+        if let Some(pb) = progress.filter(|_| rows.is_multiple_of(8192)) {
+            pb.set_position(rr.bytes());
+        }
     }
     if let Some(pb) = progress {
         pb.set_position(pb.length().unwrap_or(0));
     }
+    Ok(b.finish(&h))
+}
 
-    // FOG rates: an increment covers (t_{k-1}, t_k]; the first row has no interval and is dropped.
-    let t_all = cols[t_col].clone();
-    let mut fog_rate: Vec<Vec<f64>> = vec![Vec::new(); n_fog];
-    for (k, role) in roles.iter().enumerate() {
-        match role {
-            Role::FogRate(i) => fog_rate[*i] = cols[k].clone(),
-            Role::FogIncrement(i) => {
-                fog_rate[*i] = std::iter::once(f64::NAN)
-                    .chain((1..t_all.len()).map(|j| cols[k][j] / (t_all[j] - t_all[j - 1])))
-                    .collect()
+/// A session from columns in memory (`names` as in a session file's header, `cols[k]` the
+/// values of column k), checked as a file would be: `file` names it in messages, and a
+/// refusal's line is the row's (header = 1).
+pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -> Result<Session, SessionError> {
+    let h = Header::parse(file, names, 1)?;
+    let n = cols.first().map_or(0, Vec::len);
+    let min_rows = if h.layout.increments() { 3 } else { 2 };
+    if n < min_rows {
+        return Err(h.err(SessionErrorKind::NoRows, 1, None, format!("fewer than {min_rows} data rows")));
+    }
+    let mut conv = Converter::new(&h.layout);
+    let mut sample = Sample::default();
+    let mut b = Builder::new(&h);
+    let mut row = vec![0.0; h.names.len()];
+    let mut last_t = f64::NEG_INFINITY;
+    for j in 0..n {
+        for (v, c) in row.iter_mut().zip(cols) {
+            *v = c[j];
+        }
+        let line = j as u64 + 2;
+        if let Some(k) = row.iter().position(|v| !v.is_finite()) {
+            return Err(h.err(
+                SessionErrorKind::BadNumber,
+                line,
+                Some(k),
+                format!("`{}` is not a finite number", row[k]),
+            ));
+        }
+        if row[h.layout.t] <= last_t {
+            return Err(h.err(SessionErrorKind::BadValue, line, Some(h.layout.t), "time does not increase"));
+        }
+        last_t = row[h.layout.t];
+        if conv.convert(&row, &mut sample) {
+            b.push(&sample);
+        }
+    }
+    Ok(b.finish(&h))
+}
+
+/// Writes a session in memory as a session file (temporary file and rename): its columns
+/// in file order, each value in Rust's shortest form that reads back to the same `f64`.
+pub fn write_session_csv(session: &Session, path: &Path) -> super::LabResult<()> {
+    use std::fmt::Write;
+    let mut out = String::new();
+    let _ = writeln!(out, "{}", session.names.join(","));
+    for j in 0..session.cols.first().map_or(0, Vec::len) {
+        for (k, c) in session.cols.iter().enumerate() {
+            let _ = write!(out, "{}{}", if k > 0 { "," } else { "" }, c[j]);
+        }
+        out.push('\n');
+    }
+    super::write_atomic(path, out.as_bytes())
+}
+
+/// What a quick look at a session file tells before a pass: its header, how many samples
+/// it has, their time span and the sample interval.
+#[derive(Debug, Clone)]
+pub struct Shape {
+    /// The header.
+    pub header: Header,
+    /// Samples (rows, less the first of an increment session).
+    pub samples: usize,
+    /// Time of the first and the last sample, s.
+    pub t_span_s: [f64; 2],
+    /// The sample interval ([`median_interval_s`]), s.
+    pub dt_s: f64,
+    /// File size, bytes.
+    pub bytes: u64,
+}
+
+/// Reads the header and the first rows of a session file (checked) and counts the rest of
+/// its lines (not checked: the pass that follows checks them). The last sample's time is
+/// read from the last data line.
+pub fn shape(path: &Path) -> Result<Shape, SessionError> {
+    let mut rr = RowReader::open(path)?;
+    let header = rr.header().clone();
+    let mut conv = Converter::new(&header.layout);
+    let mut sample = Sample::default();
+    let mut t = Vec::new();
+    while t.len() <= INTERVALS_FOR_MEDIAN {
+        match rr.next_row()? {
+            Some(row) => {
+                if conv.convert(row, &mut sample) {
+                    t.push(sample.t_s);
+                }
             }
-            _ => {}
+            None => break,
         }
     }
-    if increments {
-        for c in cols.iter_mut().chain(fog_rate.iter_mut()) {
-            c.remove(0);
+    let mut samples = t.len();
+    let mut last_line: Vec<u8> = Vec::new();
+    if samples > INTERVALS_FOR_MEDIAN {
+        let io = |e: std::io::Error| header.err(SessionErrorKind::Io, 0, None, format!("cannot read: {e}"));
+        while let Some((a, b)) = rr.next_line().map_err(io)? {
+            let line = &rr.buf[a..b];
+            if !skipped_line(line) {
+                samples += 1;
+                last_line.clear();
+                last_line.extend_from_slice(line);
+            }
         }
     }
-    let n = cols[t_col].len();
-    let col_of = |role: Role| roles.iter().position(|r| *r == role).map(|k| &cols[k]);
-    let fogs = fog_rate
-        .into_iter()
-        .enumerate()
-        .map(|(i, rate_rad_s)| FogData { rate_rad_s, t_degc: col_of(Role::FogTemp(i)).cloned() })
-        .collect();
-    let ref_rad_s: Vec<[f64; 3]> = if has_ref[0] {
-        let (x, y, z) = (col_of(Role::Reference(0)), col_of(Role::Reference(1)), col_of(Role::Reference(2)));
-        let (x, y, z) = (x.unwrap(), y.unwrap(), z.unwrap());
-        (0..n).map(|j| [x[j], y[j], z[j]]).collect()
+    let t_last = if last_line.is_empty() {
+        t[t.len() - 1]
     } else {
-        let psi = col_of(Role::Psi).unwrap();
-        let lat = col_of(Role::Lat).unwrap();
-        let table = col_of(Role::TableRate);
-        (0..n)
-            .map(|j| {
-                let mut w = earth_rate_ics(psi[j], lat[j]);
-                w[2] += table.map_or(0.0, |c| c[j]);
-                w
-            })
-            .collect()
+        let f = last_line.split(|&c| c == b',').nth(header.layout.t).map(trim).unwrap_or(&[]);
+        parse_number(f).map_or(f64::NAN, |v| v.0)
     };
-    let field_nt = if has_field[0] {
-        let (x, y, z) =
-            (col_of(Role::Field(0)).unwrap(), col_of(Role::Field(1)).unwrap(), col_of(Role::Field(2)).unwrap());
-        Some((0..n).map(|j| [x[j], y[j], z[j]]).collect())
-    } else {
-        None
-    };
-    let names = r.names;
-    Ok(Session { file, names, cols, roles, fogs, ref_rad_s, field_nt })
+    Ok(Shape {
+        samples,
+        t_span_s: [t[0], t_last],
+        dt_s: median_interval_s(&t),
+        bytes: std::fs::metadata(path).map_or(0, |m| m.len()),
+        header,
+    })
 }

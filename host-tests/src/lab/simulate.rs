@@ -187,8 +187,16 @@ fn chamber(knots: &[(f64, f64)], t: f64) -> (f64, f64) {
     (a + r * area, r * w)
 }
 
-/// Generates a session.
+/// Generates a session in memory.
 pub fn generate(spec: &Spec) -> SimSession {
+    let mut rows = Vec::with_capacity(spec.rows);
+    let (header, truth) = generate_with(spec, |r| rows.push(r.to_vec()));
+    SimSession { header, rows, truth }
+}
+
+/// Generates a session row by row: `row` gets each row's values in header order; returns
+/// the header and the truth.
+pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<String>, Truth) {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let deg_h = 1.0 / DEG_H_PER_RAD_S;
     let arcsec = std::f64::consts::PI / 180.0 / 3600.0;
@@ -288,7 +296,7 @@ pub fn generate(spec: &Spec) -> SimSession {
     header.push("chamber_rh_pct".into());
     let mut humidity = 40.0;
     let rate_fractions: [f64; 8] = [0.1, -0.1, 0.2, -0.2, 0.5, -0.5, 1.0, -1.0];
-    let mut rows = Vec::with_capacity(spec.rows);
+    let mut row = Vec::with_capacity(header.len());
     for j in 0..spec.rows {
         let t_end = (j + 1) as f64 * spec.dt_s;
         // Motion: rate vector (constant over the interval), azimuth, field.
@@ -315,7 +323,8 @@ pub fn generate(spec: &Spec) -> SimSession {
             [fscale * (B0_NT[0] * c + B0_NT[1] * s), fscale * (-B0_NT[0] * s + B0_NT[1] * c), fscale * B0_NT[2]];
         let w = nalgebra::Vector3::from(omega);
         let bvec = nalgebra::Vector3::from(field);
-        let mut row = vec![t_end];
+        row.clear();
+        row.push(t_end);
         let mut temps = Vec::new();
         for i in 0..N_FOG {
             // Thermal terms averaged over the interval.
@@ -360,9 +369,9 @@ pub fn generate(spec: &Spec) -> SimSession {
         }
         humidity += gauss(0.5, &mut rng);
         row.push(humidity);
-        rows.push(row);
+        row_out(&row);
     }
-    SimSession { header, rows, truth }
+    (header, truth)
 }
 
 impl SimSession {

@@ -1,0 +1,179 @@
+//! `ssis-lab-bench`: the model lab's benchmark (issue 4): CSV ingest in MB/s, and `compare`
+//! + `diagnose` on 10 million samples of 4 FOGs (goal: ≤ 10 s on one core).
+//!
+//! The session is a thermal rate table at 100 Hz (10 M rows = 27.8 h: the rate table's 24
+//! settings up to ±10 °/s, one minute each, inside the chamber's temperature cycle) with a
+//! hidden temperature-rate effect, written once with a logger's precision (10 significant
+//! digits for rates, 0.0001 °C) and reused. The lab runs single-threaded, as the CLI does.
+//!
+//! ```console
+//! $ cargo run --release --bin ssis-lab-bench                 # 10 M rows
+//! $ cargo run --release --bin ssis-lab-bench -- --rows 1000000
+//! ```
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Parser;
+use ssis_host::lab::diagnose::{diagnose, Options};
+use ssis_host::lab::fit::{compare, DEFAULT_BLOCKS};
+use ssis_host::lab::model::{Kind, Model};
+use ssis_host::lab::session::RowReader;
+use ssis_host::lab::simulate::{generate_with, Hidden, Motion, Spec, Thermal};
+use ssis_host::lab::stream::Source;
+use ssis_host::DEG_H_PER_RAD_S;
+
+#[derive(Parser)]
+#[command(name = "ssis-lab-bench", about = "Model lab benchmark: CSV ingest, compare and diagnose on a large session")]
+struct Cli {
+    /// Rows of the session.
+    #[arg(long, default_value_t = 10_000_000)]
+    rows: usize,
+    /// Directory of the session file (default: `lab-bench` in the cargo target directory).
+    #[arg(long)]
+    dir: Option<PathBuf>,
+}
+
+/// The target directory: the executable is `<target>/<triple>/<profile>/ssis-lab-bench` or
+/// `<target>/<profile>/ssis-lab-bench`.
+fn target_dir() -> PathBuf {
+    let exe = std::env::current_exe().unwrap_or_default();
+    let profile_dir = exe.parent().map(Path::to_path_buf).unwrap_or_default();
+    let up = profile_dir.parent().map(Path::to_path_buf).unwrap_or_default();
+    if up.file_name().is_some_and(|n| n.to_string_lossy().contains('-')) {
+        up.parent().map(Path::to_path_buf).unwrap_or(up)
+    } else {
+        up
+    }
+}
+
+fn spec(rows: usize) -> Spec {
+    Spec {
+        seed: 1,
+        dt_s: 0.01,
+        rows,
+        motion: Motion::RateTable { dwell_rows: 6000, peak_deg_s: 10.0 },
+        thermal: Thermal::Chamber,
+        field_columns: false,
+        hidden: Hidden::TempRate,
+    }
+}
+
+/// Writes the session once (temporary file, then renamed).
+fn write_session(path: &Path, rows: usize) -> Result<()> {
+    let tmp = path.with_extension("partial");
+    let f = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+    let mut w = std::io::BufWriter::with_capacity(1 << 20, f);
+    let mut err = None;
+    let pb = indicatif::ProgressBar::new(rows as u64);
+    let mut n = 0u64;
+    let (header, _) = generate_with(&spec(rows), |r| {
+        if err.is_some() {
+            return;
+        }
+        if n == 0 {
+            let res = writeln!(w, "t_s,fog0_rad_s,fog1_rad_s,fog2_rad_s,fog3_rad_s,fog0_t_degc,fog1_t_degc,fog2_t_degc,fog3_t_degc,ref_x_rad_s,ref_y_rad_s,ref_z_rad_s,chamber_rh_pct");
+            err = res.err();
+        }
+        // t, 4 rates, 4 temperatures, 3 reference rates, humidity.
+        let res = writeln!(
+            w,
+            "{:.2},{:.9e},{:.9e},{:.9e},{:.9e},{:.4},{:.4},{:.4},{:.4},{:.9e},{:.9e},{:.9e},{:.3}",
+            r[0], r[1], r[2], r[3], r[4], r[5], r[6], r[7], r[8], r[9], r[10], r[11], r[12]
+        );
+        err = err.take().or(res.err());
+        n += 1;
+        if n.is_multiple_of(100_000) {
+            pb.set_position(n);
+        }
+    });
+    pb.finish_and_clear();
+    if let Some(e) = err {
+        return Err(e).with_context(|| format!("cannot write {}", tmp.display()));
+    }
+    anyhow::ensure!(header.len() == 13, "unexpected session columns {header:?}");
+    w.flush()?;
+    drop(w);
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot rename to {}", path.display()))?;
+    Ok(())
+}
+
+fn main() -> Result<()> {
+    let cli = Cli::parse();
+    let dir = cli.dir.unwrap_or_else(|| target_dir().join("lab-bench"));
+    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    let path = dir.join(format!("session-{}.csv", cli.rows));
+    if !path.exists() {
+        let t = Instant::now();
+        println!("writing {} ({} rows, once) ...", path.display(), cli.rows);
+        write_session(&path, cli.rows)?;
+        println!("  written in {:.1} s", t.elapsed().as_secs_f64());
+    }
+    let bytes = std::fs::metadata(&path)?.len();
+    let mb = bytes as f64 / 1e6;
+    println!("session {} : {} rows, 4 FOGs, 13 columns, {:.1} MB", path.display(), cli.rows, mb);
+
+    // Ingest: read, split and parse every value (what every pass costs before any model work).
+    let t = Instant::now();
+    let mut rr = RowReader::open(&path)?;
+    let (mut rows, mut check) = (0u64, 0.0);
+    while let Some(r) = rr.next_row()? {
+        rows += 1;
+        check += r[1];
+    }
+    let ingest_s = t.elapsed().as_secs_f64();
+    println!(
+        "ingest (read + parse + check, {rows} rows): {ingest_s:.2} s = {:.0} MB/s, {:.0} ns/row (checksum {check:.3e})",
+        mb / ingest_s,
+        ingest_s / rows as f64 * 1e9
+    );
+
+    let kinds: Vec<Kind> = ["bias", "scale_factor", "misalignment", "thermal_t1"]
+        .iter()
+        .map(|k| Kind::parse_arg(k))
+        .collect::<Result<_, _>>()?;
+    let model = Model::new(&kinds);
+    let t = Instant::now();
+    let c = compare(&model, Source::File(&path), false, DEFAULT_BLOCKS, None)?;
+    let compare_s = t.elapsed().as_secs_f64();
+    println!("compare (fit bias, scale_factor, misalignment, thermal_t1; held-out RMS; exact max): {compare_s:.2} s");
+    for (i, s) in c.fitted.summary.iter().enumerate() {
+        println!(
+            "  FOG{i}: error {:.4} deg/h, residual {:.4} deg/h, max {:.4} deg/h (over {} rows), explained {:.2} %, held-out {:.4} deg/h",
+            s.rms_error_rad_s * DEG_H_PER_RAD_S,
+            s.rms_residual_rad_s * DEG_H_PER_RAD_S,
+            s.max_abs_residual_rad_s * DEG_H_PER_RAD_S,
+            c.fitted.max_over_rows,
+            100.0 * s.explained,
+            c.held_out_rad_s[i] * DEG_H_PER_RAD_S
+        );
+    }
+
+    let t = Instant::now();
+    let d = diagnose(&model, Source::File(&path), &Options::default())?;
+    let diagnose_s = t.elapsed().as_secs_f64();
+    println!(
+        "diagnose ({} candidates tested, {} training / {} test samples): {diagnose_s:.2} s",
+        d.candidates.len(),
+        d.n_train,
+        d.n_test
+    );
+    for c in d.candidates.iter().take(3) {
+        println!(
+            "  {:<28} p {:.2e}  held-out {:.4} -> {:.4} deg/h {}",
+            c.kind.label(),
+            c.p_value,
+            c.before_rad_s * DEG_H_PER_RAD_S,
+            c.after_rad_s * DEG_H_PER_RAD_S,
+            if c.significant { "significant" } else { "" }
+        );
+    }
+    println!(
+        "compare + diagnose: {:.2} s (goal <= 10 s on one core); ingest {:.0} MB/s",
+        compare_s + diagnose_s,
+        mb / ingest_s
+    );
+    Ok(())
+}

@@ -1,0 +1,961 @@
+//! Passes over a session: every row turned into a small basis vector per FOG and summed
+//! into per-block Gram matrices, so a fit never holds the rows.
+//!
+//! Every model term is linear in its coefficients and every regressor is a linear function
+//! of a few per-row quantities, the **basis** z of FOG i ([`Basis`], [`Q`]): 1; ω_ref (x, y,
+//! z), rad/s; |r_i| and r_i² with r_i = s_i⁰·ω_ref; (t − t₀)/3600; ΔT, ΔT², ΔT³, G, ΔT·G
+//! (ΔT = T_i − T_ref, G = dT_i/dt); B_x, B_y, B_z, nT; sin and cos 2πft per sinusoid; the
+//! value of each expression or user column; and last y_i = ω_i,raw − r_i. A pass carries only
+//! the quantities its terms use. The scale factor is then s_i⁰ on the ω slots, a
+//! misalignment angle ∂s_i/∂δ there, the magnetic term u_i or v_i on the field slots
+//! ([`Basis::functionals`]). The pass sums z zᵀ per FOG and
+//! per time block ([`Digest`]): m × m numbers per block, whatever the number of rows. Any
+//! fit, residual sum of squares or correlation over any union of blocks follows from those
+//! sums (`super::fit`). For conditioning, z is summed shifted by its value on the first row
+//! (slot 0 stays 1): the shift is a change of basis the functionals undo exactly
+//! ([`Digest::shifted`]).
+//!
+//! G = dT/dt needs the samples up to half a window ahead ([`super::model::temperature_rate`]):
+//! the pass holds that many rows back, never more. A systematic sample of at most `keep`
+//! rows (every row when the session is that short) is kept with its basis vectors for what
+//! needs rows: plots, the spectral search, the T × G analysis of variance.
+
+use std::collections::VecDeque;
+use std::path::Path;
+
+use exmex::Express;
+use indicatif::ProgressBar;
+use nalgebra::DMatrix;
+
+use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
+use super::session::{median_interval_s, nominal_axes, Converter, Header, RowReader, Sample, Session, Shape};
+use super::{LabError, LabResult};
+
+/// Rows kept by default for plots, the spectral search and the ANOVA.
+pub const DEFAULT_KEEP: usize = 40_000;
+
+/// Where a pass reads its samples.
+#[derive(Debug, Clone, Copy)]
+pub enum Source<'a> {
+    /// A session file, streamed.
+    File(&'a Path),
+    /// A session in memory.
+    Memory(&'a Session),
+}
+
+impl Source<'_> {
+    /// The session's header, size and sample interval (a quick look at a file).
+    pub fn shape(&self) -> LabResult<Shape> {
+        match self {
+            Source::File(p) => Ok(super::session::shape(p)?),
+            Source::Memory(s) => {
+                let header = Header::parse(&s.file, s.names.clone(), 1)?;
+                let t = s.t_s();
+                Ok(Shape {
+                    header,
+                    samples: t.len(),
+                    t_span_s: [t[0], t[t.len() - 1]],
+                    dt_s: median_interval_s(t),
+                    bytes: 0,
+                })
+            }
+        }
+    }
+
+    /// Calls `f` with every sample in order.
+    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&Sample) -> LabResult<()>) -> LabResult<()> {
+        let mut sample = Sample::default();
+        match self {
+            Source::File(p) => {
+                let mut rr = RowReader::open(p)?;
+                let mut conv = Converter::new(&rr.header().layout);
+                let mut rows = 0u64;
+                while let Some(row) = rr.next_row()? {
+                    if conv.convert(row, &mut sample) {
+                        f(&sample)?;
+                    }
+                    rows += 1;
+                    if let Some(pb) = progress.filter(|_| rows.is_multiple_of(65_536)) {
+                        pb.set_position(rr.bytes());
+                    }
+                }
+            }
+            Source::Memory(s) => {
+                let n_fog = s.fogs.len();
+                sample.rate_rad_s.resize(n_fog, 0.0);
+                sample.t_degc.resize(n_fog, f64::NAN);
+                sample.values.resize(s.cols.len(), 0.0);
+                let t = s.t_s();
+                for j in 0..s.len() {
+                    sample.t_s = t[j];
+                    for (i, fog) in s.fogs.iter().enumerate() {
+                        sample.rate_rad_s[i] = fog.rate_rad_s[j];
+                        sample.t_degc[i] = fog.t_degc.as_ref().map_or(f64::NAN, |c| c[j]);
+                    }
+                    sample.ref_rad_s = s.ref_rad_s[j];
+                    sample.field_nt = s.field_nt.as_ref().map_or([0.0; 3], |b| b[j]);
+                    for (v, c) in sample.values.iter_mut().zip(&s.cols) {
+                        *v = c[j];
+                    }
+                    f(&sample)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Where an expression variable comes from.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Var {
+    /// A session column (file order).
+    Column(usize),
+    /// r_i = s_i⁰·ω_ref.
+    Rate,
+    /// T_i.
+    TAbs,
+    /// T_i − T_ref.
+    DTemp,
+    /// G_i.
+    TRate,
+    /// The FOG number.
+    Fog,
+}
+
+/// An expression (or user column) of the basis.
+#[derive(Debug, Clone)]
+struct ExprSlot {
+    text: String,
+    /// The compiled expression; `None` for a bare column name.
+    ex: Option<exmex::FlatEx<f64>>,
+    vars: Vec<Var>,
+    /// Whether it needs FOG temperatures.
+    needs_temp: bool,
+}
+
+/// A quantity of the basis (see the module text).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Q {
+    /// 1.
+    One,
+    /// ω_ref component, rad/s.
+    Omega(usize),
+    /// |r|, rad/s.
+    AbsR,
+    /// r², (rad/s)².
+    R2,
+    /// Hours since the first sample.
+    Age,
+    /// ΔT, °C.
+    DT,
+    /// ΔT².
+    DT2,
+    /// ΔT³.
+    DT3,
+    /// G, °C/s.
+    G,
+    /// ΔT·G.
+    DTG,
+    /// Field component, nT.
+    Field(usize),
+    /// sin 2πft of sinusoid k.
+    Sin(usize),
+    /// cos 2πft of sinusoid k.
+    Cos(usize),
+    /// Expression or user column k.
+    Expr(usize),
+    /// y = ω_raw − r.
+    Y,
+}
+
+/// The per-FOG basis of a pass: which slot holds which quantity (see the module text). Only
+/// the quantities the pass's terms use are there (slot 0 is always 1, the last always y).
+#[derive(Debug, Clone)]
+pub struct Basis {
+    /// Session file (for messages).
+    pub file: String,
+    /// The quantity in each slot.
+    pub slots: Vec<Q>,
+    /// Slots.
+    pub m: usize,
+    /// Number of FOGs.
+    pub n_fog: usize,
+    /// Whether FOG i has a temperature column.
+    pub has_temp: Vec<bool>,
+    /// Whether the session has field columns.
+    pub has_field: bool,
+    /// Sinusoid frequencies, Hz.
+    pub sinusoids: Vec<f64>,
+    exprs: Vec<ExprSlot>,
+    /// Slot of y.
+    pub y: usize,
+    /// Time of the first sample, s (aging is counted from it).
+    pub t0_s: f64,
+    /// T_ref, °C.
+    pub t_ref_degc: f64,
+    axes: [nalgebra::Vector3<f64>; 4],
+}
+
+/// Slot of the constant.
+pub const ONE: usize = 0;
+
+/// The quantities a term uses.
+fn quantities(kind: &Kind, sinusoids: &[f64], exprs: &[ExprSlot]) -> Vec<Q> {
+    match kind {
+        Kind::Catalog(c) => match c {
+            Catalog::Bias => vec![Q::One],
+            Catalog::ScaleFactor | Catalog::Misalignment => vec![Q::Omega(0), Q::Omega(1), Q::Omega(2)],
+            Catalog::SfAsymmetry => vec![Q::AbsR],
+            Catalog::SfNonlinearity => vec![Q::R2],
+            Catalog::ThermalT1 => vec![Q::DT],
+            Catalog::ThermalT2 => vec![Q::DT2],
+            Catalog::ThermalT3 => vec![Q::DT3],
+            Catalog::TempRate => vec![Q::G],
+            Catalog::TTimesG => vec![Q::DTG],
+            Catalog::Magnetic => vec![Q::Field(0), Q::Field(1), Q::Field(2)],
+            Catalog::Aging => vec![Q::Age],
+        },
+        Kind::Sinusoid(f) => sinusoids.iter().position(|x| x == f).map_or(vec![], |k| vec![Q::Sin(k), Q::Cos(k)]),
+        Kind::Expr(e) => exprs.iter().position(|x| x.text == *e).map_or(vec![], |k| vec![Q::Expr(k)]),
+    }
+}
+
+impl Basis {
+    /// The basis for a session with `header` and the terms `kinds` (what they need and the
+    /// session has).
+    pub fn new(header: &Header, kinds: &[Kind], t0_s: f64, t_ref_degc: f64) -> LabResult<Basis> {
+        let l = &header.layout;
+        let has_temp: Vec<bool> = l.fog_temp.iter().map(Option::is_some).collect();
+        let (any_temp, has_field) = (has_temp.iter().any(|&b| b), l.field.is_some());
+        let mut sinusoids: Vec<f64> = Vec::new();
+        let mut exprs: Vec<ExprSlot> = Vec::new();
+        for k in kinds {
+            match k {
+                Kind::Sinusoid(f) if !sinusoids.contains(f) => sinusoids.push(*f),
+                Kind::Expr(e) if !exprs.iter().any(|x| x.text == *e) => exprs.push(compile(e, header)?),
+                _ => {}
+            }
+        }
+        let mut slots = vec![Q::One];
+        for k in kinds {
+            for q in quantities(k, &sinusoids, &exprs) {
+                let feedable = match q {
+                    Q::DT | Q::DT2 | Q::DT3 | Q::G | Q::DTG => any_temp,
+                    Q::Field(_) => has_field,
+                    _ => true,
+                };
+                if feedable && !slots.contains(&q) {
+                    slots.push(q);
+                }
+            }
+        }
+        slots.push(Q::Y);
+        Ok(Basis {
+            file: header.file.clone(),
+            m: slots.len(),
+            y: slots.len() - 1,
+            slots,
+            n_fog: l.n_fog,
+            has_temp,
+            has_field,
+            sinusoids,
+            exprs,
+            t0_s,
+            t_ref_degc,
+            axes: nominal_axes(),
+        })
+    }
+
+    /// The slot of a quantity.
+    pub fn slot(&self, q: Q) -> Option<usize> {
+        self.slots.iter().position(|x| *x == q)
+    }
+
+    /// Fills `z` (length m) for FOG `fog` from a sample and its G per FOG.
+    pub fn fill(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
+        let w = s.ref_rad_s;
+        let a = self.axes[fog.min(3)];
+        let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
+        let temp = self.has_temp[fog];
+        let (dt, g) = if temp { (s.t_degc[fog] - self.t_ref_degc, g_degc_s[fog]) } else { (0.0, 0.0) };
+        let mut sc = [(0.0f64, 0.0f64); 4];
+        for (k, f) in self.sinusoids.iter().enumerate().take(4) {
+            sc[k] = (2.0 * std::f64::consts::PI * f * s.t_s).sin_cos();
+        }
+        for (v, q) in z.iter_mut().zip(&self.slots) {
+            *v = match *q {
+                Q::One => 1.0,
+                Q::Omega(k) => w[k],
+                Q::AbsR => r.abs(),
+                Q::R2 => r * r,
+                Q::Age => (s.t_s - self.t0_s) / 3600.0,
+                Q::DT => dt,
+                Q::DT2 => dt * dt,
+                Q::DT3 => dt * dt * dt,
+                Q::G => g,
+                Q::DTG => dt * g,
+                Q::Field(k) => s.field_nt[k],
+                Q::Sin(k) if k < 4 => sc[k].0,
+                Q::Cos(k) if k < 4 => sc[k].1,
+                Q::Sin(k) => (2.0 * std::f64::consts::PI * self.sinusoids[k] * s.t_s).sin(),
+                Q::Cos(k) => (2.0 * std::f64::consts::PI * self.sinusoids[k] * s.t_s).cos(),
+                Q::Expr(k) => self.expr_value(k, fog, s, r, dt, g)?,
+                Q::Y => s.rate_rad_s[fog] - r,
+            };
+        }
+        Ok(())
+    }
+
+    fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
+        let x = &self.exprs[k];
+        if x.needs_temp && !self.has_temp[fog] {
+            return Ok(0.0);
+        }
+        let Some(ex) = &x.ex else {
+            return Ok(match x.vars[0] {
+                Var::Column(c) => s.values[c],
+                _ => 0.0,
+            });
+        };
+        let v: Vec<f64> = x
+            .vars
+            .iter()
+            .map(|var| match *var {
+                Var::Column(c) => s.values[c],
+                Var::Rate => r,
+                Var::TAbs => s.t_degc[fog],
+                Var::DTemp => dt,
+                Var::TRate => g,
+                Var::Fog => fog as f64,
+            })
+            .collect();
+        let e = ex
+            .eval(&v)
+            .map_err(|e| LabError::Model(format!("expression `{}` at t = {} s ({}): {e}", x.text, s.t_s, self.file)))?;
+        if !e.is_finite() {
+            return Err(LabError::Model(format!(
+                "expression `{}` is not finite at t = {} s ({})",
+                x.text, s.t_s, self.file
+            )));
+        }
+        Ok(e)
+    }
+
+    /// The regressors of `kind` for FOG `fog` as linear functionals of the basis (one vector
+    /// of length m per regressor); `Err` says why the session cannot feed it.
+    pub fn functionals(&self, kind: &Kind, fog: usize) -> Result<Vec<Vec<f64>>, String> {
+        let at = |pairs: &[(Q, f64)]| -> Result<Vec<f64>, String> {
+            let mut v = vec![0.0; self.m];
+            for &(q, c) in pairs {
+                v[self.slot(q).ok_or_else(|| format!("{}: `{}` is not in this pass", self.file, kind.label()))?] += c;
+            }
+            Ok(v)
+        };
+        let on_omega = |a: nalgebra::Vector3<f64>| at(&[(Q::Omega(0), a.x), (Q::Omega(1), a.y), (Q::Omega(2), a.z)]);
+        let need_t = |what: &str, q: Q| -> Result<Vec<Vec<f64>>, String> {
+            if !self.has_temp[fog] {
+                return Err(format!(
+                    "{}: term `{what}` needs the temperature of FOG {fog} (column `fog{fog}_t_degc`)",
+                    self.file
+                ));
+            }
+            Ok(vec![at(&[(q, 1.0)])?])
+        };
+        Ok(match kind {
+            Kind::Catalog(c) => match c {
+                Catalog::Bias => vec![at(&[(Q::One, 1.0)])?],
+                Catalog::ScaleFactor => vec![on_omega(self.axes[fog.min(3)])?],
+                Catalog::SfAsymmetry => vec![at(&[(Q::AbsR, 1.0)])?],
+                Catalog::SfNonlinearity => vec![at(&[(Q::R2, 1.0)])?],
+                Catalog::Misalignment => {
+                    if fog > 3 {
+                        return Err(format!("{}: misalignment is defined for FOGs 0–3", self.file));
+                    }
+                    misalignment_partials(fog).into_iter().map(on_omega).collect::<Result<_, _>>()?
+                }
+                Catalog::ThermalT1 => need_t(c.name(), Q::DT)?,
+                Catalog::ThermalT2 => need_t(c.name(), Q::DT2)?,
+                Catalog::ThermalT3 => need_t(c.name(), Q::DT3)?,
+                Catalog::TempRate => need_t(c.name(), Q::G)?,
+                Catalog::TTimesG => need_t(c.name(), Q::DTG)?,
+                Catalog::Magnetic => {
+                    if !self.has_field {
+                        return Err(format!(
+                            "{}: term `magnetic` needs columns `b_x_nt`, `b_y_nt`, `b_z_nt`",
+                            self.file
+                        ));
+                    }
+                    loop_plane(fog)
+                        .iter()
+                        .map(|u| at(&[(Q::Field(0), u.x), (Q::Field(1), u.y), (Q::Field(2), u.z)]))
+                        .collect::<Result<_, _>>()?
+                }
+                Catalog::Aging => vec![at(&[(Q::Age, 1.0)])?],
+            },
+            Kind::Sinusoid(f) => {
+                let k = self.sinusoids.iter().position(|x| x == f).ok_or("sinusoid not in this pass")?;
+                vec![at(&[(Q::Sin(k), 1.0)])?, at(&[(Q::Cos(k), 1.0)])?]
+            }
+            Kind::Expr(e) => {
+                let k = self.exprs.iter().position(|x| x.text == *e).ok_or("expression not in this pass")?;
+                if self.exprs[k].needs_temp && !self.has_temp[fog] {
+                    return Err(format!(
+                        "{}: expression `{e}` needs the temperature of FOG {fog} (column `fog{fog}_t_degc`)",
+                        self.file
+                    ));
+                }
+                vec![at(&[(Q::Expr(k), 1.0)])?]
+            }
+        })
+    }
+
+    /// The functional of y.
+    pub fn y_functional(&self) -> Vec<f64> {
+        let mut v = vec![0.0; self.m];
+        v[self.y] = 1.0;
+        v
+    }
+}
+
+/// Compiles an expression over the session's columns and the per-FOG variables.
+fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
+    let column = |name: &str| header.names.iter().position(|n| n == name);
+    if let Some(c) = column(e) {
+        return Ok(ExprSlot { text: e.into(), ex: None, vars: vec![Var::Column(c)], needs_temp: false });
+    }
+    let ex = exmex::parse::<f64>(e).map_err(|err| LabError::Model(format!("expression `{e}`: {err}")))?;
+    let mut vars = Vec::new();
+    for v in ex.var_names() {
+        vars.push(match v.as_str() {
+            "rate_rad_s" => Var::Rate,
+            "t_degc" => Var::TAbs,
+            "dt_degc" => Var::DTemp,
+            "g_degc_s" => Var::TRate,
+            "fog" => Var::Fog,
+            name => Var::Column(column(name).ok_or_else(|| {
+                LabError::Model(format!(
+                    "expression `{e}`: `{v}` is not a column of {} (columns: {}; per FOG: rate_rad_s, t_degc, \
+                     dt_degc, g_degc_s, fog)",
+                    header.file,
+                    header.names.join(", ")
+                ))
+            })?),
+        });
+    }
+    let needs_temp = vars.iter().any(|v| matches!(v, Var::TAbs | Var::DTemp | Var::TRate));
+    Ok(ExprSlot { text: e.into(), ex: Some(ex), vars, needs_temp })
+}
+
+/// G = dT/dt of every FOG, as [`super::model::temperature_rate`] defines it, over a stream:
+/// samples are held until the window ahead of the oldest is complete.
+struct Lookahead {
+    half_s: f64,
+    n_fog: usize,
+    /// Samples of global index `first ..`.
+    buf: VecDeque<Sample>,
+    spare: Vec<Sample>,
+    first: usize,
+    /// Next sample to emit.
+    next: usize,
+    /// Window of the last emitted sample (true window, before the fallback).
+    lo: usize,
+    hi: usize,
+    /// Summed range [a, b] and its sums per FOG: n, Σu, Σv, Σu², Σuv about the origin.
+    a: usize,
+    b: usize,
+    summed: bool,
+    sums: Vec<[f64; 5]>,
+    origin_t: f64,
+    origin_temp: Vec<f64>,
+    since_origin: usize,
+    g: Vec<f64>,
+}
+
+impl Lookahead {
+    fn new(n_fog: usize, window_s: f64) -> Self {
+        Lookahead {
+            half_s: window_s / 2.0 * (1.0 + 1e-9),
+            n_fog,
+            buf: VecDeque::new(),
+            spare: Vec::new(),
+            first: 0,
+            next: 0,
+            lo: 0,
+            hi: 0,
+            a: 0,
+            b: 0,
+            summed: false,
+            sums: vec![[0.0; 5]; n_fog],
+            origin_t: 0.0,
+            origin_temp: vec![0.0; n_fog],
+            since_origin: 0,
+            g: vec![0.0; n_fog],
+        }
+    }
+
+    fn at(&self, k: usize) -> &Sample {
+        &self.buf[k - self.first]
+    }
+
+    fn push(&mut self, s: &Sample) {
+        let mut x = self.spare.pop().unwrap_or_default();
+        x.copy_from(s);
+        self.buf.push_back(x);
+    }
+
+    fn add(&mut self, k: usize, sign: f64) {
+        let (t, ot) = (self.at(k).t_s, self.origin_t);
+        let u = t - ot;
+        for i in 0..self.n_fog {
+            let v = self.buf[k - self.first].t_degc[i] - self.origin_temp[i];
+            let s = &mut self.sums[i];
+            s[0] += sign;
+            s[1] += sign * u;
+            s[2] += sign * v;
+            s[3] += sign * u * u;
+            s[4] += sign * u * v;
+        }
+    }
+
+    fn resum(&mut self, a: usize, b: usize, j: usize) {
+        self.origin_t = self.at(j).t_s;
+        self.origin_temp = self.at(j).t_degc.clone();
+        self.sums.iter_mut().for_each(|s| *s = [0.0; 5]);
+        for k in a..=b {
+            self.add(k, 1.0);
+        }
+        (self.a, self.b, self.summed, self.since_origin) = (a, b, true, 0);
+    }
+
+    /// Emits every sample whose window is complete (all of them at the end, `last`).
+    fn drain(&mut self, last: bool, mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>) -> LabResult<()> {
+        let end = self.first + self.buf.len();
+        while self.next < end {
+            let j = self.next;
+            let tj = self.at(j).t_s;
+            if !last && self.at(end - 1).t_s <= tj + self.half_s {
+                break;
+            }
+            self.lo = self.lo.max(self.first);
+            while self.at(self.lo).t_s < tj - self.half_s {
+                self.lo += 1;
+            }
+            self.hi = self.hi.max(self.lo);
+            while self.hi + 1 < end && self.at(self.hi + 1).t_s <= tj + self.half_s {
+                self.hi += 1;
+            }
+            let (a, b) =
+                if self.hi > self.lo { (self.lo, self.hi) } else { (j.saturating_sub(1), (j + 1).min(end - 1)) };
+            if !self.summed || a < self.a || b < self.b || self.since_origin > 4096.max(4 * (b - a + 1)) {
+                self.resum(a, b, j);
+            } else {
+                while self.b < b {
+                    self.b += 1;
+                    self.add(self.b, 1.0);
+                }
+                while self.a < a {
+                    self.add(self.a, -1.0);
+                    self.a += 1;
+                }
+            }
+            self.since_origin += 1;
+            for (g, s) in self.g.iter_mut().zip(&self.sums) {
+                let den = s[0] * s[3] - s[1] * s[1];
+                *g = if den.abs() < 1e-300 { 0.0 } else { (s[0] * s[4] - s[1] * s[2]) / den };
+            }
+            f(j, &self.buf[j - self.first], &self.g)?;
+            self.next += 1;
+            // Keep what later windows can still use: from the window's start or the previous sample.
+            let keep_from = self.a.min(self.lo).min(self.next.saturating_sub(1));
+            while self.first < keep_from {
+                if let Some(x) = self.buf.pop_front() {
+                    self.spare.push(x);
+                }
+                self.first += 1;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs the samples of `source` through the G window: `f(j, sample, G per FOG)` for every
+/// sample j in order.
+pub fn for_each_prepared(
+    source: Source,
+    n_fog: usize,
+    g_window_s: f64,
+    progress: Option<&ProgressBar>,
+    mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>,
+) -> LabResult<usize> {
+    let mut la = Lookahead::new(n_fog, g_window_s);
+    source.for_each(progress, |s| {
+        la.push(s);
+        la.drain(false, &mut f)
+    })?;
+    la.drain(true, &mut f)?;
+    Ok(la.next)
+}
+
+/// The sums z zᵀ of one FOG over one block (upper triangle filled; see [`Gram::full`]).
+#[derive(Debug, Clone)]
+pub struct Gram {
+    /// Rows summed.
+    pub n: usize,
+    /// m × m, row-major, upper triangle.
+    pub upper: Vec<f64>,
+    /// m.
+    pub m: usize,
+}
+
+impl Gram {
+    /// Zero sums of size m.
+    pub fn new(m: usize) -> Gram {
+        Gram { n: 0, upper: vec![0.0; m * m], m }
+    }
+
+    /// Adds another Gram.
+    pub fn add(&mut self, o: &Gram) {
+        self.n += o.n;
+        for (a, b) in self.upper.iter_mut().zip(&o.upper) {
+            *a += b;
+        }
+    }
+
+    /// The symmetric matrix.
+    pub fn full(&self) -> DMatrix<f64> {
+        DMatrix::from_fn(
+            self.m,
+            self.m,
+            |r, c| if r <= c { self.upper[r * self.m + c] } else { self.upper[c * self.m + r] },
+        )
+    }
+
+    /// Adds the sums over a batch: `cols` holds m columns of [`BATCH`] values (rows past
+    /// `rows` zero).
+    fn accumulate(&mut self, cols: &[f64], rows: usize) {
+        self.n += rows;
+        #[cfg(target_arch = "x86_64")]
+        if std::arch::is_x86_feature_detected!("avx2") {
+            // SAFETY: the CPU has AVX2 (checked above).
+            unsafe { gram_avx2(&mut self.upper, cols, self.m) };
+            return;
+        }
+        gram_kernel(&mut self.upper, cols, self.m);
+    }
+}
+
+/// Upper triangle of the batch's Gram added to `g`: each entry a dot product of two columns
+/// with eight interleaved partial sums added in a fixed order, so the result does not depend
+/// on the vector width the compiler uses (and no fused multiply-add changes the rounding).
+#[inline(always)]
+fn gram_kernel(g: &mut [f64], cols: &[f64], m: usize) {
+    for a in 0..m {
+        let ca = &cols[a * BATCH..(a + 1) * BATCH];
+        for b in a..m {
+            let cb = &cols[b * BATCH..(b + 1) * BATCH];
+            let mut acc = [0.0f64; 8];
+            for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
+                for l in 0..8 {
+                    acc[l] += x[l] * y[l];
+                }
+            }
+            g[a * m + b] += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
+    gram_kernel(g, cols, m)
+}
+
+/// What a pass needs to know.
+#[derive(Debug, Clone)]
+pub struct DigestSpec {
+    /// Every term any fit on the digest will use (its sinusoids and expressions get slots).
+    pub kinds: Vec<Kind>,
+    /// T_ref, °C.
+    pub t_ref_degc: f64,
+    /// The model's G window, s (0: automatic, [`effective_window_s`]).
+    pub g_window_s: f64,
+    /// Time blocks.
+    pub n_blocks: usize,
+    /// Rows kept at most.
+    pub keep: usize,
+}
+
+/// The G window in use: `g_window_s`, or max(2 × the sample interval, 60 s) when it is 0.
+pub fn effective_window_s(g_window_s: f64, dt_s: f64) -> f64 {
+    if g_window_s > 0.0 {
+        g_window_s
+    } else {
+        (2.0 * dt_s).max(60.0)
+    }
+}
+
+/// Rows kept by a pass: every `stride`-th, with their basis vectors (shifted) and the
+/// quantities residuals are plotted against.
+#[derive(Debug, Clone, Default)]
+pub struct Kept {
+    /// Every this many rows.
+    pub stride: usize,
+    /// Row indices.
+    pub rows: Vec<usize>,
+    /// Their times, s.
+    pub t_s: Vec<f64>,
+    /// Their blocks.
+    pub block: Vec<usize>,
+    /// Azimuth ψ where the session has it, rad.
+    pub psi_rad: Option<Vec<f64>>,
+    /// Reference rate, rad/s.
+    pub omega_rad_s: Vec<[f64; 3]>,
+    /// Field, nT, where the session has it.
+    pub field_nt: Option<Vec<[f64; 3]>>,
+    /// Per FOG with a temperature: T, °C, and G, °C/s.
+    pub temp: Vec<Option<(Vec<f64>, Vec<f64>)>>,
+    /// Per FOG, the shifted basis vectors, row-major (rows × m).
+    pub z: Vec<Vec<f64>>,
+}
+
+/// One pass over a session: per FOG and block the Gram of the shifted basis, and kept rows.
+#[derive(Debug, Clone)]
+pub struct Digest {
+    /// Session file.
+    pub file: String,
+    /// Header names.
+    pub names: Vec<String>,
+    /// User (extra) columns.
+    pub extra_columns: Vec<String>,
+    /// Samples.
+    pub n: usize,
+    /// Time blocks.
+    pub n_blocks: usize,
+    /// Sample interval, s.
+    pub dt_s: f64,
+    /// Time of the first and last sample, s.
+    pub t_span_s: [f64; 2],
+    /// The G window used, s.
+    pub g_window_s: f64,
+    /// The basis.
+    pub basis: Basis,
+    /// Per FOG, the shift subtracted from each slot (slot 0: none).
+    pub shift: Vec<Vec<f64>>,
+    /// Per FOG, per block.
+    pub gram: Vec<Vec<Gram>>,
+    /// Kept rows.
+    pub kept: Kept,
+}
+
+/// Rows summed at a time before they are added to a block's sums (a multiple of 8).
+const BATCH: usize = 256;
+
+/// The block of sample j of n: `j · n_blocks / n` (even blocks train, odd blocks test).
+pub fn block_of(j: usize, n: usize, n_blocks: usize) -> usize {
+    j * n_blocks / n.max(1)
+}
+
+/// One pass over `source`.
+pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>) -> LabResult<Digest> {
+    let shape = source.shape()?;
+    if let Some(pb) = progress {
+        pb.set_length(shape.bytes);
+    }
+    let h = &shape.header;
+    let n = shape.samples;
+    let nb = spec.n_blocks.max(2);
+    let basis = Basis::new(h, &spec.kinds, shape.t_span_s[0], spec.t_ref_degc)?;
+    let (m, n_fog) = (basis.m, basis.n_fog);
+    let g_window_s = effective_window_s(spec.g_window_s, shape.dt_s);
+    let stride = n.div_ceil(spec.keep.max(1)).max(1);
+    let psi_col = h.layout.turntable.map(|[p, _]| p);
+    let mut kept = Kept {
+        stride,
+        psi_rad: psi_col.map(|_| Vec::new()),
+        field_nt: basis.has_field.then(Vec::new),
+        temp: basis.has_temp.iter().map(|&t| t.then(|| (Vec::new(), Vec::new()))).collect(),
+        z: vec![Vec::new(); n_fog],
+        ..Kept::default()
+    };
+    let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
+    let mut shift: Vec<Vec<f64>> = Vec::new();
+    // Per FOG a batch of rows, column-major (m columns of BATCH values).
+    let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
+    let (mut batch_rows, mut batch_block) = (0usize, 0usize);
+    let mut z = vec![0.0; m];
+    let flush = |batch: &mut Vec<Vec<f64>>, rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
+        if rows == 0 {
+            return;
+        }
+        for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
+            for col in b.chunks_exact_mut(BATCH) {
+                col[rows..].fill(0.0);
+            }
+            g[block].accumulate(b, rows);
+        }
+    };
+    let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
+        let block = block_of(j, n, nb).min(nb - 1);
+        if block != batch_block || batch_rows == BATCH {
+            flush(&mut batch, batch_rows, &mut gram, batch_block);
+            (batch_rows, batch_block) = (0, block);
+        }
+        let keep = j % stride == 0;
+        if keep {
+            kept.rows.push(j);
+            kept.t_s.push(s.t_s);
+            kept.block.push(block);
+            if let (Some(p), Some(c)) = (kept.psi_rad.as_mut(), psi_col) {
+                p.push(s.values[c]);
+            }
+            kept.omega_rad_s.push(s.ref_rad_s);
+            if let Some(f) = kept.field_nt.as_mut() {
+                f.push(s.field_nt);
+            }
+            for (i, t) in kept.temp.iter_mut().enumerate() {
+                if let Some((temp, rate)) = t.as_mut() {
+                    temp.push(s.t_degc[i]);
+                    rate.push(g[i]);
+                }
+            }
+        }
+        for fog in 0..n_fog {
+            basis.fill(fog, s, g, &mut z)?;
+            if shift.len() < n_fog {
+                let mut sh = z.clone();
+                sh[ONE] = 0.0;
+                shift.push(sh);
+            }
+            for (v, sh) in z.iter_mut().zip(&shift[fog]) {
+                *v -= sh;
+            }
+            for (a, v) in z.iter().enumerate() {
+                batch[fog][a * BATCH + batch_rows] = *v;
+            }
+            if keep {
+                kept.z[fog].extend_from_slice(&z);
+            }
+        }
+        batch_rows += 1;
+        Ok(())
+    })?;
+    flush(&mut batch, batch_rows, &mut gram, batch_block);
+    if seen != n {
+        return Err(LabError::Numeric(format!(
+            "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
+            h.file
+        )));
+    }
+    let extra_columns = h
+        .names
+        .iter()
+        .zip(&h.roles)
+        .filter(|(_, r)| **r == super::session::Role::Extra)
+        .map(|(n, _)| n.clone())
+        .collect();
+    Ok(Digest {
+        file: h.file.clone(),
+        names: h.names.clone(),
+        extra_columns,
+        n,
+        n_blocks: nb,
+        dt_s: shape.dt_s,
+        t_span_s: shape.t_span_s,
+        g_window_s,
+        basis,
+        shift,
+        gram,
+        kept,
+    })
+}
+
+impl Digest {
+    /// A functional of the raw basis as one of the shifted basis: x = ℓ·z = ℓ·z̃ + (ℓ·shift)·1.
+    pub fn shifted(&self, fog: usize, l: &[f64]) -> Vec<f64> {
+        let mut v = l.to_vec();
+        v[ONE] += l.iter().zip(&self.shift[fog]).map(|(a, b)| a * b).sum::<f64>();
+        v
+    }
+
+    /// The sums of FOG `fog` over the blocks `pick` selects.
+    pub fn gram_of(&self, fog: usize, pick: impl Fn(usize) -> bool) -> Gram {
+        let mut g = Gram::new(self.basis.m);
+        for (b, x) in self.gram[fog].iter().enumerate() {
+            if pick(b) {
+                g.add(x);
+            }
+        }
+        g
+    }
+
+    /// Whether every sample is kept.
+    pub fn all_kept(&self) -> bool {
+        self.kept.stride == 1
+    }
+}
+
+/// [`super::model::temperature_rate`] of one series.
+pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
+    let mut la = Lookahead::new(1, window_s);
+    let mut out = Vec::with_capacity(t_s.len());
+    let mut s = Sample { rate_rad_s: vec![0.0], t_degc: vec![0.0], ..Sample::default() };
+    let mut emit = |_: usize, _: &Sample, g: &[f64]| {
+        out.push(g[0]);
+        Ok(())
+    };
+    for (&t, &temp) in t_s.iter().zip(temp_degc) {
+        s.t_s = t;
+        s.t_degc[0] = temp;
+        la.push(&s);
+        let _ = la.drain(false, &mut emit);
+    }
+    let _ = la.drain(true, &mut emit);
+    out
+}
+
+/// The quantities every term of a model is built from, per FOG and sample, for a session in
+/// memory (for tests and tools that want every row).
+#[derive(Debug, Clone)]
+pub struct Prepared {
+    /// Error of each FOG, y_i = ω_i,raw − s_i⁰·ω_ref, rad/s.
+    pub y: Vec<Vec<f64>>,
+    /// Nominal input rate of each FOG, r_i = s_i⁰·ω_ref, rad/s.
+    pub r: Vec<Vec<f64>>,
+    /// ΔT = T_i − T_ref per FOG, °C.
+    pub dtemp_degc: Vec<Option<Vec<f64>>>,
+    /// G_i, °C/s.
+    pub g_degc_s: Vec<Option<Vec<f64>>>,
+    /// T_ref, °C.
+    pub t_ref_degc: f64,
+}
+
+/// y, r, ΔT and G of `session` with the model's T_ref and G window.
+pub fn prepare(session: &Session, model: &super::model::Model) -> LabResult<Prepared> {
+    let n_fog = session.fogs.len();
+    let window = effective_window_s(model.g_window_s, session.median_dt_s());
+    let axes = nominal_axes();
+    let has_t: Vec<bool> = session.fogs.iter().map(|f| f.t_degc.is_some()).collect();
+    let mut p = Prepared {
+        y: vec![Vec::new(); n_fog],
+        r: vec![Vec::new(); n_fog],
+        dtemp_degc: has_t.iter().map(|&h| h.then(Vec::new)).collect(),
+        g_degc_s: has_t.iter().map(|&h| h.then(Vec::new)).collect(),
+        t_ref_degc: model.t_ref_degc,
+    };
+    for_each_prepared(Source::Memory(session), n_fog, window, None, |_, s, g| {
+        for i in 0..n_fog {
+            let a = axes[i.min(3)];
+            let r = a.x * s.ref_rad_s[0] + a.y * s.ref_rad_s[1] + a.z * s.ref_rad_s[2];
+            p.r[i].push(r);
+            p.y[i].push(s.rate_rad_s[i] - r);
+            if let Some(d) = p.dtemp_degc[i].as_mut() {
+                d.push(s.t_degc[i] - model.t_ref_degc);
+            }
+            if let Some(x) = p.g_degc_s[i].as_mut() {
+                x.push(g[i]);
+            }
+        }
+        Ok(())
+    })?;
+    Ok(p)
+}
