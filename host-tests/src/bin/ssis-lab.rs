@@ -135,6 +135,27 @@ enum Cmd {
         #[arg(long)]
         table: Option<PathBuf>,
     },
+    /// Turn a firmware log into a session file: a raw capture of the output link (79-byte
+    /// output frames; the body rate is the measurement, bad frames are counted) or the per-step
+    /// CSV of ssis-qemu / ssis-sim (the attitude is the measurement, the truth the reference).
+    Import {
+        /// What the log is.
+        kind: LogKind,
+        /// The log file.
+        log: PathBuf,
+        /// Session CSV to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Capture only: azimuth of X_P from north (clockwise) of the turntable, rad.
+        #[arg(long, allow_negative_numbers = true)]
+        psi_rad: Option<f64>,
+        /// Capture only: latitude, rad.
+        #[arg(long, allow_negative_numbers = true)]
+        lat_rad: Option<f64>,
+        /// Capture only: table rate about Z_P (up), rad/s.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        table_rate_rad_s: f64,
+    },
     /// Write a simulated session with a known hidden effect (for trying the lab).
     Simulate {
         /// magnetic, thermal, asymmetry, sin2psi, flight or replay.
@@ -148,6 +169,15 @@ enum Cmd {
         #[arg(long)]
         no_hidden: bool,
     },
+}
+
+/// Kinds of firmware log `import` reads.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum LogKind {
+    /// Raw bytes of the output link.
+    Capture,
+    /// The per-step CSV of ssis-qemu / ssis-sim run --csv.
+    QemuCsv,
 }
 
 fn dh(v: f64) -> f64 {
@@ -472,6 +502,22 @@ fn main() -> Result<()> {
                 "steps with a FOG not used: {}; output frames {} ({} bad)",
                 r.steps_degraded, r.frames_out, r.frames_out_bad
             );
+        }
+        Cmd::Import { kind, log, out, psi_rad, lat_rad, table_rate_rad_s } => {
+            let (s, rep) = match kind {
+                LogKind::Capture => {
+                    let (Some(psi_rad), Some(lat_rad)) = (psi_rad, lat_rad) else {
+                        bail!("a capture of the output link has no reference: give --psi-rad and --lat-rad (and --table-rate-rad-s if the table turns)");
+                    };
+                    let t = ssis_host::lab::framelog::Turntable { psi_rad, lat_rad, table_rate_rad_s };
+                    ssis_host::lab::framelog::read_output_capture(&log, &t)
+                }
+                LogKind::QemuCsv => ssis_host::lab::framelog::read_qemu_csv(&log),
+            }
+            .context("log refused")?;
+            println!("{rep}");
+            ssis_host::lab::session::write_session_csv(&s, &out)?;
+            println!("wrote {} ({} samples, body axes as fog0..fog2)", out.display(), s.len());
         }
         Cmd::Simulate { preset, out, seed, no_hidden } => {
             let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {

@@ -71,6 +71,16 @@ pub fn profile_for(n_fog: usize, dt_us: u32) -> LabResult<Profile> {
 
 /// Replays `session` through a [`FlightCore`] flying `table`.
 pub fn replay(session: &Session, table: &CalibrationTable) -> LabResult<Replay> {
+    replay_with(session, table, None)
+}
+
+/// [`replay`], keeping every byte the core wrote on its output link in `capture` (what a
+/// logger on that link records).
+pub fn replay_with(
+    session: &Session,
+    table: &CalibrationTable,
+    mut capture: Option<&mut Vec<u8>>,
+) -> LabResult<Replay> {
     let t = session.t_s();
     let n = t.len();
     let file = &session.file;
@@ -142,10 +152,14 @@ pub fn replay(session: &Session, table: &CalibrationTable) -> LabResult<Replay> 
         if (0..n_fog).any(|i| out.fog_health[i] & health::USED == 0) {
             steps_degraded += 1;
         }
-        out_dec.push_slice(&std::mem::take(&mut links.out.bytes), |r| match r {
+        let bytes = std::mem::take(&mut links.out.bytes);
+        out_dec.push_slice(&bytes, |r| match r {
             Ok(_) => frames_out += 1,
             Err(_) => frames_out_bad += 1,
         });
+        if let Some(c) = capture.as_mut() {
+            c.extend_from_slice(&bytes);
+        }
         let w = out.rate_rad_s;
         let e = w - Vector3::from(session.ref_rad_s[j]);
         rate_rad_s.push([w.x, w.y, w.z]);
