@@ -15,6 +15,7 @@
 
 pub mod harness;
 pub mod lab;
+pub mod methods;
 pub mod mock;
 pub mod plot;
 pub mod qemu;
