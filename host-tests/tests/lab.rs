@@ -192,6 +192,31 @@ fn d_round_trip_to_flight() {
             .collect();
     let fitted = fit_model(&Model::new(&kinds), &s).unwrap();
     assert!(fitted.not_identified.is_empty(), "{:?}", fitted.not_identified);
+    // The session is longer than the kept rows: the largest |residual| comes from the pass's
+    // extremes (reading again only the first segments whose bound they cannot beat) and must
+    // equal a full second pass's.
+    {
+        use ssis_host::lab::fit::{complete, fit_digest, max_abs_residuals, max_proof, spec_for};
+        let model = Model::new(&kinds);
+        let d = ssis_host::lab::stream::digest((&s).into(), &spec_for(&model, &[], 10), None).unwrap();
+        let f = fit_digest(&model, &d).unwrap();
+        let proof = max_proof(&d, &f.model).unwrap().expect("no extremes");
+        let fast = complete(f.clone(), &s, &d).unwrap();
+        let scanned = max_abs_residuals((&s).into(), &d, &f.model, usize::MAX).unwrap();
+        println!(
+            "  largest |residual| over {} rows, deg/h: from the extremes + {} of {} segments read again {:?}, full \
+             second pass {:?}",
+            s.len(),
+            proof.segments_to_read(),
+            proof.bound[0].len(),
+            fast.summary.iter().map(|x| dh(x.max_abs_residual_rad_s)).collect::<Vec<_>>(),
+            scanned.iter().map(|v| dh(*v)).collect::<Vec<_>>()
+        );
+        assert!(proof.segments_to_read() < proof.bound[0].len(), "the extremes saved nothing");
+        for (a, b) in fast.summary.iter().zip(&scanned) {
+            assert!((a.max_abs_residual_rad_s / b - 1.0).abs() < 1e-9, "{} vs {b}", a.max_abs_residual_rad_s);
+        }
+    }
     let e = ssis_host::lab::export::to_table(&fitted.model, &ssis::calib::CalibrationTable::DEFAULT).unwrap();
     assert!(e.not_applied.is_empty());
     // Through both file forms, as the firmware would get it.

@@ -180,31 +180,55 @@ fn spectral_peak(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f6
         return None;
     }
     let nf = (((f_max - f_min) * 4.0 * span).ceil() as usize).clamp(2, max_f);
+    let df = (f_max - f_min) / (nf - 1) as f64;
+    // Per frequency k: Σs, Σc, Σs², Σsc, Σc² and per FOG Σrs, Σrc. Row by row, the phases of
+    // all frequencies by rotation: e^{i(w₀ + kΔw)t} = e^{iw₀t}·(e^{iΔwt})^k.
+    let n_res = train_res.len();
+    let mut acc = vec![[0.0f64; 5]; nf];
+    let mut rsc = vec![0.0f64; nf * 2 * n_res];
+    let mut sum_r = vec![0.0; n_res];
+    let two_pi = 2.0 * std::f64::consts::PI;
+    let mut r = vec![0.0; n_res];
+    for &j in &rows {
+        let (mut sn, mut cs) = (two_pi * f_min * t[j]).sin_cos();
+        let (ds, dc) = (two_pi * df * t[j]).sin_cos();
+        for (v, res) in r.iter_mut().zip(train_res) {
+            *v = res[j];
+        }
+        for (s, v) in sum_r.iter_mut().zip(&r) {
+            *s += v;
+        }
+        for (k, a) in acc.iter_mut().enumerate() {
+            a[0] += sn;
+            a[1] += cs;
+            a[2] += sn * sn;
+            a[3] += sn * cs;
+            a[4] += cs * cs;
+            let x = &mut rsc[k * 2 * n_res..(k + 1) * 2 * n_res];
+            for (i, v) in r.iter().enumerate() {
+                x[2 * i] += v * sn;
+                x[2 * i + 1] += v * cs;
+            }
+            (sn, cs) = (sn * dc + cs * ds, cs * dc - sn * ds);
+        }
+    }
+    let n = rows.len() as f64;
     let mut best = (0.0, None);
-    for k in 0..nf {
-        let f = f_min + (f_max - f_min) * k as f64 / (nf - 1) as f64;
+    for (k, a) in acc.iter().enumerate() {
+        let f = f_min + df * k as f64;
         if exclude.iter().any(|&e| (f - e).abs() < 1.0 / span) {
             continue;
         }
-        let w = 2.0 * std::f64::consts::PI * f;
         // Regress each residual on (1, sin, cos): the drop in its sum of squares. The normal
         // matrix is the same for every FOG.
-        let mut a = nalgebra::Matrix3::<f64>::zeros();
-        let mut bs = vec![nalgebra::Vector3::<f64>::zeros(); train_res.len()];
-        for &j in &rows {
-            let (s, c) = (w * t[j]).sin_cos();
-            let x = nalgebra::Vector3::new(1.0, s, c);
-            a += x * x.transpose();
-            for (b, res) in bs.iter_mut().zip(train_res) {
-                *b += x * res[j];
-            }
-        }
-        let lu = a.lu();
+        let m = nalgebra::Matrix3::new(n, a[0], a[1], a[0], a[2], a[3], a[1], a[3], a[4]);
+        let lu = m.lu();
         let mut power = 0.0;
-        for b in &bs {
-            if let Some(sol) = lu.solve(b) {
-                let mean = b[0] / rows.len() as f64;
-                power += sol.dot(b) - mean * b[0];
+        for i in 0..n_res {
+            let b = nalgebra::Vector3::new(sum_r[i], rsc[k * 2 * n_res + 2 * i], rsc[k * 2 * n_res + 2 * i + 1]);
+            if let Some(sol) = lu.solve(&b) {
+                let mean = b[0] / n;
+                power += sol.dot(&b) - mean * b[0];
             }
         }
         if power > best.0 {
@@ -250,7 +274,9 @@ pub fn diagnose_with_progress<'a>(
 ) -> LabResult<Diagnosis> {
     let source = source.into();
     let terms = candidate_terms(&source.shape()?.header);
-    let d = digest(source, &spec_for(model, &terms, opt.n_blocks), progress)?;
+    let mut spec = spec_for(model, &terms, opt.n_blocks);
+    spec.track = None;
+    let d = digest(source, &spec, progress)?;
     diagnose_digest(model, &d, opt)
 }
 

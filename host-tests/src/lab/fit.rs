@@ -363,9 +363,9 @@ fn summarize(model: &Model, d: &Digest, fit: bool) -> LabResult<Fitted> {
     })
 }
 
-/// Largest |residual| per FOG over every row of `source` (a second pass), for the model's
-/// coefficients on the basis of `d`.
-pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model) -> LabResult<Vec<f64>> {
+/// Largest |residual| per FOG over the first `rows` samples of `source` (a second pass), for
+/// the model's coefficients on the basis of `d`.
+pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model, rows: usize) -> LabResult<Vec<f64>> {
     let kinds = model.kinds();
     let b = &d.basis;
     let mut lin = Vec::new();
@@ -383,7 +383,7 @@ pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model) -> LabResult
     }
     let mut max = vec![0.0f64; b.n_fog];
     let mut z = vec![0.0; b.m];
-    for_each_prepared(source, b.n_fog, d.g_window_s, None, |_, s, g| {
+    super::stream::for_each_prepared_until(source, b.n_fog, d.g_window_s, None, rows, |_, s, g| {
         for (fog, l) in lin.iter().enumerate() {
             b.fill(fog, s, g, &mut z)?;
             let r: f64 = z.iter().zip(l).map(|(a, b)| a * b).sum();
@@ -398,7 +398,14 @@ pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model) -> LabResult
 pub fn spec_for(model: &Model, extra: &[Kind], n_blocks: usize) -> DigestSpec {
     let mut kinds = model.kinds();
     kinds.extend(extra.iter().cloned());
-    DigestSpec { kinds, t_ref_degc: model.t_ref_degc, g_window_s: model.g_window_s, n_blocks, keep: DEFAULT_KEEP }
+    DigestSpec {
+        kinds,
+        t_ref_degc: model.t_ref_degc,
+        g_window_s: model.g_window_s,
+        n_blocks,
+        keep: DEFAULT_KEEP,
+        track: Some(model.kinds()),
+    }
 }
 
 /// Fits every term of `model` on every row of a digest, FOG by FOG.
@@ -411,14 +418,83 @@ pub fn evaluate_digest(model: &Model, d: &Digest) -> LabResult<Fitted> {
     summarize(model, d, false)
 }
 
-/// A fit or evaluation with the largest |residual| over every row (a second pass when the
-/// digest did not keep every row).
-fn complete<'a>(f: Fitted, source: impl Into<Source<'a>>, d: &Digest) -> LabResult<Fitted> {
+/// What the pass's [`Extremes`] prove about the largest |residual| of a model per FOG: the
+/// largest over the stored and kept rows, and per segment the bound on its other rows.
+#[derive(Debug, Clone)]
+pub struct MaxProof {
+    /// Rows per segment.
+    pub segment: usize,
+    /// Per FOG: the largest |residual| over the rows the pass stored or kept.
+    pub best: Vec<f64>,
+    /// Per FOG, per segment: no other row of the segment exceeds this.
+    pub bound: Vec<Vec<f64>>,
+}
+
+impl MaxProof {
+    /// Segments (from the start) that must be read again: up to the last whose bound is above
+    /// the best for some FOG (0: the best is the maximum).
+    pub fn segments_to_read(&self) -> usize {
+        self.bound
+            .iter()
+            .zip(&self.best)
+            .filter_map(|(b, best)| b.iter().rposition(|x| x > best).map(|s| s + 1))
+            .max()
+            .unwrap_or(0)
+    }
+}
+
+/// The proof of the largest |residual| of `model`'s coefficients from a digest's extremes
+/// (see [`super::stream::Extremes`]); `None` without extremes.
+pub fn max_proof(d: &Digest, model: &Model) -> LabResult<Option<MaxProof>> {
+    let Some(ex) = &d.extremes else { return Ok(None) };
+    let kinds = model.kinds();
+    let m = d.basis.m;
+    let (mut best, mut bound) = (Vec::new(), Vec::new());
+    for fog in 0..d.basis.n_fog {
+        let des = design(d, &kinds, fog)?;
+        let coef = coef_of(model, &des, fog);
+        let mut ell = des.cols[des.k()].clone();
+        for (c, x) in coef.iter().zip(&des.cols[..des.k()]) {
+            for (a, b) in ell.iter_mut().zip(x) {
+                *a -= c * b;
+            }
+        }
+        let eval = |z: &[f64]| z.iter().zip(&ell).map(|(a, b)| a * b).sum::<f64>().abs();
+        let mut top = d.kept.z[fog].chunks_exact(m).map(eval).fold(0.0, f64::max);
+        let mut bounds = Vec::new();
+        for seg in &ex.segs {
+            let x = &seg[fog];
+            top = x.rows.chunks_exact(m).map(eval).fold(top, f64::max);
+            let shift: f64 = x.maxabs.iter().zip(ell.iter().zip(&x.ell)).map(|(z, (a, b))| z * (a - b).abs()).sum();
+            let scale: f64 = x.maxabs.iter().zip(&x.ell).map(|(z, a)| z * a.abs()).sum();
+            bounds.push(x.threshold + shift + 1e-12 * scale);
+        }
+        best.push(top);
+        bound.push(bounds);
+    }
+    Ok(Some(MaxProof { segment: ex.segment, best, bound }))
+}
+
+/// A fit or evaluation with the largest |residual| over every row: from the kept rows when
+/// they are every row; else from the pass's extremes, reading again only the first segments
+/// whose bound they cannot beat (all of the session without extremes).
+pub fn complete<'a>(f: Fitted, source: impl Into<Source<'a>>, d: &Digest) -> LabResult<Fitted> {
     if d.all_kept() {
         return Ok(f);
     }
     let mut f = f;
-    let max = max_abs_residuals(source.into(), d, &f.model)?;
+    let max = match max_proof(d, &f.model)? {
+        Some(p) => {
+            let again = p.segments_to_read();
+            if again == 0 {
+                p.best
+            } else {
+                let scanned = max_abs_residuals(source.into(), d, &f.model, again * p.segment)?;
+                p.best.iter().zip(scanned).map(|(a, b)| a.max(b)).collect()
+            }
+        }
+        None => max_abs_residuals(source.into(), d, &f.model, usize::MAX)?,
+    };
     for (s, m) in f.summary.iter_mut().zip(max) {
         s.max_abs_residual_rad_s = m;
     }

@@ -244,39 +244,15 @@ const POW10: [f64; 23] = [
 ];
 
 /// Takes the decimal digits of `b` from `i` into `m` (m·10 + digit each, wrapping: the
-/// caller checks the count); returns the index after them. Eight bytes at a time where it
-/// can: the first byte that is not a digit has its high bit set in
-/// (x + 0x46…) | (x − 0x30…) (bytes before it, digits, neither carry nor borrow).
+/// caller checks the count); returns the index after them.
 #[inline(always)]
 fn digits(b: &[u8], mut i: usize, m: &mut u64) -> usize {
-    while i + 8 <= b.len() {
-        let v = u64::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3], b[i + 4], b[i + 5], b[i + 6], b[i + 7]]);
-        let stop =
-            (v.wrapping_add(0x4646_4646_4646_4646) | v.wrapping_sub(0x3030_3030_3030_3030)) & 0x8080_8080_8080_8080;
-        let k = if stop == 0 { 8 } else { (stop.trailing_zeros() / 8) as usize };
-        if k == 0 {
-            return i;
-        }
-        // The k digits, right-aligned behind '0's, then three SWAR steps (pairs, quads, all).
-        let d = if k == 8 { v } else { (v << (8 * (8 - k))) | (0x3030_3030_3030_3030 >> (8 * k)) };
-        let d = d.wrapping_sub(0x3030_3030_3030_3030);
-        let d = d.wrapping_mul(10).wrapping_add(d >> 8) & 0x00FF_00FF_00FF_00FF;
-        let d = d.wrapping_mul(100).wrapping_add(d >> 16) & 0x0000_FFFF_0000_FFFF;
-        let d = d.wrapping_mul(10_000).wrapping_add(d >> 32) & 0xFFFF_FFFF;
-        *m = m.wrapping_mul(POW10_U64[k]).wrapping_add(d);
-        i += k;
-        if k < 8 {
-            return i;
-        }
-    }
     while i < b.len() && b[i].is_ascii_digit() {
         *m = m.wrapping_mul(10).wrapping_add(u64::from(b[i] - b'0'));
         i += 1;
     }
     i
 }
-
-const POW10_U64: [u64; 9] = [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000, 100_000_000];
 
 /// Parses the number at the start of `b` (spaces already skipped), returning the value and
 /// the bytes it took, or `None` when `b` does not start with one. `b` may go on past the
@@ -287,6 +263,7 @@ const POW10_U64: [u64; 9] = [1, 10, 100, 1_000, 10_000, 100_000, 1_000_000, 10_0
 /// operands are exact, so the one rounding gives the correctly rounded value, the same as
 /// `str::parse::<f64>` (Clinger's fast path). Anything else (more digits, larger exponents,
 /// `inf`, `nan`) goes to `str::parse`.
+#[inline]
 pub fn parse_number(b: &[u8]) -> Option<(f64, usize)> {
     let n = b.len();
     let mut i = 0;
@@ -335,6 +312,8 @@ pub fn parse_number(b: &[u8]) -> Option<(f64, usize)> {
 }
 
 /// `str::parse` on `b` up to the end of its field.
+#[cold]
+#[inline(never)]
 fn slow_number(b: &[u8]) -> Option<(f64, usize)> {
     let end = b.iter().position(|&c| matches!(c, b',' | b' ' | b'\t' | b'\r' | b'\n')).unwrap_or(b.len());
     let text = std::str::from_utf8(&b[..end]).ok()?;

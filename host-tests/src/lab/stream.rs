@@ -20,7 +20,6 @@
 //! rows (every row when the session is that short) is kept with its basis vectors for what
 //! needs rows: plots, the spectral search, the T × G analysis of variance.
 
-use std::collections::VecDeque;
 use std::path::Path;
 
 use exmex::Express;
@@ -62,8 +61,8 @@ impl Source<'_> {
         }
     }
 
-    /// Calls `f` with every sample in order.
-    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&Sample) -> LabResult<()>) -> LabResult<()> {
+    /// Calls `f` with every sample in order, until it returns `false`.
+    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&Sample) -> LabResult<bool>) -> LabResult<()> {
         let mut sample = Sample::default();
         match self {
             Source::File(p) => {
@@ -71,8 +70,8 @@ impl Source<'_> {
                 let mut conv = Converter::new(&rr.header().layout);
                 let mut rows = 0u64;
                 while let Some(row) = rr.next_row()? {
-                    if conv.convert(row, &mut sample) {
-                        f(&sample)?;
+                    if conv.convert(row, &mut sample) && !f(&sample)? {
+                        break;
                     }
                     rows += 1;
                     if let Some(pb) = progress.filter(|_| rows.is_multiple_of(65_536)) {
@@ -97,7 +96,9 @@ impl Source<'_> {
                     for (v, c) in sample.values.iter_mut().zip(&s.cols) {
                         *v = c[j];
                     }
-                    f(&sample)?;
+                    if !f(&sample)? {
+                        break;
+                    }
                 }
             }
         }
@@ -447,14 +448,18 @@ fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
 }
 
 /// G = dT/dt of every FOG, as [`super::model::temperature_rate`] defines it, over a stream:
-/// samples are held until the window ahead of the oldest is complete.
+/// samples are held until the window ahead of the oldest is complete. Times and temperatures
+/// sit in flat arrays beside the samples (the window sums read them, not the samples); the
+/// arrays drop what no later window can use, in chunks.
 struct Lookahead {
     half_s: f64,
     n_fog: usize,
-    /// Samples of global index `first ..`.
-    buf: VecDeque<Sample>,
+    /// Samples, times and temperatures (n_fog per sample) of global index `base ..`.
+    samples: Vec<Sample>,
+    times: Vec<f64>,
+    temps: Vec<f64>,
+    base: usize,
     spare: Vec<Sample>,
-    first: usize,
     /// Next sample to emit.
     next: usize,
     /// Window of the last emitted sample (true window, before the fallback).
@@ -476,9 +481,11 @@ impl Lookahead {
         Lookahead {
             half_s: window_s / 2.0 * (1.0 + 1e-9),
             n_fog,
-            buf: VecDeque::new(),
+            samples: Vec::new(),
+            times: Vec::new(),
+            temps: Vec::new(),
+            base: 0,
             spare: Vec::new(),
-            first: 0,
             next: 0,
             lo: 0,
             hi: 0,
@@ -493,21 +500,25 @@ impl Lookahead {
         }
     }
 
-    fn at(&self, k: usize) -> &Sample {
-        &self.buf[k - self.first]
+    #[inline]
+    fn t(&self, k: usize) -> f64 {
+        self.times[k - self.base]
     }
 
     fn push(&mut self, s: &Sample) {
         let mut x = self.spare.pop().unwrap_or_default();
         x.copy_from(s);
-        self.buf.push_back(x);
+        self.samples.push(x);
+        self.times.push(s.t_s);
+        self.temps.extend_from_slice(&s.t_degc[..self.n_fog]);
     }
 
+    #[inline]
     fn add(&mut self, k: usize, sign: f64) {
-        let (t, ot) = (self.at(k).t_s, self.origin_t);
-        let u = t - ot;
+        let u = self.t(k) - self.origin_t;
+        let row = (k - self.base) * self.n_fog;
         for i in 0..self.n_fog {
-            let v = self.buf[k - self.first].t_degc[i] - self.origin_temp[i];
+            let v = self.temps[row + i] - self.origin_temp[i];
             let s = &mut self.sums[i];
             s[0] += sign;
             s[1] += sign * u;
@@ -518,8 +529,9 @@ impl Lookahead {
     }
 
     fn resum(&mut self, a: usize, b: usize, j: usize) {
-        self.origin_t = self.at(j).t_s;
-        self.origin_temp = self.at(j).t_degc.clone();
+        self.origin_t = self.t(j);
+        let row = (j - self.base) * self.n_fog;
+        self.origin_temp.copy_from_slice(&self.temps[row..row + self.n_fog]);
         self.sums.iter_mut().for_each(|s| *s = [0.0; 5]);
         for k in a..=b {
             self.add(k, 1.0);
@@ -527,21 +539,33 @@ impl Lookahead {
         (self.a, self.b, self.summed, self.since_origin) = (a, b, true, 0);
     }
 
+    /// Drops what no later window can use (from the window's start or the previous sample).
+    fn trim(&mut self) {
+        let keep_from = self.a.min(self.lo).min(self.next.saturating_sub(1));
+        let d = keep_from.saturating_sub(self.base);
+        if d >= 4096 && 2 * d >= self.times.len() {
+            self.spare.extend(self.samples.drain(..d));
+            self.times.drain(..d);
+            self.temps.drain(..d * self.n_fog);
+            self.base += d;
+        }
+    }
+
     /// Emits every sample whose window is complete (all of them at the end, `last`).
     fn drain(&mut self, last: bool, mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>) -> LabResult<()> {
-        let end = self.first + self.buf.len();
+        let end = self.base + self.times.len();
         while self.next < end {
             let j = self.next;
-            let tj = self.at(j).t_s;
-            if !last && self.at(end - 1).t_s <= tj + self.half_s {
+            let tj = self.t(j);
+            if !last && self.t(end - 1) <= tj + self.half_s {
                 break;
             }
-            self.lo = self.lo.max(self.first);
-            while self.at(self.lo).t_s < tj - self.half_s {
+            self.lo = self.lo.max(self.base);
+            while self.t(self.lo) < tj - self.half_s {
                 self.lo += 1;
             }
             self.hi = self.hi.max(self.lo);
-            while self.hi + 1 < end && self.at(self.hi + 1).t_s <= tj + self.half_s {
+            while self.hi + 1 < end && self.t(self.hi + 1) <= tj + self.half_s {
                 self.hi += 1;
             }
             let (a, b) =
@@ -563,17 +587,10 @@ impl Lookahead {
                 let den = s[0] * s[3] - s[1] * s[1];
                 *g = if den.abs() < 1e-300 { 0.0 } else { (s[0] * s[4] - s[1] * s[2]) / den };
             }
-            f(j, &self.buf[j - self.first], &self.g)?;
+            f(j, &self.samples[j - self.base], &self.g)?;
             self.next += 1;
-            // Keep what later windows can still use: from the window's start or the previous sample.
-            let keep_from = self.a.min(self.lo).min(self.next.saturating_sub(1));
-            while self.first < keep_from {
-                if let Some(x) = self.buf.pop_front() {
-                    self.spare.push(x);
-                }
-                self.first += 1;
-            }
         }
+        self.trim();
         Ok(())
     }
 }
@@ -585,15 +602,30 @@ pub fn for_each_prepared(
     n_fog: usize,
     g_window_s: f64,
     progress: Option<&ProgressBar>,
+    f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>,
+) -> LabResult<usize> {
+    for_each_prepared_until(source, n_fog, g_window_s, progress, usize::MAX, f)
+}
+
+/// [`for_each_prepared`] for the samples before `limit` only (reading stops once they are
+/// out, a G window past the last of them).
+pub fn for_each_prepared_until(
+    source: Source,
+    n_fog: usize,
+    g_window_s: f64,
+    progress: Option<&ProgressBar>,
+    limit: usize,
     mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>,
 ) -> LabResult<usize> {
     let mut la = Lookahead::new(n_fog, g_window_s);
+    let mut g = |j: usize, s: &Sample, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
     source.for_each(progress, |s| {
         la.push(s);
-        la.drain(false, &mut f)
+        la.drain(false, &mut g)?;
+        Ok(la.next < limit)
     })?;
-    la.drain(true, &mut f)?;
-    Ok(la.next)
+    la.drain(true, &mut g)?;
+    Ok(la.next.min(limit))
 }
 
 /// The sums z zᵀ of one FOG over one block (upper triangle filled; see [`Gram::full`]).
@@ -683,6 +715,9 @@ pub struct DigestSpec {
     pub n_blocks: usize,
     /// Rows kept at most.
     pub keep: usize,
+    /// Terms whose all-rows fit's largest |residual| the pass is to make provable without a
+    /// second pass ([`Extremes`]), when it does not keep every row.
+    pub track: Option<Vec<Kind>>,
 }
 
 /// The G window in use: `g_window_s`, or max(2 × the sample interval, 60 s) when it is 0.
@@ -718,6 +753,105 @@ pub struct Kept {
     pub z: Vec<Vec<f64>>,
 }
 
+/// Rows ranked per segment and FOG by |residual| under the fit of the rows before them.
+const EXTREME_ROWS: usize = 32;
+
+/// One segment's candidates for the largest |residual| of one FOG.
+#[derive(Debug, Clone, Default)]
+pub struct SegmentExtremes {
+    /// The residual functional (shifted basis) the segment's rows were ranked with.
+    pub ell: Vec<f64>,
+    /// Every row of the segment not stored has |ell·z̃| at most this (0: all stored).
+    pub threshold: f64,
+    /// Largest |z̃_a| over the segment, per slot.
+    pub maxabs: Vec<f64>,
+    /// The stored rows' shifted basis vectors, row-major.
+    pub rows: Vec<f64>,
+    heap: std::collections::BinaryHeap<std::cmp::Reverse<(u64, usize)>>,
+}
+
+impl SegmentExtremes {
+    fn new(m: usize) -> Self {
+        SegmentExtremes { maxabs: vec![0.0; m], ..Default::default() }
+    }
+
+    /// Ranks row `z` by |ell·z| (|r| ≥ 0: its bits order as the numbers do).
+    fn offer(&mut self, z: &[f64], m: usize) {
+        let r: f64 = self.ell.iter().zip(z).map(|(a, b)| a * b).sum::<f64>().abs();
+        for (x, v) in self.maxabs.iter_mut().zip(z) {
+            *x = x.max(v.abs());
+        }
+        let key = r.to_bits();
+        if self.heap.len() < EXTREME_ROWS {
+            self.heap.push(std::cmp::Reverse((key, self.heap.len())));
+            self.rows.extend_from_slice(z);
+        } else if let Some(&std::cmp::Reverse((min, slot))) = self.heap.peek() {
+            if key > min {
+                self.heap.pop();
+                self.rows[slot * m..(slot + 1) * m].copy_from_slice(z);
+                self.heap.push(std::cmp::Reverse((key, slot)));
+            }
+        }
+        if self.heap.len() == EXTREME_ROWS {
+            self.threshold = f64::from_bits(self.heap.peek().map_or(0, |x| x.0 .0));
+        }
+    }
+}
+
+/// What makes the largest |residual| over every row provable after one pass: the session cut
+/// into segments; each segment's rows ranked by |residual| under the fit of every row before
+/// it (the first segment: under its own fit), the top [`EXTREME_ROWS`] stored with the
+/// largest |z̃_a| of the segment. For final coefficients with residual functional ℓ, a row
+/// not stored in segment s has |ℓ·z̃| ≤ threshold_s + Σ_a maxabs_s,a · |ℓ_a − ℓ_s,a|; when the
+/// largest |ℓ·z̃| of the stored rows is at least every segment's bound, it is the maximum over
+/// all rows (`super::fit` checks; otherwise it makes a second pass).
+#[derive(Debug, Clone, Default)]
+pub struct Extremes {
+    /// Rows per segment.
+    pub segment: usize,
+    /// Per segment, per FOG.
+    pub segs: Vec<Vec<SegmentExtremes>>,
+}
+
+/// The running side of [`Extremes`] during a pass.
+struct Tracker {
+    kinds: Vec<Kind>,
+    out: Extremes,
+    /// Rows of the first segment, per FOG (ranked once its fit is known).
+    first: Vec<Vec<f64>>,
+}
+
+impl Tracker {
+    /// The residual functional of the all-rows fit of the sums so far, FOG `fog`.
+    fn running_ell(&self, basis: &Basis, shift: &[f64], gram: &[Gram], fog: usize) -> Vec<f64> {
+        let mut g = Gram::new(basis.m);
+        for x in gram {
+            g.add(x);
+        }
+        let sh = |l: &[f64]| {
+            let mut v = l.to_vec();
+            v[ONE] += l.iter().zip(shift).map(|(a, b)| a * b).sum::<f64>();
+            v
+        };
+        let mut cols: Vec<Vec<f64>> = Vec::new();
+        for k in &self.kinds {
+            if let Ok(f) = basis.functionals(k, fog) {
+                cols.extend(f.iter().map(|l| sh(l)));
+            }
+        }
+        cols.push(sh(&basis.y_functional()));
+        let ls = super::fit::lstsq_gram(&super::fit::design_gram(&g, &cols), g.n);
+        let k = cols.len() - 1;
+        let mut ell = cols[k].clone();
+        for (c, x) in ls.coef.iter().zip(&cols[..k]) {
+            for (a, b) in ell.iter_mut().zip(x) {
+                *a -= c * b;
+            }
+        }
+        ell
+    }
+}
+
 /// One pass over a session: per FOG and block the Gram of the shifted basis, and kept rows.
 #[derive(Debug, Clone)]
 pub struct Digest {
@@ -745,6 +879,9 @@ pub struct Digest {
     pub gram: Vec<Vec<Gram>>,
     /// Kept rows.
     pub kept: Kept,
+    /// Candidates for the largest |residual| (when the spec tracks terms and not every row
+    /// is kept).
+    pub extremes: Option<Extremes>,
 }
 
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
@@ -783,6 +920,11 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
+    let mut tracker = spec.track.clone().filter(|_| stride > 1).map(|kinds| Tracker {
+        kinds,
+        out: Extremes { segment: (n / 64).max(16_384), segs: Vec::new() },
+        first: vec![Vec::new(); n_fog],
+    });
     let flush = |batch: &mut Vec<Vec<f64>>, rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
         if rows == 0 {
             return;
@@ -796,9 +938,37 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
         let block = block_of(j, n, nb).min(nb - 1);
-        if block != batch_block || batch_rows == BATCH {
+        let new_segment = tracker.as_ref().is_some_and(|t| j > 0 && j % t.out.segment == 0);
+        if block != batch_block || batch_rows == BATCH || new_segment {
             flush(&mut batch, batch_rows, &mut gram, batch_block);
             (batch_rows, batch_block) = (0, block);
+        }
+        if let (Some(t), true) = (tracker.as_mut(), new_segment) {
+            let ells: Vec<Vec<f64>> =
+                (0..n_fog).map(|fog| t.running_ell(&basis, &shift[fog], &gram[fog], fog)).collect();
+            if t.out.segs.is_empty() {
+                // The first segment, ranked under its own fit.
+                let mut seg = Vec::new();
+                for (fog, ell) in ells.iter().enumerate() {
+                    let mut x = SegmentExtremes::new(m);
+                    x.ell = ell.clone();
+                    for row in t.first[fog].chunks_exact(m) {
+                        x.offer(row, m);
+                    }
+                    seg.push(x);
+                }
+                t.out.segs.push(seg);
+                t.first = Vec::new();
+            }
+            t.out.segs.push(
+                ells.into_iter()
+                    .map(|ell| {
+                        let mut x = SegmentExtremes::new(m);
+                        x.ell = ell;
+                        x
+                    })
+                    .collect(),
+            );
         }
         let keep = j % stride == 0;
         if keep {
@@ -835,6 +1005,12 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             if keep {
                 kept.z[fog].extend_from_slice(&z);
             }
+            if let Some(t) = tracker.as_mut() {
+                match t.out.segs.last_mut() {
+                    None => t.first[fog].extend_from_slice(&z),
+                    Some(seg) => seg[fog].offer(&z, m),
+                }
+            }
         }
         batch_rows += 1;
         Ok(())
@@ -866,6 +1042,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         shift,
         gram,
         kept,
+        extremes: tracker.map(|t| t.out).filter(|e| !e.segs.is_empty()),
     })
 }
 
