@@ -204,11 +204,12 @@ fn d_round_trip_to_flight() {
         let fast = complete(f.clone(), &s, &d).unwrap();
         let scanned = max_abs_residuals((&s).into(), &d, &f.model, usize::MAX).unwrap();
         println!(
-            "  largest |residual| over {} rows, deg/h: from the extremes + {} of {} segments read again {:?}, full \
-             second pass {:?}",
+            "  largest |residual| over {} rows, deg/h: from the extremes + {} of {} segments ({} rows) read again \
+             {:?}, full second pass {:?}",
             s.len(),
             proof.segments_to_read(),
             proof.bound[0].len(),
+            proof.rows_to_read(),
             fast.summary.iter().map(|x| dh(x.max_abs_residual_rad_s)).collect::<Vec<_>>(),
             scanned.iter().map(|v| dh(*v)).collect::<Vec<_>>()
         );

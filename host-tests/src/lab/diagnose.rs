@@ -31,7 +31,10 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::fit::{design, design_gram, held_out, kept_residual, lstsq_gram, pooled, spec_for, trains, Design, Sums};
+use super::fit::{
+    design, design_gram, held_out, kept_residual, lstsq_gram, pooled, residual_functional, spec_for, trains, Design,
+    Sums,
+};
 use super::model::{Catalog, Kind, Model};
 use super::stream::{digest, Digest, Gram, Source};
 use super::LabResult;
@@ -337,7 +340,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
         let mut r = 0.0f64;
         for fog in 0..n_fog {
             let Ok(x) = d.basis.functionals(&kind, fog) else { continue };
-            let res = residual_functional(&bases[fog], &train_coef[fog]);
+            let res = residual_functional(&bases[fog].cols, &train_coef[fog]);
             let unit = d.shifted(fog, &{
                 let mut v = vec![0.0; d.basis.m];
                 v[super::stream::ONE] = 1.0;
@@ -440,18 +443,6 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
         n_train,
         n_test,
     })
-}
-
-/// The functional y − Σ c x of a design's residual.
-fn residual_functional(des: &Design, coef: &[f64]) -> Vec<f64> {
-    let k = des.k();
-    let mut l = des.cols[k].clone();
-    for (c, x) in coef.iter().zip(&des.cols[..k]) {
-        for (a, b) in l.iter_mut().zip(x) {
-            *a -= c * b;
-        }
-    }
-    l
 }
 
 /// Correlation of x and y from the normal-equation matrix of (1, x, y).

@@ -263,6 +263,8 @@ pub struct Fitted {
     pub not_identified: Vec<String>,
     /// Rows the largest |residual| was taken over (all of them, or the kept sample).
     pub max_over_rows: usize,
+    /// Rows read a second time to establish it (0: the pass's extremes proved it).
+    pub max_rows_read_again: usize,
     /// Residuals at the kept rows.
     pub sample: ResidualSample,
 }
@@ -272,9 +274,8 @@ fn coef_of(model: &Model, d: &Design, fog: usize) -> Vec<f64> {
     d.owner.iter().map(|&(t, m)| model.terms[t].coef.get(fog).and_then(|c| c.get(m)).copied().unwrap_or(0.0)).collect()
 }
 
-/// Residual y − Σ c x at every kept row of FOG `fog` for functionals `cols` (shifted, y last).
-pub fn kept_residual(d: &Digest, fog: usize, cols: &[Vec<f64>], coef: &[f64]) -> Vec<f64> {
-    let m = d.basis.m;
+/// The functional y − Σ c_k x_k of the residual, for functionals `cols` (y last).
+pub fn residual_functional(cols: &[Vec<f64>], coef: &[f64]) -> Vec<f64> {
     let k = cols.len() - 1;
     let mut l = cols[k].clone();
     for (c, x) in coef.iter().zip(&cols[..k]) {
@@ -282,7 +283,13 @@ pub fn kept_residual(d: &Digest, fog: usize, cols: &[Vec<f64>], coef: &[f64]) ->
             *a -= c * b;
         }
     }
-    d.kept.z[fog].chunks_exact(m).map(|z| z.iter().zip(&l).map(|(a, b)| a * b).sum()).collect()
+    l
+}
+
+/// Residual y − Σ c x at every kept row of FOG `fog` for functionals `cols` (shifted, y last).
+pub fn kept_residual(d: &Digest, fog: usize, cols: &[Vec<f64>], coef: &[f64]) -> Vec<f64> {
+    let l = residual_functional(cols, coef);
+    d.kept.z[fog].chunks_exact(d.basis.m).map(|z| z.iter().zip(&l).map(|(a, b)| a * b).sum()).collect()
 }
 
 /// The quantities residuals are plotted against, at the kept rows of FOG `fog`.
@@ -359,6 +366,7 @@ fn summarize(model: &Model, d: &Digest, fit: bool) -> LabResult<Fitted> {
         summary,
         not_identified: missing,
         max_over_rows: d.kept.rows.len(),
+        max_rows_read_again: 0,
         sample: ResidualSample { of_rows: d.n, residual, axes },
     })
 }
@@ -422,8 +430,8 @@ pub fn evaluate_digest(model: &Model, d: &Digest) -> LabResult<Fitted> {
 /// largest over the stored and kept rows, and per segment the bound on its other rows.
 #[derive(Debug, Clone)]
 pub struct MaxProof {
-    /// Rows per segment.
-    pub segment: usize,
+    /// Samples in the first k segments, k = 0, 1, … (the segments' ends).
+    pub ends: Vec<usize>,
     /// Per FOG: the largest |residual| over the rows the pass stored or kept.
     pub best: Vec<f64>,
     /// Per FOG, per segment: no other row of the segment exceeds this.
@@ -431,6 +439,12 @@ pub struct MaxProof {
 }
 
 impl MaxProof {
+    /// Samples (from the start) that must be read again: up to the end of the last segment whose
+    /// bound is above the best for some FOG (0: the best is the maximum).
+    pub fn rows_to_read(&self) -> usize {
+        self.ends[self.segments_to_read()]
+    }
+
     /// Segments (from the start) that must be read again: up to the last whose bound is above
     /// the best for some FOG (0: the best is the maximum).
     pub fn segments_to_read(&self) -> usize {
@@ -452,13 +466,7 @@ pub fn max_proof(d: &Digest, model: &Model) -> LabResult<Option<MaxProof>> {
     let (mut best, mut bound) = (Vec::new(), Vec::new());
     for fog in 0..d.basis.n_fog {
         let des = design(d, &kinds, fog)?;
-        let coef = coef_of(model, &des, fog);
-        let mut ell = des.cols[des.k()].clone();
-        for (c, x) in coef.iter().zip(&des.cols[..des.k()]) {
-            for (a, b) in ell.iter_mut().zip(x) {
-                *a -= c * b;
-            }
-        }
+        let ell = residual_functional(&des.cols, &coef_of(model, &des, fog));
         let eval = |z: &[f64]| z.iter().zip(&ell).map(|(a, b)| a * b).sum::<f64>().abs();
         let mut top = d.kept.z[fog].chunks_exact(m).map(eval).fold(0.0, f64::max);
         let mut bounds = Vec::new();
@@ -472,7 +480,8 @@ pub fn max_proof(d: &Digest, model: &Model) -> LabResult<Option<MaxProof>> {
         best.push(top);
         bound.push(bounds);
     }
-    Ok(Some(MaxProof { segment: ex.segment, best, bound }))
+    let ends = (0..=ex.segs.len()).map(|k| ex.rows_in(k).min(d.n)).collect();
+    Ok(Some(MaxProof { ends, best, bound }))
 }
 
 /// A fit or evaluation with the largest |residual| over every row: from the kept rows when
@@ -485,15 +494,19 @@ pub fn complete<'a>(f: Fitted, source: impl Into<Source<'a>>, d: &Digest) -> Lab
     let mut f = f;
     let max = match max_proof(d, &f.model)? {
         Some(p) => {
-            let again = p.segments_to_read();
+            let again = p.rows_to_read();
+            f.max_rows_read_again = again;
             if again == 0 {
                 p.best
             } else {
-                let scanned = max_abs_residuals(source.into(), d, &f.model, again * p.segment)?;
+                let scanned = max_abs_residuals(source.into(), d, &f.model, again)?;
                 p.best.iter().zip(scanned).map(|(a, b)| a.max(b)).collect()
             }
         }
-        None => max_abs_residuals(source.into(), d, &f.model, usize::MAX)?,
+        None => {
+            f.max_rows_read_again = d.n;
+            max_abs_residuals(source.into(), d, &f.model, usize::MAX)?
+        }
     };
     for (s, m) in f.summary.iter_mut().zip(max) {
         s.max_abs_residual_rad_s = m;

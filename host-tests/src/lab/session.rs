@@ -694,18 +694,72 @@ impl RowReader {
                 }
                 return Ok(None);
             }
-            // Move the partial line to the front and fill the rest.
-            self.buf.copy_within(self.start..self.end, 0);
-            self.end -= self.start;
-            self.start = 0;
-            if self.end == self.buf.len() {
-                self.buf.resize(self.buf.len() * 2, 0);
+            self.refill()?;
+        }
+    }
+
+    /// Moves the unread bytes to the front of the buffer (growing it when they fill it) and
+    /// reads more behind them; at the end of the file sets `eof`.
+    fn refill(&mut self) -> std::io::Result<()> {
+        self.buf.copy_within(self.start..self.end, 0);
+        self.end -= self.start;
+        self.start = 0;
+        if self.end == self.buf.len() {
+            self.buf.resize(self.buf.len() * 2, 0);
+        }
+        let k = self.file.read(&mut self.buf[self.end..])?;
+        if k == 0 {
+            self.eof = true;
+        }
+        self.end += k;
+        Ok(())
+    }
+
+    /// Counts the data lines left (not read as rows: unchecked) and returns the last of them.
+    fn count_rest(&mut self) -> std::io::Result<(usize, Vec<u8>)> {
+        let (mut count, mut last) = (0usize, Vec::new());
+        loop {
+            let data = &self.buf[self.start..self.end];
+            // Whole lines only (all of what is left at the end of the file).
+            let upto = match memchr::memrchr(b'\n', data) {
+                Some(k) => k + 1,
+                None if self.eof => data.len(),
+                None => 0,
+            };
+            let region = &data[..upto];
+            if !region.is_empty() {
+                let mut line_start = 0;
+                let mut last_data: Option<(usize, usize)> = None;
+                let mut take = |a: usize, b: usize| {
+                    let line = &region[a..b];
+                    // A line is skipped only if it starts with '#' or white space (checked whole).
+                    let first = line.first().copied().unwrap_or(b'\n');
+                    if !(first == b'#' || first.is_ascii_whitespace()) || !skipped_line(line) {
+                        count += 1;
+                        last_data = Some((a, b));
+                    }
+                };
+                let mut lines = 0u64;
+                for p in memchr::memchr_iter(b'\n', region) {
+                    take(line_start, p);
+                    line_start = p + 1;
+                    lines += 1;
+                }
+                if line_start < region.len() {
+                    take(line_start, region.len());
+                }
+                if let Some((a, b)) = last_data {
+                    last.clear();
+                    last.extend_from_slice(&region[a..b]);
+                }
+                self.line += lines;
+                self.bytes += region.len() as u64;
+                self.start += upto;
             }
-            let k = self.file.read(&mut self.buf[self.end..])?;
-            if k == 0 {
-                self.eof = true;
+            if self.eof && self.start >= self.end {
+                return Ok((count, last));
             }
-            self.end += k;
+            self.refill()?;
         }
     }
 
@@ -1003,14 +1057,9 @@ pub fn shape(path: &Path) -> Result<Shape, SessionError> {
     let mut last_line: Vec<u8> = Vec::new();
     if samples > INTERVALS_FOR_MEDIAN {
         let io = |e: std::io::Error| header.err(SessionErrorKind::Io, 0, None, format!("cannot read: {e}"));
-        while let Some((a, b)) = rr.next_line().map_err(io)? {
-            let line = &rr.buf[a..b];
-            if !skipped_line(line) {
-                samples += 1;
-                last_line.clear();
-                last_line.extend_from_slice(line);
-            }
-        }
+        let (n, last) = rr.count_rest().map_err(io)?;
+        samples += n;
+        last_line = last;
     }
     let t_last = if last_line.is_empty() {
         t[t.len() - 1]

@@ -756,6 +756,25 @@ pub struct Kept {
 /// Rows ranked per segment and FOG by |residual| under the fit of the rows before them.
 const EXTREME_ROWS: usize = 32;
 
+/// Rows of the first segment (held until the fit on them ranks them).
+pub const FIRST_SEGMENT: usize = 16_384;
+
+impl Extremes {
+    /// Whether sample j starts a segment (not the first).
+    fn starts_segment(&self, j: usize) -> bool {
+        j == self.first || (j > self.first && (j - self.first).is_multiple_of(self.segment))
+    }
+
+    /// Samples in the first `k` segments.
+    pub fn rows_in(&self, k: usize) -> usize {
+        if k == 0 {
+            0
+        } else {
+            self.first + (k - 1) * self.segment
+        }
+    }
+}
+
 /// One segment's candidates for the largest |residual| of one FOG.
 #[derive(Debug, Clone, Default)]
 pub struct SegmentExtremes {
@@ -799,7 +818,8 @@ impl SegmentExtremes {
 }
 
 /// What makes the largest |residual| over every row provable after one pass: the session cut
-/// into segments; each segment's rows ranked by |residual| under the fit of every row before
+/// into segments (the first [`FIRST_SEGMENT`] rows, then 1/64 of the session or that many,
+/// whichever is more: the memory is bounded); each segment's rows ranked by |residual| under the fit of every row before
 /// it (the first segment: under its own fit), the top [`EXTREME_ROWS`] stored with the
 /// largest |z̃_a| of the segment. For final coefficients with residual functional ℓ, a row
 /// not stored in segment s has |ℓ·z̃| ≤ threshold_s + Σ_a maxabs_s,a · |ℓ_a − ℓ_s,a|; when the
@@ -807,7 +827,9 @@ impl SegmentExtremes {
 /// all rows (`super::fit` checks; otherwise it makes a second pass).
 #[derive(Debug, Clone, Default)]
 pub struct Extremes {
-    /// Rows per segment.
+    /// Rows in the first segment.
+    pub first: usize,
+    /// Rows per later segment.
     pub segment: usize,
     /// Per segment, per FOG.
     pub segs: Vec<Vec<SegmentExtremes>>,
@@ -828,11 +850,7 @@ impl Tracker {
         for x in gram {
             g.add(x);
         }
-        let sh = |l: &[f64]| {
-            let mut v = l.to_vec();
-            v[ONE] += l.iter().zip(shift).map(|(a, b)| a * b).sum::<f64>();
-            v
-        };
+        let sh = |l: &[f64]| shifted(l, shift);
         let mut cols: Vec<Vec<f64>> = Vec::new();
         for k in &self.kinds {
             if let Ok(f) = basis.functionals(k, fog) {
@@ -841,14 +859,7 @@ impl Tracker {
         }
         cols.push(sh(&basis.y_functional()));
         let ls = super::fit::lstsq_gram(&super::fit::design_gram(&g, &cols), g.n);
-        let k = cols.len() - 1;
-        let mut ell = cols[k].clone();
-        for (c, x) in ls.coef.iter().zip(&cols[..k]) {
-            for (a, b) in ell.iter_mut().zip(x) {
-                *a -= c * b;
-            }
-        }
-        ell
+        super::fit::residual_functional(&cols, &ls.coef)
     }
 }
 
@@ -892,6 +903,13 @@ pub fn block_of(j: usize, n: usize, n_blocks: usize) -> usize {
     j * n_blocks / n.max(1)
 }
 
+/// ℓ of the raw basis as a functional of the basis shifted by `shift`: ℓ·z = ℓ·z̃ + (ℓ·shift)·1.
+fn shifted(l: &[f64], shift: &[f64]) -> Vec<f64> {
+    let mut v = l.to_vec();
+    v[ONE] += l.iter().zip(shift).map(|(a, b)| a * b).sum::<f64>();
+    v
+}
+
 /// One pass over `source`.
 pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>) -> LabResult<Digest> {
     let shape = source.shape()?;
@@ -922,7 +940,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     let mut z = vec![0.0; m];
     let mut tracker = spec.track.clone().filter(|_| stride > 1).map(|kinds| Tracker {
         kinds,
-        out: Extremes { segment: (n / 64).max(16_384), segs: Vec::new() },
+        out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
         first: vec![Vec::new(); n_fog],
     });
     let flush = |batch: &mut Vec<Vec<f64>>, rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
@@ -938,7 +956,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
         let block = block_of(j, n, nb).min(nb - 1);
-        let new_segment = tracker.as_ref().is_some_and(|t| j > 0 && j % t.out.segment == 0);
+        let new_segment = tracker.as_ref().is_some_and(|t| t.out.starts_segment(j));
         if block != batch_block || batch_rows == BATCH || new_segment {
             flush(&mut batch, batch_rows, &mut gram, batch_block);
             (batch_rows, batch_block) = (0, block);
@@ -1049,9 +1067,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
 impl Digest {
     /// A functional of the raw basis as one of the shifted basis: x = ℓ·z = ℓ·z̃ + (ℓ·shift)·1.
     pub fn shifted(&self, fog: usize, l: &[f64]) -> Vec<f64> {
-        let mut v = l.to_vec();
-        v[ONE] += l.iter().zip(&self.shift[fog]).map(|(a, b)| a * b).sum::<f64>();
-        v
+        shifted(l, &self.shift[fog])
     }
 
     /// The sums of FOG `fog` over the blocks `pick` selects.
