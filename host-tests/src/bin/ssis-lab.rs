@@ -14,7 +14,7 @@ use ssis_host::lab::diagnose::{
 };
 use ssis_host::lab::export::to_table;
 use ssis_host::lab::fit::{
-    add_term, compare, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
+    add_term, compare, complete, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
 };
 use ssis_host::lab::model::{Kind, Model};
 use ssis_host::lab::plot::{history_svg, residual_svg, write_svg};
@@ -463,7 +463,7 @@ fn main() -> Result<()> {
             let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
                 let terms = candidate_terms(&Source::File(&session).shape()?.header);
                 let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
-                Ok((fit_digest(&m, &dg)?, diagnose_digest(&m, &dg, &opt)?))
+                Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?))
             })?;
             let h: Vec<(u32, f64)> =
                 history(&model, &session, ssis_host::lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
