@@ -23,7 +23,9 @@
 
 pub mod allan;
 pub mod magnetic;
+pub mod misalign_sins;
 pub mod misalign_turns;
+pub mod orbital;
 pub mod thermal_anova;
 
 use std::fmt::Write as _;
