@@ -14,7 +14,12 @@
 //! 2. forms the mismatch rotation vector e = 2 vect(ΔΛ) (exact: [`math::rotvec_from_quat`])
 //!    with Λ* taken back from the star-tracker frame to the ICS through the mount, eq. (5);
 //! 3. corrects Λ(t_s) by the body rotation K_B ⊙ e and the drift by Δω ← Δω − K_U ⊙ e,
-//!    and carries both corrections forward to the present step (and to the history).
+//!    and carries both corrections forward to the present step at once, and to the
+//!    history entries after t_s lazily: the correction is kept as a pending fix and
+//!    applied to the (at most two) entries a later update reads, with the same arithmetic
+//!    in the same order as applying it to every entry, so the result is bit-identical.
+//!    A later frame's time tag usually lies after the present step of the previous
+//!    update (4 Hz, 50 ms latency), and then no fix is applied at all.
 //!
 //! The gains are per update: K_B dimensionless, K_U in 1/s. [`steady_state_gains`] gives
 //! the steady-state Kalman gains of the per-axis model (attitude error, drift) for stated
@@ -111,13 +116,44 @@ struct Sample {
     q: Quaternion<f64>,
 }
 
+/// Pending fixes kept at once: a frame per update, the history spans H steps; more
+/// star-tracker updates than this within the history (an 8 Hz tracker with 0.5 s
+/// latency) apply the oldest fix to the stored entries, as an eager update would.
+const PENDING_FIXES: usize = 4;
+
+/// A correction of eq. (6) not yet applied to the history: entries with `from_us` ≤
+/// t ≤ `to_us` (recorded before the update) become c ∘ Λ(t) ∘ q(−δΔω · (t − from_us)).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Fix {
+    from_us: u64,
+    to_us: u64,
+    c: Quaternion<f64>,
+    d_drift: Vector3<f64>,
+}
+
+impl Fix {
+    fn covers(&self, t_us: u64) -> bool {
+        self.from_us <= t_us && t_us <= self.to_us
+    }
+
+    fn apply(&self, q: &Quaternion<f64>, t_us: u64) -> Quaternion<f64> {
+        let dt_s = f64::from(u32::try_from(t_us.saturating_sub(self.from_us)).unwrap_or(u32::MAX)) * 1e-6;
+        self.c * q * math::quat_from_rotvec(&(-self.d_drift * dt_s))
+    }
+}
+
 /// The observer of eq. (6). `H` attitudes of history bound the star-tracker latency it
 /// can absorb (H × step: 64 × 5 ms = 320 ms).
 #[derive(Debug, Clone)]
 pub struct Observer<const H: usize> {
     gains: ObserverGains,
     drift_rad_s: Vector3<f64>,
-    history: Deque<Sample, H>,
+    /// Ring of the last H propagated attitudes: `head` is the next slot written,
+    /// `len` how many are held (a plain array: one store a step, no deque bookkeeping).
+    history: [Sample; H],
+    head: usize,
+    len: usize,
+    fixes: Deque<Fix, PENDING_FIXES>,
     aligned: bool,
     stats: ObserverStats,
     innov_ms_rad2: f64,
@@ -131,7 +167,10 @@ impl<const H: usize> Observer<H> {
         Observer {
             gains,
             drift_rad_s: Vector3::zeros(),
-            history: Deque::new(),
+            history: [Sample { time_us: 0, q: Quaternion::identity() }; H],
+            head: 0,
+            len: 0,
+            fixes: Deque::new(),
             aligned: false,
             stats: ObserverStats::default(),
             innov_ms_rad2: 0.0,
@@ -187,15 +226,48 @@ impl<const H: usize> Observer<H> {
 
     /// Records the propagated attitude at the end of a step.
     pub fn record(&mut self, time_us: u64, q: Quaternion<f64>) {
-        if self.history.is_full() {
-            let _ = self.history.pop_front();
+        if let Some(slot) = self.history.get_mut(self.head) {
+            *slot = Sample { time_us, q };
         }
-        let _ = self.history.push_back(Sample { time_us, q });
+        self.head = (self.head + 1) % H;
+        self.len = (self.len + 1).min(H);
+    }
+
+    /// History entries from the newest back to the oldest: slots below `head` hold the
+    /// newest (the last written at `head − 1`), those from `head` on the previous lap,
+    /// valid only once the ring has filled (then `len` = H).
+    fn newest_first(&self) -> impl Iterator<Item = &Sample> {
+        let (recent, lap) = self.history.split_at_checked(self.head).unwrap_or((&[], &[]));
+        recent.iter().rev().chain(lap.iter().rev()).take(self.len)
+    }
+
+    /// The oldest entry held.
+    fn oldest(&self) -> Option<&Sample> {
+        if self.len < H {
+            if self.len == 0 {
+                None
+            } else {
+                self.history.first()
+            }
+        } else {
+            self.history.get(self.head)
+        }
+    }
+
+    /// A history entry as corrected by every update so far (pending fixes in order).
+    fn corrected(&self, s: &Sample) -> Quaternion<f64> {
+        let mut q = s.q;
+        for f in self.fixes.iter() {
+            if f.covers(s.time_us) {
+                q = f.apply(&q, s.time_us);
+            }
+        }
+        q
     }
 
     /// Propagated attitude at `time_us`, interpolated between recorded steps.
     pub fn attitude_at(&self, time_us: u64) -> Result<Quaternion<f64>, UpdateError> {
-        let (first, last) = match (self.history.front(), self.history.back()) {
+        let (first, last) = match (self.oldest(), self.newest_first().next()) {
             (Some(f), Some(l)) => (f, l),
             _ => return Err(UpdateError::Stale),
         };
@@ -208,17 +280,17 @@ impl<const H: usize> Observer<H> {
         // From the newest entry back: a time tag lags the present by the star tracker's
         // latency, a few entries, so this is shorter than a scan from the oldest.
         let mut next = last;
-        for s in self.history.iter().rev() {
+        for s in self.newest_first() {
             if s.time_us <= time_us {
                 let span = next.time_us.saturating_sub(s.time_us);
                 if span == 0 {
-                    return Ok(s.q);
+                    return Ok(self.corrected(s));
                 }
                 // u32 µs (71 min) covers any span here; u32 → f64 is one instruction on
                 // the M7, u64 → f64 a library call.
                 let us = |d: u64| f64::from(u32::try_from(d).unwrap_or(u32::MAX));
                 let frac = us(time_us - s.time_us) / us(span);
-                return Ok(math::nlerp(&s.q, &next.q, frac));
+                return Ok(math::nlerp(&self.corrected(s), &self.corrected(next), frac));
             }
             next = s;
         }
@@ -262,7 +334,7 @@ impl<const H: usize> Observer<H> {
             return Ok(Vector3::zeros());
         }
         let e = math::rotvec_from_quat(&(q_at.conjugate() * q_meas));
-        if self.converged() && e.norm() > self.gate_rad {
+        if self.converged() && e.norm_squared() > self.gate_rad * self.gate_rad {
             self.stats.gated = self.stats.gated.saturating_add(1);
             return Err(UpdateError::Gated);
         }
@@ -282,20 +354,27 @@ impl<const H: usize> Observer<H> {
     }
 
     /// Left-multiplies by `c` every attitude at or after `t_s` (and the present one), and
-    /// removes the drift change `d_drift` integrated from t_s to each of them.
+    /// removes the drift change `d_drift` integrated from t_s to each of them: the present
+    /// attitude now, the history through a pending [`Fix`].
     fn apply(&mut self, att: &mut Attitude, now_us: u64, t_s: u64, c: &Quaternion<f64>, d_drift: &Vector3<f64>) {
-        let fix = |q: &Quaternion<f64>, t_us: u64| {
-            let dt_s = f64::from(u32::try_from(t_us.saturating_sub(t_s)).unwrap_or(u32::MAX)) * 1e-6;
-            c * q * math::quat_from_rotvec(&(-d_drift * dt_s))
-        };
-        // Entries are in time order: walk back from the newest to t_s.
-        for s in self.history.iter_mut().rev() {
-            if s.time_us < t_s {
-                break;
-            }
-            s.q = fix(&s.q, s.time_us);
+        let fix = Fix { from_us: t_s, to_us: now_us, c: *c, d_drift: *d_drift };
+        // Fixes whose span has left the history cover nothing any more.
+        let oldest = self.oldest().map_or(u64::MAX, |s| s.time_us);
+        while self.fixes.front().is_some_and(|f| f.to_us < oldest) {
+            let _ = self.fixes.pop_front();
         }
-        let q_now = fix(&att.quaternion(), now_us);
-        att.set_quaternion(q_now);
+        if self.fixes.is_full() {
+            if let Some(old) = self.fixes.pop_front() {
+                // Each entry on its own, so slot order does not matter (rare: more
+                // updates within the history than pending fixes).
+                for s in self.history.iter_mut() {
+                    if old.covers(s.time_us) {
+                        s.q = old.apply(&s.q, s.time_us);
+                    }
+                }
+            }
+        }
+        let _ = self.fixes.push_back(fix);
+        att.set_quaternion(fix.apply(&att.quaternion(), now_us));
     }
 }
