@@ -52,6 +52,24 @@ pub const OVERHEAD_LEN: usize = HEADER_LEN + CRC_LEN;
 /// Computed over every byte before the CRC (sync and kind included), sent little-endian.
 pub const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
 
+/// The CRC register after a frame's constant header `EB 90 kind`. The CRC has no
+/// reflection and no final XOR, so the CRC of a whole frame is the CRC of its body
+/// continued from this register ([`body_crc`]): the three header bytes, the same in
+/// every frame of a kind, are folded in at compile time instead of at every frame.
+pub const fn header_crc(kind: u8) -> u16 {
+    let [s0, s1] = SYNC;
+    CRC16.checksum(&[s0, s1, kind])
+}
+
+/// CRC-16 of a frame whose header CRC is `header_crc` ([`header_crc`]) and whose bytes
+/// after the header, up to the CRC field, are `body`: equal to [`CRC16`] over the whole.
+#[inline]
+pub fn body_crc(header_crc: u16, body: &[u8]) -> u16 {
+    let mut d = CRC16.digest_with_initial(header_crc);
+    d.update(body);
+    d.finalize()
+}
+
 /// Why a frame was rejected.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -84,6 +102,8 @@ pub enum EncodeError {
 pub trait Frame: Sized {
     /// The kind byte (see [`kind`]).
     const KIND: u8;
+    /// [`header_crc`] of this kind, folded at compile time.
+    const HEADER_CRC: u16 = header_crc(Self::KIND);
     /// Total frame length in bytes, sync and CRC included.
     const LEN: usize;
 
@@ -111,7 +131,7 @@ pub trait Frame: Sized {
             // Only a field codec that disagrees with LEN gets here.
             return Err(EncodeError::BufferTooSmall);
         }
-        *crc = CRC16.checksum(covered).to_le_bytes();
+        *crc = body_crc(Self::HEADER_CRC, body).to_le_bytes();
         Ok(Self::LEN)
     }
 
@@ -121,7 +141,7 @@ pub trait Frame: Sized {
     /// # Errors
     /// The first check that fails, as a [`DecodeError`].
     fn decode(frame: &[u8]) -> Result<Self, DecodeError> {
-        let body = check_envelope(frame, Self::KIND, Self::LEN)?;
+        let body = check_envelope_from(frame, Self::KIND, Self::LEN, Self::HEADER_CRC)?;
         let mut r = FieldReader::new(body);
         let f = Self::read_fields(&mut r)?;
         if r.remaining() != 0 {
@@ -137,6 +157,11 @@ pub trait Frame: Sized {
 /// [`DecodeError::BadLength`], [`DecodeError::BadSync`], [`DecodeError::BadKind`] or
 /// [`DecodeError::BadCrc`], the first that applies.
 pub fn check_envelope(frame: &[u8], kind: u8, len: usize) -> Result<&[u8], DecodeError> {
+    check_envelope_from(frame, kind, len, header_crc(kind))
+}
+
+/// [`check_envelope`] with the kind's [`header_crc`] given (a constant per frame type).
+fn check_envelope_from(frame: &[u8], kind: u8, len: usize, header_crc: u16) -> Result<&[u8], DecodeError> {
     if frame.len() != len {
         return Err(DecodeError::BadLength);
     }
@@ -149,7 +174,8 @@ pub fn check_envelope(frame: &[u8], kind: u8, len: usize) -> Result<&[u8], Decod
     if k != kind {
         return Err(DecodeError::BadKind);
     }
-    if CRC16.checksum(covered) != u16::from_le_bytes(*crc) {
+    // The header was just checked to be `EB 90 kind`: continue from its register.
+    if body_crc(header_crc, body) != u16::from_le_bytes(*crc) {
         return Err(DecodeError::BadCrc);
     }
     Ok(body)
