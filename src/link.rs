@@ -260,9 +260,17 @@ impl<const N: usize> TxRing<N> {
         self.len() == 0
     }
 
-    /// The producer's handle, which implements the transmit-link traits.
+    /// The producer's handle, which implements the transmit-link traits; ready while
+    /// one byte fits.
     pub fn writer(&self) -> TxRingWriter<'_, N> {
-        TxRingWriter { ring: self }
+        TxRingWriter { ring: self, ready_free: 1 }
+    }
+
+    /// A producer's handle for frames of `frame_len` bytes: ready only while a whole
+    /// frame fits, so a step that finds the link behind drops its frame whole (and
+    /// counts it) instead of sending a truncated one that the receiver must reject.
+    pub fn frame_writer(&self, frame_len: usize) -> TxRingWriter<'_, N> {
+        TxRingWriter { ring: self, ready_free: frame_len.clamp(1, N.max(1)) }
     }
 }
 
@@ -275,6 +283,8 @@ impl<const N: usize> Default for TxRing<N> {
 /// Producer handle of a [`TxRing`]. `write` stores what fits and returns the count.
 pub struct TxRingWriter<'a, const N: usize> {
     ring: &'a TxRing<N>,
+    /// Free bytes needed before `write_ready` says yes.
+    ready_free: usize,
 }
 
 impl<const N: usize> TxRingWriter<'_, N> {
@@ -290,7 +300,7 @@ impl<const N: usize> embedded_io::ErrorType for TxRingWriter<'_, N> {
 
 impl<const N: usize> embedded_io::WriteReady for TxRingWriter<'_, N> {
     fn write_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(self.free() > 0)
+        Ok(self.free() >= self.ready_free)
     }
 }
 

@@ -107,6 +107,41 @@ fn isr_rings_carry_bytes_and_count_overflow() {
     assert_eq!(tx.len(), 3);
 }
 
+#[test]
+fn a_link_behind_drops_whole_output_frames_never_a_fragment() {
+    // The firmware's output ring (256 bytes) with a UART that sends nothing for a while:
+    // the core writes through a frame writer, so a step that finds less than one frame
+    // of room drops its frame whole (counted), and what the UART sends decodes cleanly.
+    use ssis::frames::decoder::StreamDecoder;
+    use ssis::frames::output::OutputFrame;
+    use ssis::frames::Frame;
+    let tx: TxRing<256> = TxRing::new();
+    let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
+    let mut links = Links {
+        fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())),
+        star: MockLink::ideal(),
+        out: tx.frame_writer(OutputFrame::LEN),
+    };
+    let mut sent = Vec::new();
+    for k in 0..40 {
+        core.step(&mut links);
+        // The UART takes 50 bytes a step only every 4th step: it falls behind.
+        if k % 4 == 3 {
+            sent.extend((0..50).map_while(|_| tx.pop()));
+        }
+    }
+    sent.extend(std::iter::from_fn(|| tx.pop()));
+    let dropped = core.counters().output_dropped;
+    let mut dec: StreamDecoder<OutputFrame, 128> = StreamDecoder::new();
+    let mut good = 0u32;
+    dec.push_slice(&sent, |r| good += u32::from(r.is_ok()));
+    println!("40 steps: {good} frames sent whole, {dropped} dropped, {} rejected", dec.stats().rejected());
+    assert!(dropped > 0, "the link was meant to fall behind");
+    assert_eq!(good + dropped, 40);
+    assert_eq!(dec.stats().rejected(), 0);
+    assert_eq!(sent.len(), good as usize * OutputFrame::LEN);
+}
+
 proptest::proptest! {
     /// The rings copy whole runs in and out across the wrap; any mix of single bytes and
     /// runs must behave as a plain FIFO of capacity 7 that drops (RX) or refuses (TX)

@@ -29,6 +29,8 @@ use panic_probe as _;
 
 use ssis::calib::{binary, CalibrationTable};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::frames::output::OutputFrame;
+use ssis::frames::Frame as _;
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
@@ -81,8 +83,11 @@ fn main() -> ! {
         profile.dt_us
     );
 
-    let mut links =
-        Links { fog: FogLinks::Bus(board::FOG_RX.reader()), star: board::ST_RX.reader(), out: board::OUT_TX.writer() };
+    let mut links = Links {
+        fog: FogLinks::Bus(board::FOG_RX.reader()),
+        star: board::ST_RX.reader(),
+        out: board::OUT_TX.frame_writer(OutputFrame::LEN),
+    };
     let mut window = Window::default();
     let mut steps: u32 = 0;
     let mut handled = board::ticks();

@@ -19,6 +19,7 @@ use ssis::calib::{binary, CalibrationTable};
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::output::OutputFrame;
 use ssis::link::drain;
 
 /// Watchdog period in steps (warning after one period, reset after two).
@@ -71,8 +72,11 @@ fn main() -> ! {
     // Ten steps without a pass of the loop give the warning, twenty the reset.
     board::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
 
-    let mut links =
-        Links { fog: FogLinks::Bus(board::FOG_RX.reader()), star: board::ST_RX.reader(), out: board::OUT_TX.writer() };
+    let mut links = Links {
+        fog: FogLinks::Bus(board::FOG_RX.reader()),
+        star: board::ST_RX.reader(),
+        out: board::OUT_TX.frame_writer(OutputFrame::LEN),
+    };
     let mut ctl_reader = board::CTL_RX.reader();
     let mut ctl: StreamDecoder<ControlFrame, 32> = StreamDecoder::new();
     let mut steps_due: Deque<ControlFrame, 8> = Deque::new();
