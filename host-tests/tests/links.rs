@@ -114,7 +114,6 @@ fn a_link_behind_drops_whole_output_frames_never_a_fragment() {
     // of room drops its frame whole (counted), and what the UART sends decodes cleanly.
     use ssis::frames::decoder::StreamDecoder;
     use ssis::frames::output::OutputFrame;
-    use ssis::frames::Frame;
     let tx: TxRing<256> = TxRing::new();
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
     let mut links = Links {
