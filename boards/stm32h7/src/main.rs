@@ -30,7 +30,6 @@ use panic_probe as _;
 use ssis::calib::{binary, CalibrationTable};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::output::OutputFrame;
-use ssis::frames::Frame as _;
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
