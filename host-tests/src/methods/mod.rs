@@ -16,8 +16,13 @@
 //! - [`misalign_turns`]: misalignment, first method: the eight angles δ12 … δ43 by least
 //!   squares from three calibration turns with Earth rate.
 //!
-//! Not implemented yet (issue 5, parts 5 and 6): the second misalignment method (SINS
-//! algorithm over 180° reversals) and the orbital calibration on telemetry.
+//! - [`misalign_sins`]: misalignment, second method: the six angles of the orthogonal
+//!   triad from the SINS algorithm over flat turns and 180° reversals in three
+//!   installations, started from the first method's angles (Gauss–Newton).
+//! - [`orbital`]: orbital calibration on the unit's telemetry (output and star-tracker
+//!   frames): zero bias from the observer of eq. (6) averaged over its steady part, scale
+//!   factors from 360° maneuvers under star-tracker reference, and the FOG-to-star-tracker
+//!   misalignment by recursive least squares.
 //!
 //! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots.
 
