@@ -1,7 +1,7 @@
-//! `ssis-cal`: the paper's calibration methods on ground-test sessions (issue 5,
-//! `docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each prints a table, writes
-//! an SVG plot and, with `--table`, updates the calibration table (TOML, atomic; an
-//! unreadable existing table is refused, never overwritten).
+//! `ssis-cal`: the paper's calibration methods on ground-test sessions and on flight
+//! telemetry (issue 5, `docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each
+//! prints a table, writes an SVG plot and, with `--table`, updates the calibration table
+//! (TOML, atomic; an unreadable existing table is refused, never overwritten).
 
 use std::path::{Path, PathBuf};
 
@@ -9,13 +9,13 @@ use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use ssis::calib::CalibrationTable;
 use ssis_host::lab::session::read_session;
-use ssis_host::methods::{self, allan, magnetic, misalign_turns, thermal_anova, Series};
+use ssis_host::methods::{self, allan, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova, Series};
 use ssis_host::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 
 #[derive(Parser)]
 #[command(
     name = "ssis-cal",
-    about = "The paper's ground calibration methods on sessions (docs/TUTORIAL-CALIBRATION.md)"
+    about = "The paper's calibration methods on ground sessions and telemetry (docs/TUTORIAL-CALIBRATION.md)"
 )]
 struct Cli {
     #[command(subcommand)]
@@ -94,6 +94,35 @@ enum Cmd {
         #[arg(long)]
         table: Option<PathBuf>,
     },
+    /// Misalignment, second method: the six triad angles from SINS runs over 180° reversals.
+    Sins {
+        /// Turntable session (`ssis-cal simulate sins` writes one).
+        #[arg(long)]
+        session: PathBuf,
+        /// SVG of the deflection residuals before and after.
+        #[arg(long, default_value = "sins.svg")]
+        plot: PathBuf,
+        /// Calibration table (TOML): its misalignment (the first method's) is the start and
+        /// is replaced; without it the start is nominal.
+        #[arg(long)]
+        table: Option<PathBuf>,
+    },
+    /// Orbital calibration on telemetry: observer bias, 360° maneuvers, star-tracker mount.
+    Orbital {
+        /// Output-link capture (`ssis-cal simulate orbital` writes OUTDIR/output.bin).
+        #[arg(long)]
+        output: PathBuf,
+        /// Star-tracker-link capture (OUTDIR/star.bin).
+        #[arg(long)]
+        star: PathBuf,
+        /// Calibration table (TOML) the unit flew with; the bias, scale factors and star-tracker
+        /// mount found are written into it.
+        #[arg(long)]
+        table: PathBuf,
+        /// SVG of the observer's drift estimate over time with the averaging window.
+        #[arg(long, default_value = "orbital.svg")]
+        plot: PathBuf,
+    },
 }
 
 #[derive(Subcommand)]
@@ -132,6 +161,34 @@ enum Sim {
         /// Seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+    },
+    /// Turntable session of the second misalignment method (Z, X, Y up; ±180° reversals).
+    Sins {
+        /// Session to write.
+        out: PathBuf,
+        /// Seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Calibration flight through the flight core (example unit): output and star links.
+    ///
+    /// Inertial hold, then 360° maneuvers about X, Y, Z and the FOG4 axis; writes
+    /// OUTDIR/output.bin, OUTDIR/star.bin (the link bytes) and OUTDIR/flown.toml (the table
+    /// flown), and prints the truth.
+    Orbital {
+        /// Directory to write the captures and the table flown into.
+        outdir: PathBuf,
+        /// Inertial hold before the maneuvers, s (default: five of the observer's slowest time
+        /// constants for the table flown, plus 1000 s, rounded up to 1000 s: the bias average
+        /// needs the observer settled).
+        #[arg(long)]
+        hold_s: Option<f64>,
+        /// Seed.
+        #[arg(long, default_value_t = 6)]
+        seed: u64,
+        /// Calibration table (TOML) the unit flies with (default: nominal).
+        #[arg(long)]
+        table: Option<PathBuf>,
     },
 }
 
@@ -422,6 +479,190 @@ fn run(cli: Cli) -> Result<()> {
             }
             Ok(())
         }
+        Cmd::Sins { session, plot, table } => {
+            let s = read_session(&session, None)?;
+            let start = match &table {
+                Some(p) if p.exists() => Some(load_table(p)?),
+                _ => None,
+            };
+            let (m0, gamma, scale, from) = match &start {
+                Some(t) => (
+                    t.misalignment,
+                    t.gamma_rad,
+                    [t.fog[0].scale_factor_error, t.fog[1].scale_factor_error, t.fog[2].scale_factor_error],
+                    "the table's",
+                ),
+                None => (CalibrationTable::DEFAULT.misalignment, ssis::calib::GAMMA_NOMINAL_RAD, [0.0; 3], "nominal"),
+            };
+            let revs = misalign_sins::reversals_from_session(&s, scale)?;
+            let r = misalign_sins::solve(&revs, &m0, gamma)?;
+            println!("rev  up   ψ0 deg   turn deg   measured after ″ (h1, h2)   residual ″ start → end");
+            for (k, rv) in revs.iter().enumerate() {
+                println!(
+                    "{:>3}  {}  {:>7.2}  {:>8.2}   {:>10.2} {:>10.2}      {:>7.2} {:>7.2} → {:>5.2} {:>5.2}",
+                    k + 1,
+                    ["X", "Y", "Z"][rv.up],
+                    rv.psi0_rad.to_degrees(),
+                    rv.turn_rad.to_degrees(),
+                    rv.tilt1_rad[0] * ARCSEC_PER_RAD,
+                    rv.tilt1_rad[1] * ARCSEC_PER_RAD,
+                    r.residual_start_rad[2 * k] * ARCSEC_PER_RAD,
+                    r.residual_start_rad[2 * k + 1] * ARCSEC_PER_RAD,
+                    r.residual_rad[2 * k] * ARCSEC_PER_RAD,
+                    r.residual_rad[2 * k + 1] * ARCSEC_PER_RAD
+                );
+            }
+            println!("angle    start ″   estimate ″   1σ ″   (start: {from} misalignment)");
+            let (a0, a1) = (misalign_sins::triad_angles(&m0), misalign_sins::triad_angles(&r.misalignment));
+            for (k, n) in misalign_sins::TRIAD_NAMES.iter().enumerate() {
+                println!(
+                    "{n:<6} {:>9.2} {:>12.2} {:>7.2}",
+                    a0[k] * ARCSEC_PER_RAD,
+                    a1[k] * ARCSEC_PER_RAD,
+                    r.sigma_rad[k] * ARCSEC_PER_RAD
+                );
+            }
+            let rms =
+                |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt() * ARCSEC_PER_RAD;
+            println!(
+                "{} Gauss-Newton iterations; residual rms {:.2}″ → {:.2}″; d42, d43 kept",
+                r.iterations,
+                rms(&r.residual_start_rad),
+                rms(&r.residual_rad)
+            );
+            let series = vec![
+                Series {
+                    label: format!("start ({from}), ″"),
+                    points: r
+                        .residual_start_rad
+                        .iter()
+                        .enumerate()
+                        .map(|(k, v)| (k as f64, v * ARCSEC_PER_RAD))
+                        .collect(),
+                    markers: true,
+                },
+                Series {
+                    label: "after the second method, ″".into(),
+                    points: r.residual_rad.iter().enumerate().map(|(k, v)| (k as f64, v * ARCSEC_PER_RAD)).collect(),
+                    markers: true,
+                },
+            ];
+            methods::xy_svg(
+                &plot,
+                "Second method: SINS deflections minus measured (two per reversal)",
+                "equation",
+                "″",
+                &series,
+            )?;
+            println!("wrote {}", plot.display());
+            if let Some(path) = table {
+                let mut t = load_table(&path)?;
+                t.misalignment = r.misalignment;
+                save_table(&path, &mut t)?;
+            }
+            Ok(())
+        }
+        Cmd::Orbital { output, star, table, plot } => {
+            let tel = orbital::Telemetry::read(&output, &star)?;
+            let flown = load_table(&table)?;
+            println!(
+                "decoded {} output frames, {} star frames ({} and {} refused)",
+                tel.out.len(),
+                tel.star.len(),
+                tel.bad_frames.0,
+                tel.bad_frames.1
+            );
+            let r = orbital::calibrate(&tel, &flown, &orbital::Settings::default())
+                .with_context(|| format!("{} and {} with {}", output.display(), star.display(), table.display()))?;
+            let b = &r.bias;
+            let tau = orbital::observer_time_constant_s(&flown)?;
+            if let Some(m) = r.maneuvers.first() {
+                let t_m = tel.out[m.start].time_us as f64 * 1e-6;
+                if b.window_s.0 > t_m {
+                    bail!(
+                        "{}: the observer settles (convergence + 5τ, τ = {tau:.0} s) only after the first maneuver at \
+                         {t_m:.0} s: no steady part before the maneuvers; fly a longer hold ({} left unchanged)",
+                        output.display(),
+                        table.display()
+                    );
+                }
+            }
+            let dh = |v: f64| v * DEG_H_PER_RAD_S;
+            println!("{} maneuvers found; observer τ = {tau:.0} s", r.maneuvers.len());
+            println!(
+                "1. zero bias: observer's drift estimate averaged over {:.0}-{:.0} s (steady part)",
+                b.window_s.0, b.window_s.1
+            );
+            println!(
+                "   d = {:.4} {:.4} {:.4} °/h (±{:.4} {:.4} {:.4} 1σ); per FOG Δb {} °/h",
+                dh(b.drift_rad_s.x),
+                dh(b.drift_rad_s.y),
+                dh(b.drift_rad_s.z),
+                dh(b.sigma_rad_s.x),
+                dh(b.sigma_rad_s.y),
+                dh(b.sigma_rad_s.z),
+                b.fog_delta_rad_s.map(|x| format!("{:+.4}", dh(x))).join(" ")
+            );
+            match (&r.scale, &r.mount) {
+                (Some(sc), Some(m)) => {
+                    println!("2. scale factors: 360° maneuvers under star-tracker reference");
+                    println!("   span s          axis (ICS)              |Θ_ST| deg   uᵀDu %     residual %");
+                    for (a, res) in sc.maneuvers.iter().zip(&sc.residual) {
+                        let u = a.axis();
+                        println!(
+                            "   {:>6.0}-{:<6.0}  ({:+.3} {:+.3} {:+.3})   {:>9.4}   {:+.5}   {:+.6}",
+                            a.span_s.0,
+                            a.span_s.1,
+                            u.x,
+                            u.y,
+                            u.z,
+                            a.theta_st_rad.norm().to_degrees(),
+                            a.relative_error() * 100.0,
+                            res * 100.0
+                        );
+                    }
+                    println!("   Δk % per FOG {}", sc.dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "));
+                    println!(
+                        "3. star-tracker mount: η = {:.2} {:.2} {:.2}″ (|η| {:.2}″) by RLS over {} star-frame pairs",
+                        m.eta_rad.x * ARCSEC_PER_RAD,
+                        m.eta_rad.y * ARCSEC_PER_RAD,
+                        m.eta_rad.z * ARCSEC_PER_RAD,
+                        m.eta_rad.norm() * ARCSEC_PER_RAD,
+                        m.samples
+                    );
+                }
+                _ => println!("2., 3.: no maneuvers found: scale factors and mount not estimated"),
+            }
+            // The drift estimate, one point per 10 s, and its mean over the averaging window.
+            let step = ((10.0 / tel.dt_s()).round() as usize).max(1);
+            let mut series = Vec::new();
+            for (k, name) in ["X", "Y", "Z"].iter().enumerate() {
+                series.push(Series {
+                    label: format!("Δω̂_{name}, °/h"),
+                    points: tel
+                        .out
+                        .iter()
+                        .step_by(step)
+                        .map(|o| (o.time_us as f64 * 1e-6, dh(o.drift_rad_s[k])))
+                        .collect(),
+                    markers: false,
+                });
+            }
+            for (k, name) in ["X", "Y", "Z"].iter().enumerate() {
+                let v = dh(b.drift_rad_s[k]);
+                series.push(Series {
+                    label: format!("mean {name} over the window"),
+                    points: vec![(b.window_s.0, v), (b.window_s.1, v)],
+                    markers: true,
+                });
+            }
+            methods::xy_svg(&plot, "Orbital calibration: observer drift estimate", "t, s", "°/h", &series)?;
+            println!("wrote {}", plot.display());
+            let mut t = r.table;
+            t.revision = flown.revision;
+            save_table(&table, &mut t)?;
+            Ok(())
+        }
     }
 }
 
@@ -459,6 +700,71 @@ fn simulate(what: Sim) -> Result<()> {
             let truth = sim.write(&out, seed)?;
             let t = misalign_turns::angles(&truth.misalignment).map(|a| format!("{:.2}", a * ARCSEC_PER_RAD));
             println!("wrote {}; truth (″) {}", out.display(), t.join(" "));
+        }
+        Sim::Sins { out, seed } => {
+            let sim = misalign_sins::second_method_sim(misalign_turns::example_truth());
+            let truth = sim.write(&out, seed)?;
+            let t = misalign_sins::triad_angles(&truth.misalignment).map(|a| format!("{:.2}", a * ARCSEC_PER_RAD));
+            println!(
+                "wrote {} (Z, X, Y up: ±180° reversals); truth {} (″) {}",
+                out.display(),
+                misalign_sins::TRIAD_NAMES.join(" "),
+                t.join(" ")
+            );
+        }
+        Sim::Orbital { outdir, hold_s, seed, table } => {
+            let flown = match &table {
+                // Read here first: a missing or bad table is reported with its file.
+                Some(p) => ssis_host::table::read_toml(p)?,
+                None => CalibrationTable::DEFAULT,
+            };
+            let tau = orbital::observer_time_constant_s(&flown)?;
+            let hold_s = hold_s.unwrap_or(((5.0 * tau + 1000.0) / 1000.0).ceil() * 1000.0);
+            if hold_s < 5.0 * tau + 100.0 {
+                eprintln!(
+                    "warning: --hold-s {hold_s} is shorter than 5τ = {:.0} s: the bias average will have no steady part",
+                    5.0 * tau
+                );
+            }
+            let (fog, star) = orbital::example_unit(misalign_turns::example_truth());
+            let mut sc = orbital::calibration_flight(fog, star, hold_s, 600.0, 200.0);
+            sc.seed = seed;
+            if let Some(p) = &table {
+                sc.table.file =
+                    Some(std::fs::canonicalize(p).with_context(|| format!("cannot resolve {}", p.display()))?);
+            }
+            std::fs::create_dir_all(&outdir).with_context(|| format!("cannot create {}", outdir.display()))?;
+            let t0 = std::time::Instant::now();
+            let cap = orbital::fly(&sc)?;
+            let (o, s, f) = (outdir.join("output.bin"), outdir.join("star.bin"), outdir.join("flown.toml"));
+            ssis_host::table::write_atomic(&o, &cap.out)?;
+            ssis_host::table::write_atomic(&s, &cap.star)?;
+            ssis_host::table::write_toml(&f, &cap.table)?;
+            println!(
+                "flew {:.0} s ({:.0} s hold: observer τ {:.0} s; 4 × 360° maneuvers) in {:.1} s; wrote {}, {}, {}",
+                sc.duration_s,
+                hold_s,
+                tau,
+                t0.elapsed().as_secs_f64(),
+                o.display(),
+                s.display(),
+                f.display()
+            );
+            let mut truth_table = CalibrationTable::DEFAULT;
+            if let Some(e) = sc.fog.errors {
+                truth_table.fog = e.fog;
+            }
+            let (d, dk, eta) = orbital::truth_of(&truth_table, &cap.table, &sc.star_tracker);
+            println!(
+                "truth: bias d = {:.4} {:.4} {:.4} °/h; Δk % {}; star-tracker mount η = {:.2} {:.2} {:.2}″",
+                d.x * DEG_H_PER_RAD_S,
+                d.y * DEG_H_PER_RAD_S,
+                d.z * DEG_H_PER_RAD_S,
+                dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "),
+                eta.x * ARCSEC_PER_RAD,
+                eta.y * ARCSEC_PER_RAD,
+                eta.z * ARCSEC_PER_RAD
+            );
         }
     }
     Ok(())
