@@ -7,6 +7,8 @@
 //! - [`sim::fog`]: FOG error model with every term of the calibration table, the paper's
 //!   triad error form (eq. 4), angle random walk, random and wandering bias.
 //! - [`sim::star`]: star tracker (eq. 5): noise, mounting misalignment, rate, latency.
+//! - [`sim::launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
+//!   vibration) with exact body increments, for the navigation (issue 7).
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
