@@ -1,4 +1,5 @@
 //! The simulator: truth motion, sensor models, frame encoders (the core's own).
+pub mod accel;
 pub mod fog;
 pub mod launch;
 pub mod star;
