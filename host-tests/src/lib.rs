@@ -12,11 +12,13 @@
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth, issue 7).
 //! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
 //!   sessions and exports the calibration table (`docs/LAB.md`).
 
 pub mod harness;
 pub mod lab;
+pub mod lv;
 pub mod methods;
 pub mod mock;
 pub mod plot;
