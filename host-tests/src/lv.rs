@@ -13,10 +13,12 @@ use nalgebra::{Quaternion, Vector3};
 use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use ssis::calib::accel::AccelTable;
+use ssis::nav::gnss::{AidedNav, GnssConfig};
 use ssis::nav::{Corrections, NavState, Strapdown};
 
 use crate::sim::accel::{AccelModel, AccelSpec};
 use crate::sim::fog::{FogModel, FogSpec};
+use crate::sim::gnss::GnssSpec;
 use crate::sim::launch::{LaunchProfile, LaunchTruth};
 
 /// One recorded ascent: per-step increments and truth.
@@ -87,17 +89,70 @@ pub fn free_inertial(
     seed: u64,
     every_s: f64,
 ) -> Vec<NavError> {
+    run(rec, fog, accel, None, seed, every_s).errors
+}
+
+/// What a run gives.
+#[derive(Debug, Clone, Default)]
+pub struct RunResult {
+    /// Error every `every_s`.
+    pub errors: Vec<NavError>,
+    /// The filter's 1σ (position m, velocity m/s) at the same times (aided runs).
+    pub sigma: Vec<(f64, f64)>,
+    /// Fixes used and refused (aided runs).
+    pub fixes: (u32, u32),
+}
+
+/// Filter tuning matched to the sensor specs (initial state: the truth, so small initial
+/// uncertainties; accelerometer bias random walk large enough to absorb the scale-factor
+/// and misalignment errors, which change with the thrust level).
+pub fn filter_config(fog: &FogSpec, acc: &AccelSpec) -> GnssConfig {
+    let ug = crate::sim::accel::G0_M_S2 * 1e-6;
+    let deg_h = std::f64::consts::PI / 180.0 / 3600.0;
+    GnssConfig {
+        init_att_rad: 20.0 / crate::ARCSEC_PER_RAD,
+        init_vel_m_s: 0.01,
+        init_pos_m: 1.0,
+        init_accel_bias_m_s2: (acc.bias_1sigma_ug * 2.0).max(10.0) * ug,
+        init_gyro_bias_rad_s: (fog.random_bias_3sigma_deg_h / 3.0 * 2.0).max(0.01) * deg_h,
+        arw_rad_sqrt_s: fog.arw_deg_sqrt_h.max(1e-3).to_radians() / 60.0,
+        vrw_m_s_sqrt_s: acc.vrw_ug_sqrt_hz.max(1.0) * ug,
+        accel_bias_rw_m_s2_sqrt_s: 2e-4,
+        gyro_bias_rw_rad_s_sqrt_s: 1e-7,
+        gate_sigma: 5.0,
+    }
+}
+
+/// A run, free-inertial or (with `gnss`) aided by the loosely coupled filter. The sensor
+/// errors depend only on `seed`, so a free and an aided run with the same seed see the
+/// same sensor data; the GNSS noise comes from its own generator.
+pub fn run(
+    rec: &AscentRecord,
+    fog: Option<&FogSpec>,
+    accel: Option<&AccelSpec>,
+    gnss: Option<(&GnssSpec, &GnssConfig)>,
+    seed: u64,
+    every_s: f64,
+) -> RunResult {
     let mut rng = ChaCha20Rng::seed_from_u64(seed);
+    let mut gnss_rng = ChaCha20Rng::seed_from_u64(seed.wrapping_add(1_000_003));
     let mut fogs = fog.map(|s| FogModel::new(s, &mut rng));
     let mut accs = accel.map(|s| AccelModel::new(s, &mut rng));
     let nominal = AccelTable::IDEAL.compensator().ok();
     let dt = rec.dt_s;
-    let mut nav = match Strapdown::new(rec.initial, dt, Corrections::ALL) {
+    let mut out = RunResult::default();
+    let mut free = match Strapdown::new(rec.initial, dt, Corrections::ALL) {
         Ok(n) => n,
-        Err(_) => return Vec::new(),
+        Err(_) => return out,
+    };
+    let mut aided = match gnss {
+        Some((_, cfg)) => match AidedNav::new(rec.initial, dt, *cfg) {
+            Ok(a) => Some(a),
+            Err(_) => return out,
+        },
+        None => None,
     };
     let every = ((every_s / dt).round() as usize).max(1);
-    let mut out = Vec::new();
     for (k, ((dth, dv), truth)) in rec.increments.iter().zip(&rec.truth).enumerate() {
         let t_end = (k + 1) as f64 * dt;
         let dtheta_b = match fogs.as_mut() {
@@ -115,12 +170,32 @@ pub fn free_inertial(
             }
             _ => *dv,
         };
-        if nav.step(&dtheta_b, &dv_b).is_err() {
-            break;
-        }
+        let state = match (aided.as_mut(), gnss) {
+            (Some(a), Some((spec, _))) => {
+                if a.step(&dtheta_b, &dv_b).is_err() {
+                    break;
+                }
+                if let Some(fix) = spec.fix(k as u64 + 1, dt, truth, &mut gnss_rng) {
+                    let _ = a.gnss_update(&fix);
+                }
+                *a.state()
+            }
+            _ => {
+                if free.step(&dtheta_b, &dv_b).is_err() {
+                    break;
+                }
+                *free.state()
+            }
+        };
         if (k + 1) % every == 0 {
-            out.push(error_of(t_end, nav.state(), truth));
+            out.errors.push(error_of(t_end, &state, truth));
+            if let Some(a) = aided.as_ref() {
+                out.sigma.push(a.sigma_pos_vel());
+            }
         }
+    }
+    if let Some(a) = aided.as_ref() {
+        out.fixes = a.counts();
     }
     out
 }

@@ -47,6 +47,7 @@
 //! The step never panics and never allocates; a non-finite input or state is refused
 //! with a [`NavError`] and the state is left as it was.
 
+pub mod gnss;
 pub mod wgs84;
 
 use nalgebra::{Quaternion, Vector3};
