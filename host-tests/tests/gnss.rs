@@ -74,3 +74,30 @@ fn refuses_bad_and_gated_fixes() {
     assert_eq!(a.gnss_update(&good), Ok(()));
     assert_eq!(a.counts(), (1, 3));
 }
+
+/// The attitude coupling and feedback: from a 78″ initial attitude error, with ideal
+/// sensors and exact fixes (σ 1 m, 0.01 m/s declared), the thrust makes the tilt
+/// observable and the filter removes the error (measured: 0.25″ after 200 s). A sign
+/// error in −[f×] or in the feedback would make it grow.
+#[test]
+fn attitude_error_converges_under_thrust() {
+    let rec = AscentRecord::record(LaunchProfile::default(), 1.25e-3, 200.0);
+    let mut cfg = filter_config(&FogSpec::paper_post_calibration(), &AccelSpec::typical_pendulous());
+    cfg.init_att_rad = 5e-4;
+    let mut init = rec.initial;
+    let err0 = Vector3::new(2e-4, -3e-4, 1e-4);
+    init.q_eb = ssis::math::quat_from_rotvec(&err0) * init.q_eb;
+    let mut a = AidedNav::new(init, 1.25e-3, cfg).expect("init");
+    let mut last = 0.0;
+    for (k, ((dth, dv), tr)) in rec.increments.iter().zip(&rec.truth).enumerate() {
+        a.step(dth, dv).expect("step");
+        if (k + 1) % 800 == 0 {
+            let fix = GnssFix { r_e_m: tr.r_e_m, v_e_m_s: tr.v_e_m_s, sigma_pos_m: 1.0, sigma_vel_m_s: 0.01 };
+            a.gnss_update(&fix).expect("fix");
+        }
+        last = ssis_host::lv::angle_between(&a.state().q_eb, &tr.q_eb);
+    }
+    let arc = ssis_host::ARCSEC_PER_RAD;
+    println!("attitude error {:.1}″ → {:.2}″ after 200 s", err0.norm() * arc, last * arc);
+    assert!(last * arc < 2.0, "attitude error {:.2}″ after 200 s", last * arc);
+}
