@@ -260,6 +260,7 @@ pub struct LaunchTruth {
     q0: Quaternion<f64>,
     dt_s: f64,
     k: u64,
+    substeps: u32,
     r_i: Vector3<f64>,
     v_i: Vector3<f64>,
 }
@@ -280,10 +281,16 @@ impl LaunchTruth {
 
     /// Starts on the pad at t = 0 with sensor step `dt_s`.
     pub fn new(profile: LaunchProfile, dt_s: f64) -> Self {
+        Self::with_substeps(profile, dt_s, Self::SUBSTEPS)
+    }
+
+    /// As [`LaunchTruth::new`] with `substeps` RK4 sub-steps per sensor step (to check
+    /// that the truth has converged).
+    pub fn with_substeps(profile: LaunchProfile, dt_s: f64, substeps: u32) -> Self {
         let r_i = profile.pad_ecef_m();
         let v_i = Vector3::new(0.0, 0.0, wgs84::EARTH_RATE_RAD_S).cross(&r_i);
         let q0 = profile.q0();
-        LaunchTruth { profile, q0, dt_s, k: 0, r_i, v_i }
+        LaunchTruth { profile, q0, dt_s, k: 0, substeps: substeps.max(1), r_i, v_i }
     }
 
     /// The profile.
@@ -316,7 +323,7 @@ impl LaunchTruth {
             dv += p.f_b_m_s2(t) * (w * half);
         }
         // Translation by RK4.
-        let n = Self::SUBSTEPS;
+        let n = self.substeps;
         let h = (t1 - t0) / f64::from(n);
         for j in 0..n {
             let t = t0 + f64::from(j) * h;
