@@ -19,6 +19,7 @@
 //! observer; it is the one definition shared with the simulator and the model lab.
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
 //! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
+//! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
 #![no_std]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
@@ -31,4 +32,5 @@ pub mod flight;
 pub mod frames;
 pub mod link;
 pub mod math;
+pub mod nav;
 pub mod observer;

@@ -7,14 +7,18 @@
 //! - [`sim::fog`]: FOG error model with every term of the calibration table, the paper's
 //!   triad error form (eq. 4), angle random walk, random and wandering bias.
 //! - [`sim::star`]: star tracker (eq. 5): noise, mounting misalignment, rate, latency.
+//! - [`sim::launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
+//!   vibration) with exact body increments, for the navigation (issue 7).
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth, issue 7).
 //! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
 //!   sessions and exports the calibration table (`docs/LAB.md`).
 
 pub mod harness;
 pub mod lab;
+pub mod lv;
 pub mod methods;
 pub mod mock;
 pub mod plot;

@@ -205,9 +205,23 @@ pub fn build_target_bin(name: &str) -> Result<PathBuf> {
 /// through semihosting or `timeout` passes; returns its exit code (`None`: stopped at the
 /// timeout) and its decoded defmt log.
 pub fn run_bare(elf: &Path, timeout: Duration) -> Result<(Option<i32>, Vec<String>)> {
-    let mut child = Command::new("qemu-system-arm")
-        .args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"])
-        .args(["-serial", "null", "-semihosting-config", "enable=on,target=native"])
+    run_bare_with(elf, timeout, false)
+}
+
+/// [`run_bare`], with `-icount shift=0` when `icount` (one instruction per ns of virtual
+/// time: SysTick differences become instruction counts, [`INSTR_PER_TICK`] a tick).
+pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Option<i32>, Vec<String>)> {
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]).args([
+        "-serial",
+        "null",
+        "-semihosting-config",
+        "enable=on,target=native",
+    ]);
+    if icount {
+        cmd.args(["-icount", "shift=0"]);
+    }
+    let mut child = cmd
         .arg("-kernel")
         .arg(elf)
         .stdin(Stdio::null())

@@ -20,6 +20,7 @@
 //!
 //! where `s_i` is the calibrated sensitive axis ([`Misalignment::axes`]).
 
+pub mod accel;
 pub mod binary;
 
 use crate::math;

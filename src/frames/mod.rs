@@ -10,7 +10,9 @@
 //! - the [`Frame`] trait: one generic envelope codec ([`Frame::encode_into`],
 //!   [`Frame::decode`]) around each type's field codec, so that one streaming decoder
 //!   serves every frame type;
-//! - the frames: [`fog::FogFrame`] (16 bytes), [`star::StarFrame`] (32 bytes),
+//! - the frames: [`fog::FogFrame`] (16 bytes), [`accel::AccelFrame`] (16 bytes),
+//!   [`star::StarFrame`] (32 bytes), [`gnss::GnssFrame`] (45 bytes),
+//!   [`navout::NavOutputFrame`] (64 bytes),
 //!   [`output::OutputFrame`] (79 bytes), each with raw-count fields, physical-unit
 //!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
 //! - [`decoder::StreamDecoder`]: a fixed-capacity byte-stream decoder that hunts for
@@ -19,9 +21,12 @@
 //!
 //! Nothing here allocates, panics or loops without bound.
 
+pub mod accel;
 pub mod control;
 pub mod decoder;
 pub mod fog;
+pub mod gnss;
+pub mod navout;
 pub mod output;
 pub mod star;
 
@@ -32,10 +37,16 @@ pub const SYNC: [u8; 2] = [0xEB, 0x90];
 pub mod kind {
     /// FOG sample frame ([`super::fog::FogFrame`]).
     pub const FOG: u8 = 0x10;
+    /// Accelerometer sample frame ([`super::accel::AccelFrame`], launch-vehicle unit).
+    pub const ACCEL: u8 = 0x11;
     /// Star-tracker frame ([`super::star::StarFrame`]).
     pub const STAR: u8 = 0x20;
+    /// GNSS fix frame ([`super::gnss::GnssFrame`], launch-vehicle unit).
+    pub const GNSS: u8 = 0x21;
     /// Output frame ([`super::output::OutputFrame`]).
     pub const OUTPUT: u8 = 0x30;
+    /// Navigation output frame ([`super::navout::NavOutputFrame`], launch-vehicle unit).
+    pub const NAV_OUTPUT: u8 = 0x31;
     /// Control frame (test and ground equipment → unit).
     pub const CONTROL: u8 = 0x40;
 }
