@@ -243,9 +243,6 @@ pub struct FlightCore {
     st_rejected_seen: u32,
     last_st_update_us: Option<u64>,
     last_body_dtheta: Vector3<f64>,
-    /// Body increments integrated in the current step with their end times (for the
-    /// launch-vehicle navigation, which runs once per sample: [`crate::nav::unit`]).
-    body_increments: heapless::Vec<(u64, Vector3<f64>), FOG_QUEUE>,
     counters: Counters,
     out_counter: u16,
     step_ticks: u16,
@@ -293,7 +290,6 @@ impl FlightCore {
             st_rejected_seen: 0,
             last_st_update_us: None,
             last_body_dtheta: Vector3::zeros(),
-            body_increments: heapless::Vec::new(),
             counters: Counters::default(),
             out_counter: 0,
             step_ticks: 0,
@@ -321,13 +317,6 @@ impl FlightCore {
     /// The profile in use.
     pub fn profile(&self) -> &Profile {
         &self.profile
-    }
-
-    /// The body angle increments (combined, compensated, rad) integrated by the last
-    /// step, each with the unit time at its end (µs), exactly as the attitude integrated
-    /// them: none when no sample was integrated, more than one when the step caught up.
-    pub fn integrated_body_increments(&self) -> &[(u64, Vector3<f64>)] {
-        &self.body_increments
     }
 
     /// The calibration table in use.
@@ -382,8 +371,20 @@ impl FlightCore {
     /// it, the others flagged missing. With no FOG data at all for longer, the interval
     /// is bridged with the last body increment so time and attitude keep moving.
     pub fn step<F: RxLink, S: RxLink, O: TxLink>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
+        self.step_with(links, |_, _| {})
+    }
+
+    /// [`FlightCore::step`], handing each body angle increment the attitude integrates
+    /// (combined and compensated, rad) to `on_increment` with the unit time at its end
+    /// (µs): once per sample, none when no sample came, more than one when the step
+    /// catches up. The launch-vehicle navigation runs on them ([`crate::nav::unit`]); a
+    /// caller with no use for them calls `step`, where the empty hook compiles away.
+    pub fn step_with<F: RxLink, S: RxLink, O: TxLink>(
+        &mut self,
+        links: &mut Links<F, S, O>,
+        mut on_increment: impl FnMut(u64, &Vector3<f64>),
+    ) -> StepOutput {
         let dt_s = self.profile.dt_s();
-        self.body_increments.clear();
         self.receive_fogs(&mut links.fog);
         let mut fog_health = [0u8; N_FOG];
         let mut used = FogSet(0);
@@ -414,8 +415,7 @@ impl FlightCore {
             let _ = self.attitude.step(&corrected);
             let t_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
             self.observer.record(t_us, self.attitude.quaternion());
-            // Bounded by the loop (at most FOG_QUEUE passes): the push cannot fail.
-            let _ = self.body_increments.push((t_us, body));
+            on_increment(t_us, &body);
             integrated += 1;
             self.waited = 0;
             if self.last_present.0 == 0 {
