@@ -8,9 +8,11 @@
 //! `corrupted` is a random valid frame damaged by one [`Corruption`] (always changing it:
 //! flipped bits are distinct, a substituted byte differs, insertions are strictly inside
 //! the frame, a truncation keeps 0..LEN−1 bytes), goes through a fresh decoder. Then:
-//! - an accepted frame that is not `before`, `after1` or `after2` at its own position is a
-//!   **corrupted frame accepted** (only possible through a CRC-16 collision plus fields
-//!   that pass their checks);
+//! - an accepted frame whose bytes are none of the frames sent (`before`, `after1` or
+//!   `after2` at their own positions, or the undamaged `corrupted`) is a **corrupted frame
+//!   accepted** (only possible through a CRC-16 collision plus fields that pass their
+//!   checks); the undamaged frame accepted is counted as **recovered** (the damage only
+//!   moved a boundary, e.g. a truncated last byte equal to the next frame's first);
 //! - `after1` not decoded is a **frame lost to resynchronisation**; `after2` not decoded
 //!   means the decoder was not back in sync within one frame.
 
@@ -73,6 +75,10 @@ pub struct Cell {
     /// Trials where an intact frame (before, after1, after2) was lost while no corrupted
     /// frame was accepted (the decoder's guarantee says never).
     pub lost_without_collision: u64,
+    /// Trials where the damaged frame was still accepted as sent (the damage only moved
+    /// a boundary: its bytes in the stream were the frame's bytes, e.g. a truncated last
+    /// byte equal to the next frame's first byte; the next frame then lost that byte).
+    pub recovered: u64,
 }
 
 impl Cell {
@@ -82,6 +88,7 @@ impl Cell {
         self.next_lost += o.next_lost;
         self.second_lost += o.second_lost;
         self.lost_without_collision += o.lost_without_collision;
+        self.recovered += o.recovered;
     }
 }
 
@@ -113,19 +120,21 @@ impl Report {
     /// A Markdown table of the counts.
     pub fn table(&self) -> String {
         let mut s = String::from(
-            "| frame | corruption | trials | corrupted accepted | next frame lost | second frame lost |\n|---|---|---|---|---|---|\n",
+            "| frame | corruption | trials | corrupted accepted | next frame lost | second frame lost | sent frame recovered |\n|---|---|---|---|---|---|---|\n",
         );
         for (f, row) in FRAME_TYPES.iter().zip(&self.cells) {
             for (k, c) in Corruption::ALL.iter().zip(row) {
                 s += &format!(
-                    "| {f} | {k:?} | {} | {} | {} | {} |\n",
-                    c.trials, c.corrupted_accepted, c.next_lost, c.second_lost
+                    "| {f} | {k:?} | {} | {} | {} | {} | {} |\n",
+                    c.trials, c.corrupted_accepted, c.next_lost, c.second_lost, c.recovered
                 );
             }
         }
         let t = self.total();
-        s +=
-            &format!("| all | all | {} | {} | {} | {} |\n", t.trials, t.corrupted_accepted, t.next_lost, t.second_lost);
+        s += &format!(
+            "| all | all | {} | {} | {} | {} | {} |\n",
+            t.trials, t.corrupted_accepted, t.next_lost, t.second_lost, t.recovered
+        );
         s
     }
 }
@@ -262,7 +271,7 @@ fn trial<F: Frame>(rng: &mut ChaCha8Rng, pool: &[Vec<u8>], kind: Corruption) -> 
     stream.extend_from_slice(after2);
     let end_after2 = stream.len() - 1;
     let mut dec: StreamDecoder<F, 128> = StreamDecoder::new();
-    let (mut got_before, mut got1, mut got2, mut bad) = (false, false, false, 0u64);
+    let (mut got_before, mut got1, mut got2, mut recovered, mut bad) = (false, false, false, false, 0u64);
     for (i, &b) in stream.iter().enumerate() {
         if let Some(Ok(f)) = dec.push(b) {
             let bytes = encode(&f);
@@ -273,6 +282,11 @@ fn trial<F: Frame>(rng: &mut ChaCha8Rng, pool: &[Vec<u8>], kind: Corruption) -> 
                 got1 = true;
             } else if genuine(end_after2, after2) {
                 got2 = true;
+            } else if bytes == *target {
+                // The damage only moved a frame boundary (a truncated last byte equal to
+                // the next frame's first, an inserted byte equal to its neighbour): the
+                // frame accepted is the one that was sent.
+                recovered = true;
             } else {
                 bad += 1;
             }
@@ -284,7 +298,8 @@ fn trial<F: Frame>(rng: &mut ChaCha8Rng, pool: &[Vec<u8>], kind: Corruption) -> 
         corrupted_accepted: bad,
         next_lost: u64::from(!got1),
         second_lost: u64::from(!got2),
-        lost_without_collision: u64::from(lost && bad == 0),
+        lost_without_collision: u64::from(lost && bad == 0 && !recovered),
+        recovered: u64::from(recovered),
     }
 }
 

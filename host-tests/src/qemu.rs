@@ -59,6 +59,10 @@ pub struct QemuOptions {
     /// Fault injection (lockstep, firmware built with `test-hooks`): at this step send
     /// `STALL` instead of `STEP`, then wait for the watchdog to end the run.
     pub stall_at_step: Option<u64>,
+    /// Flash image of the calibration table region to load instead of the scenario
+    /// table's two-copy image (`ssis::calib::store`), e.g. with one copy damaged. The
+    /// in-process comparison still uses the scenario's table.
+    pub table_image: Option<Vec<u8>>,
 }
 
 /// What a QEMU run measured.
@@ -329,7 +333,10 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     std::fs::create_dir_all(&dir)?;
     // The table's flash region: two copies (ssis::calib::store), as a flight image.
     let table_path = dir.join("table.img");
-    std::fs::write(&table_path, store::image(&sim.table))?;
+    match &opts.table_image {
+        Some(img) => std::fs::write(&table_path, img)?,
+        None => std::fs::write(&table_path, store::image(&sim.table))?,
+    }
     let socks: Vec<PathBuf> = (0..3).map(|i| dir.join(format!("uart{i}.sock"))).collect();
     let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
     let mut cmd = Command::new("qemu-system-arm");

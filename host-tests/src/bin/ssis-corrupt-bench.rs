@@ -18,12 +18,13 @@ fn main() {
     let t = r.total();
     println!(
         "{} trials (seed {seed}, {threads} thread(s)) in {secs:.1} s: {} corrupted frames accepted (rate {:.3e}), \
-         next frame lost {}, second frame lost {}, lost without a collision {}",
+         next frame lost {}, second frame lost {}, lost without a collision {}, sent frame recovered {}",
         t.trials,
         t.corrupted_accepted,
         t.corrupted_accepted as f64 / t.trials.max(1) as f64,
         t.next_lost,
         t.second_lost,
-        t.lost_without_collision
+        t.lost_without_collision,
+        t.recovered
     );
 }
