@@ -16,6 +16,7 @@
 //! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
 //!   sessions and exports the calibration table (`docs/LAB.md`).
 
+pub mod corrupt;
 pub mod harness;
 pub mod lab;
 pub mod lv;

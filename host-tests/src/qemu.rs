@@ -24,7 +24,7 @@ use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
-use ssis::calib::binary;
+use ssis::calib::store;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
@@ -59,6 +59,10 @@ pub struct QemuOptions {
     /// Fault injection (lockstep, firmware built with `test-hooks`): at this step send
     /// `STALL` instead of `STEP`, then wait for the watchdog to end the run.
     pub stall_at_step: Option<u64>,
+    /// Flash image of the calibration table region to load instead of the scenario
+    /// table's two-copy image (`ssis::calib::store`), e.g. with one copy damaged. The
+    /// in-process comparison still uses the scenario's table.
+    pub table_image: Option<Vec<u8>>,
 }
 
 /// What a QEMU run measured.
@@ -341,8 +345,12 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir)?;
-    let table_path = dir.join("table.bin");
-    std::fs::write(&table_path, binary::encode(&sim.table))?;
+    // The table's flash region: two copies (ssis::calib::store), as a flight image.
+    let table_path = dir.join("table.img");
+    match &opts.table_image {
+        Some(img) => std::fs::write(&table_path, img)?,
+        None => std::fs::write(&table_path, store::image(&sim.table))?,
+    }
     let socks: Vec<PathBuf> = (0..3).map(|i| dir.join(format!("uart{i}.sock"))).collect();
     let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
     let mut cmd = Command::new("qemu-system-arm");

@@ -1,7 +1,8 @@
 //! The calibration table's readable TOML form on the host, and its binary form on disk.
 //!
 //! The TOML is a `format` line and the serde form of [`ssis::calib::CalibrationTable`]
-//! under `[table]`; the binary is [`ssis::calib::binary`]. Reading names the file, line and field
+//! under `[table]`; the binary is [`ssis::calib::binary`], and the flash image of the table
+//! region (two copies) is [`ssis::calib::store`]. Reading names the file, line and field
 //! that is wrong; writing goes through a temporary file and a rename, so a failed write
 //! never leaves a half-written table where a good one was.
 
@@ -9,7 +10,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use ssis::calib::{binary, CalibrationTable};
+use ssis::calib::{binary, store, CalibrationTable};
 
 /// TOML format tag written at the top of every table file.
 pub const TOML_FORMAT: &str = "ssis-calibration-table/1";
@@ -67,4 +68,22 @@ pub fn write_toml(path: &Path, t: &CalibrationTable) -> Result<()> {
 pub fn write_binary(path: &Path, t: &CalibrationTable) -> Result<()> {
     t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
     write_atomic(path, &binary::encode(t))
+}
+
+/// Writes the flash image of the table region: `t` in both slots (generation 1), the rest
+/// erased (what the QEMU board loads at 0x10000).
+pub fn write_image(path: &Path, t: &CalibrationTable) -> Result<()> {
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    write_atomic(path, &store::image(t))
+}
+
+/// Reads a flash image the way the firmware does: the table it would fly with, refused
+/// (an error) only if no copy passes; refused copies are reported in the second value.
+pub fn read_image(path: &Path) -> Result<(CalibrationTable, store::Loaded)> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let loaded = store::load(&bytes);
+    if loaded.defaulted() {
+        bail!("{}: no copy passed (A: {:?}, B: {:?})", path.display(), loaded.slot_errors[0], loaded.slot_errors[1]);
+    }
+    Ok((loaded.table, loaded))
 }

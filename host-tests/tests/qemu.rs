@@ -22,7 +22,15 @@ fn run(duration_s: f64, lockstep: bool, corrupt_every: u64) -> QemuSummary {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = duration_s;
     sc.settle_s = duration_s / 2.0;
-    let opts = QemuOptions { elf, lockstep, icount: false, corrupt_every, progress: false, stall_at_step: None };
+    let opts = QemuOptions {
+        elf,
+        lockstep,
+        icount: false,
+        corrupt_every,
+        progress: false,
+        stall_at_step: None,
+        table_image: None,
+    };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     s
@@ -80,14 +88,56 @@ fn every_step_meets_its_deadline_in_counted_instructions() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
     sc.settle_s = 2.5;
-    let opts =
-        QemuOptions { elf, lockstep: true, icount: true, corrupt_every: 0, progress: false, stall_at_step: None };
+    let opts = QemuOptions {
+        elf,
+        lockstep: true,
+        icount: true,
+        corrupt_every: 0,
+        progress: false,
+        stall_at_step: None,
+        table_image: None,
+    };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     let worst = s.step_ticks_max[0].max(s.step_ticks_max[1]);
     assert!(worst > 0 && worst < 125_000 / 10, "worst step {worst} ticks");
     assert_eq!(s.last_frame.counters.overruns, 0);
     assert_eq!(s.differing_frames, 0);
+}
+
+#[test]
+fn a_damaged_table_copy_falls_back_to_the_other_on_target() {
+    // The firmware loads the two-copy table region (ssis::calib::store). Copy A damaged
+    // by one bit: the unit flies on copy B, the same table, so every output frame is still
+    // bit-identical to the in-process core's, and the firmware names the refused copy.
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = build_firmware().expect("firmware builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = 2.0;
+    sc.settle_s = 1.0;
+    let table = ssis_host::harness::Simulation::new(&sc).expect("simulation").table;
+    let mut img = ssis::calib::store::image(&table).to_vec();
+    img[200] ^= 0x04;
+    let opts = QemuOptions {
+        elf,
+        lockstep: true,
+        icount: false,
+        corrupt_every: 0,
+        progress: false,
+        stall_at_step: None,
+        table_image: Some(img),
+    };
+    let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
+    for l in &s.log {
+        println!("firmware: {l}");
+    }
+    assert!(s.log.iter().any(|l| l.contains("calibration copy A refused (BadCrc)")), "copy A named");
+    assert!(!s.log.iter().any(|l| l.contains("copy B refused")));
+    assert!(s.log.iter().any(|l| l.contains("defaulted false")), "flies on copy B");
+    assert_eq!(s.exit_code, Some(0), "firmware did not end cleanly");
+    assert_eq!(s.frames_out, s.steps);
+    assert_eq!(s.equal_frames, s.steps, "{} frames differ from the host's", s.differing_frames);
 }
 
 #[test]
@@ -102,8 +152,15 @@ fn a_stalled_main_loop_is_caught_by_the_watchdog() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
     sc.settle_s = 2.5;
-    let opts =
-        QemuOptions { elf, lockstep: true, icount: false, corrupt_every: 0, progress: false, stall_at_step: Some(400) };
+    let opts = QemuOptions {
+        elf,
+        lockstep: true,
+        icount: false,
+        corrupt_every: 0,
+        progress: false,
+        stall_at_step: Some(400),
+        table_image: None,
+    };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     for l in &s.log {
         println!("firmware: {l}");

@@ -8,7 +8,8 @@
 //!   first ground-calibration method and the nominal FOG4 angle γ = 125°15'52",
 //! - the star-tracker mounting (FOG/ICS to star-tracker instrument frame, δΨ_Λ of eq. 5),
 //! - the observer's noise figures and an optional gain override,
-//! - a versioned binary form with CRC-32 ([`binary`]) and, with feature `serde`, the
+//! - a versioned binary form with CRC-32 ([`binary`]), stored as two generation-numbered
+//!   copies with their own CRC-32 ([`store`]: fallback and atomic update), and, with feature `serde`, the
 //!   readable TOML form used on the host. `docs/CALIBRATION.md` documents both.
 //!
 //! Error model of FOG *i* that this table compensates (the simulator generates it):
@@ -22,6 +23,7 @@
 
 pub mod accel;
 pub mod binary;
+pub mod store;
 
 use crate::math;
 use nalgebra::Vector3;

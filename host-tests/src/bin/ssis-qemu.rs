@@ -76,6 +76,7 @@ fn real_main() -> Result<bool> {
         corrupt_every: a.corrupt_every,
         progress: true,
         stall_at_step: None,
+        table_image: None,
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;

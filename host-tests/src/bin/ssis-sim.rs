@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use ssis::calib::{CalibrationTable, ObserverConfig};
+use ssis::calib::{store, CalibrationTable, ObserverConfig};
 use ssis::observer::steady_state_gains;
 use ssis_host::harness::{run, CSV_HEADER};
 use ssis_host::scenario::Scenario;
@@ -71,9 +71,17 @@ enum TableCmd {
         /// Output binary.
         out: PathBuf,
     },
-    /// Print a table (TOML or binary) as TOML after checking it.
+    /// Convert a TOML table to the flash image of the table region (two copies), what the
+    /// QEMU board loads at 0x10000.
+    ToImage {
+        /// Input TOML.
+        input: PathBuf,
+        /// Output image.
+        out: PathBuf,
+    },
+    /// Print a table (TOML, binary or image) as TOML after checking it.
     Show {
-        /// Table file (.toml or .bin).
+        /// Table file (.toml, .bin or .img).
         input: PathBuf,
     },
 }
@@ -170,8 +178,22 @@ fn table_cmd(cmd: TableCmd) -> Result<()> {
             table::write_binary(&out, &t)?;
             println!("wrote {} ({} bytes, revision {})", out.display(), ssis::calib::binary::TABLE_LEN, t.revision);
         }
+        TableCmd::ToImage { input, out } => {
+            let t = table::read_toml(&input)?;
+            table::write_image(&out, &t)?;
+            println!("wrote {} ({} bytes, two copies, revision {})", out.display(), store::REGION_LEN, t.revision);
+        }
         TableCmd::Show { input } => {
-            let t = if input.extension().is_some_and(|e| e == "bin") {
+            let t = if input.extension().is_some_and(|e| e == "img") {
+                let (t, loaded) = table::read_image(&input)?;
+                for (slot, e) in ["A", "B"].iter().zip(loaded.slot_errors) {
+                    if let Some(e) = e {
+                        eprintln!("{}: copy {slot} refused: {e:?}", input.display());
+                    }
+                }
+                eprintln!("{}: using {:?}, generation {}", input.display(), loaded.source, loaded.generation);
+                t
+            } else if input.extension().is_some_and(|e| e == "bin") {
                 table::read_binary(&input)?
             } else {
                 table::read_toml(&input)?

@@ -267,8 +267,8 @@ pub fn static_ram() -> u32 {
     (core::ptr::addr_of_mut!(__sheap) as usize - 0x2000_0000) as u32
 }
 
-/// The stored calibration table (4 KiB region at `_calib_start`).
+/// The stored calibration table region (4 KiB at `_calib_start`: two copies, `ssis::calib::store`).
 pub fn calib_bytes() -> &'static [u8] {
     // SAFETY: the CALIB region of memory.x, 4 KiB, always mapped, read-only here.
-    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), 4096) }
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), ssis::calib::store::REGION_LEN) }
 }

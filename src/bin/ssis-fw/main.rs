@@ -15,7 +15,7 @@ mod board;
 
 use defmt_semihosting as _;
 use heapless::Deque;
-use ssis::calib::{binary, CalibrationTable};
+use ssis::calib::store;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
@@ -47,13 +47,18 @@ fn main() -> ! {
     board::paint_stack();
     let Some(cp) = cortex_m::Peripherals::take() else { board::exit(false) };
     let profile = Profile::SPACECRAFT;
-    let (table, defaulted) = match binary::decode(board::calib_bytes()) {
-        Ok(t) => (t, false),
-        Err(e) => {
-            defmt::warn!("calibration table refused ({}): flying on the default table", e);
-            (CalibrationTable::DEFAULT, true)
+    // Two stored copies (calib::store): the newest good one, else the other, else the
+    // default table, flagged.
+    let loaded = store::load(board::calib_bytes());
+    for (slot, err) in [store::Slot::A, store::Slot::B].into_iter().zip(loaded.slot_errors) {
+        if let Some(e) = err {
+            defmt::warn!("calibration copy {} refused ({})", slot, e);
         }
-    };
+    }
+    if loaded.defaulted() {
+        defmt::warn!("no calibration copy passed: flying on the default table");
+    }
+    let (table, defaulted) = (loaded.table, loaded.defaulted());
     let mut core = match FlightCore::new(profile, &table, defaulted) {
         Ok(c) => c,
         Err(e) => {
