@@ -79,6 +79,14 @@ fn invalid_values_refused_even_with_good_crc() {
     t.misalignment.d21_rad = 0.2;
     ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
     assert_eq!(decode(&buf), Err(TableError::OutOfRange));
+    // γ (FOG4's angle) NaN or infinite: a NaN passes every `>` range test, so it needs
+    // its own check (the calib fuzz target found a table with γ = NaN accepted).
+    for g in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        let mut t = sample_table();
+        t.gamma_rad = g;
+        ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
+        assert_eq!(decode(&buf), Err(TableError::NotFinite), "gamma {g}");
+    }
 }
 
 #[test]

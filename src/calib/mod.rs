@@ -252,7 +252,8 @@ impl CalibrationTable {
         }
         let m = &self.misalignment;
         let angles = [m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad];
-        if !angles.iter().copied().all(finite) {
+        // γ too: a NaN passes every `>` range test below (found by the `calib` fuzz target).
+        if !angles.iter().copied().all(finite) || !finite(self.gamma_rad) {
             return Err(TableError::NotFinite);
         }
         if angles.iter().any(|a| a.abs() > 0.05) || (self.gamma_rad - GAMMA_NOMINAL_RAD).abs() > 0.05 {
