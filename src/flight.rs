@@ -25,7 +25,7 @@ use crate::frames::fog::FogFrame;
 use crate::frames::output::OutputFrame;
 use crate::frames::star::StarFrame;
 use crate::frames::Frame;
-use crate::link::{drain, RxLink, TxLink};
+use crate::link::{drain, write_frame, RxLink, TxLink};
 use crate::observer::{GainError, Observer, UpdateError};
 
 /// Steps of attitude history for star-tracker latency (64 × 5 ms = 320 ms).
@@ -782,27 +782,6 @@ fn take_one(
         return (h | health::OUT_OF_RANGE, Some(None));
     }
     (h | health::USED, Some(Some(dtheta)))
-}
-
-/// Writes `bytes` without waiting: `true` if all of it was taken. Never calls
-/// `write_all` (whose default panics when a non-blocking sink takes nothing); a sink
-/// that fills part-way leaves a truncated frame, which the receiver's decoder rejects.
-fn write_frame<O: TxLink>(out: &mut O, bytes: &[u8]) -> bool {
-    let mut rest = bytes;
-    // Bounded: each pass takes at least one byte or stops.
-    for _ in 0..bytes.len() {
-        if rest.is_empty() {
-            break;
-        }
-        if !matches!(out.write_ready(), Ok(true)) {
-            return false;
-        }
-        match out.write(rest) {
-            Ok(n) if n > 0 => rest = rest.get(n..).unwrap_or(&[]),
-            _ => return false,
-        }
-    }
-    rest.is_empty()
 }
 
 /// Queues a FOG sample; a full queue drops its oldest (late backlog).

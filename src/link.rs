@@ -75,6 +75,29 @@ pub fn drain<L: RxLink>(
     report
 }
 
+/// Writes one frame's `bytes` without waiting: `true` if all of it was taken, `false`
+/// (for the caller to count) if the link could not take it now. Never calls
+/// `write_all`, whose default panics when a non-blocking sink takes nothing. A sink that
+/// fills part-way leaves a truncated frame, which the receiver's decoder rejects; a
+/// [`TxRing::frame_writer`] never does (it is ready only when the whole frame fits).
+pub fn write_frame<O: TxLink>(out: &mut O, bytes: &[u8]) -> bool {
+    let mut rest = bytes;
+    // Bounded: each pass takes at least one byte or stops.
+    for _ in 0..bytes.len() {
+        if rest.is_empty() {
+            break;
+        }
+        if !matches!(out.write_ready(), Ok(true)) {
+            return false;
+        }
+        match out.write(rest) {
+            Ok(n) if n > 0 => rest = rest.get(n..).unwrap_or(&[]),
+            _ => return false,
+        }
+    }
+    rest.is_empty()
+}
+
 /// A fixed byte FIFO with whole-run copies in and out (at most two `copy_from_slice` each
 /// way), so a step moves a frame with a couple of memcpys instead of a loop per byte.
 struct ByteFifo<const N: usize> {

@@ -30,7 +30,7 @@ use crate::frames::decoder::StreamDecoder;
 use crate::frames::gnss::GnssFrame;
 use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
-use crate::link::{drain, RxLink, TxLink};
+use crate::link::{drain, write_frame, RxLink, TxLink};
 
 /// Accelerometer samples a queue holds ahead of the step.
 pub const ACCEL_QUEUE: usize = 8;
@@ -216,29 +216,10 @@ impl NavUnit {
             self.nav.counts(),
         );
         self.out_counter = self.out_counter.wrapping_add(1);
-        let ok = frame.encode_into(&mut self.out_buf).is_ok() && write_all(&mut links.out, &self.out_buf);
+        let ok = frame.encode_into(&mut self.out_buf).is_ok() && write_frame(&mut links.out, &self.out_buf);
         if !ok {
             self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
         }
         NavStepOutput { flags: fl, state }
     }
-}
-
-/// Writes `bytes` if the link takes them now; `false` if it does not (never waits).
-fn write_all<O: TxLink>(out: &mut O, bytes: &[u8]) -> bool {
-    let mut rest = bytes;
-    // Bounded: each pass takes at least one byte or stops.
-    for _ in 0..bytes.len() {
-        if rest.is_empty() {
-            break;
-        }
-        if !matches!(out.write_ready(), Ok(true)) {
-            return false;
-        }
-        match out.write(rest) {
-            Ok(n) if n > 0 => rest = rest.get(n..).unwrap_or(&[]),
-            _ => return false,
-        }
-    }
-    rest.is_empty()
 }
