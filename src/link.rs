@@ -185,6 +185,17 @@ impl<const N: usize> ByteFifo<N> {
     }
 }
 
+/// Runs `f` on a ring's state inside a critical section. Only this function borrows the
+/// cell, one closure at a time with interrupts masked, so the borrow cannot fail; were it
+/// ever to, `f` is skipped and `otherwise` returned. (`borrow_ref_mut` would panic there:
+/// a panic path the release firmware may not link, README "No panics".)
+fn with_state<T, R>(m: &Mutex<RefCell<T>>, otherwise: R, f: impl FnOnce(&mut T) -> R) -> R {
+    critical_section::with(|cs| match m.borrow(cs).try_borrow_mut() {
+        Ok(mut s) => f(&mut s),
+        Err(_) => otherwise,
+    })
+}
+
 /// Receive buffer shared between a UART interrupt (producer) and the step (consumer).
 pub struct RxRing<const N: usize> {
     inner: Mutex<RefCell<RingState<N>>>,
@@ -205,8 +216,7 @@ impl<const N: usize> RxRing<N> {
     /// Called from the interrupt: stores one received byte; a full ring drops it and
     /// counts an overflow.
     pub fn push(&self, byte: u8) {
-        critical_section::with(|cs| {
-            let mut s = self.inner.borrow_ref_mut(cs);
+        with_state(&self.inner, (), |s| {
             s.received = s.received.wrapping_add(1);
             if !s.bytes.push(byte) {
                 s.overflows = s.overflows.saturating_add(1);
@@ -216,12 +226,12 @@ impl<const N: usize> RxRing<N> {
 
     /// Bytes received since start (wrapping), including any dropped.
     pub fn received(&self) -> u32 {
-        critical_section::with(|cs| self.inner.borrow_ref(cs).received)
+        with_state(&self.inner, 0, |s| s.received)
     }
 
     /// Bytes dropped because the ring was full.
     pub fn overflows(&self) -> u32 {
-        critical_section::with(|cs| self.inner.borrow_ref(cs).overflows)
+        with_state(&self.inner, 0, |s| s.overflows)
     }
 
     /// The consumer's handle, which implements the receive-link traits.
@@ -247,13 +257,13 @@ impl<const N: usize> embedded_io::ErrorType for RxRingReader<'_, N> {
 
 impl<const N: usize> embedded_io::ReadReady for RxRingReader<'_, N> {
     fn read_ready(&mut self) -> Result<bool, Infallible> {
-        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref(cs).bytes.len > 0))
+        Ok(with_state(&self.ring.inner, false, |s| s.bytes.len > 0))
     }
 }
 
 impl<const N: usize> embedded_io::Read for RxRingReader<'_, N> {
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Infallible> {
-        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref_mut(cs).bytes.pop_into(buf)))
+        Ok(with_state(&self.ring.inner, 0, |s| s.bytes.pop_into(buf)))
     }
 }
 
@@ -270,12 +280,12 @@ impl<const N: usize> TxRing<N> {
 
     /// Called from the interrupt: the next byte to send, if any.
     pub fn pop(&self) -> Option<u8> {
-        critical_section::with(|cs| self.inner.borrow_ref_mut(cs).pop())
+        with_state(&self.inner, None, |f| f.pop())
     }
 
     /// Bytes waiting.
     pub fn len(&self) -> usize {
-        critical_section::with(|cs| self.inner.borrow_ref(cs).len)
+        with_state(&self.inner, 0, |f| f.len)
     }
 
     /// Whether nothing is waiting.
@@ -313,7 +323,7 @@ pub struct TxRingWriter<'a, const N: usize> {
 impl<const N: usize> TxRingWriter<'_, N> {
     /// Free space in bytes.
     pub fn free(&self) -> usize {
-        critical_section::with(|cs| self.ring.inner.borrow_ref(cs).free())
+        with_state(&self.ring.inner, 0, |f| f.free())
     }
 }
 
@@ -329,7 +339,7 @@ impl<const N: usize> embedded_io::WriteReady for TxRingWriter<'_, N> {
 
 impl<const N: usize> embedded_io::Write for TxRingWriter<'_, N> {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        Ok(critical_section::with(|cs| self.ring.inner.borrow_ref_mut(cs).push_from(buf)))
+        Ok(with_state(&self.ring.inner, 0, |f| f.push_from(buf)))
     }
 
     fn flush(&mut self) -> Result<(), Infallible> {
