@@ -251,9 +251,15 @@ pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Opt
 /// Builds the firmware with the `test-hooks` feature (fault injection) into its own
 /// target directory, so the flight build is left alone; returns the ELF path.
 pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
+    build_test_hooks_bin("ssis-fw")
+}
+
+/// Builds a target binary of the root crate with the `test-hooks` feature (release) into
+/// `target/test-hooks`, so the flight build is left alone; returns its ELF path.
+pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
     let dir = repo_root().join("target/test-hooks");
     let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", "ssis-fw", "--features", "test-hooks", "--target-dir"])
+        .args(["build", "--release", "--quiet", "--bin", name, "--features", "test-hooks", "--target-dir"])
         .arg(&dir)
         .current_dir(repo_root())
         .env_remove("CARGO_TARGET_DIR")
@@ -261,9 +267,9 @@ pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
         .status()
         .context("cannot run cargo to build the firmware")?;
     if !status.success() {
-        bail!("building the firmware with test hooks failed ({status})");
+        bail!("building {name} with test hooks failed ({status})");
     }
-    Ok(dir.join("thumbv7em-none-eabihf/release/ssis-fw"))
+    Ok(dir.join("thumbv7em-none-eabihf/release").join(name))
 }
 
 struct Qemu {

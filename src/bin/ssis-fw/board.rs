@@ -17,7 +17,7 @@
 //! - A painted stack for the high-water mark.
 #![allow(unsafe_code)]
 
-use core::sync::atomic::{AtomicU32, Ordering};
+use core::sync::atomic::{AtomicBool, AtomicU32, Ordering};
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{NVIC, SYST};
@@ -208,9 +208,98 @@ unsafe fn NonMaskableInt() {
     defmt::warn!("watchdog: the main loop has not run for one watchdog period; reset at the next");
 }
 
-#[exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    defmt::error!("hard fault");
+// HardFault (every fault lands here: BusFault, MemManage and UsageFault are not enabled,
+// so they escalate). A stack overflow faults with the stack pointer below the stack's
+// bottom, where the MPU guard (`guard_stack`) lets nothing be pushed, so the handler must not use that stack: this entry
+// (no prologue) moves MSP back to the top of the stack region, whose contents are no longer
+// needed (the handler never returns), and passes the old MSP, PSP and EXC_RETURN on.
+core::arch::global_asm!(
+    ".section .HardFault.user, \"ax\"",
+    ".global HardFault",
+    ".type HardFault,%function",
+    ".thumb_func",
+    "HardFault:",
+    "mrs r0, msp",
+    "mrs r1, psp",
+    "mov r2, lr",
+    "ldr r3, =_stack_start",
+    "msr msp, r3",
+    "b {report}",
+    ".ltorg",
+    ".size HardFault, . - HardFault",
+    report = sym fault_report,
+);
+
+/// Logs the fault and ends the run with failure. `msp`/`psp` are the stack pointers when
+/// the fault was taken (after the processor's attempt to push the exception frame).
+extern "C" fn fault_report(msp: u32, psp: u32, exc_return: u32) -> ! {
+    logger_take_over();
+    let sp = if exc_return & 0b100 != 0 { psp } else { msp };
+    let bottom = core::ptr::addr_of!(_stack_end) as u32;
+    let top = core::ptr::addr_of!(_stack_start) as u32;
+    // SAFETY: the System Control Block's fault status and address registers, always mapped.
+    let (cfsr, hfsr, mmfar, bfar) = unsafe {
+        (
+            core::ptr::read_volatile(0xE000_ED28 as *const u32),
+            core::ptr::read_volatile(0xE000_ED2C as *const u32),
+            core::ptr::read_volatile(0xE000_ED34 as *const u32),
+            core::ptr::read_volatile(0xE000_ED38 as *const u32),
+        )
+    };
+    // Stacking error (CFSR.STKERR or MSTKERR: the MPU guard below the stack refused the
+    // exception frame), or a stack pointer within one exception frame (at most 26 words
+    // with the FP context) of the bottom or below it.
+    let stacking_error = cfsr & (1 << 12 | 1 << 4) != 0;
+    if stacking_error || sp < bottom.saturating_add(112) {
+        defmt::error!(
+            "stack overflow: hard fault with sp {=u32:#010x} below the stack {=u32:#010x}..{=u32:#010x} (cfsr {=u32:#010x} hfsr {=u32:#010x} mmfar {=u32:#010x})",
+            sp,
+            bottom,
+            top,
+            cfsr,
+            hfsr,
+            mmfar
+        );
+    } else {
+        // The exception frame was pushed: its return address is the faulting instruction.
+        // SAFETY: sp lies inside the stack region with a whole frame above it (checked).
+        let pc =
+            if sp <= top.saturating_sub(32) { unsafe { core::ptr::read_volatile((sp + 24) as *const u32) } } else { 0 };
+        defmt::error!(
+            "hard fault: pc {=u32:#010x} sp {=u32:#010x} (cfsr {=u32:#010x} hfsr {=u32:#010x} mmfar {=u32:#010x} bfar {=u32:#010x})",
+            pc,
+            sp,
+            cfsr,
+            hfsr,
+            mmfar,
+            bfar
+        );
+    }
+    exit(false)
+}
+
+/// The release firmware links only if no panic path remains (README "No panics"): the
+/// handler calls a symbol that exists nowhere, so the link fails unless the optimiser has
+/// proved every panic unreachable and the handler was discarded. `scripts/panic-paths`
+/// lists the callers when it fails.
+#[cfg(not(any(debug_assertions, feature = "allow-panic")))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    extern "Rust" {
+        #[link_name = "\n\nERROR(ssis): a panic path remains in the release firmware. List the callers with `bash scripts/panic-paths` (README: No panics, stack overflow).\n"]
+        fn a_panic_path_remains_in_the_release_firmware() -> !;
+    }
+    // SAFETY: never called: the symbol is undefined, so a firmware that could reach this
+    // handler does not link.
+    unsafe { a_panic_path_remains_in_the_release_firmware() }
+}
+
+/// Debug builds (overflow checks, no optimisation to remove the bounds checks) and the
+/// `allow-panic` diagnosis build: log and end the run with failure.
+#[cfg(any(debug_assertions, feature = "allow-panic"))]
+#[panic_handler]
+fn panic(_info: &core::panic::PanicInfo) -> ! {
+    defmt::error!("panic");
     exit(false)
 }
 
@@ -225,23 +314,53 @@ pub fn exit(success: bool) -> ! {
     }
 }
 
+const MPU_RNR: usize = 0xE000_ED98;
+const MPU_RBAR: usize = 0xE000_ED9C;
+const MPU_RASR: usize = 0xE000_EDA0;
+const MPU_CTRL: usize = 0xE000_ED94;
+
+/// Stack guard (memory.x puts the stack at the bottom of RAM, 0x2000_0000): MPU region 0
+/// makes the 256 MiB below RAM, 0x1000_0000..0x2000_0000, no-access and never-execute, so
+/// the first push past the stack's bottom is a fault (reported by `HardFault`), not a
+/// write. Needed because QEMU's mps2-an500 does not fault there by itself (measured: a
+/// runaway recursion went 8 MiB below 0x2000_0000 unchecked). Everything else keeps the
+/// default memory map (PRIVDEFENA); the fault handlers run with the MPU off (HFNMIENA 0).
+pub fn guard_stack() {
+    let w = |a: usize, v: u32| {
+        // SAFETY: the Cortex-M7's MPU registers, always mapped; region 0 covers no memory
+        // this firmware uses.
+        unsafe { core::ptr::write_volatile(a as *mut u32, v) }
+    };
+    w(MPU_RNR, 0);
+    w(MPU_RBAR, 0x1000_0000);
+    // XN, AP = no access, SIZE = 2^(27+1) bytes, enabled.
+    w(MPU_RASR, 1 << 28 | 27 << 1 | 1);
+    // ENABLE, PRIVDEFENA.
+    w(MPU_CTRL, 1 << 2 | 1);
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
 const PAINT: u32 = 0x5AFE_C0DE;
 
 extern "C" {
-    static mut __sheap: u32;
+    static __sheap: u32;
+    static _ram_start: u32;
     static _stack_start: u32;
+    static _stack_end: u32;
     static _calib_start: u8;
 }
 
-/// Paints the free RAM between the statics and the current stack pointer (less a
-/// margin), so [`stack_high_water`] can tell how deep the stack went.
+/// Paints the stack region below the current stack pointer (less a margin), from the
+/// stack's bottom (`_stack_end`, memory.x), so [`stack_high_water`] can tell how deep the
+/// stack went.
 pub fn paint_stack() {
-    let start = core::ptr::addr_of_mut!(__sheap) as usize;
+    let start = core::ptr::addr_of!(_stack_end) as usize;
     let sp = cortex_m::register::msp::read() as usize;
     let mut p = start;
-    // Bounded: from the end of the statics to 256 bytes below the stack pointer.
+    // Bounded: from the bottom of the stack to 256 bytes below the stack pointer.
     while p + 4 <= sp.saturating_sub(256) {
-        // SAFETY: [start, sp − 256) is unused RAM between the statics and the stack.
+        // SAFETY: [bottom, sp − 256) is unused stack.
         unsafe { core::ptr::write_volatile(p as *mut u32, PAINT) };
         p += 4;
     }
@@ -249,11 +368,11 @@ pub fn paint_stack() {
 
 /// Deepest stack use so far, bytes.
 pub fn stack_high_water() -> u32 {
-    let start = core::ptr::addr_of_mut!(__sheap) as usize;
+    let start = core::ptr::addr_of!(_stack_end) as usize;
     let top = core::ptr::addr_of!(_stack_start) as usize;
     let mut p = start;
     while p < top {
-        // SAFETY: inside RAM, word aligned.
+        // SAFETY: inside the stack region, word aligned.
         if unsafe { core::ptr::read_volatile(p as *const u32) } != PAINT {
             break;
         }
@@ -262,13 +381,122 @@ pub fn stack_high_water() -> u32 {
     (top - p) as u32
 }
 
-/// RAM taken by statics (.data + .bss), bytes.
+/// RAM taken by statics (.data + .bss + .uninit), bytes.
 pub fn static_ram() -> u32 {
-    (core::ptr::addr_of_mut!(__sheap) as usize - 0x2000_0000) as u32
+    (core::ptr::addr_of!(__sheap) as usize - core::ptr::addr_of!(_ram_start) as usize) as u32
 }
 
 /// The stored calibration table region (4 KiB at `_calib_start`: two copies, `ssis::calib::store`).
 pub fn calib_bytes() -> &'static [u8] {
     // SAFETY: the CALIB region of memory.x, 4 KiB, always mapped, read-only here.
     unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), ssis::calib::store::REGION_LEN) }
+}
+
+/// The defmt logger: frames over semihosting stdout, as `defmt-semihosting` writes them,
+/// without its panics. An NMI or fault that logs while a log is open (both unmaskable)
+/// cannot share the frame: its message is dropped and counted, never interleaved.
+#[defmt::global_logger]
+struct Logger;
+
+struct LogState {
+    restore: critical_section::RestoreState,
+    encoder: defmt::Encoder,
+    out: Option<cortex_m_semihosting::hio::HostStream>,
+}
+
+struct LogCell(core::cell::UnsafeCell<LogState>);
+
+// SAFETY: touched only by the logger functions below, with `LOG_TAKEN` as the lock inside
+// a critical section; a nested acquire never touches the state.
+unsafe impl Sync for LogCell {}
+
+static LOG: LogCell = LogCell(core::cell::UnsafeCell::new(LogState {
+    restore: critical_section::RestoreState::invalid(),
+    encoder: defmt::Encoder::new(),
+    out: None,
+}));
+/// A frame is open.
+static LOG_TAKEN: AtomicBool = AtomicBool::new(false);
+/// Nested frames open (acquired while one was open), being dropped.
+static LOG_NESTED: AtomicU32 = AtomicU32::new(0);
+/// Log messages dropped because they arrived while another was open.
+static LOG_DROPPED: AtomicU32 = AtomicU32::new(0);
+
+fn log_out(out: &mut Option<cortex_m_semihosting::hio::HostStream>, bytes: &[u8]) {
+    if out.is_none() {
+        *out = cortex_m_semihosting::hio::hstdout().ok();
+    }
+    if let Some(h) = out {
+        let _ = h.write_all(bytes);
+    }
+}
+
+// SAFETY: acquire/release pair up as defmt requires; see `LogCell`.
+unsafe impl defmt::Logger for Logger {
+    fn acquire() {
+        // SAFETY: released in `release` (or at once, for a nested frame).
+        let restore = unsafe { critical_section::acquire() };
+        if LOG_TAKEN.load(Ordering::Relaxed) {
+            LOG_NESTED.fetch_add(1, Ordering::Relaxed);
+            // SAFETY: the outer frame keeps its own critical section open.
+            unsafe { critical_section::release(restore) };
+            return;
+        }
+        LOG_TAKEN.store(true, Ordering::Relaxed);
+        // SAFETY: the lock is ours (taken above, interrupts masked).
+        let s = unsafe { &mut *LOG.0.get() };
+        s.restore = restore;
+        let LogState { encoder, out, .. } = s;
+        encoder.start_frame(|b| log_out(out, b));
+    }
+
+    unsafe fn flush() {}
+
+    unsafe fn release() {
+        if LOG_NESTED.load(Ordering::Relaxed) > 0 {
+            LOG_NESTED.fetch_sub(1, Ordering::Relaxed);
+            LOG_DROPPED.fetch_add(1, Ordering::Relaxed);
+            return;
+        }
+        if !LOG_TAKEN.load(Ordering::Relaxed) {
+            return;
+        }
+        // SAFETY: the lock is ours.
+        let s = unsafe { &mut *LOG.0.get() };
+        let LogState { encoder, out, restore } = s;
+        encoder.end_frame(|b| log_out(out, b));
+        let restore = *restore;
+        LOG_TAKEN.store(false, Ordering::Relaxed);
+        // SAFETY: pairs with the acquire of this frame.
+        unsafe { critical_section::release(restore) };
+    }
+
+    unsafe fn write(bytes: &[u8]) {
+        if LOG_NESTED.load(Ordering::Relaxed) > 0 || !LOG_TAKEN.load(Ordering::Relaxed) {
+            return;
+        }
+        // SAFETY: the lock is ours.
+        let s = unsafe { &mut *LOG.0.get() };
+        let LogState { encoder, out, .. } = s;
+        encoder.write(bytes, |b| log_out(out, b));
+    }
+}
+
+/// For the fault handler, which never returns: abandons a frame the fault interrupted (its
+/// bytes end with a frame delimiter) so the fault's own message is written whole.
+fn logger_take_over() {
+    cortex_m::interrupt::disable();
+    if LOG_TAKEN.load(Ordering::Relaxed) {
+        // SAFETY: the interrupted frame's owner never runs again; interrupts are masked.
+        let s = unsafe { &mut *LOG.0.get() };
+        log_out(&mut s.out, &[0]);
+        s.encoder = defmt::Encoder::new();
+        LOG_NESTED.store(0, Ordering::Relaxed);
+        LOG_TAKEN.store(false, Ordering::Relaxed);
+    }
+}
+
+/// Log messages dropped because an NMI or fault logged while another was open.
+pub fn log_dropped() -> u32 {
+    LOG_DROPPED.load(Ordering::Relaxed)
 }

@@ -13,7 +13,6 @@
 
 mod board;
 
-use defmt_semihosting as _;
 use heapless::Deque;
 use ssis::calib::store;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
@@ -24,12 +23,6 @@ use ssis::link::drain;
 
 /// Watchdog period in steps (warning after one period, reset after two).
 const WATCHDOG_STEPS: u32 = 10;
-
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic");
-    board::exit(false)
-}
 
 /// Step-time statistics in SysTick ticks.
 #[derive(Default)]
@@ -44,6 +37,7 @@ struct StepTimes {
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    board::guard_stack();
     board::paint_stack();
     let Some(cp) = cortex_m::Peripherals::take() else { board::exit(false) };
     let profile = Profile::SPACECRAFT;
@@ -182,7 +176,7 @@ fn report(core: &FlightCore, t: &StepTimes) {
         t.max_st
     );
     defmt::info!("stack_high_water_bytes {} static_ram_bytes {}", board::stack_high_water(), board::static_ram());
-    defmt::info!("watchdog_warnings {}", board::watchdog_warnings());
+    defmt::info!("watchdog_warnings {} log_dropped {}", board::watchdog_warnings(), board::log_dropped());
     defmt::info!(
         "counters fog_rejected {} fog_missing {} fog_stale {} st_accepted {} st_rejected {} overruns {} out_dropped {} rx_overflows {}",
         c.fog_frames_rejected,
