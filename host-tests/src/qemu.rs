@@ -557,7 +557,22 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
                         Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
                         Err(_) => s.frames_out_bad += 1,
                     }),
-                    Err(_) => bail!("no output frame for step {n} within {:?}", t0.elapsed()),
+                    Err(_) => {
+                        // Say why: QEMU's exit status and the firmware's last words.
+                        let waited = t0.elapsed();
+                        let status = wait_exit(&mut q.child, Duration::from_secs(2))?;
+                        if status.is_none() {
+                            let _ = q.child.kill();
+                            let _ = q.child.wait();
+                        }
+                        let log = decode_defmt(&opts.elf, &log_thread.join().unwrap_or_default())
+                            .unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
+                        bail!(
+                            "no output frame for step {n} within {waited:?}; QEMU exit {:?}; firmware log: {}",
+                            status.and_then(|st| st.code()),
+                            log.join(" | ")
+                        )
+                    }
                 }
             }
         }
