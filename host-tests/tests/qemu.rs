@@ -45,6 +45,7 @@ fn host_and_qemu_give_identical_output_frames() {
     assert_eq!(s.equal_frames, s.steps, "{} frames differ", s.differing_frames);
     assert_eq!(s.differing_frames, 0);
     assert!(s.log.iter().any(|l| l == "watchdog_warnings 0"), "the fed watchdog never warned: {:?}", s.log);
+    assert!(s.log.iter().any(|l| l == "log_dropped 0"), "no log message dropped: {:?}", s.log);
 }
 
 #[test]

@@ -176,7 +176,8 @@ fn report(core: &FlightCore, t: &StepTimes) {
         t.max_st
     );
     defmt::info!("stack_high_water_bytes {} static_ram_bytes {}", board::stack_high_water(), board::static_ram());
-    defmt::info!("watchdog_warnings {} log_dropped {}", board::watchdog_warnings(), board::log_dropped());
+    defmt::info!("watchdog_warnings {}", board::watchdog_warnings());
+    defmt::info!("log_dropped {}", board::log_dropped());
     defmt::info!(
         "counters fog_rejected {} fog_missing {} fog_stale {} st_accepted {} st_rejected {} overruns {} out_dropped {} rx_overflows {}",
         c.fog_frames_rejected,
