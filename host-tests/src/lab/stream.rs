@@ -195,6 +195,58 @@ pub struct Basis {
     /// T_ref, °C.
     pub t_ref_degc: f64,
     axes: [nalgebra::Vector3<f64>; 4],
+    /// Per slot, its index in the table [`Basis::fill`] builds ([`TABLE_FIXED`]); empty when
+    /// a slot is not in it (sinusoids, compiled expressions: the slot by slot fill).
+    gather: Vec<u8>,
+    /// The bare columns of the table, after its fixed part.
+    gather_cols: Vec<usize>,
+}
+
+/// The fixed part of the table of per-row quantities a fill builds for one FOG: 1, ω_x, ω_y,
+/// ω_z, |r|, r², age, ΔT, ΔT², ΔT³, G, ΔT·G, B_x, B_y, B_z, y; the bare columns follow, up to
+/// [`TABLE_MAX`] entries in all.
+const TABLE_FIXED: usize = 16;
+
+/// Entries of the table at most.
+const TABLE_MAX: usize = 32;
+
+/// The table index of every slot, and the bare columns the table carries; `None` when a
+/// slot is not in the table.
+fn table_of(slots: &[Q], exprs: &[ExprSlot]) -> Option<(Vec<u8>, Vec<usize>)> {
+    let mut cols: Vec<usize> = Vec::new();
+    let mut idx = Vec::with_capacity(slots.len());
+    for q in slots {
+        let k = match *q {
+            Q::One => 0,
+            Q::Omega(k) => 1 + k,
+            Q::AbsR => 4,
+            Q::R2 => 5,
+            Q::Age => 6,
+            Q::DT => 7,
+            Q::DT2 => 8,
+            Q::DT3 => 9,
+            Q::G => 10,
+            Q::DTG => 11,
+            Q::Field(k) => 12 + k,
+            Q::Y => 15,
+            Q::Expr(k) => match (&exprs[k].ex, exprs[k].vars.as_slice()) {
+                (None, [Var::Column(c)]) => {
+                    let at = cols.iter().position(|x| x == c).unwrap_or_else(|| {
+                        cols.push(*c);
+                        cols.len() - 1
+                    });
+                    TABLE_FIXED + at
+                }
+                _ => return None,
+            },
+            Q::Sin(_) | Q::Cos(_) => return None,
+        };
+        if k >= TABLE_MAX {
+            return None;
+        }
+        idx.push(k as u8);
+    }
+    Some((idx, cols))
 }
 
 /// Slot of the constant.
@@ -251,6 +303,7 @@ impl Basis {
             }
         }
         slots.push(Q::Y);
+        let (gather, gather_cols) = table_of(&slots, &exprs).unwrap_or_default();
         Ok(Basis {
             file: header.file.clone(),
             m: slots.len(),
@@ -264,6 +317,8 @@ impl Basis {
             t0_s,
             t_ref_degc,
             axes: nominal_axes(),
+            gather,
+            gather_cols,
         })
     }
 
@@ -274,6 +329,10 @@ impl Basis {
 
     /// Fills `z` (length m) for FOG `fog` from a sample and its G per FOG.
     pub fn fill(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
+        if !self.gather.is_empty() {
+            self.fill_from_table(fog, s, g_degc_s, z);
+            return Ok(());
+        }
         let w = s.ref_rad_s;
         let a = self.axes[fog.min(3)];
         let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
@@ -305,6 +364,44 @@ impl Basis {
             };
         }
         Ok(())
+    }
+
+    /// [`Basis::fill`] without a branch per slot: every quantity of the table computed (the
+    /// same operations as the slot by slot fill, so the same values), each slot read from it.
+    #[inline]
+    fn fill_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) {
+        let w = s.ref_rad_s;
+        let a = self.axes[fog.min(3)];
+        let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
+        let (dt, g) = if self.has_temp[fog] { (s.t_degc[fog] - self.t_ref_degc, g_degc_s[fog]) } else { (0.0, 0.0) };
+        let b = s.field_nt;
+        let age = (s.t_s - self.t0_s) / 3600.0;
+        let y = s.rate_rad_s[fog] - r;
+        let mut table = [0.0f64; TABLE_MAX];
+        table[..TABLE_FIXED].copy_from_slice(&[
+            1.0,
+            w[0],
+            w[1],
+            w[2],
+            r.abs(),
+            r * r,
+            age,
+            dt,
+            dt * dt,
+            dt * dt * dt,
+            g,
+            dt * g,
+            b[0],
+            b[1],
+            b[2],
+            y,
+        ]);
+        for (x, &c) in table[TABLE_FIXED..].iter_mut().zip(&self.gather_cols) {
+            *x = s.values[c];
+        }
+        for (v, &k) in z.iter_mut().zip(&self.gather) {
+            *v = table[usize::from(k)];
+        }
     }
 
     fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
