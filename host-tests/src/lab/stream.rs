@@ -61,8 +61,13 @@ impl Source<'_> {
         }
     }
 
-    /// Calls `f` with every sample in order, until it returns `false`.
-    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&Sample) -> LabResult<bool>) -> LabResult<()> {
+    /// Calls `f` with every sample in order, until it returns `false`. `f` may take the
+    /// sample's contents (swap it for another sample): each is filled whole.
+    fn for_each(
+        &self,
+        progress: Option<&ProgressBar>,
+        mut f: impl FnMut(&mut Sample) -> LabResult<bool>,
+    ) -> LabResult<()> {
         let mut sample = Sample::default();
         match self {
             Source::File(p) => {
@@ -70,7 +75,7 @@ impl Source<'_> {
                 let mut conv = Converter::new(&rr.header().layout);
                 let mut rows = 0u64;
                 while let Some(row) = rr.next_row()? {
-                    if conv.convert(row, &mut sample) && !f(&sample)? {
+                    if conv.convert(row, &mut sample) && !f(&mut sample)? {
                         break;
                     }
                     rows += 1;
@@ -81,11 +86,11 @@ impl Source<'_> {
             }
             Source::Memory(s) => {
                 let n_fog = s.fogs.len();
-                sample.rate_rad_s.resize(n_fog, 0.0);
-                sample.t_degc.resize(n_fog, f64::NAN);
-                sample.values.resize(s.cols.len(), 0.0);
                 let t = s.t_s();
                 for j in 0..s.len() {
+                    sample.rate_rad_s.resize(n_fog, 0.0);
+                    sample.t_degc.resize(n_fog, f64::NAN);
+                    sample.values.resize(s.cols.len(), 0.0);
                     sample.t_s = t[j];
                     for (i, fog) in s.fogs.iter().enumerate() {
                         sample.rate_rad_s[i] = fog.rate_rad_s[j];
@@ -96,7 +101,7 @@ impl Source<'_> {
                     for (v, c) in sample.values.iter_mut().zip(&s.cols) {
                         *v = c[j];
                     }
-                    if !f(&sample)? {
+                    if !f(&mut sample)? {
                         break;
                     }
                 }
@@ -605,9 +610,20 @@ impl Lookahead {
     fn push(&mut self, s: &Sample) {
         let mut x = self.spare.pop().unwrap_or_default();
         x.copy_from(s);
-        self.samples.push(x);
+        self.push_owned(x);
+    }
+
+    /// [`Lookahead::push`] without a copy: takes the sample's contents, leaving a spare
+    /// sample's (whose vectors the caller fills whole again) in their place.
+    fn push_taken(&mut self, s: &mut Sample) {
+        let x = std::mem::replace(s, self.spare.pop().unwrap_or_default());
+        self.push_owned(x);
+    }
+
+    fn push_owned(&mut self, s: Sample) {
         self.times.push(s.t_s);
         self.temps.extend_from_slice(&s.t_degc[..self.n_fog]);
+        self.samples.push(s);
     }
 
     #[inline]
@@ -717,7 +733,7 @@ pub fn for_each_prepared_until(
     let mut la = Lookahead::new(n_fog, g_window_s);
     let mut g = |j: usize, s: &Sample, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
     source.for_each(progress, |s| {
-        la.push(s);
+        la.push_taken(s);
         la.drain(false, &mut g)?;
         Ok(la.next < limit)
     })?;
@@ -1031,7 +1047,10 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let mut shift: Vec<Vec<f64>> = Vec::new();
-    // Per FOG a batch of rows, column-major (m columns of BATCH values).
+    // Per FOG a batch of rows as they come (row-major, BATCH rows of m values), and the same
+    // rows column-major (m columns of BATCH values) for the Gram sums: a row is written to
+    // consecutive memory, the batch turned over once when it is summed.
+    let mut rows_in: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
@@ -1040,22 +1059,37 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
         first: vec![Vec::new(); n_fog],
     });
-    let flush = |batch: &mut Vec<Vec<f64>>, rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
+    let mut flush = |rows_in: &[Vec<f64>], rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
         if rows == 0 {
             return;
         }
-        for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
-            for col in b.chunks_exact_mut(BATCH) {
+        for ((r, b), g) in rows_in.iter().zip(batch.iter_mut()).zip(gram.iter_mut()) {
+            for (a, col) in b.chunks_exact_mut(BATCH).enumerate() {
+                for (x, row) in col.iter_mut().zip(r.chunks_exact(m).take(rows)) {
+                    *x = row[a];
+                }
                 col[rows..].fill(0.0);
             }
             g[block].accumulate(b, rows);
         }
     };
+    // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
+    // changes at the first j with j · nb / n above the current block.
+    let (mut block, mut next_block) = (0usize, 0usize);
+    let mut next_segment = tracker.as_ref().map_or(usize::MAX, |t| t.out.first);
+    let mut next_keep = 0usize;
     let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
-        let block = block_of(j, n, nb).min(nb - 1);
-        let new_segment = tracker.as_ref().is_some_and(|t| t.out.starts_segment(j));
+        if j >= next_block {
+            block = block_of(j, n, nb).min(nb - 1);
+            next_block = if block + 1 >= nb { usize::MAX } else { ((block + 1) * n.max(1)).div_ceil(nb) };
+        }
+        let new_segment = j == next_segment;
+        if let (true, Some(t)) = (new_segment, tracker.as_ref()) {
+            debug_assert!(t.out.starts_segment(j));
+            next_segment += t.out.segment;
+        }
         if block != batch_block || batch_rows == BATCH || new_segment {
-            flush(&mut batch, batch_rows, &mut gram, batch_block);
+            flush(&rows_in, batch_rows, &mut gram, batch_block);
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -1085,8 +1119,9 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                     .collect(),
             );
         }
-        let keep = j % stride == 0;
+        let keep = j == next_keep;
         if keep {
+            next_keep += stride;
             kept.rows.push(j);
             kept.t_s.push(s.t_s);
             kept.block.push(block);
@@ -1111,26 +1146,25 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 sh[ONE] = 0.0;
                 shift.push(sh);
             }
-            for (v, sh) in z.iter_mut().zip(&shift[fog]) {
-                *v -= sh;
+            let row = &mut rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
+            for ((x, v), sh) in row.iter_mut().zip(&z).zip(&shift[fog]) {
+                *x = v - sh;
             }
-            for (a, v) in z.iter().enumerate() {
-                batch[fog][a * BATCH + batch_rows] = *v;
-            }
+            let row = &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
             if keep {
-                kept.z[fog].extend_from_slice(&z);
+                kept.z[fog].extend_from_slice(row);
             }
             if let Some(t) = tracker.as_mut() {
                 match t.out.segs.last_mut() {
-                    None => t.first[fog].extend_from_slice(&z),
-                    Some(seg) => seg[fog].offer(&z, m),
+                    None => t.first[fog].extend_from_slice(row),
+                    Some(seg) => seg[fog].offer(row, m),
                 }
             }
         }
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&mut batch, batch_rows, &mut gram, batch_block);
+    flush(&rows_in, batch_rows, &mut gram, batch_block);
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
