@@ -795,24 +795,82 @@ impl Gram {
 #[inline(always)]
 fn gram_kernel(g: &mut [f64], cols: &[f64], m: usize) {
     for a in 0..m {
-        let ca = &cols[a * BATCH..(a + 1) * BATCH];
         for b in a..m {
-            let cb = &cols[b * BATCH..(b + 1) * BATCH];
-            let mut acc = [0.0f64; 8];
-            for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
-                for l in 0..8 {
-                    acc[l] += x[l] * y[l];
-                }
-            }
-            g[a * m + b] += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+            g[a * m + b] += gram_entry(cols, a, b);
         }
     }
 }
 
+/// One entry of [`gram_kernel`]: columns a and b, eight partial sums (partial sum l takes
+/// rows l, l + 8, ...), added pairwise.
+#[inline(always)]
+fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
+    let (ca, cb) = (&cols[a * BATCH..(a + 1) * BATCH], &cols[b * BATCH..(b + 1) * BATCH]);
+    let mut acc = [0.0f64; 8];
+    for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
+        for l in 0..8 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    combine8(&acc)
+}
+
+/// The eight partial sums of a Gram entry added in their fixed order.
+#[inline(always)]
+fn combine8(acc: &[f64; 8]) -> f64 {
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+}
+
+/// [`gram_kernel`] with AVX2: four entries of a row of the triangle at a time (eight vector
+/// sums in flight instead of two, so the adds do not wait on each other); partial sums
+/// l = 0–3 and 4–7 of each entry in two vectors, separate multiply and add, the same
+/// operations in the same order as [`gram_entry`] (the same bits).
+///
+/// # Safety
+///
+/// The CPU must have AVX2; `cols` holds m columns of [`BATCH`] values and `g` m × m.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
-    gram_kernel(g, cols, m)
+    use std::arch::x86_64::{
+        __m256d, _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
+    };
+    assert!(cols.len() >= m * BATCH && g.len() >= m * m);
+    for a in 0..m {
+        let ca = cols[a * BATCH..(a + 1) * BATCH].as_ptr();
+        let mut b = a;
+        while b + 4 <= m {
+            let cb = cols[b * BATCH..(b + 4) * BATCH].as_ptr();
+            let mut lo: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+            let mut hi: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+            for i in (0..BATCH).step_by(8) {
+                // SAFETY: i + 8 ≤ BATCH; column a and columns b..b + 4 are in `cols` (asserted).
+                let (xl, xh) = unsafe { (_mm256_loadu_pd(ca.add(i)), _mm256_loadu_pd(ca.add(i + 4))) };
+                for (k, (l, h)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
+                    // SAFETY: as above, k < 4.
+                    let (yl, yh) = unsafe {
+                        let q = cb.add(k * BATCH + i);
+                        (_mm256_loadu_pd(q), _mm256_loadu_pd(q.add(4)))
+                    };
+                    *l = _mm256_add_pd(*l, _mm256_mul_pd(xl, yl));
+                    *h = _mm256_add_pd(*h, _mm256_mul_pd(xh, yh));
+                }
+            }
+            for (k, (l, h)) in lo.iter().zip(&hi).enumerate() {
+                let mut acc = [0.0f64; 8];
+                // SAFETY: `acc` has room for two vectors of four.
+                unsafe {
+                    _mm256_storeu_pd(acc.as_mut_ptr(), *l);
+                    _mm256_storeu_pd(acc.as_mut_ptr().add(4), *h);
+                }
+                g[a * m + b + k] += combine8(&acc);
+            }
+            b += 4;
+        }
+        for b in b..m {
+            g[a * m + b] += gram_entry(cols, a, b);
+        }
+    }
 }
 
 /// What a pass needs to know.
