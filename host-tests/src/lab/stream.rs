@@ -968,6 +968,11 @@ impl SegmentExtremes {
     /// Ranks row `z` by |ell·z| (|r| ≥ 0: its bits order as the numbers do).
     fn offer(&mut self, z: &[f64], m: usize) {
         let r: f64 = self.ell.iter().zip(z).map(|(a, b)| a * b).sum::<f64>().abs();
+        self.offer_ranked(r, z, m);
+    }
+
+    /// [`SegmentExtremes::offer`] with |ell·z| given (summed in slot order from the first).
+    fn offer_ranked(&mut self, r: f64, z: &[f64], m: usize) {
         for (x, v) in self.maxabs.iter_mut().zip(z) {
             *x = x.max(v.abs());
         }
@@ -1065,6 +1070,9 @@ pub struct Digest {
     /// is kept).
     pub extremes: Option<Extremes>,
 }
+
+/// FOGs whose rows a pass ranks for its extremes side by side (more: one after the other).
+const RANK_TOGETHER: usize = 4;
 
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
@@ -1212,10 +1220,29 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             if keep {
                 kept.z[fog].extend_from_slice(row);
             }
-            if let Some(t) = tracker.as_mut() {
+            if let (Some(t), true) = (tracker.as_mut(), n_fog > RANK_TOGETHER) {
                 match t.out.segs.last_mut() {
                     None => t.first[fog].extend_from_slice(row),
                     Some(seg) => seg[fog].offer(row, m),
+                }
+            }
+        }
+        if let (Some(t), true) = (tracker.as_mut(), n_fog <= RANK_TOGETHER) {
+            let rows = |fog: usize| &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
+            match t.out.segs.last_mut() {
+                None => (0..n_fog).for_each(|fog| t.first[fog].extend_from_slice(rows(fog))),
+                Some(seg) => {
+                    // |ell·z| of every FOG summed side by side (independent sums, each in slot
+                    // order from 0, as `offer` sums it).
+                    let mut r = [0.0f64; RANK_TOGETHER];
+                    for a in 0..m {
+                        for (fog, r) in r.iter_mut().enumerate().take(n_fog) {
+                            *r += seg[fog].ell[a] * rows_in[fog][batch_rows * m + a];
+                        }
+                    }
+                    for (fog, x) in seg.iter_mut().enumerate() {
+                        x.offer_ranked(r[fog].abs(), rows(fog), m);
+                    }
                 }
             }
         }
