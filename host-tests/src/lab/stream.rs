@@ -1235,9 +1235,13 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                     // |ell·z| of every FOG summed side by side (independent sums, each in slot
                     // order from 0, as `offer` sums it).
                     let mut r = [0.0f64; RANK_TOGETHER];
+                    let (mut ells, mut zs) = ([&[][..]; RANK_TOGETHER], [&[][..]; RANK_TOGETHER]);
+                    for fog in 0..n_fog {
+                        (ells[fog], zs[fog]) = (&seg[fog].ell[..m], rows(fog));
+                    }
                     for a in 0..m {
-                        for (fog, r) in r.iter_mut().enumerate().take(n_fog) {
-                            *r += seg[fog].ell[a] * rows_in[fog][batch_rows * m + a];
+                        for ((r, ell), z) in r.iter_mut().zip(&ells).zip(&zs).take(n_fog) {
+                            *r += ell[a] * z[a];
                         }
                     }
                     for (fog, x) in seg.iter_mut().enumerate() {
