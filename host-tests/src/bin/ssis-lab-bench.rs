@@ -5,6 +5,8 @@
 //! settings up to ±10 °/s, one minute each, inside the chamber's temperature cycle) with a
 //! hidden temperature-rate effect, written once with a logger's precision (10 significant
 //! digits for rates, 0.0001 °C) and reused. The lab runs single-threaded, as the CLI does.
+//! Each phase is timed in wall seconds and in CPU seconds of the process (user + system,
+//! `getrusage`): on a shared machine the CPU figure is the one-core cost.
 //!
 //! ```console
 //! $ cargo run --release --bin ssis-lab-bench                 # 10 M rows
@@ -52,6 +54,32 @@ fn target_dir() -> PathBuf {
         up.parent().map(Path::to_path_buf).unwrap_or(up)
     } else {
         up
+    }
+}
+
+/// CPU time of this process so far (user + system), s.
+fn cpu_s() -> f64 {
+    // SAFETY: getrusage writes the struct it is given; a zeroed rusage is a valid value.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `u` is a valid, writable rusage.
+    if unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut u) } != 0 {
+        return f64::NAN;
+    }
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    s(u.ru_utime) + s(u.ru_stime)
+}
+
+/// Wall and CPU time since a start.
+struct Clock(Instant, f64);
+
+impl Clock {
+    fn start() -> Clock {
+        Clock(Instant::now(), cpu_s())
+    }
+
+    /// (wall s, CPU s).
+    fn read(&self) -> (f64, f64) {
+        (self.0.elapsed().as_secs_f64(), cpu_s() - self.1)
     }
 }
 
@@ -122,25 +150,27 @@ fn main() -> Result<()> {
     println!("session {} : {} rows, 4 FOGs, 13 columns, {:.1} MB", path.display(), cli.rows, mb);
 
     // Ingest: read, split and parse every value (what every pass costs before any model work).
-    let t = Instant::now();
+    let t = Clock::start();
     let mut rr = RowReader::open(&path)?;
     let (mut rows, mut check) = (0u64, 0.0);
     while let Some(r) = rr.next_row()? {
         rows += 1;
         check += r[1];
     }
-    let ingest_s = t.elapsed().as_secs_f64();
+    let (ingest_s, ingest_cpu) = t.read();
     println!(
-        "ingest (read + parse + check, {rows} rows): {ingest_s:.2} s = {:.0} MB/s, {:.0} ns/row (checksum {check:.3e})",
+        "ingest (read + parse + check, {rows} rows): {ingest_s:.2} s = {:.0} MB/s, {:.0} ns/row; CPU {ingest_cpu:.2} s = \
+         {:.0} MB/s (checksum {check:.3e})",
         mb / ingest_s,
-        ingest_s / rows as f64 * 1e9
+        ingest_s / rows as f64 * 1e9,
+        mb / ingest_cpu
     );
 
-    let t = Instant::now();
+    let t = Clock::start();
     let shape = Source::File(&path).shape()?;
+    let (pre_s, pre_cpu) = t.read();
     println!(
-        "pre-pass (header, first 1,000 rows, count of the rest): {:.2} s for {} samples",
-        t.elapsed().as_secs_f64(),
+        "pre-pass (header, first 1,000 rows, count of the rest): {pre_s:.2} s (CPU {pre_cpu:.2} s) for {} samples",
         shape.samples
     );
     if cli.ingest_only {
@@ -151,14 +181,15 @@ fn main() -> Result<()> {
         .map(|k| Kind::parse_arg(k))
         .collect::<Result<_, _>>()?;
     let model = Model::new(&kinds);
-    let (mut compare_s, mut diagnose_s) = (f64::NAN, f64::NAN);
+    let (mut compare_s, mut diagnose_s, mut two_cpu) = (f64::NAN, f64::NAN, f64::NAN);
     if !cli.one_pass_only {
-        let t = Instant::now();
+        let t = Clock::start();
         let c = compare(&model, Source::File(&path), false, DEFAULT_BLOCKS, None)?;
-        compare_s = t.elapsed().as_secs_f64();
+        let compare_cpu;
+        (compare_s, compare_cpu) = t.read();
         println!(
             "compare (fit bias, scale_factor, misalignment, thermal_t1; held-out RMS; largest |residual| over every \
-             row, {} rows read again for it): {compare_s:.2} s",
+             row, {} rows read again for it): {compare_s:.2} s (CPU {compare_cpu:.2} s)",
             c.fitted.max_rows_read_again
         );
         for (i, s) in c.fitted.summary.iter().enumerate() {
@@ -173,11 +204,13 @@ fn main() -> Result<()> {
         );
         }
 
-        let t = Instant::now();
+        let t = Clock::start();
         let d = diagnose(&model, Source::File(&path), &Options::default())?;
-        diagnose_s = t.elapsed().as_secs_f64();
+        let diagnose_cpu;
+        (diagnose_s, diagnose_cpu) = t.read();
+        two_cpu = compare_cpu + diagnose_cpu;
         println!(
-            "diagnose ({} candidates tested, {} training / {} test samples): {diagnose_s:.2} s",
+            "diagnose ({} candidates tested, {} training / {} test samples): {diagnose_s:.2} s (CPU {diagnose_cpu:.2} s)",
             d.candidates.len(),
             d.n_train,
             d.n_test
@@ -195,16 +228,16 @@ fn main() -> Result<()> {
     }
     // Both from one pass: the fit, held-out RMS and diagnosis from the same sums, the largest
     // |residual| proved from the pass's extremes (a second pass only if it cannot be).
-    let t = Instant::now();
+    let t = Clock::start();
     let shape = Source::File(&path).shape()?;
     let opt = Options::default();
     let dg = digest(Source::File(&path), &spec_for(&model, &candidate_terms(&shape.header), opt.n_blocks), None)?;
     let f = complete(fit_digest(&model, &dg)?, Source::File(&path), &dg)?;
     let ho = held_out_rms(&model.kinds(), &dg)?;
     let d1 = diagnose_digest(&model, &dg, &opt)?;
-    let one_pass_s = t.elapsed().as_secs_f64();
+    let (one_pass_s, one_pass_cpu) = t.read();
     println!(
-        "compare + diagnose in one pass: {one_pass_s:.2} s (FOG0 residual {:.4} deg/h, max {:.4} deg/h over {} rows, held-out {:.4} deg/h; top candidate {})",
+        "compare + diagnose in one pass: {one_pass_s:.2} s, CPU {one_pass_cpu:.2} s (FOG0 residual {:.4} deg/h, max {:.4} deg/h over {} rows, held-out {:.4} deg/h; top candidate {})",
         f.summary[0].rms_residual_rad_s * DEG_H_PER_RAD_S,
         f.summary[0].max_abs_residual_rad_s * DEG_H_PER_RAD_S,
         f.max_over_rows,
@@ -212,10 +245,11 @@ fn main() -> Result<()> {
         d1.candidates[0].kind.label()
     );
     println!(
-        "compare + diagnose as two commands: {:.2} s, in one pass: {one_pass_s:.2} s (goal <= 10 s on one core); \
-         ingest {:.0} MB/s",
+        "compare + diagnose as two commands: {:.2} s (CPU {two_cpu:.2} s), in one pass: {one_pass_s:.2} s, CPU \
+         {one_pass_cpu:.2} s (goal <= 10 s on one core); ingest {:.0} MB/s (CPU: {:.0} MB/s)",
         compare_s + diagnose_s,
-        mb / ingest_s
+        mb / ingest_s,
+        mb / ingest_cpu
     );
     Ok(())
 }

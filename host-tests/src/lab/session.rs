@@ -1,9 +1,8 @@
 //! Session files: CSV with a header naming each column and its unit (`docs/SESSION-FORMAT.md`).
 //!
 //! [`RowReader`] streams the file line by line through a fixed buffer (never read whole)
-//! and parses each number in place ([`parse_number`]: exact for the decimal forms a logger
-//! writes, the standard library's parser for anything else, so every value is the one
-//! `str::parse::<f64>` gives). [`Converter`] turns a row into a sample (rates from increments,
+//! and parses each number in place ([`parse_number`]: correctly rounded, so every value is
+//! the one `str::parse::<f64>` gives). [`Converter`] turns a row into a sample (rates from increments,
 //! the reference rate from the turntable geometry). The lab's passes over a session
 //! (`super::stream`) read it this way; [`read_session`] keeps it in memory as `f64` columns
 //! for the tools that want every row (replay, tests). Every refusal names the file, the line
@@ -238,86 +237,17 @@ pub fn earth_rate_ics(psi_rad: f64, lat_rad: f64) -> [f64; 3] {
     [n * psi_rad.cos(), n * psi_rad.sin(), u]
 }
 
-const POW10: [f64; 23] = [
-    1e0, 1e1, 1e2, 1e3, 1e4, 1e5, 1e6, 1e7, 1e8, 1e9, 1e10, 1e11, 1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20,
-    1e21, 1e22,
-];
-
-/// Takes the decimal digits of `b` from `i` into `m` (m·10 + digit each, wrapping: the
-/// caller checks the count); returns the index after them.
-#[inline(always)]
-fn digits(b: &[u8], mut i: usize, m: &mut u64) -> usize {
-    while i < b.len() && b[i].is_ascii_digit() {
-        *m = m.wrapping_mul(10).wrapping_add(u64::from(b[i] - b'0'));
-        i += 1;
-    }
-    i
-}
-
 /// Parses the number at the start of `b` (spaces already skipped), returning the value and
 /// the bytes it took, or `None` when `b` does not start with one. `b` may go on past the
 /// field (the number ends at the first byte that cannot continue it).
 ///
-/// Decimal forms `[+-]digits[.digits][(e|E)[+-]digits]` with at most 19 mantissa digits whose
-/// value m < 2^53 and a decimal exponent |e| ≤ 22 are computed as m·10^e or m/10^−e: both
-/// operands are exact, so the one rounding gives the correctly rounded value, the same as
-/// `str::parse::<f64>` (Clinger's fast path). Anything else (more digits, larger exponents,
-/// `inf`, `nan`) goes to `str::parse`.
+/// The `fast-float2` crate (a port of Lemire's `fast_float`, the algorithm the standard
+/// library's own parser uses): every value correctly rounded, the same `f64` as
+/// `str::parse::<f64>` gives for the field (`inf`, `nan` included), and eight digits at a
+/// time where the bytes after the number allow it.
 #[inline]
 pub fn parse_number(b: &[u8]) -> Option<(f64, usize)> {
-    let n = b.len();
-    let mut i = 0;
-    let neg = n > 0 && b[0] == b'-';
-    if n > 0 && (b[0] == b'-' || b[0] == b'+') {
-        i = 1;
-    }
-    let mut m: u64 = 0;
-    let d0 = i;
-    i = digits(b, i, &mut m);
-    let mut nd = i - d0;
-    let mut exp: i32 = 0;
-    if i < n && b[i] == b'.' {
-        let f0 = i + 1;
-        i = digits(b, f0, &mut m);
-        nd += i - f0;
-        exp = -((i - f0) as i32);
-    }
-    if nd == 0 {
-        return slow_number(b);
-    }
-    if i < n && (b[i] == b'e' || b[i] == b'E') {
-        let mut j = i + 1;
-        let eneg = j < n && b[j] == b'-';
-        if j < n && (b[j] == b'-' || b[j] == b'+') {
-            j += 1;
-        }
-        let e0 = j;
-        let mut e: i32 = 0;
-        while j < n && b[j].is_ascii_digit() {
-            e = e.saturating_mul(10).saturating_add(i32::from(b[j] - b'0'));
-            j += 1;
-        }
-        if j == e0 {
-            return slow_number(b);
-        }
-        exp = exp.saturating_add(if eneg { -e } else { e });
-        i = j;
-    }
-    if nd > 19 || m >= 1 << 53 || exp.unsigned_abs() > 22 {
-        return slow_number(b);
-    }
-    let v = m as f64;
-    let v = if exp >= 0 { v * POW10[exp as usize] } else { v / POW10[(-exp) as usize] };
-    Some((if neg { -v } else { v }, i))
-}
-
-/// `str::parse` on `b` up to the end of its field.
-#[cold]
-#[inline(never)]
-fn slow_number(b: &[u8]) -> Option<(f64, usize)> {
-    let end = b.iter().position(|&c| matches!(c, b',' | b' ' | b'\t' | b'\r' | b'\n')).unwrap_or(b.len());
-    let text = std::str::from_utf8(&b[..end]).ok()?;
-    text.parse::<f64>().ok().map(|v| (v, end))
+    fast_float2::parse_partial::<f64, _>(b).ok()
 }
 
 /// The columns of a session by role, from its header.

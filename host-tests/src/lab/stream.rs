@@ -61,8 +61,13 @@ impl Source<'_> {
         }
     }
 
-    /// Calls `f` with every sample in order, until it returns `false`.
-    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&Sample) -> LabResult<bool>) -> LabResult<()> {
+    /// Calls `f` with every sample in order, until it returns `false`. `f` may take the
+    /// sample's contents (swap it for another sample): each is filled whole.
+    fn for_each(
+        &self,
+        progress: Option<&ProgressBar>,
+        mut f: impl FnMut(&mut Sample) -> LabResult<bool>,
+    ) -> LabResult<()> {
         let mut sample = Sample::default();
         match self {
             Source::File(p) => {
@@ -70,7 +75,7 @@ impl Source<'_> {
                 let mut conv = Converter::new(&rr.header().layout);
                 let mut rows = 0u64;
                 while let Some(row) = rr.next_row()? {
-                    if conv.convert(row, &mut sample) && !f(&sample)? {
+                    if conv.convert(row, &mut sample) && !f(&mut sample)? {
                         break;
                     }
                     rows += 1;
@@ -81,11 +86,11 @@ impl Source<'_> {
             }
             Source::Memory(s) => {
                 let n_fog = s.fogs.len();
-                sample.rate_rad_s.resize(n_fog, 0.0);
-                sample.t_degc.resize(n_fog, f64::NAN);
-                sample.values.resize(s.cols.len(), 0.0);
                 let t = s.t_s();
                 for j in 0..s.len() {
+                    sample.rate_rad_s.resize(n_fog, 0.0);
+                    sample.t_degc.resize(n_fog, f64::NAN);
+                    sample.values.resize(s.cols.len(), 0.0);
                     sample.t_s = t[j];
                     for (i, fog) in s.fogs.iter().enumerate() {
                         sample.rate_rad_s[i] = fog.rate_rad_s[j];
@@ -96,7 +101,7 @@ impl Source<'_> {
                     for (v, c) in sample.values.iter_mut().zip(&s.cols) {
                         *v = c[j];
                     }
-                    if !f(&sample)? {
+                    if !f(&mut sample)? {
                         break;
                     }
                 }
@@ -195,6 +200,58 @@ pub struct Basis {
     /// T_ref, °C.
     pub t_ref_degc: f64,
     axes: [nalgebra::Vector3<f64>; 4],
+    /// Per slot, its index in the table [`Basis::fill`] builds ([`TABLE_FIXED`]); empty when
+    /// a slot is not in it (sinusoids, compiled expressions: the slot by slot fill).
+    gather: Vec<u8>,
+    /// The bare columns of the table, after its fixed part.
+    gather_cols: Vec<usize>,
+}
+
+/// The fixed part of the table of per-row quantities a fill builds for one FOG: 1, ω_x, ω_y,
+/// ω_z, |r|, r², age, ΔT, ΔT², ΔT³, G, ΔT·G, B_x, B_y, B_z, y; the bare columns follow, up to
+/// [`TABLE_MAX`] entries in all.
+const TABLE_FIXED: usize = 16;
+
+/// Entries of the table at most.
+const TABLE_MAX: usize = 32;
+
+/// The table index of every slot, and the bare columns the table carries; `None` when a
+/// slot is not in the table.
+fn table_of(slots: &[Q], exprs: &[ExprSlot]) -> Option<(Vec<u8>, Vec<usize>)> {
+    let mut cols: Vec<usize> = Vec::new();
+    let mut idx = Vec::with_capacity(slots.len());
+    for q in slots {
+        let k = match *q {
+            Q::One => 0,
+            Q::Omega(k) => 1 + k,
+            Q::AbsR => 4,
+            Q::R2 => 5,
+            Q::Age => 6,
+            Q::DT => 7,
+            Q::DT2 => 8,
+            Q::DT3 => 9,
+            Q::G => 10,
+            Q::DTG => 11,
+            Q::Field(k) => 12 + k,
+            Q::Y => 15,
+            Q::Expr(k) => match (&exprs[k].ex, exprs[k].vars.as_slice()) {
+                (None, [Var::Column(c)]) => {
+                    let at = cols.iter().position(|x| x == c).unwrap_or_else(|| {
+                        cols.push(*c);
+                        cols.len() - 1
+                    });
+                    TABLE_FIXED + at
+                }
+                _ => return None,
+            },
+            Q::Sin(_) | Q::Cos(_) => return None,
+        };
+        if k >= TABLE_MAX {
+            return None;
+        }
+        idx.push(k as u8);
+    }
+    Some((idx, cols))
 }
 
 /// Slot of the constant.
@@ -251,6 +308,7 @@ impl Basis {
             }
         }
         slots.push(Q::Y);
+        let (gather, gather_cols) = table_of(&slots, &exprs).unwrap_or_default();
         Ok(Basis {
             file: header.file.clone(),
             m: slots.len(),
@@ -264,6 +322,8 @@ impl Basis {
             t0_s,
             t_ref_degc,
             axes: nominal_axes(),
+            gather,
+            gather_cols,
         })
     }
 
@@ -274,6 +334,10 @@ impl Basis {
 
     /// Fills `z` (length m) for FOG `fog` from a sample and its G per FOG.
     pub fn fill(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
+        if !self.gather.is_empty() {
+            self.fill_from_table(fog, s, g_degc_s, z);
+            return Ok(());
+        }
         let w = s.ref_rad_s;
         let a = self.axes[fog.min(3)];
         let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
@@ -305,6 +369,44 @@ impl Basis {
             };
         }
         Ok(())
+    }
+
+    /// [`Basis::fill`] without a branch per slot: every quantity of the table computed (the
+    /// same operations as the slot by slot fill, so the same values), each slot read from it.
+    #[inline]
+    fn fill_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) {
+        let w = s.ref_rad_s;
+        let a = self.axes[fog.min(3)];
+        let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
+        let (dt, g) = if self.has_temp[fog] { (s.t_degc[fog] - self.t_ref_degc, g_degc_s[fog]) } else { (0.0, 0.0) };
+        let b = s.field_nt;
+        let age = (s.t_s - self.t0_s) / 3600.0;
+        let y = s.rate_rad_s[fog] - r;
+        let mut table = [0.0f64; TABLE_MAX];
+        table[..TABLE_FIXED].copy_from_slice(&[
+            1.0,
+            w[0],
+            w[1],
+            w[2],
+            r.abs(),
+            r * r,
+            age,
+            dt,
+            dt * dt,
+            dt * dt * dt,
+            g,
+            dt * g,
+            b[0],
+            b[1],
+            b[2],
+            y,
+        ]);
+        for (x, &c) in table[TABLE_FIXED..].iter_mut().zip(&self.gather_cols) {
+            *x = s.values[c];
+        }
+        for (v, &k) in z.iter_mut().zip(&self.gather) {
+            *v = table[usize::from(k)];
+        }
     }
 
     fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
@@ -508,9 +610,20 @@ impl Lookahead {
     fn push(&mut self, s: &Sample) {
         let mut x = self.spare.pop().unwrap_or_default();
         x.copy_from(s);
-        self.samples.push(x);
+        self.push_owned(x);
+    }
+
+    /// [`Lookahead::push`] without a copy: takes the sample's contents, leaving a spare
+    /// sample's (whose vectors the caller fills whole again) in their place.
+    fn push_taken(&mut self, s: &mut Sample) {
+        let x = std::mem::replace(s, self.spare.pop().unwrap_or_default());
+        self.push_owned(x);
+    }
+
+    fn push_owned(&mut self, s: Sample) {
         self.times.push(s.t_s);
         self.temps.extend_from_slice(&s.t_degc[..self.n_fog]);
+        self.samples.push(s);
     }
 
     #[inline]
@@ -620,7 +733,7 @@ pub fn for_each_prepared_until(
     let mut la = Lookahead::new(n_fog, g_window_s);
     let mut g = |j: usize, s: &Sample, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
     source.for_each(progress, |s| {
-        la.push(s);
+        la.push_taken(s);
         la.drain(false, &mut g)?;
         Ok(la.next < limit)
     })?;
@@ -682,24 +795,82 @@ impl Gram {
 #[inline(always)]
 fn gram_kernel(g: &mut [f64], cols: &[f64], m: usize) {
     for a in 0..m {
-        let ca = &cols[a * BATCH..(a + 1) * BATCH];
         for b in a..m {
-            let cb = &cols[b * BATCH..(b + 1) * BATCH];
-            let mut acc = [0.0f64; 8];
-            for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
-                for l in 0..8 {
-                    acc[l] += x[l] * y[l];
-                }
-            }
-            g[a * m + b] += ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]));
+            g[a * m + b] += gram_entry(cols, a, b);
         }
     }
 }
 
+/// One entry of [`gram_kernel`]: columns a and b, eight partial sums (partial sum l takes
+/// rows l, l + 8, ...), added pairwise.
+#[inline(always)]
+fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
+    let (ca, cb) = (&cols[a * BATCH..(a + 1) * BATCH], &cols[b * BATCH..(b + 1) * BATCH]);
+    let mut acc = [0.0f64; 8];
+    for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
+        for l in 0..8 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    combine8(&acc)
+}
+
+/// The eight partial sums of a Gram entry added in their fixed order.
+#[inline(always)]
+fn combine8(acc: &[f64; 8]) -> f64 {
+    ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
+}
+
+/// [`gram_kernel`] with AVX2: four entries of a row of the triangle at a time (eight vector
+/// sums in flight instead of two, so the adds do not wait on each other); partial sums
+/// l = 0–3 and 4–7 of each entry in two vectors, separate multiply and add, the same
+/// operations in the same order as [`gram_entry`] (the same bits).
+///
+/// # Safety
+///
+/// The CPU must have AVX2; `cols` holds m columns of [`BATCH`] values and `g` m × m.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
-    gram_kernel(g, cols, m)
+    use std::arch::x86_64::{
+        __m256d, _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
+    };
+    assert!(cols.len() >= m * BATCH && g.len() >= m * m);
+    for a in 0..m {
+        let ca = cols[a * BATCH..(a + 1) * BATCH].as_ptr();
+        let mut b = a;
+        while b + 4 <= m {
+            let cb = cols[b * BATCH..(b + 4) * BATCH].as_ptr();
+            let mut lo: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+            let mut hi: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+            for i in (0..BATCH).step_by(8) {
+                // SAFETY: i + 8 ≤ BATCH; column a and columns b..b + 4 are in `cols` (asserted).
+                let (xl, xh) = unsafe { (_mm256_loadu_pd(ca.add(i)), _mm256_loadu_pd(ca.add(i + 4))) };
+                for (k, (l, h)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
+                    // SAFETY: as above, k < 4.
+                    let (yl, yh) = unsafe {
+                        let q = cb.add(k * BATCH + i);
+                        (_mm256_loadu_pd(q), _mm256_loadu_pd(q.add(4)))
+                    };
+                    *l = _mm256_add_pd(*l, _mm256_mul_pd(xl, yl));
+                    *h = _mm256_add_pd(*h, _mm256_mul_pd(xh, yh));
+                }
+            }
+            for (k, (l, h)) in lo.iter().zip(&hi).enumerate() {
+                let mut acc = [0.0f64; 8];
+                // SAFETY: `acc` has room for two vectors of four.
+                unsafe {
+                    _mm256_storeu_pd(acc.as_mut_ptr(), *l);
+                    _mm256_storeu_pd(acc.as_mut_ptr().add(4), *h);
+                }
+                g[a * m + b + k] += combine8(&acc);
+            }
+            b += 4;
+        }
+        for b in b..m {
+            g[a * m + b] += gram_entry(cols, a, b);
+        }
+    }
 }
 
 /// What a pass needs to know.
@@ -797,6 +968,11 @@ impl SegmentExtremes {
     /// Ranks row `z` by |ell·z| (|r| ≥ 0: its bits order as the numbers do).
     fn offer(&mut self, z: &[f64], m: usize) {
         let r: f64 = self.ell.iter().zip(z).map(|(a, b)| a * b).sum::<f64>().abs();
+        self.offer_ranked(r, z, m);
+    }
+
+    /// [`SegmentExtremes::offer`] with |ell·z| given (summed in slot order from the first).
+    fn offer_ranked(&mut self, r: f64, z: &[f64], m: usize) {
         for (x, v) in self.maxabs.iter_mut().zip(z) {
             *x = x.max(v.abs());
         }
@@ -895,6 +1071,9 @@ pub struct Digest {
     pub extremes: Option<Extremes>,
 }
 
+/// FOGs whose rows a pass ranks for its extremes side by side (more: one after the other).
+const RANK_TOGETHER: usize = 4;
+
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
 
@@ -934,7 +1113,10 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let mut shift: Vec<Vec<f64>> = Vec::new();
-    // Per FOG a batch of rows, column-major (m columns of BATCH values).
+    // Per FOG a batch of rows as they come (row-major, BATCH rows of m values), and the same
+    // rows column-major (m columns of BATCH values) for the Gram sums: a row is written to
+    // consecutive memory, the batch turned over once when it is summed.
+    let mut rows_in: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
@@ -943,22 +1125,37 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
         first: vec![Vec::new(); n_fog],
     });
-    let flush = |batch: &mut Vec<Vec<f64>>, rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
+    let mut flush = |rows_in: &[Vec<f64>], rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
         if rows == 0 {
             return;
         }
-        for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
-            for col in b.chunks_exact_mut(BATCH) {
+        for ((r, b), g) in rows_in.iter().zip(batch.iter_mut()).zip(gram.iter_mut()) {
+            for (a, col) in b.chunks_exact_mut(BATCH).enumerate() {
+                for (x, row) in col.iter_mut().zip(r.chunks_exact(m).take(rows)) {
+                    *x = row[a];
+                }
                 col[rows..].fill(0.0);
             }
             g[block].accumulate(b, rows);
         }
     };
+    // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
+    // changes at the first j with j · nb / n above the current block.
+    let (mut block, mut next_block) = (0usize, 0usize);
+    let mut next_segment = tracker.as_ref().map_or(usize::MAX, |t| t.out.first);
+    let mut next_keep = 0usize;
     let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
-        let block = block_of(j, n, nb).min(nb - 1);
-        let new_segment = tracker.as_ref().is_some_and(|t| t.out.starts_segment(j));
+        if j >= next_block {
+            block = block_of(j, n, nb).min(nb - 1);
+            next_block = if block + 1 >= nb { usize::MAX } else { ((block + 1) * n.max(1)).div_ceil(nb) };
+        }
+        let new_segment = j == next_segment;
+        if let (true, Some(t)) = (new_segment, tracker.as_ref()) {
+            debug_assert!(t.out.starts_segment(j));
+            next_segment += t.out.segment;
+        }
         if block != batch_block || batch_rows == BATCH || new_segment {
-            flush(&mut batch, batch_rows, &mut gram, batch_block);
+            flush(&rows_in, batch_rows, &mut gram, batch_block);
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -988,8 +1185,9 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                     .collect(),
             );
         }
-        let keep = j % stride == 0;
+        let keep = j == next_keep;
         if keep {
+            next_keep += stride;
             kept.rows.push(j);
             kept.t_s.push(s.t_s);
             kept.block.push(block);
@@ -1014,26 +1212,48 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 sh[ONE] = 0.0;
                 shift.push(sh);
             }
-            for (v, sh) in z.iter_mut().zip(&shift[fog]) {
-                *v -= sh;
+            let row = &mut rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
+            for ((x, v), sh) in row.iter_mut().zip(&z).zip(&shift[fog]) {
+                *x = v - sh;
             }
-            for (a, v) in z.iter().enumerate() {
-                batch[fog][a * BATCH + batch_rows] = *v;
-            }
+            let row = &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
             if keep {
-                kept.z[fog].extend_from_slice(&z);
+                kept.z[fog].extend_from_slice(row);
             }
-            if let Some(t) = tracker.as_mut() {
+            if let (Some(t), true) = (tracker.as_mut(), n_fog > RANK_TOGETHER) {
                 match t.out.segs.last_mut() {
-                    None => t.first[fog].extend_from_slice(&z),
-                    Some(seg) => seg[fog].offer(&z, m),
+                    None => t.first[fog].extend_from_slice(row),
+                    Some(seg) => seg[fog].offer(row, m),
+                }
+            }
+        }
+        if let (Some(t), true) = (tracker.as_mut(), n_fog <= RANK_TOGETHER) {
+            let rows = |fog: usize| &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
+            match t.out.segs.last_mut() {
+                None => (0..n_fog).for_each(|fog| t.first[fog].extend_from_slice(rows(fog))),
+                Some(seg) => {
+                    // |ell·z| of every FOG summed side by side (independent sums, each in slot
+                    // order from 0, as `offer` sums it).
+                    let mut r = [0.0f64; RANK_TOGETHER];
+                    let (mut ells, mut zs) = ([&[][..]; RANK_TOGETHER], [&[][..]; RANK_TOGETHER]);
+                    for fog in 0..n_fog {
+                        (ells[fog], zs[fog]) = (&seg[fog].ell[..m], rows(fog));
+                    }
+                    for a in 0..m {
+                        for ((r, ell), z) in r.iter_mut().zip(&ells).zip(&zs).take(n_fog) {
+                            *r += ell[a] * z[a];
+                        }
+                    }
+                    for (fog, x) in seg.iter_mut().enumerate() {
+                        x.offer_ranked(r[fog].abs(), rows(fog), m);
+                    }
                 }
             }
         }
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&mut batch, batch_rows, &mut gram, batch_block);
+    flush(&rows_in, batch_rows, &mut gram, batch_block);
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
