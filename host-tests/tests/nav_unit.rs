@@ -159,3 +159,33 @@ fn nav_unit_with_a_corrupted_accelerometer_link() {
     assert_eq!(o.counters.accel_steps_held as usize, o.accel_fault_steps);
     assert_eq!(o.nav_faults, 0);
 }
+
+/// The pad initialisation block (`ssis::nav::init`): what the firmware reads from its
+/// LVDATA region round-trips, and a damaged or out-of-range block is refused.
+#[test]
+fn pad_init_block_round_trip_and_refusals() {
+    use ssis::nav::init::{InitError, PadInit, BLOCK_LEN};
+    let rec = AscentRecord::record(LaunchProfile::default(), DT_S, DT_S);
+    let cfg = filter_config(&FogSpec::paper_post_calibration(), &AccelSpec::typical_pendulous());
+    let p = PadInit { revision: 3, state: rec.initial, gnss: cfg };
+    let bytes = p.to_bytes();
+    assert_eq!(bytes.len(), BLOCK_LEN);
+    assert_eq!(PadInit::from_bytes(&bytes), Ok(p));
+    let mut bad = bytes;
+    bad[40] ^= 0x10;
+    assert_eq!(PadInit::from_bytes(&bad), Err(InitError::Crc));
+    assert_eq!(PadInit::from_bytes(&bytes[..BLOCK_LEN - 1]), Err(InitError::Length));
+    let mut magic = bytes;
+    magic[0] = b'X';
+    assert_eq!(PadInit::from_bytes(&magic), Err(InitError::Magic));
+    let refused = |f: &dyn Fn(&mut PadInit)| {
+        let mut q = p;
+        f(&mut q);
+        PadInit::from_bytes(&q.to_bytes())
+    };
+    assert_eq!(refused(&|q| q.state.v_e_m_s.x = f64::NAN), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.state.q_eb *= 1.001), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.state.r_e_m *= 0.1), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.gnss.vrw_m_s_sqrt_s = -1.0), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.gnss.gate_sigma = 0.0), Err(InitError::Value));
+}
