@@ -1,12 +1,59 @@
-//! Link scripts for the firmware binary only (cortex-m-rt's link.x with memory.x from
+//! Link scripts for the firmware binaries only (cortex-m-rt's link.x with memory.x from
 //! this directory, and defmt's), so nested board packages keep their own.
+//!
+//! The launch-vehicle firmware (`ssis-fw-lv`) has a memory budget of its own,
+//! `link/memory-lv.x`. cortex-m-rt's link.x includes `memory.x`, which the linker looks
+//! for in the working directory (this one) before the search path, so that binary is
+//! linked with a copy of link.x that includes `memory-lv.x` instead (written to OUT_DIR
+//! from cortex-m-rt's generated script; cortex-m-rt has a `links` key, so its build
+//! script has run before this one).
+use std::path::{Path, PathBuf};
+
 fn main() {
     let dir = std::env::var("CARGO_MANIFEST_DIR").unwrap_or_default();
     println!("cargo:rustc-link-search={dir}");
     println!("cargo:rerun-if-changed=memory.x");
+    println!("cargo:rerun-if-changed=link/memory-lv.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        println!("cargo:rustc-link-arg-bins=-Tlink.x");
+        for bin in ["ssis-fw", "ssis-selftest", "ssis-navbench"] {
+            println!("cargo:rustc-link-arg-bin={bin}=-Tlink.x");
+        }
+        match lv_link_script(Path::new(&dir)) {
+            Ok(lv_dir) => {
+                println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-L{}", lv_dir.display());
+                println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-Tlink-lv.x");
+            }
+            Err(e) => println!("cargo:warning=ssis-fw-lv cannot be linked: {e}"),
+        }
         println!("cargo:rustc-link-arg-bins=-Tdefmt.x");
     }
+}
+
+/// Writes `link-lv.x` (cortex-m-rt's link.x including `memory-lv.x`) and `memory-lv.x`
+/// into a directory of OUT_DIR and returns it.
+fn lv_link_script(manifest_dir: &Path) -> Result<PathBuf, String> {
+    let out = PathBuf::from(std::env::var_os("OUT_DIR").ok_or("OUT_DIR is not set")?);
+    // OUT_DIR is <target>/build/ssis-<hash>/out; cortex-m-rt's is a sibling build dir.
+    let build = out.parent().and_then(Path::parent).ok_or("OUT_DIR has no build directory")?;
+    let newest = std::fs::read_dir(build)
+        .map_err(|e| format!("{}: {e}", build.display()))?
+        .filter_map(Result::ok)
+        .filter(|d| d.file_name().to_string_lossy().starts_with("cortex-m-rt-"))
+        .map(|d| d.path().join("out/link.x"))
+        .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
+        .max()
+        .map(|(_, p)| p)
+        .ok_or("cortex-m-rt's link.x not found beside OUT_DIR")?;
+    let link = std::fs::read_to_string(&newest).map_err(|e| format!("{}: {e}", newest.display()))?;
+    if !link.contains("INCLUDE memory.x") {
+        return Err(format!("{} does not include memory.x", newest.display()));
+    }
+    let lv = out.join("lv");
+    std::fs::create_dir_all(&lv).map_err(|e| e.to_string())?;
+    std::fs::write(lv.join("link-lv.x"), link.replace("INCLUDE memory.x", "INCLUDE memory-lv.x"))
+        .map_err(|e| e.to_string())?;
+    std::fs::copy(manifest_dir.join("link/memory-lv.x"), lv.join("memory-lv.x")).map_err(|e| e.to_string())?;
+    println!("cargo:rerun-if-changed={}", newest.display());
+    Ok(lv)
 }

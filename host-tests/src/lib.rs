@@ -13,6 +13,7 @@
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth, issue 7).
+//! - [`qemu`], [`qemu_lv`]: the firmware in QEMU (spacecraft; launch vehicle at 1.25 ms).
 //! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
 //!   sessions and exports the calibration table (`docs/LAB.md`).
 
@@ -24,6 +25,7 @@ pub mod methods;
 pub mod mock;
 pub mod plot;
 pub mod qemu;
+pub mod qemu_lv;
 pub mod scenario;
 pub mod sim;
 pub mod stats;

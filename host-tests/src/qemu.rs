@@ -272,9 +272,10 @@ pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
     Ok(dir.join("thumbv7em-none-eabihf/release").join(name))
 }
 
-struct Qemu {
-    child: Child,
-    dir: PathBuf,
+/// A running QEMU; killed (and its socket directory removed) when dropped.
+pub(crate) struct Qemu {
+    pub(crate) child: Child,
+    pub(crate) dir: PathBuf,
 }
 
 impl Drop for Qemu {
@@ -285,7 +286,7 @@ impl Drop for Qemu {
     }
 }
 
-fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<UnixStream> {
+pub(crate) fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<UnixStream> {
     listener.set_nonblocking(true)?;
     let t0 = Instant::now();
     loop {
@@ -306,6 +307,83 @@ fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<Unix
             Err(e) => return Err(e.into()),
         }
     }
+}
+
+/// A QEMU started by [`start_qemu`]: the process, its UARTs (connected, in order) and the
+/// thread collecting its stdout (the defmt log over semihosting).
+pub(crate) struct Started {
+    pub(crate) q: Qemu,
+    pub(crate) uarts: Vec<UnixStream>,
+    pub(crate) log_thread: std::thread::JoinHandle<Vec<u8>>,
+}
+
+/// Starts `qemu-system-arm -machine mps2-an500 -cpu cortex-m7` on `elf` with `n_uarts`
+/// serial ports, each a Unix socket in `dir` (removed with the returned [`Qemu`]),
+/// `-icount` with `icount` if given, semihosting, `-action watchdog=poweroff`, and each
+/// (file, address) of `loaders` loaded with `-device loader`; waits for every UART to
+/// connect.
+pub(crate) fn start_qemu(
+    elf: &Path,
+    dir: PathBuf,
+    n_uarts: usize,
+    icount: Option<&str>,
+    loaders: &[(PathBuf, u64)],
+) -> Result<Started> {
+    let socks: Vec<PathBuf> = (0..n_uarts).map(|i| dir.join(format!("uart{i}.sock"))).collect();
+    let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]);
+    cmd.args(["-semihosting-config", "enable=on,target=native"]);
+    if let Some(ic) = icount {
+        cmd.args(["-icount", ic]);
+    }
+    // A watchdog reset ends the run (a flight unit would reboot; here that would hide it).
+    cmd.args(["-action", "watchdog=poweroff"]);
+    for (i, p) in socks.iter().enumerate() {
+        cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
+        cmd.args(["-serial", &format!("chardev:u{i}")]);
+    }
+    // Extra QEMU arguments for profiling (for example `-d in_asm,exec,nochain -D trace.log`,
+    // read by `scripts/qemu-profile`); whitespace-separated.
+    if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
+        cmd.args(extra.split_whitespace());
+    }
+    for (file, addr) in loaders {
+        cmd.args(["-device", &format!("loader,file={},addr={addr:#x}", file.display())]);
+    }
+    cmd.arg("-kernel").arg(elf);
+    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    let child = cmd.spawn().context("cannot start qemu-system-arm")?;
+    let mut q = Qemu { child, dir };
+    let mut stdout = q.child.stdout.take().context("no stdout")?;
+    let log_thread = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stdout.read_to_end(&mut buf);
+        buf
+    });
+    let mut uarts = Vec::with_capacity(n_uarts);
+    for (i, l) in listeners.iter().enumerate() {
+        uarts.push(accept(l, &mut q.child, &format!("UART{i}"))?);
+    }
+    Ok(Started { q, uarts, log_thread })
+}
+
+/// Reads `stream` on a thread until it closes, sending each chunk through `wrap` to `tx`.
+pub(crate) fn spawn_reader<T: Send + 'static>(
+    stream: &UnixStream,
+    tx: mpsc::Sender<T>,
+    wrap: impl Fn(Vec<u8>) -> T + Send + 'static,
+) -> Result<()> {
+    let mut reader = stream.try_clone()?;
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 || tx.send(wrap(buf[..n].to_vec())).is_err() {
+                break;
+            }
+        }
+    });
+    Ok(())
 }
 
 /// Damages every `every`-th byte (counted over the link's life): alternately flips one
@@ -333,16 +411,18 @@ impl Corrupter {
     }
 }
 
-/// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
-pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
+/// Fails with a helpful message when `qemu-system-arm` or the firmware `elf` is missing.
+pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
     if Command::new("qemu-system-arm").arg("--version").stdout(Stdio::null()).status().is_err() {
         bail!("qemu-system-arm not found: install it (Debian: apt-get install qemu-system-arm), or run `bash .ci/run` once");
     }
-    anyhow::ensure!(
-        opts.elf.exists(),
-        "firmware ELF {} missing: run `cargo build --release` at the root",
-        opts.elf.display()
-    );
+    anyhow::ensure!(elf.exists(), "firmware ELF {} missing: run `cargo build --release` at the root", elf.display());
+    Ok(())
+}
+
+/// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
+pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
+    check_qemu_and_elf(&opts.elf)?;
     let mut sim = Simulation::new(sc)?;
     anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let mut eval = Evaluator::new(&sim);
@@ -357,49 +437,12 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         Some(img) => std::fs::write(&table_path, img)?,
         None => std::fs::write(&table_path, store::image(&sim.table))?,
     }
-    let socks: Vec<PathBuf> = (0..3).map(|i| dir.join(format!("uart{i}.sock"))).collect();
-    let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
-    let mut cmd = Command::new("qemu-system-arm");
-    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]);
-    cmd.args(["-semihosting-config", "enable=on,target=native"]);
-    if opts.icount {
-        cmd.args(["-icount", "shift=0"]);
-    }
-    // A watchdog reset ends the run (a flight unit would reboot; here that would hide it).
-    cmd.args(["-action", "watchdog=poweroff"]);
-    for (i, p) in socks.iter().enumerate() {
-        cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
-        cmd.args(["-serial", &format!("chardev:u{i}")]);
-    }
-    // Extra QEMU arguments for profiling (for example `-d in_asm,exec,nochain -D trace.log`,
-    // read by `scripts/qemu-profile`); whitespace-separated.
-    if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
-        cmd.args(extra.split_whitespace());
-    }
-    cmd.args(["-device", &format!("loader,file={},addr=0x10000", table_path.display())]);
-    cmd.arg("-kernel").arg(&opts.elf);
-    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
-    let child = cmd.spawn().context("cannot start qemu-system-arm")?;
-    let mut q = Qemu { child, dir };
-    let mut stdout = q.child.stdout.take().context("no stdout")?;
-    let log_thread = std::thread::spawn(move || {
-        let mut buf = Vec::new();
-        let _ = stdout.read_to_end(&mut buf);
-        buf
-    });
-    let mut ctl = accept(&listeners[0], &mut q.child, "UART0")?;
-    let mut fog = accept(&listeners[1], &mut q.child, "UART1")?;
-    let mut star = accept(&listeners[2], &mut q.child, "UART2")?;
+    let icount = opts.icount.then_some("shift=0");
+    let Started { mut q, uarts, log_thread } = start_qemu(&opts.elf, dir, 3, icount, &[(table_path, 0x10000)])?;
+    let [mut ctl, mut fog, mut star] =
+        <[UnixStream; 3]>::try_from(uarts).map_err(|_| anyhow::anyhow!("three UARTs expected"))?;
     let (tx, rx) = mpsc::channel::<Vec<u8>>();
-    let mut reader = ctl.try_clone()?;
-    std::thread::spawn(move || {
-        let mut buf = [0u8; 4096];
-        while let Ok(n) = reader.read(&mut buf) {
-            if n == 0 || tx.send(buf[..n].to_vec()).is_err() {
-                break;
-            }
-        }
-    });
+    spawn_reader(&ctl, tx, |b| b)?;
 
     let started = Instant::now();
     let bar = progress_bar(opts.progress, sim.steps, &sc.name);
@@ -621,7 +664,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
 }
 
 /// Waits up to `timeout` for QEMU to exit; `None` if it is still running.
-fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process::ExitStatus>> {
+pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process::ExitStatus>> {
     let t0 = Instant::now();
     loop {
         if let Some(st) = child.try_wait()? {
@@ -634,7 +677,7 @@ fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process
     }
 }
 
-fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {
+pub(crate) fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {
     if !show {
         return None;
     }

@@ -31,6 +31,7 @@ struct Outcome {
     final_err: (f64, f64),
     max_err_after_400_s: (f64, f64),
     counters: ssis::nav::unit::NavCounters,
+    fixes_used: u32,
 }
 
 fn run(duration_s: f64, accel_imp: Impairments) -> Outcome {
@@ -54,6 +55,7 @@ fn run(duration_s: f64, accel_imp: Impairments) -> Outcome {
         final_err: (0.0, 0.0),
         max_err_after_400_s: (0.0, 0.0),
         counters: Default::default(),
+        fixes_used: 0,
     };
     let mut fix_counter = 0u16;
     for (k, ((dth, dv), truth)) in rec.increments.iter().zip(&rec.truth).enumerate() {
@@ -68,6 +70,8 @@ fn run(duration_s: f64, accel_imp: Impairments) -> Outcome {
             links.gnss.send(&g.to_bytes());
         }
         let out = unit.step(dth, t_us, &mut links);
+        // The heavy filter work after the step's output, as the firmware does.
+        unit.filter_work();
         links.accel.tick();
         links.gnss.tick();
         // Decode what the unit sent.
@@ -99,6 +103,7 @@ fn run(duration_s: f64, accel_imp: Impairments) -> Outcome {
         o.steps += 1;
     }
     o.counters = unit.counters();
+    o.fixes_used = unit.nav().counts().0;
     o
 }
 
@@ -125,11 +130,15 @@ fn nav_unit_over_the_ascent_through_its_links() {
     assert_eq!(o.frames_out, o.steps, "one output frame per step");
     assert_eq!(o.nav_faults, 0);
     assert_eq!(o.accel_fault_steps, 0, "ideal link: no accelerometer sample missing");
-    assert_eq!(o.updated, 570, "every fix outside the outage used");
-    // Outage flag: before the first fix (1 s: 800 steps... flagged from the start) and
-    // from 2 s after the last fix before the outage (299 s) to the first after it (330 s).
-    let before_first_fix = 800 - 1;
-    let in_outage = ((330.0 - 301.0) / DT_S) as usize;
+    assert_eq!(o.fixes_used, 570, "every fix outside the outage used");
+    // A fix is applied by the filter work after the step it arrived in and flagged in the
+    // next frame: the fix of the last step (600 s) has no frame after it.
+    assert_eq!(o.updated, 569, "frames flagged GNSS_UPDATED");
+    // Outage flag: from the start to the first fix's step (1 s: 800 steps; that step's
+    // frame precedes the update) and from 2 s after the last fix before the outage
+    // (299 s) to the first fix's step after it (330 s), inclusive.
+    let before_first_fix = 800;
+    let in_outage = ((330.0 - 301.0) / DT_S) as usize + 1;
     assert!(o.outage_steps.abs_diff(before_first_fix + in_outage) <= 2, "outage steps {}", o.outage_steps);
     assert!(o.max_frame_vs_state.0 <= 0.5 * POS_LSB_M && o.max_frame_vs_state.1 <= 0.5 * VEL_LSB_M_S);
     // Ideal accelerometers and angle increments: the error is the GNSS noise's share.
@@ -149,4 +158,34 @@ fn nav_unit_with_a_corrupted_accelerometer_link() {
     assert!(o.counters.accel_frames_rejected > 0 && o.accel_fault_steps > 0);
     assert_eq!(o.counters.accel_steps_held as usize, o.accel_fault_steps);
     assert_eq!(o.nav_faults, 0);
+}
+
+/// The pad initialisation block (`ssis::nav::init`): what the firmware reads from its
+/// LVDATA region round-trips, and a damaged or out-of-range block is refused.
+#[test]
+fn pad_init_block_round_trip_and_refusals() {
+    use ssis::nav::init::{InitError, PadInit, BLOCK_LEN};
+    let rec = AscentRecord::record(LaunchProfile::default(), DT_S, DT_S);
+    let cfg = filter_config(&FogSpec::paper_post_calibration(), &AccelSpec::typical_pendulous());
+    let p = PadInit { revision: 3, state: rec.initial, gnss: cfg };
+    let bytes = p.to_bytes();
+    assert_eq!(bytes.len(), BLOCK_LEN);
+    assert_eq!(PadInit::from_bytes(&bytes), Ok(p));
+    let mut bad = bytes;
+    bad[40] ^= 0x10;
+    assert_eq!(PadInit::from_bytes(&bad), Err(InitError::Crc));
+    assert_eq!(PadInit::from_bytes(&bytes[..BLOCK_LEN - 1]), Err(InitError::Length));
+    let mut magic = bytes;
+    magic[0] = b'X';
+    assert_eq!(PadInit::from_bytes(&magic), Err(InitError::Magic));
+    let refused = |f: &dyn Fn(&mut PadInit)| {
+        let mut q = p;
+        f(&mut q);
+        PadInit::from_bytes(&q.to_bytes())
+    };
+    assert_eq!(refused(&|q| q.state.v_e_m_s.x = f64::NAN), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.state.q_eb *= 1.001), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.state.r_e_m *= 0.1), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.gnss.vrw_m_s_sqrt_s = -1.0), Err(InitError::Value));
+    assert_eq!(refused(&|q| q.gnss.gate_sigma = 0.0), Err(InitError::Value));
 }

@@ -21,7 +21,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::binary::CRC32;
+use super::section::{self, SectionError};
 use crate::math;
 
 /// Number of accelerometers.
@@ -125,6 +125,17 @@ pub enum AccelTableError {
     Value,
 }
 
+impl From<SectionError> for AccelTableError {
+    fn from(e: SectionError) -> Self {
+        match e {
+            SectionError::Length => AccelTableError::Length,
+            SectionError::Magic => AccelTableError::Magic,
+            SectionError::Version => AccelTableError::Version,
+            SectionError::Crc => AccelTableError::Crc,
+        }
+    }
+}
+
 /// The accelerometer calibration section.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
@@ -145,7 +156,7 @@ pub const FORMAT_VERSION: u16 = 1;
 /// f64 fields: 8 per accelerometer, then 6 misalignment angles.
 pub const N_F64: usize = 8 * N_ACCEL + 6;
 /// Binary length: magic 4, version 2, payload length 2, revision 4, fields, CRC-32 4.
-pub const TABLE_LEN: usize = 12 + 8 * N_F64 + 4;
+pub const TABLE_LEN: usize = section::section_len(N_F64);
 
 /// Compensated body velocity increments need the inverse of the axes matrix; it is
 /// computed once when the table is accepted ([`AccelTable::compensator`]).
@@ -218,52 +229,19 @@ impl AccelTable {
         Ok(())
     }
 
-    /// Binary form (little-endian; CRC-32/ISO-HDLC over everything before it).
+    /// Binary form (little-endian; CRC-32/ISO-HDLC over everything before it;
+    /// [`super::section`]).
     pub fn to_bytes(&self) -> [u8; TABLE_LEN] {
         let mut out = [0u8; TABLE_LEN];
-        let bytes = MAGIC
-            .into_iter()
-            .chain(FORMAT_VERSION.to_le_bytes())
-            .chain(((8 * N_F64) as u16).to_le_bytes())
-            .chain(self.revision.to_le_bytes())
-            .chain(self.fields().into_iter().flat_map(f64::to_le_bytes));
-        for (slot, b) in out.iter_mut().zip(bytes) {
-            *slot = b;
-        }
-        if let Some((body, crc)) = out.split_last_chunk_mut::<4>() {
-            *crc = CRC32.checksum(body).to_le_bytes();
-        }
+        section::encode(MAGIC, FORMAT_VERSION, self.revision, &self.fields(), &mut out);
         out
     }
 
     /// Decodes and validates a binary section. Checks, in order: length, magic,
     /// version, declared payload length, CRC, values ([`AccelTable::validate`]).
     pub fn from_bytes(bytes: &[u8]) -> Result<Self, AccelTableError> {
-        if bytes.len() != TABLE_LEN {
-            return Err(AccelTableError::Length);
-        }
-        let (body, crc) = bytes.split_last_chunk::<4>().ok_or(AccelTableError::Length)?;
-        let (head, payload) = body.split_first_chunk::<12>().ok_or(AccelTableError::Length)?;
-        let [m0, m1, m2, m3, v0, v1, l0, l1, r0, r1, r2, r3] = *head;
-        if [m0, m1, m2, m3] != MAGIC {
-            return Err(AccelTableError::Magic);
-        }
-        if u16::from_le_bytes([v0, v1]) != FORMAT_VERSION {
-            return Err(AccelTableError::Version);
-        }
-        if usize::from(u16::from_le_bytes([l0, l1])) != 8 * N_F64 {
-            return Err(AccelTableError::Length);
-        }
-        if CRC32.checksum(body) != u32::from_le_bytes(*crc) {
-            return Err(AccelTableError::Crc);
-        }
-        let mut f = [0.0; N_F64];
-        for (slot, c) in f.iter_mut().zip(payload.chunks_exact(8)) {
-            if let Some(b) = c.first_chunk::<8>() {
-                *slot = f64::from_le_bytes(*b);
-            }
-        }
-        let t = AccelTable::from_fields(u32::from_le_bytes([r0, r1, r2, r3]), &f);
+        let (revision, f) = section::decode::<N_F64>(bytes, MAGIC, FORMAT_VERSION)?;
+        let t = AccelTable::from_fields(revision, &f);
         t.validate()?;
         Ok(t)
     }

@@ -23,6 +23,7 @@
 
 pub mod accel;
 pub mod binary;
+pub mod section;
 pub mod store;
 
 use crate::math;

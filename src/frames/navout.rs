@@ -42,7 +42,8 @@ pub const SIGMA_VEL_LSB_M_S: f64 = 0.001;
 
 /// Bits of the flags byte.
 pub mod flags {
-    /// A GNSS fix was applied in this step.
+    /// A GNSS fix was applied since the previous frame (by the filter work after the
+    /// previous step, `crate::nav::unit`): this frame's state is the first to include it.
     pub const GNSS_UPDATED: u8 = 1 << 0;
     /// No GNSS fix used for more than 2 s: free inertial.
     pub const GNSS_OUTAGE: u8 = 1 << 1;

@@ -170,21 +170,38 @@ impl AidedNav {
 
     /// One navigation step with the increments of the step (the bias estimates are
     /// removed here); propagates the covariance every [`PROPAGATE_STEPS`] steps.
+    /// Equal to [`AidedNav::step_deferred`] followed, when [`AidedNav::propagation_due`],
+    /// by [`AidedNav::propagate`].
     pub fn step(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
+        self.step_deferred(dtheta_rad, dv_m_s)?;
+        if self.propagation_due() {
+            self.propagate();
+        }
+        Ok(())
+    }
+
+    /// The strapdown part of [`AidedNav::step`] alone: the covariance propagation, even
+    /// when due, is left to the caller ([`AidedNav::propagate`], or the next
+    /// [`AidedNav::gnss_update`], which propagates first). Lets a unit run the heavy
+    /// 15×15 products after the step's output (`crate::nav::unit`).
+    pub fn step_deferred(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
         let dt = self.nav.dt_s();
         let dth = dtheta_rad - self.gyro_bias_rad_s * dt;
         let dv = dv_m_s - self.accel_bias_m_s2 * dt;
         self.nav.step(&dth, &dv)?;
         self.sum_dv_e_m_s += math::rotate(&self.nav.state().q_eb, &dv);
         self.pending_steps = self.pending_steps.saturating_add(1);
-        if self.pending_steps >= PROPAGATE_STEPS {
-            self.propagate();
-        }
         Ok(())
     }
 
-    /// Propagates the covariance over the steps since the last propagation.
-    fn propagate(&mut self) {
+    /// Whether [`PROPAGATE_STEPS`] or more steps have passed since the last propagation.
+    pub fn propagation_due(&self) -> bool {
+        self.pending_steps >= PROPAGATE_STEPS
+    }
+
+    /// Propagates the covariance over the steps since the last propagation (nothing
+    /// when there were none): Φ = I + F T + (F T)²/2, P ← Φ P Φᵀ + Q_c T.
+    pub fn propagate(&mut self) {
         if self.pending_steps == 0 {
             return;
         }

@@ -48,6 +48,7 @@
 //! with a [`NavError`] and the state is left as it was.
 
 pub mod gnss;
+pub mod init;
 pub mod unit;
 pub mod wgs84;
 

@@ -2,27 +2,41 @@
 //! multi-drop link carrying the three accelerometers, told apart by `accel_id`), GNSS
 //! fix frames in (their own link), navigation output frames out.
 //!
-//! [`NavUnit::step`] is meant to be called once per integrated FOG sample with the body
-//! angle increment of that sample (the FOG compensation and combination are the flight
-//! step's, [`crate::flight`]); per call it:
+//! The stage's work is split in two, so the heavy filter arithmetic never sits between
+//! a sample and its output frame:
 //!
-//! 1. drains the accelerometer link into per-accelerometer queues and takes one sample of
-//!    each (oldest first); a missing or faulty one holds the previous compensated
-//!    increment for the step and raises [`flags::ACCEL_FAULT`];
-//! 2. compensates the three increments ([`crate::calib::accel::AccelCompensator`]);
-//! 3. runs the aided strapdown step ([`AidedNav::step`]);
-//! 4. drains the GNSS link; the newest valid fix, if any, is applied now (the frame's
-//!    time tag is not used: a fix is applied at the step it arrives in, so the link
-//!    latency is not compensated);
-//! 5. emits one [`NavOutputFrame`].
+//! - [`NavUnit::step`], once per integrated FOG sample with the body angle increment of
+//!   that sample (the FOG compensation and combination are the flight step's,
+//!   [`crate::flight`]; the firmware calls it from the hook of
+//!   [`crate::flight::FlightCore::step_with`]); per call it:
+//!   1. drains the accelerometer link into per-accelerometer queues and takes one sample
+//!      of each (oldest first); a missing or faulty one holds the previous compensated
+//!      increment for the step and raises [`flags::ACCEL_FAULT`];
+//!   2. compensates the three increments ([`crate::calib::accel::AccelCompensator`]);
+//!   3. runs the strapdown step ([`AidedNav::step_deferred`]: attitude, velocity,
+//!      position; no covariance work);
+//!   4. drains the GNSS link; the newest valid fix, if any, is held for the filter work
+//!      (its time tag is not used: a fix is applied as of the step it arrives in, so the
+//!      link latency is not compensated);
+//!   5. emits one [`NavOutputFrame`].
+//! - [`NavUnit::filter_work`], once per flight step after the step's output frames: the
+//!   held fix's update ([`AidedNav::gnss_update`], ~67,000 instructions on the
+//!   Cortex-M7, which first propagates the covariance), else the covariance propagation
+//!   when due ([`AidedNav::propagate`], every 80 steps, ~54,000). A fix used here shows
+//!   as [`flags::GNSS_UPDATED`] in the next output frame (whose state includes it).
 //!
-//! Not yet called by [`crate::flight::FlightCore::step`]; the accelerometer samples are
-//! assumed to be taken in step with the FOG samples (their counters are not matched).
+//! Both run to completion in the same 1.25 ms period (the firmware counts an overrun
+//! when they do not, `src/bin/ssis-fw-lv`); the split only keeps the filter out of the
+//! sample-to-output latency. The navigation state is the same as with the covariance
+//! work done inside the step: the filter reads the state as of the last step either way.
+//!
+//! The accelerometer samples are assumed to be taken in step with the FOG samples (their
+//! counters are not matched).
 
 use heapless::Deque;
 use nalgebra::Vector3;
 
-use super::gnss::{AidedNav, GnssConfig, GnssFix};
+use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix};
 use super::{NavError, NavState};
 use crate::calib::accel::{AccelCompensator, N_ACCEL};
 use crate::frames::accel::AccelFrame;
@@ -62,6 +76,8 @@ pub struct NavCounters {
     pub gnss_frames_rejected: u32,
     /// Navigation steps refused (state held).
     pub nav_faults: u32,
+    /// Valid fixes replaced by a newer one before the filter work used them.
+    pub gnss_fixes_superseded: u32,
     /// Output frames that could not be written.
     pub output_dropped: u32,
     /// Link driver errors.
@@ -87,6 +103,10 @@ pub struct NavUnit {
     gnss_dec: StreamDecoder<GnssFrame, 64>,
     last_dv_m_s: Vector3<f64>,
     last_fix_us: Option<u64>,
+    /// The newest valid fix not yet used, with the unit time of its step, µs.
+    pending_fix: Option<(GnssFix, u64)>,
+    /// A fix has been applied since the last output frame.
+    updated_since_output: bool,
     rx_scratch: [u8; 64],
     out_buf: [u8; NavOutputFrame::LEN],
     out_counter: u16,
@@ -105,6 +125,8 @@ impl NavUnit {
             gnss_dec: StreamDecoder::new(),
             last_dv_m_s: Vector3::zeros(),
             last_fix_us: None,
+            pending_fix: None,
+            updated_since_output: false,
             rx_scratch: [0; 64],
             out_buf: [0; NavOutputFrame::LEN],
             out_counter: 0,
@@ -173,19 +195,22 @@ impl NavUnit {
                 self.last_dv_m_s
             }
         };
-        // 3. Navigation.
-        if self.nav.step(dtheta_body_rad, &dv).is_err() {
+        // 3. Navigation (strapdown only; the covariance work is `filter_work`'s).
+        if self.nav.step_deferred(dtheta_body_rad, &dv).is_err() {
             fl |= flags::NAV_FAULT;
             self.counters.nav_faults = self.counters.nav_faults.saturating_add(1);
         }
-        // 4. GNSS.
+        // 4. GNSS: hold the newest valid fix for the filter work.
         let mut newest: Option<GnssFix> = None;
         let gdec = &mut self.gnss_dec;
+        let mut superseded = 0u32;
         let rep = drain(&mut links.gnss, MAX_GNSS_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
             gdec.push_slice(bytes, |r| {
                 if let Ok(f) = r {
                     if let Some(fix) = f.fix() {
-                        newest = Some(fix);
+                        if newest.replace(fix).is_some() {
+                            superseded += 1;
+                        }
                     }
                 }
             })
@@ -193,10 +218,13 @@ impl NavUnit {
         self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
         self.counters.gnss_frames_rejected = self.gnss_dec.stats().rejected();
         if let Some(fix) = newest {
-            if self.nav.gnss_update(&fix).is_ok() {
-                fl |= flags::GNSS_UPDATED;
-                self.last_fix_us = Some(time_us);
+            if self.pending_fix.replace((fix, time_us)).is_some() {
+                superseded += 1;
             }
+        }
+        self.counters.gnss_fixes_superseded = self.counters.gnss_fixes_superseded.saturating_add(superseded);
+        if core::mem::take(&mut self.updated_since_output) {
+            fl |= flags::GNSS_UPDATED;
         }
         let outage = match self.last_fix_us {
             Some(t) => time_us.saturating_sub(t) > GNSS_OUTAGE_US,
@@ -222,4 +250,40 @@ impl NavUnit {
         }
         NavStepOutput { flags: fl, state }
     }
+
+    /// The heavy filter work, once per flight step after its output frames: the held
+    /// fix's update (which propagates the covariance first), else the covariance
+    /// propagation when [`AidedNav::propagation_due`]; at most one of each per call.
+    pub fn filter_work(&mut self) -> FilterWork {
+        if let Some((fix, t_us)) = self.pending_fix.take() {
+            return match self.nav.gnss_update(&fix) {
+                Ok(()) => {
+                    self.updated_since_output = true;
+                    self.last_fix_us = Some(t_us);
+                    FilterWork::Updated
+                }
+                Err(e) => FilterWork::Refused(e),
+            };
+        }
+        if self.nav.propagation_due() {
+            self.nav.propagate();
+            return FilterWork::Propagated;
+        }
+        FilterWork::None
+    }
+}
+
+/// What one [`NavUnit::filter_work`] did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum FilterWork {
+    /// Nothing was due.
+    None,
+    /// The covariance was propagated.
+    Propagated,
+    /// A fix was applied (after the propagation it needs).
+    Updated,
+    /// A fix was refused (gate, bad values, singular innovation covariance); the
+    /// covariance was propagated first unless the fix itself was bad.
+    Refused(GnssError),
 }

@@ -1,5 +1,7 @@
 //! `ssis-qemu`: run a scenario on the firmware in QEMU (mps2-an500), fed by the
 //! simulator over the emulated UARTs, and report against truth. `--help` for options.
+//! A launch-vehicle ascent scenario (`kind = "lv-ascent"`, e.g. `scenarios/lv-ascent.toml`)
+//! runs on `ssis-fw-lv` at 1.25 ms in lockstep (`ssis_host::qemu_lv`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -9,6 +11,7 @@ use clap::Parser;
 use ssis_host::harness::CSV_HEADER;
 use ssis_host::plot::{write_svg, PlotPoint};
 use ssis_host::qemu::{build_firmware, default_elf, elf_sizes, run_qemu, QemuOptions};
+use ssis_host::qemu_lv::{run_qemu_lv, LvOptions, LvScenario};
 use ssis_host::scenario::Scenario;
 
 #[derive(Parser)]
@@ -16,11 +19,13 @@ use ssis_host::scenario::Scenario;
 struct Args {
     /// Scenario file (TOML).
     scenario: PathBuf,
-    /// Firmware ELF (default: build it and use target/thumbv7em-none-eabihf/release/ssis-fw).
+    /// Firmware ELF (default: build it and use target/thumbv7em-none-eabihf/release/ssis-fw,
+    /// or ssis-fw-lv for a launch-vehicle ascent).
     #[arg(long)]
     elf: Option<PathBuf>,
     /// Lockstep: step on control frames and compare every output frame with the
-    /// in-process flight core (deterministic; not real time).
+    /// in-process flight core (deterministic; not real time). A launch-vehicle ascent
+    /// always runs in lockstep.
     #[arg(long)]
     lockstep: bool,
     /// Count instructions (-icount shift=0): step times are then instructions.
@@ -50,6 +55,9 @@ fn main() -> ExitCode {
 
 fn real_main() -> Result<bool> {
     let a = Args::parse();
+    if LvScenario::is_lv_file(&a.scenario) {
+        return run_lv(&a);
+    }
     let mut sc = Scenario::from_file(&a.scenario)?;
     if let Some(d) = a.duration {
         sc.duration_s = d;
@@ -97,4 +105,23 @@ fn real_main() -> Result<bool> {
     println!("wrote {} and {}", csv_path.display(), svg.display());
     let clean = s.exit_code == Some(0) && s.frames_out_bad == 0 && s.differing_frames == 0 && s.frames_out > 0;
     Ok(clean)
+}
+
+/// A launch-vehicle ascent on `ssis-fw-lv` (lockstep at 1.25 ms).
+fn run_lv(a: &Args) -> Result<bool> {
+    let mut sc = LvScenario::from_file(&a.scenario)?;
+    if let Some(d) = a.duration {
+        sc.duration_s = d;
+    }
+    anyhow::ensure!(a.corrupt_every == 0, "--corrupt-every is not supported for a launch-vehicle ascent");
+    let elf = match &a.elf {
+        Some(e) => e.clone(),
+        None => ssis_host::qemu_lv::build_firmware()?,
+    };
+    let s = run_qemu_lv(&sc, &LvOptions { elf: elf.clone(), icount: a.icount, progress: true })?;
+    print!("{}", s.report());
+    if let Ok((flash, ram)) = elf_sizes(&elf) {
+        println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
+    }
+    Ok(s.clean())
 }
