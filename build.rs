@@ -16,7 +16,7 @@ fn main() {
     println!("cargo:rerun-if-changed=link/memory-lv.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        for bin in ["ssis-fw", "ssis-selftest", "ssis-navbench"] {
+        for bin in ["ssis-fw", "ssis-selftest", "ssis-navbench", "ssis-stackcheck"] {
             println!("cargo:rustc-link-arg-bin={bin}=-Tlink.x");
         }
         match lv_link_script(Path::new(&dir)) {
