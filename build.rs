@@ -16,13 +16,17 @@ fn main() {
     println!("cargo:rerun-if-changed=link/memory-lv.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        for bin in ["ssis-fw", "ssis-selftest", "ssis-navbench", "ssis-stackcheck"] {
+        for bin in ["ssis-fw", "ssis-selftest", "ssis-stackcheck"] {
             println!("cargo:rustc-link-arg-bin={bin}=-Tlink.x");
         }
         match lv_link_script(Path::new(&dir)) {
             Ok(lv_dir) => {
-                println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-L{}", lv_dir.display());
-                println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-Tlink-lv.x");
+                // The navigation benchmark is launch-vehicle code: the LV budget (its
+                // GNSS update needs more stack than the spacecraft's 28 KiB region).
+                for bin in ["ssis-fw-lv", "ssis-navbench"] {
+                    println!("cargo:rustc-link-arg-bin={bin}=-L{}", lv_dir.display());
+                    println!("cargo:rustc-link-arg-bin={bin}=-Tlink-lv.x");
+                }
             }
             Err(e) => println!("cargo:warning=ssis-fw-lv cannot be linked: {e}"),
         }
