@@ -643,13 +643,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             Err(_) => s.frames_out_bad += 1,
         });
     }
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    s.exit_code = status.and_then(|st| st.code());
-    let _ = q.child.kill();
-    let log = log_thread.join().unwrap_or_default();
-    s.log = decode_defmt(&opts.elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
+    (s.exit_code, s.log) = finish_run(&mut q, status, bar, log_thread, &opts.elf);
     for (k, t) in ticks.iter().enumerate() {
         s.step_ticks_mean[k] = t.mean()[0];
         s.step_counts[k] = t.count();
@@ -675,6 +669,24 @@ pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<s
         }
         std::thread::sleep(Duration::from_millis(5));
     }
+}
+
+/// The end of a run: the progress bar closed, QEMU stopped, its exit code and decoded
+/// defmt log.
+pub(crate) fn finish_run(
+    q: &mut Qemu,
+    status: Option<std::process::ExitStatus>,
+    bar: Option<indicatif::ProgressBar>,
+    log_thread: std::thread::JoinHandle<Vec<u8>>,
+    elf: &Path,
+) -> (Option<i32>, Vec<String>) {
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let code = status.and_then(|st| st.code());
+    let _ = q.child.kill();
+    let log = log_thread.join().unwrap_or_default();
+    (code, decode_defmt(elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]))
 }
 
 pub(crate) fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {

@@ -54,7 +54,8 @@ use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 use crate::lv::{angle_between, filter_config};
 use crate::mock::{MockLink, MockSink};
 use crate::qemu::{
-    check_qemu_and_elf, decode_defmt, progress_bar, spawn_reader, start_qemu, wait_exit, Started, INSTR_PER_TICK,
+    check_qemu_and_elf, decode_defmt, finish_run, progress_bar, spawn_reader, start_qemu, wait_exit, Started,
+    INSTR_PER_TICK,
 };
 use crate::sim::accel::{AccelModel, AccelSpec};
 use crate::sim::fog::{FogModel, FogSpec};
@@ -639,13 +640,7 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
     s.bad_bytes = bad;
     uarts[0].write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
     let status = wait_exit(&mut q.child, Duration::from_secs(10))?;
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    s.exit_code = status.and_then(|st| st.code());
-    let _ = q.child.kill();
-    let log = log_thread.join().unwrap_or_default();
-    s.log = decode_defmt(&opts.elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
+    (s.exit_code, s.log) = finish_run(&mut q, status, bar, log_thread, &opts.elf);
     for l in &s.log {
         let w: Vec<&str> = l.split_whitespace().collect();
         if w.first() == Some(&"lv_times") {
