@@ -106,6 +106,12 @@ impl Combiner {
         (self.parity * m).x
     }
 
+    /// The four triad solutions (FOG i left out), when every one exists.
+    pub fn triads(&self) -> Option<[Matrix3x4<f64>; N_FOG]> {
+        let [a, b, c, d] = self.without;
+        Some([a?, b?, c?, d?])
+    }
+
     /// The unit parity vector v.
     pub fn parity_vector(&self) -> RowVector4<f64> {
         self.parity

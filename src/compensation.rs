@@ -70,8 +70,29 @@ impl TempRateEstimator {
         (self.t_degc, self.g_degc_s)
     }
 
+    /// [`TempRateEstimator::update`] unless the sample is further than `max_jump_degc`
+    /// from the prediction: then `None` and nothing changes (a failed sensor).
+    pub fn update_within(&mut self, temperature_degc: f64, dt_s: f64, max_jump_degc: f64) -> Option<(f64, f64)> {
+        if !self.started {
+            return Some(self.update(temperature_degc, dt_s));
+        }
+        let predicted = self.t_degc + self.g_degc_s * dt_s;
+        let r = temperature_degc - predicted;
+        if r.abs() > max_jump_degc {
+            return None;
+        }
+        self.t_degc = predicted + self.alpha * r;
+        self.g_degc_s += self.beta_per_s * r;
+        Some((self.t_degc, self.g_degc_s))
+    }
+
     /// Last (T, G) estimate.
     pub fn estimate(&self) -> (f64, f64) {
         (self.t_degc, self.g_degc_s)
+    }
+
+    /// Whether a first sample has been taken.
+    pub fn started(&self) -> bool {
+        self.started
     }
 }

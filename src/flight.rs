@@ -19,12 +19,14 @@ use nalgebra::{Quaternion, Vector3, Vector4};
 use crate::attitude::{Attitude, Coning};
 use crate::calib::{CalibrationTable, FogCal, N_FOG};
 use crate::combination::{Combiner, FogSet};
-use crate::compensation::{compensate_increment, TempRateEstimator};
+use crate::compensation::compensate_increment;
 use crate::frames::decoder::StreamDecoder;
-use crate::frames::fog::FogFrame;
-use crate::frames::output::OutputFrame;
+use crate::frames::fog::{status, FogFrame};
+use crate::frames::output::{page, OutputFrame};
 use crate::frames::star::StarFrame;
 use crate::frames::Frame;
+use crate::integrity::channel::{ChannelMonitor, FogCounters};
+use crate::integrity::parity::{FdiState, ParityMonitor, SampleVerdict};
 use crate::link::{drain, write_frame, RxLink, TxLink};
 use crate::observer::{GainError, Observer, UpdateError};
 
@@ -104,8 +106,10 @@ pub mod health {
     pub const COUNTER_GAP: u8 = 1 << 4;
     /// Rate outside the measuring range.
     pub const OUT_OF_RANGE: u8 = 1 << 5;
-    /// Excluded by configuration or by the fault logic.
+    /// Excluded by configuration or by the fault logic (isolated, or a parity spike).
     pub const EXCLUDED: u8 = 1 << 6;
+    /// The raw output is stuck (the same increment 40 samples in a row): not used.
+    pub const STUCK: u8 = 1 << 7;
 }
 
 /// Star-tracker status bits (output frame).
@@ -120,6 +124,10 @@ pub mod st_status {
     pub const REFUSED: u8 = 1 << 3;
     /// No accepted frame for more than 2 s: attitude propagates on gyros alone.
     pub const OUTAGE: u8 = 1 << 4;
+    /// A frame was used by the fault logic only (listening while a FOG is isolated).
+    pub const LISTENED: u8 = 1 << 5;
+    /// The observer re-acquired: a streak of gated frames agreed with each other.
+    pub const REACQUIRED: u8 = 1 << 6;
 }
 
 /// Output-frame flag bits (defined with the frame, `docs/ICD.md`).
@@ -146,6 +154,12 @@ pub struct Counters {
     pub io_errors: u32,
     /// FOG frames that arrived too late for their sample and were discarded.
     pub fog_samples_stale: u32,
+    /// Per FOG ([`FogCounters`]).
+    pub fog: [FogCounters; N_FOG],
+    /// Star-tracker frames refused as frozen (the same quaternion as the previous one).
+    pub st_frozen: u32,
+    /// Star-tracker outages begun (after alignment).
+    pub st_outages: u32,
 }
 
 /// Everything one step produced, in physical units (the output frame is its encoding).
@@ -169,6 +183,8 @@ pub struct StepOutput {
     pub flags: u8,
     /// FOGs combined this step.
     pub fogs_used: FogSet,
+    /// Fault-logic bits: FOG i on a held temperature (bit i), FOG i isolated (bit 4 + i).
+    pub fdi: u8,
 }
 
 /// Why the core could not be built.
@@ -190,11 +206,13 @@ impl From<GainError> for CoreError {
 struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
     queue: Deque<FogFrame, FOG_QUEUE>,
-    temp: TempRateEstimator,
+    monitor: ChannelMonitor,
     /// Decoder rejections already counted.
     rejected_seen: u32,
     /// Frames rejected (by the decoder, or for a wrong FOG id) since the last sample taken.
     rejected_new: u32,
+    /// This FOG's counters.
+    counters: FogCounters,
 }
 
 /// Bytes read from a link per chunk.
@@ -227,6 +245,8 @@ pub struct FlightCore {
     mount: Quaternion<f64>,
     attitude: Attitude,
     observer: Observer<HISTORY>,
+    /// Parity fault logic (`None` without four FOGs).
+    fdi: Option<ParityMonitor>,
     fog: [FogChannel; N_FOG],
     bus_decoder: StreamDecoder<FogFrame, 32>,
     bus_rejected_seen: u32,
@@ -242,6 +262,10 @@ pub struct FlightCore {
     st_pending: Deque<StarFrame, ST_PENDING>,
     st_rejected_seen: u32,
     last_st_update_us: Option<u64>,
+    last_st_q_counts: [i32; 4],
+    in_outage: bool,
+    /// FOGs whose temperature sensor has failed (bit i).
+    temp_failed_bits: u8,
     last_body_dtheta: Vector3<f64>,
     counters: Counters,
     out_counter: u16,
@@ -260,12 +284,19 @@ impl FlightCore {
         }
         let observer = Observer::from_config(&table.observer)?;
         let dt = profile.dt_s();
+        // σ₁: the ARW's angle noise in one sample (the table's noise figure).
+        let noise_rad = table.observer.arw_deg_sqrt_h * core::f64::consts::PI / 180.0 / 60.0 * crate::math::sqrt(dt);
+        let fdi = match (profile.fogs == FogSet::ALL, combiner.solution(FogSet::ALL), combiner.triads()) {
+            (true, Ok(all), Some(triads)) => ParityMonitor::new(combiner.parity_vector(), all, triads, noise_rad, dt),
+            _ => None,
+        };
         let channel = |_: usize| FogChannel {
             decoder: StreamDecoder::new(),
             queue: Deque::new(),
-            temp: TempRateEstimator::new(dt, table.t_rate_filter_s),
+            monitor: ChannelMonitor::new(dt, table.t_rate_filter_s, noise_rad),
             rejected_seen: 0,
             rejected_new: 0,
+            counters: FogCounters::default(),
         };
         Ok(FlightCore {
             profile,
@@ -276,6 +307,7 @@ impl FlightCore {
             mount: table.st_mount(),
             attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
             observer,
+            fdi,
             fog: [channel(0), channel(1), channel(2), channel(3)],
             bus_decoder: StreamDecoder::new(),
             bus_rejected_seen: 0,
@@ -289,6 +321,9 @@ impl FlightCore {
             st_pending: Deque::new(),
             st_rejected_seen: 0,
             last_st_update_us: None,
+            last_st_q_counts: [0; 4],
+            in_outage: false,
+            temp_failed_bits: 0,
             last_body_dtheta: Vector3::zeros(),
             counters: Counters::default(),
             out_counter: 0,
@@ -304,6 +339,7 @@ impl FlightCore {
                 st_status: 0,
                 flags: 0,
                 fogs_used: FogSet(0),
+                fdi: 0,
             },
         })
     }
@@ -331,7 +367,11 @@ impl FlightCore {
 
     /// Counters so far.
     pub fn counters(&self) -> Counters {
-        self.counters
+        let mut c = self.counters;
+        for (slot, ch) in c.fog.iter_mut().zip(&self.fog) {
+            *slot = ch.counters;
+        }
+        c
     }
 
     /// The observer (gains, statistics).
@@ -342,6 +382,18 @@ impl FlightCore {
     /// The combiner (geometry, parity vector).
     pub fn combiner(&self) -> &Combiner {
         &self.combiner
+    }
+
+    /// Turns the parity fault logic off, for ground replays of sessions on a table that
+    /// is not calibrated yet (the gyros disagree by more than a calibrated unit's
+    /// parity allows). Never in flight: the per-channel checks stay on.
+    pub fn disable_parity_fdi(&mut self) {
+        self.fdi = None;
+    }
+
+    /// The parity fault logic (`None` without four FOGs).
+    pub fn fdi(&self) -> Option<&ParityMonitor> {
+        self.fdi.as_ref()
     }
 
     /// Output of the last step.
@@ -395,7 +447,46 @@ impl FlightCore {
         // Bounded: at most one pass per queued sample.
         for _ in 0..FOG_QUEUE {
             let Some(target) = self.next_sample() else { break };
-            let (m, u, h) = self.take_sample(target, dt_s);
+            let (m, mut u, mut h) = self.take_sample(target, dt_s);
+            let t_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
+            parity_rad = 0.0;
+            if let Some(fdi) = self.fdi.as_mut() {
+                let drop = match fdi.isolated() {
+                    Some(i) => Some(i),
+                    None if u == FogSet::ALL => {
+                        parity_rad = self.combiner.parity(&m);
+                        match fdi.on_sample(&m, parity_rad, self.last_body_dtheta.norm_squared(), t_us) {
+                            SampleVerdict::Use => None,
+                            SampleVerdict::Drop(i) | SampleVerdict::Isolate(i) => {
+                                if let Some(ch) = self.fog.get_mut(i) {
+                                    ch.counters.spikes = ch.counters.spikes.saturating_add(1);
+                                }
+                                Some(i)
+                            }
+                        }
+                    }
+                    None => {
+                        fdi.on_partial_sample();
+                        // A fitted gyro refused by its own checks during an alarm is the
+                        // faulty one.
+                        let refused = self.profile.fogs.0 & !u.0;
+                        if fdi.alarm() && refused.count_ones() == 1 {
+                            let i = refused.trailing_zeros() as usize;
+                            fdi.isolate_failed_channel(i);
+                            Some(i)
+                        } else {
+                            None
+                        }
+                    }
+                };
+                if let Some(i) = drop {
+                    u = u.without(i);
+                    if let Some(hi) = h.get_mut(i) {
+                        *hi = (*hi & !health::USED) | health::EXCLUDED;
+                    }
+                }
+                degraded |= fdi.alarm();
+            }
             for (acc, bits) in fog_health.iter_mut().zip(h) {
                 *acc |= bits;
             }
@@ -410,10 +501,8 @@ impl FlightCore {
                 }
             };
             self.last_body_dtheta = body;
-            parity_rad = if u == FogSet::ALL { self.combiner.parity(&m) } else { 0.0 };
             corrected = body - self.observer.drift_rad_s() * dt_s;
             let _ = self.attitude.step(&corrected);
-            let t_us = self.clock.index.saturating_mul(u64::from(self.profile.dt_us));
             self.observer.record(t_us, self.attitude.quaternion());
             on_increment(t_us, &body);
             integrated += 1;
@@ -437,7 +526,16 @@ impl FlightCore {
         let st = if self.profile.star_tracker { self.read_star(&mut links.star, now_us) } else { 0 };
 
         let mut fl = self.fixed_flags;
-        if degraded {
+        let mut fdi_bits = 0u8;
+        if let Some(fdi) = &self.fdi {
+            match fdi.state() {
+                FdiState::Alarm => fl |= flags::FDI_ALARM,
+                FdiState::Isolated(i) => fdi_bits |= 0x10 << i,
+                FdiState::Watching => {}
+            }
+        }
+        fdi_bits |= self.temp_failed_bits;
+        if degraded || st & st_status::OUTAGE != 0 && self.observer.aligned() {
             fl |= flags::DEGRADED;
         }
         if self.observer.converged() {
@@ -456,6 +554,7 @@ impl FlightCore {
             st_status: st,
             flags: fl,
             fogs_used: used,
+            fdi: fdi_bits,
         };
         self.last_output = out;
         self.emit(&mut links.out, &out);
@@ -598,6 +697,9 @@ impl FlightCore {
                 continue;
             }
             let (h, taken) = take_one(ch, cal, target, dt_s, limit_rad, &mut self.counters);
+            if h & health::USED != 0 && ch.monitor.temp_failed() {
+                self.temp_failed_bits |= bit;
+            }
             *hi = h | gap;
             if let Some(dtheta) = taken {
                 present |= bit;
@@ -667,7 +769,11 @@ impl FlightCore {
         };
         if silent {
             status |= st_status::OUTAGE;
+            if !self.in_outage && self.observer.aligned() {
+                self.counters.st_outages = self.counters.st_outages.saturating_add(1);
+            }
         }
+        self.in_outage = silent;
         status
     }
 
@@ -677,13 +783,40 @@ impl FlightCore {
             self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
             return st_status::REFUSED;
         }
+        if f.q_counts == self.last_st_q_counts {
+            // A frozen tracker repeats its last solution; a live one never does (noise).
+            self.counters.st_frozen = self.counters.st_frozen.saturating_add(1);
+            return st_status::REFUSED;
+        }
+        self.last_st_q_counts = f.q_counts;
         let [w, x, y, z] = f.quaternion();
         let q = Quaternion::new(w, x, y, z);
+        if let Some(fdi) = self.fdi.as_mut().filter(|m| m.listening()) {
+            // A FOG is faulty: the observer listens, the fault logic uses the mismatch.
+            return match self.observer.listen(f.time_us, &q, &self.mount) {
+                Ok((e, var)) => {
+                    self.last_st_update_us = Some(now_us);
+                    if let Some(iso) = fdi.on_mismatch(&e, var) {
+                        self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
+                    }
+                    st_status::LISTENED
+                }
+                Err(_) => {
+                    self.counters.st_frames_rejected = self.counters.st_frames_rejected.saturating_add(1);
+                    st_status::REFUSED
+                }
+            };
+        }
+        let reacquired = self.observer.stats().reacquired;
         match self.observer.update(&mut self.attitude, now_us, f.time_us, &q, &self.mount) {
             Ok(_) => {
                 self.last_st_update_us = Some(now_us);
                 self.counters.st_frames_accepted = self.counters.st_frames_accepted.saturating_add(1);
-                st_status::UPDATED
+                if self.observer.stats().reacquired != reacquired {
+                    st_status::UPDATED | st_status::REACQUIRED
+                } else {
+                    st_status::UPDATED
+                }
             }
             Err(UpdateError::Gated) => {
                 self.counters.st_updates_gated = self.counters.st_updates_gated.saturating_add(1);
@@ -700,7 +833,7 @@ impl FlightCore {
     fn emit<O: TxLink>(&mut self, out: &mut O, o: &StepOutput) {
         let c = &self.counters;
         let sat = |v: u32| u16::try_from(v).unwrap_or(u16::MAX);
-        let frame = OutputFrame::from_physical(
+        let mut frame = OutputFrame::from_physical(
             o.flags,
             self.out_counter,
             o.time_us,
@@ -720,11 +853,48 @@ impl FlightCore {
                 self.step_ticks,
             ],
         );
+        frame.fdi = o.fdi;
+        // Paged by the sample clock (not the frame counter), so a replay of the same
+        // data pages the same counters in the same frames.
+        frame.page_id = (self.clock.index as u32 % u32::from(page::COUNT)) as u8;
+        frame.page_value = sat(self.page_counter(frame.page_id));
         self.out_counter = self.out_counter.wrapping_add(1);
         let ok = frame.encode_into(&mut self.out_buf).is_ok() && write_frame(out, &self.out_buf);
         self.output_dropped_last = !ok;
         if !ok {
             self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
+        }
+    }
+}
+
+impl FlightCore {
+    /// The counter that the output frame's page `id` carries ([`page`]).
+    fn page_counter(&self, id: u8) -> u32 {
+        let c = &self.counters;
+        if id < page::FDI_ALARMS {
+            let Some(f) = self.fog.get(usize::from(id / page::PER_FOG)).map(|ch| &ch.counters) else { return 0 };
+            return match id % page::PER_FOG {
+                page::FOG_REJECTED => f.rejected,
+                page::FOG_MISSING => f.missing,
+                page::FOG_OUT_OF_RANGE => f.out_of_range,
+                page::FOG_STUCK => f.stuck,
+                page::FOG_DEVICE_FAULT => f.device_fault,
+                page::FOG_TEMP_FAILURES => f.temp_failures,
+                _ => f.spikes,
+            };
+        }
+        let fdi = self.fdi.as_ref().map(|m| m.counters()).unwrap_or_default();
+        match id {
+            page::FDI_ALARMS => fdi.alarms,
+            page::FDI_TRANSIENTS => fdi.transients,
+            page::FDI_ISOLATIONS => fdi.isolations,
+            page::ST_FROZEN => c.st_frozen,
+            page::ST_REACQUIRED => self.observer.stats().reacquired,
+            page::ST_OUTAGES => c.st_outages,
+            page::IO_ERRORS => c.io_errors,
+            page::OUTPUT_DROPPED => c.output_dropped,
+            page::FOG_STALE => c.fog_samples_stale,
+            _ => 0,
         }
     }
 }
@@ -742,10 +912,12 @@ fn take_one(
     counters: &mut Counters,
 ) -> (u8, Option<Option<f64>>) {
     let mut h = 0u8;
+    let fc = &mut ch.counters;
     let new_rej = core::mem::take(&mut ch.rejected_new);
     if new_rej > 0 {
         h |= health::REJECTED;
         counters.fog_frames_rejected = counters.fog_frames_rejected.saturating_add(new_rej);
+        fc.rejected = fc.rejected.saturating_add(new_rej);
     }
     let mut stale = 0u32;
     let mut frame = None;
@@ -769,19 +941,36 @@ fn take_one(
         h |= health::COUNTER_GAP;
         counters.fog_samples_stale = counters.fog_samples_stale.saturating_add(stale);
     }
-    let Some(frame) = frame else {
-        counters.fog_samples_missing = counters.fog_samples_missing.saturating_add(1);
-        return (h | health::MISSING, None);
+    let result = match frame {
+        None => {
+            counters.fog_samples_missing = counters.fog_samples_missing.saturating_add(1);
+            fc.missing = fc.missing.saturating_add(1);
+            (h | health::MISSING, None)
+        }
+        Some(frame) => {
+            let temp_was_failed = ch.monitor.temp_failed();
+            let v = ch.monitor.check(&frame, dt_s);
+            if v.temp_failed && !temp_was_failed {
+                fc.temp_failures = fc.temp_failures.saturating_add(1);
+            }
+            if frame.status & (status::LIGHT_SOURCE_FAULT | status::LOOP_LOCK_LOST) != 0 {
+                fc.device_fault = fc.device_fault.saturating_add(1);
+                (h | health::DEVICE_FAULT, Some(None))
+            } else if v.stuck {
+                fc.stuck = fc.stuck.saturating_add(1);
+                (h | health::STUCK, Some(None))
+            } else {
+                let dtheta = compensate_increment(cal, frame.dtheta_rad(), dt_s, v.t_degc, v.g_degc_s);
+                if !dtheta.is_finite() || dtheta.abs() > limit_rad {
+                    fc.out_of_range = fc.out_of_range.saturating_add(1);
+                    (h | health::OUT_OF_RANGE, Some(None))
+                } else {
+                    (h | health::USED, Some(Some(dtheta)))
+                }
+            }
+        }
     };
-    let (t_degc, g_degc_s) = ch.temp.update(frame.temperature_degc(), dt_s);
-    if frame.status & 0b0111 != 0 {
-        return (h | health::DEVICE_FAULT, Some(None));
-    }
-    let dtheta = compensate_increment(cal, frame.dtheta_rad(), dt_s, t_degc, g_degc_s);
-    if !dtheta.is_finite() || dtheta.abs() > limit_rad {
-        return (h | health::OUT_OF_RANGE, Some(None));
-    }
-    (h | health::USED, Some(Some(dtheta)))
+    result
 }
 
 /// Queues a FOG sample; a full queue drops its oldest (late backlog).

@@ -10,6 +10,7 @@
 //! |---|---|---|
 //! | frames in | [`link`], [`frames`] | RS-422 bytes → [`frames::fog::FogFrame`], [`frames::star::StarFrame`] |
 //! | compensation | [`compensation`] | raw angle increment, T, G → compensated increment per FOG |
+//! | integrity | [`integrity`] | per-channel checks, parity fault detection and isolation |
 //! | combination | [`combination`] | 4 (or any 3) skewed axes → body increment + parity residual |
 //! | attitude | [`attitude`] | body increment → quaternion Λ (2ECS ← ICS), coning-corrected |
 //! | observer | [`observer`] | star-tracker Λ* → corrected Λ, drift estimate Δω (eq. 6) |
@@ -30,6 +31,7 @@ pub mod combination;
 pub mod compensation;
 pub mod flight;
 pub mod frames;
+pub mod integrity;
 pub mod link;
 pub mod math;
 pub mod nav;

@@ -50,6 +50,28 @@ pub enum GainError {
 /// F = [[1, −T], [0, 1]], Q from ARW σ_v and rate random walk σ_u, R = σ_st².
 /// Bounded iteration of the discrete Riccati equation.
 pub fn steady_state_gains(cfg: &ObserverConfig) -> Result<ObserverGains, GainError> {
+    steady_state(cfg).map(|s| s.gains)
+}
+
+/// The steady state of the per-axis Kalman filter: gains and the variances the gate needs.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SteadyState {
+    /// Gains K_B, K_U.
+    pub gains: ObserverGains,
+    /// Prior attitude-error variance at an update, rad² per axis.
+    pub prior_var_rad2: f64,
+    /// Posterior drift-error variance, (rad/s)² per axis.
+    pub drift_var_rad2_s2: f64,
+    /// Star-tracker noise variance R, rad² per axis.
+    pub r_rad2: f64,
+    /// ARW variance rate σ_v², rad²/s.
+    pub arw_var_rad2_s: f64,
+    /// Rate random walk variance rate σ_u², rad²/s³.
+    pub rrw_var_rad2_s3: f64,
+}
+
+/// [`steady_state_gains`] with the variances at steady state.
+pub fn steady_state(cfg: &ObserverConfig) -> Result<SteadyState, GainError> {
     let t = cfg.st_period_s;
     let sv = cfg.arw_deg_sqrt_h * DEG_RAD / 60.0; // rad/√s
     let su = cfg.rrw_deg_h_sqrt_h * DEG_RAD / 3600.0 / 60.0; // rad/s/√s
@@ -77,11 +99,24 @@ pub fn steady_state_gains(cfg: &ObserverConfig) -> Result<ObserverGains, GainErr
         k1 = n1;
         k2 = n2;
         if settled {
-            return Ok(ObserverGains { k_b: [k1; 3], k_u_per_s: [-k2; 3] });
+            return Ok(SteadyState {
+                gains: ObserverGains { k_b: [k1; 3], k_u_per_s: [-k2; 3] },
+                prior_var_rad2: m11,
+                drift_var_rad2_s2: p22,
+                r_rad2: r,
+                arw_var_rad2_s: sv * sv,
+                rrw_var_rad2_s3: su * su,
+            });
         }
     }
     Err(GainError::NotConverged)
 }
+
+/// χ²₃ gate on the normalised mismatch: 16.27 refuses 0.1 % of nominal frames.
+pub const CHI2_GATE: f64 = 16.266;
+/// Consecutive gated frames that agree with each other and re-acquire (8 at 4 Hz: 2 s):
+/// the attitude, not the star tracker, is off (after a long outage or a fault).
+pub const REACQUIRE_FRAMES: u32 = 8;
 
 /// Why a star-tracker frame did not update the observer.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,6 +143,8 @@ pub struct ObserverStats {
     pub future: u32,
     /// Frames refused by the gate.
     pub gated: u32,
+    /// Re-acquisitions (a streak of gated frames that agreed with each other).
+    pub reacquired: u32,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -158,12 +195,27 @@ pub struct Observer<const H: usize> {
     stats: ObserverStats,
     innov_ms_rad2: f64,
     sigma_st_rad: f64,
-    gate_rad: f64,
+    steady: SteadyState,
+    /// Time tag of the last frame that updated the observer, µs.
+    last_update_tag_us: Option<u64>,
+    /// Covariance of (attitude error, drift error) per axis after the last update:
+    /// P11 rad², P12 rad²/s, P22 rad²/s² (the gate's expected mismatch variance).
+    cov: [f64; 3],
+    streak: Streak,
+}
+
+/// Consecutive gated frames and their running sums (re-acquisition).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Streak {
+    n: u32,
+    e: Vector3<f64>,
+    ee: f64,
 }
 
 impl<const H: usize> Observer<H> {
-    /// A new observer with `gains`, expecting star-tracker noise `sigma_st_rad` (1σ).
-    pub fn new(gains: ObserverGains, sigma_st_rad: f64) -> Self {
+    /// A new observer with `gains`, expecting star-tracker noise `sigma_st_rad` (1σ),
+    /// gating with the noise figures of `steady`.
+    pub fn new(gains: ObserverGains, sigma_st_rad: f64, steady: SteadyState) -> Self {
         Observer {
             gains,
             drift_rad_s: Vector3::zeros(),
@@ -175,17 +227,18 @@ impl<const H: usize> Observer<H> {
             stats: ObserverStats::default(),
             innov_ms_rad2: 0.0,
             sigma_st_rad,
-            gate_rad: 1e-3,
+            steady,
+            last_update_tag_us: None,
+            cov: [0.0; 3],
+            streak: Streak::default(),
         }
     }
 
     /// From the table: its override gains if present, else the steady-state gains.
     pub fn from_config(cfg: &ObserverConfig) -> Result<Self, GainError> {
-        let gains = match cfg.gains_override {
-            Some(g) => g,
-            None => steady_state_gains(cfg)?,
-        };
-        Ok(Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD))
+        let steady = steady_state(cfg)?;
+        let gains = cfg.gains_override.unwrap_or(steady.gains);
+        Ok(Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady))
     }
 
     /// Gains in use.
@@ -297,17 +350,51 @@ impl<const H: usize> Observer<H> {
         Err(UpdateError::Stale)
     }
 
-    /// One star-tracker update: `q_st` is Λ* of the star-tracker frame, `mount` q_bs.
-    /// Corrects `att` (whose present time is `now_us`) and the drift estimate.
-    /// Returns the mismatch e (rad, ICS at t_s) that was used.
-    pub fn update(
+    /// The covariance propagated from the last update to `time_us` (F = [[1, −τ], [0, 1]],
+    /// the gyros' random walks as process noise).
+    fn propagated(&self, time_us: u64) -> [f64; 3] {
+        let st = &self.steady;
+        let [p11, p12, p22] = self.cov;
+        let gap_us = self.last_update_tag_us.map_or(0, |t| time_us.saturating_sub(t));
+        let tau = f64::from(u32::try_from(gap_us).unwrap_or(u32::MAX)) * 1e-6;
+        let (sv2, su2) = (st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        [
+            p11 - 2.0 * tau * p12 + tau * tau * p22 + sv2 * tau + su2 * tau * tau * tau / 3.0,
+            p12 - tau * p22 - su2 * tau * tau / 2.0,
+            p22 + su2 * tau,
+        ]
+    }
+
+    /// Expected variance of a mismatch per axis, rad², for a frame with time tag
+    /// `time_us`: R + the attitude-error variance of the observer as it runs (its
+    /// fixed gains in the Joseph form at each update, the gyros' random walks between),
+    /// so an outage widens the gate as the attitude uncertainty grows and the return
+    /// narrows it again only as fast as the observer really converges.
+    pub fn mismatch_var_rad2(&self, time_us: u64) -> f64 {
+        self.propagated(time_us)[0] + self.steady.r_rad2
+    }
+
+    /// The covariance after an update at `time_us` with the gains in use (per axis,
+    /// the first axis's gains: the gains are equal on every axis unless overridden).
+    fn update_cov(&mut self, time_us: u64) {
+        let [p11, p12, p22] = self.propagated(time_us);
+        let r = self.steady.r_rad2;
+        let k1 = self.gains.k_b[0];
+        let k2 = -self.gains.k_u_per_s[0];
+        self.cov = [
+            (1.0 - k1) * (1.0 - k1) * p11 + k1 * k1 * r,
+            (1.0 - k1) * (p12 - k2 * p11) + k1 * k2 * r,
+            p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
+        ];
+    }
+
+    /// Eq. (5) and the mismatch e = 2 vect(Λ(t_s)⁻¹ ∘ Λ*) for a frame, without using it.
+    fn mismatch(
         &mut self,
-        att: &mut Attitude,
-        now_us: u64,
         time_us: u64,
         q_st: &Quaternion<f64>,
         mount: &Quaternion<f64>,
-    ) -> Result<Vector3<f64>, UpdateError> {
+    ) -> Result<(Quaternion<f64>, Quaternion<f64>), UpdateError> {
         let n2 = q_st.norm_squared();
         if !n2.is_finite() || (n2 - 1.0).abs() > 1e-5 {
             return Err(UpdateError::BadQuaternion);
@@ -324,20 +411,79 @@ impl<const H: usize> Observer<H> {
             }
         };
         // Eq. (5): Λ* = Λ ∘ δΨ_Λ  →  Λ_ICS = Λ* ∘ q_bs⁻¹.
-        let q_meas = q_st * mount.conjugate();
+        Ok((q_at, q_st * mount.conjugate()))
+    }
+
+    /// The mismatch e (rad, ICS at t_s) of a frame and its expected variance per axis,
+    /// without correcting anything (the fault logic listens while it isolates a gyro).
+    pub fn listen(
+        &mut self,
+        time_us: u64,
+        q_st: &Quaternion<f64>,
+        mount: &Quaternion<f64>,
+    ) -> Result<(Vector3<f64>, f64), UpdateError> {
+        if !self.aligned {
+            return Err(UpdateError::Future);
+        }
+        let (q_at, q_meas) = self.mismatch(time_us, q_st, mount)?;
+        Ok((math::rotvec_from_quat(&(q_at.conjugate() * q_meas)), self.mismatch_var_rad2(time_us)))
+    }
+
+    /// One star-tracker update: `q_st` is Λ* of the star-tracker frame, `mount` q_bs.
+    /// Corrects `att` (whose present time is `now_us`) and the drift estimate.
+    /// Returns the mismatch e (rad, ICS at t_s) that was used.
+    ///
+    /// Once converged, a frame whose normalised mismatch |e|²/σ² exceeds [`CHI2_GATE`]
+    /// is refused (σ² from [`Observer::mismatch_var_rad2`]: 0.1 % of nominal frames);
+    /// [`REACQUIRE_FRAMES`] refused in a row that agree with each other re-acquire:
+    /// the frame is used and the gate stays open until the observer converges again.
+    pub fn update(
+        &mut self,
+        att: &mut Attitude,
+        now_us: u64,
+        time_us: u64,
+        q_st: &Quaternion<f64>,
+        mount: &Quaternion<f64>,
+    ) -> Result<Vector3<f64>, UpdateError> {
+        let (q_at, q_meas) = self.mismatch(time_us, q_st, mount)?;
         if !self.aligned {
             // First frame: align. C ∘ Λ(t_s) = Λ*, applied to the present and the history.
             let c = q_meas * q_at.conjugate();
             self.apply(att, now_us, time_us, &c, &Vector3::zeros());
             self.aligned = true;
+            self.last_update_tag_us = Some(time_us);
+            // Aligned to one frame; the drift is known to ten times its steady state.
+            self.cov = [self.steady.r_rad2, 0.0, 100.0 * self.steady.drift_var_rad2_s2];
             self.stats.updates = self.stats.updates.saturating_add(1);
             return Ok(Vector3::zeros());
         }
         let e = math::rotvec_from_quat(&(q_at.conjugate() * q_meas));
-        if self.converged() && e.norm_squared() > self.gate_rad * self.gate_rad {
-            self.stats.gated = self.stats.gated.saturating_add(1);
-            return Err(UpdateError::Gated);
+        let e2 = e.norm_squared();
+        if self.converged() {
+            let var = self.mismatch_var_rad2(time_us);
+            if e2 > CHI2_GATE * var {
+                let s = &mut self.streak;
+                s.n = s.n.saturating_add(1);
+                s.e += e;
+                s.ee += e2;
+                // Spread of the streak's mismatches about their mean, per frame.
+                let n = f64::from(s.n);
+                let spread = (s.ee - s.e.norm_squared() / n) / n;
+                if s.n < REACQUIRE_FRAMES || spread > CHI2_GATE * var {
+                    self.stats.gated = self.stats.gated.saturating_add(1);
+                    return Err(UpdateError::Gated);
+                }
+                // Re-acquire: the frames agree with each other, the attitude is off by
+                // about their mean. The covariance is reset to that (per axis, twice the
+                // mean square), so the gate stays open while the observer closes the gap.
+                self.stats.reacquired = self.stats.reacquired.saturating_add(1);
+                let mean2 = s.e.norm_squared() / (n * n);
+                let [_, _, p22] = self.propagated(time_us);
+                self.cov = [2.0 * mean2 / 3.0, 0.0, p22];
+                self.last_update_tag_us = Some(time_us);
+            }
         }
+        self.streak = Streak::default();
         let k_b = Vector3::from(self.gains.k_b);
         let k_u = Vector3::from(self.gains.k_u_per_s);
         let corr = math::mul_elem(&k_b, &e);
@@ -346,11 +492,20 @@ impl<const H: usize> Observer<H> {
         let c = q_at * math::quat_from_rotvec(&corr) * q_at.conjugate();
         self.apply(att, now_us, time_us, &c, &d_drift);
         self.drift_rad_s += d_drift;
-        let e2 = e.norm_squared() / 3.0;
+        let e2 = e2 / 3.0;
         self.innov_ms_rad2 =
             if self.stats.updates <= 1 { e2 } else { self.innov_ms_rad2 + 0.05 * (e2 - self.innov_ms_rad2) };
         self.stats.updates = self.stats.updates.saturating_add(1);
+        self.update_cov(time_us);
+        self.last_update_tag_us = Some(time_us);
         Ok(e)
+    }
+
+    /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on
+    /// (an isolated gyro's fault): Λ(t) ← Λ(t) ∘ q(−drift · (t − since)) for the present
+    /// attitude and, lazily, the history.
+    pub fn remove_drift(&mut self, att: &mut Attitude, now_us: u64, since_us: u64, drift_rad_s: &Vector3<f64>) {
+        self.apply(att, now_us, since_us, &Quaternion::identity(), drift_rad_s);
     }
 
     /// Left-multiplies by `c` every attitude at or after `t_s` (and the present one), and

@@ -12,12 +12,15 @@
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`faults`]: fault injection into the frames (failed gyros, a lying star tracker,
+//!   bit errors) and the scores of the fault-injection campaign (issue 6).
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth, issue 7).
 //! - [`qemu`], [`qemu_lv`]: the firmware in QEMU (spacecraft; launch vehicle at 1.25 ms).
 //! - [`lab`]: the model lab: fits, diagnoses and extends the FOG error model on ground-test
 //!   sessions and exports the calibration table (`docs/LAB.md`).
 
 pub mod corrupt;
+pub mod faults;
 pub mod harness;
 pub mod lab;
 pub mod lv;

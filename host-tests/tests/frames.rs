@@ -142,13 +142,13 @@ fn output_frame() -> impl Strategy<Value = OutputFrame> + Clone {
     (
         (any::<u8>(), any::<u16>(), any::<u64>(), any::<[i32; 4]>()),
         (any::<[i32; 3]>(), any::<[i32; 3]>(), any::<i32>()),
-        (any::<[u8; 4]>(), any::<u8>(), any::<[u16; 7]>()),
+        (any::<[u8; 4]>(), any::<u8>(), any::<[u16; 7]>(), any::<(u8, u8, u16)>()),
     )
         .prop_map(
             |(
                 (flags, counter, time_us, q_counts),
                 (rate_counts, drift_counts, parity_counts),
-                (fog_health, st_status, c),
+                (fog_health, st_status, c, (fdi, page_id, page_value)),
             )| {
                 OutputFrame {
                     flags,
@@ -161,6 +161,9 @@ fn output_frame() -> impl Strategy<Value = OutputFrame> + Clone {
                     fog_health,
                     st_status,
                     counters: OutputCounters::from_array(c),
+                    fdi,
+                    page_id,
+                    page_value,
                 }
             },
         )
@@ -200,7 +203,7 @@ fn crc_check_value() {
 fn lengths_and_kinds() {
     assert_eq!((FogFrame::LEN, <FogFrame as Frame>::LEN, <FogFrame as Frame>::KIND), (16, 16, 0x10));
     assert_eq!((StarFrame::LEN, <StarFrame as Frame>::LEN, <StarFrame as Frame>::KIND), (32, 32, 0x20));
-    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (79, 79, 0x30));
+    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (83, 83, 0x30));
     assert_eq!([kind::FOG, kind::STAR, kind::OUTPUT], [0x10, 0x20, 0x30]);
 }
 
@@ -365,9 +368,12 @@ fn output_layout_offsets() {
         fog_health: [0x61, 0x62, 0x63, 0x64],
         st_status: 0x71,
         counters: OutputCounters::from_array([0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]),
+        fdi: 0x91,
+        page_id: 0x92,
+        page_value: 0x9394,
     };
     let b = f.to_bytes();
-    assert_eq!(b.len(), 79);
+    assert_eq!(b.len(), 83);
     assert_eq!(&b[..6], &[0xEB, 0x90, 0x30, 0x1F, 0x02, 0x01]);
     assert_eq!(&b[6..14], &0x1112_1314_1516_1718u64.to_le_bytes());
     let word = |off: usize| i32::from_le_bytes(b[off..off + 4].try_into().unwrap());
@@ -378,7 +384,9 @@ fn output_layout_offsets() {
     assert_eq!(&b[58..63], &[0x61, 0x62, 0x63, 0x64, 0x71]);
     let half = |off: usize| u16::from_le_bytes([b[off], b[off + 1]]);
     assert_eq!([63, 65, 67, 69, 71, 73, 75].map(half), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
-    assert_eq!(half(77), CRC16.checksum(&b[..77]));
+    assert_eq!(&b[77..79], &[0x91, 0x92]);
+    assert_eq!(half(79), 0x9394);
+    assert_eq!(half(81), CRC16.checksum(&b[..81]));
     assert_eq!(OutputFrame::decode(&b), Ok(f));
     assert_eq!(f.counters.step_ticks, 0x87);
     assert_eq!(f.counters.to_array(), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
@@ -628,10 +636,11 @@ proptest! {
     #[test]
     fn output_round_trip(f in output_frame()) {
         prop_assert_eq!(OutputFrame::decode(&f.to_bytes()), Ok(f));
-        let p = OutputFrame::from_physical(
+        let mut p = OutputFrame::from_physical(
             f.flags, f.counter, f.time_us, f.quaternion(), f.rate_rad_s(), f.drift_rad_s(),
             f.parity_rad(), f.fog_health, f.st_status, f.counters.to_array(),
         );
+        (p.fdi, p.page_id, p.page_value) = (f.fdi, f.page_id, f.page_value);
         prop_assert_eq!(p, f);
     }
 

@@ -60,7 +60,9 @@ fn a_silent_fog_is_flagged_and_the_other_three_carry_on() {
                 continue; // FOG3 silent
             }
             let s = ssis::calib::CalibrationTable::DEFAULT.axes()[i];
-            l.send(&FogFrame::from_physical(i as u8, n, 0, s.x * w * 0.005, 25.0).to_bytes());
+            // One LSB of dither, as a real FOG's noise (a constant output is stuck).
+            let dither = f64::from(n % 2) * FogFrame::DTHETA_LSB_RAD;
+            l.send(&FogFrame::from_physical(i as u8, n, 0, s.x * w * 0.005 + dither, 25.0).to_bytes());
         }
         let out = core.step(&mut links);
         assert_eq!(out.fog_health[2] & health::MISSING, health::MISSING);

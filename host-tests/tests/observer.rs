@@ -6,7 +6,7 @@ use nalgebra::{Quaternion, Vector3};
 use ssis::attitude::{Attitude, Coning};
 use ssis::calib::{ObserverConfig, ObserverGains};
 use ssis::math;
-use ssis::observer::{steady_state_gains, Observer};
+use ssis::observer::{steady_state, steady_state_gains, Observer, SteadyState};
 use ssis_host::harness::run;
 use ssis_host::scenario::Scenario;
 use ssis_host::sim::fog::TriadError;
@@ -181,7 +181,7 @@ fn lazy_equals_eager(rate_hz: f64, latency_ms: f64, steps: u64) -> u32 {
     let k_b = 0.4 / rate_hz;
     let k_u = k_b * k_b * rate_hz / 4.0;
     let gains = ObserverGains { k_b: [k_b, 0.9 * k_b, 1.1 * k_b], k_u_per_s: [k_u, 0.8 * k_u, 1.2 * k_u] };
-    let mut obs: Observer<{ ssis::flight::HISTORY }> = Observer::new(gains, 1e-4);
+    let mut obs: Observer<{ ssis::flight::HISTORY }> = Observer::new(gains, 1e-4, gate_figures(1e-4, 1.0 / rate_hz));
     let mut eager = EagerObserver { gains, drift_rad_s: Vector3::zeros(), history: Default::default(), aligned: false };
     let mut att_a = Attitude::new(Quaternion::identity(), Coning::ThreeSample);
     let mut att_b = att_a;
@@ -241,4 +241,15 @@ fn lazy_history_fixes_equal_eager_correction_bit_for_bit() {
     println!("updates whose tag preceded the previous update: {n0} (4 Hz), {n1} (10 Hz, 280 ms), {n2} (50 Hz, 300 ms)");
     assert_eq!(n0, 0);
     assert!(n1 > 1000 && n2 > 5000);
+}
+
+/// The gate's variances for a star tracker of `sigma_rad` (1σ) every `period_s`, the
+/// paper's gyros.
+fn gate_figures(sigma_rad: f64, period_s: f64) -> SteadyState {
+    let cfg = ObserverConfig {
+        st_sigma_arcsec: sigma_rad * 180.0 / std::f64::consts::PI * 3600.0,
+        st_period_s: period_s,
+        ..ObserverConfig::PAPER
+    };
+    steady_state(&cfg).unwrap()
 }

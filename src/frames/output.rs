@@ -1,10 +1,10 @@
-//! Output frame (kind 0x30, 79 bytes): the unit's state after each step.
+//! Output frame (kind 0x30, 83 bytes): the unit's state after each step.
 //!
 //! | off | size | field | type | scaling |
 //! |---|---|---|---|---|
 //! | 0 | 2 | sync | `EB 90` | |
 //! | 2 | 1 | kind | `0x30` | |
-//! | 3 | 1 | flags | u8 | [`flags`] bits; bits 5–7 sent as zero |
+//! | 3 | 1 | flags | u8 | [`flags`] bits; bit 7 sent as zero |
 //! | 4 | 2 | counter | u16 | output frame counter, wraps |
 //! | 6 | 8 | time_tag | u64 | µs of unit time at the end of the step |
 //! | 14 | 16 | q0..q3 | 4 × i32 | ICS in 2ECS, scalar first, LSB 2^-31 |
@@ -14,16 +14,19 @@
 //! | 58 | 4 | fog_health | 4 × u8 | per-FOG health bits |
 //! | 62 | 1 | st_status | u8 | star-tracker status bits |
 //! | 63 | 14 | counters | 7 × u16 | see [`OutputCounters`] |
-//! | 77 | 2 | crc | u16 | CRC16 over bytes 0..77 |
+//! | 77 | 1 | fdi | u8 | bits 0–3: FOG i flies on a held temperature (sensor failed); bits 4–7: FOG i isolated by the fault logic |
+//! | 78 | 1 | page_id | u8 | which counter `page_value` carries ([`page`]); cycles through all, one a frame |
+//! | 79 | 2 | page_value | u16 | that counter, saturating |
+//! | 81 | 2 | crc | u16 | CRC16 over bytes 0..81 |
 //!
 //! The decoder checks only the envelope: every field value is accepted.
 
 use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of an output frame in bytes: 3 (header) + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 +
-/// 1 + 14 + 2 (CRC).
-pub const FRAME_LEN: usize = 79;
-const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 2);
+/// 1 + 14 + 1 + 1 + 2 + 2 (CRC).
+pub const FRAME_LEN: usize = 83;
+const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 1 + 1 + 2 + 2);
 
 /// FOG slots in the frame (FOG1..FOG4).
 pub const FOG_SLOTS: usize = 4;
@@ -54,6 +57,49 @@ pub mod flags {
     pub const OUTPUT_DROPPED: u8 = 1 << 4;
     /// The power-on built-in test ([`crate::bit::power_on`]) failed.
     pub const BIT_FAILED: u8 = 1 << 5;
+    /// Parity alarm: a FOG is faulty and not yet isolated (the output is degraded).
+    pub const FDI_ALARM: u8 = 1 << 6;
+}
+
+/// The counter page: `page_id` → counter. Ids 0..28 are per FOG (FOG i at 7·i + k,
+/// k as in [`page::FOG_REJECTED`]..[`page::FOG_SPIKES`]); then the unit's own.
+pub mod page {
+    /// Per-FOG: frames rejected (CRC, format, id).
+    pub const FOG_REJECTED: u8 = 0;
+    /// Per-FOG: samples missing (timeout).
+    pub const FOG_MISSING: u8 = 1;
+    /// Per-FOG: samples not finite or out of range.
+    pub const FOG_OUT_OF_RANGE: u8 = 2;
+    /// Per-FOG: samples refused as stuck.
+    pub const FOG_STUCK: u8 = 3;
+    /// Per-FOG: samples with the FOG's own fault bits.
+    pub const FOG_DEVICE_FAULT: u8 = 4;
+    /// Per-FOG: temperature sensor failures.
+    pub const FOG_TEMP_FAILURES: u8 = 5;
+    /// Per-FOG: samples dropped as parity spikes.
+    pub const FOG_SPIKES: u8 = 6;
+    /// Counters per FOG.
+    pub const PER_FOG: u8 = 7;
+    /// Parity alarms raised.
+    pub const FDI_ALARMS: u8 = 28;
+    /// Parity alarms that cleared without isolation.
+    pub const FDI_TRANSIENTS: u8 = 29;
+    /// FOGs isolated.
+    pub const FDI_ISOLATIONS: u8 = 30;
+    /// Star-tracker frames refused as frozen (the same quaternion again).
+    pub const ST_FROZEN: u8 = 31;
+    /// Star-tracker re-acquisitions.
+    pub const ST_REACQUIRED: u8 = 32;
+    /// Star-tracker outages begun.
+    pub const ST_OUTAGES: u8 = 33;
+    /// Link driver errors.
+    pub const IO_ERRORS: u8 = 34;
+    /// Output frames dropped.
+    pub const OUTPUT_DROPPED: u8 = 35;
+    /// FOG samples that came too late and were discarded.
+    pub const FOG_STALE: u8 = 36;
+    /// Page ids in the cycle.
+    pub const COUNT: u8 = 37;
 }
 
 /// The counters at the end of the output frame, in frame order (saturating u16 each).
@@ -136,6 +182,12 @@ pub struct OutputFrame {
     pub st_status: u8,
     /// Counters.
     pub counters: OutputCounters,
+    /// Fault-logic bits: FOG i on a held temperature (bit i), FOG i isolated (bit 4 + i).
+    pub fdi: u8,
+    /// Which counter `page_value` carries ([`page`]; the sample index modulo [`page::COUNT`]).
+    pub page_id: u8,
+    /// The paged counter.
+    pub page_value: u16,
 }
 
 impl OutputFrame {
@@ -144,7 +196,8 @@ impl OutputFrame {
 
     /// A frame from physical values: every scaled value is rounded to the nearest count
     /// and saturated to the field's range; NaN gives 0. Bit fields and counters are
-    /// taken as they are (`counters` in frame order, e.g. a `[u16; 7]`).
+    /// taken as they are (`counters` in frame order, e.g. a `[u16; 7]`); the fault-logic
+    /// byte and the counter page start at zero (set the fields).
     #[allow(clippy::too_many_arguments)]
     pub fn from_physical(
         flags: u8,
@@ -169,6 +222,9 @@ impl OutputFrame {
             fog_health,
             st_status,
             counters: counters.into(),
+            fdi: 0,
+            page_id: 0,
+            page_value: 0,
         }
     }
 
@@ -229,6 +285,9 @@ impl Frame for OutputFrame {
         for c in self.counters.to_array() {
             w.u16(c);
         }
+        w.u8(self.fdi);
+        w.u8(self.page_id);
+        w.u16(self.page_value);
     }
 
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError> {
@@ -245,6 +304,9 @@ impl Frame for OutputFrame {
         for v in c.iter_mut() {
             *v = r.u16()?;
         }
+        let fdi = r.u8()?;
+        let page_id = r.u8()?;
+        let page_value = r.u16()?;
         Ok(OutputFrame {
             flags,
             counter,
@@ -256,6 +318,9 @@ impl Frame for OutputFrame {
             fog_health,
             st_status,
             counters: OutputCounters::from_array(c),
+            fdi,
+            page_id,
+            page_value,
         })
     }
 }

@@ -1,0 +1,394 @@
+//! Parity fault detection and isolation over the four FOGs (issue 6 part 2).
+//!
+//! With the calibrated axes as the rows of H (4×3) and v the unit parity vector
+//! (v H = 0, [`crate::combination`]), the parity residual of the compensated increments
+//! m is p = v · m: white noise of σ₁ = ARW·√Δt when the four gyros agree. A fault f
+//! (rad per sample) on gyro i adds v_i f to p, and H⁺_{:,i} f to the combined body
+//! increment, so the attitude drifts by u_i P with u_i = H⁺_{:,i} / v_i and P = Σ p.
+//!
+//! Capabilities:
+//! - **detection**: an exponentially weighted mean s of p (weight α = 1/8, σ_s =
+//!   σ₁ √(α/(2−α))), less a slow baseline p̄ (time constant [`BASELINE_S`], frozen
+//!   while an alarm stands), against K_ALARM σ_s, widened by a model-residual term for
+//!   fast motion. The baseline takes up what calibration left of the gyros'
+//!   disagreement (constant or slow, as thermal drift: the observer's drift estimate
+//!   is there for that); the alarm is for changes. K_ALARM = 6.5: about 1e-10 false
+//!   alarms a sample (nothing in 24 h at 200 Hz); a bias step of 5 σ₁ crosses it in
+//!   about 4 samples;
+//! - **spikes and large steps**: a single sample with |p| > K_SPIKE σ₁ is tested
+//!   against the gyros' own history: the body-rate change implied by each triad
+//!   (the increments' change since the previous sample, solved without gyro i) is
+//!   small only for the triad that leaves out the faulty gyro. A clear winner is
+//!   dropped for that sample; [`SPIKE_LATCH`] in a row isolate it for good;
+//! - **isolation with the star tracker**: one parity residual cannot name the gyro.
+//!   While the alarm stands, the observer only listens: each star-tracker mismatch e_j
+//!   is paired with P_j (accumulated since the alarm) and fitted, per hypothesis i, as
+//!   e_j = e₀ − c u_i P_j (free offset e₀ and gain c). The hypothesis that explains
+//!   the mismatches with c near 1, by a margin over the others, names the gyro; the
+//!   attitude is then cleared of the fault's drift since the alarm and the gyro dropped
+//!   (reconfiguration to the healthy three). Without the star tracker the alarm stands
+//!   (flagged degraded) until it can decide;
+//! - **isolation by a channel check**: a gyro whose own checks refuse its samples while
+//!   the alarm stands (stuck, out of range, device fault, silent) is the one.
+//!
+//! Every sum is a running sum: O(1) per sample and per star-tracker frame, no buffers.
+
+use nalgebra::{Matrix3x4, RowVector4, Vector3, Vector4};
+
+use crate::calib::N_FOG;
+
+/// Weight α of the detection mean (1/8: about 16 samples of memory).
+pub const ALPHA: f64 = 0.125;
+/// Time constant of the parity baseline, s.
+pub const BASELINE_S: f64 = 60.0;
+/// Samples before the first alarm can be raised (the baseline forms as a plain mean).
+pub const WARMUP_SAMPLES: u32 = 200;
+/// Alarm threshold on the detection mean, in its own σ.
+pub const K_ALARM: f64 = 6.5;
+/// Spike threshold on a single sample's residual, in σ₁.
+pub const K_SPIKE: f64 = 6.5;
+/// Consecutive spikes on the same gyro that isolate it.
+pub const SPIKE_LATCH: u8 = 3;
+/// Samples below half the alarm threshold that end an alarm as a transient (2 s at 5 ms).
+pub const CLEAR_SAMPLES: u32 = 400;
+/// Relative model residual (scale factor and axis errors after calibration, ~60″):
+/// widens the thresholds by this times the body increment.
+pub const MODEL_RESIDUAL: f64 = 3e-4;
+/// Floor of σ₁, rad (frame quantisation and rounding with ideal sensors).
+pub const SIGMA1_FLOOR_RAD: f64 = 1e-9;
+/// Star-tracker mismatches needed before an isolation is decided.
+pub const ISOLATION_MIN_FRAMES: u32 = 4;
+/// Explained mismatch energy needed to isolate, in per-axis mismatch variances.
+pub const ISOLATION_MIN_ENERGY: f64 = 100.0;
+/// Margin of the best hypothesis over the next, in per-axis mismatch variances.
+pub const ISOLATION_MARGIN: f64 = 30.0;
+/// Frames after which the observer stops listening and updates again, if no decision.
+pub const LISTEN_FRAMES: u32 = 240;
+
+/// What the monitor says of one four-gyro sample.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SampleVerdict {
+    /// Use all four.
+    Use,
+    /// Drop gyro i from this sample (a spike).
+    Drop(usize),
+    /// Gyro i has just been isolated (repeated spikes): drop it from now on.
+    Isolate(usize),
+}
+
+/// Isolation decided from the star-tracker mismatches.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Isolation {
+    /// The failed gyro.
+    pub fog: usize,
+    /// Fitted gain c (1 when the observer listened throughout).
+    pub gain: f64,
+    /// The fault's attitude drift since the alarm, ICS, rad/s (to be removed).
+    pub drift_rad_s: Vector3<f64>,
+    /// Unit time of the alarm, µs.
+    pub since_us: u64,
+}
+
+/// State of the fault logic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FdiState {
+    /// No fault seen.
+    Watching,
+    /// Parity alarm: a gyro is faulty, which one is not known yet (degraded).
+    Alarm,
+    /// Gyro i is isolated and excluded (reconfigured to the other three).
+    Isolated(usize),
+}
+
+/// Running sums of the isolation fit.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Sums {
+    n: u32,
+    p: f64,
+    pp: f64,
+    e: Vector3<f64>,
+    pe: Vector3<f64>,
+}
+
+/// Counters of the fault logic.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FdiCounters {
+    /// Parity alarms raised.
+    pub alarms: u32,
+    /// Alarms that cleared without isolation.
+    pub transients: u32,
+    /// Gyros isolated.
+    pub isolations: u32,
+}
+
+/// The parity monitor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ParityMonitor {
+    v: RowVector4<f64>,
+    u: [Vector3<f64>; N_FOG],
+    triads: [Matrix3x4<f64>; N_FOG],
+    sigma1_rad: f64,
+    dt_s: f64,
+    alarm2_rad2: f64,
+    clear2_rad2: f64,
+    spike2_rad2: f64,
+    mean_rad: f64,
+    baseline_rad: f64,
+    alpha_slow: f64,
+    seen: u32,
+    last_m: Option<Vector4<f64>>,
+    spike_fog: usize,
+    spike_run: u8,
+    state: FdiState,
+    alarm_us: u64,
+    p_acc_rad: f64,
+    samples: u32,
+    clear_run: u32,
+    sums: Sums,
+    counters: FdiCounters,
+}
+
+impl ParityMonitor {
+    /// A monitor for parity vector `v`, the four-gyro solution `all` and the triad
+    /// solutions `without[i]` (gyro i left out), per-sample gyro noise `noise_rad` (1σ),
+    /// samples every `dt_s`. `None` when the geometry leaves a gyro out of the parity
+    /// (v_i = 0).
+    pub fn new(
+        v: RowVector4<f64>,
+        all: &Matrix3x4<f64>,
+        without: [Matrix3x4<f64>; N_FOG],
+        noise_rad: f64,
+        dt_s: f64,
+    ) -> Option<Self> {
+        let mut u = [Vector3::zeros(); N_FOG];
+        for (i, ui) in u.iter_mut().enumerate() {
+            let vi = v.get(i).copied().unwrap_or(0.0);
+            if vi.abs() < 1e-3 {
+                return None;
+            }
+            *ui = all.column(i) / vi;
+        }
+        let s1 = noise_rad.max(SIGMA1_FLOOR_RAD);
+        let ss2 = s1 * s1 * ALPHA / (2.0 - ALPHA);
+        Some(ParityMonitor {
+            v,
+            u,
+            triads: without,
+            sigma1_rad: s1,
+            dt_s,
+            alarm2_rad2: K_ALARM * K_ALARM * ss2,
+            clear2_rad2: K_ALARM * K_ALARM * ss2 / 4.0,
+            spike2_rad2: K_SPIKE * K_SPIKE * s1 * s1,
+            mean_rad: 0.0,
+            baseline_rad: 0.0,
+            alpha_slow: (dt_s / BASELINE_S).clamp(1e-9, 1.0),
+            seen: 0,
+            last_m: None,
+            spike_fog: 0,
+            spike_run: 0,
+            state: FdiState::Watching,
+            alarm_us: 0,
+            p_acc_rad: 0.0,
+            samples: 0,
+            clear_run: 0,
+            sums: Sums::default(),
+            counters: FdiCounters::default(),
+        })
+    }
+
+    /// State of the fault logic.
+    pub fn state(&self) -> FdiState {
+        self.state
+    }
+
+    /// The isolated gyro, if any.
+    pub fn isolated(&self) -> Option<usize> {
+        match self.state {
+            FdiState::Isolated(i) => Some(i),
+            _ => None,
+        }
+    }
+
+    /// Whether a fault is detected and not yet isolated.
+    pub fn alarm(&self) -> bool {
+        self.state == FdiState::Alarm
+    }
+
+    /// Whether the observer should only listen (alarm, and not yet given up on deciding).
+    pub fn listening(&self) -> bool {
+        self.alarm() && self.sums.n < LISTEN_FRAMES
+    }
+
+    /// The detection statistic s − p̄ (rad) and its alarm threshold (rad, without the
+    /// motion term).
+    pub fn statistic(&self) -> (f64, f64) {
+        (self.mean_rad - self.baseline_rad, crate::math::sqrt(self.alarm2_rad2))
+    }
+
+    /// σ₁ in use, rad.
+    pub fn sigma1_rad(&self) -> f64 {
+        self.sigma1_rad
+    }
+
+    /// Counters.
+    pub fn counters(&self) -> FdiCounters {
+        self.counters
+    }
+
+    /// One sample with all four gyros: compensated increments `m` (rad), their parity
+    /// residual `p_rad`, the squared body increment `body2_rad2`, the sample's end `t_us`.
+    pub fn on_sample(&mut self, m: &Vector4<f64>, p_rad: f64, body2_rad2: f64, t_us: u64) -> SampleVerdict {
+        if self.isolated().is_some() {
+            return SampleVerdict::Use;
+        }
+        let model2 = MODEL_RESIDUAL * MODEL_RESIDUAL * body2_rad2;
+        let d_rad = p_rad - self.baseline_rad;
+        if d_rad * d_rad > self.spike2_rad2 + model2 && self.seen >= WARMUP_SAMPLES {
+            if let Some(i) = self.spike_owner(m) {
+                // Keep the previous sample consistent: gyro i's value as the others see it.
+                let mut clean = *m;
+                if let (Some(ci), Some(vi)) = (clean.get_mut(i), self.v.get(i)) {
+                    *ci -= p_rad / vi;
+                }
+                self.last_m = Some(clean);
+                self.spike_run = if self.spike_fog == i { self.spike_run.saturating_add(1) } else { 1 };
+                self.spike_fog = i;
+                if self.spike_run >= SPIKE_LATCH {
+                    self.isolate(i);
+                    return SampleVerdict::Isolate(i);
+                }
+                return SampleVerdict::Drop(i);
+            }
+        }
+        self.spike_run = 0;
+        self.last_m = Some(*m);
+        self.mean_rad += ALPHA * (p_rad - self.mean_rad);
+        let s = self.mean_rad - self.baseline_rad;
+        let s2 = s * s;
+        match self.state {
+            FdiState::Watching => {
+                self.seen = self.seen.saturating_add(1);
+                // A plain mean until it would weigh less than the slow one.
+                let a = (1.0 / f64::from(self.seen)).max(self.alpha_slow);
+                self.baseline_rad += a * (p_rad - self.baseline_rad);
+                if s2 > self.alarm2_rad2 + model2 && self.seen > WARMUP_SAMPLES {
+                    self.state = FdiState::Alarm;
+                    self.alarm_us = t_us;
+                    self.p_acc_rad = d_rad;
+                    self.samples = 1;
+                    self.clear_run = 0;
+                    self.sums = Sums::default();
+                    self.counters.alarms = self.counters.alarms.saturating_add(1);
+                }
+            }
+            FdiState::Alarm => {
+                self.p_acc_rad += d_rad;
+                self.samples = self.samples.saturating_add(1);
+                if s2 < self.clear2_rad2 {
+                    self.clear_run += 1;
+                    if self.clear_run >= CLEAR_SAMPLES {
+                        self.state = FdiState::Watching;
+                        self.counters.transients = self.counters.transients.saturating_add(1);
+                    }
+                } else {
+                    self.clear_run = 0;
+                }
+            }
+            FdiState::Isolated(_) => {}
+        }
+        SampleVerdict::Use
+    }
+
+    /// During an alarm, a sample without all four gyros still carries the fault's
+    /// drift in time: nothing to add to P (the parity is not defined), but the alarm
+    /// stays.
+    pub fn on_partial_sample(&mut self) {
+        self.last_m = None;
+    }
+
+    /// The gyro whose triad (the other three) implies a small body-rate change since the
+    /// previous sample while every other triad implies a large one; `None` if unclear.
+    fn spike_owner(&self, m: &Vector4<f64>) -> Option<usize> {
+        let last = self.last_m?;
+        let d = m - last;
+        let mut best = (f64::INFINITY, N_FOG);
+        let mut second = f64::INFINITY;
+        for (i, t) in self.triads.iter().enumerate() {
+            let score = (t * d).norm_squared();
+            if score < best.0 {
+                second = best.0;
+                best = (score, i);
+            } else if score < second {
+                second = score;
+            }
+        }
+        let s12 = self.sigma1_rad * self.sigma1_rad;
+        (best.0 < 50.0 * s12 && second > 4.0 * best.0 + 20.0 * s12).then_some(best.1)
+    }
+
+    /// While an alarm stands, a per-channel check has refused gyro `i`'s sample (stuck,
+    /// out of range, device fault, missing): the channel names the faulty gyro.
+    /// Isolates it and returns true (only in an alarm).
+    pub fn isolate_failed_channel(&mut self, i: usize) -> bool {
+        if self.alarm() && i < N_FOG {
+            self.isolate(i);
+            return true;
+        }
+        false
+    }
+
+    fn isolate(&mut self, i: usize) {
+        self.state = FdiState::Isolated(i);
+        self.counters.isolations = self.counters.isolations.saturating_add(1);
+    }
+
+    /// One star-tracker mismatch `e_rad` (ICS, the observer's e) while listening;
+    /// `var_rad2` is its expected variance per axis. Returns the isolation when decided
+    /// (the caller removes `drift_rad_s` since `since_us` and drops the gyro).
+    pub fn on_mismatch(&mut self, e_rad: &Vector3<f64>, var_rad2: f64) -> Option<Isolation> {
+        if !self.alarm() {
+            return None;
+        }
+        let p = self.p_acc_rad;
+        let s = &mut self.sums;
+        s.n = s.n.saturating_add(1);
+        s.p += p;
+        s.pp += p * p;
+        s.e += e_rad;
+        s.pe += e_rad * p;
+        if s.n < ISOLATION_MIN_FRAMES {
+            return None;
+        }
+        let n = f64::from(s.n);
+        let spp = s.pp - s.p * s.p / n;
+        if spp <= 0.0 || !spp.is_finite() {
+            return None;
+        }
+        let spe = s.pe - s.e * (s.p / n);
+        let mut best = (0.0f64, N_FOG, 0.0f64);
+        let mut second = 0.0f64;
+        for (i, u) in self.u.iter().enumerate() {
+            let uu = u.norm_squared();
+            let a = u.dot(&spe);
+            let explained = a * a / (uu * spp);
+            if explained > best.0 {
+                second = best.0;
+                best = (explained, i, -a / (uu * spp));
+            } else if explained > second {
+                second = explained;
+            }
+        }
+        let (explained, fog, gain) = best;
+        let var = var_rad2.max(f64::MIN_POSITIVE);
+        let decided = explained > ISOLATION_MIN_ENERGY * var
+            && explained - second > ISOLATION_MARGIN * var
+            && (0.5..=2.0).contains(&gain);
+        if !decided {
+            return None;
+        }
+        let u = self.u.get(fog).copied().unwrap_or_else(Vector3::zeros);
+        let elapsed_s = f64::from(self.samples.max(1)) * self.dt_s;
+        self.isolate(fog);
+        Some(Isolation { fog, gain, drift_rad_s: u * (gain * self.p_acc_rad / elapsed_s), since_us: self.alarm_us })
+    }
+}
