@@ -7,7 +7,7 @@ use ssis::frames::decoder::{DecoderStats, StreamDecoder};
 use ssis::frames::fog::{self, FogFrame};
 use ssis::frames::output::{self, OutputCounters, OutputFrame};
 use ssis::frames::star::{self, StarFrame};
-use ssis::frames::{kind, DecodeError, EncodeError, Frame, CRC16, SYNC};
+use ssis::frames::{body_crc, header_crc, kind, DecodeError, EncodeError, Frame, CRC16, SYNC};
 
 // ---------------------------------------------------------------------------------------
 // Helpers
@@ -800,6 +800,19 @@ fn feed_bytewise(input: &[u8]) -> (Vec<Result<FogFrame, DecodeError>>, DecoderSt
         }
     }
     (out, d.stats())
+}
+
+proptest! {
+    /// The flight code's two-bytes-a-pass CRC (`frames::body_crc`, byte-swapped tables)
+    /// equals the `crc` crate's CRC-16/IBM-3740 over header and body, for every kind and
+    /// any body length (odd lengths take the one-byte tail).
+    #[test]
+    fn body_crc_equals_the_crc_crate(kind_byte in any::<u8>(), body in proptest::collection::vec(any::<u8>(), 0..200)) {
+        let mut whole = SYNC.to_vec();
+        whole.push(kind_byte);
+        whole.extend_from_slice(&body);
+        prop_assert_eq!(body_crc(header_crc(kind_byte), &body), CRC16.checksum(&whole));
+    }
 }
 
 proptest! {
