@@ -957,7 +957,7 @@ fn take_one(
         h |= health::COUNTER_GAP;
         counters.fog_samples_stale = counters.fog_samples_stale.saturating_add(stale);
     }
-    let result = match frame {
+    match frame {
         None => {
             counters.fog_samples_missing = counters.fog_samples_missing.saturating_add(1);
             fc.missing = fc.missing.saturating_add(1);
@@ -985,8 +985,7 @@ fn take_one(
                 }
             }
         }
-    };
-    result
+    }
 }
 
 /// Queues a FOG sample; a full queue drops its oldest (late backlog).

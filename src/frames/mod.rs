@@ -105,6 +105,10 @@ pub fn body_crc(header_crc: u16, body: &[u8]) -> u16 {
 /// T₀ and T₁ of [`body_crc`], each entry byte-swapped, built at compile time.
 static CRC_TABLES_SWAPPED: [[u16; 256]; 2] = crc_tables_swapped(0x1021);
 
+#[allow(
+    clippy::indexing_slicing,
+    reason = "evaluated at compile time only (a static's initialiser): an index out of bounds is a build error, never a run-time panic"
+)]
 const fn crc_tables_swapped(poly: u16) -> [[u16; 256]; 2] {
     let mut t = [[0u16; 256]; 2];
     let mut i = 0;
