@@ -12,6 +12,63 @@ pub fn sqrt(x: f64) -> f64 {
     libm::sqrt(x)
 }
 
+/// Largest |x| that [`sin_cos`] reduces; beyond it the result is NaN (no flight angle
+/// comes near: 2^30 quarter turns, 1.7e9 rad).
+pub const SIN_COS_MAX_RAD: f64 = 1_686_629_713.0;
+
+/// π/2 in three parts for the Cody–Waite reduction: P1 and P2 carry 33 significant bits
+/// each, so k·P1 and k·P2 are exact for |k| < 2^20, and P1 + P2 + P3 = π/2 to 2^-120.
+const PIO2_1: f64 = f64::from_bits(0x3FF9_21FB_5440_0000);
+const PIO2_2: f64 = f64::from_bits(0x3DD0_B461_1A60_0000);
+const PIO2_3: f64 = f64::from_bits(0x3BA3_198A_2E03_7073);
+
+/// sin and cos of `x_rad`, within about one unit in the last place for |x| < 1.6e6 rad
+/// (every angle of the flight code: mounting angles, half rotation angles, latitudes).
+///
+/// x = k·π/2 + r with k the nearest integer and |r| ≤ π/4 (Cody–Waite, three parts of
+/// π/2), then Taylor series of sin r to r^17 and cos r to r^18 (first omitted terms
+/// below 1e-19), cos summed as 1 − r²/2 with its rounding error carried, and the
+/// quadrant k mod 4. Written here instead of calling `libm::sin`/`cos`, whose reduction
+/// for arbitrary arguments (`rem_pio2`, 4 KB) does not fit the firmware's flash; the host
+/// tests compare it with the standard library over the range. Not finite or beyond
+/// [`SIN_COS_MAX_RAD`]: NaN.
+#[inline(never)]
+pub fn sin_cos(x_rad: f64) -> (f64, f64) {
+    if !(x_rad.abs() <= SIN_COS_MAX_RAD) {
+        return (f64::NAN, f64::NAN);
+    }
+    let kf = x_rad * core::f64::consts::FRAC_2_PI;
+    // Nearest integer (ties away from zero); |kf| < 2^30 so the cast is exact.
+    let k = (if kf >= 0.0 { kf + 0.5 } else { kf - 0.5 }) as i32;
+    let kd = f64::from(k);
+    let r = ((x_rad - kd * PIO2_1) - kd * PIO2_2) - kd * PIO2_3;
+    let z = r * r;
+    let sin_r = r + r * z
+        * (-1.0 / 6.0
+            + z * (1.0 / 120.0
+                + z * (-1.0 / 5_040.0
+                    + z * (1.0 / 362_880.0
+                        + z * (-1.0 / 39_916_800.0
+                            + z * (1.0 / 6_227_020_800.0
+                                + z * (-1.0 / 1_307_674_368_000.0 + z * (1.0 / 355_687_428_096_000.0))))))));
+    let tail = 1.0 / 24.0
+        + z * (-1.0 / 720.0
+            + z * (1.0 / 40_320.0
+                + z * (-1.0 / 3_628_800.0
+                    + z * (1.0 / 479_001_600.0
+                        + z * (-1.0 / 87_178_291_200.0
+                            + z * (1.0 / 20_922_789_888_000.0 + z * (-1.0 / 6_402_373_705_728_000.0)))))));
+    let hz = 0.5 * z;
+    let w = 1.0 - hz;
+    let cos_r = w + (((1.0 - w) - hz) + z * z * tail);
+    match k & 3 {
+        0 => (sin_r, cos_r),
+        1 => (cos_r, -sin_r),
+        2 => (-sin_r, -cos_r),
+        _ => (-cos_r, sin_r),
+    }
+}
+
 /// Unit quaternion of a rotation vector `phi_rad` (axis × angle), exact for any angle.
 ///
 /// Below 1e-2 rad the half-angle sine and cosine are replaced by their Taylor series to
@@ -25,7 +82,8 @@ pub fn quat_from_rotvec(phi_rad: &Vector3<f64>) -> Quaternion<f64> {
         (c, s)
     } else {
         let a = sqrt(a2);
-        (libm::cos(0.5 * a), libm::sin(0.5 * a) / a)
+        let (s, c) = sin_cos(0.5 * a);
+        (c, s / a)
     };
     Quaternion::new(c, s_over_a * phi_rad.x, s_over_a * phi_rad.y, s_over_a * phi_rad.z)
 }

@@ -120,8 +120,8 @@ impl Misalignment {
         // FOG4: the vector opposite to its SA, α = π/4 + δ43, clockwise β = γ − π/2 − δ42.
         let alpha = core::f64::consts::FRAC_PI_4 + self.d43_rad;
         let beta = (gamma_rad - core::f64::consts::FRAC_PI_2) - self.d42_rad;
-        let (sa, ca) = (libm::sin(alpha), libm::cos(alpha));
-        let (sb, cb) = (libm::sin(beta), libm::cos(beta));
+        let (sa, ca) = crate::math::sin_cos(alpha);
+        let (sb, cb) = crate::math::sin_cos(beta);
         let s4 = -Vector3::new(cb * ca, cb * sa, sb);
         [s1, s2, s3, s4]
     }
@@ -130,8 +130,8 @@ impl Misalignment {
 /// X axis turned by `first` about Z, then by `second` about the new Y (right-handed):
 /// (cos second · cos first, cos second · sin first, −sin second).
 fn two_turns(first_rad: f64, second_rad: f64) -> Vector3<f64> {
-    let (s1, c1) = (libm::sin(first_rad), libm::cos(first_rad));
-    let (s2, c2) = (libm::sin(second_rad), libm::cos(second_rad));
+    let (s1, c1) = crate::math::sin_cos(first_rad);
+    let (s2, c2) = crate::math::sin_cos(second_rad);
     Vector3::new(c2 * c1, c2 * s1, -s2)
 }
 

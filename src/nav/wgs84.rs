@@ -64,8 +64,8 @@ pub fn gravity_m_s2(r_e_m: &Vector3<f64>) -> Option<Vector3<f64>> {
 /// height `h_m` (Groves eq. 2.112, with the transverse radius of curvature
 /// R_E = a / √(1 − e² sin²L)).
 pub fn ecef_from_geodetic(lat_rad: f64, lon_rad: f64, h_m: f64) -> Vector3<f64> {
-    let (sl, cl) = (libm::sin(lat_rad), libm::cos(lat_rad));
-    let (so, co) = (libm::sin(lon_rad), libm::cos(lon_rad));
+    let (sl, cl) = crate::math::sin_cos(lat_rad);
+    let (so, co) = crate::math::sin_cos(lon_rad);
     let re = EQUATORIAL_RADIUS_M / math::sqrt(1.0 - ECCENTRICITY_SQ * sl * sl);
     Vector3::new((re + h_m) * cl * co, (re + h_m) * cl * so, ((1.0 - ECCENTRICITY_SQ) * re + h_m) * sl)
 }
