@@ -15,11 +15,14 @@
 //!   is there for that); the alarm is for changes. K_ALARM = 6.5: about 1e-10 false
 //!   alarms a sample (nothing in 24 h at 200 Hz); a bias step of 5 σ₁ crosses it in
 //!   about 4 samples;
-//! - **spikes and large steps**: a single sample with |p| > K_SPIKE σ₁ is tested
-//!   against the gyros' own history: the body-rate change implied by each triad
-//!   (the increments' change since the previous sample, solved without gyro i) is
-//!   small only for the triad that leaves out the faulty gyro. A clear winner is
-//!   dropped for that sample; [`SPIKE_LATCH`] in a row isolate it for good;
+//! - **spikes and large steps**: a sample whose residual jumps from the previous
+//!   sample's by more than K_SPIKE σ₁ √2 is tested against the gyros' own history: the
+//!   body-rate change implied by each triad (the increments' change since the previous
+//!   sample, solved without gyro i, normalised by the triad's noise gain) is small only
+//!   for the triad that leaves out the faulty gyro. A clear winner is dropped for that
+//!   sample, and the previous sample is cleaned of it, so a step jumps again at the next
+//!   sample; [`SPIKE_LATCH`] in a row isolate it for good. A step that is not
+//!   attributed at once is left to the detection mean (its level is no longer a jump);
 //! - **isolation with the star tracker**: one parity residual cannot name the gyro.
 //!   While the alarm stands, the observer only listens: each star-tracker mismatch e_j
 //!   is paired with P_j (accumulated since the alarm) and fitted, per hypothesis i, as
@@ -47,6 +50,11 @@ pub const WARMUP_SAMPLES: u32 = 200;
 pub const K_ALARM: f64 = 6.5;
 /// Spike threshold on a single sample's residual, in σ₁.
 pub const K_SPIKE: f64 = 6.5;
+/// A spike's owner: the normalised score of the triad without it must be below this,
+/// in σ₁² (noise alone: 2σ₁² on average, above 20σ₁² in about 0.2 % of samples)…
+pub const OWNER_MAX: f64 = 20.0;
+/// …and every other triad's above 4 times it plus this, in σ₁².
+pub const OWNER_MARGIN: f64 = 20.0;
 /// Consecutive spikes on the same gyro that isolate it.
 pub const SPIKE_LATCH: u8 = 3;
 /// Samples below half the alarm threshold that end an alarm as a transient (2 s at 5 ms).
@@ -127,6 +135,9 @@ pub struct ParityMonitor {
     v: RowVector4<f64>,
     u: [Vector3<f64>; N_FOG],
     triads: [Matrix3x4<f64>; N_FOG],
+    /// 1 / ‖triad i‖²_F: a triad's score divided by its noise gain (the triads with the
+    /// skewed FOG4 amplify noise more than the orthogonal one).
+    inv_gain: [f64; N_FOG],
     sigma1_rad: f64,
     dt_s: f64,
     alarm2_rad2: f64,
@@ -137,6 +148,8 @@ pub struct ParityMonitor {
     alpha_slow: f64,
     seen: u32,
     last_m: Option<Vector4<f64>>,
+    /// Parity residual of `last_m` (0 after a spike was taken out of it).
+    last_p_rad: f64,
     spike_fog: usize,
     spike_run: u8,
     state: FdiState,
@@ -168,12 +181,18 @@ impl ParityMonitor {
             }
             *ui = all.column(i) / vi;
         }
+        let mut inv_gain = [0.0; N_FOG];
+        for (g, t) in inv_gain.iter_mut().zip(&without) {
+            let n2 = t.norm_squared();
+            *g = if n2 > 0.0 { 1.0 / n2 } else { 0.0 };
+        }
         let s1 = noise_rad.max(SIGMA1_FLOOR_RAD);
         let ss2 = s1 * s1 * ALPHA / (2.0 - ALPHA);
         Some(ParityMonitor {
             v,
             u,
             triads: without,
+            inv_gain,
             sigma1_rad: s1,
             dt_s,
             alarm2_rad2: K_ALARM * K_ALARM * ss2,
@@ -184,6 +203,7 @@ impl ParityMonitor {
             alpha_slow: (dt_s / BASELINE_S).clamp(1e-9, 1.0),
             seen: 0,
             last_m: None,
+            last_p_rad: 0.0,
             spike_fog: 0,
             spike_run: 0,
             state: FdiState::Watching,
@@ -243,7 +263,12 @@ impl ParityMonitor {
         }
         let model2 = MODEL_RESIDUAL * MODEL_RESIDUAL * body2_rad2;
         let d_rad = p_rad - self.baseline_rad;
-        if d_rad * d_rad > self.spike2_rad2 + model2 && self.seen >= WARMUP_SAMPLES {
+        // A spike or a step shows as a jump of the residual from the previous sample's
+        // (both noisy: twice the variance). A step that was not attributed at once stays
+        // in the residual but not in its jump, and is left to the mean below: testing its
+        // level sample after sample would attribute noise to whichever triad is quietest.
+        let jump_rad = p_rad - self.last_p_rad;
+        if self.last_m.is_some() && jump_rad * jump_rad > 2.0 * self.spike2_rad2 + model2 && self.seen >= WARMUP_SAMPLES {
             if let Some(i) = self.spike_owner(m) {
                 // Keep the previous sample consistent: gyro i's value as the others see it.
                 let mut clean = *m;
@@ -251,6 +276,7 @@ impl ParityMonitor {
                     *ci -= p_rad / vi;
                 }
                 self.last_m = Some(clean);
+                self.last_p_rad = 0.0;
                 self.spike_run = if self.spike_fog == i { self.spike_run.saturating_add(1) } else { 1 };
                 self.spike_fog = i;
                 if self.spike_run >= SPIKE_LATCH {
@@ -262,6 +288,7 @@ impl ParityMonitor {
         }
         self.spike_run = 0;
         self.last_m = Some(*m);
+        self.last_p_rad = p_rad;
         self.mean_rad += ALPHA * (p_rad - self.mean_rad);
         let s = self.mean_rad - self.baseline_rad;
         let s2 = s * s;
@@ -304,6 +331,7 @@ impl ParityMonitor {
     /// stays.
     pub fn on_partial_sample(&mut self) {
         self.last_m = None;
+        self.last_p_rad = 0.0;
     }
 
     /// The gyro whose triad (the other three) implies a small body-rate change since the
@@ -313,8 +341,10 @@ impl ParityMonitor {
         let d = m - last;
         let mut best = (f64::INFINITY, N_FOG);
         let mut second = f64::INFINITY;
-        for (i, t) in self.triads.iter().enumerate() {
-            let score = (t * d).norm_squared();
+        for (i, (t, g)) in self.triads.iter().zip(&self.inv_gain).enumerate() {
+            // Normalised by the triad's noise gain: noise alone scores 2σ₁² on average
+            // for every triad (d is the difference of two samples).
+            let score = (t * d).norm_squared() * g;
             if score < best.0 {
                 second = best.0;
                 best = (score, i);
@@ -323,7 +353,7 @@ impl ParityMonitor {
             }
         }
         let s12 = self.sigma1_rad * self.sigma1_rad;
-        (best.0 < 50.0 * s12 && second > 4.0 * best.0 + 20.0 * s12).then_some(best.1)
+        (best.0 < OWNER_MAX * s12 && second > 4.0 * best.0 + OWNER_MARGIN * s12).then_some(best.1)
     }
 
     /// While an alarm stands, a per-channel check has refused gyro `i`'s sample (stuck,
