@@ -126,17 +126,17 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
     let mut fog_links = [0u64, 1, 2, 3].map(|_| MockLink::ideal());
     let mut star_link = MockLink::ideal();
     let mut out_link = MockSink::default();
-    let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xFA17);
+    let rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xFA17);
     let dt_s = profile.dt_s();
     let end_s = fault.start_s + fault.duration_s;
     let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ARCSEC_PER_RAD;
-    let mut inj = Injector { stuck: None, frozen: None, st_frames: 0 };
+    let mut inj = Injector { fault: *fault, sigma_st_rad, rng, stuck: None, frozen: None, st_frames: 0 };
     let mut r = FaultRun::default();
     let mut last_err: Option<[f64; 3]> = None;
     while let Some(mut input) = sim.next_step() {
         let t_s = input.n as f64 * dt_s;
         let active = t_s > fault.start_s && t_s <= end_s;
-        let outlier = inj.apply(&mut input, fault, active, t_s - fault.start_s, sigma_st_rad, &mut rng, &mut r);
+        let outlier = inj.apply(&mut input, active, t_s - fault.start_s, &mut r);
         for l in fog_links.iter_mut() {
             l.tick();
         }
@@ -228,26 +228,24 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &ssis::flight::Counters) -> bool
     }
 }
 
-/// The fault's hand on the frames.
+/// The fault's hand on the frames: the fault, what it needs to act, and its memory.
 struct Injector {
+    fault: Fault,
+    /// Per-axis σ of the star tracker, rad (the outliers' unit).
+    sigma_st_rad: f64,
+    rng: ChaCha8Rng,
     stuck: Option<[i32; N_FOG]>,
     frozen: Option<[i32; 4]>,
     st_frames: u64,
 }
 
 impl Injector {
-    /// Damages `input` for `fault` (`active`: within its window, `since_s` after its
-    /// start). Returns whether a star-tracker outlier was sent.
-    fn apply(
-        &mut self,
-        input: &mut StepInput,
-        fault: &Fault,
-        active: bool,
-        since_s: f64,
-        sigma_st_rad: f64,
-        rng: &mut ChaCha8Rng,
-        r: &mut FaultRun,
-    ) -> bool {
+    /// Damages `input` for the fault (`active`: within its window, `since_s` after its
+    /// start); bit errors are counted in `r`. Returns whether a star-tracker outlier was
+    /// sent.
+    fn apply(&mut self, input: &mut StepInput, active: bool, since_s: f64, r: &mut FaultRun) -> bool {
+        let fault = self.fault;
+        let rng = &mut self.rng;
         let fog = |input: &mut StepInput, i: usize, f: &mut dyn FnMut(&mut FogFrame)| {
             if let Some(bytes) = input.fog_frames.get_mut(i) {
                 if let Ok(mut frame) = FogFrame::decode(bytes) {
@@ -279,15 +277,17 @@ impl Injector {
                 let v = self.stuck.map_or(0, |s| s[i]);
                 fog(input, i, &mut |f| f.dtheta_counts = v);
             }
-            FaultKind::FogBiasStep(i, b) => {
-                fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32))
-            }
+            FaultKind::FogBiasStep(i, b) => fog(input, i, &mut |f| {
+                f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32)
+            }),
             FaultKind::FogDriftRamp(i, a) => fog(input, i, &mut |f| {
                 f.dtheta_counts = f.dtheta_counts.saturating_add((a * since_s * dt_s / lsb).round() as i32)
             }),
             FaultKind::FogSpikes(i, size, every) => {
                 if input.n.is_multiple_of(every) {
-                    fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((size / lsb).round() as i32))
+                    fog(input, i, &mut |f| {
+                        f.dtheta_counts = f.dtheta_counts.saturating_add((size / lsb).round() as i32)
+                    })
                 }
             }
             FaultKind::FogNan(i) => fog(input, i, &mut |f| f.dtheta_counts = i32::MIN),
@@ -299,10 +299,14 @@ impl Injector {
                 if let Some(mut f) = star_frame(&input.st_bytes) {
                     self.st_frames += 1;
                     if self.st_frames.is_multiple_of(every) {
-                        let axis = Vector3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5)
-                            .normalize();
+                        let axis = Vector3::new(
+                            rng.random::<f64>() - 0.5,
+                            rng.random::<f64>() - 0.5,
+                            rng.random::<f64>() - 0.5,
+                        )
+                        .normalize();
                         let [w, x, y, z] = f.quaternion();
-                        let q = Quaternion::new(w, x, y, z) * math::quat_from_rotvec(&(axis * (k * sigma_st_rad)));
+                        let q = Quaternion::new(w, x, y, z) * math::quat_from_rotvec(&(axis * (k * self.sigma_st_rad)));
                         let q = q.normalize();
                         f = StarFrame::from_physical(f.flags, f.counter, f.time_us, [q.w, q.i, q.j, q.k]);
                         input.st_bytes = f.to_bytes().to_vec();
@@ -394,11 +398,22 @@ fn fmt_opt(x: Option<f64>, prec: usize) -> String {
     x.map_or("–".into(), |x| format!("{x:.prec$}"))
 }
 
-/// The campaign's Markdown: one line per fault family (`rows`: name, fault duration,
-/// runs with the faulty FOG), the outlier and nominal figures, the long nominal flight.
+/// One row of the campaign: a fault family run over FOGs and seeds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CampaignRow {
+    /// The fault family, as in the table's first column.
+    pub name: String,
+    /// How long each fault acted, s.
+    pub fault_s: f64,
+    /// The runs, each with the FOG the fault was on.
+    pub runs: Vec<(usize, FaultRun)>,
+}
+
+/// The campaign's Markdown: one line per fault family, the outlier and nominal
+/// figures, the long nominal flight.
 pub fn report(
     k: &FaultScale,
-    rows: &[(&str, f64, &[(usize, FaultRun)])],
+    rows: &[CampaignRow],
     nominal: Option<&FaultRun>,
     nominal_hours: f64,
     seeds: u64,
@@ -411,7 +426,7 @@ pub fn report(
          isolation time, s (median / max) | wrong FOG isolated | attitude error max before / during / after, ″ | jump after, ″ |          parity alarms / spike drops / gated (all runs) |"
     );
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
-    for (name, _dur, runs) in rows {
+    for CampaignRow { name, runs, .. } in rows {
         let n = runs.len();
         let det: Vec<f64> = runs.iter().filter_map(|(_, r)| r.detected_after_steps.map(|x| x as f64)).collect();
         let right = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| j == *i)).count();
@@ -443,8 +458,8 @@ pub fn report(
     }
     let _ = writeln!(s);
     let (mut sent, mut acc, mut nom, mut refused, mut cs, mut ca) = (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
-    for (name, _, runs) in rows {
-        for (_, r) in runs.iter() {
+    for CampaignRow { name, runs, .. } in rows {
+        for (_, r) in runs {
             sent += u64::from(r.outliers_sent);
             acc += u64::from(r.outliers_accepted);
             cs += r.corrupted_sent;
