@@ -15,7 +15,6 @@ use anyhow::{Context, Result};
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use ssis_host::faults::{self, CampaignRow, Fault, FaultKind};
-use ssis_host::scenario::Scenario;
 
 /// Fault-injection campaign (issue 6).
 #[derive(Parser, Debug)]
@@ -54,21 +53,11 @@ impl Plan {
     }
 }
 
-fn base(seed: u64, duration_s: f64) -> Result<Scenario> {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
-    let mut sc = Scenario::from_file(&path).with_context(|| format!("reading {}", path.display()))?;
-    sc.seed = seed;
-    sc.duration_s = duration_s;
-    sc.settle_s = 40.0;
-    // The slew of the main scenario is at 50–80 s; keep it (the faults start at 60 s).
-    Ok(sc)
-}
-
 fn main() -> Result<()> {
     let args = Args::parse();
-    let probe = base(1, 1.0)?;
+    let probe = faults::scenario(1, 1.0)?;
     let k = faults::FaultScale::of(&probe)?;
-    let start_s = 60.0;
+    let start_s = faults::FAULT_START_S;
     let after_s = 30.0;
     let fogs = [0usize, 1, 2, 3];
     let one = [0usize];
@@ -77,6 +66,9 @@ fn main() -> Result<()> {
         Plan::new("FOG bias step 5σ of the parity residual", &fogs, 30.0, move |i| {
             FaultKind::FogBiasStep(i, k.bias_for_sigma_rad_s(i, 5.0))
         }),
+        Plan::new("FOG bias step 20σ of the parity residual", &fogs, 30.0, move |i| {
+            FaultKind::FogBiasStep(i, k.bias_for_sigma_rad_s(i, 20.0))
+        }),
         Plan::new("FOG drift ramp to 5σ in 10 s", &fogs, 30.0, move |i| {
             FaultKind::FogDriftRamp(i, k.bias_for_sigma_rad_s(i, 5.0) / 10.0)
         }),
@@ -84,6 +76,7 @@ fn main() -> Result<()> {
             FaultKind::FogSpikes(i, 20.0 * k.sigma1_rad, 200)
         }),
         Plan::new("FOG NaN (saturated output)", &fogs, 30.0, FaultKind::FogNan),
+        Plan::new("FOG NaN sent as 0 (as the ICD encodes it)", &fogs, 30.0, FaultKind::FogNanAsZero),
         Plan::new("FOG dropout 10 s", &fogs, 10.0, FaultKind::FogDropout),
         Plan::new("FOG temperature sensor open", &fogs, 30.0, FaultKind::FogTempSensor),
         Plan::new("star tracker outage 10 min", &one, 600.0, |_| FaultKind::StOutage),
@@ -104,7 +97,7 @@ fn main() -> Result<()> {
         for &i in fogs {
             for seed in 1..=args.seeds {
                 let t0 = if name.starts_with("star tracker outage") { args.outage_start_s } else { start_s };
-                let sc = base(seed * 7919 + i as u64, t0 + fault_s + after_s)?;
+                let sc = faults::scenario(seed * 7919 + i as u64, t0 + fault_s + after_s)?;
                 let fault = Fault { kind: kind(i), start_s: t0, duration_s: *fault_s };
                 runs.push((i, faults::run(&sc, &fault)?));
                 bar.inc(1);
@@ -114,7 +107,7 @@ fn main() -> Result<()> {
     }
     bar.finish_and_clear();
     let nominal = if args.nominal_hours > 0.0 {
-        let sc = base(424242, args.nominal_hours * 3600.0)?;
+        let sc = faults::scenario(424242, args.nominal_hours * 3600.0)?;
         let pb = ProgressBar::new_spinner().with_message(format!("nominal flight, {} h", args.nominal_hours));
         pb.enable_steady_tick(std::time::Duration::from_millis(200));
         let r = faults::run(&sc, &Fault { kind: FaultKind::None, start_s: f64::INFINITY, duration_s: 0.0 })?;
