@@ -12,12 +12,12 @@
 //!   and the largest step-to-step change of the error (a jump in the output);
 //! - false alarms: parity alarms, spikes and isolations of healthy FOGs, gated frames.
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use nalgebra::{Quaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use ssis::calib::N_FOG;
-use ssis::flight::{flags, health, st_status, FlightCore, FogLinks, Links, StepOutput};
+use ssis::flight::{flags, health, st_status, Counters, FlightCore, FogLinks, Links, StepOutput};
 use ssis::frames::fog::{status, FogFrame};
 use ssis::frames::star::StarFrame;
 use ssis::frames::Frame;
@@ -41,8 +41,11 @@ pub enum FaultKind {
     FogDriftRamp(usize, f64),
     /// Every `every`-th sample of the FOG carries an extra angle, rad.
     FogSpikes(usize, f64, u64),
-    /// The FOG sends its "not a number" (the increment saturated at i32::MIN counts).
+    /// The FOG's increment saturates at i32::MIN counts (a NaN or overflow in the FOG
+    /// that saturates its field).
     FogNan(usize),
+    /// The FOG sends 0 counts: a NaN as the ICD encodes it ("a NaN is sent as 0").
+    FogNanAsZero(usize),
     /// The FOG's frames stop.
     FogDropout(usize),
     /// The FOG's temperature reads −128 °C (an open sensor).
@@ -84,6 +87,9 @@ pub struct FaultRun {
     pub att_during_arcsec: f64,
     /// Largest attitude error after the fault (to the end of the run), arcsec.
     pub att_after_arcsec: f64,
+    /// Largest attitude error from the isolation of a FOG to the end of the run, arcsec
+    /// (`None`: nothing isolated).
+    pub att_after_isolation_arcsec: Option<f64>,
     /// Largest change of the attitude error from one step to the next after the
     /// fault's end, arcsec (a jump at re-acquisition).
     pub jump_after_arcsec: f64,
@@ -93,6 +99,8 @@ pub struct FaultRun {
     pub isolations: u32,
     /// Spike drops.
     pub spikes: u32,
+    /// Spikes put on the FOG's samples.
+    pub spikes_sent: u32,
     /// Star-tracker frames gated, and accepted.
     pub st_gated: u32,
     /// Star-tracker frames that updated the observer.
@@ -111,14 +119,54 @@ pub struct FaultRun {
     pub corrupted_accepted: u64,
     /// Frames with at least one bit error.
     pub corrupted_sent: u64,
+    /// FOG frames with at least one bit error, per FOG.
+    pub corrupted_fog_frames: [u64; N_FOG],
     /// Steps flagged degraded during the fault.
     pub degraded_steps: u64,
     /// Steps run.
     pub steps: u64,
+    /// The core's counters at the end of the run.
+    pub counters: Counters,
+}
+
+/// One step of a fault run, as [`run_observed`] hands it out.
+#[derive(Debug, Clone, Copy)]
+pub struct FaultStep<'a> {
+    /// Time tag of the output, s.
+    pub t_s: f64,
+    /// Whether the fault acted on this step's input.
+    pub active: bool,
+    /// The core's output.
+    pub out: &'a StepOutput,
+    /// The core's counters after the step.
+    pub counters: &'a Counters,
+    /// Attitude error of the output, arcsec per axis (ICS).
+    pub att_err_arcsec: [f64; 3],
+}
+
+/// When the campaign's faults start, s: after settling, inside the slew of 50–80 s.
+pub const FAULT_START_S: f64 = 60.0;
+
+/// The campaign's scenario: the main job's (`scenarios/qemu-flight.toml`: Earth pointing
+/// with a 10° roll slew at 50–80 s, the paper's sensors, star tracker 20″ 3σ at 4 Hz)
+/// with `seed`, `duration_s` and 40 s of settling.
+pub fn scenario(seed: u64, duration_s: f64) -> Result<Scenario> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).with_context(|| format!("reading {}", path.display()))?;
+    sc.seed = seed;
+    sc.duration_s = duration_s;
+    sc.settle_s = 40.0;
+    Ok(sc)
 }
 
 /// Runs `sc` with `fault`.
 pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
+    run_observed(sc, fault, |_| {})
+}
+
+/// [`run`], handing every scored step to `on_step` (tests look at the output frame by
+/// frame: health bits, flags, the attitude error's course).
+pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&FaultStep)) -> Result<FaultRun> {
     let mut sim = Simulation::new(sc)?;
     let mut eval = Evaluator::new(&sim);
     let profile = sim.profile;
@@ -126,17 +174,17 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
     let mut fog_links = [0u64, 1, 2, 3].map(|_| MockLink::ideal());
     let mut star_link = MockLink::ideal();
     let mut out_link = MockSink::default();
-    let mut rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xFA17);
+    let rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xFA17);
     let dt_s = profile.dt_s();
     let end_s = fault.start_s + fault.duration_s;
     let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ARCSEC_PER_RAD;
-    let mut inj = Injector { stuck: None, frozen: None, st_frames: 0 };
+    let mut inj = Injector { fault: *fault, sigma_st_rad, rng, stuck: None, frozen: None, st_frames: 0 };
     let mut r = FaultRun::default();
     let mut last_err: Option<[f64; 3]> = None;
     while let Some(mut input) = sim.next_step() {
         let t_s = input.n as f64 * dt_s;
         let active = t_s > fault.start_s && t_s <= end_s;
-        let outlier = inj.apply(&mut input, fault, active, t_s - fault.start_s, sigma_st_rad, &mut rng, &mut r);
+        let outlier = inj.apply(&mut input, active, t_s - fault.start_s, &mut r);
         for l in fog_links.iter_mut() {
             l.tick();
         }
@@ -170,6 +218,7 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
         let Some(rec) = eval.evaluate(&Observed::from(&out)) else { continue };
         let err = rec.att_err_arcsec.iter().fold(0.0f64, |m, e| m.max(e.abs()));
         let t = rec.t_s;
+        on_step(&FaultStep { t_s: t, active, out: &out, counters: &c, att_err_arcsec: rec.att_err_arcsec });
         if t >= sc.settle_s && t <= fault.start_s {
             r.att_before_arcsec = r.att_before_arcsec.max(err);
         } else if t > fault.start_s && t <= end_s {
@@ -196,8 +245,12 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
                 }
             }
         }
+        if out.fdi & 0xF0 != 0 {
+            r.att_after_isolation_arcsec = Some(r.att_after_isolation_arcsec.map_or(err, |m| m.max(err)));
+        }
     }
     let c = core.counters();
+    r.counters = c;
     let fdi = core.fdi().map(|m| m.counters()).unwrap_or_default();
     r.alarms = fdi.alarms;
     r.isolations = fdi.isolations;
@@ -209,13 +262,14 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
 }
 
 /// Whether the output shows `kind`.
-fn shows(kind: &FaultKind, out: &StepOutput, c: &ssis::flight::Counters) -> bool {
+fn shows(kind: &FaultKind, out: &StepOutput, c: &Counters) -> bool {
     let fog_bits = |i: usize, mask: u8| out.fog_health.get(i).is_some_and(|h| h & mask != 0);
     let any_fdi = out.flags & flags::FDI_ALARM != 0 || out.fdi & 0xF0 != 0;
     match *kind {
         FaultKind::None => false,
         FaultKind::FogStuck(i) => fog_bits(i, health::STUCK),
         FaultKind::FogNan(i) => fog_bits(i, health::OUT_OF_RANGE),
+        FaultKind::FogNanAsZero(i) => any_fdi || fog_bits(i, health::EXCLUDED | health::STUCK),
         FaultKind::FogDropout(i) => fog_bits(i, health::MISSING),
         FaultKind::FogTempSensor(i) => out.fdi & (1 << i) != 0,
         FaultKind::FogBiasStep(i, _) | FaultKind::FogDriftRamp(i, _) | FaultKind::FogSpikes(i, _, _) => {
@@ -228,26 +282,24 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &ssis::flight::Counters) -> bool
     }
 }
 
-/// The fault's hand on the frames.
+/// The fault's hand on the frames: the fault, what it needs to act, and its memory.
 struct Injector {
+    fault: Fault,
+    /// Per-axis σ of the star tracker, rad (the outliers' unit).
+    sigma_st_rad: f64,
+    rng: ChaCha8Rng,
     stuck: Option<[i32; N_FOG]>,
     frozen: Option<[i32; 4]>,
     st_frames: u64,
 }
 
 impl Injector {
-    /// Damages `input` for `fault` (`active`: within its window, `since_s` after its
-    /// start). Returns whether a star-tracker outlier was sent.
-    fn apply(
-        &mut self,
-        input: &mut StepInput,
-        fault: &Fault,
-        active: bool,
-        since_s: f64,
-        sigma_st_rad: f64,
-        rng: &mut ChaCha8Rng,
-        r: &mut FaultRun,
-    ) -> bool {
+    /// Damages `input` for the fault (`active`: within its window, `since_s` after its
+    /// start); bit errors are counted in `r`. Returns whether a star-tracker outlier was
+    /// sent.
+    fn apply(&mut self, input: &mut StepInput, active: bool, since_s: f64, r: &mut FaultRun) -> bool {
+        let fault = self.fault;
+        let rng = &mut self.rng;
         let fog = |input: &mut StepInput, i: usize, f: &mut dyn FnMut(&mut FogFrame)| {
             if let Some(bytes) = input.fog_frames.get_mut(i) {
                 if let Ok(mut frame) = FogFrame::decode(bytes) {
@@ -279,18 +331,22 @@ impl Injector {
                 let v = self.stuck.map_or(0, |s| s[i]);
                 fog(input, i, &mut |f| f.dtheta_counts = v);
             }
-            FaultKind::FogBiasStep(i, b) => {
-                fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32))
-            }
+            FaultKind::FogBiasStep(i, b) => fog(input, i, &mut |f| {
+                f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32)
+            }),
             FaultKind::FogDriftRamp(i, a) => fog(input, i, &mut |f| {
                 f.dtheta_counts = f.dtheta_counts.saturating_add((a * since_s * dt_s / lsb).round() as i32)
             }),
             FaultKind::FogSpikes(i, size, every) => {
                 if input.n.is_multiple_of(every) {
-                    fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((size / lsb).round() as i32))
+                    r.spikes_sent += 1;
+                    fog(input, i, &mut |f| {
+                        f.dtheta_counts = f.dtheta_counts.saturating_add((size / lsb).round() as i32)
+                    })
                 }
             }
             FaultKind::FogNan(i) => fog(input, i, &mut |f| f.dtheta_counts = i32::MIN),
+            FaultKind::FogNanAsZero(i) => fog(input, i, &mut |f| f.dtheta_counts = 0),
             FaultKind::FogTempSensor(i) => fog(input, i, &mut |f| {
                 f.temperature_counts = i16::MIN / 2;
                 f.status &= !status::TEMP_SENSOR_FAULT;
@@ -299,10 +355,14 @@ impl Injector {
                 if let Some(mut f) = star_frame(&input.st_bytes) {
                     self.st_frames += 1;
                     if self.st_frames.is_multiple_of(every) {
-                        let axis = Vector3::new(rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5, rng.random::<f64>() - 0.5)
-                            .normalize();
+                        let axis = Vector3::new(
+                            rng.random::<f64>() - 0.5,
+                            rng.random::<f64>() - 0.5,
+                            rng.random::<f64>() - 0.5,
+                        )
+                        .normalize();
                         let [w, x, y, z] = f.quaternion();
-                        let q = Quaternion::new(w, x, y, z) * math::quat_from_rotvec(&(axis * (k * sigma_st_rad)));
+                        let q = Quaternion::new(w, x, y, z) * math::quat_from_rotvec(&(axis * (k * self.sigma_st_rad)));
                         let q = q.normalize();
                         f = StarFrame::from_physical(f.flags, f.counter, f.time_us, [q.w, q.i, q.j, q.k]);
                         input.st_bytes = f.to_bytes().to_vec();
@@ -319,9 +379,10 @@ impl Injector {
                 }
             }
             FaultKind::BitErrors(ber) => {
-                for bytes in input.fog_frames.iter_mut() {
+                for (bytes, n) in input.fog_frames.iter_mut().zip(r.corrupted_fog_frames.iter_mut()) {
                     if flip(bytes, ber, rng) {
                         r.corrupted_sent += 1;
+                        *n += 1;
                         if FogFrame::decode(bytes).is_ok() {
                             r.corrupted_accepted += 1;
                         }
@@ -394,11 +455,22 @@ fn fmt_opt(x: Option<f64>, prec: usize) -> String {
     x.map_or("–".into(), |x| format!("{x:.prec$}"))
 }
 
-/// The campaign's Markdown: one line per fault family (`rows`: name, fault duration,
-/// runs with the faulty FOG), the outlier and nominal figures, the long nominal flight.
+/// One row of the campaign: a fault family run over FOGs and seeds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CampaignRow {
+    /// The fault family, as in the table's first column.
+    pub name: String,
+    /// How long each fault acted, s.
+    pub fault_s: f64,
+    /// The runs, each with the FOG the fault was on.
+    pub runs: Vec<(usize, FaultRun)>,
+}
+
+/// The campaign's Markdown: one line per fault family, the outlier and nominal
+/// figures, the long nominal flight.
 pub fn report(
     k: &FaultScale,
-    rows: &[(&str, f64, &[(usize, FaultRun)])],
+    rows: &[CampaignRow],
     nominal: Option<&FaultRun>,
     nominal_hours: f64,
     seeds: u64,
@@ -407,44 +479,81 @@ pub fn report(
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| fault | runs | detected | latency, steps (median / max) | right FOG isolated | isolated within 10 s | \
-         isolation time, s (median / max) | wrong FOG isolated | attitude error max before / during / after, ″ | jump after, ″ |          parity alarms / spike drops / gated (all runs) |"
+        "| fault | runs | detected | latency, steps (median / max) | right FOG isolated (within 10 s) | \
+         wrong FOG isolated | isolation time, s (median / max) | attitude error max, ″: before / during / after | \
+         after isolation, ″ (median / max) | jump after, ″ | false alarms | parity alarms / spike drops / gated frames |"
     );
-    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
-    for (name, _dur, runs) in rows {
+    let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
+    for CampaignRow { name, runs, .. } in rows {
         let n = runs.len();
         let det: Vec<f64> = runs.iter().filter_map(|(_, r)| r.detected_after_steps.map(|x| x as f64)).collect();
         let right = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| j == *i)).count();
         let right10 = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, t)| j == *i && t <= 10.0)).count();
-        let wrong = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| j != *i)).count();
         let t_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.isolated.map(|(_, t)| t)).collect();
+        let after_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.att_after_isolation_arcsec).collect();
         let max = |f: &dyn Fn(&FaultRun) -> f64| runs.iter().map(|(_, r)| f(r)).fold(0.0f64, f64::max);
         let sum = |f: &dyn Fn(&FaultRun) -> u64| runs.iter().map(|(_, r)| f(r)).sum::<u64>();
         let fog_fault = name.starts_with("FOG");
+        let healthy = |i: usize, j: usize| !fog_fault || j != i;
+        let wrong = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| healthy(*i, j))).count();
+        // False alarms: samples of a healthy gyro dropped as spikes and, for faults that
+        // are not a FOG's, any parity alarm (isolations of a healthy gyro: their own
+        // column).
+        let false_alarms: u64 = runs
+            .iter()
+            .map(|(i, r)| {
+                let spikes: u64 = r
+                    .counters
+                    .fog
+                    .iter()
+                    .enumerate()
+                    .filter(|(j, _)| healthy(*i, *j))
+                    .map(|(_, c)| u64::from(c.spikes))
+                    .sum();
+                spikes + if fog_fault { 0 } else { u64::from(r.alarms) }
+            })
+            .sum();
+        let spikes = if runs.iter().any(|(_, r)| r.spikes_sent > 0) {
+            format!("{} of {} sent", sum(&|r| u64::from(r.spikes)), sum(&|r| u64::from(r.spikes_sent)))
+        } else {
+            sum(&|r| u64::from(r.spikes)).to_string()
+        };
         let _ = writeln!(
             s,
-            "| {name} | {n} | {}/{n} | {} / {} | {} | {} | {} / {} | {} | {:.1} / {:.1} / {:.1} | {:.2} | {} / {} / {} |",
+            "| {name} | {n} | {}/{n} | {} / {} | {} | {wrong} | {} / {} | {:.1} / {:.1} / {:.1} | {} / {} | {:.2} | {false_alarms} | \
+             {} / {spikes} / {} |",
             det.len(),
             fmt_opt(median(det.clone()), 0),
             fmt_opt(det.iter().copied().reduce(f64::max), 0),
-            if fog_fault { format!("{right}/{n}") } else { "–".into() },
-            if fog_fault { format!("{right10}/{n}") } else { "–".into() },
+            if fog_fault { format!("{right}/{n} ({right10}/{n})") } else { "–".into() },
             fmt_opt(median(t_iso.clone()), 2),
             fmt_opt(t_iso.iter().copied().reduce(f64::max), 2),
-            wrong,
             max(&|r| r.att_before_arcsec),
             max(&|r| r.att_during_arcsec),
             max(&|r| r.att_after_arcsec),
+            fmt_opt(median(after_iso.clone()), 1),
+            fmt_opt(after_iso.iter().copied().reduce(f64::max), 1),
             max(&|r| r.jump_after_arcsec),
             sum(&|r| u64::from(r.alarms)),
-            sum(&|r| u64::from(r.spikes)),
             sum(&|r| u64::from(r.st_gated)),
         );
     }
     let _ = writeln!(s);
+    for CampaignRow { name, runs, .. } in rows.iter().filter(|r| r.name.starts_with("star tracker outage")) {
+        let errs: Vec<f64> = runs.iter().map(|(_, r)| r.att_during_arcsec.max(r.att_after_arcsec)).collect();
+        let within = errs.iter().filter(|&&e| e <= 15.0).count();
+        let _ = writeln!(
+            s,
+            "- {name}: largest attitude error of each run (any axis, during the outage or after it), median {} ″, \
+             max {} ″; {within} of {} runs within 15″.",
+            fmt_opt(median(errs.clone()), 1),
+            fmt_opt(errs.iter().copied().reduce(f64::max), 1),
+            errs.len()
+        );
+    }
     let (mut sent, mut acc, mut nom, mut refused, mut cs, mut ca) = (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
-    for (name, _, runs) in rows {
-        for (_, r) in runs.iter() {
+    for CampaignRow { name, runs, .. } in rows {
+        for (_, r) in runs {
             sent += u64::from(r.outliers_sent);
             acc += u64::from(r.outliers_accepted);
             cs += r.corrupted_sent;
