@@ -43,7 +43,8 @@ pub fn sin_cos(x_rad: f64) -> (f64, f64) {
     let kd = f64::from(k);
     let r = ((x_rad - kd * PIO2_1) - kd * PIO2_2) - kd * PIO2_3;
     let z = r * r;
-    let sin_r = r + r * z
+    let sin_r = r + r
+        * z
         * (-1.0 / 6.0
             + z * (1.0 / 120.0
                 + z * (-1.0 / 5_040.0

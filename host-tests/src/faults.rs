@@ -174,11 +174,10 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     let mut fog_links = [0u64, 1, 2, 3].map(|_| MockLink::ideal());
     let mut star_link = MockLink::ideal();
     let mut out_link = MockSink::default();
-    let rng = ChaCha8Rng::seed_from_u64(sc.seed ^ 0xFA17);
     let dt_s = profile.dt_s();
     let end_s = fault.start_s + fault.duration_s;
     let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ARCSEC_PER_RAD;
-    let mut inj = Injector { fault: *fault, sigma_st_rad, rng, stuck: None, frozen: None, st_frames: 0 };
+    let mut inj = Injector::new(*fault, sigma_st_rad, sc.seed);
     let mut r = FaultRun::default();
     let mut last_err: Option<[f64; 3]> = None;
     while let Some(mut input) = sim.next_step() {
@@ -283,7 +282,8 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &Counters) -> bool {
 }
 
 /// The fault's hand on the frames: the fault, what it needs to act, and its memory.
-struct Injector {
+/// Used by [`run`] and by the QEMU runner (`QemuOptions::fault`).
+pub struct Injector {
     fault: Fault,
     /// Per-axis σ of the star tracker, rad (the outliers' unit).
     sigma_st_rad: f64,
@@ -294,10 +294,23 @@ struct Injector {
 }
 
 impl Injector {
+    /// An injector of `fault`; `sigma_st_rad` is the star tracker's per-axis σ (the
+    /// outliers' unit), `seed` the scenario's seed (the fault's own random draws).
+    pub fn new(fault: Fault, sigma_st_rad: f64, seed: u64) -> Self {
+        Injector {
+            fault,
+            sigma_st_rad,
+            rng: ChaCha8Rng::seed_from_u64(seed ^ 0xFA17),
+            stuck: None,
+            frozen: None,
+            st_frames: 0,
+        }
+    }
+
     /// Damages `input` for the fault (`active`: within its window, `since_s` after its
     /// start); bit errors are counted in `r`. Returns whether a star-tracker outlier was
     /// sent.
-    fn apply(&mut self, input: &mut StepInput, active: bool, since_s: f64, r: &mut FaultRun) -> bool {
+    pub fn apply(&mut self, input: &mut StepInput, active: bool, since_s: f64, r: &mut FaultRun) -> bool {
         let fault = self.fault;
         let rng = &mut self.rng;
         let fog = |input: &mut StepInput, i: usize, f: &mut dyn FnMut(&mut FogFrame)| {

@@ -147,6 +147,8 @@ pub struct Observed {
     pub fogs_used: FogSet,
     /// Step time reported by the board, ticks.
     pub step_ticks: u16,
+    /// Fault-logic bits (held temperatures, isolated FOGs; `docs/ICD.md`).
+    pub fdi: u8,
 }
 
 impl From<&StepOutput> for Observed {
@@ -159,6 +161,7 @@ impl From<&StepOutput> for Observed {
             st_status: o.st_status,
             fogs_used: o.fogs_used,
             step_ticks: 0,
+            fdi: o.fdi,
         }
     }
 }
@@ -180,6 +183,7 @@ impl From<&OutputFrame> for Observed {
             st_status: f.st_status,
             fogs_used: FogSet(used),
             step_ticks: f.counters.step_ticks,
+            fdi: f.fdi,
         }
     }
 }

@@ -63,6 +63,9 @@ pub struct QemuOptions {
     /// table's two-copy image (`ssis::calib::store`), e.g. with one copy damaged. The
     /// in-process comparison still uses the scenario's table.
     pub table_image: Option<Vec<u8>>,
+    /// A sensor fault injected into the simulator's frames before they are sent
+    /// (`faults`, issue 6 part 7); the in-process comparison gets the same bytes.
+    pub fault: Option<crate::faults::Fault>,
 }
 
 /// What a QEMU run measured.
@@ -533,7 +536,16 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             on_step(&rec);
         }
     };
-    while let Some(input) = sim.next_step() {
+    let dt_s = sim.profile.dt_s();
+    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / crate::ARCSEC_PER_RAD;
+    let mut injector = opts.fault.map(|f| (f, crate::faults::Injector::new(f, sigma_st_rad, sc.seed)));
+    let mut injected = crate::faults::FaultRun::default();
+    while let Some(mut input) = sim.next_step() {
+        if let Some((f, inj)) = injector.as_mut() {
+            let t_s = input.n as f64 * dt_s;
+            let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
+            inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
+        }
         let n = input.n;
         if !opts.lockstep {
             // Real time: the frames of step n go out LEAD steps before its tick, and never

@@ -100,7 +100,8 @@ impl ChannelMonitor {
         if !self.temp_failed {
             let c = frame.temperature_counts;
             if frame.status & status::TEMP_SENSOR_FAULT == 0 && (TEMP_MIN_COUNTS..=TEMP_MAX_COUNTS).contains(&c) {
-                if let Some((t_degc, g_degc_s)) = self.temp.update_within(frame.temperature_degc(), dt_s, TEMP_JUMP_DEGC)
+                if let Some((t_degc, g_degc_s)) =
+                    self.temp.update_within(frame.temperature_degc(), dt_s, TEMP_JUMP_DEGC)
                 {
                     return ChannelVerdict { stuck, temp_failed: false, t_degc, g_degc_s };
                 }

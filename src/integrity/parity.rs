@@ -15,8 +15,8 @@
 //!   is there for that); the alarm is for changes. K_ALARM = 6.5: about 1e-10 false
 //!   alarms a sample (nothing in 24 h at 200 Hz); a bias step of 5 σ₁ crosses it in
 //!   about 4 samples;
-//! - **spikes and large steps**: a sample whose residual jumps from the previous
-//!   sample's by more than K_SPIKE σ₁ √2 is tested against the gyros' own history: the
+//! - **spikes and large steps**: a sample whose residual is above K_SPIKE σ₁ and jumped
+//!   by as much from the previous sample's is tested against the gyros' own history: the
 //!   body-rate change implied by each triad (the increments' change since the previous
 //!   sample, solved without gyro i, normalised by the triad's noise gain) is small only
 //!   for the triad that leaves out the faulty gyro. A clear winner is dropped for that
@@ -263,12 +263,17 @@ impl ParityMonitor {
         }
         let model2 = MODEL_RESIDUAL * MODEL_RESIDUAL * body2_rad2;
         let d_rad = p_rad - self.baseline_rad;
-        // A spike or a step shows as a jump of the residual from the previous sample's
-        // (both noisy: twice the variance). A step that was not attributed at once stays
-        // in the residual but not in its jump, and is left to the mean below: testing its
-        // level sample after sample would attribute noise to whichever triad is quietest.
+        // A spike or a step shows in the residual's level and as a jump from the previous
+        // sample's. A step that was not attributed at once stays in the level but not in
+        // the jump, and is left to the mean below: testing its level sample after sample
+        // would attribute noise to whichever triad is quietest.
         let jump_rad = p_rad - self.last_p_rad;
-        if self.last_m.is_some() && jump_rad * jump_rad > 2.0 * self.spike2_rad2 + model2 && self.seen >= WARMUP_SAMPLES {
+        let spike2 = self.spike2_rad2 + model2;
+        if d_rad * d_rad > spike2
+            && jump_rad * jump_rad > spike2
+            && self.last_m.is_some()
+            && self.seen >= WARMUP_SAMPLES
+        {
             if let Some(i) = self.spike_owner(m) {
                 // Keep the previous sample consistent: gyro i's value as the others see it.
                 let mut clean = *m;

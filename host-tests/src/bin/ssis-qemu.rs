@@ -85,6 +85,7 @@ fn real_main() -> Result<bool> {
         progress: true,
         stall_at_step: None,
         table_image: None,
+        fault: None,
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;
