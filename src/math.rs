@@ -34,7 +34,7 @@ const PIO2_3: f64 = f64::from_bits(0x3BA3_198A_2E03_7073);
 /// [`SIN_COS_MAX_RAD`]: NaN.
 #[inline(never)]
 pub fn sin_cos(x_rad: f64) -> (f64, f64) {
-    if !(x_rad.abs() <= SIN_COS_MAX_RAD) {
+    if x_rad.is_nan() || x_rad.abs() > SIN_COS_MAX_RAD {
         return (f64::NAN, f64::NAN);
     }
     let kf = x_rad * core::f64::consts::FRAC_2_PI;
