@@ -53,8 +53,53 @@ impl Plan {
     }
 }
 
+/// What the campaign runs and what its columns mean (the top of the document), with
+/// the outage starting at `outage_start_s`.
+fn legend(outage_start_s: f64) -> String {
+    format!(
+        "\
+The in-process flight core (the same `FlightCore::step` as the firmware) on the main job's scenario \
+(`scenarios/qemu-flight.toml`: Earth pointing with a 10° roll slew at 50–80 s, the paper's FOGs, star tracker \
+20″ 3σ at 4 Hz with 50 ms latency), ideal links. FOG faults start at 60 s (inside the slew) on each FOG in turn \
+and last 30 s (dropout 10 s); star-tracker faults and bit errors start at 60 s, the 10-min outage at {outage_start_s} s (the \
+observer's drift estimate in steady state); every run goes on 30 s after the fault. Runs: seeds × FOGs.
+
+- **detected**: runs whose output showed the fault (the FOG's health bits, the parity alarm, the isolation bits, \
+the held-temperature bit; for the star tracker the outage bit or the gated and frozen counters; for bit errors a \
+rejected frame); **latency** from the fault's start to that output, in 5 ms steps.
+- **right FOG isolated**: the fault logic excluded the faulty FOG for good (in how many runs; within 10 s). \
+Stuck, NaN, dropout and temperature faults need no isolation (the channel checks refuse the samples or hold the \
+temperature); an isolation there means a parity alarm stood when the channel check fired. **wrong FOG isolated**: \
+a healthy FOG excluded for good.
+- **attitude error**: largest axis of the error against truth, arcsec, the largest over the runs: before the fault \
+(after 40 s of settling), during it, after it. **after isolation**: the largest error from the isolation to the \
+end of the run (median and largest over the runs with an isolation). **jump after**: the largest step-to-step \
+change of the error after the fault's end.
+- **false alarms**: samples of a healthy FOG dropped as spikes, and, for faults that are not a FOG's, any parity \
+alarm. The last column counts over all the row's runs.
+"
+    )
+}
+
+/// Today's date (UTC), YYYY-MM-DD, from the system clock (days to civil date,
+/// proleptic Gregorian).
+fn utc_date() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let z = (secs / 86_400) as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02}")
+}
+
 fn main() -> Result<()> {
     let args = Args::parse();
+    let started = std::time::Instant::now();
     let probe = faults::scenario(1, 1.0)?;
     let k = faults::FaultScale::of(&probe)?;
     let start_s = faults::FAULT_START_S;
@@ -116,7 +161,17 @@ fn main() -> Result<()> {
     } else {
         None
     };
-    let md = faults::report(&k, &rows, nominal.as_ref(), args.nominal_hours, args.seeds);
+    let command: Vec<String> = std::env::args().skip(1).collect();
+    let md = format!(
+        "# Fault-injection campaign (issue 6)\n\n\
+         Produced by `cd host-tests && cargo run --release --bin ssis-faults -- {}` on {} ({:.0} s on the machine \
+         that ran it).\n\n{}\n{}",
+        command.join(" "),
+        utc_date(),
+        started.elapsed().as_secs_f64(),
+        legend(args.outage_start_s),
+        faults::report(&k, &rows, nominal.as_ref(), args.nominal_hours, args.seeds)
+    );
     println!("{md}");
     if let Some(p) = &args.out {
         std::fs::write(p, &md).with_context(|| format!("writing {}", p.display()))?;
