@@ -38,7 +38,10 @@ fn lv_firmware_keeps_1_25_ms_and_matches_the_host_replay() {
     // the outage; the last period's figures come only in the END report.
     let [none, prop, upd] = s.period_ticks;
     assert!(none.n > 9_000 && prop.n >= 100 && upd.n >= 8, "{:?}", s.period_ticks);
-    assert!(prop.mean() > 10.0 * none.mean() && upd.mean() > prop.mean(), "{:?}", s.period_ticks);
+    // A covariance propagation adds some 50,000 instructions (1,300 ticks) to its period;
+    // a step alone is about 6,000 (150 ticks). (This compared with 10 steps until the
+    // per-FOG checks of issue 6 made the step 7 % heavier and 10 steps 1,507 ticks.)
+    assert!(prop.mean() > none.mean() + 1_000.0 && upd.mean() > prop.mean(), "{:?}", s.period_ticks);
     // The firmware's own report: the step alone stays flat when the filter works.
     let fw = s.firmware_times.map(|t| t.expect("END report of every kind"));
     assert_eq!(fw.iter().map(|t| t.periods).sum::<u64>(), s.steps);

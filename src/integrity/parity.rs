@@ -89,7 +89,7 @@ pub enum SampleVerdict {
 pub struct Isolation {
     /// The failed gyro.
     pub fog: usize,
-    /// Fitted gain c (1 when the observer listened throughout).
+    /// Fitted gain c (near 1: the observer listened throughout; the removal uses 1).
     pub gain: f64,
     /// The fault's attitude drift since the alarm, ICS, rad/s (to be removed).
     pub drift_rad_s: Vector3<f64>,
@@ -424,6 +424,9 @@ impl ParityMonitor {
         let u = self.u.get(fog).copied().unwrap_or_else(Vector3::zeros);
         let elapsed_s = f64::from(self.samples.max(1)) * self.dt_s;
         self.isolate(fog);
-        Some(Isolation { fog, gain, drift_rad_s: u * (gain * self.p_acc_rad / elapsed_s), since_us: self.alarm_us })
+        // The attitude error the fault made since the alarm is u_i P exactly (the observer
+        // only listened, so nothing of it was corrected): removed with c = 1, not the
+        // fitted c, which is known to 10 % at the decision and served only to decide.
+        Some(Isolation { fog, gain, drift_rad_s: u * (self.p_acc_rad / elapsed_s), since_us: self.alarm_us })
     }
 }
