@@ -16,7 +16,7 @@
 //!   alarms a sample (nothing in 24 h at 200 Hz); a bias step of 5 σ₁ crosses it in
 //!   about 4 samples;
 //! - **spikes and large steps**: a sample whose residual is above K_SPIKE σ₁ and jumped
-//!   by as much from the previous sample's is tested against the gyros' own history: the
+//!   by [`K_JUMP`] σ₁ from the previous sample's is tested against the gyros' own history: the
 //!   body-rate change implied by each triad (the increments' change since the previous
 //!   sample, solved without gyro i, normalised by the triad's noise gain) is small only
 //!   for the triad that leaves out the faulty gyro. A clear winner is dropped for that
@@ -55,6 +55,10 @@ pub const K_SPIKE: f64 = 6.5;
 pub const OWNER_MAX: f64 = 20.0;
 /// …and every other triad's above 4 times it plus this, in σ₁².
 pub const OWNER_MARGIN: f64 = 20.0;
+/// A spike must also jump from the previous sample's residual by this, in σ₁ (the jump's
+/// noise is √2 σ₁: a level that stays is re-tested in 0.5 % of its samples, while a spike
+/// just over K_SPIKE is still caught).
+pub const K_JUMP: f64 = 4.0;
 /// Consecutive spikes on the same gyro that isolate it.
 pub const SPIKE_LATCH: u8 = 3;
 /// Samples below half the alarm threshold that end an alarm as a transient (2 s at 5 ms).
@@ -143,6 +147,7 @@ pub struct ParityMonitor {
     alarm2_rad2: f64,
     clear2_rad2: f64,
     spike2_rad2: f64,
+    jump2_rad2: f64,
     mean_rad: f64,
     baseline_rad: f64,
     alpha_slow: f64,
@@ -198,6 +203,7 @@ impl ParityMonitor {
             alarm2_rad2: K_ALARM * K_ALARM * ss2,
             clear2_rad2: K_ALARM * K_ALARM * ss2 / 4.0,
             spike2_rad2: K_SPIKE * K_SPIKE * s1 * s1,
+            jump2_rad2: K_JUMP * K_JUMP * s1 * s1,
             mean_rad: 0.0,
             baseline_rad: 0.0,
             alpha_slow: (dt_s / BASELINE_S).clamp(1e-9, 1.0),
