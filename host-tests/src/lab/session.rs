@@ -457,6 +457,43 @@ fn parse_line(data: &[u8], a: usize, b: usize, values: &mut [f64]) -> bool {
     p == b
 }
 
+/// [`parse_line`] on the line starting at `data[a]`, found as it is read: the same fields,
+/// separators and spaces, and then the line's `\n`. The bytes it took (the `\n` included);
+/// `None` when the line is anything else (a comment, a blank line, a line [`parse_line`]
+/// refuses) or has no `\n` in `data` (then the careful path finds the line first). A line
+/// it takes is one [`parse_line`] takes, with the same values: no number or space runs
+/// over a `\n`.
+#[inline]
+fn parse_next_line(data: &[u8], a: usize, values: &mut [f64]) -> Option<usize> {
+    let ncol = values.len();
+    let mut p = a;
+    // A comment or a line that starts blank goes the careful way.
+    if matches!(data.get(p), None | Some(b'#' | b' ' | b'\t' | b'\r' | b'\n')) {
+        return None;
+    }
+    for (k, v) in values.iter_mut().enumerate() {
+        while let Some(b' ' | b'\t') = data.get(p) {
+            p += 1;
+        }
+        let (x, used) = parse_number(data.get(p..)?)?;
+        if used == 0 || !x.is_finite() {
+            return None;
+        }
+        *v = x;
+        p += used;
+        while let Some(b' ' | b'\t' | b'\r') = data.get(p) {
+            p += 1;
+        }
+        if k + 1 < ncol {
+            if data.get(p) != Some(&b',') {
+                return None;
+            }
+            p += 1;
+        }
+    }
+    (data.get(p) == Some(&b'\n')).then_some(p + 1 - a)
+}
+
 /// The careful reading of a data line: fields split at `,` and trimmed, the field count
 /// checked first, then each value. Fills `values` and returns `None` when the line is good,
 /// else what is wrong: kind, 0-based column, message.
@@ -697,22 +734,30 @@ impl RowReader {
     pub fn next_row(&mut self) -> Result<Option<&[f64]>, SessionError> {
         let t_col = self.header.layout.t;
         loop {
-            let (a, b) = match self.next_line() {
-                Ok(Some(l)) => l,
-                Ok(None) => break,
-                Err(e) => {
-                    return Err(self.header.err(SessionErrorKind::Io, self.line, None, format!("cannot read: {e}")))
+            // The common line first: read in one go up to its `\n`, with no search for the
+            // line's end before.
+            if let Some(len) = parse_next_line(&self.buf[..self.end], self.start, &mut self.values) {
+                self.start += len;
+                self.line += 1;
+                self.bytes += len as u64;
+            } else {
+                let (a, b) = match self.next_line() {
+                    Ok(Some(l)) => l,
+                    Ok(None) => break,
+                    Err(e) => {
+                        return Err(self.header.err(SessionErrorKind::Io, self.line, None, format!("cannot read: {e}")))
+                    }
+                };
+                let line = &self.buf[a..b];
+                if skipped_line(line) {
+                    continue;
                 }
-            };
-            let line = &self.buf[a..b];
-            if skipped_line(line) {
-                continue;
-            }
-            if !parse_line(&self.buf[..self.end], a, b, &mut self.values) {
-                // Something unusual: the careful path, which also words the refusal.
-                let line_no = self.line;
-                if let Some((kind, col, msg)) = check_line(&self.buf[a..b], &mut self.values) {
-                    return Err(self.header.err(kind, line_no, Some(col), msg));
+                if !parse_line(&self.buf[..self.end], a, b, &mut self.values) {
+                    // Something unusual: the careful path, which also words the refusal.
+                    let line_no = self.line;
+                    if let Some((kind, col, msg)) = check_line(&self.buf[a..b], &mut self.values) {
+                        return Err(self.header.err(kind, line_no, Some(col), msg));
+                    }
                 }
             }
             let t = self.values[t_col];
