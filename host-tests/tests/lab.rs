@@ -409,6 +409,28 @@ fn e_reader_line_forms() {
         let bits = |c: &Vec<Vec<f64>>| c.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&got), bits(&want), "{name}");
     }
+    // Constant columns (a value repeated is taken from the row before, not parsed again):
+    // each value still the one its own bytes give, a change or a bad value in one seen.
+    let mut text = String::from("t_s,fog0_rad_s,fog0_t_degc,psi_rad,lat_rad\n");
+    let mut expect = Vec::new();
+    for k in 1..=300 {
+        let psi = if k < 150 {
+            "0.1250000000000"
+        } else if k < 200 {
+            "0.1250000000001"
+        } else {
+            "0.125"
+        };
+        let lat = if k % 97 == 0 { "0.87000000000000000001" } else { "0.870" };
+        text.push_str(&format!("{k},1.5e-5,25.0,{psi},{lat}\n"));
+        expect.push([psi.parse::<f64>().unwrap(), lat.parse::<f64>().unwrap()]);
+    }
+    let got = read("repeats", &text).unwrap();
+    for (j, [psi, lat]) in expect.iter().enumerate() {
+        assert_eq!((got[3][j].to_bits(), got[4][j].to_bits()), (psi.to_bits(), lat.to_bits()), "row {j}");
+    }
+    let e = read("repeats-bad", &text.replace("\n250,1.5e-5,25.0,0.125,", "\n250,1.5e-5,25.0,0.125x,")).unwrap_err();
+    assert!(e.contains("line 251") && e.contains("column 4") && e.contains("not a number"), "{e}");
     let refused: [(&str, String, &[&str]); 4] = [
         ("extra-field", plain.replace("\n3,", "\n3,7,"), &["line 4", "column 5", "the header only 5"]),
         ("missing-field", plain.replace(",23.5", ""), &["line 4", "column 5", "truncated"]),
