@@ -381,6 +381,70 @@ fn e_malformed_sessions() {
     assert_eq!(leftovers.len(), cases.len() + 1, "unexpected files: {leftovers:?}");
 }
 
+/// (e) the reader's line forms: CRLF, comment, blank and very long lines, spaces around
+/// fields and no final newline read as the plain file does; an extra, a missing or a
+/// non-finite field refused with its line and column wherever the line is.
+#[test]
+fn e_reader_line_forms() {
+    let dir = scratch("line-forms");
+    let rows: Vec<String> = (1..=6).map(|k| format!("{k},{}e-5,2{k}.5,0,-0.87", k + 10)).collect();
+    let plain = format!("t_s,fog0_rad_s,fog0_t_degc,psi_rad,lat_rad\n{}\n", rows.join("\n"));
+    let read = |name: &str, text: &str| {
+        let path = dir.join(format!("{name}.csv"));
+        std::fs::write(&path, text).unwrap();
+        read_session(&path, None).map(|s| s.cols).map_err(|e| e.to_string())
+    };
+    let want = read("plain", &plain).unwrap();
+    assert_eq!(want[1][5], 16e-5);
+    let long_comment = format!("# {}", "x".repeat(3 << 20));
+    let same: [(&str, String); 5] = [
+        ("crlf", plain.replace('\n', "\r\n")),
+        ("comments", plain.replace("\n3,", &format!("\n# note\n\n \t\n{long_comment}\n3,"))),
+        ("spaces", plain.replace(",", " ,\t").replace("\n4", "\n  4")),
+        ("no-final-newline", plain.trim_end().to_string()),
+        ("signs", plain.replace("-0.87", "-0.870").replace("e-5", "E-05")),
+    ];
+    for (name, text) in &same {
+        let got = read(name, text).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let bits = |c: &Vec<Vec<f64>>| c.iter().flatten().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&got), bits(&want), "{name}");
+    }
+    // Constant columns (a value repeated is taken from the row before, not parsed again):
+    // each value still the one its own bytes give, a change or a bad value in one seen.
+    let mut text = String::from("t_s,fog0_rad_s,fog0_t_degc,psi_rad,lat_rad\n");
+    let mut expect = Vec::new();
+    for k in 1..=300 {
+        let psi = if k < 150 {
+            "0.1250000000000"
+        } else if k < 200 {
+            "0.1250000000001"
+        } else {
+            "0.125"
+        };
+        let lat = if k % 97 == 0 { "0.87000000000000000001" } else { "0.870" };
+        text.push_str(&format!("{k},1.5e-5,25.0,{psi},{lat}\n"));
+        expect.push([psi.parse::<f64>().unwrap(), lat.parse::<f64>().unwrap()]);
+    }
+    let got = read("repeats", &text).unwrap();
+    for (j, [psi, lat]) in expect.iter().enumerate() {
+        assert_eq!((got[3][j].to_bits(), got[4][j].to_bits()), (psi.to_bits(), lat.to_bits()), "row {j}");
+    }
+    let e = read("repeats-bad", &text.replace("\n250,1.5e-5,25.0,0.125,", "\n250,1.5e-5,25.0,0.125x,")).unwrap_err();
+    assert!(e.contains("line 251") && e.contains("column 4") && e.contains("not a number"), "{e}");
+    let refused: [(&str, String, &[&str]); 4] = [
+        ("extra-field", plain.replace("\n3,", "\n3,7,"), &["line 4", "column 5", "the header only 5"]),
+        ("missing-field", plain.replace(",23.5", ""), &["line 4", "column 5", "truncated"]),
+        ("inf", plain.replace("15e-5", "inf"), &["line 6", "column 2", "not a finite number"]),
+        ("last-line", plain.replace("6,16e-5", "6,16e-5x"), &["line 7", "column 2", "not a number"]),
+    ];
+    for (name, text, must) in &refused {
+        let e = read(name, text).unwrap_err();
+        for m in *must {
+            assert!(e.contains(m), "{name}: message lacks `{m}`: {e}");
+        }
+    }
+}
+
 /// Runs `chromium --headless --dump-dom` on `page` with a fresh profile; returns (stdout DOM,
 /// stderr log). Killed after 90 s.
 fn chromium_dump_dom(chromium: &Path, page: &Path, profile: &Path) -> (String, String) {

@@ -229,9 +229,9 @@ fn main() -> Result<()> {
     // Both from one pass: the fit, held-out RMS and diagnosis from the same sums, the largest
     // |residual| proved from the pass's extremes (a second pass only if it cannot be).
     let t = Clock::start();
-    let shape = Source::File(&path).shape()?;
+    let header = Source::File(&path).header()?;
     let opt = Options::default();
-    let dg = digest(Source::File(&path), &spec_for(&model, &candidate_terms(&shape.header), opt.n_blocks), None)?;
+    let dg = digest(Source::File(&path), &spec_for(&model, &candidate_terms(&header), opt.n_blocks), None)?;
     let f = complete(fit_digest(&model, &dg)?, Source::File(&path), &dg)?;
     let ho = held_out_rms(&model.kinds(), &dg)?;
     let d1 = diagnose_digest(&model, &dg, &opt)?;

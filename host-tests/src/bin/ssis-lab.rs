@@ -461,7 +461,7 @@ fn main() -> Result<()> {
             let m = load_model(&model)?;
             let opt = Options::default();
             let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
-                let terms = candidate_terms(&Source::File(&session).shape()?.header);
+                let terms = candidate_terms(&Source::File(&session).header()?);
                 let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
                 Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?))
             })?;

@@ -276,7 +276,7 @@ pub fn diagnose_with_progress<'a>(
     progress: Option<&ProgressBar>,
 ) -> LabResult<Diagnosis> {
     let source = source.into();
-    let terms = candidate_terms(&source.shape()?.header);
+    let terms = candidate_terms(&source.header()?);
     let mut spec = spec_for(model, &terms, opt.n_blocks);
     spec.track = None;
     let d = digest(source, &spec, progress)?;

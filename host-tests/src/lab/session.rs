@@ -457,6 +457,81 @@ fn parse_line(data: &[u8], a: usize, b: usize, values: &mut [f64]) -> bool {
     p == b
 }
 
+/// [`parse_line`] on the line starting at `data[a]`, found as it is read: the same fields,
+/// separators and spaces, and then the line's `\n`. The bytes it took (the `\n` included);
+/// `None` when the line is anything else (a comment, a blank line, a line [`parse_line`]
+/// refuses) or has no `\n` in `data` (then the careful path finds the line first). A line
+/// it takes is one [`parse_line`] takes, with the same values: no number or space runs
+/// over a `\n`.
+///
+/// A field whose bytes repeat the column's [`Repeat`] takes its value from there; with
+/// `retry`, a field read in full is stored there.
+#[inline]
+fn parse_next_line(data: &[u8], a: usize, values: &mut [f64], repeats: &mut [Repeat], retry: bool) -> Option<usize> {
+    let ncol = values.len();
+    let mut p = a;
+    // A comment or a line that starts blank goes the careful way.
+    if matches!(data.get(p), None | Some(b'#' | b' ' | b'\t' | b'\r' | b'\n')) {
+        return None;
+    }
+    for (k, (v, rep)) in values.iter_mut().zip(repeats.iter_mut()).enumerate() {
+        while let Some(b' ' | b'\t') = data.get(p) {
+            p += 1;
+        }
+        let rest = data.get(p..)?;
+        let window: Option<&[u8; REPEAT_WINDOW]> = rest.get(..REPEAT_WINDOW).and_then(|w| w.try_into().ok());
+        let (x, used) = match window {
+            Some(w) if rep.armed && *w == rep.bytes => (rep.value, rep.used),
+            _ => {
+                rep.armed = false;
+                let (x, used) = parse_number(rest)?;
+                if used == 0 || !x.is_finite() {
+                    return None;
+                }
+                if let (true, Some(w)) = (retry, window) {
+                    if used < REPEAT_WINDOW && matches!(w[used], b',' | b'\n' | b'\r' | b' ' | b'\t') {
+                        *rep = Repeat { bytes: *w, used, value: x, armed: true };
+                    }
+                }
+                (x, used)
+            }
+        };
+        *v = x;
+        p += used;
+        while let Some(b' ' | b'\t' | b'\r') = data.get(p) {
+            p += 1;
+        }
+        if k + 1 < ncol {
+            if data.get(p) != Some(&b',') {
+                return None;
+            }
+            p += 1;
+        }
+    }
+    (data.get(p) == Some(&b'\n')).then_some(p + 1 - a)
+}
+
+/// Bytes of a field a [`Repeat`] compares.
+const REPEAT_WINDOW: usize = 16;
+
+/// Rows between two tries of the columns whose value changed ([`Repeat`]).
+const REPEAT_RETRY: u64 = 64;
+
+/// Per column, the bytes of a value read in full and that value, to take a field that
+/// repeats them without parsing it again (a constant column: the reference rate on a dwell,
+/// a turntable's azimuth and latitude). A field is taken from it only when its first
+/// [`REPEAT_WINDOW`] bytes equal the stored ones, and these held the whole number and the
+/// byte after it, a separator (`,` `\n` `\r` space tab: none can be inside a number): the
+/// number is then the same bytes, so it has the same value and length. Compared while the
+/// column repeats; after a change, stored again every [`REPEAT_RETRY`] rows.
+#[derive(Debug, Clone, Default)]
+struct Repeat {
+    bytes: [u8; REPEAT_WINDOW],
+    used: usize,
+    value: f64,
+    armed: bool,
+}
+
 /// The careful reading of a data line: fields split at `,` and trimmed, the field count
 /// checked first, then each value. Fills `values` and returns `None` when the line is good,
 /// else what is wrong: kind, 0-based column, message.
@@ -507,6 +582,7 @@ pub struct RowReader {
     eof: bool,
     line: u64,
     values: Vec<f64>,
+    repeats: Vec<Repeat>,
     last_t: f64,
     rows: u64,
     bytes: u64,
@@ -564,6 +640,7 @@ impl RowReader {
             eof: false,
             line: 0,
             values: Vec::new(),
+            repeats: Vec::new(),
             last_t: f64::NEG_INFINITY,
             rows: 0,
             bytes: 0,
@@ -585,6 +662,7 @@ impl RowReader {
         };
         r.header = make(&file_name, names, r.line)?;
         r.values = vec![0.0; r.header.names.len()];
+        r.repeats = vec![Repeat::default(); r.header.names.len()];
         Ok(r)
     }
 
@@ -697,22 +775,36 @@ impl RowReader {
     pub fn next_row(&mut self) -> Result<Option<&[f64]>, SessionError> {
         let t_col = self.header.layout.t;
         loop {
-            let (a, b) = match self.next_line() {
-                Ok(Some(l)) => l,
-                Ok(None) => break,
-                Err(e) => {
-                    return Err(self.header.err(SessionErrorKind::Io, self.line, None, format!("cannot read: {e}")))
+            // The common line first: read in one go up to its `\n`, with no search for the
+            // line's end before.
+            if let Some(len) = parse_next_line(
+                &self.buf[..self.end],
+                self.start,
+                &mut self.values,
+                &mut self.repeats,
+                self.rows.is_multiple_of(REPEAT_RETRY),
+            ) {
+                self.start += len;
+                self.line += 1;
+                self.bytes += len as u64;
+            } else {
+                let (a, b) = match self.next_line() {
+                    Ok(Some(l)) => l,
+                    Ok(None) => break,
+                    Err(e) => {
+                        return Err(self.header.err(SessionErrorKind::Io, self.line, None, format!("cannot read: {e}")))
+                    }
+                };
+                let line = &self.buf[a..b];
+                if skipped_line(line) {
+                    continue;
                 }
-            };
-            let line = &self.buf[a..b];
-            if skipped_line(line) {
-                continue;
-            }
-            if !parse_line(&self.buf[..self.end], a, b, &mut self.values) {
-                // Something unusual: the careful path, which also words the refusal.
-                let line_no = self.line;
-                if let Some((kind, col, msg)) = check_line(&self.buf[a..b], &mut self.values) {
-                    return Err(self.header.err(kind, line_no, Some(col), msg));
+                if !parse_line(&self.buf[..self.end], a, b, &mut self.values) {
+                    // Something unusual: the careful path, which also words the refusal.
+                    let line_no = self.line;
+                    if let Some((kind, col, msg)) = check_line(&self.buf[a..b], &mut self.values) {
+                        return Err(self.header.err(kind, line_no, Some(col), msg));
+                    }
                 }
             }
             let t = self.values[t_col];

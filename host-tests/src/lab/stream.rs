@@ -43,6 +43,14 @@ pub enum Source<'a> {
 }
 
 impl Source<'_> {
+    /// The session's header alone (a file's first lines: no pre-pass over its rows).
+    pub fn header(&self) -> LabResult<Header> {
+        match self {
+            Source::File(p) => Ok(RowReader::open(p)?.header().clone()),
+            Source::Memory(s) => Ok(Header::parse(&s.file, s.names.clone(), 1)?),
+        }
+    }
+
     /// The session's header, size and sample interval (a quick look at a file).
     pub fn shape(&self) -> LabResult<Shape> {
         match self {
