@@ -17,13 +17,13 @@ use nalgebra::{Quaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use ssis::calib::N_FOG;
-use ssis::flight::{flags, health, st_status, Counters, FlightCore, FogLinks, Links, StepOutput};
+use ssis::flight::{flags, health, st_status, Counters, FlightCore, StepOutput};
 use ssis::frames::fog::{status, FogFrame};
 use ssis::frames::star::StarFrame;
 use ssis::frames::Frame;
 use ssis::math;
 
-use crate::harness::{Evaluator, Observed, Simulation, StepInput};
+use crate::harness::{step_on_mock_links, Evaluator, Observed, Simulation, StepInput};
 use crate::mock::{MockLink, MockSink};
 use crate::scenario::Scenario;
 use crate::ARCSEC_PER_RAD;
@@ -184,22 +184,12 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
         let t_s = input.n as f64 * dt_s;
         let active = t_s > fault.start_s && t_s <= end_s;
         let outlier = inj.apply(&mut input, active, t_s - fault.start_s, &mut r);
-        for l in fog_links.iter_mut() {
-            l.tick();
-        }
-        star_link.tick();
-        for (i, (link, f)) in fog_links.iter_mut().zip(input.fog_frames.iter()).enumerate() {
-            if profile.fogs.contains(i) && !(active && fault.kind == FaultKind::FogDropout(i)) {
-                link.send(f);
-            }
-        }
-        star_link.send(&input.st_bytes);
-        eval.push_truth(input.truth);
-        let out = {
-            let mut links =
-                Links { fog: FogLinks::PerFog(fog_links.each_mut()), star: &mut star_link, out: &mut out_link };
-            core.step(&mut links)
+        let sending = match fault.kind {
+            FaultKind::FogDropout(i) if active => profile.fogs.without(i),
+            _ => profile.fogs,
         };
+        eval.push_truth(input.truth);
+        let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, sending);
         out_link.bytes.clear();
         r.steps += 1;
         let c = core.counters();

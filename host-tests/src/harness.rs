@@ -207,6 +207,31 @@ pub struct Record {
     pub rate_true_rad_s: [f64; 3],
 }
 
+/// One step of `core` on mock links: ticks the links, sends this step's frames (FOG i's
+/// only if `fogs` contains it) and the star tracker's, and steps. The bytes the core
+/// wrote stay in `out_link` for the caller.
+pub fn step_on_mock_links(
+    core: &mut FlightCore,
+    fog_links: &mut [MockLink; N_FOG],
+    star_link: &mut MockLink,
+    out_link: &mut MockSink,
+    input: &StepInput,
+    fogs: FogSet,
+) -> StepOutput {
+    for l in fog_links.iter_mut() {
+        l.tick();
+    }
+    star_link.tick();
+    for (i, (link, f)) in fog_links.iter_mut().zip(input.fog_frames.iter()).enumerate() {
+        if fogs.contains(i) {
+            link.send(f);
+        }
+    }
+    star_link.send(&input.st_bytes);
+    let mut links = Links { fog: FogLinks::PerFog(fog_links.each_mut()), star: star_link, out: out_link };
+    core.step(&mut links)
+}
+
 /// Compares outputs with the truth of the samples they integrated.
 pub struct Evaluator {
     past: VecDeque<TruthSample>,
@@ -324,22 +349,8 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
     let (mut frames_out, mut frames_bad, mut mismatch) = (0u64, 0u64, 0u64);
     let mut last = None;
     while let Some(input) = sim.next_step() {
-        for l in fog_links.iter_mut() {
-            l.tick();
-        }
-        star_link.tick();
-        for (i, (link, f)) in fog_links.iter_mut().zip(input.fog_frames.iter()).enumerate() {
-            if profile.fogs.contains(i) {
-                link.send(f);
-            }
-        }
-        star_link.send(&input.st_bytes);
         eval.push_truth(input.truth);
-        let out = {
-            let mut links =
-                Links { fog: FogLinks::PerFog(fog_links.each_mut()), star: &mut star_link, out: &mut out_link };
-            core.step(&mut links)
-        };
+        let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, profile.fogs);
         last = Some(out);
 
         // Output frames: decode what the core wrote and check it is this step's output.
