@@ -42,6 +42,22 @@ struct Cli {
     /// Skip `compare` and `diagnose` as separate commands (time the one pass only).
     #[arg(long)]
     one_pass_only: bool,
+    /// Print a hash of everything the one pass computed (the digest's sums, kept rows and
+    /// extremes, the fit, held-out RMS and diagnosis, as `{:?}` prints them: the shortest
+    /// digits that give back each number's bits), so a change meant to be faster only can
+    /// be checked to give the same numbers bit for bit.
+    #[arg(long)]
+    hash: bool,
+}
+
+/// Hashes what is written to it.
+struct HashWriter(std::collections::hash_map::DefaultHasher);
+
+impl std::fmt::Write for HashWriter {
+    fn write_str(&mut self, s: &str) -> std::fmt::Result {
+        std::hash::Hasher::write(&mut self.0, s.as_bytes());
+        Ok(())
+    }
 }
 
 /// The target directory: the executable is `<target>/<triple>/<profile>/ssis-lab-bench` or
@@ -244,6 +260,24 @@ fn main() -> Result<()> {
         ho[0] * DEG_H_PER_RAD_S,
         d1.candidates[0].kind.label()
     );
+    println!("  largest |residual|: {} rows read again", f.max_rows_read_again);
+    if cli.hash {
+        let hash = |x: &dyn std::fmt::Debug| -> Result<u64> {
+            let mut h = HashWriter(std::collections::hash_map::DefaultHasher::new());
+            std::fmt::Write::write_fmt(&mut h, format_args!("{x:?}"))?;
+            Ok(std::hash::Hasher::finish(&h.0))
+        };
+        println!(
+            "  hashes of the pass's results: digest {:016x}, fit {:016x}, held-out {:016x}, diagnosis {:016x}",
+            hash(&dg)?,
+            hash(&f)?,
+            hash(&ho)?,
+            hash(&d1)?
+        );
+        if let Some(p) = std::env::var_os("SSIS_LAB_BENCH_DUMP") {
+            std::fs::write(&p, format!("{dg:#?}\n{f:#?}\n{ho:#?}\n{d1:#?}\n"))?;
+        }
+    }
     println!(
         "compare + diagnose as two commands: {:.2} s (CPU {two_cpu:.2} s), in one pass: {one_pass_s:.2} s, CPU \
          {one_pass_cpu:.2} s (goal <= 10 s on one core); ingest {:.0} MB/s (CPU: {:.0} MB/s)",

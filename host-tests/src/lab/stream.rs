@@ -558,18 +558,26 @@ fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
 }
 
 /// G = dT/dt of every FOG, as [`super::model::temperature_rate`] defines it, over a stream:
-/// samples are held until the window ahead of the oldest is complete. Times and temperatures
-/// sit in flat arrays beside the samples (the window sums read them, not the samples); the
-/// arrays drop what no later window can use, in chunks.
+/// samples are held until the window ahead of the oldest is complete. They are held as flat
+/// records in one array (written and read in order, so the memory is streamed, not chased
+/// through each sample's own vectors), with the times and temperatures in flat arrays beside
+/// them (the window sums read those); the arrays drop what no later window can use, in
+/// chunks.
 struct Lookahead {
     half_s: f64,
     n_fog: usize,
-    /// Samples, times and temperatures (n_fog per sample) of global index `base ..`.
-    samples: Vec<Sample>,
+    /// Held samples of global index `base ..`, one record each ([`Lookahead::push`]).
+    records: Vec<f64>,
+    /// f64 per record (0 before the first sample).
+    rec: usize,
+    /// Columns of the samples' `values`.
+    n_values: usize,
+    /// Times and temperatures (n_fog per sample) of global index `base ..`.
     times: Vec<f64>,
     temps: Vec<f64>,
     base: usize,
-    spare: Vec<Sample>,
+    /// The sample handed out, filled from its record.
+    out: Sample,
     /// Next sample to emit.
     next: usize,
     /// Window of the last emitted sample (true window, before the fallback).
@@ -591,11 +599,13 @@ impl Lookahead {
         Lookahead {
             half_s: window_s / 2.0 * (1.0 + 1e-9),
             n_fog,
-            samples: Vec::new(),
+            records: Vec::new(),
+            rec: 0,
+            n_values: 0,
             times: Vec::new(),
             temps: Vec::new(),
             base: 0,
-            spare: Vec::new(),
+            out: Sample::default(),
             next: 0,
             lo: 0,
             hi: 0,
@@ -615,23 +625,38 @@ impl Lookahead {
         self.times[k - self.base]
     }
 
+    /// Holds a copy of `s`: its record is t, rate (n_fog), T (n_fog), ω_ref (3), B (3),
+    /// values (every column; all samples of a stream have as many).
     fn push(&mut self, s: &Sample) {
-        let mut x = self.spare.pop().unwrap_or_default();
-        x.copy_from(s);
-        self.push_owned(x);
-    }
-
-    /// [`Lookahead::push`] without a copy: takes the sample's contents, leaving a spare
-    /// sample's (whose vectors the caller fills whole again) in their place.
-    fn push_taken(&mut self, s: &mut Sample) {
-        let x = std::mem::replace(s, self.spare.pop().unwrap_or_default());
-        self.push_owned(x);
-    }
-
-    fn push_owned(&mut self, s: Sample) {
+        let n = self.n_fog;
+        if self.rec == 0 {
+            self.n_values = s.values.len();
+            self.rec = 1 + 2 * n + 6 + self.n_values;
+        }
         self.times.push(s.t_s);
-        self.temps.extend_from_slice(&s.t_degc[..self.n_fog]);
-        self.samples.push(s);
+        self.temps.extend_from_slice(&s.t_degc[..n]);
+        self.records.push(s.t_s);
+        self.records.extend_from_slice(&s.rate_rad_s[..n]);
+        self.records.extend_from_slice(&s.t_degc[..n]);
+        self.records.extend_from_slice(&s.ref_rad_s);
+        self.records.extend_from_slice(&s.field_nt);
+        self.records.extend_from_slice(&s.values[..self.n_values]);
+    }
+
+    /// Fills `out` from the record of sample k.
+    #[inline]
+    fn load(records: &[f64], rec: usize, n: usize, k: usize, out: &mut Sample) {
+        let r = &records[k * rec..(k + 1) * rec];
+        out.t_s = r[0];
+        out.rate_rad_s.clear();
+        out.rate_rad_s.extend_from_slice(&r[1..1 + n]);
+        out.t_degc.clear();
+        out.t_degc.extend_from_slice(&r[1 + n..1 + 2 * n]);
+        let w = 1 + 2 * n;
+        out.ref_rad_s.copy_from_slice(&r[w..w + 3]);
+        out.field_nt.copy_from_slice(&r[w + 3..w + 6]);
+        out.values.clear();
+        out.values.extend_from_slice(&r[w + 6..]);
     }
 
     #[inline]
@@ -660,12 +685,14 @@ impl Lookahead {
         (self.a, self.b, self.summed, self.since_origin) = (a, b, true, 0);
     }
 
-    /// Drops what no later window can use (from the window's start or the previous sample).
+    /// Drops what no later window can use (from the window's start or the previous sample),
+    /// once it is four times what stays (each held record is moved a quarter of a time on
+    /// average).
     fn trim(&mut self) {
         let keep_from = self.a.min(self.lo).min(self.next.saturating_sub(1));
         let d = keep_from.saturating_sub(self.base);
-        if d >= 4096 && 2 * d >= self.times.len() {
-            self.spare.extend(self.samples.drain(..d));
+        if d >= 4096 && d >= 4 * (self.times.len() - d) {
+            self.records.drain(..d * self.rec);
             self.times.drain(..d);
             self.temps.drain(..d * self.n_fog);
             self.base += d;
@@ -708,7 +735,8 @@ impl Lookahead {
                 let den = s[0] * s[3] - s[1] * s[1];
                 *g = if den.abs() < 1e-300 { 0.0 } else { (s[0] * s[4] - s[1] * s[2]) / den };
             }
-            f(j, &self.samples[j - self.base], &self.g)?;
+            Self::load(&self.records, self.rec, self.n_fog, j - self.base, &mut self.out);
+            f(j, &self.out, &self.g)?;
             self.next += 1;
         }
         self.trim();
@@ -741,7 +769,7 @@ pub fn for_each_prepared_until(
     let mut la = Lookahead::new(n_fog, g_window_s);
     let mut g = |j: usize, s: &Sample, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
     source.for_each(progress, |s| {
-        la.push_taken(s);
+        la.push(s);
         la.drain(false, &mut g)?;
         Ok(la.next < limit)
     })?;
@@ -975,22 +1003,52 @@ impl SegmentExtremes {
 
     /// Ranks row `z` by |ell·z| (|r| ≥ 0: its bits order as the numbers do).
     fn offer(&mut self, z: &[f64], m: usize) {
+        for (x, v) in self.maxabs.iter_mut().zip(z) {
+            *x = x.max(v.abs());
+        }
         let r: f64 = self.ell.iter().zip(z).map(|(a, b)| a * b).sum::<f64>().abs();
         self.offer_ranked(r, z, m);
     }
 
-    /// [`SegmentExtremes::offer`] with |ell·z| given (summed in slot order from the first).
-    fn offer_ranked(&mut self, r: f64, z: &[f64], m: usize) {
-        for (x, v) in self.maxabs.iter_mut().zip(z) {
-            *x = x.max(v.abs());
+    /// [`SegmentExtremes::offer`] for a batch of rows held column-major in `cols` (m columns
+    /// of [`BATCH`] values, rows past `rows` zero). The largest |z̃_a| taken column by
+    /// column, and every |ell·z̃| summed side by side over the rows, each in slot order from
+    /// 0 (as `offer` sums it: the same bits); then the rows offered in order.
+    fn offer_batch(&mut self, cols: &[f64], rows: usize, m: usize) {
+        for (x, col) in self.maxabs.iter_mut().zip(cols.chunks_exact(BATCH)) {
+            // Four running maxima (max is exact: any order gives the same value).
+            let mut acc = [*x; 4];
+            for c in col[..rows.next_multiple_of(4).min(BATCH)].chunks_exact(4) {
+                for (a, v) in acc.iter_mut().zip(c) {
+                    *a = a.max(v.abs());
+                }
+            }
+            *x = acc[0].max(acc[1]).max(acc[2].max(acc[3]));
         }
+        let mut r = [0.0f64; BATCH];
+        for (e, col) in self.ell.iter().zip(cols.chunks_exact(BATCH)) {
+            for (r, v) in r.iter_mut().zip(col) {
+                *r += e * v;
+            }
+        }
+        for (i, r) in r.iter().enumerate().take(rows) {
+            let key = r.abs().to_bits();
+            if self.heap.len() < EXTREME_ROWS || key > self.threshold.to_bits() {
+                let z: Vec<f64> = (0..m).map(|a| cols[a * BATCH + i]).collect();
+                self.offer_ranked(r.abs(), &z, m);
+            }
+        }
+    }
+
+    /// Stores row `z` if |ell·z| = `r` is among the segment's largest.
+    #[inline]
+    fn offer_ranked(&mut self, r: f64, z: &[f64], m: usize) {
         let key = r.to_bits();
         if self.heap.len() < EXTREME_ROWS {
             self.heap.push(std::cmp::Reverse((key, self.heap.len())));
             self.rows.extend_from_slice(z);
-        } else if let Some(&std::cmp::Reverse((min, slot))) = self.heap.peek() {
-            if key > min {
-                self.heap.pop();
+        } else if key > self.threshold.to_bits() {
+            if let Some(std::cmp::Reverse((_, slot))) = self.heap.pop() {
                 self.rows[slot * m..(slot + 1) * m].copy_from_slice(z);
                 self.heap.push(std::cmp::Reverse((key, slot)));
             }
@@ -1079,9 +1137,6 @@ pub struct Digest {
     pub extremes: Option<Extremes>,
 }
 
-/// FOGs whose rows a pass ranks for its extremes side by side (more: one after the other).
-const RANK_TOGETHER: usize = 4;
-
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
 
@@ -1121,10 +1176,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let mut shift: Vec<Vec<f64>> = Vec::new();
-    // Per FOG a batch of rows as they come (row-major, BATCH rows of m values), and the same
-    // rows column-major (m columns of BATCH values) for the Gram sums: a row is written to
-    // consecutive memory, the batch turned over once when it is summed.
-    let mut rows_in: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
+    // Per FOG a batch of rows, column-major (m columns of BATCH values) for the Gram sums.
     let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
@@ -1133,18 +1185,37 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
         first: vec![Vec::new(); n_fog],
     });
-    let mut flush = |rows_in: &[Vec<f64>], rows: usize, gram: &mut Vec<Vec<Gram>>, block: usize| {
+    // A batch summed: added to the Gram sums and offered to the extremes (the first
+    // segment's rows held, row-major, until its fit ranks them).
+    let flush = |batch: &mut [Vec<f64>],
+                 rows: usize,
+                 gram: &mut Vec<Vec<Gram>>,
+                 block: usize,
+                 tracker: Option<&mut Tracker>| {
         if rows == 0 {
             return;
         }
-        for ((r, b), g) in rows_in.iter().zip(batch.iter_mut()).zip(gram.iter_mut()) {
-            for (a, col) in b.chunks_exact_mut(BATCH).enumerate() {
-                for (x, row) in col.iter_mut().zip(r.chunks_exact(m).take(rows)) {
-                    *x = row[a];
-                }
-                col[rows..].fill(0.0);
+        for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
+            if rows < BATCH {
+                b.chunks_exact_mut(BATCH).for_each(|col| col[rows..].fill(0.0));
             }
             g[block].accumulate(b, rows);
+        }
+        if let Some(t) = tracker {
+            match t.out.segs.last_mut() {
+                None => {
+                    for (f, b) in t.first.iter_mut().zip(batch.iter()) {
+                        for i in 0..rows {
+                            f.extend((0..m).map(|a| b[a * BATCH + i]));
+                        }
+                    }
+                }
+                Some(seg) => {
+                    for (x, b) in seg.iter_mut().zip(batch.iter()) {
+                        x.offer_batch(b, rows, m);
+                    }
+                }
+            }
         }
     };
     // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
@@ -1163,7 +1234,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             next_segment += t.out.segment;
         }
         if block != batch_block || batch_rows == BATCH || new_segment {
-            flush(&rows_in, batch_rows, &mut gram, batch_block);
+            flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut());
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -1220,48 +1291,19 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 sh[ONE] = 0.0;
                 shift.push(sh);
             }
-            let row = &mut rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
-            for ((x, v), sh) in row.iter_mut().zip(&z).zip(&shift[fog]) {
-                *x = v - sh;
+            let col = &mut batch[fog][batch_rows..];
+            for (a, (v, sh)) in z.iter_mut().zip(&shift[fog]).enumerate() {
+                *v -= sh;
+                col[a * BATCH] = *v;
             }
-            let row = &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
             if keep {
-                kept.z[fog].extend_from_slice(row);
-            }
-            if let (Some(t), true) = (tracker.as_mut(), n_fog > RANK_TOGETHER) {
-                match t.out.segs.last_mut() {
-                    None => t.first[fog].extend_from_slice(row),
-                    Some(seg) => seg[fog].offer(row, m),
-                }
-            }
-        }
-        if let (Some(t), true) = (tracker.as_mut(), n_fog <= RANK_TOGETHER) {
-            let rows = |fog: usize| &rows_in[fog][batch_rows * m..(batch_rows + 1) * m];
-            match t.out.segs.last_mut() {
-                None => (0..n_fog).for_each(|fog| t.first[fog].extend_from_slice(rows(fog))),
-                Some(seg) => {
-                    // |ell·z| of every FOG summed side by side (independent sums, each in slot
-                    // order from 0, as `offer` sums it).
-                    let mut r = [0.0f64; RANK_TOGETHER];
-                    let (mut ells, mut zs) = ([&[][..]; RANK_TOGETHER], [&[][..]; RANK_TOGETHER]);
-                    for fog in 0..n_fog {
-                        (ells[fog], zs[fog]) = (&seg[fog].ell[..m], rows(fog));
-                    }
-                    for a in 0..m {
-                        for ((r, ell), z) in r.iter_mut().zip(&ells).zip(&zs).take(n_fog) {
-                            *r += ell[a] * z[a];
-                        }
-                    }
-                    for (fog, x) in seg.iter_mut().enumerate() {
-                        x.offer_ranked(r[fog].abs(), rows(fog), m);
-                    }
-                }
+                kept.z[fog].extend_from_slice(&z);
             }
         }
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&rows_in, batch_rows, &mut gram, batch_block);
+    flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut());
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
