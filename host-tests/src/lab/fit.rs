@@ -473,9 +473,7 @@ pub fn max_proof(d: &Digest, model: &Model) -> LabResult<Option<MaxProof>> {
         for seg in &ex.segs {
             let x = &seg[fog];
             top = x.rows.chunks_exact(m).map(eval).fold(top, f64::max);
-            let shift: f64 = x.maxabs.iter().zip(ell.iter().zip(&x.ell)).map(|(z, (a, b))| z * (a - b).abs()).sum();
-            let scale: f64 = x.maxabs.iter().zip(&x.ell).map(|(z, a)| z * a.abs()).sum();
-            bounds.push(x.threshold + shift + 1e-12 * scale);
+            bounds.push(x.bound(&ell));
         }
         best.push(top);
         bound.push(bounds);

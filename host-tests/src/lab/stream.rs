@@ -960,118 +960,174 @@ pub struct Kept {
     pub z: Vec<Vec<f64>>,
 }
 
-/// Rows ranked per segment and FOG by |residual| under the fit of the rows before them.
-const EXTREME_ROWS: usize = 32;
-
 /// Rows of the first segment (held until the fit on them ranks them).
 pub const FIRST_SEGMENT: usize = 16_384;
 
 impl Extremes {
-    /// Whether sample j starts a segment (not the first).
-    fn starts_segment(&self, j: usize) -> bool {
-        j == self.first || (j > self.first && (j - self.first).is_multiple_of(self.segment))
+    /// Rows of segment k: the first, then twice as many as the segment before, up to
+    /// `segment`.
+    pub fn len_of(&self, k: usize) -> usize {
+        match k {
+            0 => self.first,
+            _ => self.first.saturating_mul(1usize.checked_shl((k - 1).min(62) as u32).unwrap_or(usize::MAX)).min(self.segment),
+        }
     }
 
     /// Samples in the first `k` segments.
     pub fn rows_in(&self, k: usize) -> usize {
-        if k == 0 {
-            0
-        } else {
-            self.first + (k - 1) * self.segment
-        }
+        (0..k).map(|i| self.len_of(i)).sum()
     }
 }
 
-/// One segment's candidates for the largest |residual| of one FOG.
+/// One segment's candidates for the largest |residual| of one FOG: its rows, in order, cut
+/// into boxes of a few seconds; per box, the range of each z̃_a, the two largest and the two
+/// smallest r = ell·z̃ under the segment's ranking functional, and the rows of the largest and
+/// the smallest.
 #[derive(Debug, Clone, Default)]
 pub struct SegmentExtremes {
-    /// The residual functional (shifted basis) the segment's rows were ranked with.
+    /// The ranking functional ℓ_s (shifted basis): the all-rows fit of the rows before.
     pub ell: Vec<f64>,
-    /// Every row of the segment not stored has |ell·z̃| at most this (0: all stored).
-    pub threshold: f64,
-    /// Largest |z̃_a| over the segment, per slot.
-    pub maxabs: Vec<f64>,
-    /// The stored rows' shifted basis vectors, row-major.
+    /// Rows per box.
+    pub box_rows: usize,
+    /// Per box, per slot, the smallest z̃_a (box-major, m a box).
+    pub lo: Vec<f64>,
+    /// Per box, per slot, the largest z̃_a.
+    pub hi: Vec<f64>,
+    /// Per box: the largest r, the second largest, the smallest, the second smallest (−∞ or
+    /// +∞ where the box has too few rows).
+    pub r: Vec<[f64; 4]>,
+    /// Per box, the rows of the largest and of the smallest r (box-major, 2m a box).
     pub rows: Vec<f64>,
-    heap: std::collections::BinaryHeap<std::cmp::Reverse<(u64, usize)>>,
+    /// Rows offered so far.
+    seen: usize,
 }
 
 impl SegmentExtremes {
-    fn new(m: usize) -> Self {
-        SegmentExtremes { maxabs: vec![0.0; m], ..Default::default() }
+    fn new(box_rows: usize) -> Self {
+        SegmentExtremes { box_rows: box_rows.max(1), ..Default::default() }
     }
 
-    /// Ranks row `z` by |ell·z| (|r| ≥ 0: its bits order as the numbers do).
-    fn offer(&mut self, z: &[f64], m: usize) {
-        for (x, v) in self.maxabs.iter_mut().zip(z) {
-            *x = x.max(v.abs());
+    /// The bound on |ℓ·z̃| of the segment's rows not stored, for a residual functional ℓ.
+    /// In a box (lo ≤ z̃ ≤ hi, centre c, half widths h), with d = ℓ − ℓ_s, a row has
+    /// ℓ·z̃ = ℓ_s·z̃ + d·z̃ and d·z̃ within d·c ± Σ_a |d_a| h_a; a row not stored has ℓ_s·z̃
+    /// between the box's second smallest and second largest. The largest over the boxes, plus
+    /// 10⁻¹² of Σ_a max|z̃_a| (|ℓ_a| + |ℓ_s,a|) for the rounding of the sums (each a few
+    /// ulps). A box is a few seconds of a session, where the reference rate and the
+    /// temperature hardly move: d·z̃ is nearly the constant d·c there, however far the two
+    /// fits are apart, and the bound is close to the box's own extremes under ℓ.
+    pub fn bound(&self, ell: &[f64]) -> f64 {
+        let m = ell.len().max(1);
+        let mut worst = 0.0f64;
+        for ((lo, hi), r) in self.lo.chunks_exact(m).zip(self.hi.chunks_exact(m)).zip(&self.r) {
+            let [_, below_top, _, above_bottom] = *r;
+            if below_top < above_bottom {
+                continue; // every row of the box stored
+            }
+            let (mut dc, mut dh, mut scale) = (0.0, 0.0, 0.0);
+            for (((&lo, &hi), &l), &ls) in lo.iter().zip(hi).zip(ell).zip(&self.ell) {
+                let (c, h, d) = (0.5 * (lo + hi), 0.5 * (hi - lo), l - ls);
+                dc += d * c;
+                dh += d.abs() * h;
+                scale += lo.abs().max(hi.abs()) * (l.abs() + ls.abs());
+            }
+            let b = (below_top + dc + dh).max(-(above_bottom + dc - dh)) + 1e-12 * scale;
+            worst = worst.max(b);
         }
-        let r: f64 = self.ell.iter().zip(z).map(|(a, b)| a * b).sum::<f64>().abs();
-        self.offer_ranked(r, z, m);
+        worst
+    }
+
+    /// Takes `rows` rows with their r: slot a of the k-th is `cols[a * stride + k]`.
+    fn take(&mut self, rows: usize, m: usize, r: &[f64], cols: &[f64], stride: usize) {
+        let mut k0 = 0;
+        while k0 < rows {
+            let (bx, within) = ((self.seen + k0) / self.box_rows, (self.seen + k0) % self.box_rows);
+            let k1 = rows.min(k0 + self.box_rows - within);
+            if self.r.len() <= bx {
+                self.lo.resize((bx + 1) * m, f64::INFINITY);
+                self.hi.resize((bx + 1) * m, f64::NEG_INFINITY);
+                self.r.resize(bx + 1, [f64::NEG_INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::INFINITY]);
+                self.rows.resize((bx + 1) * 2 * m, 0.0);
+            }
+            let (lo, hi) = (&mut self.lo[bx * m..(bx + 1) * m], &mut self.hi[bx * m..(bx + 1) * m]);
+            for (a, (lo, hi)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
+                // Four running minima and maxima (exact, the values finite: any order gives
+                // the same values).
+                let col = &cols[a * stride + k0..a * stride + k1];
+                let (mut l, mut h) = ([*lo; 4], [*hi; 4]);
+                let mut quads = col.chunks_exact(4);
+                for c in &mut quads {
+                    for q in 0..4 {
+                        l[q] = if c[q] < l[q] { c[q] } else { l[q] };
+                        h[q] = if c[q] > h[q] { c[q] } else { h[q] };
+                    }
+                }
+                for &v in quads.remainder() {
+                    l[0] = if v < l[0] { v } else { l[0] };
+                    h[0] = if v > h[0] { v } else { h[0] };
+                }
+                *lo = l[0].min(l[1]).min(l[2].min(l[3]));
+                *hi = h[0].max(h[1]).max(h[2].max(h[3]));
+            }
+            let t = &mut self.r[bx];
+            let stored = &mut self.rows[bx * 2 * m..(bx + 1) * 2 * m];
+            for (k, &v) in r.iter().enumerate().take(k1).skip(k0) {
+                if v > t[1] {
+                    if v > t[0] {
+                        (t[1], t[0]) = (t[0], v);
+                        stored[..m].iter_mut().enumerate().for_each(|(a, x)| *x = cols[a * stride + k]);
+                    } else {
+                        t[1] = v;
+                    }
+                }
+                if v < t[3] {
+                    if v < t[2] {
+                        (t[3], t[2]) = (t[2], v);
+                        stored[m..].iter_mut().enumerate().for_each(|(a, x)| *x = cols[a * stride + k]);
+                    } else {
+                        t[3] = v;
+                    }
+                }
+            }
+            k0 = k1;
+        }
+        self.seen += rows;
+    }
+
+    /// Takes row `z` (r = ell·z summed in slot order).
+    fn offer(&mut self, z: &[f64], m: usize) {
+        let r: f64 = self.ell.iter().zip(z).fold(0.0, |s, (a, b)| s + a * b);
+        self.take(1, m, &[r], z, 1);
     }
 
     /// [`SegmentExtremes::offer`] for a batch of rows held column-major in `cols` (m columns
-    /// of [`BATCH`] values, rows past `rows` zero). The largest |z̃_a| taken column by
-    /// column, and every |ell·z̃| summed side by side over the rows, each in slot order from
-    /// 0 (as `offer` sums it: the same bits); then the rows offered in order.
+    /// of [`BATCH`] values, rows past `rows` zero): every r summed side by side over the
+    /// rows, each in slot order from 0 (as `offer` sums it: the same bits).
     fn offer_batch(&mut self, cols: &[f64], rows: usize, m: usize) {
-        for (x, col) in self.maxabs.iter_mut().zip(cols.chunks_exact(BATCH)) {
-            // Four running maxima (max is exact: any order gives the same value).
-            let mut acc = [*x; 4];
-            for c in col[..rows.next_multiple_of(4).min(BATCH)].chunks_exact(4) {
-                for (a, v) in acc.iter_mut().zip(c) {
-                    *a = a.max(v.abs());
-                }
-            }
-            *x = acc[0].max(acc[1]).max(acc[2].max(acc[3]));
-        }
         let mut r = [0.0f64; BATCH];
         for (e, col) in self.ell.iter().zip(cols.chunks_exact(BATCH)) {
             for (r, v) in r.iter_mut().zip(col) {
                 *r += e * v;
             }
         }
-        for (i, r) in r.iter().enumerate().take(rows) {
-            let key = r.abs().to_bits();
-            if self.heap.len() < EXTREME_ROWS || key > self.threshold.to_bits() {
-                let z: Vec<f64> = (0..m).map(|a| cols[a * BATCH + i]).collect();
-                self.offer_ranked(r.abs(), &z, m);
-            }
-        }
-    }
-
-    /// Stores row `z` if |ell·z| = `r` is among the segment's largest.
-    #[inline]
-    fn offer_ranked(&mut self, r: f64, z: &[f64], m: usize) {
-        let key = r.to_bits();
-        if self.heap.len() < EXTREME_ROWS {
-            self.heap.push(std::cmp::Reverse((key, self.heap.len())));
-            self.rows.extend_from_slice(z);
-        } else if key > self.threshold.to_bits() {
-            if let Some(std::cmp::Reverse((_, slot))) = self.heap.pop() {
-                self.rows[slot * m..(slot + 1) * m].copy_from_slice(z);
-                self.heap.push(std::cmp::Reverse((key, slot)));
-            }
-        }
-        if self.heap.len() == EXTREME_ROWS {
-            self.threshold = f64::from_bits(self.heap.peek().map_or(0, |x| x.0 .0));
-        }
+        self.take(rows, m, &r, cols, BATCH);
     }
 }
 
 /// What makes the largest |residual| over every row provable after one pass: the session cut
-/// into segments (the first [`FIRST_SEGMENT`] rows, then 1/64 of the session or that many,
-/// whichever is more: the memory is bounded); each segment's rows ranked by |residual| under the fit of every row before
-/// it (the first segment: under its own fit), the top [`EXTREME_ROWS`] stored with the
-/// largest |z̃_a| of the segment. For final coefficients with residual functional ℓ, a row
-/// not stored in segment s has |ℓ·z̃| ≤ threshold_s + Σ_a maxabs_s,a · |ℓ_a − ℓ_s,a|; when the
-/// largest |ℓ·z̃| of the stored rows is at least every segment's bound, it is the maximum over
-/// all rows (`super::fit` checks; otherwise it makes a second pass).
+/// into segments (the first [`FIRST_SEGMENT`] rows, then each twice the one before up to 1/64
+/// of the session or that many, whichever is more; the early fits are the least sure, their
+/// segments the shortest), each segment's rows ranked under the fit of every row before it
+/// (the first segment: under its own fit) box by box, a few seconds a box, at most 8192
+/// boxes (the memory is bounded): [`SegmentExtremes`]. For final coefficients with residual
+/// functional ℓ, the rows stored are evaluated and every other row is bounded
+/// ([`SegmentExtremes::bound`]); when the largest |ℓ·z̃| of the stored rows is at least every
+/// segment's bound, it is the maximum over all rows (`super::fit` checks; otherwise it reads
+/// again the segments up to the last whose bound is above).
 #[derive(Debug, Clone, Default)]
 pub struct Extremes {
     /// Rows in the first segment.
     pub first: usize,
-    /// Rows per later segment.
+    /// Rows per later segment at most ([`Extremes::len_of`]).
     pub segment: usize,
     /// Per segment, per FOG.
     pub segs: Vec<Vec<SegmentExtremes>>,
@@ -1180,6 +1236,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
+    // Boxes of a few seconds, at most 8192 in a session (the memory is bounded).
+    let box_rows = n.div_ceil(8192).max(1024);
     let mut tracker = spec.track.clone().filter(|_| stride > 1).map(|kinds| Tracker {
         kinds,
         out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
@@ -1230,8 +1288,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         }
         let new_segment = j == next_segment;
         if let (true, Some(t)) = (new_segment, tracker.as_ref()) {
-            debug_assert!(t.out.starts_segment(j));
-            next_segment += t.out.segment;
+            // The segment starting here is the second when none is out yet.
+            next_segment += t.out.len_of(t.out.segs.len().max(1));
         }
         if block != batch_block || batch_rows == BATCH || new_segment {
             flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut());
@@ -1244,7 +1302,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 // The first segment, ranked under its own fit.
                 let mut seg = Vec::new();
                 for (fog, ell) in ells.iter().enumerate() {
-                    let mut x = SegmentExtremes::new(m);
+                    let mut x = SegmentExtremes::new(box_rows);
                     x.ell = ell.clone();
                     for row in t.first[fog].chunks_exact(m) {
                         x.offer(row, m);
@@ -1257,7 +1315,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             t.out.segs.push(
                 ells.into_iter()
                     .map(|ell| {
-                        let mut x = SegmentExtremes::new(m);
+                        let mut x = SegmentExtremes::new(box_rows);
                         x.ell = ell;
                         x
                     })
