@@ -269,7 +269,8 @@ fn parse_number_general(b: &[u8]) -> Option<(f64, usize)> {
 #[target_feature(enable = "ssse3")]
 #[inline]
 fn parse_number_ssse3(b: &[u8]) -> Option<(f64, usize)> {
-    match plain::parse(b) {
+    // SAFETY: this function has SSSE3.
+    match unsafe { plain::parse(b) } {
         Some(r) => Some(r),
         None => parse_number_general(b),
     }
@@ -328,9 +329,13 @@ mod plain {
     /// first non-digit (a dot: then the first after it), one shuffle that leaves the dot
     /// out and puts the digits last (leading zeros before), then pairs, fours and eights of
     /// digits by multiply-adds.
-    #[target_feature(enable = "ssse3")]
-    #[inline]
-    pub(super) fn parse(b: &[u8]) -> Option<(f64, usize)> {
+    ///
+    /// # Safety
+    ///
+    /// The CPU must have SSSE3. (Not a `target_feature` function, so that it inlines into
+    /// the line loop of one, [`super::parse_next_line_ssse3`].)
+    #[inline(always)]
+    pub(super) unsafe fn parse(b: &[u8]) -> Option<(f64, usize)> {
         let c0 = *b.first()?;
         let neg = c0 == b'-';
         let s = usize::from(neg || c0 == b'+');
