@@ -243,7 +243,7 @@ pub fn earth_rate_ics(psi_rad: f64, lat_rad: f64) -> [f64; 3] {
 ///
 /// Every value correctly rounded, the same `f64` as `str::parse::<f64>` gives for the field
 /// (`inf`, `nan` included). The plain decimal forms a session is written in take
-/// [`plain::parse`] where the CPU has SSSE3 (16 bytes at once); everything else (more
+/// `plain::parse` where the CPU has SSSE3 (16 bytes at once); everything else (more
 /// digits, bigger exponents, a form starting with `.`, `inf`, `nan`, `b` too short for the
 /// 16 bytes) the `fast-float2` crate (a port of Lemire's `fast_float`, the algorithm the
 /// standard library's own parser uses), which accepts the same forms and stops at the same
@@ -394,8 +394,10 @@ mod plain {
         let neg = c == b'-';
         let j = usize::from(neg || c == b'+');
         let x = x >> (8 * j);
-        // The first byte that is not a digit (see `non_digits` of the 16-byte form): a
-        // borrow or carry only runs upwards from a non-digit.
+        // The first byte that is not a digit, eight bytes at once: a byte below `0` sets its
+        // top bit in `x - 0x30…`, one above `9` (up to 0xAF) in `x + 0x46…`, one from 0xB0
+        // in `x - 0x30…`; a borrow or carry only runs upwards from a non-digit, so the lowest
+        // flagged byte is the first non-digit.
         let lo = x.wrapping_sub(0x3030_3030_3030_3030);
         let hi = x.wrapping_add(0x4646_4646_4646_4646);
         let n = ((lo | hi) & 0x8080_8080_8080_8080).trailing_zeros() as usize / 8;
