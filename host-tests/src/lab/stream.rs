@@ -383,6 +383,13 @@ impl Basis {
     /// same operations as the slot by slot fill, so the same values), each slot read from it.
     #[inline]
     fn fill_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) {
+        self.each_from_table(fog, s, g_degc_s, |a, v| z[a] = v);
+    }
+
+    /// The table of one FOG's quantities for a row ([`TABLE_FIXED`] and the bare columns),
+    /// and `put(a, value)` for every slot a.
+    #[inline(always)]
+    fn each_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], mut put: impl FnMut(usize, f64)) {
         let w = s.ref_rad_s;
         let a = self.axes[fog.min(3)];
         let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
@@ -412,9 +419,21 @@ impl Basis {
         for (x, &c) in table[TABLE_FIXED..].iter_mut().zip(&self.gather_cols) {
             *x = s.values[c];
         }
-        for (v, &k) in z.iter_mut().zip(&self.gather) {
-            *v = table[usize::from(k)];
+        for (a, &k) in self.gather.iter().enumerate() {
+            put(a, table[usize::from(k) % TABLE_MAX]);
         }
+    }
+
+    /// [`Basis::fill`] minus `shift`, written to `col[a * COL]` for slot a (a batch's
+    /// column-major row), from the table; `false` (nothing written) when the basis has slots
+    /// the table does not carry.
+    #[inline]
+    fn fill_shifted(&self, fog: usize, s: &Sample, g_degc_s: &[f64], shift: &[f64], col: &mut [f64]) -> bool {
+        if self.gather.is_empty() {
+            return false;
+        }
+        self.each_from_table(fog, s, g_degc_s, |a, v| col[a * COL] = v - shift[a]);
+        true
     }
 
     fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
@@ -811,7 +830,7 @@ impl Gram {
         )
     }
 
-    /// Adds the sums over a batch: `cols` holds m columns of [`BATCH`] values (rows past
+    /// Adds the sums over a batch: `cols` holds m columns of [`BATCH`] values, [`COL`] apart (rows past
     /// `rows` zero).
     fn accumulate(&mut self, cols: &[f64], rows: usize) {
         self.n += rows;
@@ -841,7 +860,7 @@ fn gram_kernel(g: &mut [f64], cols: &[f64], m: usize) {
 /// rows l, l + 8, ...), added pairwise.
 #[inline(always)]
 fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
-    let (ca, cb) = (&cols[a * BATCH..(a + 1) * BATCH], &cols[b * BATCH..(b + 1) * BATCH]);
+    let (ca, cb) = (&cols[a * COL..a * COL + BATCH], &cols[b * COL..b * COL + BATCH]);
     let mut acc = [0.0f64; 8];
     for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
         for l in 0..8 {
@@ -864,19 +883,19 @@ fn combine8(acc: &[f64; 8]) -> f64 {
 ///
 /// # Safety
 ///
-/// The CPU must have AVX2; `cols` holds m columns of [`BATCH`] values and `g` m × m.
+/// The CPU must have AVX2; `cols` holds m columns of [`BATCH`] values, [`COL`] apart, and `g` m × m.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
     use std::arch::x86_64::{
         __m256d, _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
     };
-    assert!(cols.len() >= m * BATCH && g.len() >= m * m);
+    assert!(cols.len() >= m * COL && g.len() >= m * m);
     for a in 0..m {
-        let ca = cols[a * BATCH..(a + 1) * BATCH].as_ptr();
+        let ca = cols[a * COL..a * COL + BATCH].as_ptr();
         let mut b = a;
         while b + 4 <= m {
-            let cb = cols[b * BATCH..(b + 4) * BATCH].as_ptr();
+            let cb = cols[b * COL..(b + 4) * COL].as_ptr();
             let mut lo: [__m256d; 4] = [_mm256_setzero_pd(); 4];
             let mut hi: [__m256d; 4] = [_mm256_setzero_pd(); 4];
             for i in (0..BATCH).step_by(8) {
@@ -885,7 +904,7 @@ unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
                 for (k, (l, h)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
                     // SAFETY: as above, k < 4.
                     let (yl, yh) = unsafe {
-                        let q = cb.add(k * BATCH + i);
+                        let q = cb.add(k * COL + i);
                         (_mm256_loadu_pd(q), _mm256_loadu_pd(q.add(4)))
                     };
                     *l = _mm256_add_pd(*l, _mm256_mul_pd(xl, yl));
@@ -969,7 +988,10 @@ impl Extremes {
     pub fn len_of(&self, k: usize) -> usize {
         match k {
             0 => self.first,
-            _ => self.first.saturating_mul(1usize.checked_shl((k - 1).min(62) as u32).unwrap_or(usize::MAX)).min(self.segment),
+            _ => self
+                .first
+                .saturating_mul(1usize.checked_shl((k - 1).min(62) as u32).unwrap_or(usize::MAX))
+                .min(self.segment),
         }
     }
 
@@ -1100,16 +1122,16 @@ impl SegmentExtremes {
     }
 
     /// [`SegmentExtremes::offer`] for a batch of rows held column-major in `cols` (m columns
-    /// of [`BATCH`] values, rows past `rows` zero): every r summed side by side over the
+    /// of [`BATCH`] values, [`COL`] apart, rows past `rows` zero): every r summed side by side over the
     /// rows, each in slot order from 0 (as `offer` sums it: the same bits).
     fn offer_batch(&mut self, cols: &[f64], rows: usize, m: usize) {
         let mut r = [0.0f64; BATCH];
-        for (e, col) in self.ell.iter().zip(cols.chunks_exact(BATCH)) {
+        for (e, col) in self.ell.iter().zip(cols.chunks_exact(COL)) {
             for (r, v) in r.iter_mut().zip(col) {
                 *r += e * v;
             }
         }
-        self.take(rows, m, &r, cols, BATCH);
+        self.take(rows, m, &r, cols, COL);
     }
 }
 
@@ -1196,6 +1218,11 @@ pub struct Digest {
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
 
+/// Distance between two columns of a batch, f64: a batch's column is [`BATCH`] values and
+/// then a gap, so that the columns (written a row at a time, one value each) do not all fall
+/// in the same few sets of the L1 cache, as a power-of-two distance makes them.
+const COL: usize = BATCH + 8;
+
 /// The block of sample j of n: `j · n_blocks / n` (even blocks train, odd blocks test).
 pub fn block_of(j: usize, n: usize, n_blocks: usize) -> usize {
     j * n_blocks / n.max(1)
@@ -1232,8 +1259,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let mut shift: Vec<Vec<f64>> = Vec::new();
-    // Per FOG a batch of rows, column-major (m columns of BATCH values) for the Gram sums.
-    let mut batch: Vec<Vec<f64>> = vec![vec![0.0; BATCH * m]; n_fog];
+    // Per FOG a batch of rows, column-major (m columns of BATCH values, COL apart) for the Gram sums.
+    let mut batch: Vec<Vec<f64>> = vec![vec![0.0; COL * m]; n_fog];
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
     // Boxes of a few seconds, at most 8192 in a session (the memory is bounded).
@@ -1255,7 +1282,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         }
         for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
             if rows < BATCH {
-                b.chunks_exact_mut(BATCH).for_each(|col| col[rows..].fill(0.0));
+                b.chunks_exact_mut(COL).for_each(|col| col[rows..BATCH].fill(0.0));
             }
             g[block].accumulate(b, rows);
         }
@@ -1264,7 +1291,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 None => {
                     for (f, b) in t.first.iter_mut().zip(batch.iter()) {
                         for i in 0..rows {
-                            f.extend((0..m).map(|a| b[a * BATCH + i]));
+                            f.extend((0..m).map(|a| b[a * COL + i]));
                         }
                     }
                 }
@@ -1343,19 +1370,22 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             }
         }
         for fog in 0..n_fog {
-            basis.fill(fog, s, g, &mut z)?;
-            if shift.len() < n_fog {
-                let mut sh = z.clone();
-                sh[ONE] = 0.0;
-                shift.push(sh);
-            }
-            let col = &mut batch[fog][batch_rows..];
-            for (a, (v, sh)) in z.iter_mut().zip(&shift[fog]).enumerate() {
-                *v -= sh;
-                col[a * BATCH] = *v;
-            }
-            if keep {
-                kept.z[fog].extend_from_slice(&z);
+            if shift.len() < n_fog || keep || !basis.fill_shifted(fog, s, g, &shift[fog], &mut batch[fog][batch_rows..])
+            {
+                basis.fill(fog, s, g, &mut z)?;
+                if shift.len() < n_fog {
+                    let mut sh = z.clone();
+                    sh[ONE] = 0.0;
+                    shift.push(sh);
+                }
+                let col = &mut batch[fog][batch_rows..];
+                for (a, (v, sh)) in z.iter_mut().zip(&shift[fog]).enumerate() {
+                    *v -= sh;
+                    col[a * COL] = *v;
+                }
+                if keep {
+                    kept.z[fog].extend_from_slice(&z);
+                }
             }
         }
         batch_rows += 1;
