@@ -1510,3 +1510,54 @@ pub fn prepare(session: &Session, model: &super::model::Model) -> LabResult<Prep
     })?;
     Ok(p)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// The box bound holds for every row: a segment of rows with a slow drift in one slot
+    /// (a temperature) and steps in others (a rate table), ranked under one functional and
+    /// checked under others far from it; every row's |ℓ·z̃| is at most the larger of the
+    /// bound and the stored rows' largest. Batches of odd sizes cross the boxes' edges.
+    #[test]
+    fn box_bound_holds_for_every_row() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let (m, n, box_rows) = (5usize, 5000usize, 300usize);
+        let rows: Vec<Vec<f64>> = (0..n)
+            .map(|k| {
+                let step = ((k / 700) % 3) as f64 - 1.0;
+                vec![1.0, step, 0.002 * k as f64, step.abs(), rng.random_range(-1.0..1.0)]
+            })
+            .collect();
+        for trial in 0..20 {
+            let ell_s: Vec<f64> = (0..m).map(|a| if a == m - 1 { 1.0 } else { rng.random_range(-1.0..1.0) }).collect();
+            let mut x = SegmentExtremes::new(box_rows);
+            x.ell = ell_s;
+            let mut k = 0;
+            while k < n {
+                let rows_now = (1 + (k * 7 + trial) % BATCH).min(n - k);
+                let mut cols = vec![0.0; COL * m];
+                for i in 0..rows_now {
+                    for a in 0..m {
+                        cols[a * COL + i] = rows[k + i][a];
+                    }
+                }
+                x.offer_batch(&cols, rows_now, m);
+                k += rows_now;
+            }
+            assert_eq!(x.r.len(), n.div_ceil(box_rows));
+            for _ in 0..20 {
+                let ell: Vec<f64> =
+                    (0..m).map(|a| if a == m - 1 { 1.0 } else { rng.random_range(-2.0..2.0) }).collect();
+                let eval = |z: &[f64]| z.iter().zip(&ell).map(|(a, b)| a * b).sum::<f64>().abs();
+                let stored = x.rows.chunks_exact(m).map(eval).fold(0.0, f64::max);
+                let worst = rows.iter().map(|z| eval(z)).fold(0.0, f64::max);
+                let bound = x.bound(&ell);
+                assert!(worst <= stored.max(bound), "trial {trial}: a row at {worst}, stored {stored}, bound {bound}");
+                // The stored rows are rows of the segment.
+                assert!(stored <= worst);
+            }
+        }
+    }
+}
