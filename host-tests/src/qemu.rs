@@ -68,6 +68,24 @@ pub struct QemuOptions {
     pub fault: Option<crate::faults::Fault>,
 }
 
+impl QemuOptions {
+    /// A lockstep run of `elf` with nothing else: no instruction counting, no damage, no
+    /// progress bar, no stall, the scenario's table, no fault (set what a run needs with
+    /// `..QemuOptions::lockstep(elf)`).
+    pub fn lockstep(elf: PathBuf) -> QemuOptions {
+        QemuOptions {
+            elf,
+            lockstep: true,
+            icount: false,
+            corrupt_every: 0,
+            progress: false,
+            stall_at_step: None,
+            table_image: None,
+            fault: None,
+        }
+    }
+}
+
 /// What a QEMU run measured.
 #[derive(Debug, Clone, Default)]
 pub struct QemuSummary {

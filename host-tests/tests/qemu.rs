@@ -23,16 +23,7 @@ fn run(duration_s: f64, lockstep: bool, corrupt_every: u64) -> QemuSummary {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = duration_s;
     sc.settle_s = duration_s / 2.0;
-    let opts = QemuOptions {
-        elf,
-        lockstep,
-        icount: false,
-        corrupt_every,
-        progress: false,
-        stall_at_step: None,
-        table_image: None,
-        fault: None,
-    };
+    let opts = QemuOptions { lockstep, corrupt_every, ..QemuOptions::lockstep(elf) };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     s
@@ -91,16 +82,7 @@ fn every_step_meets_its_deadline_in_counted_instructions() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
     sc.settle_s = 2.5;
-    let opts = QemuOptions {
-        elf,
-        lockstep: true,
-        icount: true,
-        corrupt_every: 0,
-        progress: false,
-        stall_at_step: None,
-        table_image: None,
-        fault: None,
-    };
+    let opts = QemuOptions { icount: true, ..QemuOptions::lockstep(elf) };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     println!("{}", s.report());
     let worst = s.step_ticks_max[0].max(s.step_ticks_max[1]);
@@ -123,16 +105,7 @@ fn a_damaged_table_copy_falls_back_to_the_other_on_target() {
     let table = ssis_host::harness::Simulation::new(&sc).expect("simulation").table;
     let mut img = ssis::calib::store::image(&table).to_vec();
     img[200] ^= 0x04;
-    let opts = QemuOptions {
-        elf,
-        lockstep: true,
-        icount: false,
-        corrupt_every: 0,
-        progress: false,
-        stall_at_step: None,
-        table_image: Some(img),
-        fault: None,
-    };
+    let opts = QemuOptions { table_image: Some(img), ..QemuOptions::lockstep(elf) };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     for l in &s.log {
         println!("firmware: {l}");
@@ -157,16 +130,7 @@ fn a_stalled_main_loop_is_caught_by_the_watchdog() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
     sc.settle_s = 2.5;
-    let opts = QemuOptions {
-        elf,
-        lockstep: true,
-        icount: false,
-        corrupt_every: 0,
-        progress: false,
-        stall_at_step: Some(400),
-        table_image: None,
-        fault: None,
-    };
+    let opts = QemuOptions { stall_at_step: Some(400), ..QemuOptions::lockstep(elf) };
     let s = run_qemu(&sc, &opts, |_| {}).expect("QEMU run");
     for l in &s.log {
         println!("firmware: {l}");
@@ -253,16 +217,7 @@ fn bias_step_on_fog2_in_qemu_is_isolated_as_on_the_host() {
     let k = FaultScale::of(&sc).expect("fault scale");
     let start_s = 20.0;
     let fault = Fault { kind: FaultKind::FogBiasStep(1, k.bias_for_sigma_rad_s(1, 5.0)), start_s, duration_s: 15.0 };
-    let opts = QemuOptions {
-        elf,
-        lockstep: true,
-        icount: false,
-        corrupt_every: 0,
-        progress: false,
-        stall_at_step: None,
-        table_image: None,
-        fault: Some(fault),
-    };
+    let opts = QemuOptions { fault: Some(fault), ..QemuOptions::lockstep(elf) };
     let (mut alarm_at_s, mut isolated_at_s) = (None, None);
     let mut other_isolated = 0u32;
     let mut err_after_isolation = 0.0f64;

@@ -261,14 +261,6 @@ fn main() -> Result<()> {
         d1.candidates[0].kind.label()
     );
     println!("  largest |residual|: {} rows read again", f.max_rows_read_again);
-    if std::env::var_os("SSIS_LAB_BENCH_PROOF").is_some() {
-        if let Some(p) = ssis_host::lab::fit::max_proof(&dg, &f.model)? {
-            for (fog, (b, best)) in p.bound.iter().zip(&p.best).enumerate() {
-                let b: Vec<String> = b.iter().take(10).map(|x| format!("{:.3}", x / best)).collect();
-                println!("  FOG{fog}: segment bounds / best: {}", b.join(" "));
-            }
-        }
-    }
     if cli.hash {
         let hash = |x: &dyn std::fmt::Debug| -> Result<u64> {
             let mut h = HashWriter(std::collections::hash_map::DefaultHasher::new());

@@ -988,10 +988,7 @@ impl Extremes {
     pub fn len_of(&self, k: usize) -> usize {
         match k {
             0 => self.first,
-            _ => self
-                .first
-                .saturating_mul(1usize.checked_shl((k - 1).min(62) as u32).unwrap_or(usize::MAX))
-                .min(self.segment),
+            _ => self.first.saturating_mul(1 << (k - 1).min(32)).min(self.segment),
         }
     }
 
