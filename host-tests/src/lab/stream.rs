@@ -424,16 +424,72 @@ impl Basis {
         }
     }
 
-    /// [`Basis::fill`] minus `shift`, written to `col[a * COL]` for slot a (a batch's
-    /// column-major row), from the table; `false` (nothing written) when the basis has slots
-    /// the table does not carry.
-    #[inline]
-    fn fill_shifted(&self, fog: usize, s: &Sample, g_degc_s: &[f64], shift: &[f64], col: &mut [f64]) -> bool {
-        if self.gather.is_empty() {
-            return false;
+    /// Whether a batch's columns can be computed from its staged quantities
+    /// ([`Basis::fill_batch`]): every slot is in the table (no sinusoid, no compiled
+    /// expression).
+    fn batched(&self) -> bool {
+        !self.gather.is_empty()
+    }
+
+    /// [`Basis::fill`] minus `shift` for the first `rows` rows staged in `st`, written
+    /// column-major to `cols` (slot a of row i at `cols[a * COL + i]`): a quantity at a time
+    /// over the rows, with the same operations in the same order as [`Basis::each_from_table`]
+    /// (the same values), so the loops run on whole vectors of rows.
+    fn fill_batch(&self, fog: usize, st: &Staged, rows: usize, shift: &[f64], cols: &mut [f64]) {
+        let rows = rows.min(BATCH);
+        let ax = self.axes[fog.min(3)];
+        let row = |v: &[f64], k: usize| -> [f64; BATCH] {
+            let mut x = [0.0; BATCH];
+            x[..rows].copy_from_slice(&v[k * BATCH..k * BATCH + rows]);
+            x
+        };
+        let (w0, w1, w2) = (row(&st.w, 0), row(&st.w, 1), row(&st.w, 2));
+        let mut r = [0.0f64; BATCH];
+        for (r, ((x, y), z)) in r.iter_mut().zip(w0.iter().zip(&w1).zip(&w2)).take(rows) {
+            *r = ax.x * x + ax.y * y + ax.z * z;
         }
-        self.each_from_table(fog, s, g_degc_s, |a, v| col[a * COL] = v - shift[a]);
-        true
+        let (mut dt, mut g) = ([0.0f64; BATCH], [0.0f64; BATCH]);
+        if self.has_temp[fog] {
+            for (d, t) in dt.iter_mut().zip(&st.temp[fog * BATCH..fog * BATCH + rows]) {
+                *d = t - self.t_ref_degc;
+            }
+            g[..rows].copy_from_slice(&st.g[fog * BATCH..fog * BATCH + rows]);
+        }
+        let rate = &st.rate[fog * BATCH..fog * BATCH + rows];
+        for (a, &k) in self.gather.iter().enumerate() {
+            let sh = shift[a];
+            let col = &mut cols[a * COL..a * COL + rows];
+            macro_rules! put {
+                ($i:ident => $e:expr) => {
+                    for ($i, c) in col.iter_mut().enumerate() {
+                        *c = $e - sh;
+                    }
+                };
+            }
+            match usize::from(k) {
+                0 => col.fill(1.0 - sh),
+                1 => put!(i => w0[i]),
+                2 => put!(i => w1[i]),
+                3 => put!(i => w2[i]),
+                4 => put!(i => r[i].abs()),
+                5 => put!(i => r[i] * r[i]),
+                6 => put!(i => (st.t_s[i] - self.t0_s) / 3600.0),
+                7 => put!(i => dt[i]),
+                8 => put!(i => dt[i] * dt[i]),
+                9 => put!(i => dt[i] * dt[i] * dt[i]),
+                10 => put!(i => g[i]),
+                11 => put!(i => dt[i] * g[i]),
+                12..=14 => {
+                    let f = &st.field[(usize::from(k) - 12) * BATCH..];
+                    put!(i => f[i]);
+                }
+                15 => put!(i => rate[i] - r[i]),
+                c => {
+                    let v = &st.cols[(c - TABLE_FIXED) * BATCH..];
+                    put!(i => v[i]);
+                }
+            }
+        }
     }
 
     fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
@@ -1215,6 +1271,56 @@ pub struct Digest {
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
 
+/// The quantities a batch's columns are computed from ([`Basis::fill_batch`]), staged a
+/// row at a time, one array of [`BATCH`] rows per quantity (per FOG where it is one).
+struct Staged {
+    t_s: Vec<f64>,
+    /// Raw rate, rad/s, FOG-major.
+    rate: Vec<f64>,
+    /// T, °C, FOG-major.
+    temp: Vec<f64>,
+    /// G, °C/s, FOG-major.
+    g: Vec<f64>,
+    /// ω_ref, component-major.
+    w: Vec<f64>,
+    /// Field, nT, component-major.
+    field: Vec<f64>,
+    /// The table's bare columns, column-major.
+    cols: Vec<f64>,
+}
+
+impl Staged {
+    fn new(n_fog: usize, n_cols: usize) -> Self {
+        Staged {
+            t_s: vec![0.0; BATCH],
+            rate: vec![0.0; n_fog * BATCH],
+            temp: vec![0.0; n_fog * BATCH],
+            g: vec![0.0; n_fog * BATCH],
+            w: vec![0.0; 3 * BATCH],
+            field: vec![0.0; 3 * BATCH],
+            cols: vec![0.0; n_cols * BATCH],
+        }
+    }
+
+    /// Stages sample `s` with its G per FOG as row i of the batch.
+    #[inline]
+    fn put(&mut self, i: usize, s: &Sample, g_degc_s: &[f64], gather_cols: &[usize]) {
+        self.t_s[i] = s.t_s;
+        for (k, ((&x, &t), &g)) in s.rate_rad_s.iter().zip(&s.t_degc).zip(g_degc_s).enumerate() {
+            self.rate[k * BATCH + i] = x;
+            self.temp[k * BATCH + i] = t;
+            self.g[k * BATCH + i] = g;
+        }
+        for k in 0..3 {
+            self.w[k * BATCH + i] = s.ref_rad_s[k];
+            self.field[k * BATCH + i] = s.field_nt[k];
+        }
+        for (k, &c) in gather_cols.iter().enumerate() {
+            self.cols[k * BATCH + i] = s.values[c];
+        }
+    }
+}
+
 /// Distance between two columns of a batch, f64: a batch's column is [`BATCH`] values and
 /// then a gap, so that the columns (written a row at a time, one value each) do not all fall
 /// in the same few sets of the L1 cache, as a power-of-two distance makes them.
@@ -1267,15 +1373,33 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         out: Extremes { first: FIRST_SEGMENT, segment: (n / 64).max(FIRST_SEGMENT), segs: Vec::new() },
         first: vec![Vec::new(); n_fog],
     });
-    // A batch summed: added to the Gram sums and offered to the extremes (the first
-    // segment's rows held, row-major, until its fit ranks them).
+    // Rows of the batch staged for their columns ([`Basis::fill_batch`]) and, of these, the
+    // kept ones (their basis vectors are kept once computed).
+    let batched = basis.batched();
+    let mut staged = Staged::new(n_fog, basis.gather_cols.len());
+    let mut kept_at: Vec<usize> = Vec::new();
+    // A batch summed: its staged columns computed, added to the Gram sums and offered to the
+    // extremes (the first segment's rows held, row-major, until its fit ranks them).
     let flush = |batch: &mut [Vec<f64>],
                  rows: usize,
                  gram: &mut Vec<Vec<Gram>>,
                  block: usize,
-                 tracker: Option<&mut Tracker>| {
+                 tracker: Option<&mut Tracker>,
+                 shift: &[Vec<f64>],
+                 staged: &Staged,
+                 kept_at: &mut Vec<usize>,
+                 kept_z: &mut [Vec<f64>]| {
         if rows == 0 {
             return;
+        }
+        if batched {
+            for (fog, (b, kz)) in batch.iter_mut().zip(kept_z.iter_mut()).enumerate() {
+                basis.fill_batch(fog, staged, rows, &shift[fog], b);
+                for &i in kept_at.iter() {
+                    kz.extend((0..m).map(|a| b[a * COL + i]));
+                }
+            }
+            kept_at.clear();
         }
         for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
             if rows < BATCH {
@@ -1316,7 +1440,17 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             next_segment += t.out.len_of(t.out.segs.len().max(1));
         }
         if block != batch_block || batch_rows == BATCH || new_segment {
-            flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut());
+            flush(
+                &mut batch,
+                batch_rows,
+                &mut gram,
+                batch_block,
+                tracker.as_mut(),
+                &shift,
+                &staged,
+                &mut kept_at,
+                &mut kept.z,
+            );
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -1366,15 +1500,23 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 }
             }
         }
-        for fog in 0..n_fog {
-            if shift.len() < n_fog || keep || !basis.fill_shifted(fog, s, g, &shift[fog], &mut batch[fog][batch_rows..])
-            {
+        if shift.len() < n_fog {
+            // The first row: the shift is its basis vector (slot 0 stays 1).
+            for _ in 0..n_fog {
+                basis.fill(shift.len(), s, g, &mut z)?;
+                let mut sh = z.clone();
+                sh[ONE] = 0.0;
+                shift.push(sh);
+            }
+        }
+        if batched {
+            staged.put(batch_rows, s, g, &basis.gather_cols);
+            if keep {
+                kept_at.push(batch_rows);
+            }
+        } else {
+            for fog in 0..n_fog {
                 basis.fill(fog, s, g, &mut z)?;
-                if shift.len() < n_fog {
-                    let mut sh = z.clone();
-                    sh[ONE] = 0.0;
-                    shift.push(sh);
-                }
                 let col = &mut batch[fog][batch_rows..];
                 for (a, (v, sh)) in z.iter_mut().zip(&shift[fog]).enumerate() {
                     *v -= sh;
@@ -1388,7 +1530,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut());
+    flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut(), &shift, &staged, &mut kept_at, &mut kept.z);
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
