@@ -33,6 +33,24 @@ use super::{LabError, LabResult};
 /// Rows kept by default for plots, the spectral search and the ANOVA.
 pub const DEFAULT_KEEP: usize = 40_000;
 
+/// A sample as a pass hands it out: borrowed from the record the pass holds it in, not
+/// copied (the fields of [`Sample`]).
+#[derive(Debug, Clone, Copy)]
+pub struct SampleRef<'a> {
+    /// Time (end of the sample interval), s.
+    pub t_s: f64,
+    /// Raw rate of each FOG, rad/s.
+    pub rate_rad_s: &'a [f64],
+    /// Temperature of each FOG, °C (NaN where the session has none).
+    pub t_degc: &'a [f64],
+    /// Reference rate of the ICS, ICS components, rad/s.
+    pub ref_rad_s: [f64; 3],
+    /// Magnetic induction, nT (zeros without field columns).
+    pub field_nt: [f64; 3],
+    /// Every column's value in file order.
+    pub values: &'a [f64],
+}
+
 /// Where a pass reads its samples.
 #[derive(Debug, Clone, Copy)]
 pub enum Source<'a> {
@@ -341,7 +359,7 @@ impl Basis {
     }
 
     /// Fills `z` (length m) for FOG `fog` from a sample and its G per FOG.
-    pub fn fill(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
+    pub fn fill(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
         if !self.gather.is_empty() {
             self.fill_from_table(fog, s, g_degc_s, z);
             return Ok(());
@@ -382,14 +400,14 @@ impl Basis {
     /// [`Basis::fill`] without a branch per slot: every quantity of the table computed (the
     /// same operations as the slot by slot fill, so the same values), each slot read from it.
     #[inline]
-    fn fill_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], z: &mut [f64]) {
+    fn fill_from_table(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], z: &mut [f64]) {
         self.each_from_table(fog, s, g_degc_s, |a, v| z[a] = v);
     }
 
     /// The table of one FOG's quantities for a row ([`TABLE_FIXED`] and the bare columns),
     /// and `put(a, value)` for every slot a.
     #[inline(always)]
-    fn each_from_table(&self, fog: usize, s: &Sample, g_degc_s: &[f64], mut put: impl FnMut(usize, f64)) {
+    fn each_from_table(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], mut put: impl FnMut(usize, f64)) {
         let w = s.ref_rad_s;
         let a = self.axes[fog.min(3)];
         let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
@@ -492,7 +510,7 @@ impl Basis {
         }
     }
 
-    fn expr_value(&self, k: usize, fog: usize, s: &Sample, r: f64, dt: f64, g: f64) -> LabResult<f64> {
+    fn expr_value(&self, k: usize, fog: usize, s: &SampleRef, r: f64, dt: f64, g: f64) -> LabResult<f64> {
         let x = &self.exprs[k];
         if x.needs_temp && !self.has_temp[fog] {
             return Ok(0.0);
@@ -651,18 +669,18 @@ struct Lookahead {
     times: Vec<f64>,
     temps: Vec<f64>,
     base: usize,
-    /// The sample handed out, filled from its record.
-    out: Sample,
     /// Next sample to emit.
     next: usize,
     /// Window of the last emitted sample (true window, before the fallback).
     lo: usize,
     hi: usize,
-    /// Summed range [a, b] and its sums per FOG: n, Σu, Σv, Σu², Σuv about the origin.
+    /// Summed range [a, b] and its sums about the origin: n, Σu, Σu² (the same for every
+    /// FOG), and per FOG Σv, Σuv.
     a: usize,
     b: usize,
     summed: bool,
-    sums: Vec<[f64; 5]>,
+    sums_t: [f64; 3],
+    sums: Vec<[f64; 2]>,
     origin_t: f64,
     origin_temp: Vec<f64>,
     since_origin: usize,
@@ -680,14 +698,14 @@ impl Lookahead {
             times: Vec::new(),
             temps: Vec::new(),
             base: 0,
-            out: Sample::default(),
             next: 0,
             lo: 0,
             hi: 0,
             a: 0,
             b: 0,
             summed: false,
-            sums: vec![[0.0; 5]; n_fog],
+            sums_t: [0.0; 3],
+            sums: vec![[0.0; 2]; n_fog],
             origin_t: 0.0,
             origin_temp: vec![0.0; n_fog],
             since_origin: 0,
@@ -718,34 +736,34 @@ impl Lookahead {
         self.records.extend_from_slice(&s.values[..self.n_values]);
     }
 
-    /// Fills `out` from the record of sample k.
+    /// Sample k, borrowed from its record.
     #[inline]
-    fn load(records: &[f64], rec: usize, n: usize, k: usize, out: &mut Sample) {
+    fn load(records: &[f64], rec: usize, n: usize, k: usize) -> SampleRef<'_> {
         let r = &records[k * rec..(k + 1) * rec];
-        out.t_s = r[0];
-        out.rate_rad_s.clear();
-        out.rate_rad_s.extend_from_slice(&r[1..1 + n]);
-        out.t_degc.clear();
-        out.t_degc.extend_from_slice(&r[1 + n..1 + 2 * n]);
         let w = 1 + 2 * n;
-        out.ref_rad_s.copy_from_slice(&r[w..w + 3]);
-        out.field_nt.copy_from_slice(&r[w + 3..w + 6]);
-        out.values.clear();
-        out.values.extend_from_slice(&r[w + 6..]);
+        SampleRef {
+            t_s: r[0],
+            rate_rad_s: &r[1..1 + n],
+            t_degc: &r[1 + n..w],
+            ref_rad_s: [r[w], r[w + 1], r[w + 2]],
+            field_nt: [r[w + 3], r[w + 4], r[w + 5]],
+            values: &r[w + 6..],
+        }
     }
 
     #[inline]
     fn add(&mut self, k: usize, sign: f64) {
         let u = self.t(k) - self.origin_t;
+        let st = &mut self.sums_t;
+        st[0] += sign;
+        st[1] += sign * u;
+        st[2] += sign * u * u;
         let row = (k - self.base) * self.n_fog;
-        for i in 0..self.n_fog {
-            let v = self.temps[row + i] - self.origin_temp[i];
-            let s = &mut self.sums[i];
-            s[0] += sign;
-            s[1] += sign * u;
-            s[2] += sign * v;
-            s[3] += sign * u * u;
-            s[4] += sign * u * v;
+        let temps = &self.temps[row..row + self.n_fog];
+        for ((s, &t), &o) in self.sums.iter_mut().zip(temps).zip(&self.origin_temp) {
+            let v = t - o;
+            s[0] += sign * v;
+            s[1] += sign * u * v;
         }
     }
 
@@ -753,7 +771,8 @@ impl Lookahead {
         self.origin_t = self.t(j);
         let row = (j - self.base) * self.n_fog;
         self.origin_temp.copy_from_slice(&self.temps[row..row + self.n_fog]);
-        self.sums.iter_mut().for_each(|s| *s = [0.0; 5]);
+        self.sums_t = [0.0; 3];
+        self.sums.iter_mut().for_each(|s| *s = [0.0; 2]);
         for k in a..=b {
             self.add(k, 1.0);
         }
@@ -775,7 +794,7 @@ impl Lookahead {
     }
 
     /// Emits every sample whose window is complete (all of them at the end, `last`).
-    fn drain(&mut self, last: bool, mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>) -> LabResult<()> {
+    fn drain(&mut self, last: bool, mut f: impl FnMut(usize, &SampleRef, &[f64]) -> LabResult<()>) -> LabResult<()> {
         let end = self.base + self.times.len();
         while self.next < end {
             let j = self.next;
@@ -806,12 +825,13 @@ impl Lookahead {
                 }
             }
             self.since_origin += 1;
+            // The least-squares slope of T over the window: (n Σuv − Σu Σv) / (n Σu² − (Σu)²).
+            let [n, su, suu] = self.sums_t;
+            let den = n * suu - su * su;
             for (g, s) in self.g.iter_mut().zip(&self.sums) {
-                let den = s[0] * s[3] - s[1] * s[1];
-                *g = if den.abs() < 1e-300 { 0.0 } else { (s[0] * s[4] - s[1] * s[2]) / den };
+                *g = if den.abs() < 1e-300 { 0.0 } else { (n * s[1] - su * s[0]) / den };
             }
-            Self::load(&self.records, self.rec, self.n_fog, j - self.base, &mut self.out);
-            f(j, &self.out, &self.g)?;
+            f(j, &Self::load(&self.records, self.rec, self.n_fog, j - self.base), &self.g)?;
             self.next += 1;
         }
         self.trim();
@@ -826,7 +846,7 @@ pub fn for_each_prepared(
     n_fog: usize,
     g_window_s: f64,
     progress: Option<&ProgressBar>,
-    f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>,
+    f: impl FnMut(usize, &SampleRef, &[f64]) -> LabResult<()>,
 ) -> LabResult<usize> {
     for_each_prepared_until(source, n_fog, g_window_s, progress, usize::MAX, f)
 }
@@ -839,10 +859,10 @@ pub fn for_each_prepared_until(
     g_window_s: f64,
     progress: Option<&ProgressBar>,
     limit: usize,
-    mut f: impl FnMut(usize, &Sample, &[f64]) -> LabResult<()>,
+    mut f: impl FnMut(usize, &SampleRef, &[f64]) -> LabResult<()>,
 ) -> LabResult<usize> {
     let mut la = Lookahead::new(n_fog, g_window_s);
-    let mut g = |j: usize, s: &Sample, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
+    let mut g = |j: usize, s: &SampleRef, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
     source.for_each(progress, |s| {
         la.push(s);
         la.drain(false, &mut g)?;
@@ -1304,9 +1324,9 @@ impl Staged {
 
     /// Stages sample `s` with its G per FOG as row i of the batch.
     #[inline]
-    fn put(&mut self, i: usize, s: &Sample, g_degc_s: &[f64], gather_cols: &[usize]) {
+    fn put(&mut self, i: usize, s: &SampleRef, g_degc_s: &[f64], gather_cols: &[usize]) {
         self.t_s[i] = s.t_s;
-        for (k, ((&x, &t), &g)) in s.rate_rad_s.iter().zip(&s.t_degc).zip(g_degc_s).enumerate() {
+        for (k, ((&x, &t), &g)) in s.rate_rad_s.iter().zip(s.t_degc).zip(g_degc_s).enumerate() {
             self.rate[k * BATCH + i] = x;
             self.temp[k * BATCH + i] = t;
             self.g[k * BATCH + i] = g;
@@ -1589,7 +1609,7 @@ pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f6
     let mut la = Lookahead::new(1, window_s);
     let mut out = Vec::with_capacity(t_s.len());
     let mut s = Sample { rate_rad_s: vec![0.0], t_degc: vec![0.0], ..Sample::default() };
-    let mut emit = |_: usize, _: &Sample, g: &[f64]| {
+    let mut emit = |_: usize, _: &SampleRef, g: &[f64]| {
         out.push(g[0]);
         Ok(())
     };
