@@ -1026,32 +1026,44 @@ impl RowReader {
     }
 }
 
-/// One sample of a session, in the model's quantities.
-#[derive(Debug, Clone, Default)]
-pub struct Sample {
+/// One sample of a session, in the model's quantities, borrowed from its flat record: t;
+/// the FOGs' rates (n); their temperatures (n); ω_ref (3); B (3); every column's value in
+/// file order ([`record_len`] f64 in all). A pass holds samples as records, one after
+/// another in one array, and hands them out as views ([`SampleRef::of_record`]).
+#[derive(Debug, Clone, Copy)]
+pub struct SampleRef<'a> {
     /// Time (end of the sample interval), s.
     pub t_s: f64,
     /// Raw rate of each FOG, rad/s.
-    pub rate_rad_s: Vec<f64>,
+    pub rate_rad_s: &'a [f64],
     /// Temperature of each FOG, °C (NaN where the session has none).
-    pub t_degc: Vec<f64>,
+    pub t_degc: &'a [f64],
     /// Reference rate of the ICS, ICS components, rad/s.
     pub ref_rad_s: [f64; 3],
     /// Magnetic induction, nT (zeros without field columns).
     pub field_nt: [f64; 3],
     /// Every column's value in file order (increments as they are in the file).
-    pub values: Vec<f64>,
+    pub values: &'a [f64],
 }
 
-impl Sample {
-    /// Copies `o` into `self`, reusing its allocations.
-    pub fn copy_from(&mut self, o: &Sample) {
-        self.t_s = o.t_s;
-        self.rate_rad_s.clone_from(&o.rate_rad_s);
-        self.t_degc.clone_from(&o.t_degc);
-        self.ref_rad_s = o.ref_rad_s;
-        self.field_nt = o.field_nt;
-        self.values.clone_from(&o.values);
+/// f64 in the record of a sample with `n_fog` FOGs and `n_values` columns.
+pub fn record_len(n_fog: usize, n_values: usize) -> usize {
+    1 + 2 * n_fog + 6 + n_values
+}
+
+impl<'a> SampleRef<'a> {
+    /// The sample whose record is `r` (n_fog FOGs; the columns are the rest).
+    #[inline]
+    pub fn of_record(r: &'a [f64], n_fog: usize) -> Self {
+        let w = 1 + 2 * n_fog;
+        SampleRef {
+            t_s: r[0],
+            rate_rad_s: &r[1..1 + n_fog],
+            t_degc: &r[1 + n_fog..w],
+            ref_rad_s: [r[w], r[w + 1], r[w + 2]],
+            field_nt: [r[w + 3], r[w + 4], r[w + 5]],
+            values: &r[w + 6..],
+        }
     }
 }
 
@@ -1070,22 +1082,20 @@ impl Converter {
         Converter { layout: layout.clone(), last_t: None }
     }
 
-    /// Fills `out` from `row`; `false` when the row gives no sample (first row of increments).
-    pub fn convert(&mut self, row: &[f64], out: &mut Sample) -> bool {
+    /// Writes the record of the sample of `row` to `rec` ([`SampleRef`]); `false` (and
+    /// `rec` empty) when the row gives no sample (first row of increments).
+    pub fn convert(&mut self, row: &[f64], rec: &mut Vec<f64>) -> bool {
         let l = &self.layout;
         let t = row[l.t];
         let prev = self.last_t.replace(t);
+        rec.clear();
         if l.increments() && prev.is_none() {
             return false;
         }
-        out.t_s = t;
-        out.rate_rad_s.resize(l.n_fog, 0.0);
-        out.t_degc.resize(l.n_fog, f64::NAN);
-        for (i, &(k, inc)) in l.fog.iter().enumerate() {
-            out.rate_rad_s[i] = if inc { row[k] / (t - prev.unwrap_or(t)) } else { row[k] };
-            out.t_degc[i] = l.fog_temp[i].map_or(f64::NAN, |c| row[c]);
-        }
-        out.ref_rad_s = match (l.reference, l.turntable) {
+        rec.push(t);
+        rec.extend(l.fog.iter().map(|&(k, inc)| if inc { row[k] / (t - prev.unwrap_or(t)) } else { row[k] }));
+        rec.extend(l.fog_temp.iter().map(|c| c.map_or(f64::NAN, |c| row[c])));
+        let w = match (l.reference, l.turntable) {
             (Some([x, y, z]), _) => [row[x], row[y], row[z]],
             (None, Some([psi, lat])) => {
                 let mut w = earth_rate_ics(row[psi], row[lat]);
@@ -1094,10 +1104,15 @@ impl Converter {
             }
             (None, None) => [0.0; 3],
         };
-        out.field_nt = l.field.map_or([0.0; 3], |[x, y, z]| [row[x], row[y], row[z]]);
-        out.values.clear();
-        out.values.extend_from_slice(row);
+        rec.extend_from_slice(&w);
+        rec.extend_from_slice(&l.field.map_or([0.0; 3], |[x, y, z]| [row[x], row[y], row[z]]));
+        rec.extend_from_slice(row);
         true
+    }
+
+    /// FOGs of the records it writes.
+    pub fn n_fog(&self) -> usize {
+        self.layout.n_fog
     }
 }
 
@@ -1119,11 +1134,11 @@ impl Builder {
         }
     }
 
-    fn push(&mut self, s: &Sample) {
-        for (c, v) in self.cols.iter_mut().zip(&s.values) {
+    fn push(&mut self, s: &SampleRef) {
+        for (c, v) in self.cols.iter_mut().zip(s.values) {
             c.push(*v);
         }
-        for (r, v) in self.rates.iter_mut().zip(&s.rate_rad_s) {
+        for (r, v) in self.rates.iter_mut().zip(s.rate_rad_s) {
             r.push(*v);
         }
         self.reference.push(s.ref_rad_s);
@@ -1160,12 +1175,12 @@ pub fn read_session(path: &Path, progress: Option<&ProgressBar>) -> Result<Sessi
     }
     let h = rr.header().clone();
     let mut conv = Converter::new(&h.layout);
-    let mut sample = Sample::default();
+    let mut rec = Vec::new();
     let mut b = Builder::new(&h);
     let mut rows = 0u64;
     while let Some(row) = rr.next_row()? {
-        if conv.convert(row, &mut sample) {
-            b.push(&sample);
+        if conv.convert(row, &mut rec) {
+            b.push(&SampleRef::of_record(&rec, h.layout.n_fog));
         }
         rows += 1;
         if let Some(pb) = progress.filter(|_| rows.is_multiple_of(8192)) {
@@ -1189,7 +1204,7 @@ pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -
         return Err(h.err(SessionErrorKind::NoRows, 1, None, format!("fewer than {min_rows} data rows")));
     }
     let mut conv = Converter::new(&h.layout);
-    let mut sample = Sample::default();
+    let mut rec = Vec::new();
     let mut b = Builder::new(&h);
     let mut row = vec![0.0; h.names.len()];
     let mut last_t = f64::NEG_INFINITY;
@@ -1210,8 +1225,8 @@ pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -
             return Err(h.err(SessionErrorKind::BadValue, line, Some(h.layout.t), "time does not increase"));
         }
         last_t = row[h.layout.t];
-        if conv.convert(&row, &mut sample) {
-            b.push(&sample);
+        if conv.convert(&row, &mut rec) {
+            b.push(&SampleRef::of_record(&rec, h.layout.n_fog));
         }
     }
     Ok(b.finish(&h))
@@ -1255,13 +1270,13 @@ pub fn shape(path: &Path) -> Result<Shape, SessionError> {
     let mut rr = RowReader::open(path)?;
     let header = rr.header().clone();
     let mut conv = Converter::new(&header.layout);
-    let mut sample = Sample::default();
+    let mut rec = Vec::new();
     let mut t = Vec::new();
     while t.len() <= INTERVALS_FOR_MEDIAN {
         match rr.next_row()? {
             Some(row) => {
-                if conv.convert(row, &mut sample) {
-                    t.push(sample.t_s);
+                if conv.convert(row, &mut rec) {
+                    t.push(rec[0]);
                 }
             }
             None => break,

@@ -27,29 +27,14 @@ use indicatif::ProgressBar;
 use nalgebra::DMatrix;
 
 use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
-use super::session::{median_interval_s, nominal_axes, Converter, Header, RowReader, Sample, Session, Shape};
+use super::session::{
+    median_interval_s, nominal_axes, record_len, Converter, Header, RowReader, SampleRef, Session, Shape,
+};
 use super::{LabError, LabResult};
 
 /// Rows kept by default for plots, the spectral search and the ANOVA.
 pub const DEFAULT_KEEP: usize = 40_000;
 
-/// A sample as a pass hands it out: borrowed from the record the pass holds it in, not
-/// copied (the fields of [`Sample`]).
-#[derive(Debug, Clone, Copy)]
-pub struct SampleRef<'a> {
-    /// Time (end of the sample interval), s.
-    pub t_s: f64,
-    /// Raw rate of each FOG, rad/s.
-    pub rate_rad_s: &'a [f64],
-    /// Temperature of each FOG, °C (NaN where the session has none).
-    pub t_degc: &'a [f64],
-    /// Reference rate of the ICS, ICS components, rad/s.
-    pub ref_rad_s: [f64; 3],
-    /// Magnetic induction, nT (zeros without field columns).
-    pub field_nt: [f64; 3],
-    /// Every column's value in file order.
-    pub values: &'a [f64],
-}
 
 /// Where a pass reads its samples.
 #[derive(Debug, Clone, Copy)]
@@ -87,21 +72,17 @@ impl Source<'_> {
         }
     }
 
-    /// Calls `f` with every sample in order, until it returns `false`. `f` may take the
-    /// sample's contents (swap it for another sample): each is filled whole.
-    fn for_each(
-        &self,
-        progress: Option<&ProgressBar>,
-        mut f: impl FnMut(&mut Sample) -> LabResult<bool>,
-    ) -> LabResult<()> {
-        let mut sample = Sample::default();
+    /// Calls `f` with the record of every sample in order ([`SampleRef`]), until it
+    /// returns `false`.
+    fn for_each(&self, progress: Option<&ProgressBar>, mut f: impl FnMut(&[f64]) -> LabResult<bool>) -> LabResult<()> {
+        let mut rec = Vec::new();
         match self {
             Source::File(p) => {
                 let mut rr = RowReader::open(p)?;
                 let mut conv = Converter::new(&rr.header().layout);
                 let mut rows = 0u64;
                 while let Some(row) = rr.next_row()? {
-                    if conv.convert(row, &mut sample) && !f(&mut sample)? {
+                    if conv.convert(row, &mut rec) && !f(&rec)? {
                         break;
                     }
                     rows += 1;
@@ -111,23 +92,16 @@ impl Source<'_> {
                 }
             }
             Source::Memory(s) => {
-                let n_fog = s.fogs.len();
                 let t = s.t_s();
                 for j in 0..s.len() {
-                    sample.rate_rad_s.resize(n_fog, 0.0);
-                    sample.t_degc.resize(n_fog, f64::NAN);
-                    sample.values.resize(s.cols.len(), 0.0);
-                    sample.t_s = t[j];
-                    for (i, fog) in s.fogs.iter().enumerate() {
-                        sample.rate_rad_s[i] = fog.rate_rad_s[j];
-                        sample.t_degc[i] = fog.t_degc.as_ref().map_or(f64::NAN, |c| c[j]);
-                    }
-                    sample.ref_rad_s = s.ref_rad_s[j];
-                    sample.field_nt = s.field_nt.as_ref().map_or([0.0; 3], |b| b[j]);
-                    for (v, c) in sample.values.iter_mut().zip(&s.cols) {
-                        *v = c[j];
-                    }
-                    if !f(&mut sample)? {
+                    rec.clear();
+                    rec.push(t[j]);
+                    rec.extend(s.fogs.iter().map(|fog| fog.rate_rad_s[j]));
+                    rec.extend(s.fogs.iter().map(|fog| fog.t_degc.as_ref().map_or(f64::NAN, |c| c[j])));
+                    rec.extend_from_slice(&s.ref_rad_s[j]);
+                    rec.extend_from_slice(&s.field_nt.as_ref().map_or([0.0; 3], |b| b[j]));
+                    rec.extend(s.cols.iter().map(|c| c[j]));
+                    if !f(&rec)? {
                         break;
                     }
                 }
@@ -663,8 +637,6 @@ struct Lookahead {
     records: Vec<f64>,
     /// f64 per record (0 before the first sample).
     rec: usize,
-    /// Columns of the samples' `values`.
-    n_values: usize,
     /// Times and temperatures (n_fog per sample) of global index `base ..`.
     times: Vec<f64>,
     temps: Vec<f64>,
@@ -694,7 +666,6 @@ impl Lookahead {
             n_fog,
             records: Vec::new(),
             rec: 0,
-            n_values: 0,
             times: Vec::new(),
             temps: Vec::new(),
             base: 0,
@@ -718,37 +689,22 @@ impl Lookahead {
         self.times[k - self.base]
     }
 
-    /// Holds a copy of `s`: its record is t, rate (n_fog), T (n_fog), ω_ref (3), B (3),
-    /// values (every column; all samples of a stream have as many).
-    fn push(&mut self, s: &Sample) {
+    /// Holds a copy of a sample's record ([`SampleRef`]; all records of a stream are as
+    /// long).
+    fn push(&mut self, r: &[f64]) {
         let n = self.n_fog;
         if self.rec == 0 {
-            self.n_values = s.values.len();
-            self.rec = 1 + 2 * n + 6 + self.n_values;
+            self.rec = r.len().max(record_len(n, 0));
         }
-        self.times.push(s.t_s);
-        self.temps.extend_from_slice(&s.t_degc[..n]);
-        self.records.push(s.t_s);
-        self.records.extend_from_slice(&s.rate_rad_s[..n]);
-        self.records.extend_from_slice(&s.t_degc[..n]);
-        self.records.extend_from_slice(&s.ref_rad_s);
-        self.records.extend_from_slice(&s.field_nt);
-        self.records.extend_from_slice(&s.values[..self.n_values]);
+        self.times.push(r[0]);
+        self.temps.extend_from_slice(&r[1 + n..1 + 2 * n]);
+        self.records.extend_from_slice(&r[..self.rec]);
     }
 
     /// Sample k, borrowed from its record.
     #[inline]
     fn load(records: &[f64], rec: usize, n: usize, k: usize) -> SampleRef<'_> {
-        let r = &records[k * rec..(k + 1) * rec];
-        let w = 1 + 2 * n;
-        SampleRef {
-            t_s: r[0],
-            rate_rad_s: &r[1..1 + n],
-            t_degc: &r[1 + n..w],
-            ref_rad_s: [r[w], r[w + 1], r[w + 2]],
-            field_nt: [r[w + 3], r[w + 4], r[w + 5]],
-            values: &r[w + 6..],
-        }
+        SampleRef::of_record(&records[k * rec..(k + 1) * rec], n)
     }
 
     #[inline]
@@ -863,8 +819,8 @@ pub fn for_each_prepared_until(
 ) -> LabResult<usize> {
     let mut la = Lookahead::new(n_fog, g_window_s);
     let mut g = |j: usize, s: &SampleRef, g: &[f64]| if j < limit { f(j, s, g) } else { Ok(()) };
-    source.for_each(progress, |s| {
-        la.push(s);
+    source.for_each(progress, |r| {
+        la.push(r);
         la.drain(false, &mut g)?;
         Ok(la.next < limit)
     })?;
@@ -1608,15 +1564,14 @@ impl Digest {
 pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
     let mut la = Lookahead::new(1, window_s);
     let mut out = Vec::with_capacity(t_s.len());
-    let mut s = Sample { rate_rad_s: vec![0.0], t_degc: vec![0.0], ..Sample::default() };
+    let mut rec = vec![0.0; record_len(1, 0)];
     let mut emit = |_: usize, _: &SampleRef, g: &[f64]| {
         out.push(g[0]);
         Ok(())
     };
     for (&t, &temp) in t_s.iter().zip(temp_degc) {
-        s.t_s = t;
-        s.t_degc[0] = temp;
-        la.push(&s);
+        (rec[0], rec[2]) = (t, temp);
+        la.push(&rec);
         let _ = la.drain(false, &mut emit);
     }
     let _ = la.drain(true, &mut emit);
