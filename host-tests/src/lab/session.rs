@@ -1436,7 +1436,11 @@ mod read_paths {
                 text.push_str(&format!("# {}\n\n", "x".repeat(3 * super::READ_CHUNK)));
             }
             let end = if k % 7 == 0 { "\r\n" } else { "\n" };
-            text.push_str(&format!("{t}, {:e},{:.4} ,1.75e-2,0,0{end}", 1e-5 * (k as f64).sin(), 25.0 + 1e-3 * k as f64));
+            text.push_str(&format!(
+                "{t}, {:e},{:.4} ,1.75e-2,0,0{end}",
+                1e-5 * (k as f64).sin(),
+                25.0 + 1e-3 * k as f64
+            ));
         }
         text.push_str("50.0,1e-5,25.1,1.75e-2,0,0");
         let dir = std::env::temp_dir().join(format!("ssis-read-paths-{}", std::process::id()));

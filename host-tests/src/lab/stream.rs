@@ -35,7 +35,6 @@ use super::{LabError, LabResult};
 /// Rows kept by default for plots, the spectral search and the ANOVA.
 pub const DEFAULT_KEEP: usize = 40_000;
 
-
 /// Where a pass reads its samples.
 #[derive(Debug, Clone, Copy)]
 pub enum Source<'a> {
@@ -414,6 +413,21 @@ impl Basis {
         for (a, &k) in self.gather.iter().enumerate() {
             put(a, table[usize::from(k) % TABLE_MAX]);
         }
+    }
+
+    /// The slots in the order the Gram sums take them ([`Gram::accumulate`]), and how many
+    /// come first that hold the same values for every FOG: in a batched pass, the
+    /// quantities of the sample (1, ω_ref, hours, B, user columns: every FOG's shift of them
+    /// is the same, the first row's value); otherwise none.
+    fn gram_order(&self) -> (Vec<usize>, usize) {
+        let shared = |k: u8| matches!(usize::from(k), 0..=3 | 6 | 12..=14) || usize::from(k) >= TABLE_FIXED;
+        if !self.batched() {
+            return ((0..self.m).collect(), 0);
+        }
+        let mut order: Vec<usize> = (0..self.m).filter(|&a| shared(self.gather[a])).collect();
+        let n = order.len();
+        order.extend((0..self.m).filter(|&a| !shared(self.gather[a])));
+        (order, n)
     }
 
     /// Whether a batch's columns can be computed from its staged quantities
@@ -862,34 +876,67 @@ impl Gram {
         )
     }
 
-    /// Adds the sums over a batch: `cols` holds m columns of [`BATCH`] values, [`COL`] apart (rows past
-    /// `rows` zero).
-    fn accumulate(&mut self, cols: &[f64], rows: usize) {
-        self.n += rows;
-        #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx2") {
-            // SAFETY: the CPU has AVX2 (checked above).
-            unsafe { gram_avx2(&mut self.upper, cols, self.m) };
-            return;
+    /// Adds one batch per FOG to that FOG's sums (`grams[f]`, batch `batches[f]`: m columns
+    /// of [`BATCH`] values, [`COL`] apart, rows past `rows` zero, then a column of zeros).
+    /// The slots `order[..shared]` hold the same values for every FOG (quantities of the
+    /// sample, not of a FOG: 1, ω_ref, hours, B, user columns): their entries are summed
+    /// once, from the first FOG, and added to every FOG's sums. Each entry is one dot
+    /// product ([`gram_entry`]), the same bits whichever entries are summed with it.
+    fn accumulate(grams: &mut [&mut Gram], batches: &[Vec<f64>], rows: usize, order: &[usize], shared: usize) {
+        let Some(m) = grams.first().map(|g| g.m) else { return };
+        // Per row of the triangle, in `order`: the other slots of its entries.
+        let mut bs: Vec<usize> = Vec::with_capacity(m + 3);
+        let mut vals = vec![0.0f64; m + 3];
+        let mut first_shared = vec![0.0f64; m * m];
+        for (f, (g, cols)) in grams.iter_mut().zip(batches).enumerate() {
+            g.n += rows;
+            for (i, &a) in order.iter().enumerate() {
+                bs.clear();
+                let from = if f > 0 && i < shared { shared } else { i };
+                bs.extend_from_slice(&order[from..]);
+                if f > 0 && i < shared {
+                    for &b in &order[i..shared] {
+                        let k = a.min(b) * m + a.max(b);
+                        g.upper[k] += first_shared[k];
+                    }
+                }
+                let n = bs.len();
+                // Groups of four: the last padded with the zero column (m).
+                while !bs.len().is_multiple_of(4) {
+                    bs.push(m);
+                }
+                gram_entries(cols, a, &bs, &mut vals[..bs.len()]);
+                for (&b, &v) in bs.iter().zip(&vals).take(n) {
+                    let k = a.min(b) * m + a.max(b);
+                    g.upper[k] += v;
+                    if f == 0 && i < shared {
+                        first_shared[k] = v;
+                    }
+                }
+            }
         }
-        gram_kernel(&mut self.upper, cols, self.m);
     }
 }
 
-/// Upper triangle of the batch's Gram added to `g`: each entry a dot product of two columns
-/// with eight interleaved partial sums added in a fixed order, so the result does not depend
-/// on the vector width the compiler uses (and no fused multiply-add changes the rounding).
-#[inline(always)]
-fn gram_kernel(g: &mut [f64], cols: &[f64], m: usize) {
-    for a in 0..m {
-        for b in a..m {
-            g[a * m + b] += gram_entry(cols, a, b);
-        }
+/// The dot products of column a with columns `bs` (a multiple of four of them) of a batch
+/// (columns of [`BATCH`] values, [`COL`] apart), into `out`.
+#[inline]
+fn gram_entries(cols: &[f64], a: usize, bs: &[usize], out: &mut [f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU has AVX2 (checked above).
+        unsafe { gram_entries_avx2(cols, a, bs, out) };
+        return;
+    }
+    for (o, &b) in out.iter_mut().zip(bs) {
+        *o = gram_entry(cols, a, b);
     }
 }
 
-/// One entry of [`gram_kernel`]: columns a and b, eight partial sums (partial sum l takes
-/// rows l, l + 8, ...), added pairwise.
+/// One entry of the Gram sums of a batch: columns a and b, eight partial sums (partial sum
+/// l takes rows l, l + 8, ...), added pairwise in a fixed order, so the result does not
+/// depend on the vector width the compiler uses (and no fused multiply-add changes the
+/// rounding).
 #[inline(always)]
 fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
     let (ca, cb) = (&cols[a * COL..a * COL + BATCH], &cols[b * COL..b * COL + BATCH]);
@@ -908,54 +955,46 @@ fn combine8(acc: &[f64; 8]) -> f64 {
     ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 
-/// [`gram_kernel`] with AVX2: four entries of a row of the triangle at a time (eight vector
-/// sums in flight instead of two, so the adds do not wait on each other); partial sums
-/// l = 0–3 and 4–7 of each entry in two vectors, separate multiply and add, the same
-/// operations in the same order as [`gram_entry`] (the same bits).
+/// [`gram_entries`] with AVX2: four entries at a time (eight vector sums in flight instead
+/// of two, so the adds do not wait on each other); partial sums l = 0–3 and 4–7 of each
+/// entry in two vectors, separate multiply and add, the same operations in the same order
+/// as [`gram_entry`] (the same bits).
 ///
 /// # Safety
 ///
-/// The CPU must have AVX2; `cols` holds m columns of [`BATCH`] values, [`COL`] apart, and `g` m × m.
+/// The CPU must have AVX2; `bs` a multiple of four columns, each (and a) in `cols`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn gram_avx2(g: &mut [f64], cols: &[f64], m: usize) {
+unsafe fn gram_entries_avx2(cols: &[f64], a: usize, bs: &[usize], out: &mut [f64]) {
     use std::arch::x86_64::{
         __m256d, _mm256_add_pd, _mm256_loadu_pd, _mm256_mul_pd, _mm256_setzero_pd, _mm256_storeu_pd,
     };
-    assert!(cols.len() >= m * COL && g.len() >= m * m);
-    for a in 0..m {
-        let ca = cols[a * COL..a * COL + BATCH].as_ptr();
-        let mut b = a;
-        while b + 4 <= m {
-            let cb = cols[b * COL..(b + 4) * COL].as_ptr();
-            let mut lo: [__m256d; 4] = [_mm256_setzero_pd(); 4];
-            let mut hi: [__m256d; 4] = [_mm256_setzero_pd(); 4];
-            for i in (0..BATCH).step_by(8) {
-                // SAFETY: i + 8 ≤ BATCH; column a and columns b..b + 4 are in `cols` (asserted).
-                let (xl, xh) = unsafe { (_mm256_loadu_pd(ca.add(i)), _mm256_loadu_pd(ca.add(i + 4))) };
-                for (k, (l, h)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
-                    // SAFETY: as above, k < 4.
-                    let (yl, yh) = unsafe {
-                        let q = cb.add(k * COL + i);
-                        (_mm256_loadu_pd(q), _mm256_loadu_pd(q.add(4)))
-                    };
-                    *l = _mm256_add_pd(*l, _mm256_mul_pd(xl, yl));
-                    *h = _mm256_add_pd(*h, _mm256_mul_pd(xh, yh));
-                }
+    let ca = &cols[a * COL..a * COL + BATCH];
+    for (group, out) in bs.chunks_exact(4).zip(out.chunks_exact_mut(4)) {
+        let cb: [&[f64]; 4] = [0, 1, 2, 3].map(|k| &cols[group[k] * COL..group[k] * COL + BATCH]);
+        let mut lo: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+        let mut hi: [__m256d; 4] = [_mm256_setzero_pd(); 4];
+        for i in (0..BATCH).step_by(8) {
+            // SAFETY: i + 8 ≤ BATCH, the length of every column slice.
+            let (xl, xh) = unsafe { (_mm256_loadu_pd(ca.as_ptr().add(i)), _mm256_loadu_pd(ca.as_ptr().add(i + 4))) };
+            for (k, (l, h)) in lo.iter_mut().zip(hi.iter_mut()).enumerate() {
+                // SAFETY: as above.
+                let (yl, yh) = unsafe {
+                    let q = cb[k].as_ptr().add(i);
+                    (_mm256_loadu_pd(q), _mm256_loadu_pd(q.add(4)))
+                };
+                *l = _mm256_add_pd(*l, _mm256_mul_pd(xl, yl));
+                *h = _mm256_add_pd(*h, _mm256_mul_pd(xh, yh));
             }
-            for (k, (l, h)) in lo.iter().zip(&hi).enumerate() {
-                let mut acc = [0.0f64; 8];
-                // SAFETY: `acc` has room for two vectors of four.
-                unsafe {
-                    _mm256_storeu_pd(acc.as_mut_ptr(), *l);
-                    _mm256_storeu_pd(acc.as_mut_ptr().add(4), *h);
-                }
-                g[a * m + b + k] += combine8(&acc);
-            }
-            b += 4;
         }
-        for b in b..m {
-            g[a * m + b] += gram_entry(cols, a, b);
+        for (o, (l, h)) in out.iter_mut().zip(lo.iter().zip(&hi)) {
+            let mut acc = [0.0f64; 8];
+            // SAFETY: `acc` has room for two vectors of four.
+            unsafe {
+                _mm256_storeu_pd(acc.as_mut_ptr(), *l);
+                _mm256_storeu_pd(acc.as_mut_ptr().add(4), *h);
+            }
+            *o = combine8(&acc);
         }
     }
 }
@@ -1338,8 +1377,10 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let mut shift: Vec<Vec<f64>> = Vec::new();
-    // Per FOG a batch of rows, column-major (m columns of BATCH values, COL apart) for the Gram sums.
-    let mut batch: Vec<Vec<f64>> = vec![vec![0.0; COL * m]; n_fog];
+    // Per FOG a batch of rows, column-major (m columns of BATCH values, COL apart) for the Gram sums,
+    // and a column of zeros after them (what pads the Gram sums' groups of four).
+    let mut batch: Vec<Vec<f64>> = vec![vec![0.0; COL * (m + 1)]; n_fog];
+    let (order, shared) = basis.gram_order();
     let (mut batch_rows, mut batch_block) = (0usize, 0usize);
     let mut z = vec![0.0; m];
     // Boxes of a few seconds, at most 8192 in a session (the memory is bounded).
@@ -1377,12 +1418,13 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             }
             kept_at.clear();
         }
-        for (b, g) in batch.iter_mut().zip(gram.iter_mut()) {
-            if rows < BATCH {
+        if rows < BATCH {
+            for b in batch.iter_mut() {
                 b.chunks_exact_mut(COL).for_each(|col| col[rows..BATCH].fill(0.0));
             }
-            g[block].accumulate(b, rows);
         }
+        let mut grams: Vec<&mut Gram> = gram.iter_mut().map(|g| &mut g[block]).collect();
+        Gram::accumulate(&mut grams, batch, rows, &order, shared);
         if let Some(t) = tracker {
             match t.out.segs.last_mut() {
                 None => {
