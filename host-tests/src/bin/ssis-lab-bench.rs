@@ -285,12 +285,15 @@ fn main() -> Result<()> {
             std::fs::write(&p, format!("{dg:#?}\n{f:#?}\n{ho:#?}\n{d1:#?}\n"))?;
         }
     }
+    let ingest = if cli.no_ingest {
+        "ingest not timed".to_string()
+    } else {
+        format!("ingest {:.0} MB/s (CPU: {:.0} MB/s)", mb / ingest_s, mb / ingest_cpu)
+    };
     println!(
         "compare + diagnose as two commands: {:.2} s (CPU {two_cpu:.2} s), in one pass: {one_pass_s:.2} s, CPU \
-         {one_pass_cpu:.2} s (goal <= 10 s on one core); ingest {:.0} MB/s (CPU: {:.0} MB/s)",
+         {one_pass_cpu:.2} s (goal <= 10 s on one core); {ingest}",
         compare_s + diagnose_s,
-        mb / ingest_s,
-        mb / ingest_cpu
     );
     Ok(())
 }

@@ -1,9 +1,10 @@
 //! Session files: CSV with a header naming each column and its unit (`docs/SESSION-FORMAT.md`).
 //!
-//! [`RowReader`] streams the file line by line through a fixed buffer (never read whole)
-//! and parses each number in place ([`parse_number`]: correctly rounded, so every value is
-//! the one `str::parse::<f64>` gives). [`Converter`] turns a row into a sample (rates from increments,
-//! the reference rate from the turntable geometry). The lab's passes over a session
+//! [`RowReader`] streams the file line by line, through a memory map of a regular file or a
+//! fixed buffer for anything else (never read whole into memory), and parses each number in
+//! place ([`parse_number`]: correctly rounded, so every value is the one `str::parse::<f64>`
+//! gives). [`Converter`] turns a row into a sample's flat record, read through
+//! [`SampleRef`] (rates from increments, the reference rate from the turntable geometry). The lab's passes over a session
 //! (`super::stream`) read it this way; [`read_session`] keeps it in memory as `f64` columns
 //! for the tools that want every row (replay, tests). Every refusal names the file, the line
 //! and, where there is one, the column (1-based, with its header name).
