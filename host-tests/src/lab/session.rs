@@ -1466,4 +1466,43 @@ mod read_paths {
         assert_eq!(read, mapped);
         let _ = std::fs::remove_dir_all(&dir);
     }
+
+    /// A session truncated by another program under the map: the reader's next page past
+    /// the new end raises SIGBUS, and the process stops with the plain message and status
+    /// 74 ([`super::on_sigbus`]). Run in a child process (this test binary again, with
+    /// `SSIS_SIGBUS_CHILD`), which opens a three-page session, truncates it to one page and
+    /// reads on: deterministic, the second page is gone before the reader reaches it.
+    #[test]
+    fn a_session_truncated_under_the_map_stops_with_a_plain_message() {
+        const NAME: &str = "lab::session::read_paths::a_session_truncated_under_the_map_stops_with_a_plain_message";
+        if let Some(path) = std::env::var_os("SSIS_SIGBUS_CHILD") {
+            let path = std::path::PathBuf::from(path);
+            let mut text = String::from("t_s,fog0_rad_s,fog0_t_degc,ref_x_rad_s,ref_y_rad_s,ref_z_rad_s\n");
+            let mut k = 1;
+            while text.len() < 3 * 4096 {
+                text.push_str(&format!("{}.0,1e-5,25.0,1.75e-2,0,0\n", k));
+                k += 1;
+            }
+            std::fs::write(&path, &text).expect("written");
+            let mut rr = RowReader::open(&path).expect("opens");
+            std::fs::OpenOptions::new().write(true).open(&path).expect("opens").set_len(4096).expect("truncated");
+            let mut rows = 0;
+            while let Ok(Some(_)) = rr.next_row() {
+                rows += 1;
+            }
+            // Not reached: the reader touches the second page first.
+            panic!("read {rows} rows past a truncation without SIGBUS");
+        }
+        let dir = std::env::temp_dir().join(format!("ssis-sigbus-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("a temporary directory");
+        let out = std::process::Command::new(std::env::current_exe().expect("the test binary"))
+            .args(["--exact", NAME, "--nocapture", "--test-threads=1"])
+            .env("SSIS_SIGBUS_CHILD", dir.join("s.csv"))
+            .output()
+            .expect("the child runs");
+        let _ = std::fs::remove_dir_all(&dir);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(74), "status {:?}, stderr: {stderr}", out.status);
+        assert!(stderr.contains("truncated by another program while it was being read"), "stderr: {stderr}");
+    }
 }
