@@ -172,9 +172,11 @@ fn main() -> Result<()> {
     let t = Clock::start();
     let mut rr = RowReader::open(&path)?;
     let (mut rows, mut check) = (0u64, 0.0);
-    while let (false, Some(r)) = (cli.no_ingest, rr.next_row()?) {
-        rows += 1;
-        check += r[1];
+    if !cli.no_ingest {
+        while let Some(r) = rr.next_row()? {
+            rows += 1;
+            check += r[1];
+        }
     }
     let (ingest_s, ingest_cpu) = t.read();
     if !cli.no_ingest {

@@ -1100,7 +1100,7 @@ impl RowReader {
 
 /// One sample of a session, in the model's quantities, borrowed from its flat record: t;
 /// the FOGs' rates (n); their temperatures (n); ω_ref (3); B (3); every column's value in
-/// file order ([`record_len`] f64 in all). A pass holds samples as records, one after
+/// file order ([`write_record`]). A pass holds samples as records, one after
 /// another in one array, and hands them out as views ([`SampleRef::of_record`]).
 #[derive(Debug, Clone, Copy)]
 pub struct SampleRef<'a> {
@@ -1118,9 +1118,25 @@ pub struct SampleRef<'a> {
     pub values: &'a [f64],
 }
 
-/// f64 in the record of a sample with `n_fog` FOGs and `n_values` columns.
-pub fn record_len(n_fog: usize, n_values: usize) -> usize {
-    1 + 2 * n_fog + 6 + n_values
+/// Writes the record of a sample to `rec` (its previous contents dropped): t, the FOGs'
+/// rates, their temperatures (as many), ω_ref, B, the columns ([`SampleRef::of_record`]
+/// reads it).
+pub fn write_record(
+    rec: &mut Vec<f64>,
+    t_s: f64,
+    rate_rad_s: impl IntoIterator<Item = f64>,
+    t_degc: impl IntoIterator<Item = f64>,
+    ref_rad_s: [f64; 3],
+    field_nt: [f64; 3],
+    values: impl IntoIterator<Item = f64>,
+) {
+    rec.clear();
+    rec.push(t_s);
+    rec.extend(rate_rad_s);
+    rec.extend(t_degc);
+    rec.extend_from_slice(&ref_rad_s);
+    rec.extend_from_slice(&field_nt);
+    rec.extend(values);
 }
 
 impl<'a> SampleRef<'a> {
@@ -1164,9 +1180,6 @@ impl Converter {
         if l.increments() && prev.is_none() {
             return false;
         }
-        rec.push(t);
-        rec.extend(l.fog.iter().map(|&(k, inc)| if inc { row[k] / (t - prev.unwrap_or(t)) } else { row[k] }));
-        rec.extend(l.fog_temp.iter().map(|c| c.map_or(f64::NAN, |c| row[c])));
         let w = match (l.reference, l.turntable) {
             (Some([x, y, z]), _) => [row[x], row[y], row[z]],
             (None, Some([psi, lat])) => {
@@ -1176,9 +1189,15 @@ impl Converter {
             }
             (None, None) => [0.0; 3],
         };
-        rec.extend_from_slice(&w);
-        rec.extend_from_slice(&l.field.map_or([0.0; 3], |[x, y, z]| [row[x], row[y], row[z]]));
-        rec.extend_from_slice(row);
+        write_record(
+            rec,
+            t,
+            l.fog.iter().map(|&(k, inc)| if inc { row[k] / (t - prev.unwrap_or(t)) } else { row[k] }),
+            l.fog_temp.iter().map(|c| c.map_or(f64::NAN, |c| row[c])),
+            w,
+            l.field.map_or([0.0; 3], |[x, y, z]| [row[x], row[y], row[z]]),
+            row.iter().copied(),
+        );
         true
     }
 

@@ -28,7 +28,7 @@ use nalgebra::DMatrix;
 
 use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
 use super::session::{
-    median_interval_s, nominal_axes, record_len, Converter, Header, RowReader, SampleRef, Session, Shape,
+    median_interval_s, nominal_axes, write_record, Converter, Header, RowReader, SampleRef, Session, Shape,
 };
 use super::{LabError, LabResult};
 
@@ -93,13 +93,15 @@ impl Source<'_> {
             Source::Memory(s) => {
                 let t = s.t_s();
                 for j in 0..s.len() {
-                    rec.clear();
-                    rec.push(t[j]);
-                    rec.extend(s.fogs.iter().map(|fog| fog.rate_rad_s[j]));
-                    rec.extend(s.fogs.iter().map(|fog| fog.t_degc.as_ref().map_or(f64::NAN, |c| c[j])));
-                    rec.extend_from_slice(&s.ref_rad_s[j]);
-                    rec.extend_from_slice(&s.field_nt.as_ref().map_or([0.0; 3], |b| b[j]));
-                    rec.extend(s.cols.iter().map(|c| c[j]));
+                    write_record(
+                        &mut rec,
+                        t[j],
+                        s.fogs.iter().map(|fog| fog.rate_rad_s[j]),
+                        s.fogs.iter().map(|fog| fog.t_degc.as_ref().map_or(f64::NAN, |c| c[j])),
+                        s.ref_rad_s[j],
+                        s.field_nt.as_ref().map_or([0.0; 3], |b| b[j]),
+                        s.cols.iter().map(|c| c[j]),
+                    );
                     if !f(&rec)? {
                         break;
                     }
@@ -333,7 +335,7 @@ impl Basis {
 
     /// Fills `z` (length m) for FOG `fog` from a sample and its G per FOG.
     pub fn fill(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], z: &mut [f64]) -> LabResult<()> {
-        if !self.gather.is_empty() {
+        if self.batched() {
             self.fill_from_table(fog, s, g_degc_s, z);
             return Ok(());
         }
@@ -374,13 +376,6 @@ impl Basis {
     /// same operations as the slot by slot fill, so the same values), each slot read from it.
     #[inline]
     fn fill_from_table(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], z: &mut [f64]) {
-        self.each_from_table(fog, s, g_degc_s, |a, v| z[a] = v);
-    }
-
-    /// The table of one FOG's quantities for a row ([`TABLE_FIXED`] and the bare columns),
-    /// and `put(a, value)` for every slot a.
-    #[inline(always)]
-    fn each_from_table(&self, fog: usize, s: &SampleRef, g_degc_s: &[f64], mut put: impl FnMut(usize, f64)) {
         let w = s.ref_rad_s;
         let a = self.axes[fog.min(3)];
         let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
@@ -410,8 +405,8 @@ impl Basis {
         for (x, &c) in table[TABLE_FIXED..].iter_mut().zip(&self.gather_cols) {
             *x = s.values[c];
         }
-        for (a, &k) in self.gather.iter().enumerate() {
-            put(a, table[usize::from(k) % TABLE_MAX]);
+        for (v, &k) in z.iter_mut().zip(&self.gather) {
+            *v = table[usize::from(k)];
         }
     }
 
@@ -439,19 +434,14 @@ impl Basis {
 
     /// [`Basis::fill`] minus `shift` for the first `rows` rows staged in `st`, written
     /// column-major to `cols` (slot a of row i at `cols[a * COL + i]`): a quantity at a time
-    /// over the rows, with the same operations in the same order as [`Basis::each_from_table`]
+    /// over the rows, with the same operations in the same order as [`Basis::fill_from_table`]
     /// (the same values), so the loops run on whole vectors of rows.
     fn fill_batch(&self, fog: usize, st: &Staged, rows: usize, shift: &[f64], cols: &mut [f64]) {
         let rows = rows.min(BATCH);
         let ax = self.axes[fog.min(3)];
-        let row = |v: &[f64], k: usize| -> [f64; BATCH] {
-            let mut x = [0.0; BATCH];
-            x[..rows].copy_from_slice(&v[k * BATCH..k * BATCH + rows]);
-            x
-        };
-        let (w0, w1, w2) = (row(&st.w, 0), row(&st.w, 1), row(&st.w, 2));
+        let (w0, w1, w2) = (&st.w[..rows], &st.w[BATCH..BATCH + rows], &st.w[2 * BATCH..2 * BATCH + rows]);
         let mut r = [0.0f64; BATCH];
-        for (r, ((x, y), z)) in r.iter_mut().zip(w0.iter().zip(&w1).zip(&w2)).take(rows) {
+        for (r, ((x, y), z)) in r.iter_mut().zip(w0.iter().zip(w1).zip(w2)) {
             *r = ax.x * x + ax.y * y + ax.z * z;
         }
         let (mut dt, mut g) = ([0.0f64; BATCH], [0.0f64; BATCH]);
@@ -708,7 +698,7 @@ impl Lookahead {
     fn push(&mut self, r: &[f64]) {
         let n = self.n_fog;
         if self.rec == 0 {
-            self.rec = r.len().max(record_len(n, 0));
+            self.rec = r.len();
         }
         self.times.push(r[0]);
         self.temps.extend_from_slice(&r[1 + n..1 + 2 * n]);
@@ -1606,13 +1596,13 @@ impl Digest {
 pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
     let mut la = Lookahead::new(1, window_s);
     let mut out = Vec::with_capacity(t_s.len());
-    let mut rec = vec![0.0; record_len(1, 0)];
+    let mut rec = Vec::new();
     let mut emit = |_: usize, _: &SampleRef, g: &[f64]| {
         out.push(g[0]);
         Ok(())
     };
     for (&t, &temp) in t_s.iter().zip(temp_degc) {
-        (rec[0], rec[2]) = (t, temp);
+        write_record(&mut rec, t, [0.0], [temp], [0.0; 3], [0.0; 3], []);
         la.push(&rec);
         let _ = la.drain(false, &mut emit);
     }
