@@ -1,4 +1,5 @@
-//! Compensation: raw FOG angle increment → compensated increment along its sensitive axis.
+//! Compensation: raw FOG angle increment and temperature → compensated increment along
+//! its sensitive axis.
 //!
 //! Inverts the per-FOG error model of [`crate::calib`]:
 //!
@@ -9,7 +10,9 @@
 //! The temperature rate G = dT/dt, which the paper found to be the dominant thermal
 //! factor, is estimated on board from the FOG's own temperature samples by a
 //! critically damped α-β tracker ([`TempRateEstimator`]); the 1/256 °C quantisation of
-//! the frame would make a raw difference useless (0.8 °C/s per LSB at 5 ms).
+//! the frame would make a raw difference useless (0.8 °C/s per LSB at 5 ms). The
+//! per-channel checks ([`crate::integrity::channel`]) judge each reading first; once a
+//! sensor has failed, [`Thermal`] holds the last estimate with G = 0.
 
 use crate::calib::FogCal;
 
@@ -32,6 +35,48 @@ pub fn compensate_increment(
 #[inline]
 pub fn compensate_rate(cal: &FogCal, rate_raw_rad_s: f64, temperature_degc: f64, t_rate_degc_s: f64) -> f64 {
     (rate_raw_rad_s - cal.drift_rad_s(temperature_degc, t_rate_degc_s)) / (1.0 + cal.scale_factor_error)
+}
+
+/// Temperature and its rate, as compensation uses them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Thermal {
+    /// Temperature T, °C.
+    pub t_degc: f64,
+    /// Temperature rate G = dT/dt, °C/s.
+    pub g_degc_s: f64,
+}
+
+/// One FOG's temperature stage: T and G from the readings the channel checks pass.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ThermalTracker {
+    estimator: TempRateEstimator,
+}
+
+impl ThermalTracker {
+    /// A tracker for samples every `dt_s` with time constant `tau_s`.
+    pub fn new(dt_s: f64, tau_s: f64) -> Self {
+        ThermalTracker { estimator: TempRateEstimator::new(dt_s, tau_s) }
+    }
+
+    /// The temperature predicted for a reading `dt_s` after the last one (`None` before
+    /// the first).
+    #[inline]
+    pub fn predicted_degc(&self, dt_s: f64) -> Option<f64> {
+        self.estimator.predicted(dt_s)
+    }
+
+    /// Feeds the sample's reading (`None`: the sensor is not trusted) and gives T and G
+    /// for compensation: the tracked values, or the held T with G = 0.
+    #[inline]
+    pub fn update(&mut self, reading_degc: Option<f64>, dt_s: f64) -> Thermal {
+        match reading_degc {
+            Some(t) => {
+                let (t_degc, g_degc_s) = self.estimator.update(t, dt_s);
+                Thermal { t_degc, g_degc_s }
+            }
+            None => Thermal { t_degc: self.estimator.estimate().0, g_degc_s: 0.0 },
+        }
+    }
 }
 
 /// α-β tracker of temperature T and its rate G = dT/dt.
@@ -70,20 +115,14 @@ impl TempRateEstimator {
         (self.t_degc, self.g_degc_s)
     }
 
-    /// [`TempRateEstimator::update`] unless the sample is further than `max_jump_degc`
-    /// from the prediction: then `None` and nothing changes (a failed sensor).
-    pub fn update_within(&mut self, temperature_degc: f64, dt_s: f64, max_jump_degc: f64) -> Option<(f64, f64)> {
-        if !self.started {
-            return Some(self.update(temperature_degc, dt_s));
+    /// The prediction for a sample `dt_s` after the last (`None` before the first).
+    #[inline]
+    pub fn predicted(&self, dt_s: f64) -> Option<f64> {
+        if self.started {
+            Some(self.t_degc + self.g_degc_s * dt_s)
+        } else {
+            None
         }
-        let predicted = self.t_degc + self.g_degc_s * dt_s;
-        let r = temperature_degc - predicted;
-        if r.abs() > max_jump_degc {
-            return None;
-        }
-        self.t_degc = predicted + self.alpha * r;
-        self.g_degc_s += self.beta_per_s * r;
-        Some((self.t_degc, self.g_degc_s))
     }
 
     /// Last (T, G) estimate.

@@ -8,13 +8,15 @@
 //!
 //! | stage | module | in → out |
 //! |---|---|---|
-//! | frames in | [`link`], [`frames`] | RS-422 bytes → [`frames::fog::FogFrame`], [`frames::star::StarFrame`] |
+//! | links, frames | [`link`], [`frames`] | RS-422 bytes → [`frames::fog::FogFrame`], [`frames::star::StarFrame`] |
+//! | intake | [`intake`] | frames → the FOG sample due (per FOG: frame or missing), star-tracker frames due; outage |
+//! | integrity, per channel | [`integrity::channel`] | FOG frame → stuck or not, temperature reading trusted or not |
 //! | compensation | [`compensation`] | raw angle increment, T, G → compensated increment per FOG |
-//! | integrity | [`integrity`] | per-channel checks, parity fault detection and isolation |
+//! | integrity, parity | [`integrity::parity`] | compensated increments → spike dropped, faulty FOG isolated |
 //! | combination | [`combination`] | 4 (or any 3) skewed axes → body increment + parity residual |
 //! | attitude | [`attitude`] | body increment → quaternion Λ (2ECS ← ICS), coning-corrected |
 //! | observer | [`observer`] | star-tracker Λ* → corrected Λ, drift estimate Δω (eq. 6) |
-//! | frames out | [`frames::output`] | state → framed output |
+//! | telemetry | [`telemetry`] | status bits, counters → output frame ([`frames::output`]) |
 //!
 //! The calibration table ([`calib`]) parameterises compensation, combination and the
 //! observer; it is the one definition shared with the simulator and the model lab.
@@ -31,8 +33,10 @@ pub mod combination;
 pub mod compensation;
 pub mod flight;
 pub mod frames;
+pub mod intake;
 pub mod integrity;
 pub mod link;
 pub mod math;
 pub mod nav;
 pub mod observer;
+pub mod telemetry;

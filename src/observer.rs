@@ -24,7 +24,7 @@
 //! The gains are per update: K_B dimensionless, K_U in 1/s. [`steady_state_gains`] gives
 //! the steady-state Kalman gains of the per-axis model (attitude error, drift) for stated
 //! noise figures (Farrenkopf 1978); a fixed-gain observer with these gains matches the
-//! Kalman filter in steady state (NOTES.md: 4 Hz → K = [0.0224, 1.24e-5 /s]).
+//! Kalman filter in steady state (4 Hz → K = [0.0224, 1.24e-5 /s]).
 
 use heapless::Deque;
 use nalgebra::{Quaternion, Vector3};
@@ -35,6 +35,15 @@ use crate::math;
 
 const ARCSEC_RAD: f64 = core::f64::consts::PI / 180.0 / 3600.0;
 const DEG_RAD: f64 = core::f64::consts::PI / 180.0;
+
+/// A star-tracker frame's mismatch, heard but not used ([`Observer::listen`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Mismatch {
+    /// Mismatch e, rad (ICS at the frame's time tag).
+    pub e_rad: Vector3<f64>,
+    /// Its expected variance per axis, rad².
+    pub var_rad2: f64,
+}
 
 /// Why gains could not be computed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -251,11 +260,6 @@ impl<const H: usize> Observer<H> {
         self.drift_rad_s
     }
 
-    /// Sets the drift estimate (e.g. from a previous run).
-    pub fn set_drift_rad_s(&mut self, d: Vector3<f64>) {
-        self.drift_rad_s = d;
-    }
-
     /// Whether the first star-tracker frame has aligned the attitude.
     pub fn aligned(&self) -> bool {
         self.aligned
@@ -421,12 +425,15 @@ impl<const H: usize> Observer<H> {
         time_us: u64,
         q_st: &Quaternion<f64>,
         mount: &Quaternion<f64>,
-    ) -> Result<(Vector3<f64>, f64), UpdateError> {
+    ) -> Result<Mismatch, UpdateError> {
         if !self.aligned {
             return Err(UpdateError::Future);
         }
         let (q_at, q_meas) = self.mismatch(time_us, q_st, mount)?;
-        Ok((math::rotvec_from_quat(&(q_at.conjugate() * q_meas)), self.mismatch_var_rad2(time_us)))
+        Ok(Mismatch {
+            e_rad: math::rotvec_from_quat(&(q_at.conjugate() * q_meas)),
+            var_rad2: self.mismatch_var_rad2(time_us),
+        })
     }
 
     /// One star-tracker update: `q_st` is Λ* of the star-tracker frame, `mount` q_bs.

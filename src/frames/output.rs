@@ -15,7 +15,7 @@
 //! | 62 | 1 | st_status | u8 | star-tracker status bits |
 //! | 63 | 14 | counters | 7 × u16 | see [`OutputCounters`] |
 //! | 77 | 1 | fdi | u8 | bits 0–3: FOG i flies on a held temperature (sensor failed); bits 4–7: FOG i isolated by the fault logic |
-//! | 78 | 1 | page_id | u8 | which counter `page_value` carries ([`page`]); cycles through all, one a frame |
+//! | 78 | 1 | page_id | u8 | which counter `page_value` carries (`crate::telemetry::page`); cycles through all, one a frame |
 //! | 79 | 2 | page_value | u16 | that counter, saturating |
 //! | 81 | 2 | crc | u16 | CRC16 over bytes 0..81 |
 //!
@@ -59,47 +59,6 @@ pub mod flags {
     pub const BIT_FAILED: u8 = 1 << 5;
     /// Parity alarm: a FOG is faulty and not yet isolated (the output is degraded).
     pub const FDI_ALARM: u8 = 1 << 6;
-}
-
-/// The counter page: `page_id` → counter. Ids 0..28 are per FOG (FOG i at 7·i + k,
-/// k as in [`page::FOG_REJECTED`]..[`page::FOG_SPIKES`]); then the unit's own.
-pub mod page {
-    /// Per-FOG: frames rejected (CRC, format, id).
-    pub const FOG_REJECTED: u8 = 0;
-    /// Per-FOG: samples missing (timeout).
-    pub const FOG_MISSING: u8 = 1;
-    /// Per-FOG: samples not finite or out of range.
-    pub const FOG_OUT_OF_RANGE: u8 = 2;
-    /// Per-FOG: samples refused as stuck.
-    pub const FOG_STUCK: u8 = 3;
-    /// Per-FOG: samples with the FOG's own fault bits.
-    pub const FOG_DEVICE_FAULT: u8 = 4;
-    /// Per-FOG: temperature sensor failures.
-    pub const FOG_TEMP_FAILURES: u8 = 5;
-    /// Per-FOG: samples dropped as parity spikes.
-    pub const FOG_SPIKES: u8 = 6;
-    /// Counters per FOG.
-    pub const PER_FOG: u8 = 7;
-    /// Parity alarms raised.
-    pub const FDI_ALARMS: u8 = 28;
-    /// Parity alarms that cleared without isolation.
-    pub const FDI_TRANSIENTS: u8 = 29;
-    /// FOGs isolated.
-    pub const FDI_ISOLATIONS: u8 = 30;
-    /// Star-tracker frames refused as frozen (the same quaternion again).
-    pub const ST_FROZEN: u8 = 31;
-    /// Star-tracker re-acquisitions.
-    pub const ST_REACQUIRED: u8 = 32;
-    /// Star-tracker outages begun.
-    pub const ST_OUTAGES: u8 = 33;
-    /// Link driver errors.
-    pub const IO_ERRORS: u8 = 34;
-    /// Output frames dropped.
-    pub const OUTPUT_DROPPED: u8 = 35;
-    /// FOG samples that came too late and were discarded.
-    pub const FOG_STALE: u8 = 36;
-    /// Page ids in the cycle.
-    pub const COUNT: u8 = 37;
 }
 
 /// The counters at the end of the output frame, in frame order (saturating u16 each).
@@ -184,7 +143,7 @@ pub struct OutputFrame {
     pub counters: OutputCounters,
     /// Fault-logic bits: FOG i on a held temperature (bit i), FOG i isolated (bit 4 + i).
     pub fdi: u8,
-    /// Which counter `page_value` carries ([`page`]; the sample index modulo [`page::COUNT`]).
+    /// Which counter `page_value` carries ([`crate::telemetry::page`]).
     pub page_id: u8,
     /// The paged counter.
     pub page_value: u16,

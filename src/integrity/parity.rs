@@ -1,4 +1,4 @@
-//! Parity fault detection and isolation over the four FOGs (issue 6 part 2).
+//! Parity fault detection and isolation over the four FOGs.
 //!
 //! With the calibrated axes as the rows of H (4×3) and v the unit parity vector
 //! (v H = 0, [`crate::combination`]), the parity residual of the compensated increments

@@ -1,0 +1,317 @@
+//! FOG intake: the FOG links (one per FOG or one bus) drained into per-FOG sample queues,
+//! and the unit's sample clock that decides which sample is integrated next.
+//!
+//! Unit time is the FOG sample clock: the FOGs are sampled on the unit's sync pulse and
+//! number their samples, so a sample's end is at index × Δt however its frames were
+//! delayed on the links. A sample still owed by a FOG that delivered the previous one is
+//! waited for up to [`MAX_WAIT_STEPS`] steps; then it is taken from the FOGs that have
+//! it, the others flagged missing.
+
+use heapless::Deque;
+
+use crate::calib::N_FOG;
+use crate::combination::FogSet;
+use crate::frames::decoder::StreamDecoder;
+use crate::frames::fog::FogFrame;
+use crate::link::{drain, RxLink};
+use crate::telemetry::{health, Counter, Counters, FogCounter};
+
+/// Receive bytes read per link per step at most (four FOG frames' worth).
+pub const MAX_RX_BYTES_PER_STEP: usize = 128;
+/// FOG samples a channel holds ahead of the step (absorbs jitter and late links).
+pub const FOG_QUEUE: usize = 8;
+/// Steps a sample is waited for when a FOG that delivered the previous one owes it.
+pub const MAX_WAIT_STEPS: u32 = 2;
+
+/// How the FOGs are wired.
+pub enum FogLinks<F> {
+    /// One link per FOG slot (FOG1..FOG4); frames must carry the slot's `fog_id`.
+    PerFog([F; N_FOG]),
+    /// One multi-drop (RS-485-style) bus carrying every FOG's frames, told apart by
+    /// their `fog_id`.
+    Bus(F),
+}
+
+/// What one FOG's queue gave for a sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Arrival {
+    /// Health bits so far ([`health::REJECTED`], [`health::COUNTER_GAP`], [`health::MISSING`]).
+    pub health: u8,
+    /// The sample's frame, `None` when it is missing.
+    pub frame: Option<FogFrame>,
+}
+
+/// One FOG's receive path: decoder and sample queue.
+struct FogChannel {
+    decoder: StreamDecoder<FogFrame, 32>,
+    queue: Deque<FogFrame, FOG_QUEUE>,
+    /// Decoder rejections already counted.
+    rejected_seen: u32,
+    /// Frames rejected (by the decoder, or for a wrong FOG id) since the last sample taken.
+    rejected_new: u32,
+}
+
+impl FogChannel {
+    fn new() -> Self {
+        FogChannel { decoder: StreamDecoder::new(), queue: Deque::new(), rejected_seen: 0, rejected_new: 0 }
+    }
+
+    /// Takes sample `target` from the queue (discarding older ones as stale, leaving a
+    /// newer one queued).
+    fn take(&mut self, i: usize, target: u16, counters: &mut Counters) -> Arrival {
+        let mut h = 0u8;
+        let new_rej = core::mem::take(&mut self.rejected_new);
+        if new_rej > 0 {
+            h |= health::REJECTED;
+            counters.add(Counter::FogFramesRejected, new_rej);
+            counters.add_fog(i, FogCounter::Rejected, new_rej);
+        }
+        let mut stale = 0u32;
+        let mut frame = None;
+        // Bounded by the queue length.
+        for _ in 0..FOG_QUEUE {
+            let Some(f) = self.queue.pop_front() else { break };
+            let age = target.wrapping_sub(f.counter);
+            if age == 0 {
+                frame = Some(f);
+                break;
+            }
+            if age >= 0x8000 {
+                // Newer than the target: it waits for its own step (room is certain: it
+                // was just taken out).
+                let _ = self.queue.push_front(f);
+                break;
+            }
+            stale += 1;
+        }
+        if stale > 0 {
+            h |= health::COUNTER_GAP;
+            counters.add(Counter::FogSamplesStale, stale);
+        }
+        if frame.is_none() {
+            counters.bump(Counter::FogSamplesMissing);
+            counters.bump_fog(i, FogCounter::Missing);
+            h |= health::MISSING;
+        }
+        Arrival { health: h, frame }
+    }
+}
+
+/// Where the unit is in the FOG sample sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct SampleClock {
+    /// Counter of the next sample to integrate (None before the first frame).
+    expected: Option<u16>,
+    /// Index of the last integrated sample since start (its end time is index × Δt).
+    index: u64,
+}
+
+/// The FOG intake stage.
+pub struct FogIntake {
+    fitted: FogSet,
+    channels: [FogChannel; N_FOG],
+    bus_decoder: StreamDecoder<FogFrame, 32>,
+    bus_rejected_seen: u32,
+    clock: SampleClock,
+    /// FOGs that delivered the last sample taken.
+    last_present: FogSet,
+    /// Steps waited for the expected sample.
+    waited: u32,
+    /// Samples were lost before the next one taken.
+    gap: bool,
+}
+
+impl FogIntake {
+    /// An intake for the `fitted` FOGs; slots not fitted are never read.
+    pub fn new(fitted: FogSet) -> Self {
+        FogIntake {
+            fitted,
+            channels: [FogChannel::new(), FogChannel::new(), FogChannel::new(), FogChannel::new()],
+            bus_decoder: StreamDecoder::new(),
+            bus_rejected_seen: 0,
+            clock: SampleClock { expected: None, index: 0 },
+            last_present: fitted,
+            waited: 0,
+            gap: false,
+        }
+    }
+
+    /// Index of the last sample taken since start (its end time is index × Δt).
+    #[inline]
+    pub fn index(&self) -> u64 {
+        self.clock.index
+    }
+
+    /// End time of the last sample taken, µs: index × Δt. The product cannot overflow in
+    /// any flight (2^64 µs is 585,000 years), so it wraps instead of saturating (a 64-bit
+    /// saturating multiply costs a dozen instructions on the M7).
+    #[inline]
+    pub fn time_us(&self, dt_us: u32) -> u64 {
+        self.clock.index.wrapping_mul(u64::from(dt_us))
+    }
+
+    /// Whether the last sample taken had no FOG data at all (bridged).
+    #[inline]
+    pub fn bridged(&self) -> bool {
+        self.last_present.0 == 0
+    }
+
+    /// A sample was integrated: the wait starts over.
+    #[inline]
+    pub fn integrated(&mut self) {
+        self.waited = 0;
+    }
+
+    /// A step passed without a sample.
+    #[inline]
+    pub fn waited_a_step(&mut self) {
+        self.waited = self.waited.saturating_add(1);
+    }
+
+    /// Drains the FOG links (or the bus) into the per-FOG sample queues.
+    pub fn receive<F: RxLink>(&mut self, fog_links: &mut FogLinks<F>, scratch: &mut [u8], counters: &mut Counters) {
+        let fitted = self.fitted;
+        match fog_links {
+            FogLinks::PerFog(links) => {
+                for (i, (ch, link)) in self.channels.iter_mut().zip(links.iter_mut()).enumerate() {
+                    if !fitted.contains(i) {
+                        continue;
+                    }
+                    let FogChannel { decoder, queue, rejected_seen, rejected_new } = ch;
+                    let rep = drain(link, MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
+                        decoder.push_slice(bytes, |r| {
+                            if let Ok(f) = r {
+                                if usize::from(f.fog_id) == i {
+                                    enqueue(queue, f);
+                                } else {
+                                    *rejected_new = rejected_new.saturating_add(1);
+                                }
+                            }
+                        });
+                    });
+                    let total = decoder.stats().rejected();
+                    *rejected_new = rejected_new.saturating_add(total.saturating_sub(*rejected_seen));
+                    *rejected_seen = total;
+                    counters.add(Counter::IoErrors, rep.io_errors);
+                }
+            }
+            FogLinks::Bus(link) => {
+                let decoder = &mut self.bus_decoder;
+                let channels = &mut self.channels;
+                let rep = drain(link, N_FOG * MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
+                    decoder.push_slice(bytes, |r| {
+                        if let Ok(f) = r {
+                            let i = usize::from(f.fog_id);
+                            if let Some(ch) = channels.get_mut(i).filter(|_| fitted.contains(i)) {
+                                enqueue(&mut ch.queue, f);
+                            }
+                        }
+                    });
+                });
+                counters.add(Counter::IoErrors, rep.io_errors);
+                let rejected = self.bus_decoder.stats().rejected();
+                let new_rej = rejected.saturating_sub(self.bus_rejected_seen);
+                self.bus_rejected_seen = rejected;
+                counters.add(Counter::FogFramesRejected, new_rej);
+            }
+        }
+    }
+
+    /// Counter of the next sample to integrate now, or `None` to wait for it.
+    pub fn next_sample(&mut self, counters: &mut Counters) -> Option<u16> {
+        let fitted = self.fitted;
+        if self.waited < MAX_WAIT_STEPS && self.channels.iter().all(|ch| ch.queue.is_empty()) {
+            // Nothing queued (the usual case once this step's sample is taken).
+            return None;
+        }
+        let fogs = || self.channels.iter().enumerate().filter(move |(i, _)| fitted.contains(*i)).map(|(_, ch)| ch);
+        let Some(e) = self.clock.expected else {
+            // Before the first sample: start at the oldest one waiting, if any.
+            let first = fogs().filter_map(|ch| ch.queue.front().map(|f| f.counter)).min()?;
+            self.clock.index = u64::from(first).saturating_sub(1);
+            self.clock.expected = Some(first);
+            return Some(first);
+        };
+        // Per FOG: has sample e queued, has only newer ones (e lost), or has nothing yet.
+        // A FOG's frames arrive in counter order, so the first queued frame that is not
+        // older than e decides (older ones are discarded as stale by `take`).
+        let mut have = 0u8;
+        let mut past = 0u8;
+        let mut oldest_newer: Option<u16> = None;
+        for (i, ch) in self.channels.iter().enumerate() {
+            let bit = 1u8 << i;
+            if fitted.0 & bit == 0 {
+                continue;
+            }
+            let Some(front) = ch.queue.front() else { continue };
+            let mut ahead = front.counter.wrapping_sub(e);
+            if ahead >= 0x8000 {
+                // Stale frames first (rare): look past them.
+                match ch.queue.iter().map(|f| f.counter.wrapping_sub(e)).find(|&d| d < 0x8000) {
+                    Some(d) => ahead = d,
+                    None => continue,
+                }
+            }
+            if ahead == 0 {
+                have |= bit;
+            } else {
+                past |= bit;
+                if oldest_newer.is_none_or(|o| ahead < o.wrapping_sub(e)) {
+                    oldest_newer = Some(e.wrapping_add(ahead));
+                }
+            }
+        }
+        let owed = self.last_present.0 & fitted.0 & !(have | past);
+        if have == 0 && past != 0 && (owed == 0 || self.waited >= MAX_WAIT_STEPS) {
+            // Sample e was lost on every link: jump to the oldest newer one.
+            let o = oldest_newer?;
+            let lost = o.wrapping_sub(e);
+            counters.add(Counter::FogSamplesMissing, u32::from(lost).saturating_mul(fitted.count()));
+            self.clock.index = self.clock.index.saturating_add(u64::from(lost));
+            self.clock.expected = Some(o);
+            self.gap = true;
+            return Some(o);
+        }
+        if have != 0 && (owed == 0 || self.waited >= MAX_WAIT_STEPS) {
+            return Some(e);
+        }
+        if have == 0 && past == 0 && self.waited >= MAX_WAIT_STEPS {
+            // No FOG data at all: bridge this sample so time keeps moving.
+            return Some(e);
+        }
+        None
+    }
+
+    /// Starts taking sample `target`: advances the clock; returns the health bits every
+    /// FOG carries for it ([`health::COUNTER_GAP`] after lost samples).
+    #[inline]
+    pub fn begin(&mut self, target: u16) -> u8 {
+        let gap = if core::mem::take(&mut self.gap) { health::COUNTER_GAP } else { 0 };
+        self.clock.index = self.clock.index.saturating_add(1);
+        self.clock.expected = Some(target.wrapping_add(1));
+        gap
+    }
+
+    /// Takes sample `target` from FOG `i`'s queue (see [`FogIntake::begin`]).
+    #[inline]
+    pub fn take(&mut self, i: usize, target: u16, counters: &mut Counters) -> Arrival {
+        match self.channels.get_mut(i) {
+            Some(ch) => ch.take(i, target, counters),
+            None => Arrival { health: health::MISSING, frame: None },
+        }
+    }
+
+    /// Ends taking a sample: the FOGs that delivered it.
+    #[inline]
+    pub fn end(&mut self, present: FogSet) {
+        self.last_present = present;
+    }
+}
+
+/// Queues a FOG sample; a full queue drops its oldest (late backlog).
+fn enqueue(queue: &mut Deque<FogFrame, FOG_QUEUE>, f: FogFrame) {
+    if queue.is_full() {
+        let _ = queue.pop_front();
+    }
+    let _ = queue.push_back(f);
+}

@@ -1,0 +1,225 @@
+//! The unit's counters, declared once.
+//!
+//! [`declare_counters!`] below is the one list of what the unit counts. From it come the
+//! [`Counter`] and [`FogCounter`] enums, the [`Counters`] and [`FogCounters`] storage
+//! (named fields, saturating), the output frame's counter page ([`page`]) and the page
+//! table of `docs/ICD.md` ([`write_page_table`]; a host test compares the two).
+//!
+//! Every count goes through [`Counters::add`] / [`FogCounters::add`] (or `bump`).
+
+use crate::calib::N_FOG;
+
+macro_rules! declare_counters {
+    (
+        fog { $( $fvar:ident $ffield:ident $fdesc:literal, )* }
+        unit { $( $uvar:ident $ufield:ident $udesc:literal, )* }
+        paged [ $( $pvar:ident, )* ]
+    ) => {
+        /// A per-FOG counter (one of each per FOG slot).
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub enum FogCounter {
+            $( #[doc = $fdesc] $fvar, )*
+        }
+
+        impl FogCounter {
+            /// Every per-FOG counter, in page order.
+            pub const ALL: &'static [FogCounter] = &[$( FogCounter::$fvar, )*];
+
+            /// What the counter counts (the page table's text).
+            pub const fn describe(self) -> &'static str {
+                match self {
+                    $( FogCounter::$fvar => $fdesc, )*
+                }
+            }
+        }
+
+        /// One FOG's counters (saturating).
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        pub struct FogCounters {
+            $( #[doc = $fdesc] pub $ffield: u32, )*
+        }
+
+        impl FogCounters {
+            /// Adds `n` to counter `c`, saturating.
+            #[inline]
+            pub fn add(&mut self, c: FogCounter, n: u32) {
+                let v = match c {
+                    $( FogCounter::$fvar => &mut self.$ffield, )*
+                };
+                *v = v.saturating_add(n);
+            }
+
+            /// Counter `c`.
+            #[inline]
+            pub fn get(&self, c: FogCounter) -> u32 {
+                match c {
+                    $( FogCounter::$fvar => self.$ffield, )*
+                }
+            }
+        }
+
+        /// A counter of the unit as a whole.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub enum Counter {
+            $( #[doc = $udesc] $uvar, )*
+        }
+
+        impl Counter {
+            /// Every unit counter, in declaration order.
+            pub const ALL: &'static [Counter] = &[$( Counter::$uvar, )*];
+
+            /// What the counter counts (the page table's text).
+            pub const fn describe(self) -> &'static str {
+                match self {
+                    $( Counter::$uvar => $udesc, )*
+                }
+            }
+        }
+
+        /// The unit's counters (saturating), per FOG in [`Counters::fog`].
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        pub struct Counters {
+            $( #[doc = $udesc] pub $ufield: u32, )*
+            /// Per FOG slot.
+            pub fog: [FogCounters; N_FOG],
+        }
+
+        impl Counters {
+            /// Adds `n` to counter `c`, saturating.
+            #[inline]
+            pub fn add(&mut self, c: Counter, n: u32) {
+                let v = match c {
+                    $( Counter::$uvar => &mut self.$ufield, )*
+                };
+                *v = v.saturating_add(n);
+            }
+
+            /// Counter `c`.
+            #[inline]
+            pub fn get(&self, c: Counter) -> u32 {
+                match c {
+                    $( Counter::$uvar => self.$ufield, )*
+                }
+            }
+        }
+
+        /// The unit counters the page carries after the per-FOG ones, in page order.
+        pub const PAGED: &[Counter] = &[$( Counter::$pvar, )*];
+    };
+}
+
+declare_counters! {
+    fog {
+        Rejected rejected "frames rejected (CRC, format, wrong id)",
+        Missing missing "samples missing (not there in time)",
+        OutOfRange out_of_range "samples not finite or outside the measuring range",
+        Stuck stuck "samples refused as stuck",
+        DeviceFault device_fault "samples with the FOG's own fault bits (light source, loop lock)",
+        TempFailures temp_failures "temperature sensor failures (reported, out of −60…+100 °C, or a jump of more than 3 °C)",
+        Spikes spikes "samples dropped as parity spikes",
+    }
+    unit {
+        FogFramesRejected fog_frames_rejected "FOG frames rejected by the decoders (all FOGs)",
+        FogSamplesMissing fog_samples_missing "FOG samples that did not arrive in time (all FOGs)",
+        StFramesAccepted st_frames_accepted "star-tracker frames that updated the observer",
+        StFramesRejected st_frames_rejected "star-tracker frames rejected (decoder, invalid flag, stale, too far ahead)",
+        StUpdatesGated st_updates_gated "star-tracker frames refused by the observer's gate",
+        Overruns overruns "steps that overran their deadline (reported by the board)",
+        FdiAlarms fdi_alarms "parity alarms raised",
+        FdiTransients fdi_transients "parity alarms that cleared without isolation (transients)",
+        FdiIsolations fdi_isolations "FOGs isolated",
+        StFrozen st_frozen "star-tracker frames refused as frozen",
+        StReacquired st_reacquired "star-tracker re-acquisitions",
+        StOutages st_outages "star-tracker outages begun",
+        IoErrors io_errors "link driver errors",
+        OutputDropped output_dropped "output frames dropped",
+        FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
+    }
+    paged [
+        FdiAlarms,
+        FdiTransients,
+        FdiIsolations,
+        StFrozen,
+        StReacquired,
+        StOutages,
+        IoErrors,
+        OutputDropped,
+        FogSamplesStale,
+    ]
+}
+
+impl Counters {
+    /// Adds one to counter `c`, saturating.
+    #[inline]
+    pub fn bump(&mut self, c: Counter) {
+        self.add(c, 1);
+    }
+
+    /// Adds `n` to FOG slot `i`'s counter `c`, saturating.
+    #[inline]
+    pub fn add_fog(&mut self, i: usize, c: FogCounter, n: u32) {
+        if let Some(f) = self.fog.get_mut(i) {
+            f.add(c, n);
+        }
+    }
+
+    /// Adds one to FOG slot `i`'s counter `c`, saturating.
+    #[inline]
+    pub fn bump_fog(&mut self, i: usize, c: FogCounter) {
+        self.add_fog(i, c, 1);
+    }
+}
+
+impl FogCounters {
+    /// Adds one to counter `c`, saturating.
+    #[inline]
+    pub fn bump(&mut self, c: FogCounter) {
+        self.add(c, 1);
+    }
+}
+
+/// The output frame's counter page: `page_id` → counter. Ids `0..FOG_PAGES` are per FOG
+/// (FOG i's counter k at `PER_FOG`·i + k, k in [`FogCounter::ALL`] order); then
+/// [`PAGED`] in order.
+pub mod page {
+    use super::{Counter, FogCounter, N_FOG, PAGED};
+
+    /// Counters per FOG.
+    pub const PER_FOG: u8 = FogCounter::ALL.len() as u8;
+    /// Page ids of the per-FOG counters.
+    pub const FOG_PAGES: u8 = PER_FOG * N_FOG as u8;
+    /// Page ids in the cycle.
+    pub const COUNT: u8 = FOG_PAGES + PAGED.len() as u8;
+
+    /// What one page id carries.
+    #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+    pub enum Entry {
+        /// Counter of FOG slot `.0` (0-based).
+        Fog(usize, FogCounter),
+        /// A unit counter.
+        Unit(Counter),
+    }
+
+    /// The counter page `id` carries (`None` past [`COUNT`]).
+    #[inline]
+    pub fn entry(id: u8) -> Option<Entry> {
+        if id < FOG_PAGES {
+            let c = FogCounter::ALL.get(usize::from(id % PER_FOG))?;
+            return Some(Entry::Fog(usize::from(id / PER_FOG), *c));
+        }
+        PAGED.get(usize::from(id - FOG_PAGES)).map(|c| Entry::Unit(*c))
+    }
+}
+
+/// Writes the counter page table of `docs/ICD.md` (markdown rows `| id | counter |`).
+pub fn write_page_table(w: &mut impl core::fmt::Write) -> core::fmt::Result {
+    writeln!(w, "| id | counter |")?;
+    writeln!(w, "|---|---|")?;
+    for (k, c) in FogCounter::ALL.iter().enumerate() {
+        writeln!(w, "| {}·i + {} | {} |", page::PER_FOG, k, c.describe())?;
+    }
+    for (k, c) in PAGED.iter().enumerate() {
+        writeln!(w, "| {} | {} |", usize::from(page::FOG_PAGES) + k, c.describe())?;
+    }
+    Ok(())
+}
