@@ -137,28 +137,32 @@ struct Sample {
 }
 
 /// The flight core: all state of one unit, stage by stage.
+///
+/// `repr(C)` in this order: the state every step touches first, the large stages last,
+/// so the hot fields sit within the M7's short load offsets of one base address.
+#[repr(C)]
 pub struct FlightCore {
     profile: Profile,
-    table: CalibrationTable,
-    /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
-    fixed_flags: u8,
-    /// Chunk buffer for draining the links (kept, so a step does not clear one).
-    rx_scratch: WordAligned<RX_CHUNK>,
-    fog_intake: FogIntake,
-    star_intake: StarIntake,
-    channel_monitors: [ChannelMonitor; N_FOG],
-    thermal: [ThermalTracker; N_FOG],
-    /// Parity fault logic (`None` without four FOGs).
-    fdi: Option<ParityMonitor>,
-    /// FOGs whose temperature sensor has failed (bit i).
-    temp_failed_bits: u8,
-    combiner: Combiner,
     last_body_dtheta: Vector3<f64>,
     attitude: Attitude,
     mount: Quaternion<f64>,
-    observer: Observer<HISTORY>,
+    thermal: [ThermalTracker; N_FOG],
+    channel_monitors: [ChannelMonitor; N_FOG],
     telemetry: Telemetry,
     last_output: StepOutput,
+    /// Chunk buffer for draining the links (kept, so a step does not clear one).
+    rx_scratch: WordAligned<RX_CHUNK>,
+    fog_intake: FogIntake,
+    table: CalibrationTable,
+    combiner: Combiner,
+    /// Parity fault logic (`None` without four FOGs).
+    fdi: Option<ParityMonitor>,
+    star_intake: StarIntake,
+    /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
+    fixed_flags: u8,
+    /// FOGs whose temperature sensor has failed (bit i).
+    temp_failed_bits: u8,
+    observer: Observer<HISTORY>,
 }
 
 impl FlightCore {
