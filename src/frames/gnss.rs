@@ -21,7 +21,20 @@
 use nalgebra::Vector3;
 
 use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
-use crate::nav::gnss::GnssFix;
+
+/// One GNSS position/velocity fix, ECEF, the physical content of a
+/// [`GnssFrame`]; the navigation applies it after the step it is valid at the end of.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssFix {
+    /// Position, m.
+    pub r_e_m: Vector3<f64>,
+    /// Velocity, m/s.
+    pub v_e_m_s: Vector3<f64>,
+    /// Position standard deviation per axis, m.
+    pub sigma_pos_m: f64,
+    /// Velocity standard deviation per axis, m/s.
+    pub sigma_vel_m_s: f64,
+}
 
 /// Length of a GNSS frame in bytes.
 pub const FRAME_LEN: usize = 45;

@@ -34,6 +34,7 @@
 use nalgebra::{Cholesky, Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::{wgs84, Corrections, NavError, NavState, Strapdown};
+pub use crate::frames::gnss::GnssFix;
 use crate::math;
 
 /// Error-state dimension.
@@ -43,20 +44,6 @@ pub const PROPAGATE_STEPS: u32 = 80;
 
 type MatX = SMatrix<f64, N_X, N_X>;
 type VecX = SVector<f64, N_X>;
-
-/// One GNSS position/velocity fix, ECEF, valid at the end of the navigation step it is
-/// applied after.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct GnssFix {
-    /// Position, m.
-    pub r_e_m: Vector3<f64>,
-    /// Velocity, m/s.
-    pub v_e_m_s: Vector3<f64>,
-    /// Position standard deviation per axis, m.
-    pub sigma_pos_m: f64,
-    /// Velocity standard deviation per axis, m/s.
-    pub sigma_vel_m_s: f64,
-}
 
 /// Filter tuning (1σ initial uncertainties and noise densities).
 #[derive(Debug, Clone, Copy, PartialEq)]
