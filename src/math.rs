@@ -6,7 +6,7 @@
 
 use nalgebra::{Quaternion, Vector3};
 
-/// Square root (libm: no hardware VSQRT is assumed here; see NOTES.md).
+/// Square root (libm: no hardware VSQRT is assumed here).
 #[inline]
 pub fn sqrt(x: f64) -> f64 {
     libm::sqrt(x)

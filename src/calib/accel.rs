@@ -68,13 +68,6 @@ impl AccelCal {
     pub fn scale_at(&self, temperature_degc: f64) -> f64 {
         1.0 + self.scale_factor_error + self.scale_thermal_per_degc * (temperature_degc - self.t_ref_degc)
     }
-
-    /// The model: raw specific force for the true input a along the sensitive axis, m/s².
-    pub fn raw_from_true_m_s2(&self, a_m_s2: f64, temperature_degc: f64) -> f64 {
-        self.scale_at(temperature_degc) * a_m_s2
-            + self.k2_per_m_s2 * a_m_s2 * a_m_s2
-            + self.bias_at_m_s2(temperature_degc)
-    }
 }
 
 /// Sensitive-axis misalignment of the three accelerometers, rad (small angles, see the

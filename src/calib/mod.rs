@@ -179,7 +179,7 @@ pub struct ObserverConfig {
 
 impl ObserverConfig {
     /// The paper's sensors: ARW 0.005 °/√h, 20″ (3σ) star tracker at 4 Hz, and an assumed
-    /// rate random walk of 0.01 °/h/√h (NOTES.md).
+    /// rate random walk of 0.01 °/h/√h.
     pub const PAPER: ObserverConfig = ObserverConfig {
         arw_deg_sqrt_h: 0.005,
         rrw_deg_h_sqrt_h: 0.01,

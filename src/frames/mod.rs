@@ -13,7 +13,7 @@
 //! - the frames: [`fog::FogFrame`] (16 bytes), [`accel::AccelFrame`] (16 bytes),
 //!   [`star::StarFrame`] (32 bytes), [`gnss::GnssFrame`] (45 bytes),
 //!   [`navout::NavOutputFrame`] (64 bytes),
-//!   [`output::OutputFrame`] (79 bytes), each with raw-count fields, physical-unit
+//!   [`output::OutputFrame`] (83 bytes), each with raw-count fields, physical-unit
 //!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
 //! - [`decoder::StreamDecoder`]: a fixed-capacity byte-stream decoder that hunts for
 //!   sync, checks kind, CRC and fields, counts every rejection and resynchronises inside
