@@ -250,36 +250,29 @@ impl Frame for OutputFrame {
     }
 
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError> {
-        let flags = r.u8()?;
-        let counter = r.u16()?;
-        let time_us = r.u64()?;
-        let q_counts = [r.i32()?, r.i32()?, r.i32()?, r.i32()?];
-        let rate_counts = [r.i32()?, r.i32()?, r.i32()?];
-        let drift_counts = [r.i32()?, r.i32()?, r.i32()?];
-        let parity_counts = r.i32()?;
-        let fog_health = r.bytes::<FOG_SLOTS>()?;
-        let st_status = r.u8()?;
-        let mut c = [0u16; N_COUNTERS];
-        for v in c.iter_mut() {
-            *v = r.u16()?;
-        }
-        let fdi = r.u8()?;
-        let page_id = r.u8()?;
-        let page_value = r.u16()?;
+        // Fields are read in the order written, which is the frame's order.
         Ok(OutputFrame {
-            flags,
-            counter,
-            time_us,
-            q_counts,
-            rate_counts,
-            drift_counts,
-            parity_counts,
-            fog_health,
-            st_status,
-            counters: OutputCounters::from_array(c),
-            fdi,
-            page_id,
-            page_value,
+            flags: r.u8()?,
+            counter: r.u16()?,
+            time_us: r.u64()?,
+            q_counts: [r.i32()?, r.i32()?, r.i32()?, r.i32()?],
+            rate_counts: [r.i32()?, r.i32()?, r.i32()?],
+            drift_counts: [r.i32()?, r.i32()?, r.i32()?],
+            parity_counts: r.i32()?,
+            fog_health: r.bytes::<FOG_SLOTS>()?,
+            st_status: r.u8()?,
+            counters: OutputCounters::from_array([
+                r.u16()?,
+                r.u16()?,
+                r.u16()?,
+                r.u16()?,
+                r.u16()?,
+                r.u16()?,
+                r.u16()?,
+            ]),
+            fdi: r.u8()?,
+            page_id: r.u8()?,
+            page_value: r.u16()?,
         })
     }
 }
