@@ -9,98 +9,84 @@
 
 use crate::calib::N_FOG;
 
+/// One set of counters: the enum naming them, its storage with one named field per
+/// counter (plus `$extra` fields), `add` and `get`.
+macro_rules! counter_set {
+    (
+        $(#[doc = $edoc:literal])* enum $enum:ident;
+        $(#[doc = $sdoc:literal])* struct $store:ident { $( $(#[doc = $xdoc:literal])* $xfield:ident: $xty:ty, )* }
+        $( $var:ident $field:ident $desc:literal, )*
+    ) => {
+        $(#[doc = $edoc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+        pub enum $enum {
+            $( #[doc = $desc] $var, )*
+        }
+
+        impl $enum {
+            /// Every counter of the set, in declaration order.
+            pub const ALL: &'static [$enum] = &[$( $enum::$var, )*];
+
+            /// What the counter counts (the page table's text).
+            pub const fn describe(self) -> &'static str {
+                match self {
+                    $( $enum::$var => $desc, )*
+                }
+            }
+        }
+
+        $(#[doc = $sdoc])*
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        pub struct $store {
+            $( #[doc = $desc] pub $field: u32, )*
+            $( $(#[doc = $xdoc])* pub $xfield: $xty, )*
+        }
+
+        impl $store {
+            /// Adds `n` to counter `c`, saturating.
+            #[inline]
+            pub fn add(&mut self, c: $enum, n: u32) {
+                let v = match c {
+                    $( $enum::$var => &mut self.$field, )*
+                };
+                *v = v.saturating_add(n);
+            }
+
+            /// Counter `c`.
+            #[inline]
+            pub fn get(&self, c: $enum) -> u32 {
+                match c {
+                    $( $enum::$var => self.$field, )*
+                }
+            }
+        }
+    };
+}
+
+/// The unit's counters: per FOG, for the unit, and which unit counters the page carries.
 macro_rules! declare_counters {
     (
         fog { $( $fvar:ident $ffield:ident $fdesc:literal, )* }
         unit { $( $uvar:ident $ufield:ident $udesc:literal, )* }
         paged [ $( $pvar:ident, )* ]
     ) => {
-        /// A per-FOG counter (one of each per FOG slot).
-        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-        pub enum FogCounter {
-            $( #[doc = $fdesc] $fvar, )*
+        counter_set! {
+            /// A per-FOG counter (one of each per FOG slot).
+            enum FogCounter;
+            /// One FOG's counters (saturating).
+            struct FogCounters {}
+            $( $fvar $ffield $fdesc, )*
         }
 
-        impl FogCounter {
-            /// Every per-FOG counter, in page order.
-            pub const ALL: &'static [FogCounter] = &[$( FogCounter::$fvar, )*];
-
-            /// What the counter counts (the page table's text).
-            pub const fn describe(self) -> &'static str {
-                match self {
-                    $( FogCounter::$fvar => $fdesc, )*
-                }
+        counter_set! {
+            /// A counter of the unit as a whole.
+            enum Counter;
+            /// The unit's counters (saturating), per FOG in [`Counters::fog`].
+            struct Counters {
+                /// Per FOG slot.
+                fog: [FogCounters; N_FOG],
             }
-        }
-
-        /// One FOG's counters (saturating).
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-        pub struct FogCounters {
-            $( #[doc = $fdesc] pub $ffield: u32, )*
-        }
-
-        impl FogCounters {
-            /// Adds `n` to counter `c`, saturating.
-            #[inline]
-            pub fn add(&mut self, c: FogCounter, n: u32) {
-                let v = match c {
-                    $( FogCounter::$fvar => &mut self.$ffield, )*
-                };
-                *v = v.saturating_add(n);
-            }
-
-            /// Counter `c`.
-            #[inline]
-            pub fn get(&self, c: FogCounter) -> u32 {
-                match c {
-                    $( FogCounter::$fvar => self.$ffield, )*
-                }
-            }
-        }
-
-        /// A counter of the unit as a whole.
-        #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-        pub enum Counter {
-            $( #[doc = $udesc] $uvar, )*
-        }
-
-        impl Counter {
-            /// Every unit counter, in declaration order.
-            pub const ALL: &'static [Counter] = &[$( Counter::$uvar, )*];
-
-            /// What the counter counts (the page table's text).
-            pub const fn describe(self) -> &'static str {
-                match self {
-                    $( Counter::$uvar => $udesc, )*
-                }
-            }
-        }
-
-        /// The unit's counters (saturating), per FOG in [`Counters::fog`].
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-        pub struct Counters {
-            $( #[doc = $udesc] pub $ufield: u32, )*
-            /// Per FOG slot.
-            pub fog: [FogCounters; N_FOG],
-        }
-
-        impl Counters {
-            /// Adds `n` to counter `c`, saturating.
-            #[inline]
-            pub fn add(&mut self, c: Counter, n: u32) {
-                let v = match c {
-                    $( Counter::$uvar => &mut self.$ufield, )*
-                };
-                *v = v.saturating_add(n);
-            }
-
-            /// Counter `c`.
-            #[inline]
-            pub fn get(&self, c: Counter) -> u32 {
-                match c {
-                    $( Counter::$uvar => self.$ufield, )*
-                }
-            }
+            $( $uvar $ufield $udesc, )*
         }
 
         /// The unit counters the page carries after the per-FOG ones, in page order.
