@@ -70,11 +70,8 @@ impl ThermalTracker {
     #[inline]
     pub fn update(&mut self, reading_degc: Option<f64>, dt_s: f64) -> Thermal {
         match reading_degc {
-            Some(t) => {
-                let (t_degc, g_degc_s) = self.estimator.update(t, dt_s);
-                Thermal { t_degc, g_degc_s }
-            }
-            None => Thermal { t_degc: self.estimator.estimate().0, g_degc_s: 0.0 },
+            Some(t) => self.estimator.update(t, dt_s),
+            None => Thermal { t_degc: self.estimator.estimate().t_degc, g_degc_s: 0.0 },
         }
     }
 }
@@ -100,8 +97,8 @@ impl TempRateEstimator {
         TempRateEstimator { t_degc: 0.0, g_degc_s: 0.0, alpha: 2.0 * r, beta_per_s: r * r / dt_s, started: false }
     }
 
-    /// Feeds one temperature sample taken `dt_s` after the previous one; returns (T, G).
-    pub fn update(&mut self, temperature_degc: f64, dt_s: f64) -> (f64, f64) {
+    /// Feeds one temperature sample taken `dt_s` after the previous one; returns T and G.
+    pub fn update(&mut self, temperature_degc: f64, dt_s: f64) -> Thermal {
         if !self.started {
             self.t_degc = temperature_degc;
             self.g_degc_s = 0.0;
@@ -112,7 +109,7 @@ impl TempRateEstimator {
             self.t_degc = predicted + self.alpha * r;
             self.g_degc_s += self.beta_per_s * r;
         }
-        (self.t_degc, self.g_degc_s)
+        self.estimate()
     }
 
     /// The prediction for a sample `dt_s` after the last (`None` before the first).
@@ -125,13 +122,8 @@ impl TempRateEstimator {
         }
     }
 
-    /// Last (T, G) estimate.
-    pub fn estimate(&self) -> (f64, f64) {
-        (self.t_degc, self.g_degc_s)
-    }
-
-    /// Whether a first sample has been taken.
-    pub fn started(&self) -> bool {
-        self.started
+    /// Last estimate of T and G.
+    pub fn estimate(&self) -> Thermal {
+        Thermal { t_degc: self.t_degc, g_degc_s: self.g_degc_s }
     }
 }

@@ -146,7 +146,7 @@ fn temperature_rate_estimator_tracks_a_ramp() {
     for k in 0..(600.0 / dt) as usize {
         let t = 20.0 + g_true * k as f64 * dt;
         let q = (t * 256.0).round() / 256.0;
-        let (_, g) = est.update(q, dt);
+        let g = est.update(q, dt).g_degc_s;
         if k as f64 * dt > 300.0 {
             worst = worst.max((g - g_true).abs());
         }

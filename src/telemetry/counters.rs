@@ -156,14 +156,6 @@ impl Counters {
     }
 }
 
-impl FogCounters {
-    /// Adds one to counter `c`, saturating.
-    #[inline]
-    pub fn bump(&mut self, c: FogCounter) {
-        self.add(c, 1);
-    }
-}
-
 /// The output frame's counter page: `page_id` → counter. Ids `0..FOG_PAGES` are per FOG
 /// (FOG i's counter k at `PER_FOG`·i + k, k in [`FogCounter::ALL`] order); then
 /// [`PAGED`] in order.
