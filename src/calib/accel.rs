@@ -6,7 +6,7 @@
 //! version 1, 464 bytes) is fixed by its tests and by stored tables, and the spacecraft
 //! unit has no accelerometers. `docs/CALIBRATION.md` describes the FOG table.
 //!
-//! Error model of accelerometer *i* (X, Y, Z), which [`AccelTable::compensate`] inverts
+//! Error model of accelerometer *i* (X, Y, Z), which [`AccelCompensator::compensate`] inverts
 //! and the simulator generates:
 //!
 //! ```text

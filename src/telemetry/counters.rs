@@ -1,6 +1,6 @@
 //! The unit's counters, declared once.
 //!
-//! [`declare_counters!`] below is the one list of what the unit counts. From it come the
+//! `declare_counters!` below is the one list of what the unit counts. From it come the
 //! [`Counter`] and [`FogCounter`] enums, the [`Counters`] and [`FogCounters`] storage
 //! (named fields, saturating), the output frame's counter page ([`page`]) and the page
 //! table of `docs/ICD.md` ([`write_page_table`]; a host test compares the two).
