@@ -23,7 +23,18 @@
 use nalgebra::{Quaternion, Vector3};
 
 use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
-use crate::nav::NavState;
+
+/// Navigation state at the end of a step (what [`NavOutputFrame`] carries; the
+/// navigation, `crate::nav`, computes it).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavState {
+    /// Attitude of the body frame in ECEF (unit quaternion).
+    pub q_eb: Quaternion<f64>,
+    /// Velocity relative to the Earth, ECEF components, m/s.
+    pub v_e_m_s: Vector3<f64>,
+    /// Position, ECEF, m.
+    pub r_e_m: Vector3<f64>,
+}
 
 /// Length of a navigation output frame in bytes.
 pub const FRAME_LEN: usize = 64;

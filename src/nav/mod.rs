@@ -54,6 +54,7 @@ pub mod wgs84;
 
 use nalgebra::{Quaternion, Vector3};
 
+pub use crate::frames::navout::NavState;
 use crate::math;
 
 /// Why a navigation step or initialisation was refused (the state is unchanged).
@@ -88,17 +89,6 @@ impl Corrections {
     pub const ALL: Corrections = Corrections { coning: true, rotation: true, sculling: true };
     /// None applied (first-order strapdown).
     pub const NONE: Corrections = Corrections { coning: false, rotation: false, sculling: false };
-}
-
-/// Navigation state at the end of a step.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NavState {
-    /// Attitude of the body frame in ECEF (unit quaternion).
-    pub q_eb: Quaternion<f64>,
-    /// Velocity relative to the Earth, ECEF components, m/s.
-    pub v_e_m_s: Vector3<f64>,
-    /// Position, ECEF, m.
-    pub r_e_m: Vector3<f64>,
 }
 
 /// The strapdown mechanisation (see the module documentation for the equations).
