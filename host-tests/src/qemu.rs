@@ -30,7 +30,7 @@ use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
 
-use crate::harness::{error_table, Evaluator, Observed, Record, Simulation, StepInput};
+use crate::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
 use crate::mock::{MockLink, MockSink};
 use crate::scenario::Scenario;
 use crate::stats::AxisStats;
@@ -95,16 +95,8 @@ pub struct QemuSummary {
     pub steps: u64,
     /// Simulated time, s.
     pub duration_s: f64,
-    /// Settling time, s.
-    pub settle_s: f64,
-    /// Attitude error after settling, arcsec.
-    pub att: AxisStats,
-    /// Rate error after settling, °/h.
-    pub rate: AxisStats,
-    /// Convergence time, s.
-    pub converged_at_s: Option<f64>,
-    /// Last drift estimate, rad/s.
-    pub drift_final_rad_s: [f64; 3],
+    /// How well the run followed the truth.
+    pub accuracy: Accuracy,
     /// FOG frames sent.
     pub fog_frames_in: u64,
     /// Star-tracker frames sent.
@@ -152,7 +144,7 @@ impl QemuSummary {
             "scenario  {}  in QEMU mps2-an500 ({:.0} s simulated, {} steps, wall {:.1} s)",
             self.name, self.duration_s, self.steps, self.wall_s
         );
-        s.push_str(&error_table(self.settle_s, &self.att, &self.rate, self.drift_final_rad_s, self.converged_at_s));
+        s.push_str(&self.accuracy.table());
         let c = &self.last_frame.counters;
         let _ = writeln!(
             s,
@@ -454,7 +446,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         name: sc.name.clone(),
         steps: sim.steps,
         duration_s: sc.duration_s,
-        settle_s: sc.settle_s,
+        accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
         icount: opts.icount,
         ..Default::default()
     };
@@ -531,10 +523,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         s.step_counts[k] = t.count();
     }
     s.step_ticks = outputs.check.ticks[0];
-    s.att = eval.att;
-    s.rate = eval.rate;
-    s.converged_at_s = eval.converged_at_s;
-    s.drift_final_rad_s = outputs.check.last_drift;
+    s.accuracy = eval.accuracy(outputs.check.last_drift);
     s.wall_s = started.elapsed().as_secs_f64();
     Ok(s)
 }
