@@ -1005,6 +1005,29 @@ pub struct Kept {
     pub z: Vec<Vec<f64>>,
 }
 
+impl Kept {
+    /// Keeps row `j` of block `block`: sample `s`, its G per FOG `g`, its azimuth from
+    /// column `psi_col` (the basis vectors are kept by the pass).
+    fn push_row(&mut self, j: usize, block: usize, s: &SampleRef, g: &[f64], psi_col: Option<usize>) {
+        self.rows.push(j);
+        self.t_s.push(s.t_s);
+        self.block.push(block);
+        if let (Some(p), Some(c)) = (self.psi_rad.as_mut(), psi_col) {
+            p.push(s.values[c]);
+        }
+        self.omega_rad_s.push(s.ref_rad_s);
+        if let Some(f) = self.field_nt.as_mut() {
+            f.push(s.field_nt);
+        }
+        for (i, t) in self.temp.iter_mut().enumerate() {
+            if let Some((temp, rate)) = t.as_mut() {
+                temp.push(s.t_degc[i]);
+                rate.push(g[i]);
+            }
+        }
+    }
+}
+
 /// Rows of the first segment (held until the fit on them ranks them).
 pub const FIRST_SEGMENT: usize = 16_384;
 
@@ -1187,6 +1210,56 @@ struct Tracker {
 }
 
 impl Tracker {
+    /// Offers a summed batch (`rows` rows, m columns [`COL`] apart per FOG) to the current
+    /// segment's extremes, or holds its rows (row-major) while the first segment is open.
+    fn offer_batch(&mut self, batch: &[Vec<f64>], rows: usize, m: usize) {
+        match self.out.segs.last_mut() {
+            None => {
+                for (f, b) in self.first.iter_mut().zip(batch.iter()) {
+                    for i in 0..rows {
+                        f.extend((0..m).map(|a| b[a * COL + i]));
+                    }
+                }
+            }
+            Some(seg) => {
+                for (x, b) in seg.iter_mut().zip(batch.iter()) {
+                    x.offer_batch(b, rows, m);
+                }
+            }
+        }
+    }
+
+    /// Starts a segment ranked under the all-rows fit of the sums so far; at the end of the
+    /// first segment, first ranks the rows held under that same fit.
+    fn open_segment(&mut self, basis: &Basis, shift: &[Vec<f64>], gram: &[Vec<Gram>], box_rows: usize) {
+        let m = basis.m;
+        let ells: Vec<Vec<f64>> =
+            (0..shift.len()).map(|fog| self.running_ell(basis, &shift[fog], &gram[fog], fog)).collect();
+        if self.out.segs.is_empty() {
+            // The first segment, ranked under its own fit.
+            let mut seg = Vec::new();
+            for (fog, ell) in ells.iter().enumerate() {
+                let mut x = SegmentExtremes::new(box_rows);
+                x.ell = ell.clone();
+                for row in self.first[fog].chunks_exact(m) {
+                    x.offer(row, m);
+                }
+                seg.push(x);
+            }
+            self.out.segs.push(seg);
+            self.first = Vec::new();
+        }
+        self.out.segs.push(
+            ells.into_iter()
+                .map(|ell| {
+                    let mut x = SegmentExtremes::new(box_rows);
+                    x.ell = ell;
+                    x
+                })
+                .collect(),
+        );
+    }
+
     /// The residual functional of the all-rows fit of the sums so far, FOG `fog`.
     fn running_ell(&self, basis: &Basis, shift: &[f64], gram: &[Gram], fog: usize) -> Vec<f64> {
         let mut g = Gram::new(basis.m);
@@ -1309,6 +1382,13 @@ fn shifted(l: &[f64], shift: &[f64]) -> Vec<f64> {
 }
 
 /// One pass over `source`.
+///
+/// Longer than a function should be, for a reason: it is the lab's hot loop. The per-row
+/// closure and the batch flush share a dozen locals (the batch, the Gram sums, the counters
+/// of block, segment and kept row, the first row's shift); held in one frame they stay
+/// registers and stack slots the compiler sees whole, and the pass's speed (BENCHMARKS.md)
+/// depends on that. What runs once per segment, batch or kept row is in methods of
+/// `Tracker` and [`Kept`].
 pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>) -> LabResult<Digest> {
     let shape = source.shape()?;
     if let Some(pb) = progress {
@@ -1381,20 +1461,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         let mut grams: Vec<&mut Gram> = gram.iter_mut().map(|g| &mut g[block]).collect();
         accumulate_gram(&mut grams, batch, rows, &order, shared);
         if let Some(t) = tracker {
-            match t.out.segs.last_mut() {
-                None => {
-                    for (f, b) in t.first.iter_mut().zip(batch.iter()) {
-                        for i in 0..rows {
-                            f.extend((0..m).map(|a| b[a * COL + i]));
-                        }
-                    }
-                }
-                Some(seg) => {
-                    for (x, b) in seg.iter_mut().zip(batch.iter()) {
-                        x.offer_batch(b, rows, m);
-                    }
-                }
-            }
+            t.offer_batch(batch, rows, m);
         }
     };
     // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
@@ -1427,51 +1494,12 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
-            let ells: Vec<Vec<f64>> =
-                (0..n_fog).map(|fog| t.running_ell(&basis, &shift[fog], &gram[fog], fog)).collect();
-            if t.out.segs.is_empty() {
-                // The first segment, ranked under its own fit.
-                let mut seg = Vec::new();
-                for (fog, ell) in ells.iter().enumerate() {
-                    let mut x = SegmentExtremes::new(box_rows);
-                    x.ell = ell.clone();
-                    for row in t.first[fog].chunks_exact(m) {
-                        x.offer(row, m);
-                    }
-                    seg.push(x);
-                }
-                t.out.segs.push(seg);
-                t.first = Vec::new();
-            }
-            t.out.segs.push(
-                ells.into_iter()
-                    .map(|ell| {
-                        let mut x = SegmentExtremes::new(box_rows);
-                        x.ell = ell;
-                        x
-                    })
-                    .collect(),
-            );
+            t.open_segment(&basis, &shift, &gram, box_rows);
         }
         let keep = j == next_keep;
         if keep {
             next_keep += stride;
-            kept.rows.push(j);
-            kept.t_s.push(s.t_s);
-            kept.block.push(block);
-            if let (Some(p), Some(c)) = (kept.psi_rad.as_mut(), psi_col) {
-                p.push(s.values[c]);
-            }
-            kept.omega_rad_s.push(s.ref_rad_s);
-            if let Some(f) = kept.field_nt.as_mut() {
-                f.push(s.field_nt);
-            }
-            for (i, t) in kept.temp.iter_mut().enumerate() {
-                if let Some((temp, rate)) = t.as_mut() {
-                    temp.push(s.t_degc[i]);
-                    rate.push(g[i]);
-                }
-            }
+            kept.push_row(j, block, s, g, psi_col);
         }
         if shift.len() < n_fog {
             // The first row: the shift is its basis vector (slot 0 stays 1).
