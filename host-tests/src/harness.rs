@@ -247,6 +247,17 @@ pub struct Evaluator {
 }
 
 impl Evaluator {
+    /// What the evaluation found, with the unit's last drift estimate.
+    pub fn accuracy(&self, drift_final_rad_s: [f64; 3]) -> Accuracy {
+        Accuracy {
+            settle_s: self.settle_s,
+            att: self.att,
+            rate: self.rate,
+            converged_at_s: self.converged_at_s,
+            drift_final_rad_s,
+        }
+    }
+
     /// For the unit of `sim`.
     pub fn new(sim: &Simulation) -> Self {
         Evaluator {
@@ -306,16 +317,8 @@ pub struct Summary {
     pub steps: u64,
     /// Simulated time, s.
     pub duration_s: f64,
-    /// Statistics start, s.
-    pub settle_s: f64,
-    /// Attitude error after settling, arcsec.
-    pub att: AxisStats,
-    /// Rate error after settling, °/h.
-    pub rate: AxisStats,
-    /// Time the observer first reported convergence, s.
-    pub converged_at_s: Option<f64>,
-    /// Last drift estimate, rad/s.
-    pub drift_final_rad_s: [f64; 3],
+    /// How well the run followed the truth.
+    pub accuracy: Accuracy,
     /// The core's counters at the end.
     pub counters: Counters,
     /// Output frames decoded from the output link.
@@ -372,11 +375,7 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
         name: sc.name.clone(),
         steps: sim.steps,
         duration_s: sc.duration_s,
-        settle_s: sc.settle_s,
-        att: eval.att,
-        rate: eval.rate,
-        converged_at_s: eval.converged_at_s,
-        drift_final_rad_s: last.map(|o| [o.drift_rad_s.x, o.drift_rad_s.y, o.drift_rad_s.z]).unwrap_or_default(),
+        accuracy: eval.accuracy(last.map(|o| [o.drift_rad_s.x, o.drift_rad_s.y, o.drift_rad_s.z]).unwrap_or_default()),
         counters: core.counters(),
         frames_out,
         frames_out_bad: frames_bad,
@@ -400,7 +399,7 @@ impl Summary {
         use std::fmt::Write;
         let mut s = String::new();
         let _ = writeln!(s, "scenario  {}  ({:.0} s simulated, {} steps)", self.name, self.duration_s, self.steps);
-        s.push_str(&error_table(self.settle_s, &self.att, &self.rate, self.drift_final_rad_s, self.converged_at_s));
+        s.push_str(&self.accuracy.table());
         let c = &self.counters;
         let _ = writeln!(
             s,
@@ -419,32 +418,44 @@ impl Summary {
     }
 }
 
-/// The error part of a report.
-pub fn error_table(
-    settle_s: f64,
-    att: &AxisStats,
-    rate: &AxisStats,
-    drift_final_rad_s: [f64; 3],
-    converged_at_s: Option<f64>,
-) -> String {
-    use std::fmt::Write;
-    let mut s = String::new();
-    let f3 = |v: [f64; 3], p: usize| format!("{:>9.p$} {:>9.p$} {:>9.p$}", v[0], v[1], v[2], p = p);
-    let _ = writeln!(s, "after settling at {settle_s:.0} s:                 x         y         z");
-    let _ = writeln!(s, "  attitude error 3σ (|mean|+3std), ″ {}", f3(att.three_sigma(), 2));
-    let _ = writeln!(s, "  attitude error max, ″              {}", f3(att.max_abs(), 2));
-    let _ = writeln!(s, "  rate error 3σ, °/h                 {}", f3(rate.three_sigma(), 4));
-    let _ =
-        writeln!(s, "  drift estimate at end, °/h         {}", f3(drift_final_rad_s.map(|d| d * DEG_H_PER_RAD_S), 4));
-    match converged_at_s {
-        Some(t) => {
-            let _ = writeln!(s, "  observer converged at {t:.1} s");
+/// How well a run followed the truth after settling; both runners (in-process and QEMU)
+/// report it alike.
+#[derive(Debug, Clone, Default)]
+pub struct Accuracy {
+    /// Statistics start, s.
+    pub settle_s: f64,
+    /// Attitude error after settling, arcsec.
+    pub att: AxisStats,
+    /// Rate error after settling, °/h.
+    pub rate: AxisStats,
+    /// Time the observer first reported convergence, s.
+    pub converged_at_s: Option<f64>,
+    /// Last drift estimate, rad/s.
+    pub drift_final_rad_s: [f64; 3],
+}
+
+impl Accuracy {
+    /// The error part of a report.
+    pub fn table(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let f3 = |v: [f64; 3], p: usize| format!("{:>9.p$} {:>9.p$} {:>9.p$}", v[0], v[1], v[2], p = p);
+        let _ = writeln!(s, "after settling at {:.0} s:                 x         y         z", self.settle_s);
+        let _ = writeln!(s, "  attitude error 3σ (|mean|+3std), ″ {}", f3(self.att.three_sigma(), 2));
+        let _ = writeln!(s, "  attitude error max, ″              {}", f3(self.att.max_abs(), 2));
+        let _ = writeln!(s, "  rate error 3σ, °/h                 {}", f3(self.rate.three_sigma(), 4));
+        let drift = self.drift_final_rad_s.map(|d| d * DEG_H_PER_RAD_S);
+        let _ = writeln!(s, "  drift estimate at end, °/h         {}", f3(drift, 4));
+        match self.converged_at_s {
+            Some(t) => {
+                let _ = writeln!(s, "  observer converged at {t:.1} s");
+            }
+            None => {
+                let _ = writeln!(s, "  observer never reported convergence");
+            }
         }
-        None => {
-            let _ = writeln!(s, "  observer never reported convergence");
-        }
+        s
     }
-    s
 }
 
 /// Columns of the per-step CSV log written by `ssis-sim run` and `ssis-qemu`.

@@ -25,12 +25,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{bail, Context, Result};
 use ssis::calib::store;
-use ssis::flight::{st_status, FlightCore, FogLinks, Links};
+use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
 
-use crate::harness::{error_table, Evaluator, Observed, Record, Simulation};
+use crate::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
 use crate::mock::{MockLink, MockSink};
 use crate::scenario::Scenario;
 use crate::stats::AxisStats;
@@ -95,16 +95,8 @@ pub struct QemuSummary {
     pub steps: u64,
     /// Simulated time, s.
     pub duration_s: f64,
-    /// Settling time, s.
-    pub settle_s: f64,
-    /// Attitude error after settling, arcsec.
-    pub att: AxisStats,
-    /// Rate error after settling, °/h.
-    pub rate: AxisStats,
-    /// Convergence time, s.
-    pub converged_at_s: Option<f64>,
-    /// Last drift estimate, rad/s.
-    pub drift_final_rad_s: [f64; 3],
+    /// How well the run followed the truth.
+    pub accuracy: Accuracy,
     /// FOG frames sent.
     pub fog_frames_in: u64,
     /// Star-tracker frames sent.
@@ -152,7 +144,7 @@ impl QemuSummary {
             "scenario  {}  in QEMU mps2-an500 ({:.0} s simulated, {} steps, wall {:.1} s)",
             self.name, self.duration_s, self.steps, self.wall_s
         );
-        s.push_str(&error_table(self.settle_s, &self.att, &self.rate, self.drift_final_rad_s, self.converged_at_s));
+        s.push_str(&self.accuracy.table());
         let c = &self.last_frame.counters;
         let _ = writeln!(
             s,
@@ -447,84 +439,347 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut sim = Simulation::new(sc)?;
     anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let mut eval = Evaluator::new(&sim);
-    static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir)?;
-    // The table's flash region: two copies (ssis::calib::store), as a flight image.
-    let table_path = dir.join("table.img");
-    match &opts.table_image {
-        Some(img) => std::fs::write(&table_path, img)?,
-        None => std::fs::write(&table_path, store::image(&sim.table))?,
-    }
-    let icount = opts.icount.then_some("shift=0");
-    let Started { mut q, uarts, log_thread } = start_qemu(&opts.elf, dir, 3, icount, &[(table_path, 0x10000)])?;
-    let [mut ctl, mut fog, mut star] =
-        <[UnixStream; 3]>::try_from(uarts).map_err(|_| anyhow::anyhow!("three UARTs expected"))?;
-    let (tx, rx) = mpsc::channel::<Vec<u8>>();
-    spawn_reader(&ctl, tx, |b| b)?;
-
+    let mut unit = Unit::boot(&sim, opts)?;
     let started = Instant::now();
     let bar = progress_bar(opts.progress, sim.steps, &sc.name);
-    let mut out_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let mut s = QemuSummary {
         name: sc.name.clone(),
         steps: sim.steps,
         duration_s: sc.duration_s,
-        settle_s: sc.settle_s,
+        accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
         icount: opts.icount,
         ..Default::default()
     };
-    let (mut fog_total, mut st_total) = (0u32, 0u32);
-    let mut fog_corrupt = Corrupter { every: opts.corrupt_every, count: 0 };
-    let mut st_corrupt = Corrupter { every: opts.corrupt_every, count: 0 };
-    // Lockstep reference: the same core in-process on the same bytes.
+    let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
+        s.frames_before_data = unit.enter_lockstep()?;
+        Some(Reference::new(&sim)?)
+    } else {
+        None
+    };
+    let mut sender = Sender::new(opts.corrupt_every);
+    let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
+    let dt_s = sim.profile.dt_s();
+    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / crate::ARCSEC_PER_RAD;
+    let mut injector = opts.fault.map(|f| (f, crate::faults::Injector::new(f, sigma_st_rad, sc.seed)));
+    let mut injected = crate::faults::FaultRun::default();
+    while let Some(mut input) = sim.next_step() {
+        if let Some((f, inj)) = injector.as_mut() {
+            let t_s = input.n as f64 * dt_s;
+            let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
+            inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
+        }
+        let n = input.n;
+        if !opts.lockstep {
+            // Real time: the frames of step n go out LEAD steps before its tick, and never
+            // more than MAX_LEAD steps ahead of the outputs received.
+            let due = started + dt * (n.saturating_sub(LEAD) as u32);
+            loop {
+                while let Ok(b) = unit.rx.try_recv() {
+                    outputs.take(&b, &mut s, &mut eval, &mut on_step);
+                }
+                if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
+                    break;
+                }
+                if let Some(st) = unit.q.child.try_wait()? {
+                    bail!("QEMU exited early ({st})");
+                }
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
+        eval.push_truth(input.truth);
+        if let Some(r) = reference.as_mut() {
+            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent));
+            if opts.stall_at_step == Some(n) {
+                return unit.stall(s, &opts.elf);
+            }
+            let step =
+                ControlFrame { command: command::STEP, fog_bytes: sender.fog_total, st_bytes: sender.st_total, arg: 0 };
+            unit.ctl.write_all(&step.to_bytes())?;
+            unit.await_output(n, &opts.elf, |b, s| outputs.take(b, s, &mut eval, &mut on_step), &mut s)?;
+        }
+        if let Some(b) = &bar {
+            if n.is_multiple_of(200) {
+                b.set_position(n);
+            }
+        }
+    }
+    // Collect what is still coming, then end the run.
+    let t_end = Instant::now();
+    while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
+        if let Ok(b) = unit.rx.recv_timeout(Duration::from_millis(50)) {
+            outputs.take(&b, &mut s, &mut eval, &mut on_step);
+        }
+    }
+    unit.ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
+    let status = wait_exit(&mut unit.q.child, Duration::from_secs(10))?;
+    while let Ok(b) = unit.rx.try_recv() {
+        outputs.take(&b, &mut s, &mut eval, &mut on_step);
+    }
+    (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
+    for (k, t) in outputs.check.ticks.iter().enumerate() {
+        s.step_ticks_mean[k] = t.mean()[0];
+        s.step_counts[k] = t.count();
+    }
+    s.step_ticks = outputs.check.ticks[0];
+    s.accuracy = eval.accuracy(outputs.check.last_drift);
+    s.wall_s = started.elapsed().as_secs_f64();
+    Ok(s)
+}
+
+/// The spacecraft firmware running in QEMU: the process, its three UARTs (control and
+/// output, FOG bus, star tracker), the output link's bytes as they arrive, and the thread
+/// collecting the defmt log.
+struct Unit {
+    q: Qemu,
+    ctl: UnixStream,
+    fog: UnixStream,
+    star: UnixStream,
+    rx: mpsc::Receiver<Vec<u8>>,
+    /// Until the log is read ([`Unit::log`]).
+    log_thread: Option<std::thread::JoinHandle<Vec<u8>>>,
+}
+
+impl Unit {
+    /// Starts QEMU on the firmware with the table's flash region (two copies,
+    /// `ssis::calib::store`, as a flight image, or the options' image) and connects the
+    /// UARTs.
+    fn boot(sim: &Simulation, opts: &QemuOptions) -> Result<Unit> {
+        static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)?;
+        let table_path = dir.join("table.img");
+        match &opts.table_image {
+            Some(img) => std::fs::write(&table_path, img)?,
+            None => std::fs::write(&table_path, store::image(&sim.table))?,
+        }
+        let icount = opts.icount.then_some("shift=0");
+        let Started { q, uarts, log_thread } = start_qemu(&opts.elf, dir, 3, icount, &[(table_path, 0x10000)])?;
+        let [ctl, fog, star] =
+            <[UnixStream; 3]>::try_from(uarts).map_err(|_| anyhow::anyhow!("three UARTs expected"))?;
+        let (tx, rx) = mpsc::channel::<Vec<u8>>();
+        spawn_reader(&ctl, tx, |b| b)?;
+        Ok(Unit { q, ctl, fog, star, rx, log_thread: Some(log_thread) })
+    }
+
+    /// Switches the booted firmware to lockstep; returns the output frames it sent on its
+    /// own tick meanwhile (they carry no sample).
+    fn enter_lockstep(&mut self) -> Result<u64> {
+        let mut frames = 0;
         // First a frame from the firmware's own tick: it has booted and is in its loop.
-        match rx.recv_timeout(Duration::from_secs(20)) {
-            Ok(b) => s.frames_before_data += (b.len() / OutputFrame::LEN) as u64,
+        match self.rx.recv_timeout(Duration::from_secs(20)) {
+            Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
             Err(_) => bail!("no output from the firmware within 20 s of boot"),
         }
-        ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        self.ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
         // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
         // sensor byte may go out before that, or it would integrate a sample on a tick.
         // In lockstep it is silent between STEPs: wait for 100 ms of silence (10 s cap).
         // Frames of that time carry no sample (time tag 0) and are set aside.
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_secs(10) {
-            match rx.recv_timeout(Duration::from_millis(100)) {
-                Ok(b) => s.frames_before_data += (b.len() / OutputFrame::LEN) as u64,
+            match self.rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
                 Err(mpsc::RecvTimeoutError::Timeout) => break,
                 Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed UART0"),
             }
         }
-        Some((
-            FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?,
-            MockLink::ideal(),
-            MockLink::ideal(),
-            MockSink::default(),
-        ))
-    } else {
-        None
-    };
-    let mut ref_frames: std::collections::VecDeque<Vec<u8>> = Default::default();
-    let mut ticks = [AxisStats::default(), AxisStats::default()];
-    let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
-    let mut last_drift = [0.0; 3];
-    let mut prev_st_updated = false;
-    let lockstep = opts.lockstep;
-    let mut handle = |f: OutputFrame,
-                      s: &mut QemuSummary,
-                      eval: &mut Evaluator,
-                      ref_frames: &mut std::collections::VecDeque<Vec<u8>>| {
-        if lockstep && f.time_us == 0 {
+        Ok(frames)
+    }
+
+    /// Lockstep: waits for the output of step `n`, handing every chunk to `take`; when none
+    /// comes within 10 s, fails with QEMU's exit status and the firmware's last words.
+    fn await_output(
+        &mut self,
+        n: u64,
+        elf: &Path,
+        mut take: impl FnMut(&[u8], &mut QemuSummary),
+        s: &mut QemuSummary,
+    ) -> Result<()> {
+        let before = s.frames_out;
+        let t0 = Instant::now();
+        while s.frames_out == before {
+            match self.rx.recv_timeout(Duration::from_secs(10)) {
+                Ok(b) => take(&b, s),
+                Err(_) => {
+                    let waited = t0.elapsed();
+                    let status = wait_exit(&mut self.q.child, Duration::from_secs(2))?;
+                    if status.is_none() {
+                        let _ = self.q.child.kill();
+                        let _ = self.q.child.wait();
+                    }
+                    let log = self.log(elf);
+                    bail!(
+                        "no output frame for step {n} within {waited:?}; QEMU exit {:?}; firmware log: {}",
+                        status.and_then(|st| st.code()),
+                        log.join(" | ")
+                    )
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Fault injection: sends `STALL` instead of `STEP` and ends the run at the watchdog
+    /// reset (or stops QEMU after 20 s); the summary so far with the time to the exit.
+    fn stall(mut self, mut s: QemuSummary, elf: &Path) -> Result<QemuSummary> {
+        self.ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
+        let t_stall = Instant::now();
+        let status = wait_exit(&mut self.q.child, Duration::from_secs(20))?;
+        if status.is_none() {
+            let _ = self.q.child.kill();
+        }
+        s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
+        s.exit_code = status.and_then(|st| st.code());
+        s.log = self.log(elf);
+        Ok(s)
+    }
+
+    /// The end of a run: the progress bar closed, QEMU stopped, its exit code and log.
+    fn finish(
+        &mut self,
+        status: Option<std::process::ExitStatus>,
+        bar: Option<indicatif::ProgressBar>,
+        elf: &Path,
+    ) -> (Option<i32>, Vec<String>) {
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+        let _ = self.q.child.kill();
+        (status.and_then(|st| st.code()), self.log(elf))
+    }
+
+    /// The firmware's defmt log, decoded (once QEMU has ended: the log closes with it).
+    fn log(&mut self, elf: &Path) -> Vec<String> {
+        let bytes = self.log_thread.take().and_then(|t| t.join().ok()).unwrap_or_default();
+        decode_defmt(elf, &bytes).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")])
+    }
+}
+
+/// The sensor links as the runner writes them: each step's FOG frames (of the profile's
+/// FOGs) and star-tracker bytes, damaged as the options say, and the byte totals a STEP
+/// names.
+struct Sender {
+    fog_corrupt: Corrupter,
+    st_corrupt: Corrupter,
+    fog_total: u32,
+    st_total: u32,
+}
+
+impl Sender {
+    fn new(corrupt_every: u64) -> Sender {
+        Sender {
+            fog_corrupt: Corrupter { every: corrupt_every, count: 0 },
+            st_corrupt: Corrupter { every: corrupt_every, count: 0 },
+            fog_total: 0,
+            st_total: 0,
+        }
+    }
+
+    /// Sends one step's bytes; returns them as sent (FOG bus, star tracker).
+    fn send(
+        &mut self,
+        unit: &mut Unit,
+        input: &StepInput,
+        profile: &Profile,
+        s: &mut QemuSummary,
+    ) -> Result<(Vec<u8>, Vec<u8>)> {
+        let mut fog_bytes = Vec::with_capacity(64);
+        for (i, f) in input.fog_frames.iter().enumerate() {
+            if profile.fogs.contains(i) {
+                fog_bytes.extend_from_slice(f);
+                s.fog_frames_in += 1;
+            }
+        }
+        s.st_frames_in += (input.st_bytes.len() / ssis::frames::star::StarFrame::LEN) as u64;
+        let fog_sent = self.fog_corrupt.apply(&fog_bytes);
+        let st_sent = self.st_corrupt.apply(&input.st_bytes);
+        unit.fog.write_all(&fog_sent)?;
+        unit.star.write_all(&st_sent)?;
+        self.fog_total = self.fog_total.wrapping_add(fog_sent.len() as u32);
+        self.st_total = self.st_total.wrapping_add(st_sent.len() as u32);
+        Ok((fog_sent, st_sent))
+    }
+}
+
+/// Lockstep reference: the same core in-process on the same bytes.
+struct Reference {
+    core: FlightCore,
+    fog: MockLink,
+    star: MockLink,
+    out: MockSink,
+}
+
+impl Reference {
+    fn new(sim: &Simulation) -> Result<Reference> {
+        let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default() })
+    }
+
+    /// One step on the bytes the firmware was sent; the output bytes it writes.
+    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8]) -> Vec<u8> {
+        self.fog.send(fog_sent);
+        self.star.send(st_sent);
+        let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
+        self.core.step(&mut links);
+        std::mem::take(&mut self.out.bytes)
+    }
+}
+
+/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]).
+struct Outputs {
+    dec: StreamDecoder<OutputFrame, 256>,
+    check: FrameCheck,
+}
+
+impl Outputs {
+    fn new(lockstep: bool) -> Outputs {
+        Outputs {
+            dec: StreamDecoder::new(),
+            check: FrameCheck {
+                lockstep,
+                reference: Default::default(),
+                ticks: [AxisStats::default(), AxisStats::default()],
+                prev_st_updated: false,
+                last_drift: [0.0; 3],
+            },
+        }
+    }
+
+    /// Decodes a chunk of the output link and checks every frame in it.
+    fn take(&mut self, bytes: &[u8], s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        let check = &mut self.check;
+        self.dec.push_slice(bytes, |r| match r {
+            Ok(f) => check.frame(f, s, eval, on_step),
+            Err(_) => s.frames_out_bad += 1,
+        });
+    }
+}
+
+/// Each decoded output frame compared with the in-process core's (lockstep), its step time
+/// classed by the star-tracker status of the step it times, and evaluated against truth.
+struct FrameCheck {
+    lockstep: bool,
+    /// Lockstep: the in-process core's frames not yet compared.
+    reference: std::collections::VecDeque<Vec<u8>>,
+    /// Step time, ticks, of steps without / with a star-tracker update.
+    ticks: [AxisStats; 2],
+    prev_st_updated: bool,
+    last_drift: [f64; 3],
+}
+
+impl FrameCheck {
+    fn frame(&mut self, f: OutputFrame, s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        if self.lockstep && f.time_us == 0 {
             // Sent on the firmware's own tick before lockstep began: no sample yet.
             s.frames_before_data += 1;
             return;
         }
         s.frames_out += 1;
-        if let Some(r) = ref_frames.pop_front() {
+        if let Some(r) = self.reference.pop_front() {
             // The board fills in its own step time and overruns, and its frame counter
             // also counts the frames sent on its own tick before lockstep; everything
             // else must be bit-identical to the in-process core's frame.
@@ -543,148 +798,17 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         let o = Observed::from(&f);
         if s.frames_out > 1 {
             // A frame carries the time of the step before it: class by that step's status.
-            let k = usize::from(prev_st_updated);
-            ticks[k].push([f64::from(o.step_ticks); 3]);
+            let k = usize::from(self.prev_st_updated);
+            self.ticks[k].push([f64::from(o.step_ticks); 3]);
             s.step_ticks_max[k] = s.step_ticks_max[k].max(u32::from(o.step_ticks));
         }
-        prev_st_updated = o.st_status & st_status::UPDATED != 0;
-        last_drift = f.drift_rad_s();
+        self.prev_st_updated = o.st_status & st_status::UPDATED != 0;
+        self.last_drift = f.drift_rad_s();
         s.last_frame = f;
         if let Some(rec) = eval.evaluate(&o) {
             on_step(&rec);
         }
-    };
-    let dt_s = sim.profile.dt_s();
-    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / crate::ARCSEC_PER_RAD;
-    let mut injector = opts.fault.map(|f| (f, crate::faults::Injector::new(f, sigma_st_rad, sc.seed)));
-    let mut injected = crate::faults::FaultRun::default();
-    while let Some(mut input) = sim.next_step() {
-        if let Some((f, inj)) = injector.as_mut() {
-            let t_s = input.n as f64 * dt_s;
-            let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
-            inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
-        }
-        let n = input.n;
-        if !opts.lockstep {
-            // Real time: the frames of step n go out LEAD steps before its tick, and never
-            // more than MAX_LEAD steps ahead of the outputs received.
-            let due = started + dt * (n.saturating_sub(LEAD) as u32);
-            loop {
-                while let Ok(b) = rx.try_recv() {
-                    out_dec.push_slice(&b, |r| match r {
-                        Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
-                        Err(_) => s.frames_out_bad += 1,
-                    });
-                }
-                if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
-                    break;
-                }
-                if let Some(st) = q.child.try_wait()? {
-                    bail!("QEMU exited early ({st})");
-                }
-                std::thread::sleep(Duration::from_micros(200));
-            }
-        }
-        let mut fog_bytes = Vec::with_capacity(64);
-        for (i, f) in input.fog_frames.iter().enumerate() {
-            if sim.profile.fogs.contains(i) {
-                fog_bytes.extend_from_slice(f);
-                s.fog_frames_in += 1;
-            }
-        }
-        s.st_frames_in += (input.st_bytes.len() / ssis::frames::star::StarFrame::LEN) as u64;
-        let fog_sent = fog_corrupt.apply(&fog_bytes);
-        let st_sent = st_corrupt.apply(&input.st_bytes);
-        fog.write_all(&fog_sent)?;
-        star.write_all(&st_sent)?;
-        fog_total = fog_total.wrapping_add(fog_sent.len() as u32);
-        st_total = st_total.wrapping_add(st_sent.len() as u32);
-        eval.push_truth(input.truth);
-        if let Some((core, fl, sl, out)) = reference.as_mut() {
-            fl.send(&fog_sent);
-            sl.send(&st_sent);
-            let mut links = Links { fog: FogLinks::Bus(&mut *fl), star: &mut *sl, out: &mut *out };
-            core.step(&mut links);
-            ref_frames.push_back(std::mem::take(&mut out.bytes));
-            if opts.stall_at_step == Some(n) {
-                ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
-                let t_stall = Instant::now();
-                // QEMU ends at the watchdog reset; give up (and stop it) after 20 s.
-                let status = wait_exit(&mut q.child, Duration::from_secs(20))?;
-                if status.is_none() {
-                    let _ = q.child.kill();
-                }
-                s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
-                s.exit_code = status.and_then(|st| st.code());
-                let log = log_thread.join().unwrap_or_default();
-                s.log = decode_defmt(&opts.elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
-                return Ok(s);
-            }
-            let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
-            ctl.write_all(&step.to_bytes())?;
-            let before = s.frames_out;
-            let t0 = Instant::now();
-            while s.frames_out == before {
-                match rx.recv_timeout(Duration::from_secs(10)) {
-                    Ok(b) => out_dec.push_slice(&b, |r| match r {
-                        Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
-                        Err(_) => s.frames_out_bad += 1,
-                    }),
-                    Err(_) => {
-                        // Say why: QEMU's exit status and the firmware's last words.
-                        let waited = t0.elapsed();
-                        let status = wait_exit(&mut q.child, Duration::from_secs(2))?;
-                        if status.is_none() {
-                            let _ = q.child.kill();
-                            let _ = q.child.wait();
-                        }
-                        let log = decode_defmt(&opts.elf, &log_thread.join().unwrap_or_default())
-                            .unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]);
-                        bail!(
-                            "no output frame for step {n} within {waited:?}; QEMU exit {:?}; firmware log: {}",
-                            status.and_then(|st| st.code()),
-                            log.join(" | ")
-                        )
-                    }
-                }
-            }
-        }
-        if let Some(b) = &bar {
-            if n.is_multiple_of(200) {
-                b.set_position(n);
-            }
-        }
     }
-    // Collect what is still coming, then end the run.
-    let t_end = Instant::now();
-    while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
-        if let Ok(b) = rx.recv_timeout(Duration::from_millis(50)) {
-            out_dec.push_slice(&b, |r| match r {
-                Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
-                Err(_) => s.frames_out_bad += 1,
-            });
-        }
-    }
-    ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
-    let status = wait_exit(&mut q.child, Duration::from_secs(10))?;
-    while let Ok(b) = rx.try_recv() {
-        out_dec.push_slice(&b, |r| match r {
-            Ok(f) => handle(f, &mut s, &mut eval, &mut ref_frames),
-            Err(_) => s.frames_out_bad += 1,
-        });
-    }
-    (s.exit_code, s.log) = finish_run(&mut q, status, bar, log_thread, &opts.elf);
-    for (k, t) in ticks.iter().enumerate() {
-        s.step_ticks_mean[k] = t.mean()[0];
-        s.step_counts[k] = t.count();
-    }
-    s.step_ticks = ticks[0];
-    s.att = eval.att;
-    s.rate = eval.rate;
-    s.converged_at_s = eval.converged_at_s;
-    s.drift_final_rad_s = last_drift;
-    s.wall_s = started.elapsed().as_secs_f64();
-    Ok(s)
 }
 
 /// Waits up to `timeout` for QEMU to exit; `None` if it is still running.

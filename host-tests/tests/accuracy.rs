@@ -13,12 +13,12 @@ fn earth_pointing_two_hours_paper_sensors() {
     let sc = Scenario::from_file(&path).expect("scenario loads");
     let s = run(&sc, |_| {}).expect("run");
     println!("{}", s.report());
-    let att = s.att.three_sigma();
-    let rate = s.rate.three_sigma();
+    let att = s.accuracy.att.three_sigma();
+    let rate = s.accuracy.rate.three_sigma();
     println!("figures reached: attitude 3σ {:.2} / {:.2} / {:.2} ″ (bound 10″), rate 3σ {:.4} / {:.4} / {:.4} °/h (bound 0.05 °/h)",
         att[0], att[1], att[2], rate[0], rate[1], rate[2]);
     assert!(s.duration_s >= 7200.0);
-    assert!(s.converged_at_s.is_some_and(|t| t <= sc.settle_s), "observer not converged by {} s", sc.settle_s);
+    assert!(s.accuracy.converged_at_s.is_some_and(|t| t <= sc.settle_s), "observer not converged by {} s", sc.settle_s);
     for k in 0..3 {
         assert!(att[k] <= 10.0, "attitude error axis {k}: {:.2}″ > 10″", att[k]);
         assert!(rate[k] <= 0.05, "rate error axis {k}: {:.4} °/h > 0.05 °/h", rate[k]);
@@ -65,5 +65,5 @@ fn flexible_appendage_modes_are_tracked() {
     .expect("run");
     println!("{}\nmode rate after the slew: {:.2e} rad/s", s.report(), ringing);
     assert!(ringing > 1e-5, "the mode was not excited: {ringing}");
-    assert!(s.att.three_sigma().iter().all(|e| *e <= 10.0), "{:?}", s.att.three_sigma());
+    assert!(s.accuracy.att.three_sigma().iter().all(|e| *e <= 10.0), "{:?}", s.accuracy.att.three_sigma());
 }

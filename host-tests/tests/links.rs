@@ -39,7 +39,7 @@ fn corrupted_fog_and_star_bytes_are_counted_not_fatal() {
     assert_eq!(s.frames_out, s.steps);
     assert_eq!(s.frames_out_bad, 0);
     // Losing a few FOG samples (the other three carry the step) costs no attitude.
-    let att = s.att.max_abs();
+    let att = s.accuracy.att.max_abs();
     assert!(att.iter().all(|e| *e < 30.0), "attitude error {att:?}");
 }
 
@@ -197,7 +197,7 @@ fn launch_vehicle_profile_runs_three_fogs_at_1_25_ms() {
     assert_eq!(s.steps, 16_000);
     assert_eq!(s.frames_out, s.steps);
     // Free inertial on ideal-but-noisy gyros for 20 s: a few arcsec at most.
-    assert!(s.att.max_abs().iter().all(|e| *e < 5.0), "{:?}", s.att.max_abs());
+    assert!(s.accuracy.att.max_abs().iter().all(|e| *e < 5.0), "{:?}", s.accuracy.att.max_abs());
     let _ = Profile::LAUNCH_VEHICLE;
 }
 
@@ -220,7 +220,7 @@ fn constant_link_latency_costs_nothing_but_startup() {
     assert_eq!(late.counters.fog_samples_stale, 0);
     // Only the three steps before the first sample lack data.
     assert_eq!(late.counters.fog_samples_missing, 0);
-    assert!(late.att.max_abs().iter().zip(ideal.att.max_abs()).all(|(a, b)| (a - b).abs() < 0.5));
+    assert!(late.accuracy.att.max_abs().iter().zip(ideal.accuracy.att.max_abs()).all(|(a, b)| (a - b).abs() < 0.5));
 }
 
 #[test]

@@ -51,7 +51,7 @@ fn damaged_bytes_in_qemu_are_counted_and_flagged_never_a_fault() {
     assert!(c.fog_samples_missing > 20, "missing FOG samples not counted: {c:?}");
     // Still the same frames as the host core fed the same damaged bytes.
     assert_eq!(s.differing_frames, 0);
-    assert!(s.att.max_abs().iter().all(|e| *e < 30.0), "attitude {:?}", s.att.max_abs());
+    assert!(s.accuracy.att.max_abs().iter().all(|e| *e < 30.0), "attitude {:?}", s.accuracy.att.max_abs());
 }
 
 #[test]
@@ -67,7 +67,7 @@ fn real_time_run_keeps_up() {
     let c = s.last_frame.counters;
     println!("real time on this host: overruns {}, FOG samples missing {}", c.overruns, c.fog_samples_missing);
     assert_eq!(s.frames_out_bad, 0);
-    let att = s.att.three_sigma();
+    let att = s.accuracy.att.three_sigma();
     assert!(att.iter().all(|e| *e <= 10.0), "attitude 3σ {att:?}");
 }
 

@@ -168,26 +168,7 @@ fn main() -> Result<()> {
     let mb = bytes as f64 / 1e6;
     println!("session {} : {} rows, 4 FOGs, 13 columns, {:.1} MB", path.display(), cli.rows, mb);
 
-    // Ingest: read, split and parse every value (what every pass costs before any model work).
-    let t = Clock::start();
-    let mut rr = RowReader::open(&path)?;
-    let (mut rows, mut check) = (0u64, 0.0);
-    if !cli.no_ingest {
-        while let Some(r) = rr.next_row()? {
-            rows += 1;
-            check += r[1];
-        }
-    }
-    let (ingest_s, ingest_cpu) = t.read();
-    if !cli.no_ingest {
-        println!(
-        "ingest (read + parse + check, {rows} rows): {ingest_s:.2} s = {:.0} MB/s, {:.0} ns/row; CPU {ingest_cpu:.2} s = \
-         {:.0} MB/s (checksum {check:.3e})",
-        mb / ingest_s,
-        ingest_s / rows as f64 * 1e9,
-        mb / ingest_cpu
-    );
-    }
+    let (ingest_s, ingest_cpu) = ingest(&path, mb, cli.no_ingest)?;
 
     let t = Clock::start();
     let shape = Source::File(&path).shape()?;
@@ -204,60 +185,103 @@ fn main() -> Result<()> {
         .map(|k| Kind::parse_arg(k))
         .collect::<Result<_, _>>()?;
     let model = Model::new(&kinds);
-    let (mut compare_s, mut diagnose_s, mut two_cpu) = (f64::NAN, f64::NAN, f64::NAN);
-    if !cli.one_pass_only {
-        let t = Clock::start();
-        let c = compare(&model, Source::File(&path), false, DEFAULT_BLOCKS, None)?;
-        let compare_cpu;
-        (compare_s, compare_cpu) = t.read();
-        println!(
-            "compare (fit bias, scale_factor, misalignment, thermal_t1; held-out RMS; largest |residual| over every \
-             row, {} rows read again for it): {compare_s:.2} s (CPU {compare_cpu:.2} s)",
-            c.fitted.max_rows_read_again
-        );
-        for (i, s) in c.fitted.summary.iter().enumerate() {
-            println!(
-            "  FOG{i}: error {:.4} deg/h, residual {:.4} deg/h, max {:.4} deg/h (over {} rows), explained {:.2} %, held-out {:.4} deg/h",
-            s.rms_error_rad_s * DEG_H_PER_RAD_S,
-            s.rms_residual_rad_s * DEG_H_PER_RAD_S,
-            s.max_abs_residual_rad_s * DEG_H_PER_RAD_S,
-            c.fitted.max_over_rows,
-            100.0 * s.explained,
-            c.held_out_rad_s[i] * DEG_H_PER_RAD_S
-        );
-        }
+    let (compare_s, diagnose_s, two_cpu) =
+        if cli.one_pass_only { (f64::NAN, f64::NAN, f64::NAN) } else { two_commands(&model, &path)? };
+    let (one_pass_s, one_pass_cpu) = one_pass(&model, &path, cli.hash)?;
+    let ingest_text = if cli.no_ingest {
+        "ingest not timed".to_string()
+    } else {
+        format!("ingest {:.0} MB/s (CPU: {:.0} MB/s)", mb / ingest_s, mb / ingest_cpu)
+    };
+    println!(
+        "compare + diagnose as two commands: {:.2} s (CPU {two_cpu:.2} s), in one pass: {one_pass_s:.2} s, CPU \
+         {one_pass_cpu:.2} s (goal <= 10 s on one core); {ingest_text}",
+        compare_s + diagnose_s,
+    );
+    Ok(())
+}
 
-        let t = Clock::start();
-        let d = diagnose(&model, Source::File(&path), &Options::default())?;
-        let diagnose_cpu;
-        (diagnose_s, diagnose_cpu) = t.read();
-        two_cpu = compare_cpu + diagnose_cpu;
-        println!(
-            "diagnose ({} candidates tested, {} training / {} test samples): {diagnose_s:.2} s (CPU {diagnose_cpu:.2} s)",
-            d.candidates.len(),
-            d.n_train,
-            d.n_test
-        );
-        for c in d.candidates.iter().take(3) {
-            println!(
-                "  {:<28} p {:.2e}  held-out {:.4} -> {:.4} deg/h {}",
-                c.kind.label(),
-                c.p_value,
-                c.before_rad_s * DEG_H_PER_RAD_S,
-                c.after_rad_s * DEG_H_PER_RAD_S,
-                if c.significant { "significant" } else { "" }
-            );
+/// Ingest: reads, splits and parses every value (what every pass costs before any model
+/// work); the wall and CPU seconds (not run with `no_ingest`).
+fn ingest(path: &Path, mb: f64, no_ingest: bool) -> Result<(f64, f64)> {
+    let t = Clock::start();
+    let mut rr = RowReader::open(path)?;
+    let (mut rows, mut check) = (0u64, 0.0);
+    if !no_ingest {
+        while let Some(r) = rr.next_row()? {
+            rows += 1;
+            check += r[1];
         }
     }
-    // Both from one pass: the fit, held-out RMS and diagnosis from the same sums, the largest
-    // |residual| proved from the pass's extremes (a second pass only if it cannot be).
+    let (ingest_s, ingest_cpu) = t.read();
+    if !no_ingest {
+        println!(
+        "ingest (read + parse + check, {rows} rows): {ingest_s:.2} s = {:.0} MB/s, {:.0} ns/row; CPU {ingest_cpu:.2} s = \
+         {:.0} MB/s (checksum {check:.3e})",
+        mb / ingest_s,
+        ingest_s / rows as f64 * 1e9,
+        mb / ingest_cpu
+    );
+    }
+    Ok((ingest_s, ingest_cpu))
+}
+
+/// Compare, then diagnose, as two commands (two passes); their wall seconds and their CPU
+/// seconds together.
+fn two_commands(model: &Model, path: &Path) -> Result<(f64, f64, f64)> {
     let t = Clock::start();
-    let header = Source::File(&path).header()?;
+    let c = compare(model, Source::File(path), false, DEFAULT_BLOCKS, None)?;
+    let (compare_s, compare_cpu) = t.read();
+    println!(
+        "compare (fit bias, scale_factor, misalignment, thermal_t1; held-out RMS; largest |residual| over every \
+         row, {} rows read again for it): {compare_s:.2} s (CPU {compare_cpu:.2} s)",
+        c.fitted.max_rows_read_again
+    );
+    for (i, s) in c.fitted.summary.iter().enumerate() {
+        println!(
+        "  FOG{i}: error {:.4} deg/h, residual {:.4} deg/h, max {:.4} deg/h (over {} rows), explained {:.2} %, held-out {:.4} deg/h",
+        s.rms_error_rad_s * DEG_H_PER_RAD_S,
+        s.rms_residual_rad_s * DEG_H_PER_RAD_S,
+        s.max_abs_residual_rad_s * DEG_H_PER_RAD_S,
+        c.fitted.max_over_rows,
+        100.0 * s.explained,
+        c.held_out_rad_s[i] * DEG_H_PER_RAD_S
+    );
+    }
+
+    let t = Clock::start();
+    let d = diagnose(model, Source::File(path), &Options::default())?;
+    let (diagnose_s, diagnose_cpu) = t.read();
+    println!(
+        "diagnose ({} candidates tested, {} training / {} test samples): {diagnose_s:.2} s (CPU {diagnose_cpu:.2} s)",
+        d.candidates.len(),
+        d.n_train,
+        d.n_test
+    );
+    for c in d.candidates.iter().take(3) {
+        println!(
+            "  {:<28} p {:.2e}  held-out {:.4} -> {:.4} deg/h {}",
+            c.kind.label(),
+            c.p_value,
+            c.before_rad_s * DEG_H_PER_RAD_S,
+            c.after_rad_s * DEG_H_PER_RAD_S,
+            if c.significant { "significant" } else { "" }
+        );
+    }
+    Ok((compare_s, diagnose_s, compare_cpu + diagnose_cpu))
+}
+
+/// Compare and diagnose from one pass: the fit, held-out RMS and diagnosis from the same
+/// sums, the largest |residual| proved from the pass's extremes (a second pass only if it
+/// cannot be); with `hash`, the hashes of the results. The wall and CPU seconds.
+fn one_pass(model: &Model, path: &Path, hash: bool) -> Result<(f64, f64)> {
+    let t = Clock::start();
+    let header = Source::File(path).header()?;
     let opt = Options::default();
-    let dg = digest(Source::File(&path), &spec_for(&model, &candidate_terms(&header), opt.n_blocks), None)?;
-    let f = complete(fit_digest(&model, &dg)?, Source::File(&path), &dg)?;
+    let dg = digest(Source::File(path), &spec_for(model, &candidate_terms(&header), opt.n_blocks), None)?;
+    let f = complete(fit_digest(model, &dg)?, Source::File(path), &dg)?;
     let ho = held_out_rms(&model.kinds(), &dg)?;
-    let d1 = diagnose_digest(&model, &dg, &opt)?;
+    let d1 = diagnose_digest(model, &dg, &opt)?;
     let (one_pass_s, one_pass_cpu) = t.read();
     println!(
         "compare + diagnose in one pass: {one_pass_s:.2} s, CPU {one_pass_cpu:.2} s (FOG0 residual {:.4} deg/h, max {:.4} deg/h over {} rows, held-out {:.4} deg/h; top candidate {})",
@@ -268,7 +292,7 @@ fn main() -> Result<()> {
         d1.candidates[0].kind.label()
     );
     println!("  largest |residual|: {} rows read again", f.max_rows_read_again);
-    if cli.hash {
+    if hash {
         let hash = |x: &dyn std::fmt::Debug| -> Result<u64> {
             let mut h = HashWriter(std::collections::hash_map::DefaultHasher::new());
             std::fmt::Write::write_fmt(&mut h, format_args!("{x:?}"))?;
@@ -287,15 +311,5 @@ fn main() -> Result<()> {
             std::fs::write(&p, format!("{dg:#?}\n{f:#?}\n{ho:#?}\n{d1:#?}\n"))?;
         }
     }
-    let ingest = if cli.no_ingest {
-        "ingest not timed".to_string()
-    } else {
-        format!("ingest {:.0} MB/s (CPU: {:.0} MB/s)", mb / ingest_s, mb / ingest_cpu)
-    };
-    println!(
-        "compare + diagnose as two commands: {:.2} s (CPU {two_cpu:.2} s), in one pass: {one_pass_s:.2} s, CPU \
-         {one_pass_cpu:.2} s (goal <= 10 s on one core); {ingest}",
-        compare_s + diagnose_s,
-    );
-    Ok(())
+    Ok((one_pass_s, one_pass_cpu))
 }

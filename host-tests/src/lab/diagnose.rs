@@ -31,12 +31,10 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::fit::{
-    design, design_gram, held_out, kept_residual, lstsq_gram, pooled, residual_functional, spec_for, trains, Design,
-    Sums,
-};
+use super::fit::{design, held_out, kept_residual, pooled, spec_for, trains, Design, Sums};
+use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::stream::{digest, Digest, Gram, Source};
+use super::stream::{digest, Digest, Source};
 use super::LabResult;
 
 /// Options of a diagnosis.

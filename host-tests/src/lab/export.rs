@@ -4,7 +4,7 @@
 //! factor k, T_ref, a1..a3 of ΔT, ΔT², ΔT³, g of G, h of ΔT·G, and the eight misalignment
 //! angles. All in the table's units (rad/s, rad). The firmware computes G itself with its
 //! α-β tracker (time constant `t_rate_filter_s`); the lab's G is a local line fit
-//! ([`super::model::temperature_rate`]): both estimate the same dT/dt.
+//! ([`super::stream::temperature_rate`]): both estimate the same dT/dt.
 //!
 //! The lab's scale factor and misalignment are linear coefficients: the fitted axis is
 //! v = (1 + k′) s⁰ + δ′_a ∂s/∂δ_a + δ′_b ∂s/∂δ_b. The export finds the exact angles whose

@@ -13,9 +13,10 @@
 //!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
 //!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's
 //!   eqs. 1–3), aging; plus sinusoids and user expressions over session columns).
-//! - [`fit`]: least squares linear in the coefficients from the pass's sums (Cholesky of the
-//!   scaled normal equations, rank-deficient regressors dropped and reported), held-out time
-//!   blocks.
+//! - [`lsq`]: the least-squares algebra on sums: Gram matrices, a design's normal
+//!   equations, their Cholesky solution with rank-deficient regressors dropped.
+//! - [`fit`]: a model fitted to a session from the pass's sums (which regressors were
+//!   dropped, reported), held-out time blocks.
 //! - [`diagnose`]: candidate terms tested by nested-model F-tests on held-out blocks,
 //!   Benjamini–Hochberg FDR control, the paper's two-factor ANOVA (T × G, Tables 1–2).
 //! - [`plot`]: residual plots (SVG) and the history of model versions.
@@ -29,6 +30,7 @@ pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod framelog;
+pub mod lsq;
 pub mod model;
 pub mod plot;
 pub mod replay;

@@ -13,7 +13,7 @@
 //! | `sf_nonlinearity` | r² | 1/(rad/s) |
 //! | `misalignment` | ∂s_i/∂δ_a · ω_ref for FOG i's two angles (δ12, δ13 / δ21, δ23 / δ31, δ32 / δ42, δ43) | rad |
 //! | `thermal_t1/t2/t3` | ΔT, ΔT², ΔT³, ΔT = T_i − T_ref | rad/s per °C^k |
-//! | `temp_rate` | G = dT_i/dt (smoothed, [`temperature_rate`]) | rad/s per °C/s |
+//! | `temp_rate` | G = dT_i/dt (smoothed, [`super::stream::temperature_rate`]) | rad/s per °C/s |
 //! | `t_times_g` | ΔT·G | rad/s per °C²/s |
 //! | `magnetic` | B·u_i, B·v_i (field across the sensitive axis) | rad/s per nT |
 //! | `aging` | (t − t₀)/3600 | rad/s per h |
@@ -56,7 +56,7 @@ pub struct Model {
     /// Reference temperature of the thermal polynomial, °C.
     #[serde(default = "default_t_ref")]
     pub t_ref_degc: f64,
-    /// Width of the window of the temperature-rate estimate G, s ([`temperature_rate`]);
+    /// Width of the window of the temperature-rate estimate G, s ([`super::stream::temperature_rate`]);
     /// 0 (the default) means max(2 × the median sample interval, 60 s).
     #[serde(default = "default_g_window")]
     pub g_window_s: f64,
@@ -345,15 +345,6 @@ impl Model {
     pub fn kinds(&self) -> Vec<Kind> {
         self.terms.iter().map(|t| Kind::of_spec(t).expect("checked when read")).collect()
     }
-}
-
-/// Temperature rate G = dT/dt: at each sample the slope of the least-squares line through
-/// the temperature samples within ±`window_s`/2 (at least the two neighbours; one-sided at
-/// the ends). A local line, not a raw difference: the frame's 1/256 °C quantisation would
-/// otherwise dominate at short sample intervals. Computed by the passes over a session
-/// ([`super::stream`], running sums over the window); this is the same code on one series.
-pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
-    super::stream::temperature_rate(t_s, temp_degc, window_s)
 }
 
 /// Sets angle `k` (0 or 1, the order of [`MISALIGNMENT_ANGLES`]) of FOG `fog` in `m`.

@@ -15,7 +15,7 @@
 //! (slot 0 stays 1): the shift is a change of basis the functionals undo exactly
 //! ([`Digest::shifted`]).
 //!
-//! G = dT/dt needs the samples up to half a window ahead ([`super::model::temperature_rate`]):
+//! G = dT/dt needs the samples up to half a window ahead ([`temperature_rate`]):
 //! the pass holds that many rows back, never more. A systematic sample of at most `keep`
 //! rows (every row when the session is that short) is kept with its basis vectors for what
 //! needs rows: plots, the spectral search, the T × G analysis of variance.
@@ -24,8 +24,8 @@ use std::path::Path;
 
 use exmex::Express;
 use indicatif::ProgressBar;
-use nalgebra::DMatrix;
 
+use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
 use super::session::{
     median_interval_s, nominal_axes, write_record, Converter, Header, RowReader, SampleRef, Session, Shape,
@@ -410,7 +410,7 @@ impl Basis {
         }
     }
 
-    /// The slots in the order the Gram sums take them ([`Gram::accumulate`]), and how many
+    /// The slots in the order the Gram sums take them ([`accumulate_gram`]), and how many
     /// come first that hold the same values for every FOG: in a batched pass, the
     /// quantities of the sample (1, ω_ref, hours, B, user columns: every FOG's shift of them
     /// is the same, the first row's value); otherwise none.
@@ -628,7 +628,7 @@ fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
     Ok(ExprSlot { text: e.into(), ex: Some(ex), vars, needs_temp })
 }
 
-/// G = dT/dt of every FOG, as [`super::model::temperature_rate`] defines it, over a stream:
+/// G = dT/dt of every FOG, as [`temperature_rate`] defines it, over a stream:
 /// samples are held until the window ahead of the oldest is complete. They are held as flat
 /// records in one array (written and read in order, so the memory is streamed, not chased
 /// through each sample's own vectors), with the times and temperatures in flat arrays beside
@@ -832,76 +832,41 @@ pub fn for_each_prepared_until(
     Ok(la.next.min(limit))
 }
 
-/// The sums z zᵀ of one FOG over one block (upper triangle filled; see [`Gram::full`]).
-#[derive(Debug, Clone)]
-pub struct Gram {
-    /// Rows summed.
-    pub n: usize,
-    /// m × m, row-major, upper triangle.
-    pub upper: Vec<f64>,
-    /// m.
-    pub m: usize,
-}
-
-impl Gram {
-    /// Zero sums of size m.
-    pub fn new(m: usize) -> Gram {
-        Gram { n: 0, upper: vec![0.0; m * m], m }
-    }
-
-    /// Adds another Gram.
-    pub fn add(&mut self, o: &Gram) {
-        self.n += o.n;
-        for (a, b) in self.upper.iter_mut().zip(&o.upper) {
-            *a += b;
-        }
-    }
-
-    /// The symmetric matrix.
-    pub fn full(&self) -> DMatrix<f64> {
-        DMatrix::from_fn(
-            self.m,
-            self.m,
-            |r, c| if r <= c { self.upper[r * self.m + c] } else { self.upper[c * self.m + r] },
-        )
-    }
-
-    /// Adds one batch per FOG to that FOG's sums (`grams[f]`, batch `batches[f]`: m columns
-    /// of [`BATCH`] values, [`COL`] apart, rows past `rows` zero, then a column of zeros).
-    /// The slots `order[..shared]` hold the same values for every FOG (quantities of the
-    /// sample, not of a FOG: 1, ω_ref, hours, B, user columns): their entries are summed
-    /// once, from the first FOG, and added to every FOG's sums. Each entry is one dot
-    /// product ([`gram_entry`]), the same bits whichever entries are summed with it.
-    fn accumulate(grams: &mut [&mut Gram], batches: &[Vec<f64>], rows: usize, order: &[usize], shared: usize) {
-        let Some(m) = grams.first().map(|g| g.m) else { return };
-        // Per row of the triangle, in `order`: the other slots of its entries.
-        let mut bs: Vec<usize> = Vec::with_capacity(m + 3);
-        let mut vals = vec![0.0f64; m + 3];
-        let mut first_shared = vec![0.0f64; m * m];
-        for (f, (g, cols)) in grams.iter_mut().zip(batches).enumerate() {
-            g.n += rows;
-            for (i, &a) in order.iter().enumerate() {
-                bs.clear();
-                let from = if f > 0 && i < shared { shared } else { i };
-                bs.extend_from_slice(&order[from..]);
-                if f > 0 && i < shared {
-                    for &b in &order[i..shared] {
-                        let k = a.min(b) * m + a.max(b);
-                        g.upper[k] += first_shared[k];
-                    }
-                }
-                let n = bs.len();
-                // Groups of four: the last padded with the zero column (m).
-                while !bs.len().is_multiple_of(4) {
-                    bs.push(m);
-                }
-                gram_entries(cols, a, &bs, &mut vals[..bs.len()]);
-                for (&b, &v) in bs.iter().zip(&vals).take(n) {
+/// Adds one batch per FOG to that FOG's sums (`grams[f]`, batch `batches[f]`: m columns
+/// of [`BATCH`] values, [`COL`] apart, rows past `rows` zero, then a column of zeros).
+/// The slots `order[..shared]` hold the same values for every FOG (quantities of the
+/// sample, not of a FOG: 1, ω_ref, hours, B, user columns): their entries are summed
+/// once, from the first FOG, and added to every FOG's sums. Each entry is one dot
+/// product ([`gram_entry`]), the same bits whichever entries are summed with it.
+fn accumulate_gram(grams: &mut [&mut Gram], batches: &[Vec<f64>], rows: usize, order: &[usize], shared: usize) {
+    let Some(m) = grams.first().map(|g| g.m) else { return };
+    // Per row of the triangle, in `order`: the other slots of its entries.
+    let mut bs: Vec<usize> = Vec::with_capacity(m + 3);
+    let mut vals = vec![0.0f64; m + 3];
+    let mut first_shared = vec![0.0f64; m * m];
+    for (f, (g, cols)) in grams.iter_mut().zip(batches).enumerate() {
+        g.n += rows;
+        for (i, &a) in order.iter().enumerate() {
+            bs.clear();
+            let from = if f > 0 && i < shared { shared } else { i };
+            bs.extend_from_slice(&order[from..]);
+            if f > 0 && i < shared {
+                for &b in &order[i..shared] {
                     let k = a.min(b) * m + a.max(b);
-                    g.upper[k] += v;
-                    if f == 0 && i < shared {
-                        first_shared[k] = v;
-                    }
+                    g.upper[k] += first_shared[k];
+                }
+            }
+            let n = bs.len();
+            // Groups of four: the last padded with the zero column (m).
+            while !bs.len().is_multiple_of(4) {
+                bs.push(m);
+            }
+            gram_entries(cols, a, &bs, &mut vals[..bs.len()]);
+            for (&b, &v) in bs.iter().zip(&vals).take(n) {
+                let k = a.min(b) * m + a.max(b);
+                g.upper[k] += v;
+                if f == 0 && i < shared {
+                    first_shared[k] = v;
                 }
             }
         }
@@ -1038,6 +1003,29 @@ pub struct Kept {
     pub temp: Vec<Option<(Vec<f64>, Vec<f64>)>>,
     /// Per FOG, the shifted basis vectors, row-major (rows × m).
     pub z: Vec<Vec<f64>>,
+}
+
+impl Kept {
+    /// Keeps row `j` of block `block`: sample `s`, its G per FOG `g`, its azimuth from
+    /// column `psi_col` (the basis vectors are kept by the pass).
+    fn push_row(&mut self, j: usize, block: usize, s: &SampleRef, g: &[f64], psi_col: Option<usize>) {
+        self.rows.push(j);
+        self.t_s.push(s.t_s);
+        self.block.push(block);
+        if let (Some(p), Some(c)) = (self.psi_rad.as_mut(), psi_col) {
+            p.push(s.values[c]);
+        }
+        self.omega_rad_s.push(s.ref_rad_s);
+        if let Some(f) = self.field_nt.as_mut() {
+            f.push(s.field_nt);
+        }
+        for (i, t) in self.temp.iter_mut().enumerate() {
+            if let Some((temp, rate)) = t.as_mut() {
+                temp.push(s.t_degc[i]);
+                rate.push(g[i]);
+            }
+        }
+    }
 }
 
 /// Rows of the first segment (held until the fit on them ranks them).
@@ -1222,6 +1210,56 @@ struct Tracker {
 }
 
 impl Tracker {
+    /// Offers a summed batch (`rows` rows, m columns [`COL`] apart per FOG) to the current
+    /// segment's extremes, or holds its rows (row-major) while the first segment is open.
+    fn offer_batch(&mut self, batch: &[Vec<f64>], rows: usize, m: usize) {
+        match self.out.segs.last_mut() {
+            None => {
+                for (f, b) in self.first.iter_mut().zip(batch.iter()) {
+                    for i in 0..rows {
+                        f.extend((0..m).map(|a| b[a * COL + i]));
+                    }
+                }
+            }
+            Some(seg) => {
+                for (x, b) in seg.iter_mut().zip(batch.iter()) {
+                    x.offer_batch(b, rows, m);
+                }
+            }
+        }
+    }
+
+    /// Starts a segment ranked under the all-rows fit of the sums so far; at the end of the
+    /// first segment, first ranks the rows held under that same fit.
+    fn open_segment(&mut self, basis: &Basis, shift: &[Vec<f64>], gram: &[Vec<Gram>], box_rows: usize) {
+        let m = basis.m;
+        let ells: Vec<Vec<f64>> =
+            (0..shift.len()).map(|fog| self.running_ell(basis, &shift[fog], &gram[fog], fog)).collect();
+        if self.out.segs.is_empty() {
+            // The first segment, ranked under its own fit.
+            let mut seg = Vec::new();
+            for (fog, ell) in ells.iter().enumerate() {
+                let mut x = SegmentExtremes::new(box_rows);
+                x.ell = ell.clone();
+                for row in self.first[fog].chunks_exact(m) {
+                    x.offer(row, m);
+                }
+                seg.push(x);
+            }
+            self.out.segs.push(seg);
+            self.first = Vec::new();
+        }
+        self.out.segs.push(
+            ells.into_iter()
+                .map(|ell| {
+                    let mut x = SegmentExtremes::new(box_rows);
+                    x.ell = ell;
+                    x
+                })
+                .collect(),
+        );
+    }
+
     /// The residual functional of the all-rows fit of the sums so far, FOG `fog`.
     fn running_ell(&self, basis: &Basis, shift: &[f64], gram: &[Gram], fog: usize) -> Vec<f64> {
         let mut g = Gram::new(basis.m);
@@ -1236,8 +1274,8 @@ impl Tracker {
             }
         }
         cols.push(sh(&basis.y_functional()));
-        let ls = super::fit::lstsq_gram(&super::fit::design_gram(&g, &cols), g.n);
-        super::fit::residual_functional(&cols, &ls.coef)
+        let ls = lstsq_gram(&design_gram(&g, &cols), g.n);
+        residual_functional(&cols, &ls.coef)
     }
 }
 
@@ -1344,6 +1382,13 @@ fn shifted(l: &[f64], shift: &[f64]) -> Vec<f64> {
 }
 
 /// One pass over `source`.
+///
+/// Longer than a function should be, for a reason: it is the lab's hot loop. The per-row
+/// closure and the batch flush share a dozen locals (the batch, the Gram sums, the counters
+/// of block, segment and kept row, the first row's shift); held in one frame they stay
+/// registers and stack slots the compiler sees whole, and the pass's speed (BENCHMARKS.md)
+/// depends on that. What runs once per segment, batch or kept row is in methods of
+/// `Tracker` and [`Kept`].
 pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>) -> LabResult<Digest> {
     let shape = source.shape()?;
     if let Some(pb) = progress {
@@ -1414,22 +1459,9 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             }
         }
         let mut grams: Vec<&mut Gram> = gram.iter_mut().map(|g| &mut g[block]).collect();
-        Gram::accumulate(&mut grams, batch, rows, &order, shared);
+        accumulate_gram(&mut grams, batch, rows, &order, shared);
         if let Some(t) = tracker {
-            match t.out.segs.last_mut() {
-                None => {
-                    for (f, b) in t.first.iter_mut().zip(batch.iter()) {
-                        for i in 0..rows {
-                            f.extend((0..m).map(|a| b[a * COL + i]));
-                        }
-                    }
-                }
-                Some(seg) => {
-                    for (x, b) in seg.iter_mut().zip(batch.iter()) {
-                        x.offer_batch(b, rows, m);
-                    }
-                }
-            }
+            t.offer_batch(batch, rows, m);
         }
     };
     // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
@@ -1462,51 +1494,12 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
-            let ells: Vec<Vec<f64>> =
-                (0..n_fog).map(|fog| t.running_ell(&basis, &shift[fog], &gram[fog], fog)).collect();
-            if t.out.segs.is_empty() {
-                // The first segment, ranked under its own fit.
-                let mut seg = Vec::new();
-                for (fog, ell) in ells.iter().enumerate() {
-                    let mut x = SegmentExtremes::new(box_rows);
-                    x.ell = ell.clone();
-                    for row in t.first[fog].chunks_exact(m) {
-                        x.offer(row, m);
-                    }
-                    seg.push(x);
-                }
-                t.out.segs.push(seg);
-                t.first = Vec::new();
-            }
-            t.out.segs.push(
-                ells.into_iter()
-                    .map(|ell| {
-                        let mut x = SegmentExtremes::new(box_rows);
-                        x.ell = ell;
-                        x
-                    })
-                    .collect(),
-            );
+            t.open_segment(&basis, &shift, &gram, box_rows);
         }
         let keep = j == next_keep;
         if keep {
             next_keep += stride;
-            kept.rows.push(j);
-            kept.t_s.push(s.t_s);
-            kept.block.push(block);
-            if let (Some(p), Some(c)) = (kept.psi_rad.as_mut(), psi_col) {
-                p.push(s.values[c]);
-            }
-            kept.omega_rad_s.push(s.ref_rad_s);
-            if let Some(f) = kept.field_nt.as_mut() {
-                f.push(s.field_nt);
-            }
-            for (i, t) in kept.temp.iter_mut().enumerate() {
-                if let Some((temp, rate)) = t.as_mut() {
-                    temp.push(s.t_degc[i]);
-                    rate.push(g[i]);
-                }
-            }
+            kept.push_row(j, block, s, g, psi_col);
         }
         if shift.len() < n_fog {
             // The first row: the shift is its basis vector (slot 0 stays 1).
@@ -1592,7 +1585,11 @@ impl Digest {
     }
 }
 
-/// [`super::model::temperature_rate`] of one series.
+/// Temperature rate G = dT/dt of one series: at each sample the slope of the least-squares
+/// line through the temperature samples within ±`window_s`/2 (at least the two neighbours;
+/// one-sided at the ends). A local line, not a raw difference: the frame's 1/256 °C
+/// quantisation would otherwise dominate at short sample intervals. The passes over a
+/// session compute the same per FOG with running sums over the window (`Lookahead`).
 pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
     let mut la = Lookahead::new(1, window_s);
     let mut out = Vec::with_capacity(t_s.len());
