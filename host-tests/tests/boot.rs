@@ -63,8 +63,8 @@ impl Board for Stm32h7Flash {
 
 /// Boots on `board` and returns what the main loop would be handed: the core's table
 /// and the boot report.
-fn boot_on(board: &Stm32h7Flash, profile: Profile, other_defaulted: bool) -> (CalibrationTable, BootReport) {
-    boot(board, profile, other_defaulted, |core: &mut FlightCore, report| (*core.table(), *report))
+fn boot_on(board: &mut Stm32h7Flash, profile: Profile, other_defaulted: bool) -> (CalibrationTable, BootReport) {
+    boot(board, profile, other_defaulted, |_, core: &mut FlightCore, report| (*core.table(), *report))
         .expect("the unit flies")
 }
 
@@ -78,8 +78,8 @@ fn a_damaged_copy_a_flies_on_copy_b_and_names_a_as_refused() {
     let t = table();
     let mut image = store::image(&t).to_vec();
     image[Slot::A.offset() + 200] ^= 0x04;
-    let board = Stm32h7Flash::programmed(&image);
-    let (flown, b) = boot_on(&board, Profile::SPACECRAFT, false);
+    let mut board = Stm32h7Flash::programmed(&image);
+    let (flown, b) = boot_on(&mut board, Profile::SPACECRAFT, false);
     assert_eq!(b.loaded.source, Source::Stored(Slot::B), "flies on copy B");
     assert_eq!(b.loaded.slot_errors, [Some(StoreError::BadCrc), None]);
     assert!(!b.defaulted, "copy B is the stored table, not the default");
@@ -93,8 +93,8 @@ fn a_damaged_copy_a_flies_on_copy_b_and_names_a_as_refused() {
 
 #[test]
 fn both_copies_good_fly_without_a_word() {
-    let board = Stm32h7Flash::programmed(&store::image(&table()));
-    let (_, b) = boot_on(&board, Profile::SPACECRAFT, false);
+    let mut board = Stm32h7Flash::programmed(&store::image(&table()));
+    let (_, b) = boot_on(&mut board, Profile::SPACECRAFT, false);
     assert_eq!(b.loaded.source, Source::Stored(Slot::A));
     assert_eq!(b.events().count(), 0);
     assert!(!b.defaulted);
@@ -102,8 +102,8 @@ fn both_copies_good_fly_without_a_word() {
 
 #[test]
 fn an_erased_sector_flies_on_the_default_table_flagged() {
-    let board = Stm32h7Flash::programmed(&[]);
-    let (flown, b) = boot_on(&board, Profile::SPACECRAFT, false);
+    let mut board = Stm32h7Flash::programmed(&[]);
+    let (flown, b) = boot_on(&mut board, Profile::SPACECRAFT, false);
     assert_eq!(b.loaded.source, Source::Default);
     assert!(b.defaulted);
     assert_eq!(flown, CalibrationTable::DEFAULT);
@@ -121,8 +121,8 @@ fn an_erased_sector_flies_on_the_default_table_flagged() {
 #[test]
 fn another_defaulted_table_flags_the_output_too() {
     // The launch vehicle's accelerometer section fell back to the ideal one.
-    let board = Stm32h7Flash::programmed(&store::image(&table()));
-    let (flown, b) = boot_on(&board, Profile::LAUNCH_VEHICLE, true);
+    let mut board = Stm32h7Flash::programmed(&store::image(&table()));
+    let (flown, b) = boot_on(&mut board, Profile::LAUNCH_VEHICLE, true);
     assert_eq!(b.loaded.source, Source::Stored(Slot::A));
     assert!(b.defaulted);
     assert_eq!(flown, table());

@@ -71,27 +71,27 @@ impl core::fmt::Display for BootEvent {
 }
 
 /// Boots the flight core for `profile` on `board` (the steps in the module doc), logs
-/// the boot (target) and hands the core to `fly`, the firmware's main loop, whose result
-/// it returns. `other_defaulted`: another table of the unit fell back to its default
+/// the boot (target) and hands the board and the core to `fly`, the firmware's main
+/// loop, whose result it returns. `other_defaulted`: another table of the unit fell back to its default
 /// (the launch vehicle's accelerometer section), so the output frames carry the
 /// defaulted flag too.
 ///
 /// The core (7 KB) is built once, in this function's frame, and lent to `fly`: never
 /// moved, so the stack holds one copy (the stack is 28 KiB on the spacecraft board).
 pub fn boot<B: Board + ?Sized, R>(
-    board: &B,
+    board: &mut B,
     profile: Profile,
     other_defaulted: bool,
-    fly: impl FnOnce(&mut FlightCore, &BootReport) -> R,
+    fly: impl FnOnce(&mut B, &mut FlightCore, &BootReport) -> R,
 ) -> Result<R, BootError> {
     let loaded = store::load(board.calib_area());
-    let mut report =
-        BootReport { loaded, core_refused: None, bit: Ok(()), defaulted: loaded.defaulted() || other_defaulted };
-    let mut table = loaded.table;
+    let defaulted = loaded.defaulted() || other_defaulted;
+    let mut report = BootReport { loaded, core_refused: None, bit: Ok(()), defaulted };
     // Runs at most twice: the stored table, then the default one. One call site of
-    // `FlightCore::new`, so its code is not duplicated in flash.
+    // `FlightCore::new`, so its code is not duplicated in flash; no copy of the table.
     loop {
-        let mut built = FlightCore::new(profile, &table, report.defaulted);
+        let table = if report.core_refused.is_some() { &CalibrationTable::DEFAULT } else { &report.loaded.table };
+        let mut built = FlightCore::new(profile, table, report.defaulted);
         match &mut built {
             Ok(core) => {
                 report.bit = bit::power_on();
@@ -100,14 +100,13 @@ pub fn boot<B: Board + ?Sized, R>(
                 }
                 #[cfg(target_os = "none")]
                 report.log();
-                return Ok(fly(core, &report));
+                return Ok(fly(board, core, &report));
             }
             Err(e) => {
-                if report.core_refused.is_some() || loaded.defaulted() {
+                if report.core_refused.is_some() || report.loaded.defaulted() {
                     return Err(BootError::DefaultRefused(*e));
                 }
                 report.core_refused = Some(*e);
-                table = CalibrationTable::DEFAULT;
                 report.defaulted = true;
             }
         }

@@ -51,7 +51,7 @@ use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
 use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis::bsp::Board;
-use ssis::calib::accel::{AccelCompensator, AccelTable, TABLE_LEN as ACCEL_TABLE_LEN};
+use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
@@ -119,15 +119,11 @@ fn main() -> ! {
     let mut board = Mps2;
     let Some(cp) = cortex_m::Peripherals::take() else { board.stop(false) };
     let profile = Profile::LAUNCH_VEHICLE;
-    let accel = match AccelTable::from_bytes(mps2::lvdata(0, ACCEL_TABLE_LEN)).and_then(|t| t.compensator()) {
-        Ok(c) => Some(c),
-        Err(e) => {
-            defmt::warn!("accelerometer section refused ({}): flying on the ideal one", e);
-            None
-        }
-    };
-    // Either table defaulted: flagged in every flight output frame.
-    match boot::boot(&board, profile, accel.is_none(), |core, report| fly(core, report, accel, cp.SYST, profile)) {
+    // The accelerometer section is only checked here, for the defaulted flag (either
+    // table defaulted: flagged in every flight output frame); `fly` decodes it again
+    // where the navigation is built, so `main`'s frame does not hold it under the loop.
+    let accel_defaulted = accel_section().is_err();
+    match boot::boot(&mut board, profile, accel_defaulted, |_, core, report| fly(core, report, cp.SYST, profile)) {
         Ok(never) => match never {},
         Err(e) => {
             defmt::error!("cannot fly: {}", e);
@@ -136,19 +132,24 @@ fn main() -> ! {
     }
 }
 
+/// The accelerometer section (LVDATA + 0), decoded.
+fn accel_section() -> Result<AccelCompensator, AccelTableError> {
+    AccelTable::from_bytes(mps2::lvdata(0, ACCEL_TABLE_LEN)).and_then(|t| t.compensator())
+}
+
 /// The navigation set up on the booted core, then the main loop.
-fn fly(
-    core: &mut FlightCore,
-    report: &BootReport,
-    accel: Option<AccelCompensator>,
-    syst: SYST,
-    profile: Profile,
-) -> Infallible {
-    let accel = match accel.map_or_else(|| AccelTable::IDEAL.compensator(), Ok) {
+fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile) -> Infallible {
+    let accel = match accel_section() {
         Ok(c) => c,
         Err(e) => {
-            defmt::error!("ideal accelerometer section refused: {}", e);
-            mps2::exit(false)
+            defmt::warn!("accelerometer section refused ({}): flying on the ideal one", e);
+            match AccelTable::IDEAL.compensator() {
+                Ok(c) => c,
+                Err(e) => {
+                    defmt::error!("ideal accelerometer section refused: {}", e);
+                    mps2::exit(false)
+                }
+            }
         }
     };
     let init = match PadInit::from_bytes(mps2::lvdata(INIT_OFFSET, INIT_BLOCK_LEN)) {
@@ -161,7 +162,9 @@ fn fly(
     // The core's attitude starts at the pad attitude: its output is the body in ECEF
     // frozen at lift-off (an inertial frame); the navigation carries q_eb itself.
     core.align(init.state.q_eb);
-    let mut nav = match NavUnit::new(init.state, profile.dt_s(), accel, init.gnss) {
+    // Borrowed where it was built, never moved: one copy on the stack.
+    let mut built = NavUnit::new(init.state, profile.dt_s(), accel, init.gnss);
+    let nav = match &mut built {
         Ok(n) => n,
         Err(e) => {
             defmt::error!("navigation refused the pad state: {}", e);
@@ -227,7 +230,7 @@ fn fly(
                 t.push(busy);
             }
         }
-        pacer.end_pass(due, || report_end(core, &nav, &times, nav_steps));
+        pacer.end_pass(due, || report_end(core, nav, &times, nav_steps));
     }
 }
 

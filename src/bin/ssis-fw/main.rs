@@ -67,7 +67,7 @@ fn main() -> ! {
     let mut board = Mps2;
     let Some(cp) = cortex_m::Peripherals::take() else { board.stop(false) };
     let profile = Profile::SPACECRAFT;
-    match boot::boot(&board, profile, false, |core, report| fly(core, report, cp.SYST, profile)) {
+    match boot::boot(&mut board, profile, false, |_, core, report| fly(core, report, cp.SYST, profile)) {
         Ok(never) => match never {},
         Err(e) => {
             defmt::error!("cannot fly: {}", e);
