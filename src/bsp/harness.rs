@@ -27,10 +27,13 @@ pub fn finish(name: &str, ok: bool) -> ! {
 /// the statics changed.
 #[cfg(feature = "test-hooks")]
 pub fn overflow_the_stack() -> ! {
+    use core::sync::atomic::{AtomicU32, Ordering};
+
     use super::cortex_m7;
 
-    /// Known, non-zero contents in .data, so the statics are not all zeros.
-    static PATTERN: [u32; 16] = [0xA5A5_5A5A; 16];
+    /// Known, non-zero contents in .data (atomics: writable, so in RAM, not in flash),
+    /// so the statics are not all zeros.
+    static PATTERN: [AtomicU32; 16] = [const { AtomicU32::new(0xA5A5_5A5A) }; 16];
     /// Levels after which the run gives up (far beyond what any layout's stack holds).
     const MAX_DEPTH: u32 = 100_000;
 
@@ -67,7 +70,7 @@ pub fn overflow_the_stack() -> ! {
 
     mps2::start();
     let (lo, hi) = cortex_m7::statics();
-    let pattern_ok = core::hint::black_box(&PATTERN).iter().all(|&w| w == 0xA5A5_5A5A);
+    let pattern_ok = core::hint::black_box(&PATTERN).iter().all(|w| w.load(Ordering::Relaxed) == 0xA5A5_5A5A);
     defmt::info!(
         "stackcheck: statics {=u32:#010x}..{=u32:#010x} ({} bytes, pattern {}), recursing from sp {=u32:#010x}",
         lo as u32,
