@@ -1,7 +1,8 @@
 //! Link scripts for the firmware binaries only (cortex-m-rt's link.x with memory.x from
 //! this directory, and defmt's), so nested board packages keep their own.
 //!
-//! The launch-vehicle firmware (`ssis-fw-lv`) has a memory budget of its own,
+//! The launch-vehicle firmware (`ssis-fw-lv`, and the binaries tested in its layout:
+//! `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
 //! `link/memory-lv.x`. cortex-m-rt's link.x includes `memory.x`, which the linker looks
 //! for in the working directory (this one) before the search path, so that binary is
 //! linked with a copy of link.x that includes `memory-lv.x` instead (written to OUT_DIR
@@ -23,7 +24,7 @@ fn main() {
             Ok(lv_dir) => {
                 // The navigation benchmark is launch-vehicle code: the LV budget (its
                 // GNSS update needs more stack than the spacecraft's 28 KiB region).
-                for bin in ["ssis-fw-lv", "ssis-navbench"] {
+                for bin in ["ssis-fw-lv", "ssis-navbench", "ssis-stackcheck-lv"] {
                     println!("cargo:rustc-link-arg-bin={bin}=-L{}", lv_dir.display());
                     println!("cargo:rustc-link-arg-bin={bin}=-Tlink-lv.x");
                 }

@@ -23,11 +23,14 @@
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
 //! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
 //! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
+//! [`bsp`] is the board seam: the boot policy every board shares (host and target) and,
+//! for the target only, the Cortex-M7 and QEMU `mps2-an500` board code.
 #![no_std]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;
 pub mod bit;
+pub mod bsp;
 pub mod calib;
 pub mod combination;
 pub mod compensation;

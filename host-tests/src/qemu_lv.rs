@@ -4,7 +4,7 @@
 //! replays the same bytes through the same `FlightCore` + `NavUnit` in-process: every
 //! flight output frame and every navigation output frame must be bit-identical.
 //!
-//! UARTs (`src/bin/ssis-fw-lv/board.rs`): 0 control in / flight output out, 1 FOG bus,
+//! UARTs (the UART map in `src/bin/ssis-fw-lv/main.rs`): 0 control in / flight output out, 1 FOG bus,
 //! 2 navigation output out, 3 accelerometer bus, 4 GNSS receiver. The FOG table (two
 //! copies), the accelerometer section and the pad initialisation block are loaded into
 //! their flash regions with `-device loader` at the addresses the ELF's symbols

@@ -6,7 +6,8 @@
 //! - fault injection: a stalled main loop is caught by the watchdog;
 //! - the on-target test binary (`ssis-selftest`): built-in test and a replay digest equal
 //!   to the host's;
-//! - stack overflow (`ssis-stackcheck`): a fault reported below the stack, statics intact.
+//! - stack overflow (`ssis-stackcheck`, `ssis-stackcheck-lv`: each firmware's layout): a
+//!   fault reported below the stack, statics intact.
 
 use std::path::Path;
 
@@ -171,33 +172,40 @@ fn on_target_self_test_passes_and_replays_the_host_bit_for_bit() {
 
 #[test]
 fn a_stack_overflow_faults_below_the_stack_and_never_touches_the_statics() {
-    // `ssis-stackcheck` (the flight board code and memory.x) recurses until the stack runs
-    // out, checking at every level that the statics are unchanged. The stack lies below
-    // the statics, so the overflow must run off the bottom of RAM into a bus fault that the
+    // `ssis-stackcheck` (memory.x, the spacecraft firmware's layout) and
+    // `ssis-stackcheck-lv` (link/memory-lv.x, the launch vehicle's), on the flight
+    // firmwares' board code, recurse until the stack runs out, checking at every level
+    // that the statics are unchanged. Both layouts put the stack below the statics, so
+    // the overflow must run off the bottom of RAM into the MPU guard, a fault that the
     // HardFault handler reports, with QEMU's exit code 1, and never reach the statics.
     // (Without the MPU guard QEMU does not fault below 0x2000_0000: this test then failed,
     // the recursion ran 8 MiB further down before it crashed.)
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let elf = ssis_host::qemu::build_test_hooks_bin("ssis-stackcheck").expect("stackcheck builds");
-    let (code, log) =
-        ssis_host::qemu::run_bare(&elf, std::time::Duration::from_secs(30)).expect("QEMU runs the stackcheck");
-    for l in &log {
-        println!("target: {l}");
+    for bin in ["ssis-stackcheck", "ssis-stackcheck-lv"] {
+        let elf = ssis_host::qemu::build_test_hooks_bin(bin).expect("stackcheck builds");
+        let (code, log) =
+            ssis_host::qemu::run_bare(&elf, std::time::Duration::from_secs(30)).expect("QEMU runs the stackcheck");
+        for l in &log {
+            println!("{bin}: {l}");
+        }
+        assert!(
+            log.iter().any(|l| l.starts_with("stackcheck: statics") && l.contains("pattern true")),
+            "{bin} started"
+        );
+        assert!(!log.iter().any(|l| l.contains("statics damaged")), "{bin}: the overflow reached the statics");
+        assert!(!log.iter().any(|l| l.contains("no fault after")), "{bin}: the stack ran past its bottom, no fault");
+        let fault = log.iter().find(|l| l.starts_with("stack overflow: hard fault")).expect("the fault is reported");
+        // The stack pointer at the fault: at or below the bottom of the stack (0x2000_0000
+        // in both layouts), within one exception frame of it.
+        let sp = fault
+            .split_whitespace()
+            .skip_while(|w| *w != "sp")
+            .nth(1)
+            .and_then(|v| u32::from_str_radix(v.trim_start_matches("0x").trim_end_matches(','), 16).ok())
+            .expect("sp in the report");
+        assert!((0x2000_0000 - 112..0x2000_0000 + 112).contains(&sp), "{bin}: sp {sp:#010x} at the fault");
+        assert_eq!(code, Some(1), "{bin}: QEMU exit code (semihosting EXIT_FAILURE)");
     }
-    assert!(log.iter().any(|l| l.starts_with("stackcheck: statics") && l.contains("pattern true")), "it started");
-    assert!(!log.iter().any(|l| l.contains("statics damaged")), "the overflow reached the statics");
-    assert!(!log.iter().any(|l| l.contains("no fault after")), "the stack ran past its bottom without a fault");
-    let fault = log.iter().find(|l| l.starts_with("stack overflow: hard fault")).expect("the fault is reported");
-    // The stack pointer at the fault: at or below the bottom of the stack (0x2000_0000,
-    // memory.x), within one exception frame of it.
-    let sp = fault
-        .split_whitespace()
-        .skip_while(|w| *w != "sp")
-        .nth(1)
-        .and_then(|v| u32::from_str_radix(v.trim_start_matches("0x").trim_end_matches(','), 16).ok())
-        .expect("sp in the report");
-    assert!((0x2000_0000 - 112..0x2000_0000 + 112).contains(&sp), "sp {sp:#010x} at the fault");
-    assert_eq!(code, Some(1), "QEMU exit code (semihosting EXIT_FAILURE)");
 }
 
 /// Issue 6 part 7, the subset under QEMU: a bias step of 5σ of the parity residual

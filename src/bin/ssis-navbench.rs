@@ -7,14 +7,14 @@
 //! SysTick runs free from the core clock (reload 2^24 − 1, no interrupt); the time of
 //! each measured call is the counter difference (it counts down, modulo 2^24). Under
 //! QEMU with `-icount shift=0` one tick is 40 instructions (`docs/../shared/NOTES.md`).
-//! It logs (defmt) the totals and exits with success when every step was accepted.
+//! It logs (defmt) the totals and passes (`ssis::bsp::harness`) when every step was
+//! accepted.
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic)]
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::SYST;
-use defmt_semihosting as _;
 use nalgebra::{Quaternion, Vector3};
 use ssis::calib::accel::AccelTable;
 use ssis::nav::gnss::{AidedNav, GnssConfig, GnssFix};
@@ -27,19 +27,10 @@ const FIX_EVERY: u32 = 800;
 const DT_S: f64 = 1.25e-3;
 const MASK: u32 = 0x00FF_FFFF;
 
-fn exit(success: bool) -> ! {
-    let code =
-        if success { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
-    cortex_m_semihosting::debug::exit(code);
-    loop {
-        cortex_m::asm::wfi();
-    }
-}
+ssis::mps2_test!();
 
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic");
-    exit(false)
+fn finish(ok: bool) -> ! {
+    ssis::bsp::harness::finish("navbench", ok)
 }
 
 fn ticks_since(start: u32) -> u32 {
@@ -48,14 +39,14 @@ fn ticks_since(start: u32) -> u32 {
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    let Some(cp) = cortex_m::Peripherals::take() else { exit(false) };
+    let Some(cp) = cortex_m::Peripherals::take() else { finish(false) };
     let mut syst = cp.SYST;
     syst.set_clock_source(SystClkSource::Core);
     syst.set_reload(MASK);
     syst.clear_current();
     syst.enable_counter();
 
-    let Ok(comp) = AccelTable::IDEAL.compensator() else { exit(false) };
+    let Ok(comp) = AccelTable::IDEAL.compensator() else { finish(false) };
     let r0 = wgs84::ecef_from_geodetic(0.8, 1.1, 100.0);
     let state = NavState { q_eb: Quaternion::identity(), v_e_m_s: Vector3::zeros(), r_e_m: r0 };
     let cfg = GnssConfig {
@@ -70,7 +61,7 @@ fn main() -> ! {
         gyro_bias_rw_rad_s_sqrt_s: 1e-7,
         gate_sigma: 1e9,
     };
-    let Ok(mut nav) = AidedNav::new(state, DT_S, cfg) else { exit(false) };
+    let Ok(mut nav) = AidedNav::new(state, DT_S, cfg) else { finish(false) };
 
     let (mut step_ticks, mut max_step, mut fix_ticks, mut max_fix) = (0u64, 0u32, 0u64, 0u32);
     let mut failures = 0u32;
@@ -112,5 +103,5 @@ fn main() -> ! {
         max_fix,
         failures
     );
-    exit(failures == 0)
+    finish(failures == 0)
 }

@@ -3,32 +3,18 @@
 //! or on any Cortex-M7 board with a debugger attached; it uses no peripheral.
 //!
 //! It logs (defmt) the result of [`ssis::bit::power_on`] and the [`ssis::bit::replay_digest`]
-//! of a 2,000-step flight, then exits with success only if the built-in test passed. The
-//! host test (`host-tests/tests/qemu.rs`) compares the digest with its own run of the same
-//! code: equal digests mean the target computes the host's outputs bit for bit.
+//! of a 2,000-step flight, then passes only if the built-in test passed (the harness,
+//! `ssis::bsp::harness`: semihosting exit code). The host test (`host-tests/tests/qemu.rs`)
+//! compares the digest with its own run of the same code: equal digests mean the target
+//! computes the host's outputs bit for bit.
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic)]
 
-use defmt_semihosting as _;
+ssis::mps2_test!();
 
 /// Steps of the replay.
 const REPLAY_STEPS: u32 = 2_000;
-
-fn exit(success: bool) -> ! {
-    let code =
-        if success { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
-    cortex_m_semihosting::debug::exit(code);
-    loop {
-        cortex_m::asm::wfi();
-    }
-}
-
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic");
-    exit(false)
-}
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
@@ -48,5 +34,5 @@ fn main() -> ! {
         y,
         z
     );
-    exit(bit.is_ok())
+    ssis::bsp::harness::finish("selftest", bit.is_ok())
 }

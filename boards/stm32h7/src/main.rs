@@ -13,29 +13,51 @@
 //!   [`FlightCore::step`], measures it with the DWT cycle counter and reports it in
 //!   25 MHz ticks (40 ns, the QEMU board's unit) through `set_step_ticks`. A step that
 //!   ends after the next tick has come counts one overrun per tick that came.
-//! - **Calibration table**: read from the last flash sector (`CALIB` in `memory.x`,
-//!   0x081E_0000) with `binary::decode`; if refused, `CalibrationTable::DEFAULT` with the
-//!   defaulted flag (set in every output frame).
+//! - **Boot**: the boot policy every board shares (`ssis::bsp::boot`): the calibration
+//!   table's two stored copies in the last flash sector (`CALIB` in `memory.x`,
+//!   0x081E_0000; the newest good copy, else the other, else `CalibrationTable::DEFAULT`
+//!   with the defaulted flag set in every output frame), the flight core, the power-on
+//!   built-in test. This board implements `ssis::bsp::Board` ([`board::Stm32h7`]).
 //! - **Watchdog**: the IWDG (50 ms) starts first thing and is fed once per step.
-//! - **Log**: defmt over RTT: at boot (reset reason, clock, table), every 10 s (counters).
-//! - No `unwrap`/`expect`/`panic!`: a setup failure is logged and the CPU parks ([`park`]).
+//! - **Log**: defmt over RTT (a panic-free RTT channel, [`board::rtt_write`]): at boot
+//!   (reset reason, clock, table), every 10 s (counters, stack high-water).
+//! - **Panics**: no `unwrap`/`expect`/`panic!` in this firmware or the flight core; the
+//!   only panic paths left are the HAL's asserts in the clock and USART setup, before the
+//!   first step (`bash scripts/panic-paths --board stm32h7` lists them). A panic, or a
+//!   setup failure, is logged and the CPU parks ([`park`]) until the watchdog resets it.
+//! - **Stack guard**: the stack sits at the bottom of DTCM (`memory.x`: 0x2000_0000 up to
+//!   0x2001_0000, the statics above it), so an overflow runs off the start of RAM, away
+//!   from the statics, into MPU region 0 (0x1FFF_0000..0x2000_0000, no-access; reserved
+//!   address space on the STM32H743, below it only the system memory at 0x1FF0_0000..
+//!   0x1FF2_0000, which stays readable). The first push below the stack faults; the
+//!   HardFault entry moves the stack pointer back to the top, logs `stack overflow: …`
+//!   and parks until the watchdog resets the unit. A guard of 64 KiB is larger than any
+//!   stack frame of this firmware, so no frame can jump over it.
 #![no_std]
 #![no_main]
 #![deny(unsafe_code)] // allowed in `board` only
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::panic, clippy::indexing_slicing)]
 
-use defmt_rtt as _;
-use panic_probe as _;
+use core::convert::Infallible;
 
-use ssis::calib::{binary, CalibrationTable};
+use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::{cortex_m7, Board};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::output::OutputFrame;
+
+// `panic: log`, not `never`: the HAL's clock and USART setup (`rcc::Rcc::freeze`,
+// `serial()`) keep asserts on registers they read back, which no optimiser can remove,
+// so the link-time proof cannot hold with it (README "No panics, stack overflow"). A
+// panic logs `panic` and parks; the watchdog then resets the unit.
+ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: log);
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
+    cortex_m7::guard_below_stack(0x1FFF_0000, 16);
+    cortex_m7::paint_stack();
     let profile = Profile::SPACECRAFT;
     let mut hw = match board::init(profile.dt_us) {
         Ok(hw) => hw,
@@ -44,33 +66,17 @@ fn main() -> ! {
             park()
         }
     };
-
-    let (table, defaulted) = match binary::decode(board::calib_bytes()) {
-        Ok(t) => (t, false),
+    match boot::boot(&mut hw, profile, false, |hw, core, report| fly(hw, core, report, profile)) {
+        Ok(never) => match never {},
         Err(e) => {
-            defmt::warn!("calibration table at {=u32:#x} refused ({}): default table", board::calib_addr(), e);
-            (CalibrationTable::DEFAULT, true)
+            defmt::error!("cannot fly: {}", e);
+            hw.stop(false)
         }
-    };
-    let (core, defaulted) = match FlightCore::new(profile, &table, defaulted) {
-        Ok(c) => (Ok(c), defaulted),
-        Err(e) => {
-            defmt::warn!("flight core refused table revision {} ({}): default table", table.revision, e);
-            (FlightCore::new(profile, &CalibrationTable::DEFAULT, true), true)
-        }
-    };
-    let mut core = match core {
-        Ok(c) => c,
-        Err(e) => {
-            defmt::error!("flight core refused the default table: {}", e);
-            park()
-        }
-    };
-    // Power-on built-in test: logged and flagged in every output frame on failure.
-    if let Err(e) = ssis::bit::power_on() {
-        defmt::error!("built-in test failed: {}", e);
-        core.note_bit_failure();
     }
+}
+
+/// The main loop, on the booted core.
+fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, profile: Profile) -> Infallible {
     hw.feed_watchdog();
     defmt::info!(
         "ssis-fw-stm32h7 up: reset {}, core {} Hz from {}, table revision {} (defaulted {}), step {} us",
@@ -78,7 +84,7 @@ fn main() -> ! {
         hw.core_hz,
         if hw.hse { "HSE" } else { "HSI (HSE did not start)" },
         core.table().revision,
-        defaulted,
+        report.defaulted,
         profile.dt_us
     );
 
@@ -89,7 +95,7 @@ fn main() -> ! {
     };
     let mut window = Window::default();
     let mut steps: u32 = 0;
-    let mut handled = board::ticks();
+    let mut handled = hw.ticks();
     loop {
         handled = board::wait_for_tick(handled);
         let t0 = board::cycles();
@@ -101,18 +107,18 @@ fn main() -> ! {
         // The deadline of a step is the next tick: every tick that came while it ran is
         // an overrun (the next wait then returns at once with the latest tick). Bounded:
         // a stall of more than 5 s counts as 1000.
-        let late = board::ticks().wrapping_sub(handled);
+        let late = hw.ticks().wrapping_sub(handled);
         for _ in 0..late.min(1_000) {
             core.note_overrun();
         }
         // Wall time of the step, interrupts included; the u16 field saturates at 2.6 ms.
-        let ticks = cycles / hw.cycles_per_tick;
+        let ticks = cycles.checked_div(hw.cycles_per_tick).unwrap_or(cycles);
         core.set_step_ticks(u16::try_from(ticks).unwrap_or(u16::MAX));
         window.add(ticks);
 
         steps = steps.wrapping_add(1);
         if steps.is_multiple_of(LOG_EVERY_STEPS) {
-            log_status(&core, handled / (1_000_000 / profile.dt_us), &window);
+            log_status(core, handled.checked_div(1_000_000 / profile.dt_us.max(1)).unwrap_or(0), &window);
             window = Window::default();
         }
     }
@@ -157,6 +163,7 @@ fn log_status(core: &FlightCore, uptime_s: u32, w: &Window) {
         board::uart_errors(),
         out.flags
     );
+    defmt::info!("stack high-water {} bytes", cortex_m7::stack_high_water());
 }
 
 /// Where the firmware stops when it cannot fly: interrupts stay as they are, the CPU
@@ -177,7 +184,7 @@ fn park() -> ! {
 }
 
 /// Everything that touches hardware: clocks, UARTs, the tick, the watchdog, the
-/// calibration sector. The flight core sees only the rings.
+/// calibration sector, the RTT log channel. The flight core sees only the rings.
 mod board {
     #![allow(unsafe_code)]
 
@@ -188,7 +195,6 @@ mod board {
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m::peripheral::{DWT, NVIC};
     use cortex_m_rt::exception;
-    use ssis::calib::binary::TABLE_LEN;
     use ssis::link::{RxRing, TxRing};
     use stm32h7xx_hal::gpio::Pull;
     use stm32h7xx_hal::independent_watchdog::IndependentWatchdog;
@@ -217,7 +223,7 @@ mod board {
     pub static FOG_RX: RxRing<512> = RxRing::new();
     /// Star-tracker receive buffer.
     pub static ST_RX: RxRing<512> = RxRing::new();
-    /// Output transmit buffer: three 79-byte output frames.
+    /// Output transmit buffer: three 83-byte output frames.
     pub static OUT_TX: TxRing<256> = TxRing::new();
 
     /// SysTick interrupts since start.
@@ -230,8 +236,10 @@ mod board {
     static ST_UART: Mutex<RefCell<Option<Rx<USART3>>>> = Mutex::new(RefCell::new(None));
 
     extern "C" {
-        /// Start of the `CALIB` region (memory.x): the stored calibration table.
-        static _calib_start: [u8; TABLE_LEN];
+        /// Start of the `CALIB` region (memory.x): the calibration sector.
+        static _calib_start: u8;
+        /// Its end.
+        static _calib_end: u8;
     }
 
     /// What can fail in [`init`].
@@ -246,7 +254,7 @@ mod board {
     }
 
     /// The board once set up; the UARTs and the tick live in their interrupts.
-    pub struct Board {
+    pub struct Stm32h7 {
         watchdog: IndependentWatchdog,
         /// Core cycles per step-time tick.
         pub cycles_per_tick: u32,
@@ -258,16 +266,32 @@ mod board {
         pub reset_reason: &'static str,
     }
 
-    impl Board {
-        /// Restarts the watchdog's count-down.
-        pub fn feed_watchdog(&mut self) {
+    impl ssis::bsp::Board for Stm32h7 {
+        fn calib_area(&self) -> &[u8] {
+            calib_sector()
+        }
+
+        fn feed_watchdog(&mut self) {
             self.watchdog.feed();
         }
+
+        fn ticks(&self) -> u32 {
+            ticks()
+        }
+
+        fn stop(&mut self, ok: bool) -> ! {
+            halt(ok)
+        }
+    }
+
+    /// Stops for good: the CPU parks (`crate::park`) until the watchdog resets the unit.
+    pub fn halt(_ok: bool) -> ! {
+        crate::park()
     }
 
     /// Brings up the watchdog, clocks, UARTs and their interrupts, and the step tick of
     /// `step_us`.
-    pub fn init(step_us: u32) -> Result<Board, SetupError> {
+    pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
         let (Some(mut cp), Some(dp)) = (cortex_m::Peripherals::take(), pac::Peripherals::take()) else {
             return Err(SetupError::PeripheralsTaken);
         };
@@ -330,9 +354,16 @@ mod board {
         fog.listen();
         st.listen();
         free(|cs| {
-            OUT_UART.borrow(cs).replace(Some(out));
-            FOG_UART.borrow(cs).replace(Some(fog));
-            ST_UART.borrow(cs).replace(Some(st));
+            // Nothing holds a borrow yet (the interrupts are still masked).
+            if let Ok(mut slot) = OUT_UART.borrow(cs).try_borrow_mut() {
+                *slot = Some(out);
+            }
+            if let Ok(mut slot) = FOG_UART.borrow(cs).try_borrow_mut() {
+                *slot = Some(fog);
+            }
+            if let Ok(mut slot) = ST_UART.borrow(cs).try_borrow_mut() {
+                *slot = Some(st);
+            }
         });
 
         let reload = u64::from(core_hz) * u64::from(step_us) / 1_000_000;
@@ -353,7 +384,7 @@ mod board {
             // all behind critical sections, and the halves are in place (above).
             unsafe { NVIC::unmask(irq) };
         }
-        Ok(Board { watchdog, cycles_per_tick: (core_hz / STEP_TICK_HZ).max(1), core_hz, hse, reset_reason })
+        Ok(Stm32h7 { watchdog, cycles_per_tick: (core_hz / STEP_TICK_HZ).max(1), core_hz, hse, reset_reason })
     }
 
     /// Turns the HSE on and waits for it at most [`HSE_TIMEOUT_CYCLES`] (the HAL would
@@ -384,17 +415,15 @@ mod board {
         }
     }
 
-    /// The stored calibration table's bytes (validated by `binary::decode`).
-    pub fn calib_bytes() -> &'static [u8] {
-        // SAFETY: memory.x reserves the CALIB region (one 128 KiB flash sector, always
-        // mapped) for the table; the firmware never writes it, so it does not change
-        // while borrowed. Erased flash reads as 0xFF, which `decode` refuses.
-        unsafe { &_calib_start }
-    }
-
-    /// Address of the stored calibration table.
-    pub fn calib_addr() -> u32 {
-        calib_bytes().as_ptr() as u32
+    /// The calibration sector (the `CALIB` region of memory.x, one 128 KiB flash sector):
+    /// the two stored copies of the table at its start (`ssis::calib::store`), checked by
+    /// the boot policy. Erased flash reads as 0xFF, which the store refuses.
+    fn calib_sector() -> &'static [u8] {
+        let start = core::ptr::addr_of!(_calib_start);
+        let len = (core::ptr::addr_of!(_calib_end) as usize).saturating_sub(start as usize);
+        // SAFETY: memory.x reserves [_calib_start, _calib_end) (always mapped flash) for
+        // the table; the firmware never writes it, so it does not change while borrowed.
+        unsafe { core::slice::from_raw_parts(start, len) }
     }
 
     /// SysTick interrupts so far.
@@ -499,5 +528,83 @@ mod board {
                 }
             }
         });
+    }
+
+    /// Bytes of the RTT up channel's buffer.
+    const RTT_BUF_LEN: usize = 1024;
+
+    /// The RTT control block the probe finds (by its `_SEGGER_RTT` symbol or by the id
+    /// at its start) and reads the up channel of: SEGGER's layout, one up channel named
+    /// `defmt`, no down channel.
+    #[repr(C)]
+    pub struct RttControlBlock {
+        id: [u8; 16],
+        max_up: u32,
+        max_down: u32,
+        up: RttChannel,
+    }
+
+    #[repr(C)]
+    struct RttChannel {
+        name: *const u8,
+        buffer: *mut u8,
+        size: u32,
+        /// Written by the target.
+        write: AtomicU32,
+        /// Written by the probe.
+        read: AtomicU32,
+        flags: u32,
+    }
+
+    // SAFETY: the pointers are to statics; the buffer is written only by `rtt_write`,
+    // which runs inside the logger's critical section, and read by the probe.
+    unsafe impl Sync for RttControlBlock {}
+
+    struct RttBuffer(core::cell::UnsafeCell<[u8; RTT_BUF_LEN]>);
+
+    // SAFETY: see `RttControlBlock`.
+    unsafe impl Sync for RttBuffer {}
+
+    static RTT_BUFFER: RttBuffer = RttBuffer(core::cell::UnsafeCell::new([0; RTT_BUF_LEN]));
+    static RTT_NAME: [u8; 6] = *b"defmt\0";
+
+    /// The control block.
+    #[no_mangle]
+    pub static _SEGGER_RTT: RttControlBlock = RttControlBlock {
+        id: *b"SEGGER RTT\0\0\0\0\0\0",
+        max_up: 1,
+        max_down: 0,
+        up: RttChannel {
+            name: RTT_NAME.as_ptr(),
+            buffer: RTT_BUFFER.0.get().cast(),
+            size: RTT_BUF_LEN as u32,
+            write: AtomicU32::new(0),
+            read: AtomicU32::new(0),
+            // Non-blocking, trim: what does not fit is dropped, the unit never waits
+            // for the probe (the defmt decoder resynchronises at the next frame).
+            flags: 1,
+        },
+    };
+
+    /// The log's output (the logger of `ssis::cortex_m7_runtime!`): `bytes` into the RTT
+    /// up channel, as much as fits; never waits and never panics.
+    pub fn rtt_write(bytes: &[u8]) {
+        let ch = &_SEGGER_RTT.up;
+        let read = ch.read.load(Ordering::Acquire) as usize;
+        let mut write = ch.write.load(Ordering::Relaxed) as usize;
+        if write >= RTT_BUF_LEN {
+            write = 0;
+        }
+        let buf: *mut u8 = RTT_BUFFER.0.get().cast();
+        for &b in bytes {
+            let next = (write + 1) % RTT_BUF_LEN;
+            if next == read {
+                break;
+            }
+            // SAFETY: `write` < RTT_BUF_LEN (checked above, kept by the modulo).
+            unsafe { buf.add(write).write_volatile(b) };
+            write = next;
+        }
+        ch.write.store(write as u32, Ordering::Release);
     }
 }

@@ -29,25 +29,34 @@
 //! mean FOG bus total (`fog_bytes`), accelerometer bus total (`st_bytes`, the LV unit has
 //! no star tracker) and GNSS link total modulo 2^16 (`arg`), see `docs/ICD.md`.
 //!
-//! Memory: `link/lv/memory.x` (128 KiB flash, 64 KiB RAM; FOG table, accelerometer
-//! section and pad initialisation block in their own regions, loaded separately).
+//! | UART | RX | TX |
+//! |---|---|---|
+//! | 0 | control frames (test equipment) | flight output frames (kind 0x30) |
+//! | 1 | FOG bus: FOG1..FOG3, told apart by `fog_id` | — |
+//! | 2 | — | navigation output frames (kind 0x31) |
+//! | 3 | accelerometer bus: X, Y, Z, told apart by `accel_id` | — |
+//! | 4 | GNSS receiver (kind 0x21) | — |
+//!
+//! Board: `ssis::bsp::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
+//! (128 KiB flash, 64 KiB RAM: 60 KiB of stack at the bottom, 4 KiB of statics above;
+//! FOG table, accelerometer section and pad initialisation block in their own regions,
+//! loaded separately).
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic)]
 
-mod board;
+use core::convert::Infallible;
 
-use defmt_semihosting as _;
-use heapless::Deque;
-use ssis::calib::accel::AccelTable;
-use ssis::calib::store;
+use cortex_m::peripheral::SYST;
+use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis::bsp::Board;
+use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
-use ssis::frames::control::{command, ControlFrame};
-use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
-use ssis::link::drain;
-use ssis::nav::init::PadInit;
+use ssis::link::{RxRing, TxRing};
+use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 
 /// Watchdog period in steps (warning after one period, reset after two): 40 steps,
@@ -57,31 +66,36 @@ use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 /// stall on the loaded build machine reset the unit between two steps.
 const WATCHDOG_STEPS: u32 = 40;
 
-#[panic_handler]
-fn panic(_info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic");
-    board::exit(false)
-}
+/// Offset of the pad initialisation block in the LVDATA region (the accelerometer
+/// section is at 0).
+const INIT_OFFSET: usize = 0x100;
 
-/// Count, sum and worst of a time in SysTick ticks.
-#[derive(Default, Clone, Copy)]
-struct Times {
-    n: u32,
-    sum: u64,
-    max: u32,
-}
+/// FOG bus receive buffer (three 16-byte frames per 1.25 ms step, ten steps of margin).
+static FOG_RX: RxRing<512> = RxRing::new();
+/// Accelerometer bus receive buffer (three 16-byte frames per step).
+static ACCEL_RX: RxRing<512> = RxRing::new();
+/// GNSS receive buffer (45-byte frames, 1 Hz).
+static GNSS_RX: RxRing<256> = RxRing::new();
+/// The star-tracker link of the flight core: the launch vehicle has none, so nothing
+/// ever fills it.
+static NO_STAR_RX: RxRing<4> = RxRing::new();
+/// Control receive buffer.
+static CTL_RX: RxRing<64> = RxRing::new();
+/// Flight output transmit buffer (83-byte frames).
+static OUT_TX: TxRing<256> = TxRing::new();
+/// Navigation output transmit buffer (64-byte frames).
+static NAV_TX: TxRing<256> = TxRing::new();
 
-impl Times {
-    fn push(&mut self, ticks: u32) {
-        self.n = self.n.saturating_add(1);
-        self.sum = self.sum.saturating_add(u64::from(ticks));
-        self.max = self.max.max(ticks);
-    }
+/// This firmware's UARTs (table in the module doc).
+static UARTS: UartMap = [
+    Uart { rx: Some(&CTL_RX), tx: Some(&OUT_TX) },
+    Uart { rx: Some(&FOG_RX), tx: None },
+    Uart { rx: None, tx: Some(&NAV_TX) },
+    Uart { rx: Some(&ACCEL_RX), tx: None },
+    Uart { rx: Some(&GNSS_RX), tx: None },
+];
 
-    fn mean_x100(&self) -> u64 {
-        (self.sum * 100).checked_div(u64::from(self.n)).unwrap_or(0)
-    }
-}
+ssis::mps2_firmware!(UARTS);
 
 /// Step-time statistics: per kind of filter work (none, propagation, GNSS update or
 /// refusal), the step alone and the whole period (step + filter work).
@@ -99,159 +113,112 @@ fn kind(w: FilterWork) -> usize {
     }
 }
 
-/// SysTick ticks from (`n0` interrupts, value `c0`) to now.
-fn elapsed(n0: u32, c0: u32, period: u32) -> u32 {
-    let (n1, c1) = (board::ticks(), board::systick_now());
-    // SysTick counts down; each interrupt in between adds a period.
-    let e = i64::from(n1.wrapping_sub(n0)) * i64::from(period) + i64::from(c0) - i64::from(c1);
-    u32::try_from(e.max(0)).unwrap_or(u32::MAX)
-}
-
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    board::paint_stack();
-    let Some(cp) = cortex_m::Peripherals::take() else { board::exit(false) };
+    mps2::start();
+    let mut board = Mps2;
+    let Some(cp) = cortex_m::Peripherals::take() else { board.stop(false) };
     let profile = Profile::LAUNCH_VEHICLE;
-    let loaded = store::load(board::calib_bytes());
-    for (slot, err) in [store::Slot::A, store::Slot::B].into_iter().zip(loaded.slot_errors) {
-        if let Some(e) = err {
-            defmt::warn!("calibration copy {} refused ({})", slot, e);
+    // The accelerometer section is only checked here, for the defaulted flag (either
+    // table defaulted: flagged in every flight output frame); `fly` decodes it again
+    // where the navigation is built, so `main`'s frame does not hold it under the loop.
+    let accel_defaulted = accel_section().is_err();
+    match boot::boot(&mut board, profile, accel_defaulted, |_, core, report| fly(core, report, cp.SYST, profile)) {
+        Ok(never) => match never {},
+        Err(e) => {
+            defmt::error!("cannot fly: {}", e);
+            board.stop(false)
         }
     }
-    let accel = match AccelTable::from_bytes(board::accel_table_bytes()).and_then(|t| t.compensator()) {
-        Ok(c) => Some(c),
-        Err(e) => {
-            defmt::warn!("accelerometer section refused ({}): flying on the ideal one", e);
-            None
-        }
-    };
-    // Either table defaulted: flagged in every flight output frame.
-    let defaulted = loaded.defaulted() || accel.is_none();
-    let accel = match accel.map_or_else(|| AccelTable::IDEAL.compensator(), Ok) {
+}
+
+/// The accelerometer section (LVDATA + 0), decoded.
+fn accel_section() -> Result<AccelCompensator, AccelTableError> {
+    AccelTable::from_bytes(mps2::lvdata(0, ACCEL_TABLE_LEN)).and_then(|t| t.compensator())
+}
+
+/// The navigation set up on the booted core, then the main loop.
+fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile) -> Infallible {
+    let accel = match accel_section() {
         Ok(c) => c,
         Err(e) => {
-            defmt::error!("ideal accelerometer section refused: {}", e);
-            board::exit(false)
+            defmt::warn!("accelerometer section refused ({}): flying on the ideal one", e);
+            match AccelTable::IDEAL.compensator() {
+                Ok(c) => c,
+                Err(e) => {
+                    defmt::error!("ideal accelerometer section refused: {}", e);
+                    mps2::exit(false)
+                }
+            }
         }
     };
-    let init = match PadInit::from_bytes(board::init_block_bytes()) {
+    let init = match PadInit::from_bytes(mps2::lvdata(INIT_OFFSET, INIT_BLOCK_LEN)) {
         Ok(i) => i,
         Err(e) => {
             defmt::error!("no valid pad initialisation block ({}): cannot navigate", e);
-            board::exit(false)
-        }
-    };
-    let mut core = match FlightCore::new(profile, &loaded.table, defaulted) {
-        Ok(c) => c,
-        Err(e) => {
-            defmt::error!("flight core refused the table: {}", e);
-            board::exit(false)
+            mps2::exit(false)
         }
     };
     // The core's attitude starts at the pad attitude: its output is the body in ECEF
     // frozen at lift-off (an inertial frame); the navigation carries q_eb itself.
     core.align(init.state.q_eb);
-    let mut nav = match NavUnit::new(init.state, profile.dt_s(), accel, init.gnss) {
+    // Borrowed where it was built, never moved: one copy on the stack.
+    let mut built = NavUnit::new(init.state, profile.dt_s(), accel, init.gnss);
+    let nav = match &mut built {
         Ok(n) => n,
         Err(e) => {
             defmt::error!("navigation refused the pad state: {}", e);
-            board::exit(false)
+            mps2::exit(false)
         }
     };
     defmt::info!(
         "ssis-fw-lv up: table revision {}, defaulted {}, pad block revision {}, step {} us",
-        loaded.table.revision,
-        defaulted,
+        core.table().revision,
+        report.defaulted,
         init.revision,
         profile.dt_us
     );
-    if let Err(e) = ssis::bit::power_on() {
-        defmt::error!("built-in test failed: {}", e);
-        core.note_bit_failure();
-    }
-    board::init(cp.SYST, profile.dt_us);
-    board::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
+    mps2::init(syst, profile.dt_us, &UARTS);
+    mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
 
     let mut links = Links {
-        fog: FogLinks::Bus(board::FOG_RX.reader()),
+        fog: FogLinks::Bus(FOG_RX.reader()),
         // No star tracker on the launch vehicle: an empty link, never filled.
-        star: board::NO_STAR_RX.reader(),
-        out: board::OUT_TX.frame_writer(OutputFrame::LEN),
+        star: NO_STAR_RX.reader(),
+        out: OUT_TX.frame_writer(OutputFrame::LEN),
     };
-    let mut nav_links = NavLinks {
-        accel: board::ACCEL_RX.reader(),
-        gnss: board::GNSS_RX.reader(),
-        out: board::NAV_TX.frame_writer(NavOutputFrame::LEN),
-    };
-    let mut ctl_reader = board::CTL_RX.reader();
-    let mut ctl: StreamDecoder<ControlFrame, 32> = StreamDecoder::new();
-    let mut steps_due: Deque<ControlFrame, 8> = Deque::new();
-    let mut ctl_scratch = [0u8; 32];
-    let mut lockstep = false;
-    let mut end = false;
-    let mut handled = board::ticks();
+    let mut nav_links =
+        NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };
+    let mut pacer = Pacer::new(&UARTS, &CTL_RX);
     let mut times = StepTimes::default();
-    let period = board::ticks_per_step();
+    let period = mps2::ticks_per_step();
     let mut nav_steps = 0u32;
-
     loop {
-        board::poll_rx();
-        let _ = drain(&mut ctl_reader, 64, &mut ctl_scratch, |bytes| {
-            ctl.push_slice(bytes, |r| {
-                if let Ok(c) = r {
-                    match c.command {
-                        command::LOCKSTEP => {
-                            // The statistics cover the lockstep run only (not the
-                            // empty steps on the timer before it).
-                            lockstep = true;
-                            times = StepTimes::default();
-                        }
-                        command::STEP => {
-                            let _ = steps_due.push_back(c);
-                        }
-                        command::END => end = true,
-                        _ => {}
-                    }
-                }
-            });
+        // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
+        // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
+        let due = pacer.due(core, |c| {
+            FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+                && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+                && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
         });
-        let due = if lockstep {
-            match steps_due.front() {
-                Some(c)
-                    if board::FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
-                        && board::ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
-                        && (board::GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000 =>
-                {
-                    let _ = steps_due.pop_front();
-                    true
-                }
-                _ => false,
-            }
-        } else {
-            let t = board::ticks();
-            if t != handled {
-                for _ in 0..t.wrapping_sub(handled).saturating_sub(1).min(1000) {
-                    core.note_overrun();
-                }
-                handled = t;
-                true
-            } else {
-                false
-            }
-        };
+        if pacer.lockstep_began() {
+            // The statistics cover the lockstep run only (not the empty steps on the
+            // timer before it).
+            times = StepTimes::default();
+        }
         if due {
-            let (n0, c0) = (board::ticks(), board::systick_now());
+            let t = Stopwatch::start();
             core.step_with(&mut links, |t_us, body| {
                 nav.step(body, t_us, &mut nav_links);
                 nav_steps = nav_steps.wrapping_add(1);
             });
-            let step_ticks = elapsed(n0, c0, period);
-            if !lockstep {
-                board::pump_tx();
+            let step_ticks = t.ticks();
+            if !pacer.lockstep() {
+                mps2::pump_tx(&UARTS);
             }
             let work = nav.filter_work();
-            let busy = elapsed(n0, c0, period);
-            if lockstep && busy > period {
+            let busy = t.ticks();
+            if pacer.lockstep() && busy > period {
                 core.note_overrun();
             }
             core.set_step_ticks(u16::try_from(busy).unwrap_or(u16::MAX));
@@ -263,20 +230,12 @@ fn main() -> ! {
                 t.push(busy);
             }
         }
-        board::pump_tx();
-        board::watchdog_feed();
-        if end && board::OUT_TX.is_empty() && board::NAV_TX.is_empty() {
-            report(&core, &nav, &times, nav_steps);
-            board::exit(true);
-        }
-        if !due && !end {
-            cortex_m::asm::wfi();
-        }
+        pacer.end_pass(due, || report_end(core, nav, &times, nav_steps));
     }
 }
 
 /// The end-of-run figures, on the defmt log (`host-tests/src/qemu_lv.rs` reads them).
-fn report(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
+fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
     for (k, name) in ["none", "propagation", "gnss_update"].into_iter().enumerate() {
         let (s, p) = (t.step.get(k).copied().unwrap_or_default(), t.period.get(k).copied().unwrap_or_default());
         defmt::info!(
@@ -289,18 +248,8 @@ fn report(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
             p.max
         );
     }
-    defmt::info!("stack_high_water_bytes {} static_ram_bytes {}", board::stack_high_water(), board::static_ram());
-    defmt::info!("watchdog_warnings {}", board::watchdog_warnings());
-    let c = core.counters();
-    defmt::info!(
-        "counters fog_rejected {} fog_missing {} fog_stale {} overruns {} out_dropped {} rx_overflows {}",
-        c.fog_frames_rejected,
-        c.fog_samples_missing,
-        c.fog_samples_stale,
-        c.overruns,
-        c.output_dropped,
-        board::rx_overflows()
-    );
+    let overflows = FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows());
+    mps2::report(core, overflows);
     let n = nav.counters();
     let (used, refused) = nav.nav().counts();
     defmt::info!(

@@ -1,0 +1,586 @@
+//! Board: QEMU `mps2-an500` (Cortex-M7, FPv5-D16), for both flight firmwares (the
+//! spacecraft `ssis-fw` and the launch-vehicle `ssis-fw-lv`) and the on-target tests.
+//! A firmware brings its main loop, its [`UartMap`] and its memory budget (`memory.x` or
+//! `link/memory-lv.x`); everything that touches hardware is here, and the flight core
+//! knows only the link traits.
+//!
+//! - Five CMSDK APB UARTs (QEMU `hw/arm/mps2.c`, `hw/char/cmsdk-apb-uart.c`); which ring
+//!   each one's RX feeds and TX drains is the firmware's [`UartMap`]. RX is
+//!   interrupt-driven (the `DefaultHandler` of [`mps2_firmware!`](crate::mps2_firmware)),
+//!   TX written by [`pump_tx`] from the main loop.
+//!   | UART | base | RX / TX IRQ |
+//!   |---|---|---|
+//!   | 0 | 0x4000_4000 | 0 / 1 |
+//!   | 1 | 0x4000_5000 | 2 / 3 |
+//!   | 2 | 0x4000_6000 | 4 / 5 |
+//!   | 3 | 0x4000_7000 | 18 / 19 |
+//!   | 4 | 0x4000_9000 | 20 / 21 |
+//! - SysTick at 25 MHz: the step tick and the step-time measure ([`Stopwatch`]).
+//! - CMSDK APB watchdog (QEMU `hw/watchdog/cmsdk-apb-watchdog.c`, 0x4000_8000, clocked
+//!   at 25 MHz, interrupt wired to NMI): the main loop feeds it on every pass; after one
+//!   timeout without a feed the NMI logs a warning, after a second one the watchdog
+//!   resets the unit (QEMU: its `-action watchdog=` choice).
+//! - Stack guard: both layouts put the stack at the bottom of RAM (0x2000_0000), and
+//!   [`start`] makes the 256 MiB below it no-access (`cortex_m7::guard_below_stack`):
+//!   QEMU's mps2-an500 does not fault there by itself (measured: a runaway recursion went
+//!   8 MiB below 0x2000_0000 unchecked).
+//! - Semihosting: the defmt log ([`semihosting_sink`]) and the exit code of a QEMU run
+//!   ([`exit`]).
+//! - The main loop's pacing ([`Pacer`]): the timer, or lockstep driven by control frames.
+#![allow(unsafe_code)]
+
+use core::cell::UnsafeCell;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use cortex_m::peripheral::syst::SystClkSource;
+use cortex_m::peripheral::{NVIC, SYST};
+use heapless::Deque;
+
+use super::{cortex_m7, Board};
+use crate::flight::FlightCore;
+use crate::frames::control::{command, ControlFrame};
+use crate::frames::decoder::StreamDecoder;
+use crate::link::{drain, RxRing, RxRingReader, TxRing};
+
+/// SysTick clock of the board, Hz (QEMU mps2: SYSCLK 25 MHz).
+pub const SYSCLK_HZ: u32 = 25_000_000;
+
+/// Where a UART's received bytes go (an [`RxRing`]).
+pub trait RxSink: Sync {
+    /// Stores one received byte (from the interrupt).
+    fn push(&self, byte: u8);
+}
+
+impl<const N: usize> RxSink for RxRing<N> {
+    fn push(&self, byte: u8) {
+        RxRing::push(self, byte);
+    }
+}
+
+/// Where a UART's bytes to send come from (a [`TxRing`]).
+pub trait TxSource: Sync {
+    /// The next byte to send.
+    fn pop(&self) -> Option<u8>;
+    /// Whether nothing is waiting.
+    fn is_empty(&self) -> bool;
+    /// Most bytes it holds (bounds one pump).
+    fn capacity(&self) -> usize;
+}
+
+impl<const N: usize> TxSource for TxRing<N> {
+    fn pop(&self) -> Option<u8> {
+        TxRing::pop(self)
+    }
+
+    fn is_empty(&self) -> bool {
+        TxRing::is_empty(self)
+    }
+
+    fn capacity(&self) -> usize {
+        N
+    }
+}
+
+/// What one UART does: the ring its RX feeds, the ring its TX drains (either may be
+/// absent; a UART with neither is left off).
+#[derive(Clone, Copy)]
+pub struct Uart {
+    /// Received bytes go here (RX and its interrupt enabled).
+    pub rx: Option<&'static dyn RxSink>,
+    /// Bytes to send come from here.
+    pub tx: Option<&'static dyn TxSource>,
+}
+
+impl Uart {
+    /// A UART the firmware does not use.
+    pub const OFF: Uart = Uart { rx: None, tx: None };
+}
+
+/// A firmware's use of the five UARTs, by UART number.
+pub type UartMap = [Uart; 5];
+
+const UART_BASE: [usize; 5] = [0x4000_4000, 0x4000_5000, 0x4000_6000, 0x4000_7000, 0x4000_9000];
+/// RX interrupt numbers of the UARTs (TX is one more).
+const UART_RX_IRQ: [u16; 5] = [0, 2, 4, 18, 20];
+const DATA: usize = 0x00;
+const STATE: usize = 0x04;
+const CTRL: usize = 0x08;
+const INTSTATUS: usize = 0x0C;
+const BAUDDIV: usize = 0x10;
+const STATE_TX_FULL: u32 = 1 << 0;
+const STATE_RX_FULL: u32 = 1 << 1;
+const CTRL_TX_EN: u32 = 1 << 0;
+const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INT_EN: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
+
+fn reg(uart: usize, off: usize) -> *mut u32 {
+    (UART_BASE.get(uart).copied().unwrap_or(UART_BASE[0]) + off) as *mut u32
+}
+
+fn read(uart: usize, off: usize) -> u32 {
+    // SAFETY: a CMSDK UART register of this board, 4-byte aligned, always mapped.
+    unsafe { core::ptr::read_volatile(reg(uart, off)) }
+}
+
+fn write(uart: usize, off: usize, v: u32) {
+    // SAFETY: as in `read`.
+    unsafe { core::ptr::write_volatile(reg(uart, off), v) }
+}
+
+#[derive(Clone, Copy)]
+struct Irq(u16);
+
+// SAFETY: the numbers are this board's external interrupt lines.
+unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
+    fn number(self) -> u16 {
+        self.0
+    }
+}
+
+/// SysTick interrupts since start.
+static TICKS: AtomicU32 = AtomicU32::new(0);
+
+/// First thing in `main`: the stack guard below RAM (0x1000_0000..0x2000_0000, where
+/// both layouts put the stack's bottom) and the stack painted for the high-water mark.
+pub fn start() {
+    cortex_m7::guard_below_stack(0x1000_0000, 28);
+    cortex_m7::paint_stack();
+}
+
+/// Brings up the UARTs of `map`, their receive interrupts and the step tick of `step_us`.
+pub fn init(mut syst: SYST, step_us: u32, map: &UartMap) {
+    for (uart, u) in map.iter().enumerate() {
+        if u.rx.is_none() && u.tx.is_none() {
+            continue;
+        }
+        write(uart, BAUDDIV, 16);
+        let rx = if u.rx.is_some() { CTRL_RX_EN | CTRL_RX_INT_EN } else { 0 };
+        write(uart, CTRL, CTRL_TX_EN | rx);
+    }
+    syst.set_clock_source(SystClkSource::Core);
+    syst.set_reload(SYSCLK_HZ / 1_000_000 * step_us - 1);
+    syst.clear_current();
+    syst.enable_interrupt();
+    syst.enable_counter();
+    for (u, irq) in map.iter().zip(UART_RX_IRQ) {
+        if u.rx.is_some() {
+            // SAFETY: the handler (`on_irq`) only touches the critical-section rings.
+            unsafe { NVIC::unmask(Irq(irq)) };
+        }
+    }
+}
+
+/// Moves received bytes of `uart` into `ring` and clears the interrupt.
+fn rx_isr(uart: usize, ring: &dyn RxSink) {
+    // Clear first, then drain: a byte that lands after the clear raises the interrupt
+    // again, so none is left sitting in the (one-byte) receive register unseen.
+    write(uart, INTSTATUS, INT_RX);
+    // Bounded: QEMU's CMSDK UART holds one byte; real ones a few.
+    for _ in 0..16 {
+        if read(uart, STATE) & STATE_RX_FULL == 0 {
+            break;
+        }
+        ring.push((read(uart, DATA) & 0xFF) as u8);
+    }
+}
+
+/// External interrupt `irqn` (the `DefaultHandler`; no device crate): a UART's RX.
+pub fn on_irq(map: &UartMap, irqn: i16) {
+    for (uart, (u, irq)) in map.iter().zip(UART_RX_IRQ).enumerate() {
+        if i32::from(irq) == i32::from(irqn) {
+            if let Some(ring) = u.rx {
+                rx_isr(uart, ring);
+            }
+        }
+    }
+}
+
+/// Main-loop backstop: drains any receive register still full (two reads per UART when
+/// idle).
+pub fn poll_rx(map: &UartMap) {
+    cortex_m::interrupt::free(|_| {
+        for (uart, u) in map.iter().enumerate() {
+            if let Some(ring) = u.rx {
+                rx_isr(uart, ring);
+            }
+        }
+    });
+}
+
+/// Sends what fits of every TX ring of `map`; never waits.
+pub fn pump_tx(map: &UartMap) {
+    for (uart, u) in map.iter().enumerate() {
+        let Some(ring) = u.tx else { continue };
+        // Bounded by the ring's size.
+        for _ in 0..ring.capacity() {
+            if read(uart, STATE) & STATE_TX_FULL != 0 {
+                break;
+            }
+            match ring.pop() {
+                Some(b) => write(uart, DATA, u32::from(b)),
+                None => break,
+            }
+        }
+    }
+}
+
+/// Whether every TX ring of `map` is empty.
+pub fn tx_idle(map: &UartMap) -> bool {
+    map.iter().all(|u| u.tx.is_none_or(|r| r.is_empty()))
+}
+
+/// The SysTick handler's work.
+pub fn on_systick() {
+    TICKS.fetch_add(1, Ordering::Release);
+}
+
+/// SysTick interrupts so far.
+pub fn ticks() -> u32 {
+    TICKS.load(Ordering::Acquire)
+}
+
+/// Ticks of the step period (the SysTick reload + 1).
+pub fn ticks_per_step() -> u32 {
+    SYST::get_reload() + 1
+}
+
+/// A point in time for [`Stopwatch::ticks`]: SysTick interrupts and the counter value.
+#[derive(Clone, Copy)]
+pub struct Stopwatch {
+    n0: u32,
+    c0: u32,
+}
+
+impl Stopwatch {
+    /// Now.
+    pub fn start() -> Self {
+        Stopwatch { n0: ticks(), c0: SYST::get_current() }
+    }
+
+    /// SysTick ticks (40 ns) since the start.
+    pub fn ticks(&self) -> u32 {
+        let (n1, c1) = (ticks(), SYST::get_current());
+        // SysTick counts down; each interrupt in between adds a period.
+        let e = i64::from(n1.wrapping_sub(self.n0)) * i64::from(ticks_per_step()) + i64::from(self.c0) - i64::from(c1);
+        u32::try_from(e.max(0)).unwrap_or(u32::MAX)
+    }
+}
+
+const WDOG_BASE: usize = 0x4000_8000;
+const WDOG_LOAD: usize = 0x000;
+const WDOG_CONTROL: usize = 0x008;
+const WDOG_INTCLR: usize = 0x00C;
+const WDOG_LOCK: usize = 0xC00;
+const WDOG_UNLOCK_KEY: u32 = 0x1ACC_E551;
+const WDOG_INTEN: u32 = 1 << 0;
+const WDOG_RESEN: u32 = 1 << 1;
+
+/// Watchdog warnings (first timeouts, each an NMI) since start.
+static WATCHDOG_WARNINGS: AtomicU32 = AtomicU32::new(0);
+
+fn wdog_write(off: usize, v: u32) {
+    // SAFETY: a register of the board's watchdog, a 32-bit MMIO location.
+    unsafe { core::ptr::write_volatile((WDOG_BASE + off) as *mut u32, v) }
+}
+
+/// Starts the watchdog with `timeout_us` per stage (warning NMI, then reset).
+pub fn watchdog_start(timeout_us: u32) {
+    wdog_write(WDOG_LOCK, WDOG_UNLOCK_KEY);
+    wdog_write(WDOG_LOAD, SYSCLK_HZ / 1_000_000 * timeout_us);
+    wdog_write(WDOG_CONTROL, WDOG_INTEN | WDOG_RESEN);
+    wdog_write(WDOG_LOCK, 0);
+}
+
+/// Feeds the watchdog: clears a pending warning and reloads the counter.
+pub fn watchdog_feed() {
+    wdog_write(WDOG_LOCK, WDOG_UNLOCK_KEY);
+    wdog_write(WDOG_INTCLR, 1);
+    wdog_write(WDOG_LOCK, 0);
+}
+
+/// Watchdog warnings so far.
+pub fn watchdog_warnings() -> u32 {
+    WATCHDOG_WARNINGS.load(Ordering::Relaxed)
+}
+
+/// The NMI handler's work: the main loop has not fed the watchdog for one period.
+/// Logged and counted; not cleared here, so if the loop does not recover the watchdog
+/// resets the unit at the second timeout.
+pub fn on_watchdog_warning() {
+    WATCHDOG_WARNINGS.fetch_add(1, Ordering::Relaxed);
+    defmt::warn!("watchdog: the main loop has not run for one watchdog period; reset at the next");
+}
+
+/// Ends a QEMU run with the given outcome (semihosting); on hardware it would not
+/// return either.
+pub fn exit(success: bool) -> ! {
+    let code =
+        if success { cortex_m_semihosting::debug::EXIT_SUCCESS } else { cortex_m_semihosting::debug::EXIT_FAILURE };
+    cortex_m_semihosting::debug::exit(code);
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+struct HostOut(UnsafeCell<Option<cortex_m_semihosting::hio::HostStream>>);
+
+// SAFETY: written only by the logger with its lock held (interrupts masked), or by the
+// fault handler after it took the logger over.
+unsafe impl Sync for HostOut {}
+
+static HOST_OUT: HostOut = HostOut(UnsafeCell::new(None));
+
+/// The log's output: defmt frames over semihosting stdout, as `defmt-semihosting`
+/// writes them (the host runner decodes them).
+pub fn semihosting_sink(bytes: &[u8]) {
+    // SAFETY: see `HostOut`.
+    let out = unsafe { &mut *HOST_OUT.0.get() };
+    if out.is_none() {
+        *out = cortex_m_semihosting::hio::hstdout().ok();
+    }
+    if let Some(h) = out {
+        let _ = h.write_all(bytes);
+    }
+}
+
+extern "C" {
+    static _calib_start: u8;
+    static _lvdata_start: u8;
+}
+
+/// The stored calibration table region (4 KiB at `_calib_start`: two copies,
+/// `calib::store`).
+pub fn calib_area() -> &'static [u8] {
+    // SAFETY: the CALIB region of the layout, 4 KiB, always mapped, read-only here.
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), crate::calib::store::REGION_LEN) }
+}
+
+/// `len` bytes at `offset` in the launch-vehicle layout's LVDATA region
+/// (`link/memory-lv.x`, 4 KiB: the accelerometer section and the pad initialisation
+/// block); empty if they would not fit.
+pub fn lvdata(offset: usize, len: usize) -> &'static [u8] {
+    if offset.saturating_add(len) > 4096 {
+        return &[];
+    }
+    // SAFETY: inside the 4 KiB LVDATA region (checked), always mapped, read-only here.
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_lvdata_start).wrapping_add(offset), len) }
+}
+
+/// The board as the boot policy and main loop see it.
+pub struct Mps2;
+
+impl Board for Mps2 {
+    fn calib_area(&self) -> &[u8] {
+        calib_area()
+    }
+
+    fn feed_watchdog(&mut self) {
+        watchdog_feed();
+    }
+
+    fn ticks(&self) -> u32 {
+        ticks()
+    }
+
+    fn stop(&mut self, ok: bool) -> ! {
+        exit(ok)
+    }
+}
+
+/// Count, sum and worst of a time in SysTick ticks.
+#[derive(Default, Clone, Copy)]
+pub struct Times {
+    /// How many.
+    pub n: u32,
+    /// Their sum.
+    pub sum: u64,
+    /// The largest.
+    pub max: u32,
+}
+
+impl Times {
+    /// Adds one time.
+    pub fn push(&mut self, ticks: u32) {
+        self.n = self.n.saturating_add(1);
+        self.sum = self.sum.saturating_add(u64::from(ticks));
+        self.max = self.max.max(ticks);
+    }
+
+    /// Mean × 100 (0 when empty).
+    pub fn mean_x100(&self) -> u64 {
+        (self.sum * 100).checked_div(u64::from(self.n)).unwrap_or(0)
+    }
+}
+
+/// Paces the main loop: on the timer (one step per SysTick, a missed tick an overrun),
+/// or in lockstep (test equipment: one step per STEP control frame, once the bytes it
+/// names have arrived), and ends the run on END. Control frames arrive on the UART whose
+/// RX feeds `ctl`.
+pub struct Pacer {
+    map: &'static UartMap,
+    ctl: RxRingReader<'static, 64>,
+    decoder: StreamDecoder<ControlFrame, 32>,
+    steps_due: Deque<ControlFrame, 8>,
+    scratch: [u8; 32],
+    lockstep: bool,
+    began: bool,
+    end: bool,
+    stall: bool,
+    handled: u32,
+}
+
+impl Pacer {
+    /// Paces a loop whose UARTs are `map` and whose control frames land in `ctl`.
+    pub fn new(map: &'static UartMap, ctl: &'static RxRing<64>) -> Self {
+        Pacer {
+            map,
+            ctl: ctl.reader(),
+            decoder: StreamDecoder::new(),
+            steps_due: Deque::new(),
+            scratch: [0; 32],
+            lockstep: false,
+            began: false,
+            end: false,
+            stall: false,
+            handled: ticks(),
+        }
+    }
+
+    /// Start of a pass: takes what the UARTs received and the control frames; whether a
+    /// step is due. In lockstep, the next STEP frame once `arrived(frame)` says its bytes
+    /// are in; on the timer, a new tick (each tick missed since the last step counts an
+    /// overrun of `core`).
+    pub fn due(&mut self, core: &mut FlightCore, arrived: impl Fn(&ControlFrame) -> bool) -> bool {
+        poll_rx(self.map);
+        let Pacer { ctl, decoder, steps_due, scratch, lockstep, began, end, stall, .. } = self;
+        let _ = drain(ctl, 64, scratch, |bytes| {
+            decoder.push_slice(bytes, |r| {
+                if let Ok(c) = r {
+                    match c.command {
+                        command::LOCKSTEP => {
+                            *lockstep = true;
+                            *began = true;
+                        }
+                        command::STEP => {
+                            let _ = steps_due.push_back(c);
+                        }
+                        command::END => *end = true,
+                        command::STALL if cfg!(feature = "test-hooks") => *stall = true,
+                        _ => {}
+                    }
+                }
+            });
+        });
+        if self.lockstep {
+            match self.steps_due.front() {
+                Some(c) if arrived(c) => {
+                    let _ = self.steps_due.pop_front();
+                    true
+                }
+                _ => false,
+            }
+        } else {
+            let t = ticks();
+            if t == self.handled {
+                return false;
+            }
+            for _ in 0..t.wrapping_sub(self.handled).saturating_sub(1).min(1000) {
+                core.note_overrun();
+            }
+            self.handled = t;
+            true
+        }
+    }
+
+    /// Whether the runner switched to lockstep.
+    pub fn lockstep(&self) -> bool {
+        self.lockstep
+    }
+
+    /// Whether lockstep began since the last call (a firmware restarts its statistics).
+    pub fn lockstep_began(&mut self) -> bool {
+        core::mem::take(&mut self.began)
+    }
+
+    /// End of a pass: sends the output, feeds the watchdog, and once END has come and
+    /// every output ring is empty, calls `report` and ends the run with success; sleeps
+    /// until the next interrupt when no step was due. In a `test-hooks` build a STALL
+    /// control frame stops the loop here without feeding the watchdog (the fault being
+    /// injected: it ends only by the watchdog).
+    pub fn end_pass(&mut self, due: bool, report: impl FnOnce()) {
+        pump_tx(self.map);
+        if self.stall {
+            defmt::error!("test hook: main loop stalled on command");
+            loop {
+                cortex_m::asm::nop();
+            }
+        }
+        watchdog_feed();
+        if self.end && tx_idle(self.map) {
+            report();
+            exit(true);
+        }
+        if !due && !self.end {
+            cortex_m::asm::wfi();
+        }
+    }
+}
+
+/// The end-of-run figures every firmware logs after its own: stack, statics, watchdog,
+/// dropped log messages and the flight core's counters (`rx_overflows`: bytes dropped
+/// by full receive rings). The one place the main loops read `FlightCore::counters`.
+pub fn report(core: &FlightCore, rx_overflows: u32) {
+    defmt::info!(
+        "stack_high_water_bytes {} static_ram_bytes {}",
+        cortex_m7::stack_high_water(),
+        cortex_m7::static_ram()
+    );
+    defmt::info!("watchdog_warnings {}", watchdog_warnings());
+    defmt::info!("log_dropped {}", cortex_m7::LOG.dropped());
+    let c = core.counters();
+    defmt::info!(
+        "counters fog_rejected {} fog_missing {} fog_stale {} st_accepted {} st_rejected {} overruns {} out_dropped {} rx_overflows {}",
+        c.fog_frames_rejected,
+        c.fog_samples_missing,
+        c.fog_samples_stale,
+        c.st_frames_accepted,
+        c.st_frames_rejected,
+        c.overruns,
+        c.output_dropped,
+        rx_overflows
+    );
+}
+
+/// Generates what a flight firmware on this board defines once in its binary: the
+/// exception handlers (SysTick, the UARTs' RX interrupts dispatched by `$uarts`, a
+/// `static` [`UartMap`], and the watchdog's NMI) and the Cortex-M7 runtime with the
+/// link-time no-panic proof ([`cortex_m7_runtime!`](crate::cortex_m7_runtime) with
+/// `panic: never`).
+#[macro_export]
+macro_rules! mps2_firmware {
+    ($uarts:path) => {
+        $crate::cortex_m7_runtime!(
+            sink: $crate::bsp::mps2::semihosting_sink,
+            stop: $crate::bsp::mps2::exit,
+            panic: never
+        );
+
+        #[cortex_m_rt::exception]
+        fn SysTick() {
+            $crate::bsp::mps2::on_systick();
+        }
+
+        /// External interrupts arrive here (no device crate): the UARTs' RX.
+        #[cortex_m_rt::exception]
+        unsafe fn DefaultHandler(irqn: i16) {
+            $crate::bsp::mps2::on_irq(&$uarts, irqn);
+        }
+
+        /// First watchdog timeout.
+        #[cortex_m_rt::exception]
+        unsafe fn NonMaskableInt() {
+            $crate::bsp::mps2::on_watchdog_warning();
+        }
+    };
+}
