@@ -1,5 +1,5 @@
 //! Fault tolerance (issue 6): the designed behaviour under each injected fault, through
-//! `ssis_host::faults` on the in-process flight core. Short scenarios and few seeds; the
+//! `ssis_faults` on the in-process flight core. Short scenarios and few seeds; the
 //! full Monte Carlo figures are the campaign's (`ssis-faults`, docs/FAULT-CAMPAIGN.md).
 //!
 //! Every run is the campaign's scenario (the paper's sensors, Earth pointing with a 10°
@@ -13,9 +13,9 @@ use ssis::flight::{flags, health, st_status, MAX_WAIT_STEPS, ST_OUTAGE_US};
 use ssis::integrity::channel::STUCK_SAMPLES;
 use ssis::integrity::parity::K_SPIKE;
 use ssis::observer::{steady_state, CHI2_GATE};
-use ssis_host::faults::{self, Fault, FaultKind, FaultRun, FaultScale, FaultStep, FAULT_START_S};
-use ssis_host::harness::Simulation;
-use ssis_host::ARCSEC_PER_RAD;
+use ssis_common::ARCSEC_PER_RAD;
+use ssis_faults::{self as faults, Fault, FaultKind, FaultRun, FaultScale, FaultStep, FAULT_START_S};
+use ssis_sim::harness::Simulation;
 
 /// Step, s (the spacecraft unit's 5 ms).
 const DT_S: f64 = 0.005;

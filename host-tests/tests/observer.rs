@@ -7,10 +7,10 @@ use ssis::attitude::{Attitude, Coning};
 use ssis::calib::{ObserverConfig, ObserverGains};
 use ssis::math;
 use ssis::observer::{steady_state, steady_state_gains, Observer, SteadyState};
-use ssis_host::harness::run;
-use ssis_host::scenario::Scenario;
-use ssis_host::sim::fog::TriadError;
-use ssis_host::stats::AxisStats;
+use ssis_common::stats::AxisStats;
+use ssis_sim::fog::TriadError;
+use ssis_sim::harness::run;
+use ssis_sim::scenario::Scenario;
 
 fn scenario(name: &str) -> Scenario {
     Scenario::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).expect("scenario loads")

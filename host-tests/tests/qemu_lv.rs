@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use ssis_host::qemu_lv::{build_firmware, run_qemu_lv, LvOptions, LvScenario};
+use ssis_runner::qemu_lv::{build_firmware, run_qemu_lv, LvOptions, LvScenario};
 
 #[test]
 fn lv_firmware_keeps_1_25_ms_and_matches_the_host_replay() {

@@ -8,7 +8,7 @@
 
 use std::time::Duration;
 
-use ssis_host::qemu::{build_target_bin, run_bare_with, INSTR_PER_TICK};
+use ssis_runner::qemu::{build_target_bin, run_bare_with, INSTR_PER_TICK};
 
 #[test]
 fn nav_instructions_per_step_on_target() {
