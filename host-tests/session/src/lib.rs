@@ -799,18 +799,29 @@ impl std::ops::Deref for Buf {
 }
 
 /// A regular, non-empty file mapped into memory, read ahead as the pages are reached (no
-/// copy out of the page cache: −0.4 s CPU on the 1.5 GB benchmark session, BENCHMARKS.md);
-/// `None` when it cannot be (then it is read). A file that another program truncates while
-/// it is mapped would end the process on a `SIGBUS` at the first page past its new end:
-/// [`on_sigbus`] says so in plain words and exits with status 74; every output of the lab
-/// is written to a temporary file and renamed, so none is left half written. A file
-/// appended to while it is read is safe (the map ends at the length it had; the pass's
-/// count of rows then differs and says so).
+/// copy out of the page cache); `None` when it cannot be (then it is read). A file that
+/// another program truncates while it is mapped ends the process on a `SIGBUS` at the first
+/// page past its new end: a program that reads sessions calls
+/// [`exit_plainly_on_truncated_map`] at its start, so that this ends in a plain message and
+/// status 74. A file appended to while it is read is safe (the map ends at the length it
+/// had; the pass's count of rows then differs and says so).
 fn map_file(file: &std::fs::File) -> Option<memmap2::Mmap> {
     let meta = file.metadata().ok()?;
     if !meta.is_file() || meta.len() == 0 {
         return None;
     }
+    // SAFETY: the map is only read; a file truncated under it raises SIGBUS (see above).
+    let m = unsafe { memmap2::MmapOptions::new().map(file) }.ok()?;
+    let _ = m.advise(memmap2::Advice::Sequential);
+    Some(m)
+}
+
+/// Installs the process's `SIGBUS` handler for session files mapped by [`RowReader`]: a
+/// file truncated by another program while it is read then stops the process with a plain
+/// message on stderr and status 74 instead of a crash. For a program's `main` (a signal
+/// handler is the whole process's): the lab's outputs are all written to a temporary file
+/// and renamed, so none is left half written. Calling it again does nothing.
+pub fn exit_plainly_on_truncated_map() {
     static SIGBUS: std::sync::Once = std::sync::Once::new();
     SIGBUS.call_once(|| {
         // SAFETY: a handler that calls only async-signal-safe functions (write, _exit),
@@ -822,11 +833,6 @@ fn map_file(file: &std::fs::File) -> Option<memmap2::Mmap> {
             libc::sigaction(libc::SIGBUS, &sa, std::ptr::null_mut());
         }
     });
-    // SAFETY: the map is only read; a file truncated under it raises SIGBUS, which
-    // `on_sigbus` turns into a plain message and an exit (see above).
-    let m = unsafe { memmap2::MmapOptions::new().map(file) }.ok()?;
-    let _ = m.advise(memmap2::Advice::Sequential);
-    Some(m)
 }
 
 /// `SIGBUS` while a mapped session file is read: it was truncated by another program.
@@ -1491,7 +1497,8 @@ mod read_paths {
 
     /// A session truncated by another program under the map: the reader's next page past
     /// the new end raises SIGBUS, and the process stops with the plain message and status
-    /// 74 ([`super::on_sigbus`]). Run in a child process (this test binary again, with
+    /// 74 ([`super::on_sigbus`], installed as a program does with
+    /// [`super::exit_plainly_on_truncated_map`]). Run in a child process (this test binary again, with
     /// `SSIS_SIGBUS_CHILD`), which opens a three-page session, truncates it to one page and
     /// reads on: deterministic, the second page is gone before the reader reaches it.
     #[test]
@@ -1506,6 +1513,7 @@ mod read_paths {
                 k += 1;
             }
             std::fs::write(&path, &text).expect("written");
+            super::exit_plainly_on_truncated_map();
             let mut rr = RowReader::open(&path).expect("opens");
             std::fs::OpenOptions::new().write(true).open(&path).expect("opens").set_len(4096).expect("truncated");
             let mut rows = 0;

@@ -154,6 +154,7 @@ fn write_session(path: &Path, rows: usize) -> Result<()> {
 }
 
 fn main() -> Result<()> {
+    ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
     let dir = cli.dir.unwrap_or_else(|| target_dir().join("lab-bench"));
     std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;

@@ -304,6 +304,7 @@ fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<Histo
 }
 
 fn main() -> Result<()> {
+    ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
     match cli.cmd {
         Cmd::Init { model, terms, t_ref_degc, g_window_s } => {

@@ -193,6 +193,7 @@ enum Sim {
 }
 
 fn main() {
+    ssis_session::exit_plainly_on_truncated_map();
     if let Err(e) = run(Cli::parse()) {
         eprintln!("error: {e:#}");
         std::process::exit(1);
