@@ -1408,7 +1408,7 @@ pub fn shape(path: &Path) -> Result<Shape, SessionError> {
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     /// The fast number path takes the forms a session is written in (the property test in
-    /// `tests/lab.rs` checks that whatever it takes is right; this, that it is used).
+    /// `tests/numbers.rs` checks that whatever it takes is right; this, that it is used).
     #[test]
     fn plain_takes_the_session_forms() {
         if !std::arch::is_x86_feature_detected!("ssse3") {
