@@ -520,13 +520,6 @@ pub fn fit_model<'a>(model: &Model, source: impl Into<Source<'a>>) -> LabResult<
     complete(fit_digest(model, &d)?, source, &d)
 }
 
-/// Evaluates `model` with its own coefficients (no fit) on a session.
-pub fn evaluate_model<'a>(model: &Model, source: impl Into<Source<'a>>) -> LabResult<Fitted> {
-    let source = source.into();
-    let d = digest(source, &spec_for(model, &[], DEFAULT_BLOCKS), None)?;
-    complete(evaluate_digest(model, &d)?, source, &d)
-}
-
 /// What `compare` shows: the fit (or evaluation) and the held-out RMS per FOG.
 #[derive(Debug, Clone)]
 pub struct Comparison {

@@ -173,14 +173,6 @@ impl Catalog {
     pub fn onboard(self) -> bool {
         !matches!(self, Catalog::SfAsymmetry | Catalog::SfNonlinearity | Catalog::Magnetic | Catalog::Aging)
     }
-
-    /// Needs FOG temperatures.
-    pub fn needs_temperature(self) -> bool {
-        matches!(
-            self,
-            Catalog::ThermalT1 | Catalog::ThermalT2 | Catalog::ThermalT3 | Catalog::TempRate | Catalog::TTimesG
-        )
-    }
 }
 
 /// A term's kind, parsed from its [`TermSpec`].
