@@ -1,5 +1,5 @@
 //! Accelerometer frames (kind 0x11), the accelerometer calibration section and its
-//! compensation (issue 7, part 1).
+//! compensation.
 
 use nalgebra::Vector3;
 use rand::SeedableRng;

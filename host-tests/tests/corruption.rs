@@ -1,4 +1,4 @@
-//! Frame corruption through the flight stream decoder (issue 6): 100,000 trials of
+//! Frame corruption through the flight stream decoder: 100,000 trials of
 //! corrupted frames between intact ones (`ssis_sim::corrupt`); the 10^7-trial figure is
 //! `ssis-corrupt-bench` (BENCHMARKS.md).
 

@@ -1,4 +1,4 @@
-//! Loosely coupled GNSS aiding (issue 7, part 3; criterion b's aided figures): the
+//! Loosely coupled GNSS aiding: the
 //! 600 s ascent with the paper's FOG figures and the assumed accelerometer figures,
 //! free-inertial against GNSS-aided (1 Hz, 5 m / 0.1 m/s per axis) with a 30 s outage.
 

@@ -1,4 +1,4 @@
-//! The paper's calibration methods on simulated data with known truth (issue 5).
+//! The paper's calibration methods on simulated data with known truth.
 //! `cargo test --test methods -- --nocapture` prints the measured figures.
 
 use std::path::PathBuf;

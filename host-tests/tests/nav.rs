@@ -1,4 +1,4 @@
-//! Strapdown navigation (issue 7, done-criterion a): the flight core's ECEF mechanisation
+//! Strapdown navigation: the flight core's ECEF mechanisation
 //! (`ssis::nav`) driven by ideal increments of a 600 s ascent (`sim::launch`) at
 //! 1.25 ms must stay within 1 m and 0.01 m/s of the truth, which is integrated
 //! independently (RK4 in inertial space, 4 sub-steps per sensor step).

@@ -1,4 +1,4 @@
-//! Done-when (a): the paper's Fig. 7 case. And the gain computation against NOTES.md.
+//! Done-when (a): the paper's Fig. 7 case. And the gain computation against the paper's gains.
 
 use std::path::Path;
 
@@ -97,7 +97,7 @@ fn fig7_bias_in_earth_pointing_shows_the_scale_factor_term() {
 
 #[test]
 fn steady_state_gains_match_notes() {
-    // NOTES.md: ARW 0.005 °/√h, 20″ 3σ star tracker at 4 Hz, RRW 0.01 °/h/√h →
+    // The paper's sensors: ARW 0.005 °/√h, 20″ 3σ star tracker at 4 Hz, RRW 0.01 °/h/√h →
     // K = [0.0224, −1.24e-5 /s] (our K_U is the negated second gain).
     let g = steady_state_gains(&ObserverConfig::PAPER).expect("gains");
     println!("steady-state gains at 4 Hz: K_B {:.5}, K_U {:.4e} /s", g.k_b[0], g.k_u_per_s[0]);

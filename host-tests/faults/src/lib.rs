@@ -1,4 +1,4 @@
-//! Fault injection (issue 6 part 7): the simulator's frames are damaged on their way to
+//! Fault injection: the simulator's frames are damaged on their way to
 //! the in-process flight core the way a failing sensor or link would damage them, and
 //! the core's output is scored against truth.
 //!

@@ -1,4 +1,4 @@
-//! The paper's ground and orbital calibration methods (Zlatkin et al., issue 5), each
+//! The paper's ground and orbital calibration methods (Zlatkin et al.), each
 //! reproduced on simulated data with known truth and measured against the paper's figures.
 //!
 //! Capabilities (one file per method; the CLI is `ssis-cal`, the tests `tests/methods.rs`):

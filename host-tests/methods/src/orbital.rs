@@ -209,7 +209,7 @@ pub struct BiasResult {
 /// Slowest time constant of the observer's per-axis loop for the gains of `table`, s. Per
 /// star-tracker update (period T) the errors (a attitude, δ = Δω̂ − Δω) evolve by
 /// M = [[1 − K_B, −(1 − K_B) T], [K_U, 1 − K_U T]]; τ = −T / ln |λ_max(M)|. With the paper's
-/// figures (NOTES.md: K_B = 0.0224, K_U = 1.24e-5 /s at 4 Hz) the loop is overdamped and
+/// figures (K_B = 0.0224, K_U = 1.24e-5 /s at 4 Hz) the loop is overdamped and
 /// τ ≈ T K_B / (K_U T) ≈ 1800 s: the drift estimate needs hours to settle.
 pub fn observer_time_constant_s(table: &CalibrationTable) -> Result<f64> {
     let cfg = &table.observer;

@@ -64,7 +64,7 @@ pub struct QemuOptions {
     /// in-process comparison still uses the scenario's table.
     pub table_image: Option<Vec<u8>>,
     /// A sensor fault injected into the simulator's frames before they are sent
-    /// (`faults`, issue 6 part 7); the in-process comparison gets the same bytes.
+    /// (`ssis_faults`); the in-process comparison gets the same bytes.
     pub fault: Option<ssis_faults::Fault>,
 }
 

@@ -1,4 +1,4 @@
-//! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`, issue 7): the ascent
+//! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`): the ascent
 //! simulator ([`ssis_sim::launch`], FOG, accelerometer and GNSS models) feeds the
 //! firmware over five emulated UARTs at its 1.25 ms step, in lockstep, and the runner
 //! replays the same bytes through the same `FlightCore` + `NavUnit` in-process: every

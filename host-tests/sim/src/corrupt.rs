@@ -1,4 +1,4 @@
-//! Frame corruption trials (issue 6): valid frames are corrupted (bit flips, byte
+//! Frame corruption trials: valid frames are corrupted (bit flips, byte
 //! substitutions, truncations, insertions) and streamed through the flight
 //! [`StreamDecoder`] between intact frames; every accepted frame is checked against the
 //! frames actually sent.

@@ -1,4 +1,4 @@
-//! Launch-vehicle navigation studies (issue 7): the ascent truth recorded once, then
+//! Launch-vehicle navigation studies: the ascent truth recorded once, then
 //! free-inertial runs of the flight core's [`ssis::nav::Strapdown`] on sensor data with
 //! errors (FOGs: [`crate::fog`], accelerometers: [`crate::accel`]), errors
 //! against truth at fixed times.

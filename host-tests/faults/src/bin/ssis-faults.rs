@@ -1,4 +1,4 @@
-//! `ssis-faults`: the fault-injection campaign of issue 6 on the in-process flight core.
+//! `ssis-faults`: the fault-injection campaign on the in-process flight core.
 //!
 //! Every fault of `docs/FAULT-CAMPAIGN.md` on the paper's sensors (Earth pointing with a
 //! slew, star tracker 20″ 3σ at 4 Hz): per FOG and seed, detected or not, latency,
@@ -16,7 +16,7 @@ use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use ssis_faults::{self as faults, CampaignRow, Fault, FaultKind};
 
-/// Fault-injection campaign (issue 6).
+/// Fault-injection campaign.
 #[derive(Parser, Debug)]
 #[command(version, about)]
 struct Args {

@@ -1,4 +1,4 @@
-//! `ssis-lab-bench`: the model lab's benchmark (issue 4): CSV ingest in MB/s, and `compare`
+//! `ssis-lab-bench`: the model lab's benchmark: CSV ingest in MB/s, and `compare`
 //! + `diagnose` on 10 million samples of 4 FOGs (goal: ≤ 10 s on one core).
 //!
 //! The session is a thermal rate table at 100 Hz (10 M rows = 27.8 h: the rate table's 24

@@ -1,5 +1,5 @@
 //! `ssis-cal`: the paper's calibration methods on ground-test sessions and on flight
-//! telemetry (issue 5, `docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each
+//! telemetry (`docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each
 //! prints a table, writes an SVG plot and, with `--table`, updates the calibration table
 //! (TOML, atomic; an unreadable existing table is refused, never overwritten).
 

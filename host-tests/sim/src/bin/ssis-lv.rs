@@ -1,4 +1,4 @@
-//! `ssis-lv`: launch-vehicle navigation studies (issue 7). `ssis-lv growth` prints the
+//! `ssis-lv`: launch-vehicle navigation studies. `ssis-lv growth` prints the
 //! free-inertial error growth over the default 600 s ascent as Markdown tables: the
 //! FOGs with the paper's post-calibration figures alone, the accelerometers with the
 //! assumed pendulous figures alone, and both, RMS over `--seeds` runs.
