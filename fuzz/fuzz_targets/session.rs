@@ -1,5 +1,5 @@
-//! Fuzz target: the model lab's CSV session reader (`ssis_host::lab::session`, compiled
-//! into this crate from its source: `src/lib.rs`).
+//! Fuzz target: the CSV session reader (`ssis_session`, the host workspace's crate that the
+//! model lab and the calibration methods read sessions with).
 //!
 //! The reader reads files (a fixed buffer, line by line), so each input is written to a
 //! file of this process in the temporary directory (a tmpfs where there is one) and read
@@ -22,7 +22,7 @@ fn path() -> &'static PathBuf {
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
     let p = path();
     std::fs::write(p, data).expect("temporary file");
-    if let Ok(s) = ssis_fuzz::session::read_session(p, None) {
+    if let Ok(s) = ssis_session::read_session(p, None) {
         let n = s.cols.first().map_or(0, Vec::len);
         assert!(s.cols.iter().all(|c| c.len() == n));
         assert_eq!(s.cols.len(), s.names.len());

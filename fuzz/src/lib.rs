@@ -1,24 +1,10 @@
 //! Checks shared by the fuzz targets: every input must be decoded without a panic, and
 //! whatever a decoder accepts must be exactly what an encoder would have sent.
 
-/// The model lab's session reader (`ssis_host::lab::session`), compiled here from its own
-/// source file; it names two items of its parent module, given below.
-#[allow(dead_code)]
-#[path = "../../host-tests/src/lab/session.rs"]
-pub mod session;
-
-/// Result of the lab functions (in `session`, only `write_session_csv` uses it).
-pub type LabResult<T> = Result<T, std::io::Error>;
-
-/// Writes `bytes` to `path` (the lab writes through a temporary file; not fuzzed).
-pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> LabResult<()> {
-    std::fs::write(path, bytes)
-}
-
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::{Frame, CRC16, SYNC};
 
-/// Largest frame (the output frame, 79 bytes) with room to spare.
+/// Largest frame (the output frame, 83 bytes) with room to spare.
 const MAX_LEN: usize = 128;
 
 /// Encodes `f` (panics if the encoder fails: that is a finding).

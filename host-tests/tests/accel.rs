@@ -1,5 +1,5 @@
 //! Accelerometer frames (kind 0x11), the accelerometer calibration section and its
-//! compensation (issue 7, part 1).
+//! compensation.
 
 use nalgebra::Vector3;
 use rand::SeedableRng;
@@ -9,7 +9,7 @@ use ssis::frames::accel::{AccelFrame, MAX_ACCEL_ID};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
 use ssis::frames::{kind, DecodeError, Frame};
-use ssis_host::sim::accel::{AccelModel, AccelSpec};
+use ssis_sim::accel::{AccelModel, AccelSpec};
 
 #[test]
 fn layout_and_icd_example() {

@@ -4,8 +4,8 @@
 
 use std::path::Path;
 
-use ssis_host::harness::run;
-use ssis_host::scenario::Scenario;
+use ssis_sim::harness::run;
+use ssis_sim::scenario::Scenario;
 
 #[test]
 fn earth_pointing_two_hours_paper_sensors() {

@@ -5,8 +5,8 @@
 use nalgebra::{Quaternion, Vector3};
 use ssis::attitude::{Attitude, Coning};
 use ssis::math::rotvec_from_quat;
-use ssis_host::sim::truth::{ConingMotion, MotionSpec, Truth};
-use ssis_host::ARCSEC_PER_RAD;
+use ssis_common::ARCSEC_PER_RAD;
+use ssis_sim::truth::{ConingMotion, MotionSpec, Truth};
 
 /// Integrates `hours` of `motion` at `rate_hz` with `coning`; returns the final error, ″.
 fn final_error_arcsec(motion: &MotionSpec, rate_hz: f64, hours: f64, coning: Coning) -> f64 {

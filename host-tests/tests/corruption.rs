@@ -1,8 +1,8 @@
-//! Frame corruption through the flight stream decoder (issue 6): 100,000 trials of
-//! corrupted frames between intact ones (`ssis_host::corrupt`); the 10^7-trial figure is
+//! Frame corruption through the flight stream decoder: 100,000 trials of
+//! corrupted frames between intact ones (`ssis_sim::corrupt`); the 10^7-trial figure is
 //! `ssis-corrupt-bench` (BENCHMARKS.md).
 
-use ssis_host::corrupt::{corrupt, run_trials, Corruption};
+use ssis_sim::corrupt::{corrupt, run_trials, Corruption};
 
 #[test]
 fn corrupted_frames_are_refused_and_the_decoder_resynchronises() {

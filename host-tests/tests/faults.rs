@@ -1,5 +1,5 @@
-//! Fault tolerance (issue 6): the designed behaviour under each injected fault, through
-//! `ssis_host::faults` on the in-process flight core. Short scenarios and few seeds; the
+//! Fault tolerance: the designed behaviour under each injected fault, through
+//! `ssis_faults` on the in-process flight core. Short scenarios and few seeds; the
 //! full Monte Carlo figures are the campaign's (`ssis-faults`, docs/FAULT-CAMPAIGN.md).
 //!
 //! Every run is the campaign's scenario (the paper's sensors, Earth pointing with a 10°
@@ -13,9 +13,9 @@ use ssis::flight::{flags, health, st_status, MAX_WAIT_STEPS, ST_OUTAGE_US};
 use ssis::integrity::channel::STUCK_SAMPLES;
 use ssis::integrity::parity::K_SPIKE;
 use ssis::observer::{steady_state, CHI2_GATE};
-use ssis_host::faults::{self, Fault, FaultKind, FaultRun, FaultScale, FaultStep, FAULT_START_S};
-use ssis_host::harness::Simulation;
-use ssis_host::ARCSEC_PER_RAD;
+use ssis_common::ARCSEC_PER_RAD;
+use ssis_faults::{self as faults, Fault, FaultKind, FaultRun, FaultScale, FaultStep, FAULT_START_S};
+use ssis_sim::harness::Simulation;
 
 /// Step, s (the spacecraft unit's 5 ms).
 const DT_S: f64 = 0.005;
@@ -455,7 +455,7 @@ fn star_tracker_outage_of_10_min_is_flagged_and_the_return_makes_no_jump() {
     let t = first_update.expect("star tracker never taken again");
     assert!(t <= 1.0, "first update {t} s after the return");
     // The issue's goal is ≤ 15″. What a gyro-only coast of 10 min allows with these
-    // sensors is 8.7″ 1σ per axis (NOTES.md, estimation limits), so the largest axis of
+    // sensors is 8.7″ 1σ per axis (the estimation limit of a gyro-only coast), so the largest axis of
     // a run exceeds 15″ in a good share of runs: the goal is not met in the campaign
     // (docs/FAULT-CAMPAIGN.md). Asserted here: within 3σ of that limit.
     assert!(max_err <= 3.0 * 8.7, "error {max_err:.1}″ beyond 3σ of the 10-min coasting limit");

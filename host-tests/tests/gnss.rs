@@ -1,14 +1,14 @@
-//! Loosely coupled GNSS aiding (issue 7, part 3; criterion b's aided figures): the
+//! Loosely coupled GNSS aiding: the
 //! 600 s ascent with the paper's FOG figures and the assumed accelerometer figures,
 //! free-inertial against GNSS-aided (1 Hz, 5 m / 0.1 m/s per axis) with a 30 s outage.
 
 use nalgebra::Vector3;
 use ssis::nav::gnss::{AidedNav, GnssError, GnssFix};
-use ssis_host::lv::{filter_config, run, AscentRecord};
-use ssis_host::sim::accel::AccelSpec;
-use ssis_host::sim::fog::FogSpec;
-use ssis_host::sim::gnss::GnssSpec;
-use ssis_host::sim::launch::LaunchProfile;
+use ssis_sim::accel::AccelSpec;
+use ssis_sim::fog::FogSpec;
+use ssis_sim::gnss::GnssSpec;
+use ssis_sim::launch::LaunchProfile;
+use ssis_sim::lv::{filter_config, run, AscentRecord};
 
 const OUTAGE: [f64; 2] = [300.0, 330.0];
 
@@ -22,7 +22,7 @@ fn aided_ascent_with_outage() {
     let seed = 1;
     let free = run(&rec, Some(&fog), Some(&acc), None, seed, 1.0);
     let aided = run(&rec, Some(&fog), Some(&acc), Some((&spec, &cfg)), seed, 1.0);
-    let at = |v: &[ssis_host::lv::NavError], t: f64| v[(t.round() as usize) - 1];
+    let at = |v: &[ssis_sim::lv::NavError], t: f64| v[(t.round() as usize) - 1];
     println!("| t, s | free: position m, velocity m/s | aided: position m, velocity m/s | filter 1σ: m, m/s |");
     for t in [60.0, 120.0, 180.0, 240.0, 299.0, 300.0, 310.0, 320.0, 330.0, 340.0, 360.0, 420.0, 480.0, 540.0, 600.0] {
         let (f, a) = (at(&free.errors, t), at(&aided.errors, t));
@@ -95,9 +95,9 @@ fn attitude_error_converges_under_thrust() {
             let fix = GnssFix { r_e_m: tr.r_e_m, v_e_m_s: tr.v_e_m_s, sigma_pos_m: 1.0, sigma_vel_m_s: 0.01 };
             a.gnss_update(&fix).expect("fix");
         }
-        last = ssis_host::lv::angle_between(&a.state().q_eb, &tr.q_eb);
+        last = ssis_sim::lv::angle_between(&a.state().q_eb, &tr.q_eb);
     }
-    let arc = ssis_host::ARCSEC_PER_RAD;
+    let arc = ssis_common::ARCSEC_PER_RAD;
     println!("attitude error {:.1}″ → {:.2}″ after 200 s", err0.norm() * arc, last * arc);
     assert!(last * arc < 2.0, "attitude error {:.2}″ after 200 s", last * arc);
 }

@@ -6,9 +6,9 @@ use ssis::calib::CalibrationTable;
 use ssis::flight::{health, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::fog::FogFrame;
 use ssis::link::{RxRing, TxRing};
-use ssis_host::harness::run;
-use ssis_host::mock::{Impairments, MockLink, MockSink};
-use ssis_host::scenario::{ProfileName, Scenario};
+use ssis_common::mock::{Impairments, MockLink, MockSink};
+use ssis_sim::harness::run;
+use ssis_sim::scenario::{ProfileName, Scenario};
 
 fn short_scenario() -> Scenario {
     let text = r#"
@@ -202,7 +202,7 @@ fn launch_vehicle_profile_runs_three_fogs_at_1_25_ms() {
 }
 
 /// Runs a 60 s scenario with FOG link impairments `imp`; returns the summary.
-fn run_with_fog_links(imp: Impairments) -> ssis_host::harness::Summary {
+fn run_with_fog_links(imp: Impairments) -> ssis_sim::harness::Summary {
     let mut sc = short_scenario();
     sc.duration_s = 60.0;
     sc.links.fog = imp;
@@ -228,8 +228,8 @@ fn the_fog_bus_gives_the_same_output_as_separate_links() {
     // Same frames, one multi-drop link instead of four: bit-identical output.
     use rand::SeedableRng;
     use ssis::frames::output::OutputFrame;
-    use ssis_host::sim::fog::{FogModel, FogSpec};
-    use ssis_host::sim::truth::{MotionSpec, Truth};
+    use ssis_sim::fog::{FogModel, FogSpec};
+    use ssis_sim::truth::{MotionSpec, Truth};
     let mut rng = rand_chacha::ChaCha20Rng::seed_from_u64(3);
     let mut truth = Truth::new(MotionSpec::earth_pointing(5640.0, Vec::new()));
     let mut fogs = FogModel::new(&FogSpec::paper_post_calibration(), &mut rng);

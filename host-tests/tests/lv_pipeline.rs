@@ -12,11 +12,11 @@ use ssis::calib::accel::AccelTable;
 use ssis::calib::CalibrationTable;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::nav::unit::{NavLinks, NavUnit};
-use ssis_host::lv::{filter_config, AscentRecord};
-use ssis_host::mock::{MockLink, MockSink};
-use ssis_host::sim::accel::{AccelModel, AccelSpec};
-use ssis_host::sim::fog::{FogModel, FogSpec};
-use ssis_host::sim::launch::LaunchProfile;
+use ssis_common::mock::{MockLink, MockSink};
+use ssis_sim::accel::{AccelModel, AccelSpec};
+use ssis_sim::fog::{FogModel, FogSpec};
+use ssis_sim::launch::LaunchProfile;
+use ssis_sim::lv::{filter_config, AscentRecord};
 
 const DT_S: f64 = 1.25e-3;
 

@@ -1,11 +1,11 @@
-//! The paper's calibration methods on simulated data with known truth (issue 5).
+//! The paper's calibration methods on simulated data with known truth.
 //! `cargo test --test methods -- --nocapture` prints the measured figures.
 
 use std::path::PathBuf;
 
-use ssis_host::lab::session::read_session;
-use ssis_host::methods::{allan, magnetic, misalign_turns, thermal_anova};
-use ssis_host::DEG_H_PER_RAD_S;
+use ssis_common::DEG_H_PER_RAD_S;
+use ssis_methods::{allan, magnetic, misalign_turns, thermal_anova};
+use ssis_session::read_session;
 
 fn tmp(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("ssis-methods-{}", std::process::id()));
@@ -225,7 +225,7 @@ fn misalignment_first_method_on_turntable_session() {
     let ideal = misalign_turns::TableSim { axis_tilt_sigma_arcsec: 0.0, ..sim };
     let (rows, table) = ideal.run(11);
     let p2 = tmp("turns-ideal.csv");
-    ssis_host::methods::write_session_csv(&p2, &[], &misalign_turns::TableSim::HEADER, &rows).unwrap();
+    ssis_methods::write_session_csv(&p2, &[], &misalign_turns::TableSim::HEADER, &rows).unwrap();
     let s = read_session(&p2, None).unwrap();
     let (turns, lat) = misalign_turns::turns_from_session(&s).unwrap();
     let r = misalign_turns::solve(&turns, lat, table.gamma_rad).unwrap();
@@ -243,7 +243,7 @@ fn fmt8(v: &[f64; 8]) -> String {
 
 #[test]
 fn misalignment_second_method_sins_reversals() {
-    use ssis_host::methods::misalign_sins;
+    use ssis_methods::misalign_sins;
     let truth = misalign_turns::example_truth();
     // The first method's angles on this unit (its own turntable session) are the start.
     let first = misalign_turns::TableSim::first_method(truth);
@@ -270,7 +270,7 @@ fn misalignment_second_method_sins_reversals() {
     // From a 60″ start (the method's stated domain, ≤ 1′) it reaches the same answer.
     let far = misalign_sins::with_triad(
         &truth,
-        &misalign_sins::triad_angles(&truth).map(|a| a + 60.0 / ssis_host::ARCSEC_PER_RAD),
+        &misalign_sins::triad_angles(&truth).map(|a| a + 60.0 / ssis_common::ARCSEC_PER_RAD),
     );
     let r2 = misalign_sins::solve(&revs, &far, table.gamma_rad).unwrap();
     let e2 = misalign_sins::errors_arcsec(&r2.misalignment, &truth);
@@ -281,7 +281,7 @@ fn misalignment_second_method_sins_reversals() {
 }
 
 fn fmt6(v: &[f64; 6]) -> String {
-    ssis_host::methods::misalign_sins::TRIAD_NAMES
+    ssis_methods::misalign_sins::TRIAD_NAMES
         .iter()
         .zip(v)
         .map(|(n, x)| format!("{n} {x:+.2}"))
@@ -293,8 +293,8 @@ fn fmt6(v: &[f64; 6]) -> String {
 
 #[test]
 fn orbital_calibration_on_flight_telemetry() {
-    use ssis_host::methods::orbital;
-    use ssis_host::ARCSEC_PER_RAD;
+    use ssis_common::ARCSEC_PER_RAD;
+    use ssis_methods::orbital;
     let t0 = std::time::Instant::now();
     // The unit: the paper's "before" biases and scale factors, a star tracker 40″/−30″/25″
     // off its table mount; it flies with the ground campaign's geometry (here the true
@@ -306,7 +306,7 @@ fn orbital_calibration_on_flight_telemetry() {
     let a = misalign_turns::angles(&truth_m).map(|x| x + 3.0 / ARCSEC_PER_RAD);
     flown.misalignment = misalign_turns::from_angles(&a);
     let table_path = tmp("orbital-flown.toml");
-    ssis_host::table::write_toml(&table_path, &flown).unwrap();
+    ssis_common::table::write_toml(&table_path, &flown).unwrap();
     sc.table.file = Some(table_path.clone());
     let cap = orbital::fly(&sc).unwrap();
     let tel = orbital::Telemetry::decode(&cap.out, &cap.star);

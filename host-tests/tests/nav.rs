@@ -1,11 +1,11 @@
-//! Strapdown navigation (issue 7, done-criterion a): the flight core's ECEF mechanisation
+//! Strapdown navigation: the flight core's ECEF mechanisation
 //! (`ssis::nav`) driven by ideal increments of a 600 s ascent (`sim::launch`) at
 //! 1.25 ms must stay within 1 m and 0.01 m/s of the truth, which is integrated
 //! independently (RK4 in inertial space, 4 sub-steps per sensor step).
 
 use nalgebra::{Quaternion, Vector3};
 use ssis::nav::{wgs84, Corrections, NavError, NavState, Strapdown};
-use ssis_host::sim::launch::{LaunchProfile, LaunchTruth};
+use ssis_sim::launch::{LaunchProfile, LaunchTruth};
 
 const DT_S: f64 = 1.25e-3;
 
@@ -69,7 +69,7 @@ fn run(duration_s: f64, corrections: Corrections, print: bool) -> Run {
                 s.t_s,
                 dp,
                 dv,
-                da * ssis_host::ARCSEC_PER_RAD,
+                da * ssis_common::ARCSEC_PER_RAD,
                 alt,
                 s.v_e_m_s.norm()
             );
@@ -89,7 +89,7 @@ fn ideal_sensors_600_s_ascent() {
          at 600 s |dr| = {:.4e} m, |dv| = {:.4e} m/s; truth at 600 s: height ≈ {:.0} m, |v_e| = {:.0} m/s",
         all.max_pos_m,
         all.max_vel_m_s,
-        all.max_att_rad * ssis_host::ARCSEC_PER_RAD,
+        all.max_att_rad * ssis_common::ARCSEC_PER_RAD,
         all.final_pos_m,
         all.final_vel_m_s,
         all.final_alt_m,
@@ -105,7 +105,7 @@ fn ideal_sensors_600_s_ascent() {
         "no coning/rotation/sculling: max |dr| = {:.4e} m, max |dv| = {:.4e} m/s, max attitude {:.3e} arcsec",
         none.max_pos_m,
         none.max_vel_m_s,
-        none.max_att_rad * ssis_host::ARCSEC_PER_RAD
+        none.max_att_rad * ssis_common::ARCSEC_PER_RAD
     );
     assert!(none.max_vel_m_s > 10.0 * all.max_vel_m_s, "corrections worth less than x10 in velocity");
 }
@@ -182,7 +182,7 @@ fn refuses_bad_inputs() {
     }
     let drift_m = (nav.state().r_e_m - st.r_e_m).norm();
     let att_rad = angle_between(&nav.state().q_eb, &st.q_eb);
-    println!("at rest 100 s: {drift_m:.3e} m, {:.3e} arcsec", att_rad * ssis_host::ARCSEC_PER_RAD);
+    println!("at rest 100 s: {drift_m:.3e} m, {:.3e} arcsec", att_rad * ssis_common::ARCSEC_PER_RAD);
     assert!(drift_m < 1e-3, "drifted {drift_m} m at rest");
     assert!(att_rad < 1e-9, "attitude moved {att_rad} rad at rest");
 }

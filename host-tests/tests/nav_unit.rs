@@ -11,12 +11,12 @@ use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::gnss::{status, GnssFrame};
 use ssis::frames::navout::{flags, NavOutputFrame, POS_LSB_M, VEL_LSB_M_S};
 use ssis::nav::unit::{NavLinks, NavUnit};
-use ssis_host::lv::{filter_config, AscentRecord};
-use ssis_host::mock::{Impairments, MockLink, MockSink};
-use ssis_host::sim::accel::{AccelModel, AccelSpec};
-use ssis_host::sim::fog::FogSpec;
-use ssis_host::sim::gnss::GnssSpec;
-use ssis_host::sim::launch::LaunchProfile;
+use ssis_common::mock::{Impairments, MockLink, MockSink};
+use ssis_sim::accel::{AccelModel, AccelSpec};
+use ssis_sim::fog::FogSpec;
+use ssis_sim::gnss::GnssSpec;
+use ssis_sim::launch::LaunchProfile;
+use ssis_sim::lv::{filter_config, AscentRecord};
 
 const DT_S: f64 = 1.25e-3;
 

@@ -1,5 +1,5 @@
 //! GNSS fix frame (kind 0x21) and navigation output frame (kind 0x31) of the
-//! launch-vehicle unit (issue 7, part 3): layouts against the `docs/ICD.md` examples
+//! launch-vehicle unit: layouts against the `docs/ICD.md` examples
 //! (computed independently of the Rust code), round trips, validity rules, a GNSS stream
 //! with corruption through the stream decoder.
 

@@ -1,4 +1,4 @@
-//! Done-when (a): the paper's Fig. 7 case. And the gain computation against NOTES.md.
+//! Done-when (a): the paper's Fig. 7 case. And the gain computation against the paper's gains.
 
 use std::path::Path;
 
@@ -7,10 +7,10 @@ use ssis::attitude::{Attitude, Coning};
 use ssis::calib::{ObserverConfig, ObserverGains};
 use ssis::math;
 use ssis::observer::{steady_state, steady_state_gains, Observer, SteadyState};
-use ssis_host::harness::run;
-use ssis_host::scenario::Scenario;
-use ssis_host::sim::fog::TriadError;
-use ssis_host::stats::AxisStats;
+use ssis_common::stats::AxisStats;
+use ssis_sim::fog::TriadError;
+use ssis_sim::harness::run;
+use ssis_sim::scenario::Scenario;
 
 fn scenario(name: &str) -> Scenario {
     Scenario::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios").join(name)).expect("scenario loads")
@@ -97,7 +97,7 @@ fn fig7_bias_in_earth_pointing_shows_the_scale_factor_term() {
 
 #[test]
 fn steady_state_gains_match_notes() {
-    // NOTES.md: ARW 0.005 °/√h, 20″ 3σ star tracker at 4 Hz, RRW 0.01 °/h/√h →
+    // The paper's sensors: ARW 0.005 °/√h, 20″ 3σ star tracker at 4 Hz, RRW 0.01 °/h/√h →
     // K = [0.0224, −1.24e-5 /s] (our K_U is the negated second gain).
     let g = steady_state_gains(&ObserverConfig::PAPER).expect("gains");
     println!("steady-state gains at 4 Hz: K_B {:.5}, K_U {:.4e} /s", g.k_b[0], g.k_u_per_s[0]);

@@ -11,8 +11,8 @@
 
 use std::path::Path;
 
-use ssis_host::qemu::{build_firmware, run_qemu, QemuOptions, QemuSummary};
-use ssis_host::scenario::Scenario;
+use ssis_runner::qemu::{build_firmware, run_qemu, QemuOptions, QemuSummary};
+use ssis_sim::scenario::Scenario;
 
 /// One QEMU at a time: the real-time run must not share the two cores.
 static SERIAL: std::sync::Mutex<()> = std::sync::Mutex::new(());
@@ -103,7 +103,7 @@ fn a_damaged_table_copy_falls_back_to_the_other_on_target() {
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 2.0;
     sc.settle_s = 1.0;
-    let table = ssis_host::harness::Simulation::new(&sc).expect("simulation").table;
+    let table = ssis_sim::harness::Simulation::new(&sc).expect("simulation").table;
     let mut img = ssis::calib::store::image(&table).to_vec();
     img[200] ^= 0x04;
     let opts = QemuOptions { table_image: Some(img), ..QemuOptions::lockstep(elf) };
@@ -126,7 +126,7 @@ fn a_stalled_main_loop_is_caught_by_the_watchdog() {
     // warn (NMI) after one period and end the run (reset, QEMU `-action
     // watchdog=poweroff`) after the second: two periods of 10 steps, 100 ms.
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
-    let elf = ssis_host::qemu::build_firmware_with_test_hooks().expect("firmware with test hooks builds");
+    let elf = ssis_runner::qemu::build_firmware_with_test_hooks().expect("firmware with test hooks builds");
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 5.0;
@@ -155,9 +155,9 @@ fn on_target_self_test_passes_and_replays_the_host_bit_for_bit() {
     assert_eq!(ssis::bit::power_on(), Ok(()), "the built-in test fails on the host");
     let host = ssis::bit::replay_digest(2_000);
     assert_eq!(host.steps, 2_000);
-    let elf = ssis_host::qemu::build_target_bin("ssis-selftest").expect("self-test builds");
+    let elf = ssis_runner::qemu::build_target_bin("ssis-selftest").expect("self-test builds");
     let (code, log) =
-        ssis_host::qemu::run_bare(&elf, std::time::Duration::from_secs(60)).expect("QEMU runs the self-test");
+        ssis_runner::qemu::run_bare(&elf, std::time::Duration::from_secs(60)).expect("QEMU runs the self-test");
     for l in &log {
         println!("target: {l}");
     }
@@ -182,9 +182,9 @@ fn a_stack_overflow_faults_below_the_stack_and_never_touches_the_statics() {
     // the recursion ran 8 MiB further down before it crashed.)
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     for bin in ["ssis-stackcheck", "ssis-stackcheck-lv"] {
-        let elf = ssis_host::qemu::build_test_hooks_bin(bin).expect("stackcheck builds");
+        let elf = ssis_runner::qemu::build_test_hooks_bin(bin).expect("stackcheck builds");
         let (code, log) =
-            ssis_host::qemu::run_bare(&elf, std::time::Duration::from_secs(30)).expect("QEMU runs the stackcheck");
+            ssis_runner::qemu::run_bare(&elf, std::time::Duration::from_secs(30)).expect("QEMU runs the stackcheck");
         for l in &log {
             println!("{bin}: {l}");
         }
@@ -217,7 +217,7 @@ fn a_stack_overflow_faults_below_the_stack_and_never_touches_the_statics() {
 #[test]
 fn bias_step_on_fog2_in_qemu_is_isolated_as_on_the_host() {
     use ssis::flight::flags;
-    use ssis_host::faults::{self, Fault, FaultKind, FaultScale};
+    use ssis_faults::{self as faults, Fault, FaultKind, FaultScale};
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let elf = build_firmware().expect("firmware builds");
     let mut sc = faults::scenario(2, 35.0).expect("scenario");

@@ -1,4 +1,4 @@
-//! The launch-vehicle firmware (`ssis-fw-lv`, issue 7 part 5) in QEMU at its 1.25 ms
+//! The launch-vehicle firmware (`ssis-fw-lv`) in QEMU at its 1.25 ms
 //! step, fed by the ascent simulator over five emulated UARTs in lockstep with the
 //! instruction counter on (`-icount shift=0`). A shortened ascent (12 s, GNSS outage
 //! 5–8 s) so CI stays fast; the full 600 s run is the benchmark (`BENCHMARKS.md`).
@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use ssis_host::qemu_lv::{build_firmware, run_qemu_lv, LvOptions, LvScenario};
+use ssis_runner::qemu_lv::{build_firmware, run_qemu_lv, LvOptions, LvScenario};
 
 #[test]
 fn lv_firmware_keeps_1_25_ms_and_matches_the_host_replay() {
@@ -39,8 +39,7 @@ fn lv_firmware_keeps_1_25_ms_and_matches_the_host_replay() {
     let [none, prop, upd] = s.period_ticks;
     assert!(none.n > 9_000 && prop.n >= 100 && upd.n >= 8, "{:?}", s.period_ticks);
     // A covariance propagation adds some 50,000 instructions (1,300 ticks) to its period;
-    // a step alone is about 6,000 (150 ticks). (This compared with 10 steps until the
-    // per-FOG checks of issue 6 made the step 7 % heavier and 10 steps 1,507 ticks.)
+    // a step alone is about 6,000 (150 ticks).
     assert!(prop.mean() > none.mean() + 1_000.0 && upd.mean() > prop.mean(), "{:?}", s.period_ticks);
     // The firmware's own report: the step alone stays flat when the filter works.
     let fw = s.firmware_times.map(|t| t.expect("END report of every kind"));

@@ -1,4 +1,4 @@
-//! The launch-vehicle navigation on the target CPU (issue 7, part 5, partly): the
+//! The launch-vehicle navigation on the target CPU: the
 //! `ssis-navbench` binary runs 8,000 steps of accelerometer compensation + aided
 //! strapdown step (covariance propagation every 80 steps) and 10 GNSS updates under
 //! QEMU with `-icount shift=0`; instruction counts per step from SysTick.
@@ -8,7 +8,7 @@
 
 use std::time::Duration;
 
-use ssis_host::qemu::{build_target_bin, run_bare_with, INSTR_PER_TICK};
+use ssis_runner::qemu::{build_target_bin, run_bare_with, INSTR_PER_TICK};
 
 #[test]
 fn nav_instructions_per_step_on_target() {

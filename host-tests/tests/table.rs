@@ -4,7 +4,7 @@
 use proptest::prelude::*;
 use ssis::calib::binary::{decode, encode, TABLE_LEN};
 use ssis::calib::{CalibrationTable, ObserverGains, TableError};
-use ssis_host::table;
+use ssis_common::table;
 
 fn sample_table() -> CalibrationTable {
     let mut t = CalibrationTable::DEFAULT;

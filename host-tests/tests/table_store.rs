@@ -1,4 +1,4 @@
-//! Calibration table integrity (issue 6, part 4): the two-copy store of the table's flash
+//! Calibration table integrity: the two-copy store of the table's flash
 //! region. Every 1- and 2-bit flip and every truncation of a stored record, and of the bare
 //! binary table inside it, is refused; a bad copy falls back to the other, then to the
 //! flagged default table; an update switches atomically at every byte of its write.

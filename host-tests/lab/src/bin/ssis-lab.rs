@@ -1,0 +1,580 @@
+//! `ssis-lab`: the model lab for calibration engineers (`docs/LAB.md`).
+//!
+//! Compare the FOG error model with a ground-test session, see where it fails, learn which
+//! effect is missing, add it, watch the held-out error fall, export the flight table.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use anyhow::{bail, Context, Result};
+use clap::{Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use ssis_common::DEG_H_PER_RAD_S;
+use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
+use ssis_lab::export::to_table;
+use ssis_lab::fit::{
+    add_term, compare, complete, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
+};
+use ssis_lab::model::{Kind, Model};
+use ssis_lab::plot::{history_svg, residual_svg, write_svg};
+use ssis_lab::replay::replay;
+use ssis_lab::session::{read_session, Session};
+use ssis_lab::stream::{digest, Source};
+use ssis_lab::{report, simulate};
+
+#[derive(Parser)]
+#[command(
+    name = "ssis-lab",
+    version,
+    about = "Model lab: fit, diagnose and extend the FOG error model on ground-test sessions"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Write a new model (version 1) with the given catalog terms and no coefficients.
+    Init {
+        /// Model file to create (refused if it exists), e.g. model.v1.toml.
+        model: PathBuf,
+        /// Comma-separated terms (catalog names, `sinusoid:F_HZ`, or expressions).
+        #[arg(long, default_value = "bias,scale_factor,misalignment")]
+        terms: String,
+        /// Reference temperature of the thermal terms, °C.
+        #[arg(long, default_value_t = 25.0)]
+        t_ref_degc: f64,
+        /// Window of the temperature-rate estimate G, s (0: 2 × sample interval, at least 60 s).
+        #[arg(long, default_value_t = 0.0)]
+        g_window_s: f64,
+    },
+    /// Fit (or evaluate) the model on a session: residual RMS, max, explained fraction, plots.
+    Compare {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV (docs/SESSION-FORMAT.md).
+        #[arg(long)]
+        session: PathBuf,
+        /// Use the model's coefficients as they are instead of fitting them.
+        #[arg(long)]
+        evaluate: bool,
+        /// Directory for the residual plots (one SVG per FOG).
+        #[arg(long)]
+        plots: Option<PathBuf>,
+        /// Number of time blocks for the held-out figures.
+        #[arg(long, default_value_t = ssis_lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Rank the effects the model lacks by held-out F-tests (Benjamini–Hochberg FDR).
+    Diagnose {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// False-discovery-rate level.
+        #[arg(long, default_value_t = 0.01)]
+        level: f64,
+        /// Number of time blocks (even ones train, odd ones test).
+        #[arg(long, default_value_t = ssis_lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Add a term, refit, write the next model version (never overwrites) and show the history.
+    Add {
+        /// Catalog name, `sinusoid:F_HZ`, or an expression over session columns.
+        term: String,
+        /// Model file (any version; the next version is written beside it as STEM.vN.toml).
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// Number of time blocks.
+        #[arg(long, default_value_t = ssis_lab::fit::DEFAULT_BLOCKS)]
+        blocks: usize,
+    },
+    /// Write the calibration table the firmware loads (TOML and/or binary) from a fitted model.
+    Export {
+        /// Fitted model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Table whose other fields (geometry, star tracker, observer) are kept; default: the nominal table.
+        #[arg(long)]
+        base: Option<PathBuf>,
+        /// TOML table to write.
+        #[arg(long)]
+        toml: Option<PathBuf>,
+        /// Binary table to write.
+        #[arg(long)]
+        bin: Option<PathBuf>,
+    },
+    /// One self-contained HTML page: fit, diagnosis, history and residual plots.
+    Report {
+        /// Model file.
+        #[arg(long)]
+        model: PathBuf,
+        /// Session CSV.
+        #[arg(long)]
+        session: PathBuf,
+        /// HTML file to write.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Replay a session through the flight core (FlightCore::step) with a calibration table:
+    /// the core's body-rate error against the session's reference.
+    Replay {
+        /// Session CSV with equally spaced rows (one core step per row).
+        #[arg(long)]
+        session: PathBuf,
+        /// Calibration table, binary (.bin) or TOML; default: the nominal table (no error terms).
+        #[arg(long)]
+        table: Option<PathBuf>,
+    },
+    /// Turn a firmware log into a session file: a raw capture of the output link (83-byte
+    /// output frames; the body rate is the measurement, bad frames are counted) or the per-step
+    /// CSV of ssis-qemu / ssis-sim (the attitude is the measurement, the truth the reference).
+    Import {
+        /// What the log is.
+        kind: LogKind,
+        /// The log file.
+        log: PathBuf,
+        /// Session CSV to write.
+        #[arg(long)]
+        out: PathBuf,
+        /// Capture only: azimuth of X_P from north (clockwise) of the turntable, rad.
+        #[arg(long, allow_negative_numbers = true)]
+        psi_rad: Option<f64>,
+        /// Capture only: latitude, rad.
+        #[arg(long, allow_negative_numbers = true)]
+        lat_rad: Option<f64>,
+        /// Capture only: table rate about Z_P (up), rad/s.
+        #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+        table_rate_rad_s: f64,
+    },
+    /// Write a simulated session with a known hidden effect (for trying the lab).
+    Simulate {
+        /// magnetic, thermal, asymmetry, sin2psi, flight or replay.
+        preset: String,
+        /// CSV file to write.
+        out: PathBuf,
+        /// Random seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Leave the hidden effect out.
+        #[arg(long)]
+        no_hidden: bool,
+    },
+}
+
+/// Kinds of firmware log `import` reads.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum LogKind {
+    /// Raw bytes of the output link.
+    Capture,
+    /// The per-step CSV of ssis-qemu / ssis-sim run --csv.
+    QemuCsv,
+}
+
+fn dh(v: f64) -> f64 {
+    v * DEG_H_PER_RAD_S
+}
+
+fn load_session(path: &Path) -> Result<Session> {
+    let pb = bytes_bar(path, "reading");
+    let s = read_session(path, Some(&pb));
+    pb.finish_and_clear();
+    s.context("session refused")
+}
+
+/// A progress bar over the bytes of a session file.
+fn bytes_bar(path: &Path, what: &str) -> ProgressBar {
+    let pb = ProgressBar::new(0).with_style(
+        ProgressStyle::with_template("{prefix} {msg} {bar:30} {bytes}/{total_bytes} {bytes_per_sec}")
+            .expect("template"),
+    );
+    pb.set_prefix(what.to_string());
+    pb.set_message(path.display().to_string());
+    pb
+}
+
+/// Runs `f` with a progress bar over the file's bytes; the error says the session was refused.
+fn pass<T>(path: &Path, what: &str, f: impl FnOnce(&ProgressBar) -> ssis_lab::LabResult<T>) -> Result<T> {
+    let pb = bytes_bar(path, what);
+    let out = f(&pb);
+    pb.finish_and_clear();
+    out.with_context(|| format!("{what} {}", path.display()))
+}
+
+fn load_model(path: &Path) -> Result<Model> {
+    Model::read(path).context("model refused")
+}
+
+fn spinner(msg: &str) -> ProgressBar {
+    let pb = ProgressBar::new_spinner();
+    pb.set_message(msg.to_string());
+    pb.enable_steady_tick(Duration::from_millis(120));
+    pb
+}
+
+fn print_diagnosis(d: &Diagnosis) {
+    println!(
+        "held-out blocks: {} training samples, {} test samples; Benjamini-Hochberg at {} %",
+        d.n_train,
+        d.n_test,
+        100.0 * d.fdr_level
+    );
+    println!(
+        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  origin",
+        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop"
+    );
+    for (r, c) in d.candidates.iter().enumerate() {
+        println!(
+            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {}{}",
+            r + 1,
+            c.kind.label(),
+            c.p_value,
+            dh(c.before_rad_s),
+            dh(c.after_rad_s),
+            100.0 * (1.0 - c.after_rad_s / c.before_rad_s),
+            c.origin,
+            if c.significant { "  ** significant" } else { "" }
+        );
+    }
+    for (k, why) in &d.skipped {
+        println!("      {k:<34} not tested: {why}");
+    }
+    match d.significant().next() {
+        None => println!("no significant missing effect (level {} %)", 100.0 * d.fdr_level),
+        Some(c) => {
+            println!("most significant missing effect: {}  (ssis-lab add '{}' ...)", c.kind.label(), arg_of(&c.kind))
+        }
+    }
+    for a in &d.anova {
+        println!(
+            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} degC, G at {:.4}/{:.4} degC/min:",
+            a.fog,
+            a.cells,
+            a.t_edges_degc[0],
+            a.t_edges_degc[1],
+            a.g_edges_degc_s[0] * 60.0,
+            a.g_edges_degc_s[1] * 60.0
+        );
+        for (name, f) in [("F_T ", a.f_t), ("F_G ", a.f_g), ("F_TG", a.f_tg)] {
+            println!(
+                "    {name} = {:>9.2}  (nu {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
+                f.0,
+                f.1,
+                f.2,
+                f.3,
+                f_critical(0.05, f.1, f.2),
+                f_critical(0.01, f.1, f.2)
+            );
+        }
+    }
+}
+
+fn arg_of(k: &Kind) -> String {
+    match k {
+        Kind::Catalog(c) => c.name().to_string(),
+        Kind::Sinusoid(f) => format!("sinusoid:{f:e}"),
+        Kind::Expr(e) => e.clone(),
+    }
+}
+
+/// One model version on a session: version, pooled held-out RMS °/h, per FOG °/h, terms.
+type HistoryRow = (u32, f64, Vec<f64>, String);
+
+/// Every version of the model on the session (one pass for all of them).
+fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<HistoryRow>> {
+    let files = history_files(model_path);
+    let models = files.iter().map(|(_, p)| load_model(p)).collect::<Result<Vec<_>>>()?;
+    let rms = pass(session, "history on", |pb| held_out_many(&models, Source::File(session), blocks, Some(pb)))?;
+    Ok(files
+        .iter()
+        .zip(&models)
+        .zip(rms)
+        .map(|(((v, _), m), r)| {
+            let terms = m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ");
+            (*v, dh(pooled(&r)), r.iter().map(|x| dh(*x)).collect(), terms)
+        })
+        .collect())
+}
+
+fn main() -> Result<()> {
+    ssis_lab::session::exit_plainly_on_truncated_map();
+    let cli = Cli::parse();
+    match cli.cmd {
+        Cmd::Init { model, terms, t_ref_degc, g_window_s } => init(model, terms, t_ref_degc, g_window_s),
+        Cmd::Compare { model, session, evaluate, plots, blocks } => {
+            compare_cmd(model, session, evaluate, plots, blocks)
+        }
+        Cmd::Diagnose { model, session, level, blocks } => diagnose_cmd(model, session, level, blocks),
+        Cmd::Add { term, model, session, blocks } => add_cmd(term, model, session, blocks),
+        Cmd::Export { model, base, toml, bin } => export_cmd(model, base, toml, bin),
+        Cmd::Report { model, session, out } => report_cmd(model, session, out),
+        Cmd::Replay { session, table } => replay_cmd(session, table),
+        Cmd::Import { kind, log, out, psi_rad, lat_rad, table_rate_rad_s } => {
+            import_cmd(kind, log, out, psi_rad, lat_rad, table_rate_rad_s)
+        }
+        Cmd::Simulate { preset, out, seed, no_hidden } => simulate_cmd(preset, out, seed, no_hidden),
+    }
+}
+
+/// `init`: writes version 1 of a new model (never over an existing file).
+fn init(model: PathBuf, terms: String, t_ref_degc: f64, g_window_s: f64) -> Result<()> {
+    if model.exists() {
+        bail!("{} exists: the lab never overwrites a model", model.display());
+    }
+    let kinds = terms.split(',').map(|t| Kind::parse_arg(t.trim())).collect::<Result<Vec<_>, _>>()?;
+    let mut m = Model::new(&kinds);
+    m.t_ref_degc = t_ref_degc;
+    m.g_window_s = g_window_s;
+    m.note = "v1: starting model".into();
+    ssis_lab::write_atomic(&model, m.to_toml().as_bytes())?;
+    println!("wrote {} (version 1: {terms})", model.display());
+    Ok(())
+}
+
+/// `compare`: the model fitted (or evaluated) on a session, per FOG and term, with residual plots.
+fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<PathBuf>, blocks: usize) -> Result<()> {
+    let m = load_model(&model)?;
+    let c = pass(&session, "comparing on", |pb| compare(&m, Source::File(&session), evaluate, blocks, Some(pb)))?;
+    let (f, ho) = (&c.fitted, &c.held_out_rad_s);
+    println!(
+        "{} on {} ({} samples, {}): {}",
+        model.display(),
+        session.display(),
+        f.sample.of_rows,
+        if evaluate { "evaluated with its coefficients" } else { "fitted on all samples" },
+        m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", ")
+    );
+    println!(
+        "{:>4} {:>14} {:>14} {:>14} {:>10} {:>16}",
+        "FOG", "error deg/h", "residual deg/h", "max deg/h", "explained", "held-out deg/h"
+    );
+    for (i, x) in f.summary.iter().enumerate() {
+        println!(
+            "{i:>4} {:>14.5} {:>14.5} {:>14.5} {:>9.1}% {:>16.5}",
+            dh(x.rms_error_rad_s),
+            dh(x.rms_residual_rad_s),
+            dh(x.max_abs_residual_rad_s),
+            100.0 * x.explained,
+            dh(ho[i])
+        );
+    }
+    if !f.not_identified.is_empty() {
+        println!("not identifiable in this session (left at zero): {}", f.not_identified.join(", "));
+    }
+    for (t, k) in f.model.kinds().iter().enumerate() {
+        for (fog, c) in f.model.terms[t].coef.iter().enumerate() {
+            let labels = k.regressor_labels(fog);
+            let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+            println!("  {:<24} FOG{fog}: {}", k.label(), text.join(", "));
+        }
+    }
+    if let Some(dir) = plots {
+        std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        if f.sample.of_rows > f.sample.residual[0].len() {
+            println!("plots: {} of the {} samples", f.sample.residual[0].len(), f.sample.of_rows);
+        }
+        for fog in 0..f.summary.len() {
+            let p = dir.join(format!("residual-fog{fog}.svg"));
+            write_svg(&p, &residual_svg(&session.display().to_string(), f, fog)?)?;
+            println!("wrote {}", p.display());
+        }
+    }
+    Ok(())
+}
+
+/// `diagnose`: the candidate missing effects ranked by their held-out F-test.
+fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> Result<()> {
+    let m = load_model(&model)?;
+    let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
+    let d = pass(&session, "diagnosing on", |pb| diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb)))?;
+    print_diagnosis(&d);
+    Ok(())
+}
+
+/// `add`: the next model version with one more term, its held-out gain and the history of versions.
+fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Result<()> {
+    let m = load_model(&model)?;
+    let kind = Kind::parse_arg(&term)?;
+    let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
+    let newest = history_files(&model).last().map_or(0, |v| v.0).max(m.version);
+    if newest > m.version {
+        println!("note: {} is version {}, newer versions exist up to {newest}", model.display(), m.version);
+    }
+    out.model.version = newest + 1;
+    out.model.note = format!("v{}: v{} + {}", out.model.version, m.version, kind.label());
+    let path = version_path(&model, out.model.version);
+    if path.exists() {
+        bail!("{} exists: the lab never overwrites a model", path.display());
+    }
+    println!("held-out residual RMS, deg/h ({} blocks):", blocks);
+    println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
+    for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
+        println!("{i:>4} {:>12.5} {:>12.5} {:>7.1}%", dh(*b), dh(*a), 100.0 * (1.0 - a / b));
+    }
+    let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
+    println!(" all {:>12.5} {:>12.5} {:>7.1}%", dh(b), dh(a), 100.0 * (1.0 - a / b));
+    let t = out.model.terms.len() - 1;
+    for (fog, c) in out.model.terms[t].coef.iter().enumerate() {
+        let labels = kind.regressor_labels(fog);
+        let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+        println!("  {} FOG{fog}: {}", kind.label(), text.join(", "));
+    }
+    if !out.not_identified.is_empty() {
+        println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
+    }
+    ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
+    println!("wrote {} (version {})", path.display(), out.model.version);
+    let h = history(&path, &session, blocks)?;
+    println!("history on {} (held-out RMS, deg/h):", session.display());
+    for (v, r, per, terms) in &h {
+        let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
+        println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
+    }
+    let svg_path = path.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(&path)));
+    let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
+    write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", session.display()), &pts)?)?;
+    println!("wrote {}", svg_path.display());
+    Ok(())
+}
+
+/// `export`: the calibration table the firmware loads, from the model's onboard terms.
+fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin: Option<PathBuf>) -> Result<()> {
+    let m = load_model(&model)?;
+    if m.fit.is_none() && m.terms.iter().all(|t| t.coef.is_empty()) {
+        bail!("{}: the model has no coefficients: fit it first (ssis-lab add or compare)", model.display());
+    }
+    let base_table = match &base {
+        Some(p) => ssis_common::table::read_toml(p)?,
+        None => ssis::calib::CalibrationTable::DEFAULT,
+    };
+    let e = to_table(&m, &base_table)?;
+    if toml.is_none() && bin.is_none() {
+        bail!("nothing to write: give --toml and/or --bin");
+    }
+    if let Some(p) = &toml {
+        ssis_common::table::write_toml(p, &e.table)?;
+        println!("wrote {}", p.display());
+    }
+    if let Some(p) = &bin {
+        ssis_common::table::write_binary(p, &e.table)?;
+        println!("wrote {}", p.display());
+    }
+    println!("applied onboard: {}", e.applied.join(", "));
+    if let Some(f) = m.fit.as_ref().filter(|f| !f.not_identified.is_empty()) {
+        println!(
+            "WARNING: {} could not identify {} (exported as 0; their constant part is in the bias)",
+            f.session,
+            f.not_identified.join(", ")
+        );
+    }
+    if e.not_applied.is_empty() {
+        println!("every term of the model is applied onboard");
+    }
+    for (k, why) in &e.not_applied {
+        println!("NOT applied onboard: {k}: {why}");
+    }
+    Ok(())
+}
+
+/// `report`: one HTML page of the fit, the diagnosis and the history.
+fn report_cmd(model: PathBuf, session: PathBuf, out: PathBuf) -> Result<()> {
+    let m = load_model(&model)?;
+    let opt = Options::default();
+    let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
+        let terms = candidate_terms(&Source::File(&session).header()?);
+        let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
+        Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?))
+    })?;
+    let h: Vec<(u32, f64)> =
+        history(&model, &session, ssis_lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
+    ssis_lab::write_atomic(&out, report::render(&session.display().to_string(), &f, &d, &h)?.as_bytes())?;
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+/// `replay`: the session through the flight core with a table, and the body-rate error.
+fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
+    let s = load_session(&session)?;
+    let t = match &table {
+        Some(p) if p.extension().is_some_and(|e| e == "bin") => ssis_common::table::read_binary(p)?,
+        Some(p) => ssis_common::table::read_toml(p)?,
+        None => ssis::calib::CalibrationTable::DEFAULT,
+    };
+    let pb = spinner("replaying through the flight core");
+    let r = replay(&s, &t);
+    pb.finish_and_clear();
+    let r = r.with_context(|| format!("cannot replay {}", session.display()))?;
+    let n = r.error_rad_s.len() as f64;
+    let axis = |a: usize| dh((r.error_rad_s.iter().map(|e| e[a] * e[a]).sum::<f64>() / n).sqrt());
+    println!(
+        "{} through FlightCore::step() with {} ({} steps of {} s, {} FOGs)",
+        s.file,
+        table.as_ref().map_or("the nominal table".to_string(), |p| p.display().to_string()),
+        r.error_rad_s.len(),
+        f64::from(r.dt_us) * 1e-6,
+        r.profile.fogs.count()
+    );
+    println!(
+        "body rate error RMS, deg/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
+        axis(0),
+        axis(1),
+        axis(2),
+        dh(r.rms_error_rad_s(None))
+    );
+    println!(
+        "steps with a FOG not used: {}; output frames {} ({} bad)",
+        r.steps_degraded, r.frames_out, r.frames_out_bad
+    );
+    Ok(())
+}
+
+/// `import`: a firmware log written as a session.
+fn import_cmd(
+    kind: LogKind,
+    log: PathBuf,
+    out: PathBuf,
+    psi_rad: Option<f64>,
+    lat_rad: Option<f64>,
+    table_rate_rad_s: f64,
+) -> Result<()> {
+    let (s, rep) = match kind {
+        LogKind::Capture => {
+            let (Some(psi_rad), Some(lat_rad)) = (psi_rad, lat_rad) else {
+                bail!("a capture of the output link has no reference: give --psi-rad and --lat-rad (and --table-rate-rad-s if the table turns)");
+            };
+            let t = ssis_lab::framelog::Turntable { psi_rad, lat_rad, table_rate_rad_s };
+            ssis_lab::framelog::read_output_capture(&log, &t)
+        }
+        LogKind::QemuCsv => ssis_lab::framelog::read_qemu_csv(&log),
+    }
+    .context("log refused")?;
+    println!("{rep}");
+    ssis_lab::session::write_session_csv(&s, &out)?;
+    println!("wrote {} ({} samples, body axes as fog0..fog2)", out.display(), s.len());
+    Ok(())
+}
+
+/// `simulate`: a session of a preset with known effects.
+fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool) -> Result<()> {
+    let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {
+        bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight, replay");
+    };
+    let sim = simulate::generate(&spec);
+    sim.write_csv(&out)?;
+    println!(
+        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?})",
+        out.display(),
+        sim.rows.len(),
+        spec.dt_s,
+        dh(sim.truth.noise_rad_s),
+        spec.hidden
+    );
+    Ok(())
+}

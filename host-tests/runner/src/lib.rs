@@ -1,0 +1,10 @@
+//! The firmware in QEMU (`qemu-system-arm -machine mps2-an500`) against the simulator: the
+//! simulator's frames go in over the emulated UARTs, the firmware's output comes back and
+//! is scored as the harness scores the core on the host.
+//!
+//! - [`qemu`]: the spacecraft firmware (`ssis-fw`), lock-step or real time; building the
+//!   firmware and the on-target test binaries.
+//! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
+
+pub mod qemu;
+pub mod qemu_lv;

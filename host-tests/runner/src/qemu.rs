@@ -1,0 +1,910 @@
+//! The QEMU runner: the firmware ELF on `qemu-system-arm -machine mps2-an500`, fed by
+//! the simulator over the emulated UARTs, its output frames decoded and compared with
+//! truth.
+//!
+//! UART mapping (`docs/ICD.md`): UART0 = output frames out / control frames in,
+//! UART1 = FOG bus, UART2 = star tracker. Each is a Unix socket the runner listens on
+//! and QEMU connects to. The firmware's defmt log comes over semihosting on QEMU's
+//! stdout and is decoded with the ELF's defmt table.
+//!
+//! Two pacings:
+//! - real time: the firmware steps on its own 5 ms SysTick; the runner sends each step's
+//!   frames at the real rate, a few steps ahead (the unit's time is its FOG sample
+//!   clock, so the lead costs nothing), and never more than [`MAX_LEAD`] steps ahead of
+//!   the outputs it has received;
+//! - lockstep: the runner sends a step's bytes and a STEP control frame naming the byte
+//!   totals, and waits for that step's output. Deterministic: the runner also runs the
+//!   same `FlightCore` in-process on the same bytes and compares every output frame.
+
+use std::io::{Read, Write};
+use std::os::unix::net::{UnixListener, UnixStream};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use ssis::calib::store;
+use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
+use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::output::OutputFrame;
+
+use ssis_common::mock::{MockLink, MockSink};
+use ssis_common::stats::AxisStats;
+use ssis_sim::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
+use ssis_sim::scenario::Scenario;
+
+/// Steps the runner may be ahead of the outputs it has received (real time).
+pub const MAX_LEAD: u64 = 6;
+/// Steps of frames sent before the first output is awaited (real time).
+pub const LEAD: u64 = 4;
+/// Instructions per SysTick tick under `-icount shift=0` (25 MHz SysTick, 1 GHz virtual).
+pub const INSTR_PER_TICK: f64 = 40.0;
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct QemuOptions {
+    /// Firmware ELF.
+    pub elf: PathBuf,
+    /// Lockstep (deterministic, with the in-process comparison) instead of real time.
+    pub lockstep: bool,
+    /// `-icount shift=0`: one instruction per ns of virtual time, for instruction counts.
+    pub icount: bool,
+    /// Damage every N-th byte sent on every link, alternately a bit flip and a drop
+    /// (0 = none).
+    pub corrupt_every: u64,
+    /// Show a progress bar.
+    pub progress: bool,
+    /// Fault injection (lockstep, firmware built with `test-hooks`): at this step send
+    /// `STALL` instead of `STEP`, then wait for the watchdog to end the run.
+    pub stall_at_step: Option<u64>,
+    /// Flash image of the calibration table region to load instead of the scenario
+    /// table's two-copy image (`ssis::calib::store`), e.g. with one copy damaged. The
+    /// in-process comparison still uses the scenario's table.
+    pub table_image: Option<Vec<u8>>,
+    /// A sensor fault injected into the simulator's frames before they are sent
+    /// (`ssis_faults`); the in-process comparison gets the same bytes.
+    pub fault: Option<ssis_faults::Fault>,
+}
+
+impl QemuOptions {
+    /// A lockstep run of `elf` with nothing else: no instruction counting, no damage, no
+    /// progress bar, no stall, the scenario's table, no fault (set what a run needs with
+    /// `..QemuOptions::lockstep(elf)`).
+    pub fn lockstep(elf: PathBuf) -> QemuOptions {
+        QemuOptions {
+            elf,
+            lockstep: true,
+            icount: false,
+            corrupt_every: 0,
+            progress: false,
+            stall_at_step: None,
+            table_image: None,
+            fault: None,
+        }
+    }
+}
+
+/// What a QEMU run measured.
+#[derive(Debug, Clone, Default)]
+pub struct QemuSummary {
+    /// Scenario name.
+    pub name: String,
+    /// Steps sent.
+    pub steps: u64,
+    /// Simulated time, s.
+    pub duration_s: f64,
+    /// How well the run followed the truth.
+    pub accuracy: Accuracy,
+    /// FOG frames sent.
+    pub fog_frames_in: u64,
+    /// Star-tracker frames sent.
+    pub st_frames_in: u64,
+    /// Output frames decoded.
+    pub frames_out: u64,
+    /// Output bytes that did not decode.
+    pub frames_out_bad: u64,
+    /// Lockstep: frames the firmware sent on its own tick before the first sample.
+    pub frames_before_data: u64,
+    /// The unit's counters from its last output frame.
+    pub last_frame: OutputFrame,
+    /// Lockstep: output frames identical to the in-process core's.
+    pub equal_frames: u64,
+    /// Lockstep: output frames that differ from the in-process core's.
+    pub differing_frames: u64,
+    /// Step time (ticks) of steps without / with a star-tracker update.
+    pub step_ticks: AxisStats,
+    /// Largest step time, ticks, without / with a star-tracker update.
+    pub step_ticks_max: [u32; 2],
+    /// Mean step time, ticks, without / with a star-tracker update, and counts.
+    pub step_ticks_mean: [f64; 2],
+    /// Steps counted in the means.
+    pub step_counts: [u64; 2],
+    /// Decoded defmt log lines.
+    pub log: Vec<String>,
+    /// QEMU's exit status (0 = the firmware ended the run cleanly).
+    pub exit_code: Option<i32>,
+    /// With an injected stall (see [`QemuOptions::stall_at_step`]): the time from the
+    /// STALL command to QEMU's exit, s (`None`: still running after 20 s, stopped).
+    pub stalled_exit_s: Option<f64>,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Whether instruction counting was on.
+    pub icount: bool,
+}
+
+impl QemuSummary {
+    /// A report a person can read.
+    pub fn report(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "scenario  {}  in QEMU mps2-an500 ({:.0} s simulated, {} steps, wall {:.1} s)",
+            self.name, self.duration_s, self.steps, self.wall_s
+        );
+        s.push_str(&self.accuracy.table());
+        let c = &self.last_frame.counters;
+        let _ = writeln!(
+            s,
+            "frames in: FOG {} star {}; out: {} decoded, {} bad bytes",
+            self.fog_frames_in, self.st_frames_in, self.frames_out, self.frames_out_bad
+        );
+        let _ = writeln!(
+            s,
+            "unit counters: FOG rejected {}, missing {}; star accepted {}, rejected {}, gated {}; overruns {}",
+            c.fog_frames_rejected,
+            c.fog_samples_missing,
+            c.st_frames_accepted,
+            c.st_frames_rejected,
+            c.st_updates_gated,
+            c.overruns
+        );
+        let unit = if self.icount { "instructions" } else { "SysTick ticks (40 ns)" };
+        let k = if self.icount { INSTR_PER_TICK } else { 1.0 };
+        let _ = writeln!(
+            s,
+            "step time, {unit}: mean {:.0} / worst {:.0} (no star update, {} steps); mean {:.0} / worst {:.0} (star update, {} steps)",
+            self.step_ticks_mean[0] * k,
+            f64::from(self.step_ticks_max[0]) * k,
+            self.step_counts[0],
+            self.step_ticks_mean[1] * k,
+            f64::from(self.step_ticks_max[1]) * k,
+            self.step_counts[1]
+        );
+        if self.equal_frames + self.differing_frames > 0 {
+            let _ = writeln!(
+                s,
+                "host/QEMU equivalence: {} output frames identical, {} different",
+                self.equal_frames, self.differing_frames
+            );
+        }
+        for l in &self.log {
+            let _ = writeln!(s, "firmware: {l}");
+        }
+        let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        s
+    }
+}
+
+/// The firmware ELF built by `cargo build --release` at the repository root.
+pub fn default_elf() -> PathBuf {
+    repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw")
+}
+
+/// The repository root (`host-tests/runner/../..`).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
+}
+
+/// Builds the firmware (release, thumb target) if it is out of date.
+pub fn build_firmware() -> Result<PathBuf> {
+    build_target_bin("ssis-fw")
+}
+
+/// Builds a target binary of the root crate (release) and returns its ELF path.
+pub fn build_target_bin(name: &str) -> Result<PathBuf> {
+    let status = Command::new("cargo")
+        .args(["build", "--release", "--quiet", "--bin", name])
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")?;
+    if !status.success() {
+        bail!("building {name} failed ({status})");
+    }
+    Ok(repo_root().join("target/thumbv7em-none-eabihf/release").join(name))
+}
+
+/// Runs a target binary that needs no link (an on-target test) in QEMU until it exits
+/// through semihosting or `timeout` passes; returns its exit code (`None`: stopped at the
+/// timeout) and its decoded defmt log.
+pub fn run_bare(elf: &Path, timeout: Duration) -> Result<(Option<i32>, Vec<String>)> {
+    run_bare_with(elf, timeout, false)
+}
+
+/// [`run_bare`], with `-icount shift=0` when `icount` (one instruction per ns of virtual
+/// time: SysTick differences become instruction counts, [`INSTR_PER_TICK`] a tick).
+pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Option<i32>, Vec<String>)> {
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]).args([
+        "-serial",
+        "null",
+        "-semihosting-config",
+        "enable=on,target=native",
+    ]);
+    if icount {
+        cmd.args(["-icount", "shift=0"]);
+    }
+    let mut child = cmd
+        .arg("-kernel")
+        .arg(elf)
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .context("cannot start qemu-system-arm")?;
+    let mut stdout = child.stdout.take().context("no stdout")?;
+    let reader = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stdout.read_to_end(&mut buf);
+        buf
+    });
+    let status = wait_exit(&mut child, timeout)?;
+    if status.is_none() {
+        let _ = child.kill();
+        let _ = child.wait();
+    }
+    let log = reader.join().unwrap_or_default();
+    Ok((status.and_then(|s| s.code()), decode_defmt(elf, &log)?))
+}
+
+/// Builds the firmware with the `test-hooks` feature (fault injection) into its own
+/// target directory, so the flight build is left alone; returns the ELF path.
+pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
+    build_test_hooks_bin("ssis-fw")
+}
+
+/// Builds a target binary of the root crate with the `test-hooks` feature (release) into
+/// `target/test-hooks`, so the flight build is left alone; returns its ELF path.
+pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
+    let dir = repo_root().join("target/test-hooks");
+    let status = Command::new("cargo")
+        .args(["build", "--release", "--quiet", "--bin", name, "--features", "test-hooks", "--target-dir"])
+        .arg(&dir)
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")?;
+    if !status.success() {
+        bail!("building {name} with test hooks failed ({status})");
+    }
+    Ok(dir.join("thumbv7em-none-eabihf/release").join(name))
+}
+
+/// A running QEMU; killed (and its socket directory removed) when dropped.
+pub(crate) struct Qemu {
+    pub(crate) child: Child,
+    pub(crate) dir: PathBuf,
+}
+
+impl Drop for Qemu {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
+
+pub(crate) fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<UnixStream> {
+    listener.set_nonblocking(true)?;
+    let t0 = Instant::now();
+    loop {
+        match listener.accept() {
+            Ok((s, _)) => {
+                s.set_nonblocking(false)?;
+                return Ok(s);
+            }
+            Err(e) if e.kind() == std::io::ErrorKind::WouldBlock => {
+                if let Some(st) = child.try_wait()? {
+                    bail!("qemu-system-arm exited ({st}) before connecting {what}");
+                }
+                if t0.elapsed() > Duration::from_secs(20) {
+                    bail!("qemu-system-arm did not connect {what} within 20 s");
+                }
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            Err(e) => return Err(e.into()),
+        }
+    }
+}
+
+/// A QEMU started by [`start_qemu`]: the process, its UARTs (connected, in order) and the
+/// thread collecting its stdout (the defmt log over semihosting).
+pub(crate) struct Started {
+    pub(crate) q: Qemu,
+    pub(crate) uarts: Vec<UnixStream>,
+    pub(crate) log_thread: std::thread::JoinHandle<Vec<u8>>,
+}
+
+/// Starts `qemu-system-arm -machine mps2-an500 -cpu cortex-m7` on `elf` with `n_uarts`
+/// serial ports, each a Unix socket in `dir` (removed with the returned [`Qemu`]),
+/// `-icount` with `icount` if given, semihosting, `-action watchdog=poweroff`, and each
+/// (file, address) of `loaders` loaded with `-device loader`; waits for every UART to
+/// connect.
+pub(crate) fn start_qemu(
+    elf: &Path,
+    dir: PathBuf,
+    n_uarts: usize,
+    icount: Option<&str>,
+    loaders: &[(PathBuf, u64)],
+) -> Result<Started> {
+    let socks: Vec<PathBuf> = (0..n_uarts).map(|i| dir.join(format!("uart{i}.sock"))).collect();
+    let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
+    let mut cmd = Command::new("qemu-system-arm");
+    cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]);
+    cmd.args(["-semihosting-config", "enable=on,target=native"]);
+    if let Some(ic) = icount {
+        cmd.args(["-icount", ic]);
+    }
+    // A watchdog reset ends the run (a flight unit would reboot; here that would hide it).
+    cmd.args(["-action", "watchdog=poweroff"]);
+    for (i, p) in socks.iter().enumerate() {
+        cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
+        cmd.args(["-serial", &format!("chardev:u{i}")]);
+    }
+    // Extra QEMU arguments for profiling (for example `-d in_asm,exec,nochain -D trace.log`,
+    // read by `scripts/qemu-profile`); whitespace-separated.
+    if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
+        cmd.args(extra.split_whitespace());
+    }
+    for (file, addr) in loaders {
+        cmd.args(["-device", &format!("loader,file={},addr={addr:#x}", file.display())]);
+    }
+    cmd.arg("-kernel").arg(elf);
+    cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
+    let child = cmd.spawn().context("cannot start qemu-system-arm")?;
+    let mut q = Qemu { child, dir };
+    let mut stdout = q.child.stdout.take().context("no stdout")?;
+    let log_thread = std::thread::spawn(move || {
+        let mut buf = Vec::new();
+        let _ = stdout.read_to_end(&mut buf);
+        buf
+    });
+    let mut uarts = Vec::with_capacity(n_uarts);
+    for (i, l) in listeners.iter().enumerate() {
+        uarts.push(accept(l, &mut q.child, &format!("UART{i}"))?);
+    }
+    Ok(Started { q, uarts, log_thread })
+}
+
+/// Reads `stream` on a thread until it closes, sending each chunk through `wrap` to `tx`.
+pub(crate) fn spawn_reader<T: Send + 'static>(
+    stream: &UnixStream,
+    tx: mpsc::Sender<T>,
+    wrap: impl Fn(Vec<u8>) -> T + Send + 'static,
+) -> Result<()> {
+    let mut reader = stream.try_clone()?;
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = reader.read(&mut buf) {
+            if n == 0 || tx.send(wrap(buf[..n].to_vec())).is_err() {
+                break;
+            }
+        }
+    });
+    Ok(())
+}
+
+/// Damages every `every`-th byte (counted over the link's life): alternately flips one
+/// of its bits and drops it.
+struct Corrupter {
+    every: u64,
+    count: u64,
+}
+
+impl Corrupter {
+    fn apply(&mut self, bytes: &[u8]) -> Vec<u8> {
+        let mut v = Vec::with_capacity(bytes.len());
+        for &b in bytes {
+            self.count += 1;
+            if self.every > 0 && self.count.is_multiple_of(self.every) {
+                if (self.count / self.every).is_multiple_of(2) {
+                    continue; // dropped
+                }
+                v.push(b ^ (1 << (self.count % 8)));
+            } else {
+                v.push(b);
+            }
+        }
+        v
+    }
+}
+
+/// Fails with a helpful message when `qemu-system-arm` or the firmware `elf` is missing.
+pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
+    if Command::new("qemu-system-arm").arg("--version").stdout(Stdio::null()).status().is_err() {
+        bail!("qemu-system-arm not found: install it (Debian: apt-get install qemu-system-arm), or run `bash .ci/run` once");
+    }
+    anyhow::ensure!(elf.exists(), "firmware ELF {} missing: run `cargo build --release` at the root", elf.display());
+    Ok(())
+}
+
+/// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
+pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
+    check_qemu_and_elf(&opts.elf)?;
+    let mut sim = Simulation::new(sc)?;
+    anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
+    let mut eval = Evaluator::new(&sim);
+    let mut unit = Unit::boot(&sim, opts)?;
+    let started = Instant::now();
+    let bar = progress_bar(opts.progress, sim.steps, &sc.name);
+    let mut s = QemuSummary {
+        name: sc.name.clone(),
+        steps: sim.steps,
+        duration_s: sc.duration_s,
+        accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
+        icount: opts.icount,
+        ..Default::default()
+    };
+    let mut outputs = Outputs::new(opts.lockstep);
+    let mut reference = if opts.lockstep {
+        s.frames_before_data = unit.enter_lockstep()?;
+        Some(Reference::new(&sim)?)
+    } else {
+        None
+    };
+    let mut sender = Sender::new(opts.corrupt_every);
+    let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
+    let dt_s = sim.profile.dt_s();
+    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ssis_common::ARCSEC_PER_RAD;
+    let mut injector = opts.fault.map(|f| (f, ssis_faults::Injector::new(f, sigma_st_rad, sc.seed)));
+    let mut injected = ssis_faults::FaultRun::default();
+    while let Some(mut input) = sim.next_step() {
+        if let Some((f, inj)) = injector.as_mut() {
+            let t_s = input.n as f64 * dt_s;
+            let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
+            inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
+        }
+        let n = input.n;
+        if !opts.lockstep {
+            // Real time: the frames of step n go out LEAD steps before its tick, and never
+            // more than MAX_LEAD steps ahead of the outputs received.
+            let due = started + dt * (n.saturating_sub(LEAD) as u32);
+            loop {
+                while let Ok(b) = unit.rx.try_recv() {
+                    outputs.take(&b, &mut s, &mut eval, &mut on_step);
+                }
+                if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
+                    break;
+                }
+                if let Some(st) = unit.q.child.try_wait()? {
+                    bail!("QEMU exited early ({st})");
+                }
+                std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
+        eval.push_truth(input.truth);
+        if let Some(r) = reference.as_mut() {
+            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent));
+            if opts.stall_at_step == Some(n) {
+                return unit.stall(s, &opts.elf);
+            }
+            let step =
+                ControlFrame { command: command::STEP, fog_bytes: sender.fog_total, st_bytes: sender.st_total, arg: 0 };
+            unit.ctl.write_all(&step.to_bytes())?;
+            unit.await_output(n, &opts.elf, |b, s| outputs.take(b, s, &mut eval, &mut on_step), &mut s)?;
+        }
+        if let Some(b) = &bar {
+            if n.is_multiple_of(200) {
+                b.set_position(n);
+            }
+        }
+    }
+    // Collect what is still coming, then end the run.
+    let t_end = Instant::now();
+    while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
+        if let Ok(b) = unit.rx.recv_timeout(Duration::from_millis(50)) {
+            outputs.take(&b, &mut s, &mut eval, &mut on_step);
+        }
+    }
+    unit.ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
+    let status = wait_exit(&mut unit.q.child, Duration::from_secs(10))?;
+    while let Ok(b) = unit.rx.try_recv() {
+        outputs.take(&b, &mut s, &mut eval, &mut on_step);
+    }
+    (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
+    for (k, t) in outputs.check.ticks.iter().enumerate() {
+        s.step_ticks_mean[k] = t.mean()[0];
+        s.step_counts[k] = t.count();
+    }
+    s.step_ticks = outputs.check.ticks[0];
+    s.accuracy = eval.accuracy(outputs.check.last_drift);
+    s.wall_s = started.elapsed().as_secs_f64();
+    Ok(s)
+}
+
+/// The spacecraft firmware running in QEMU: the process, its three UARTs (control and
+/// output, FOG bus, star tracker), the output link's bytes as they arrive, and the thread
+/// collecting the defmt log.
+struct Unit {
+    q: Qemu,
+    ctl: UnixStream,
+    fog: UnixStream,
+    star: UnixStream,
+    rx: mpsc::Receiver<Vec<u8>>,
+    /// Until the log is read ([`Unit::log`]).
+    log_thread: Option<std::thread::JoinHandle<Vec<u8>>>,
+}
+
+impl Unit {
+    /// Starts QEMU on the firmware with the table's flash region (two copies,
+    /// `ssis::calib::store`, as a flight image, or the options' image) and connects the
+    /// UARTs.
+    fn boot(sim: &Simulation, opts: &QemuOptions) -> Result<Unit> {
+        static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+        let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir)?;
+        let table_path = dir.join("table.img");
+        match &opts.table_image {
+            Some(img) => std::fs::write(&table_path, img)?,
+            None => std::fs::write(&table_path, store::image(&sim.table))?,
+        }
+        let icount = opts.icount.then_some("shift=0");
+        let Started { q, uarts, log_thread } = start_qemu(&opts.elf, dir, 3, icount, &[(table_path, 0x10000)])?;
+        let [ctl, fog, star] =
+            <[UnixStream; 3]>::try_from(uarts).map_err(|_| anyhow::anyhow!("three UARTs expected"))?;
+        let (tx, rx) = mpsc::channel::<Vec<u8>>();
+        spawn_reader(&ctl, tx, |b| b)?;
+        Ok(Unit { q, ctl, fog, star, rx, log_thread: Some(log_thread) })
+    }
+
+    /// Switches the booted firmware to lockstep; returns the output frames it sent on its
+    /// own tick meanwhile (they carry no sample).
+    fn enter_lockstep(&mut self) -> Result<u64> {
+        let mut frames = 0;
+        // First a frame from the firmware's own tick: it has booted and is in its loop.
+        match self.rx.recv_timeout(Duration::from_secs(20)) {
+            Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
+            Err(_) => bail!("no output from the firmware within 20 s of boot"),
+        }
+        self.ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
+        // sensor byte may go out before that, or it would integrate a sample on a tick.
+        // In lockstep it is silent between STEPs: wait for 100 ms of silence (10 s cap).
+        // Frames of that time carry no sample (time tag 0) and are set aside.
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(10) {
+            match self.rx.recv_timeout(Duration::from_millis(100)) {
+                Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
+                Err(mpsc::RecvTimeoutError::Timeout) => break,
+                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed UART0"),
+            }
+        }
+        Ok(frames)
+    }
+
+    /// Lockstep: waits for the output of step `n`, handing every chunk to `take`; when none
+    /// comes within 10 s, fails with QEMU's exit status and the firmware's last words.
+    fn await_output(
+        &mut self,
+        n: u64,
+        elf: &Path,
+        mut take: impl FnMut(&[u8], &mut QemuSummary),
+        s: &mut QemuSummary,
+    ) -> Result<()> {
+        let before = s.frames_out;
+        let t0 = Instant::now();
+        while s.frames_out == before {
+            match self.rx.recv_timeout(Duration::from_secs(10)) {
+                Ok(b) => take(&b, s),
+                Err(_) => {
+                    let waited = t0.elapsed();
+                    let status = wait_exit(&mut self.q.child, Duration::from_secs(2))?;
+                    if status.is_none() {
+                        let _ = self.q.child.kill();
+                        let _ = self.q.child.wait();
+                    }
+                    let log = self.log(elf);
+                    bail!(
+                        "no output frame for step {n} within {waited:?}; QEMU exit {:?}; firmware log: {}",
+                        status.and_then(|st| st.code()),
+                        log.join(" | ")
+                    )
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// Fault injection: sends `STALL` instead of `STEP` and ends the run at the watchdog
+    /// reset (or stops QEMU after 20 s); the summary so far with the time to the exit.
+    fn stall(mut self, mut s: QemuSummary, elf: &Path) -> Result<QemuSummary> {
+        self.ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
+        let t_stall = Instant::now();
+        let status = wait_exit(&mut self.q.child, Duration::from_secs(20))?;
+        if status.is_none() {
+            let _ = self.q.child.kill();
+        }
+        s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
+        s.exit_code = status.and_then(|st| st.code());
+        s.log = self.log(elf);
+        Ok(s)
+    }
+
+    /// The end of a run: the progress bar closed, QEMU stopped, its exit code and log.
+    fn finish(
+        &mut self,
+        status: Option<std::process::ExitStatus>,
+        bar: Option<indicatif::ProgressBar>,
+        elf: &Path,
+    ) -> (Option<i32>, Vec<String>) {
+        if let Some(b) = bar {
+            b.finish_and_clear();
+        }
+        let _ = self.q.child.kill();
+        (status.and_then(|st| st.code()), self.log(elf))
+    }
+
+    /// The firmware's defmt log, decoded (once QEMU has ended: the log closes with it).
+    fn log(&mut self, elf: &Path) -> Vec<String> {
+        let bytes = self.log_thread.take().and_then(|t| t.join().ok()).unwrap_or_default();
+        decode_defmt(elf, &bytes).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")])
+    }
+}
+
+/// The sensor links as the runner writes them: each step's FOG frames (of the profile's
+/// FOGs) and star-tracker bytes, damaged as the options say, and the byte totals a STEP
+/// names.
+struct Sender {
+    fog_corrupt: Corrupter,
+    st_corrupt: Corrupter,
+    fog_total: u32,
+    st_total: u32,
+}
+
+impl Sender {
+    fn new(corrupt_every: u64) -> Sender {
+        Sender {
+            fog_corrupt: Corrupter { every: corrupt_every, count: 0 },
+            st_corrupt: Corrupter { every: corrupt_every, count: 0 },
+            fog_total: 0,
+            st_total: 0,
+        }
+    }
+
+    /// Sends one step's bytes; returns them as sent (FOG bus, star tracker).
+    fn send(
+        &mut self,
+        unit: &mut Unit,
+        input: &StepInput,
+        profile: &Profile,
+        s: &mut QemuSummary,
+    ) -> Result<(Vec<u8>, Vec<u8>)> {
+        let mut fog_bytes = Vec::with_capacity(64);
+        for (i, f) in input.fog_frames.iter().enumerate() {
+            if profile.fogs.contains(i) {
+                fog_bytes.extend_from_slice(f);
+                s.fog_frames_in += 1;
+            }
+        }
+        s.st_frames_in += (input.st_bytes.len() / ssis::frames::star::StarFrame::LEN) as u64;
+        let fog_sent = self.fog_corrupt.apply(&fog_bytes);
+        let st_sent = self.st_corrupt.apply(&input.st_bytes);
+        unit.fog.write_all(&fog_sent)?;
+        unit.star.write_all(&st_sent)?;
+        self.fog_total = self.fog_total.wrapping_add(fog_sent.len() as u32);
+        self.st_total = self.st_total.wrapping_add(st_sent.len() as u32);
+        Ok((fog_sent, st_sent))
+    }
+}
+
+/// Lockstep reference: the same core in-process on the same bytes.
+struct Reference {
+    core: FlightCore,
+    fog: MockLink,
+    star: MockLink,
+    out: MockSink,
+}
+
+impl Reference {
+    fn new(sim: &Simulation) -> Result<Reference> {
+        let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default() })
+    }
+
+    /// One step on the bytes the firmware was sent; the output bytes it writes.
+    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8]) -> Vec<u8> {
+        self.fog.send(fog_sent);
+        self.star.send(st_sent);
+        let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
+        self.core.step(&mut links);
+        std::mem::take(&mut self.out.bytes)
+    }
+}
+
+/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]).
+struct Outputs {
+    dec: StreamDecoder<OutputFrame, 256>,
+    check: FrameCheck,
+}
+
+impl Outputs {
+    fn new(lockstep: bool) -> Outputs {
+        Outputs {
+            dec: StreamDecoder::new(),
+            check: FrameCheck {
+                lockstep,
+                reference: Default::default(),
+                ticks: [AxisStats::default(), AxisStats::default()],
+                prev_st_updated: false,
+                last_drift: [0.0; 3],
+            },
+        }
+    }
+
+    /// Decodes a chunk of the output link and checks every frame in it.
+    fn take(&mut self, bytes: &[u8], s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        let check = &mut self.check;
+        self.dec.push_slice(bytes, |r| match r {
+            Ok(f) => check.frame(f, s, eval, on_step),
+            Err(_) => s.frames_out_bad += 1,
+        });
+    }
+}
+
+/// Each decoded output frame compared with the in-process core's (lockstep), its step time
+/// classed by the star-tracker status of the step it times, and evaluated against truth.
+struct FrameCheck {
+    lockstep: bool,
+    /// Lockstep: the in-process core's frames not yet compared.
+    reference: std::collections::VecDeque<Vec<u8>>,
+    /// Step time, ticks, of steps without / with a star-tracker update.
+    ticks: [AxisStats; 2],
+    prev_st_updated: bool,
+    last_drift: [f64; 3],
+}
+
+impl FrameCheck {
+    fn frame(&mut self, f: OutputFrame, s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        if self.lockstep && f.time_us == 0 {
+            // Sent on the firmware's own tick before lockstep began: no sample yet.
+            s.frames_before_data += 1;
+            return;
+        }
+        s.frames_out += 1;
+        if let Some(r) = self.reference.pop_front() {
+            // The board fills in its own step time and overruns, and its frame counter
+            // also counts the frames sent on its own tick before lockstep; everything
+            // else must be bit-identical to the in-process core's frame.
+            let mask = |mut x: OutputFrame| {
+                x.counter = 0;
+                x.counters.step_ticks = 0;
+                x.counters.overruns = 0;
+                x
+            };
+            use ssis::frames::Frame;
+            match OutputFrame::decode(&r) {
+                Ok(rf) if mask(rf) == mask(f) => s.equal_frames += 1,
+                _ => s.differing_frames += 1,
+            }
+        }
+        let o = Observed::from(&f);
+        if s.frames_out > 1 {
+            // A frame carries the time of the step before it: class by that step's status.
+            let k = usize::from(self.prev_st_updated);
+            self.ticks[k].push([f64::from(o.step_ticks); 3]);
+            s.step_ticks_max[k] = s.step_ticks_max[k].max(u32::from(o.step_ticks));
+        }
+        self.prev_st_updated = o.st_status & st_status::UPDATED != 0;
+        self.last_drift = f.drift_rad_s();
+        s.last_frame = f;
+        if let Some(rec) = eval.evaluate(&o) {
+            on_step(&rec);
+        }
+    }
+}
+
+/// Waits up to `timeout` for QEMU to exit; `None` if it is still running.
+pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process::ExitStatus>> {
+    let t0 = Instant::now();
+    loop {
+        if let Some(st) = child.try_wait()? {
+            return Ok(Some(st));
+        }
+        if t0.elapsed() > timeout {
+            return Ok(None);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// The end of a run: the progress bar closed, QEMU stopped, its exit code and decoded
+/// defmt log.
+pub(crate) fn finish_run(
+    q: &mut Qemu,
+    status: Option<std::process::ExitStatus>,
+    bar: Option<indicatif::ProgressBar>,
+    log_thread: std::thread::JoinHandle<Vec<u8>>,
+    elf: &Path,
+) -> (Option<i32>, Vec<String>) {
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let code = status.and_then(|st| st.code());
+    let _ = q.child.kill();
+    let log = log_thread.join().unwrap_or_default();
+    (code, decode_defmt(elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]))
+}
+
+pub(crate) fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {
+    if !show {
+        return None;
+    }
+    let b = indicatif::ProgressBar::new(steps);
+    if let Ok(st) = indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {percent}% {elapsed} / {duration}") {
+        b.set_style(st);
+    }
+    b.set_message(format!("{name} in QEMU"));
+    Some(b)
+}
+
+/// Decodes the firmware's defmt stream with the ELF's table.
+pub fn decode_defmt(elf: &Path, bytes: &[u8]) -> Result<Vec<String>> {
+    let elf_bytes = std::fs::read(elf)?;
+    let table = defmt_decoder::Table::parse(&elf_bytes)?.context("no defmt table in the ELF")?;
+    let mut dec = table.new_stream_decoder();
+    dec.received(bytes);
+    let mut out = Vec::new();
+    loop {
+        match dec.decode() {
+            Ok(f) => out.push(f.display_message().to_string()),
+            Err(defmt_decoder::DecodeError::UnexpectedEof) => break,
+            Err(defmt_decoder::DecodeError::Malformed) => {
+                out.push("(malformed defmt frame)".into());
+                break;
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Flash and static RAM of the ELF: (flash bytes, RAM bytes of .data + .bss + .uninit).
+pub fn elf_sizes(elf: &Path) -> Result<(u64, u64)> {
+    use object::{Object, ObjectSection};
+    let data = std::fs::read(elf)?;
+    let file = object::File::parse(&*data)?;
+    let (mut flash, mut ram) = (0u64, 0u64);
+    for sec in file.sections() {
+        let name = sec.name().unwrap_or("");
+        match name {
+            ".vector_table" | ".text" | ".rodata" => flash += sec.size(),
+            ".data" => {
+                flash += sec.size();
+                ram += sec.size();
+            }
+            ".bss" | ".uninit" => ram += sec.size(),
+            _ => {}
+        }
+    }
+    Ok((flash, ram))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn decode_log_file() {
+        if let Ok(p) = std::env::var("SSIS_DEFMT_LOG") {
+            let bytes = std::fs::read(&p).expect("log");
+            for l in super::decode_defmt(&super::default_elf(), &bytes).expect("decode") {
+                println!("{l}");
+            }
+        }
+    }
+}

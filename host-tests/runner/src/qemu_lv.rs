@@ -1,0 +1,661 @@
+//! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`): the ascent
+//! simulator ([`ssis_sim::launch`], FOG, accelerometer and GNSS models) feeds the
+//! firmware over five emulated UARTs at its 1.25 ms step, in lockstep, and the runner
+//! replays the same bytes through the same `FlightCore` + `NavUnit` in-process: every
+//! flight output frame and every navigation output frame must be bit-identical.
+//!
+//! UARTs (the UART map in `src/bin/ssis-fw-lv/main.rs`): 0 control in / flight output out, 1 FOG bus,
+//! 2 navigation output out, 3 accelerometer bus, 4 GNSS receiver. The FOG table (two
+//! copies), the accelerometer section and the pad initialisation block are loaded into
+//! their flash regions with `-device loader` at the addresses the ELF's symbols
+//! `_calib_start` and `_lvdata_start` name (`link/memory-lv.x`).
+//!
+//! Step times: with `-icount shift=0` a SysTick tick is 40 instructions. The firmware puts
+//! each period's step + filter work (ticks) into the next flight output frame; the runner
+//! classes it by the filter work the in-process replay did in that period (none,
+//! covariance propagation, GNSS update). The firmware's own END report adds the step
+//! alone, without the filter work.
+//!
+//! Scenario files (`scenarios/lv-ascent.toml`):
+//!
+//! ```toml
+//! kind = "lv-ascent"
+//! name = "lv-ascent"
+//! duration_s = 600
+//! seed = 7
+//! [launch]      # sim::launch::LaunchProfile (optional: the default ascent)
+//! [fog]         # sim::fog::FogSpec
+//! [accel]       # sim::accel::AccelSpec
+//! [gnss]        # sim::gnss::GnssSpec (optional: no receiver)
+//! ```
+
+use std::collections::VecDeque;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context, Result};
+use rand::SeedableRng;
+use rand_chacha::ChaCha20Rng;
+use serde::{Deserialize, Serialize};
+use ssis::calib::accel::AccelTable;
+use ssis::calib::{store, CalibrationTable};
+use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::gnss::{status, GnssFrame};
+use ssis::frames::navout::NavOutputFrame;
+use ssis::frames::output::OutputFrame;
+use ssis::frames::Frame;
+use ssis::nav::init::PadInit;
+use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
+
+use crate::qemu::{
+    check_qemu_and_elf, decode_defmt, finish_run, progress_bar, spawn_reader, start_qemu, wait_exit, Started,
+    INSTR_PER_TICK,
+};
+use ssis_common::mock::{MockLink, MockSink};
+use ssis_sim::accel::{AccelModel, AccelSpec};
+use ssis_sim::fog::{FogModel, FogSpec};
+use ssis_sim::gnss::GnssSpec;
+use ssis_sim::launch::{LaunchProfile, LaunchTruth};
+use ssis_sim::lv::{angle_between, filter_config};
+
+/// The `kind` of a launch-vehicle ascent scenario file.
+pub const KIND: &str = "lv-ascent";
+/// Offset of the pad initialisation block in the LVDATA region (`board::INIT_OFFSET`).
+pub const INIT_OFFSET: usize = 0x100;
+
+/// A launch-vehicle ascent scenario.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LvScenario {
+    /// Always [`KIND`].
+    pub kind: String,
+    /// Short name.
+    pub name: String,
+    /// What it shows.
+    #[serde(default)]
+    pub description: String,
+    /// Simulated time from lift-off, s.
+    pub duration_s: f64,
+    /// Seed of every random draw.
+    #[serde(default)]
+    pub seed: u64,
+    /// The ascent.
+    #[serde(default)]
+    pub launch: LaunchProfile,
+    /// FOG errors (FOG1..FOG3, the orthogonal triad, are fitted).
+    #[serde(default)]
+    pub fog: FogSpec,
+    /// Accelerometer errors.
+    #[serde(default)]
+    pub accel: AccelSpec,
+    /// GNSS receiver (none if absent).
+    #[serde(default)]
+    pub gnss: Option<GnssSpec>,
+}
+
+impl LvScenario {
+    /// Reads and checks a scenario file.
+    pub fn from_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scenario {}", path.display()))?;
+        let sc: LvScenario = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e))?;
+        anyhow::ensure!(sc.kind == KIND, "{}: kind must be \"{KIND}\"", path.display());
+        anyhow::ensure!(sc.duration_s > 0.0 && sc.duration_s.is_finite(), "duration_s must be > 0");
+        Ok(sc)
+    }
+
+    /// Whether the scenario file at `path` is a launch-vehicle ascent (its `kind`).
+    pub fn is_lv_file(path: &Path) -> bool {
+        std::fs::read_to_string(path)
+            .ok()
+            .and_then(|t| toml::from_str::<toml::Table>(&t).ok())
+            .and_then(|t| t.get("kind").and_then(|k| k.as_str().map(|k| k == KIND)))
+            .unwrap_or(false)
+    }
+}
+
+/// How to run.
+#[derive(Debug, Clone)]
+pub struct LvOptions {
+    /// Firmware ELF (`ssis-fw-lv`).
+    pub elf: PathBuf,
+    /// `-icount shift=0`: step times in instructions.
+    pub icount: bool,
+    /// Show a progress bar.
+    pub progress: bool,
+}
+
+/// Count, mean and worst of a step time, ticks.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct TickStats {
+    /// Periods.
+    pub n: u64,
+    /// Sum of ticks.
+    pub sum: u64,
+    /// Worst, ticks.
+    pub max: u32,
+}
+
+impl TickStats {
+    fn push(&mut self, t: u32) {
+        self.n += 1;
+        self.sum += u64::from(t);
+        self.max = self.max.max(t);
+    }
+
+    /// Mean, ticks.
+    pub fn mean(&self) -> f64 {
+        if self.n == 0 {
+            0.0
+        } else {
+            self.sum as f64 / self.n as f64
+        }
+    }
+}
+
+/// Names of the kinds of filter work, in the order of the per-kind arrays.
+pub const WORK_KINDS: [&str; 3] = ["none", "propagation", "gnss_update"];
+
+fn work_kind(w: FilterWork) -> usize {
+    match w {
+        FilterWork::None => 0,
+        FilterWork::Propagated => 1,
+        FilterWork::Updated | FilterWork::Refused(_) => 2,
+    }
+}
+
+/// The firmware's END report of one kind of period (ticks; means × 100).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FirmwareTimes {
+    /// Periods.
+    pub periods: u64,
+    /// Mean of the step alone (flight step + navigation step, no filter work), ticks × 100.
+    pub step_mean_x100: u64,
+    /// Worst step alone, ticks.
+    pub step_max: u64,
+    /// Mean of step + filter work, ticks × 100.
+    pub period_mean_x100: u64,
+    /// Worst step + filter work, ticks.
+    pub period_max: u64,
+}
+
+/// What a launch-vehicle QEMU run measured.
+#[derive(Debug, Clone, Default)]
+pub struct LvSummary {
+    /// Scenario name.
+    pub name: String,
+    /// Steps sent.
+    pub steps: u64,
+    /// Simulated time, s.
+    pub duration_s: f64,
+    /// FOG, accelerometer and GNSS frames sent.
+    pub frames_in: [u64; 3],
+    /// Flight output frames decoded (lockstep steps only).
+    pub flight_frames: u64,
+    /// Navigation output frames decoded.
+    pub nav_frames: u64,
+    /// Output bytes that did not decode (both links).
+    pub bad_bytes: u64,
+    /// Flight frames sent on the firmware's own tick before lockstep (no sample).
+    pub frames_before_data: u64,
+    /// Flight output frames equal to the in-process replay's / different.
+    pub flight_equal: u64,
+    /// Flight output frames different from the replay's.
+    pub flight_differing: u64,
+    /// Navigation output frames equal to the replay's.
+    pub nav_equal: u64,
+    /// Navigation output frames different from the replay's.
+    pub nav_differing: u64,
+    /// Step + filter work per period, ticks, by the replay's filter work ([`WORK_KINDS`]),
+    /// from the flight output frames.
+    pub period_ticks: [TickStats; 3],
+    /// The firmware's END report per kind, if it came.
+    pub firmware_times: [Option<FirmwareTimes>; 3],
+    /// Overruns in the last flight output frame.
+    pub overruns: u16,
+    /// Largest |r − r_true| and |v − v_true| of the navigation output frames, m and m/s,
+    /// and at the end; largest attitude error, rad.
+    pub max_err: (f64, f64, f64),
+    /// Error at the end (m, m/s, rad).
+    pub final_err: (f64, f64, f64),
+    /// GNSS fixes used and refused (last navigation frame).
+    pub fixes: (u16, u16),
+    /// Firmware log.
+    pub log: Vec<String>,
+    /// QEMU's exit status.
+    pub exit_code: Option<i32>,
+    /// Wall time, s.
+    pub wall_s: f64,
+    /// Instruction counting on.
+    pub icount: bool,
+    /// Step period, SysTick ticks (1.25 ms at 25 MHz).
+    pub period_ticks_budget: u32,
+}
+
+impl LvSummary {
+    /// Whether the run is clean: QEMU ended by the firmware, every frame decoded and equal
+    /// to the replay's, one flight and one navigation frame per step, no overrun.
+    pub fn clean(&self) -> bool {
+        self.exit_code == Some(0)
+            && self.bad_bytes == 0
+            && self.flight_differing == 0
+            && self.nav_differing == 0
+            && self.flight_frames == self.steps
+            && self.nav_frames == self.steps
+            && self.overruns == 0
+    }
+
+    /// A report a person can read.
+    pub fn report(&self) -> String {
+        use std::fmt::Write;
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "scenario  {}  on ssis-fw-lv in QEMU mps2-an500, lockstep at 1.25 ms ({:.0} s simulated, {} steps, wall {:.1} s)",
+            self.name, self.duration_s, self.steps, self.wall_s
+        );
+        let _ = writeln!(
+            s,
+            "frames in: FOG {} accel {} GNSS {}; out: flight {} nav {}, {} bad bytes",
+            self.frames_in[0],
+            self.frames_in[1],
+            self.frames_in[2],
+            self.flight_frames,
+            self.nav_frames,
+            self.bad_bytes
+        );
+        let _ = writeln!(
+            s,
+            "host/QEMU equivalence: flight frames {} identical, {} different; navigation frames {} identical, {} different",
+            self.flight_equal, self.flight_differing, self.nav_equal, self.nav_differing
+        );
+        let _ = writeln!(
+            s,
+            "navigation error: max {:.3} m, {:.4} m/s, {:.1} arcsec; at the end {:.3} m, {:.4} m/s, {:.1} arcsec; fixes used {}, refused {}",
+            self.max_err.0,
+            self.max_err.1,
+            self.max_err.2 * ssis_common::ARCSEC_PER_RAD,
+            self.final_err.0,
+            self.final_err.1,
+            self.final_err.2 * ssis_common::ARCSEC_PER_RAD,
+            self.fixes.0,
+            self.fixes.1
+        );
+        let _ = writeln!(s, "overruns (unit's counter): {}", self.overruns);
+        let (unit, k) = if self.icount { ("instructions", INSTR_PER_TICK) } else { ("SysTick ticks (40 ns)", 1.0) };
+        let _ = writeln!(
+            s,
+            "step + filter work per 1.25 ms period, {unit} (budget {:.0}), from the output frames:",
+            f64::from(self.period_ticks_budget) * k
+        );
+        for (name, t) in WORK_KINDS.iter().zip(&self.period_ticks) {
+            let _ = writeln!(
+                s,
+                "  {name:<12} {:>7} periods  mean {:>9.0}  worst {:>9.0}",
+                t.n,
+                t.mean() * k,
+                f64::from(t.max) * k
+            );
+        }
+        if self.firmware_times.iter().any(Option::is_some) {
+            let _ = writeln!(s, "firmware's own figures (step alone | step + filter work), {unit}:");
+            for (name, t) in WORK_KINDS.iter().zip(&self.firmware_times) {
+                if let Some(t) = t {
+                    let _ = writeln!(
+                        s,
+                        "  {name:<12} {:>7} periods  step mean {:>8.0} worst {:>8.0} | period mean {:>9.0} worst {:>9.0}",
+                        t.periods,
+                        t.step_mean_x100 as f64 / 100.0 * k,
+                        t.step_max as f64 * k,
+                        t.period_mean_x100 as f64 / 100.0 * k,
+                        t.period_max as f64 * k
+                    );
+                }
+            }
+        }
+        for l in &self.log {
+            let _ = writeln!(s, "firmware: {l}");
+        }
+        let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        s
+    }
+}
+
+/// The launch-vehicle firmware ELF built by `cargo build --release` at the root.
+pub fn default_elf() -> PathBuf {
+    crate::qemu::repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw-lv")
+}
+
+/// Builds `ssis-fw-lv` (release, thumb target) if it is out of date.
+pub fn build_firmware() -> Result<PathBuf> {
+    crate::qemu::build_target_bin("ssis-fw-lv")
+}
+
+/// Address of a symbol in an ELF.
+fn symbol(elf: &Path, name: &str) -> Result<u64> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf)?;
+    let file = object::File::parse(&*data)?;
+    file.symbols()
+        .find(|s| s.name() == Ok(name))
+        .map(|s| s.address())
+        .with_context(|| format!("{} has no symbol {name}", elf.display()))
+}
+
+/// The sensor side of a run: truth, FOG, accelerometer and GNSS models, frame bytes.
+struct Sensors {
+    truth: LaunchTruth,
+    fogs: FogModel,
+    accels: AccelModel,
+    gnss: Option<GnssSpec>,
+    rng: ChaCha20Rng,
+    gnss_rng: ChaCha20Rng,
+    gnss_counter: u16,
+    dt_s: f64,
+}
+
+/// One step's bytes per link and the truth at its end.
+struct StepBytes {
+    fog: Vec<u8>,
+    accel: Vec<u8>,
+    gnss: Vec<u8>,
+    truth: ssis::nav::NavState,
+}
+
+impl Sensors {
+    fn new(sc: &LvScenario, dt_s: f64) -> Self {
+        let mut rng = ChaCha20Rng::seed_from_u64(sc.seed);
+        let fogs = FogModel::new(&sc.fog, &mut rng);
+        let accels = AccelModel::new(&sc.accel, &mut rng);
+        Sensors {
+            truth: LaunchTruth::new(sc.launch.clone(), dt_s),
+            fogs,
+            accels,
+            gnss: sc.gnss.clone(),
+            rng,
+            gnss_rng: ChaCha20Rng::seed_from_u64(sc.seed.wrapping_add(1_000_003)),
+            gnss_counter: 0,
+            dt_s,
+        }
+    }
+
+    fn initial(&self) -> ssis::nav::NavState {
+        let (q_eb, v_e_m_s, r_e_m) = self.truth.state_now();
+        ssis::nav::NavState { q_eb, v_e_m_s, r_e_m }
+    }
+
+    /// Step `k` (1-based).
+    fn step(&mut self, k: u64) -> StepBytes {
+        let s = self.truth.advance();
+        let t_end = s.t_s;
+        let fs = self.fogs.sample(&s.dtheta_rad, t_end, self.dt_s, &mut self.rng);
+        let mut fog = Vec::with_capacity(48);
+        for (i, f) in fs.frames.iter().enumerate() {
+            if Profile::LAUNCH_VEHICLE.fogs.contains(i) {
+                fog.extend_from_slice(&f.to_bytes());
+            }
+        }
+        let mut accel = Vec::with_capacity(48);
+        for f in self.accels.sample(&s.dv_m_s, t_end, self.dt_s, &mut self.rng) {
+            accel.extend_from_slice(&f.to_bytes());
+        }
+        let truth = ssis::nav::NavState { q_eb: s.q_eb, v_e_m_s: s.v_e_m_s, r_e_m: s.r_e_m };
+        let mut gnss = Vec::new();
+        if let Some(spec) = &self.gnss {
+            if let Some(fix) = spec.fix(k, self.dt_s, &truth, &mut self.gnss_rng) {
+                let t_us = k * u64::from(Profile::LAUNCH_VEHICLE.dt_us);
+                let g = GnssFrame::from_physical(status::FIX_VALID | status::FIX_3D, self.gnss_counter, 10, t_us, &fix);
+                self.gnss_counter = self.gnss_counter.wrapping_add(1);
+                gnss.extend_from_slice(&g.to_bytes());
+            }
+        }
+        StepBytes { fog, accel, gnss, truth }
+    }
+}
+
+/// The in-process replay: the same flight core and navigation stage on the same bytes.
+struct Replay {
+    core: FlightCore,
+    nav: NavUnit,
+    links: Links<MockLink, MockLink, MockSink>,
+    nav_links: NavLinks<MockLink, MockLink, MockSink>,
+}
+
+impl Replay {
+    fn new(table: &CalibrationTable, init: &PadInit) -> Result<Self> {
+        let profile = Profile::LAUNCH_VEHICLE;
+        let mut core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
+        core.align(init.state.q_eb);
+        let comp = AccelTable::IDEAL.compensator().map_err(|e| anyhow::anyhow!("accel table: {e:?}"))?;
+        let nav = NavUnit::new(init.state, profile.dt_s(), comp, init.gnss).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        Ok(Replay {
+            core,
+            nav,
+            links: Links { fog: FogLinks::Bus(MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() },
+            nav_links: NavLinks { accel: MockLink::ideal(), gnss: MockLink::ideal(), out: MockSink::default() },
+        })
+    }
+
+    /// One period on `b`'s bytes: (flight output bytes, navigation output bytes, filter work).
+    fn period(&mut self, b: &StepBytes) -> (Vec<u8>, Vec<u8>, FilterWork) {
+        if let FogLinks::Bus(l) = &mut self.links.fog {
+            l.send(&b.fog);
+        }
+        self.nav_links.accel.send(&b.accel);
+        self.nav_links.gnss.send(&b.gnss);
+        let (nav, nav_links) = (&mut self.nav, &mut self.nav_links);
+        self.core.step_with(&mut self.links, |t_us, body| {
+            nav.step(body, t_us, nav_links);
+        });
+        let work = self.nav.filter_work();
+        (std::mem::take(&mut self.links.out.bytes), std::mem::take(&mut self.nav_links.out.bytes), work)
+    }
+}
+
+/// Runs `sc` on the launch-vehicle firmware in QEMU, in lockstep.
+pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
+    check_qemu_and_elf(&opts.elf)?;
+    let profile = Profile::LAUNCH_VEHICLE;
+    let dt_s = profile.dt_s();
+    let mut sensors = Sensors::new(sc, dt_s);
+    let table = CalibrationTable::DEFAULT;
+    let init = PadInit {
+        revision: 1,
+        state: sensors.initial(),
+        gnss: filter_config(&FogSpec::paper_post_calibration(), &AccelSpec::typical_pendulous()),
+    };
+    init.validate().map_err(|e| anyhow::anyhow!("pad block: {e:?}"))?;
+    let mut replay = Replay::new(&table, &init)?;
+
+    static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("ssis-qemu-lv-{}-{k}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir)?;
+    let table_path = dir.join("table.img");
+    std::fs::write(&table_path, store::image(&table))?;
+    let mut lvdata = vec![0xFFu8; INIT_OFFSET + ssis::nav::init::BLOCK_LEN];
+    lvdata[..ssis::calib::accel::TABLE_LEN].copy_from_slice(&AccelTable::IDEAL.to_bytes());
+    lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());
+    let lvdata_path = dir.join("lvdata.img");
+    std::fs::write(&lvdata_path, &lvdata)?;
+    let calib_addr = symbol(&opts.elf, "_calib_start")?;
+    let lvdata_addr = symbol(&opts.elf, "_lvdata_start")?;
+
+    // sleep=off: an idle guest's virtual time jumps to its next timer deadline at once
+    // instead of following the host's clock, so a stall of the QEMU process on a loaded
+    // host cannot add tens of milliseconds to virtual time in one jump (which tripped the
+    // watchdog between two steps). Instruction counts are the same; the idle waits
+    // between lockstep steps cost some host time.
+    let icount = opts.icount.then_some("shift=0,sleep=off");
+    let loaders = [(table_path, calib_addr), (lvdata_path, lvdata_addr)];
+    let Started { mut q, mut uarts, log_thread } = start_qemu(&opts.elf, dir, 5, icount, &loaders)?;
+    // Outputs: UART0 (flight) and UART2 (navigation), each read by a thread.
+    let (tx, rx) = mpsc::channel::<(usize, Vec<u8>)>();
+    for i in [0usize, 2] {
+        spawn_reader(&uarts[i], tx.clone(), move |b| (i, b))?;
+    }
+    drop(tx);
+
+    let started = Instant::now();
+    let steps = (sc.duration_s / dt_s).round() as u64;
+    let mut s = LvSummary {
+        name: sc.name.clone(),
+        steps,
+        duration_s: sc.duration_s,
+        icount: opts.icount,
+        period_ticks_budget: 25 * profile.dt_us,
+        ..Default::default()
+    };
+    let mut flight_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut nav_dec: StreamDecoder<NavOutputFrame, 256> = StreamDecoder::new();
+    let mut flight_got: VecDeque<OutputFrame> = VecDeque::new();
+    let mut nav_got: VecDeque<NavOutputFrame> = VecDeque::new();
+    let mut bad = 0u64;
+    let mut take = |(i, b): (usize, Vec<u8>), fg: &mut VecDeque<OutputFrame>, ng: &mut VecDeque<NavOutputFrame>| {
+        if i == 0 {
+            flight_dec.push_slice(&b, |r| match r {
+                Ok(f) => fg.push_back(f),
+                Err(_) => bad += 1,
+            });
+        } else {
+            nav_dec.push_slice(&b, |r| match r {
+                Ok(f) => ng.push_back(f),
+                Err(_) => bad += 1,
+            });
+        }
+    };
+
+    // Lockstep: first a frame from the firmware's own tick (booted, in its loop), then
+    // LOCKSTEP and 100 ms of silence (frames of that time carry no sample).
+    match rx.recv_timeout(Duration::from_secs(20)) {
+        Ok(m) => take(m, &mut flight_got, &mut nav_got),
+        Err(_) => bail!("no output from the firmware within 20 s of boot"),
+    }
+    uarts[0].write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+    let t0 = Instant::now();
+    while t0.elapsed() < Duration::from_secs(10) {
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(m) => take(m, &mut flight_got, &mut nav_got),
+            Err(mpsc::RecvTimeoutError::Timeout) => break,
+            Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its UARTs"),
+        }
+    }
+    s.frames_before_data = flight_got.len() as u64;
+    anyhow::ensure!(nav_got.is_empty(), "navigation frames before the first sample");
+    flight_got.clear();
+
+    let bar = progress_bar(opts.progress, steps, &sc.name);
+    let (mut fog_total, mut accel_total, mut gnss_total) = (0u32, 0u32, 0u32);
+    let mut prev_work: Option<usize> = None;
+    let mask = |mut x: OutputFrame| {
+        // The board fills in its step time and overruns, and its frame counter also
+        // counts the frames sent on its own tick before lockstep.
+        x.counter = 0;
+        x.counters.step_ticks = 0;
+        x.counters.overruns = 0;
+        x
+    };
+    for n in 1..=steps {
+        let b = sensors.step(n);
+        s.frames_in[0] += (b.fog.len() / 16) as u64;
+        s.frames_in[1] += (b.accel.len() / 16) as u64;
+        s.frames_in[2] += (b.gnss.len() / GnssFrame::LEN) as u64;
+        uarts[1].write_all(&b.fog)?;
+        uarts[3].write_all(&b.accel)?;
+        uarts[4].write_all(&b.gnss)?;
+        fog_total = fog_total.wrapping_add(b.fog.len() as u32);
+        accel_total = accel_total.wrapping_add(b.accel.len() as u32);
+        gnss_total = gnss_total.wrapping_add(b.gnss.len() as u32);
+        let (ref_flight, ref_nav, work) = replay.period(&b);
+        let step = ControlFrame {
+            command: command::STEP,
+            fog_bytes: fog_total,
+            st_bytes: accel_total,
+            arg: (gnss_total & 0xFFFF) as u16,
+        };
+        uarts[0].write_all(&step.to_bytes())?;
+        let want_nav = ref_nav.len() / NavOutputFrame::LEN;
+        let t_wait = Instant::now();
+        while flight_got.is_empty() || nav_got.len() < want_nav {
+            match rx.recv_timeout(Duration::from_secs(10)) {
+                Ok(m) => take(m, &mut flight_got, &mut nav_got),
+                Err(e) => {
+                    // Say why: QEMU's exit status and the firmware's log.
+                    let status = wait_exit(&mut q.child, Duration::from_secs(2))?;
+                    let _ = q.child.kill();
+                    let log = log_thread.join().unwrap_or_default();
+                    let log = decode_defmt(&opts.elf, &log).unwrap_or_default();
+                    bail!(
+                        "no output for step {n} within {:?} ({e}); QEMU exit {status:?}; log {log:?}",
+                        t_wait.elapsed()
+                    )
+                }
+            }
+        }
+        // The flight frame.
+        if let Some(f) = flight_got.pop_front() {
+            s.flight_frames += 1;
+            match OutputFrame::decode(&ref_flight) {
+                Ok(r) if mask(r) == mask(f) => s.flight_equal += 1,
+                _ => s.flight_differing += 1,
+            }
+            // It carries the previous period's step + filter work.
+            if let Some(k) = prev_work {
+                if let Some(t) = s.period_ticks.get_mut(k) {
+                    t.push(u32::from(f.counters.step_ticks));
+                }
+            }
+            s.overruns = f.counters.overruns;
+        }
+        prev_work = Some(work_kind(work));
+        // The navigation frames.
+        for r in ref_nav.chunks_exact(NavOutputFrame::LEN) {
+            let Some(f) = nav_got.pop_front() else { break };
+            s.nav_frames += 1;
+            if f.to_bytes()[..] == r[..] {
+                s.nav_equal += 1;
+            } else {
+                s.nav_differing += 1;
+            }
+            let st = f.state();
+            let err = (
+                (st.r_e_m - b.truth.r_e_m).norm(),
+                (st.v_e_m_s - b.truth.v_e_m_s).norm(),
+                angle_between(&st.q_eb, &b.truth.q_eb),
+            );
+            s.max_err = (s.max_err.0.max(err.0), s.max_err.1.max(err.1), s.max_err.2.max(err.2));
+            s.final_err = err;
+            s.fixes = (f.fixes_used, f.fixes_refused);
+        }
+        if let Some(bar) = &bar {
+            if n.is_multiple_of(800) {
+                bar.set_position(n);
+            }
+        }
+    }
+    s.bad_bytes = bad;
+    uarts[0].write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
+    let status = wait_exit(&mut q.child, Duration::from_secs(10))?;
+    (s.exit_code, s.log) = finish_run(&mut q, status, bar, log_thread, &opts.elf);
+    for l in &s.log {
+        let w: Vec<&str> = l.split_whitespace().collect();
+        if w.first() == Some(&"lv_times") {
+            let num = |i: usize| w.get(i).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
+            if let Some(k) = WORK_KINDS.iter().position(|n| w.get(1) == Some(n)) {
+                s.firmware_times[k] = Some(FirmwareTimes {
+                    periods: num(3),
+                    step_mean_x100: num(5),
+                    step_max: num(7),
+                    period_mean_x100: num(9),
+                    period_max: num(11),
+                });
+            }
+        }
+    }
+    s.wall_s = started.elapsed().as_secs_f64();
+    Ok(s)
+}

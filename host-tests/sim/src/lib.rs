@@ -1,0 +1,27 @@
+//! The simulator: truth motion, sensor models and frame encoders (the core's own), the
+//! scenarios a user writes, and the harness that drives the very same `FlightCore::step()`
+//! the firmware runs and compares its output with truth.
+//!
+//! - [`truth`]: rigid-body motion (orbital-rate Earth pointing, slews, the paper's 360°
+//!   calibration maneuver, coning) with optional flexible-appendage modes.
+//! - [`fog`]: FOG error model with every term of the calibration table, the paper's triad
+//!   error form (eq. 4), angle random walk, random and wandering bias.
+//! - [`star`]: star tracker (eq. 5): noise, mounting misalignment, rate, latency.
+//! - [`accel`], [`gnss`]: accelerometers and GNSS fixes for the launch-vehicle navigation.
+//! - [`launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
+//!   vibration) with exact body increments.
+//! - [`scenario`]: scenarios as TOML files a user can write.
+//! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`corrupt`]: frame corruption trials against the stream decoder.
+//! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth).
+
+pub mod accel;
+pub mod corrupt;
+pub mod fog;
+pub mod gnss;
+pub mod harness;
+pub mod launch;
+pub mod lv;
+pub mod scenario;
+pub mod star;
+pub mod truth;
