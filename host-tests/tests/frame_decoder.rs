@@ -204,7 +204,7 @@ proptest! {
     }
 
     #[test]
-    fn truncated_frames_yield_nothing(f in output_frame(), n in 0usize..79) {
+    fn truncated_frames_yield_nothing(f in output_frame(), n in 0usize..OutputFrame::LEN) {
         let b = f.to_bytes();
         let fed = feed_new::<OutputFrame>(&b[..n]);
         prop_assert!(fed.results.is_empty());
@@ -219,7 +219,7 @@ proptest! {
     }
 
     #[test]
-    fn spliced_output_frame_is_recovered(a in output_frame(), b in output_frame(), n in 1usize..79) {
+    fn spliced_output_frame_is_recovered(a in output_frame(), b in output_frame(), n in 1usize..OutputFrame::LEN) {
         let prefix = a.to_bytes()[..n].to_vec();
         check_frame_after_garbage(&prefix, &b);
     }
