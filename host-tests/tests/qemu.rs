@@ -208,7 +208,7 @@ fn a_stack_overflow_faults_below_the_stack_and_never_touches_the_statics() {
     }
 }
 
-/// Issue 6 part 7, the subset under QEMU: a bias step of 5σ of the parity residual
+/// The fault campaign's subset under QEMU: a bias step of 5σ of the parity residual
 /// (52 °/h) on FOG2 from 20 s, fed to the firmware over its UART in lockstep. The
 /// firmware must do what the host core does on the same bytes (every output frame
 /// bit-identical, so the fault logic runs on the M7 as on the host), raise the parity

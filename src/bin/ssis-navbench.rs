@@ -1,4 +1,4 @@
-//! On-target benchmark of the launch-vehicle navigation (issue 7): accelerometer
+//! On-target benchmark of the launch-vehicle navigation: accelerometer
 //! compensation, the strapdown step (`ssis::nav::Strapdown` inside
 //! `ssis::nav::gnss::AidedNav`, covariance propagation every 80 steps) and a GNSS
 //! update once a second, on synthetic 1.25 ms increments (a constant climb with a pitch
@@ -6,7 +6,7 @@
 //!
 //! SysTick runs free from the core clock (reload 2^24 − 1, no interrupt); the time of
 //! each measured call is the counter difference (it counts down, modulo 2^24). Under
-//! QEMU with `-icount shift=0` one tick is 40 instructions (`docs/../shared/NOTES.md`).
+//! QEMU with `-icount shift=0` one tick is 40 instructions (BENCHMARKS.md).
 //! It logs (defmt) the totals and passes (`ssis::bsp::harness`) when every step was
 //! accepted.
 #![no_std]

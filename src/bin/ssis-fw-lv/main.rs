@@ -1,5 +1,5 @@
 //! `ssis-fw-lv`: the launch-vehicle unit on a Cortex-M7, here the QEMU `mps2-an500`
-//! board (issue 7): three FOGs and three accelerometers, the flight core and the
+//! board: three FOGs and three accelerometers, the flight core and the
 //! strapdown navigation with loosely coupled GNSS aiding, every 1.25 ms.
 //!
 //! Each period (a SysTick, or a STEP control frame in lockstep):
@@ -234,7 +234,7 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     }
 }
 
-/// The end-of-run figures, on the defmt log (`host-tests/src/qemu_lv.rs` reads them).
+/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads them).
 fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
     for (k, name) in ["none", "propagation", "gnss_update"].into_iter().enumerate() {
         let (s, p) = (t.step.get(k).copied().unwrap_or_default(), t.period.get(k).copied().unwrap_or_default());

@@ -163,7 +163,7 @@ fn main() -> Result<()> {
     };
     let command: Vec<String> = std::env::args().skip(1).collect();
     let md = format!(
-        "# Fault-injection campaign (issue 6)\n\n\
+        "# Fault-injection campaign\n\n\
          Produced by `cd host-tests && cargo run --release --bin ssis-faults -- {}` on {} ({:.0} s on the machine \
          that ran it).\n\n{}\n{}",
         command.join(" "),
