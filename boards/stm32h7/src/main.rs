@@ -25,9 +25,10 @@
 //! - **Watchdog**: the IWDG (50 ms) starts first thing and is fed once per step.
 //! - **Log**: defmt over RTT (a panic-free RTT channel, [`board::rtt_write`]): at boot
 //!   (reset reason, clock, table), every 10 s (counters, stack high-water).
-//! - **Panics**: no `unwrap`/`expect`/`panic!` in this firmware or the flight core
-//!   (`bash scripts/panic-paths --board stm32h7` lists any panic path). A panic, or a
-//!   setup failure, is logged and the CPU parks ([`park`]) until the watchdog resets it.
+//! - **Panics**: none. The release build links only if the optimiser has proved every
+//!   panic unreachable (`panic: never`, README "No panics, stack overflow");
+//!   `bash scripts/panic-paths --board stm32h7` lists the callers if one appears. A setup
+//!   failure is logged and the CPU parks ([`park`]) until the watchdog resets it.
 //! - **Stack guard**: the stack sits at the bottom of DTCM (`memory.x`: 0x2000_0000 up to
 //!   0x2001_0000, the statics above it), so an overflow runs off the start of RAM, away
 //!   from the statics, into MPU region 0 (0x1FFF_0000..0x2000_0000, no-access; reserved
@@ -48,8 +49,10 @@ use ssis::bsp::{cortex_m7, Board};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::output::OutputFrame;
 
-// `panic: log`: a panic logs `panic` and parks; the watchdog then resets the unit.
-ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: log);
+// `panic: never`: the release build links only if the optimiser has proved every panic
+// unreachable (README "No panics, stack overflow"); debug builds and the `allow-panic`
+// feature (for `scripts/panic-paths`) log `panic` and park until the watchdog resets.
+ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: never);
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
