@@ -2,9 +2,13 @@
 //! profile (four FOGs on one RS-485 bus, star tracker, 5 ms steps).
 //!
 //! What it does:
-//! - **Clock**: 400 MHz core from the 8 MHz HSE in bypass mode (the ST-LINK MCO of a
-//!   NUCLEO-H743ZI; a flight board's oscillator likewise). If the HSE is not ready within
-//!   10 ms, the 64 MHz HSI is used instead and the boot log says so.
+//! - **Clock**: 400 MHz core (PLL1) from the 8 MHz HSE in bypass mode (the ST-LINK MCO of
+//!   a NUCLEO-H743ZI; a flight board's oscillator likewise). If the HSE is not ready
+//!   within 10 ms, PLL1 runs from the 64 MHz HSI instead and the boot log says so. Set up
+//!   register by register through the PAC ([`board::init`]), every wait bounded: if the
+//!   supply, voltage scale, flash latency, PLL lock or clock switch does not come within
+//!   10 ms, the core stays on the 64 MHz HSI, the boot log names the step, and the output
+//!   frames carry the defaulted flag.
 //! - **Links**, all 921 600 Bd 8N1, interrupt-driven:
 //!   USART1 TX = framed output, from a `TxRing<256>` drained by the TX-FIFO-not-full
 //!   interrupt; USART2 RX = the FOG RS-485 bus (all four FOGs, told apart by `fog_id`)
@@ -21,10 +25,10 @@
 //! - **Watchdog**: the IWDG (50 ms) starts first thing and is fed once per step.
 //! - **Log**: defmt over RTT (a panic-free RTT channel, [`board::rtt_write`]): at boot
 //!   (reset reason, clock, table), every 10 s (counters, stack high-water).
-//! - **Panics**: no `unwrap`/`expect`/`panic!` in this firmware or the flight core; the
-//!   only panic paths left are the HAL's asserts in the clock and USART setup, before the
-//!   first step (`bash scripts/panic-paths --board stm32h7` lists them). A panic, or a
-//!   setup failure, is logged and the CPU parks ([`park`]) until the watchdog resets it.
+//! - **Panics**: none. The release build links only if the optimiser has proved every
+//!   panic unreachable (`panic: never`, README "No panics, stack overflow");
+//!   `bash scripts/panic-paths --board stm32h7` lists the callers if one appears. A setup
+//!   failure is logged and the CPU parks ([`park`]) until the watchdog resets it.
 //! - **Stack guard**: the stack sits at the bottom of DTCM (`memory.x`: 0x2000_0000 up to
 //!   0x2001_0000, the statics above it), so an overflow runs off the start of RAM, away
 //!   from the statics, into MPU region 0 (0x1FFF_0000..0x2000_0000, no-access; reserved
@@ -45,11 +49,10 @@ use ssis::bsp::{cortex_m7, Board};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::output::OutputFrame;
 
-// `panic: log`, not `never`: the HAL's clock and USART setup (`rcc::Rcc::freeze`,
-// `serial()`) keep asserts on registers they read back, which no optimiser can remove,
-// so the link-time proof cannot hold with it (README "No panics, stack overflow"). A
-// panic logs `panic` and parks; the watchdog then resets the unit.
-ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: log);
+// `panic: never`: the release build links only if the optimiser has proved every panic
+// unreachable (README "No panics, stack overflow"); debug builds and the `allow-panic`
+// feature (for `scripts/panic-paths`) log `panic` and park until the watchdog resets.
+ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: never);
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
@@ -66,7 +69,13 @@ fn main() -> ! {
             park()
         }
     };
-    match boot::boot(&mut hw, profile, false, |hw, core, report| fly(hw, core, report, profile)) {
+    // A setup wait that timed out leaves the unit on its fallback (HSI clock, or the
+    // watchdog's reset timing): it flies, and its output frames carry the defaulted flag.
+    if let Some(t) = hw.timeout {
+        defmt::error!("board setup: {} did not become ready; flying on the fallback, flagged", t);
+    }
+    let fallback = hw.timeout.is_some();
+    match boot::boot(&mut hw, profile, fallback, |hw, core, report| fly(hw, core, report, profile)) {
         Ok(never) => match never {},
         Err(e) => {
             defmt::error!("cannot fly: {}", e);
@@ -82,7 +91,7 @@ fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, prof
         "ssis-fw-stm32h7 up: reset {}, core {} Hz from {}, table revision {} (defaulted {}), step {} us",
         hw.reset_reason,
         hw.core_hz,
-        if hw.hse { "HSE" } else { "HSI (HSE did not start)" },
+        hw.clock,
         core.table().revision,
         report.defaulted,
         profile.dt_us
@@ -188,36 +197,85 @@ fn park() -> ! {
 mod board {
     #![allow(unsafe_code)]
 
-    use core::cell::RefCell;
     use core::sync::atomic::{AtomicU32, Ordering};
 
-    use cortex_m::interrupt::{free, Mutex};
+    use cortex_m::interrupt::free;
     use cortex_m::peripheral::syst::SystClkSource;
     use cortex_m::peripheral::{DWT, NVIC};
     use cortex_m_rt::exception;
     use ssis::link::{RxRing, TxRing};
-    use stm32h7xx_hal::gpio::Pull;
-    use stm32h7xx_hal::independent_watchdog::IndependentWatchdog;
-    use stm32h7xx_hal::nb;
-    use stm32h7xx_hal::pac::{self, interrupt, Interrupt, USART1, USART2, USART3};
-    use stm32h7xx_hal::prelude::*;
-    use stm32h7xx_hal::rcc::ResetReason;
-    use stm32h7xx_hal::serial::{self, NoRx, NoTx, Rx, Tx};
+    use stm32h7::stm32h743v::{self as pac, interrupt, usart1, Interrupt};
 
     /// HSE frequency (NUCLEO-H743ZI: 8 MHz from the ST-LINK MCO).
     const HSE_HZ: u32 = 8_000_000;
     /// The HSE is an external clock signal (bypass), not a crystal.
     const HSE_BYPASS: bool = true;
+    /// HSI frequency: the clock the MCU resets on (RCC_CR.HSIDIV = 1 after reset).
+    const HSI_HZ: u32 = 64_000_000;
     /// Longest wait for the HSE before falling back to the HSI, in HSI cycles (10 ms).
     const HSE_TIMEOUT_CYCLES: u32 = 640_000;
+    /// Longest wait for any other ready flag (supply, voltage scale, flash latency, PLL
+    /// lock, clock switch, watchdog registers), in core cycles: 10 ms on the HSI (the
+    /// core runs on it during every wait), each far above the datasheet's worst case.
+    const READY_TIMEOUT_CYCLES: u32 = 640_000;
     /// Core clock: the most the STM32H743 (rev V) runs at in voltage scale 1.
     const CORE_HZ: u32 = 400_000_000;
+    /// PLL1 input divider DIVM1 and the reference clock it gives, per source: 8 MHz from
+    /// the HSE (DIVM1 = 1), 16 MHz from the HSI (DIVM1 = 4); both in PLL1RGE's 8-16 MHz range.
+    const PLL_M_HSE: u32 = 1;
+    const PLL_M_HSI: u32 = 4;
+    /// VCO 800 MHz (wide VCO, 192-960 MHz on rev V), divided by DIVP1 = 2 into 400 MHz.
+    const VCO_HZ: u32 = 800_000_000;
+    const PLL_P: u32 = 2;
+    /// DIVN1 per source (the multiplier N; the register holds N - 1).
+    const PLL_N_HSE: u32 = VCO_HZ / (HSE_HZ / PLL_M_HSE);
+    const PLL_N_HSI: u32 = VCO_HZ / (HSI_HZ / PLL_M_HSI);
+    /// AHB/AXI clock (HPRE = 2) and APB1..4 clocks (D1PPRE, D2PPRE1/2, D3PPRE = 2): the
+    /// VOS1 maxima of 200 and 100 MHz. The USARTs' kernel clock is their APB clock
+    /// (RCC_D2CCIP2R.USART16SEL and USART234578SEL at their reset value 0 = rcc_pclk).
+    const HCLK_HZ: u32 = CORE_HZ / 2;
+    const PCLK_HZ: u32 = HCLK_HZ / 2;
+    /// Flash wait states at 200 MHz AXI in VOS1 (RM0433 table 17: 185-210 MHz: LATENCY
+    /// = 2, WRHIGHFREQ = 2).
+    const FLASH_LATENCY: u8 = 2;
+    const FLASH_WRHIGHFREQ: u8 = 2;
+
+    const _: () = assert!(HSE_HZ / PLL_M_HSE >= 8_000_000 && HSE_HZ / PLL_M_HSE <= 16_000_000);
+    const _: () = assert!(HSI_HZ / PLL_M_HSI >= 8_000_000 && HSI_HZ / PLL_M_HSI <= 16_000_000);
+    const _: () = assert!(PLL_N_HSE * (HSE_HZ / PLL_M_HSE) == VCO_HZ && PLL_N_HSI * (HSI_HZ / PLL_M_HSI) == VCO_HZ);
+    const _: () = assert!(PLL_N_HSE >= 4 && PLL_N_HSE <= 512 && PLL_N_HSI >= 4 && PLL_N_HSI <= 512);
+    const _: () = assert!(VCO_HZ >= 192_000_000 && VCO_HZ <= 960_000_000 && VCO_HZ / PLL_P == CORE_HZ);
+
     /// All three links.
     const BAUD: u32 = 921_600;
+    /// USARTDIV (RM0433 48.5.7, oversampling by 16, PRESC = 1): kernel clock / baud,
+    /// rounded to the nearest, for the PLL clock tree (100 MHz APB: 109, 917 431 Bd,
+    /// -0.45 %) and the HSI fallback (64 MHz APB: 69, 927 536 Bd, +0.64 %).
+    const BRR_PLL: u16 = usart_div(PCLK_HZ, BAUD);
+    const BRR_HSI: u16 = usart_div(HSI_HZ, BAUD);
+
+    /// USARTDIV for `baud` from `ker_hz`; refuses at compile time (it only runs in
+    /// consts) a divider outside BRR's range 16..=0xFFFF or a rate more than 1 % off.
+    const fn usart_div(ker_hz: u32, baud: u32) -> u16 {
+        let div = (ker_hz + baud / 2) / baud;
+        assert!(div >= 16 && div <= 0xFFFF, "USART divider out of range");
+        let actual = ker_hz / div;
+        let off = actual.abs_diff(baud);
+        assert!(off * 100 <= baud, "baud rate more than 1 % off");
+        div as u16
+    }
+
     /// Unit of the step time in the output frame (the QEMU board's SysTick, 40 ns).
     const STEP_TICK_HZ: u32 = 25_000_000;
-    /// Watchdog timeout: 10 steps, and more than the boot takes before the first feed.
+    /// Watchdog: the IWDG counts the LSI (32 kHz) divided by 4 (IWDG_PR = 0), so a
+    /// reload of 400 gives 50 ms: 10 steps, and more than the boot takes before the
+    /// first feed.
     const WATCHDOG_MS: u32 = 50;
+    const WATCHDOG_RELOAD: u16 = {
+        let r = WATCHDOG_MS * (32_000 / 4) / 1_000;
+        assert!(r >= 1 && r <= 0x0FFF, "IWDG reload out of range");
+        r as u16
+    };
 
     /// FOG bus receive buffer: 512 bytes = 5.6 ms at 921 600 Bd, more than a step at full line rate.
     pub static FOG_RX: RxRing<512> = RxRing::new();
@@ -230,10 +288,6 @@ mod board {
     static TICKS: AtomicU32 = AtomicU32::new(0);
     /// Receive errors (framing, noise, parity, hardware overrun) on USART2 and USART3.
     static UART_ERRORS: AtomicU32 = AtomicU32::new(0);
-    /// The UART halves, handed to their interrupts.
-    static OUT_UART: Mutex<RefCell<Option<Tx<USART1>>>> = Mutex::new(RefCell::new(None));
-    static FOG_UART: Mutex<RefCell<Option<Rx<USART2>>>> = Mutex::new(RefCell::new(None));
-    static ST_UART: Mutex<RefCell<Option<Rx<USART3>>>> = Mutex::new(RefCell::new(None));
 
     extern "C" {
         /// Start of the `CALIB` region (memory.x): the calibration sector.
@@ -242,26 +296,56 @@ mod board {
         static _calib_end: u8;
     }
 
-    /// What can fail in [`init`].
+    /// What can fail in [`init`] so that the unit cannot fly.
     #[derive(defmt::Format)]
     pub enum SetupError {
         /// The peripherals were already taken (init called twice).
         PeripheralsTaken,
-        /// The HAL refused the configuration of this UART.
-        Uart(&'static str),
         /// The step period does not fit the 24-bit SysTick at this core clock.
         StepPeriod,
     }
 
+    /// A ready flag that did not come within [`READY_TIMEOUT_CYCLES`]. The unit then
+    /// flies on the fallback clock (the 64 MHz HSI, no PLL) or with the watchdog's reset
+    /// timing, logs this, and flags its output frames as running on defaults.
+    #[derive(Clone, Copy, defmt::Format)]
+    pub enum Timeout {
+        /// PWR_CSR1.ACTVOSRDY after the LDO supply configuration (PWR_CR3).
+        Supply,
+        /// PWR_D3CR.VOSRDY after selecting voltage scale 1.
+        VoltageScale,
+        /// FLASH_ACR read-back of the new LATENCY/WRHIGHFREQ.
+        FlashLatency,
+        /// RCC_CR.PLL1RDY.
+        Pll1Lock,
+        /// RCC_CFGR.SWS after selecting PLL1 as system clock.
+        ClockSwitch,
+        /// IWDG_SR.PVU/RVU after writing the prescaler and reload.
+        Watchdog,
+    }
+
+    /// Where the core clock comes from.
+    #[derive(Clone, Copy, PartialEq, Eq, defmt::Format)]
+    pub enum ClockSource {
+        /// PLL1 from the HSE: 400 MHz.
+        HsePll,
+        /// PLL1 from the HSI (the HSE did not start): 400 MHz.
+        HsiPll,
+        /// The HSI itself, 64 MHz (a step of the PLL setup timed out).
+        Hsi,
+    }
+
     /// The board once set up; the UARTs and the tick live in their interrupts.
     pub struct Stm32h7 {
-        watchdog: IndependentWatchdog,
+        iwdg: pac::IWDG,
         /// Core cycles per step-time tick.
         pub cycles_per_tick: u32,
         /// Core clock, Hz.
         pub core_hz: u32,
-        /// Whether the core clock comes from the HSE (else the HSI).
-        pub hse: bool,
+        /// Where the core clock comes from.
+        pub clock: ClockSource,
+        /// A setup wait that timed out (the unit flies on its fallback, flagged).
+        pub timeout: Option<Timeout>,
         /// Why the MCU last reset.
         pub reset_reason: &'static str,
     }
@@ -272,7 +356,8 @@ mod board {
         }
 
         fn feed_watchdog(&mut self) {
-            self.watchdog.feed();
+            // RM0433 45.4.1 IWDG_KR: 0xAAAA reloads the counter.
+            self.iwdg.kr.write(|w| w.key().reset());
         }
 
         fn ticks(&self) -> u32 {
@@ -289,82 +374,61 @@ mod board {
         crate::park()
     }
 
+    /// Polls `ready` until it holds or [`READY_TIMEOUT_CYCLES`] core cycles have passed
+    /// (DWT cycle counter, enabled first thing in [`init`]).
+    fn wait(ready: impl Fn() -> bool, what: Timeout) -> Result<(), Timeout> {
+        let t0 = DWT::cycle_count();
+        loop {
+            if ready() {
+                return Ok(());
+            }
+            if DWT::cycle_count().wrapping_sub(t0) >= READY_TIMEOUT_CYCLES {
+                return Err(what);
+            }
+        }
+    }
+
     /// Brings up the watchdog, clocks, UARTs and their interrupts, and the step tick of
-    /// `step_us`.
+    /// `step_us`. Register-level, through the PAC (names as in RM0433); every wait is
+    /// bounded ([`wait`]).
     pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
         let (Some(mut cp), Some(dp)) = (cortex_m::Peripherals::take(), pac::Peripherals::take()) else {
             return Err(SetupError::PeripheralsTaken);
         };
-        // Watchdog first: a setup step that hangs (the HAL waits without a bound for
-        // each clock to become ready) or fails now ends in a reset. It keeps counting
-        // through a debugger halt unless frozen, which only matters with a probe attached.
-        dp.DBGMCU.apb4fz1.modify(|_, w| w.dbg_iwdg1().set_bit());
-        let mut watchdog = IndependentWatchdog::new(dp.IWDG);
-        watchdog.start(WATCHDOG_MS.millis());
-
         DWT::unlock(); // the STM32H7 locks the DWT after a power cycle
         cp.DCB.enable_trace();
         cp.DWT.enable_cycle_counter();
+
+        // Watchdog first: a setup step that hangs or fails now ends in a reset. It keeps
+        // counting through a debugger halt unless frozen (DBGMCU_APB4FZ1.DBG_IWDG1),
+        // which only matters with a probe attached.
+        dp.DBGMCU.apb4fz1.modify(|_, w| w.dbg_iwdg1().set_bit());
+        let watchdog = watchdog_start(&dp.IWDG);
+
         // Caches: safe here with no DMA; RAM is DTCM (never cached), peripherals are
         // device memory. The D-cache serves the constants in flash.
         cp.SCB.enable_icache();
         cp.SCB.enable_dcache(&mut cp.CPUID);
 
+        let reset_reason = reset_reason(&dp.RCC);
         let hse = hse_starts(&dp.RCC);
-        let pwrcfg = dp.PWR.constrain().freeze();
-        let mut rcc = dp.RCC.constrain();
-        let reset_reason = reset_name(rcc.get_reset_reason());
-        let rcc = if hse {
-            let rcc = rcc.use_hse(HSE_HZ.Hz());
-            if HSE_BYPASS {
-                rcc.bypass_hse()
-            } else {
-                rcc
-            }
-        } else {
-            rcc
+        let clocks = clocks_400mhz(&dp.PWR, &dp.FLASH, &dp.RCC, hse);
+        let (clock, core_hz, brr) = match clocks {
+            Ok(()) if hse => (ClockSource::HsePll, CORE_HZ, BRR_PLL),
+            Ok(()) => (ClockSource::HsiPll, CORE_HZ, BRR_PLL),
+            Err(_) => (ClockSource::Hsi, HSI_HZ, BRR_HSI),
         };
-        let ccdr = rcc.sys_ck(CORE_HZ.Hz()).freeze(pwrcfg, &dp.SYSCFG);
-        let core_hz = ccdr.clocks.c_ck().raw();
+        let timeout = clocks.err().or(watchdog.err());
 
-        // Pins: see README (NUCLEO-H743ZI headers). Pull-ups keep an unplugged receive
-        // line idle instead of floating into framing errors.
-        let gpiob = dp.GPIOB.split(ccdr.peripheral.GPIOB);
-        let gpiod = dp.GPIOD.split(ccdr.peripheral.GPIOD);
-        let out_tx = gpiob.pb6.into_alternate::<7>();
-        let fog_rx = gpiod.pd6.into_alternate::<7>().internal_resistor(Pull::Up);
-        let st_rx = gpiob.pb11.into_alternate::<7>().internal_resistor(Pull::Up);
-
-        let config = serial::config::Config::new(BAUD.Hz()); // 8 data bits, no parity, 1 stop
-        let (out, _) = dp
-            .USART1
-            .serial((out_tx, NoRx), config, ccdr.peripheral.USART1, &ccdr.clocks)
-            .map_err(|_| SetupError::Uart("USART1"))?
-            .split();
-        let (_, mut fog) = dp
-            .USART2
-            .serial((NoTx, fog_rx), config, ccdr.peripheral.USART2, &ccdr.clocks)
-            .map_err(|_| SetupError::Uart("USART2"))?
-            .split();
-        let (_, mut st) = dp
-            .USART3
-            .serial((NoTx, st_rx), config, ccdr.peripheral.USART3, &ccdr.clocks)
-            .map_err(|_| SetupError::Uart("USART3"))?
-            .split();
-        fog.listen();
-        st.listen();
-        free(|cs| {
-            // Nothing holds a borrow yet (the interrupts are still masked).
-            if let Ok(mut slot) = OUT_UART.borrow(cs).try_borrow_mut() {
-                *slot = Some(out);
-            }
-            if let Ok(mut slot) = FOG_UART.borrow(cs).try_borrow_mut() {
-                *slot = Some(fog);
-            }
-            if let Ok(mut slot) = ST_UART.borrow(cs).try_borrow_mut() {
-                *slot = Some(st);
-            }
-        });
+        pins(&dp.RCC, &dp.GPIOB, &dp.GPIOD);
+        // RM0433 8.7.43/8.7.40 RCC_APB2ENR.USART1EN, RCC_APB1LENR.USART2EN/USART3EN; the
+        // read-back makes sure the clock is on before the first register access.
+        dp.RCC.apb2enr.modify(|_, w| w.usart1en().enabled());
+        dp.RCC.apb1lenr.modify(|_, w| w.usart2en().enabled().usart3en().enabled());
+        let _ = dp.RCC.apb1lenr.read();
+        usart_start(&dp.USART1, brr, false);
+        usart_start(&dp.USART2, brr, true);
+        usart_start(&dp.USART3, brr, true);
 
         let reload = u64::from(core_hz) * u64::from(step_us) / 1_000_000;
         let reload = u32::try_from(reload)
@@ -380,15 +444,70 @@ mod board {
         syst.enable_counter();
 
         for irq in [Interrupt::USART1, Interrupt::USART2, Interrupt::USART3] {
-            // SAFETY: the handlers touch only the rings, the atomics and the UART halves,
-            // all behind critical sections, and the halves are in place (above).
+            // SAFETY: the handlers touch only the rings, the atomics and their own
+            // USART's registers (CR1 behind critical sections), all set up above.
             unsafe { NVIC::unmask(irq) };
         }
-        Ok(Stm32h7 { watchdog, cycles_per_tick: (core_hz / STEP_TICK_HZ).max(1), core_hz, hse, reset_reason })
+        Ok(Stm32h7 {
+            iwdg: dp.IWDG,
+            cycles_per_tick: (core_hz / STEP_TICK_HZ).max(1),
+            core_hz,
+            clock,
+            timeout,
+            reset_reason,
+        })
     }
 
-    /// Turns the HSE on and waits for it at most [`HSE_TIMEOUT_CYCLES`] (the HAL would
-    /// wait forever). Leaves it on if it is ready, off otherwise.
+    /// Starts the IWDG with [`WATCHDOG_RELOAD`] (RM0433 45.3.2): IWDG_KR = 0xCCCC
+    /// (start; the LSI turns on by itself), 0x5555 (unlock PR and RLR), IWDG_PR = 0
+    /// (LSI / 4), IWDG_RLR, then wait until IWDG_SR.PVU and RVU clear (the values have
+    /// crossed into the LSI domain), then 0xAAAA (reload). If they do not clear, the
+    /// watchdog still runs on its reset values (512 ms).
+    fn watchdog_start(iwdg: &pac::IWDG) -> Result<(), Timeout> {
+        iwdg.kr.write(|w| w.key().start());
+        iwdg.kr.write(|w| w.key().enable());
+        iwdg.pr.write(|w| w.pr().divide_by4());
+        iwdg.rlr.write(|w| w.rl().bits(WATCHDOG_RELOAD));
+        let done = wait(
+            || {
+                let sr = iwdg.sr.read();
+                sr.pvu().bit_is_clear() && sr.rvu().bit_is_clear()
+            },
+            Timeout::Watchdog,
+        );
+        iwdg.kr.write(|w| w.key().reset());
+        done
+    }
+
+    /// The cause of the last reset from RCC_RSR (RM0433 8.4.4), most specific first;
+    /// then clears the flags (RMVF).
+    fn reset_reason(rcc: &pac::RCC) -> &'static str {
+        let r = rcc.rsr.read();
+        let name = if r.iwdg1rstf().bit_is_set() {
+            "IWDG"
+        } else if r.wwdg1rstf().bit_is_set() {
+            "watchdog"
+        } else if r.lpwrrstf().bit_is_set() {
+            "low-power"
+        } else if r.porrstf().bit_is_set() {
+            "power-on"
+        } else if r.borrstf().bit_is_set() {
+            "brown-out"
+        } else if r.sftrstf().bit_is_set() {
+            "software"
+        } else if r.pinrstf().bit_is_set() {
+            "pin"
+        } else if r.cpurstf().bit_is_set() {
+            "software"
+        } else {
+            "other"
+        };
+        rcc.rsr.modify(|_, w| w.rmvf().clear());
+        name
+    }
+
+    /// Turns the HSE on and waits for it at most [`HSE_TIMEOUT_CYCLES`]. Leaves it on if
+    /// it is ready, off otherwise (RCC_CR.HSEBYP, HSEON, HSERDY).
     fn hse_starts(rcc: &pac::RCC) -> bool {
         // HSEBYP may only change while the HSE is off.
         rcc.cr.modify(|_, w| if HSE_BYPASS { w.hsebyp().bypassed() } else { w.hsebyp().not_bypassed() });
@@ -403,16 +522,104 @@ mod board {
         false
     }
 
-    fn reset_name(r: ResetReason) -> &'static str {
-        match r {
-            ResetReason::PowerOnReset => "power-on",
-            ResetReason::PinReset => "pin",
-            ResetReason::BrownoutReset => "brown-out",
-            ResetReason::SystemReset | ResetReason::CpuReset => "software",
-            ResetReason::IndependentWatchdogReset => "IWDG",
-            ResetReason::WindowWatchdogReset | ResetReason::GenericWatchdogReset => "watchdog",
-            _ => "other",
+    /// The 400 MHz clock tree from the HSE (`hse`) or else the HSI; on a timeout the core
+    /// stays on the 64 MHz HSI with every bus prescaler at 1 (the reset state).
+    ///
+    /// 1. Supply (RM0433 6.8.4 PWR_CR3): LDO on, bypass off, SCUEN (the NUCLEO-H743ZI's
+    ///    supply; written once per power-on), then PWR_CSR1.ACTVOSRDY.
+    /// 2. Voltage scale 1 (PWR_D3CR.VOS = 0b11, 400 MHz max on rev V), then VOSRDY.
+    /// 3. Flash (FLASH_ACR): LATENCY and WRHIGHFREQ for 200 MHz AXI, read back.
+    /// 4. PLL1 (RCC_PLLCKSELR.PLLSRC, DIVM1; RCC_PLLCFGR.PLL1RGE = 8-16 MHz, PLL1VCOSEL
+    ///    = wide, no FRACN, only DIVP1EN; RCC_PLL1DIVR.DIVN1, DIVP1), RCC_CR.PLL1ON,
+    ///    then PLL1RDY.
+    /// 5. Prescalers (RCC_D1CFGR.D1CPRE = 1, HPRE = 2, D1PPRE = 2; RCC_D2CFGR.D2PPRE1,
+    ///    D2PPRE2 = 2; RCC_D3CFGR.D3PPRE = 2), then RCC_CFGR.SW = PLL1, then SWS.
+    fn clocks_400mhz(pwr: &pac::PWR, flash: &pac::FLASH, rcc: &pac::RCC, hse: bool) -> Result<(), Timeout> {
+        pwr.cr3.modify(|_, w| w.scuen().set_bit().ldoen().set_bit().bypass().clear_bit());
+        wait(|| pwr.csr1.read().actvosrdy().bit_is_set(), Timeout::Supply)?;
+        // SAFETY: 0b11 = scale 1, a valid VOS value (RM0433 6.8.6).
+        pwr.d3cr.write(|w| unsafe { w.vos().bits(0b11) });
+        wait(|| pwr.d3cr.read().vosrdy().bit_is_set(), Timeout::VoltageScale)?;
+
+        // SAFETY: values of RM0433 table 17 (LATENCY 0..=7, WRHIGHFREQ 0..=3).
+        flash.acr.write(|w| unsafe { w.latency().bits(FLASH_LATENCY).wrhighfreq().bits(FLASH_WRHIGHFREQ) });
+        wait(
+            || {
+                let acr = flash.acr.read();
+                acr.latency().bits() == FLASH_LATENCY && acr.wrhighfreq().bits() == FLASH_WRHIGHFREQ
+            },
+            Timeout::FlashLatency,
+        )?;
+
+        let (m, n) = if hse { (PLL_M_HSE, PLL_N_HSE) } else { (PLL_M_HSI, PLL_N_HSI) };
+        rcc.pllckselr.modify(|_, w| {
+            let w = if hse { w.pllsrc().hse() } else { w.pllsrc().hsi() };
+            // DIVM1 is 1 or 4 (const-checked above; 6 bits).
+            w.divm1().bits(m as u8)
+        });
+        rcc.pllcfgr.modify(|_, w| {
+            w.pll1rge()
+                .range8()
+                .pll1vcosel()
+                .wide_vco()
+                .pll1fracen()
+                .reset()
+                .divp1en()
+                .enabled()
+                .divq1en()
+                .disabled()
+                .divr1en()
+                .disabled()
+        });
+        // SAFETY: DIVN1 = N - 1 with 4 <= N <= 512 and DIVP1 = P - 1 = 1 (even P), as
+        // RM0433 8.7.12 requires (const-checked above).
+        rcc.pll1divr.modify(|_, w| unsafe { w.divn1().bits((n - 1) as u16).divp1().bits((PLL_P - 1) as u8) });
+        rcc.cr.modify(|_, w| w.pll1on().on());
+        wait(|| rcc.cr.read().pll1rdy().is_ready(), Timeout::Pll1Lock)?;
+
+        rcc.d1cfgr.modify(|_, w| w.d1cpre().div1().hpre().div2().d1ppre().div2());
+        rcc.d2cfgr.modify(|_, w| w.d2ppre1().div2().d2ppre2().div2());
+        rcc.d3cfgr.modify(|_, w| w.d3ppre().div2());
+        rcc.cfgr.modify(|_, w| w.sw().pll1());
+        if let Err(e) = wait(|| rcc.cfgr.read().sws().is_pll1(), Timeout::ClockSwitch) {
+            // Back to the HSI and its prescalers, so the USART divider for the HSI holds.
+            rcc.cfgr.modify(|_, w| w.sw().hsi());
+            rcc.d1cfgr.modify(|_, w| w.d1cpre().div1().hpre().div1().d1ppre().div1());
+            rcc.d2cfgr.modify(|_, w| w.d2ppre1().div1().d2ppre2().div1());
+            rcc.d3cfgr.modify(|_, w| w.d3ppre().div1());
+            return Err(e);
         }
+        Ok(())
+    }
+
+    /// Pins (see README): PB6 = USART1_TX, PD6 = USART2_RX, PB11 = USART3_RX, all AF7
+    /// (RM0433 11.4 GPIOx_MODER = 0b10 alternate, GPIOx_AFRL/AFRH = 7). The receive pins
+    /// get the pull-up (GPIOx_PUPDR = 0b01): an unplugged line stays idle instead of
+    /// floating into framing errors.
+    fn pins(rcc: &pac::RCC, gpiob: &pac::GPIOB, gpiod: &pac::GPIOD) {
+        rcc.ahb4enr.modify(|_, w| w.gpioben().enabled().gpioden().enabled());
+        let _ = rcc.ahb4enr.read();
+        gpiob.afrl.modify(|_, w| w.afr6().af7());
+        gpiob.afrh.modify(|_, w| w.afr11().af7());
+        gpiob.pupdr.modify(|_, w| w.pupdr11().pull_up());
+        gpiob.moder.modify(|_, w| w.moder6().alternate().moder11().alternate());
+        gpiod.afrl.modify(|_, w| w.afr6().af7());
+        gpiod.pupdr.modify(|_, w| w.pupdr6().pull_up());
+        gpiod.moder.modify(|_, w| w.moder6().alternate());
+    }
+
+    /// 8N1 at USARTDIV `brr` with the FIFOs on (RM0433 48.8: USART_BRR, USART_CR1 FIFOEN,
+    /// M0/M1 = 0 for 8 data bits, PCE = 0, OVER8 = 0; USART_CR2.STOP = 0 at reset). A
+    /// receiver (`rx`): RE and the RX-FIFO-not-empty interrupt (RXFNEIE, also raised by
+    /// an overrun); else a transmitter: TE, its interrupt enabled by [`start_tx`].
+    fn usart_start(u: &usart1::RegisterBlock, brr: u16, rx: bool) {
+        u.cr1.write(|w| w.ue().disabled());
+        u.brr.write(|w| w.brr().bits(brr));
+        u.cr1.write(|w| {
+            let w = w.fifoen().set_bit().m0().clear_bit().m1().clear_bit().pce().clear_bit().over8().clear_bit();
+            let w = if rx { w.re().enabled().rxneie().enabled() } else { w.te().enabled() };
+            w.ue().enabled()
+        });
     }
 
     /// The calibration sector (the `CALIB` region of memory.x, one 128 KiB flash sector):
@@ -460,15 +667,21 @@ mod board {
         }
     }
 
-    /// Starts sending what the step wrote into [`OUT_TX`] (enables the TX interrupt).
+    /// The USARTs' registers, for their interrupts and [`start_tx`]. Set up in [`init`]
+    /// before their interrupts are unmasked; CR1 is read-modify-written only inside
+    /// critical sections.
+    fn usart(p: *const usart1::RegisterBlock) -> &'static usart1::RegisterBlock {
+        // SAFETY: a peripheral's fixed, always-mapped register block.
+        unsafe { &*p }
+    }
+
+    /// Starts sending what the step wrote into [`OUT_TX`] (enables the USART1 TX-FIFO-
+    /// not-full interrupt, USART_CR1.TXFNFIE, named TXEIE in the PAC).
     pub fn start_tx() {
-        free(|cs| {
-            if let Ok(mut slot) = OUT_UART.borrow(cs).try_borrow_mut() {
-                if let Some(tx) = slot.as_mut().filter(|_| !OUT_TX.is_empty()) {
-                    tx.listen();
-                }
-            }
-        });
+        if OUT_TX.is_empty() {
+            return;
+        }
+        free(|_| usart(pac::USART1::ptr()).cr1.modify(|_, w| w.txeie().enabled()));
     }
 
     #[exception]
@@ -476,21 +689,17 @@ mod board {
         TICKS.fetch_add(1, Ordering::Release);
     }
 
-    /// Output: fills the TX FIFO from the ring; stops listening once the ring is empty.
+    /// Output: fills the TX FIFO (USART_ISR.TXFNF, named TXE in the PAC) from the ring;
+    /// stops listening once the ring is empty. Bounded by the FIFO's room.
     #[interrupt]
     fn USART1() {
-        free(|cs| {
-            let Ok(mut slot) = OUT_UART.borrow(cs).try_borrow_mut() else { return };
-            let Some(tx) = slot.as_mut() else { return };
-            // Bounded by the ring's contents.
-            while tx.is_txe() {
+        let u = usart(pac::USART1::ptr());
+        free(|_| {
+            while u.isr.read().txe().bit_is_set() {
                 match OUT_TX.pop() {
-                    // Cannot be refused: the FIFO has room (checked above).
-                    Some(b) => {
-                        let _ = tx.write(b);
-                    }
+                    Some(b) => u.tdr.write(|w| w.tdr().bits(u16::from(b))),
                     None => {
-                        tx.unlisten();
+                        u.cr1.modify(|_, w| w.txeie().disabled());
                         break;
                     }
                 }
@@ -500,34 +709,30 @@ mod board {
 
     #[interrupt]
     fn USART2() {
-        receive(&FOG_UART, &FOG_RX);
+        receive(usart(pac::USART2::ptr()), &FOG_RX);
     }
 
     #[interrupt]
     fn USART3() {
-        receive(&ST_UART, &ST_RX);
+        receive(usart(pac::USART3::ptr()), &ST_RX);
     }
 
-    /// Moves what the UART's RX FIFO holds into `ring`, counting (and so clearing) the
-    /// error flags.
-    fn receive<U>(uart: &Mutex<RefCell<Option<Rx<U>>>>, ring: &RxRing<512>)
-    where
-        Rx<U>: stm32h7xx_hal::hal::serial::Read<u8, Error = serial::Error>,
-    {
-        free(|cs| {
-            let Ok(mut slot) = uart.borrow(cs).try_borrow_mut() else { return };
-            let Some(rx) = slot.as_mut() else { return };
-            // Bounded: the 16-byte FIFO plus its error flags (each read clears one).
-            for _ in 0..32 {
-                match rx.read() {
-                    Ok(b) => ring.push(b),
-                    Err(nb::Error::WouldBlock) => break,
-                    Err(nb::Error::Other(_)) => {
-                        UART_ERRORS.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
+    /// Moves what the USART's RX FIFO holds into `ring`, counting and clearing (USART_ICR)
+    /// the error flags: overrun ORE, framing FE, noise NE, parity PE.
+    fn receive(u: &usart1::RegisterBlock, ring: &RxRing<512>) {
+        // Bounded: the 16-byte FIFO plus its error flags.
+        for _ in 0..32 {
+            let isr = u.isr.read();
+            if isr.ore().bit_is_set() || isr.fe().bit_is_set() || isr.nf().bit_is_set() || isr.pe().bit_is_set() {
+                UART_ERRORS.fetch_add(1, Ordering::Relaxed);
+                u.icr.write(|w| w.orecf().clear().fecf().clear().ncf().clear().pecf().clear());
             }
-        });
+            if isr.rxne().bit_is_clear() {
+                break;
+            }
+            // Only the low 8 bits carry data (8N1).
+            ring.push(u.rdr.read().rdr().bits() as u8);
+        }
     }
 
     /// Bytes of the RTT up channel's buffer.
