@@ -374,24 +374,24 @@ impl FlightCore {
         let st = if self.profile.star_tracker { self.observe_star(&mut links.star, now_us) } else { 0 };
 
         // Telemetry.
-        let mut fl = self.fixed_flags;
+        let mut status_flags = self.fixed_flags;
         let mut fdi_bits = 0u8;
         if let Some(fdi) = &self.fdi {
             match fdi.state() {
-                FdiState::Alarm => fl |= flags::FDI_ALARM,
+                FdiState::Alarm => status_flags |= flags::FDI_ALARM,
                 FdiState::Isolated(i) => fdi_bits |= 0x10 << i,
                 FdiState::Watching => {}
             }
         }
         fdi_bits |= self.temp_failed_bits;
         if degraded || st & st_status::OUTAGE != 0 && self.observer.aligned() {
-            fl |= flags::DEGRADED;
+            status_flags |= flags::DEGRADED;
         }
         if self.observer.converged() {
-            fl |= flags::CONVERGED;
+            status_flags |= flags::CONVERGED;
         }
         if self.telemetry.output_dropped_last() {
-            fl |= flags::OUTPUT_DROPPED;
+            status_flags |= flags::OUTPUT_DROPPED;
         }
         let out = StepOutput {
             time_us: now_us,
@@ -401,7 +401,7 @@ impl FlightCore {
             parity_rad,
             fog_health,
             st_status: st,
-            flags: fl,
+            flags: status_flags,
             fogs_used: used,
             fdi: fdi_bits,
         };

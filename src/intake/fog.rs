@@ -59,10 +59,10 @@ impl FogChannel {
     /// Takes sample `target` from the queue (discarding older ones as stale, leaving a
     /// newer one queued).
     fn take(&mut self, i: usize, target: u16, counters: &mut Counters) -> Arrival {
-        let mut h = 0u8;
+        let mut health_bits = 0u8;
         let new_rej = core::mem::take(&mut self.rejected_new);
         if new_rej > 0 {
-            h |= health::REJECTED;
+            health_bits |= health::REJECTED;
             counters.add(Counter::FogFramesRejected, new_rej);
             counters.add_fog(i, FogCounter::Rejected, new_rej);
         }
@@ -85,15 +85,15 @@ impl FogChannel {
             stale += 1;
         }
         if stale > 0 {
-            h |= health::COUNTER_GAP;
+            health_bits |= health::COUNTER_GAP;
             counters.add(Counter::FogSamplesStale, stale);
         }
         if frame.is_none() {
             counters.bump(Counter::FogSamplesMissing);
             counters.bump_fog(i, FogCounter::Missing);
-            h |= health::MISSING;
+            health_bits |= health::MISSING;
         }
-        Arrival { health: h, frame }
+        Arrival { health: health_bits, frame }
     }
 }
 
