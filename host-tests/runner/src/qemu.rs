@@ -205,17 +205,24 @@ pub fn build_firmware() -> Result<PathBuf> {
 
 /// Builds a target binary of the root crate (release) and returns its ELF path.
 pub fn build_target_bin(name: &str) -> Result<PathBuf> {
-    let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", name])
-        .current_dir(repo_root())
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("CARGO_BUILD_TARGET")
-        .status()
-        .context("cannot run cargo to build the firmware")?;
+    let status = cargo_build(&["--bin".as_ref(), name.as_ref()])?;
     if !status.success() {
         bail!("building {name} failed ({status})");
     }
     Ok(repo_root().join("target/thumbv7em-none-eabihf/release").join(name))
+}
+
+/// `cargo build --release --quiet` with `args` at the repository root, with the
+/// environment's target directory and target unset (the root's `.cargo` config decides).
+fn cargo_build(args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
+    Command::new("cargo")
+        .args(["build", "--release", "--quiet"])
+        .args(args)
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")
 }
 
 /// Runs a target binary that needs no link (an on-target test) in QEMU until it exits
@@ -271,14 +278,14 @@ pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
 /// `target/test-hooks`, so the flight build is left alone; returns its ELF path.
 pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
     let dir = repo_root().join("target/test-hooks");
-    let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", name, "--features", "test-hooks", "--target-dir"])
-        .arg(&dir)
-        .current_dir(repo_root())
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("CARGO_BUILD_TARGET")
-        .status()
-        .context("cannot run cargo to build the firmware")?;
+    let status = cargo_build(&[
+        "--bin".as_ref(),
+        name.as_ref(),
+        "--features".as_ref(),
+        "test-hooks".as_ref(),
+        "--target-dir".as_ref(),
+        dir.as_os_str(),
+    ])?;
     if !status.success() {
         bail!("building {name} with test hooks failed ({status})");
     }
