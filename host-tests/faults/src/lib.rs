@@ -488,60 +488,82 @@ pub fn report(
     );
     let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|");
     for CampaignRow { name, runs, .. } in rows {
-        let n = runs.len();
-        let det: Vec<f64> = runs.iter().filter_map(|(_, r)| r.detected_after_steps.map(|x| x as f64)).collect();
-        let right = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| j == *i)).count();
-        let right10 = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, t)| j == *i && t <= 10.0)).count();
-        let t_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.isolated.map(|(_, t)| t)).collect();
-        let after_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.att_after_isolation_arcsec).collect();
-        let max = |f: &dyn Fn(&FaultRun) -> f64| runs.iter().map(|(_, r)| f(r)).fold(0.0f64, f64::max);
-        let sum = |f: &dyn Fn(&FaultRun) -> u64| runs.iter().map(|(_, r)| f(r)).sum::<u64>();
-        let fog_fault = name.starts_with("FOG");
-        let healthy = |i: usize, j: usize| !fog_fault || j != i;
-        let wrong = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| healthy(*i, j))).count();
-        // False alarms: samples of a healthy gyro dropped as spikes and, for faults that
-        // are not a FOG's, any parity alarm (isolations of a healthy gyro: their own
-        // column).
-        let false_alarms: u64 = runs
-            .iter()
-            .map(|(i, r)| {
-                let spikes: u64 = r
-                    .counters
-                    .fog
-                    .iter()
-                    .enumerate()
-                    .filter(|(j, _)| healthy(*i, *j))
-                    .map(|(_, c)| u64::from(c.spikes))
-                    .sum();
-                spikes + if fog_fault { 0 } else { u64::from(r.alarms) }
-            })
-            .sum();
-        let spikes = if runs.iter().any(|(_, r)| r.spikes_sent > 0) {
-            format!("{} of {} sent", sum(&|r| u64::from(r.spikes)), sum(&|r| u64::from(r.spikes_sent)))
-        } else {
-            sum(&|r| u64::from(r.spikes)).to_string()
-        };
-        let _ = writeln!(
-            s,
-            "| {name} | {n} | {}/{n} | {} / {} | {} | {wrong} | {} / {} | {:.1} / {:.1} / {:.1} | {} / {} | {:.2} | {false_alarms} | \
-             {} / {spikes} / {} |",
-            det.len(),
-            fmt_opt(median(det.clone()), 0),
-            fmt_opt(det.iter().copied().reduce(f64::max), 0),
-            if fog_fault { format!("{right}/{n} ({right10}/{n})") } else { "–".into() },
-            fmt_opt(median(t_iso.clone()), 2),
-            fmt_opt(t_iso.iter().copied().reduce(f64::max), 2),
-            max(&|r| r.att_before_arcsec),
-            max(&|r| r.att_during_arcsec),
-            max(&|r| r.att_after_arcsec),
-            fmt_opt(median(after_iso.clone()), 1),
-            fmt_opt(after_iso.iter().copied().reduce(f64::max), 1),
-            max(&|r| r.jump_after_arcsec),
-            sum(&|r| u64::from(r.alarms)),
-            sum(&|r| u64::from(r.st_gated)),
-        );
+        family_line(&mut s, name, runs);
     }
     let _ = writeln!(s);
+    outage_lines(&mut s, rows);
+    frame_lines(&mut s, rows, nominal, nominal_hours);
+    let _ = writeln!(
+        s,
+        "- Scale: σ₁ = {:.3e} rad (parity residual noise per 5 ms sample); a 5σ₁ step is {:.1} °/h on FOG1–3 and \
+         {:.1} °/h on FOG4. Seeds per FOG: {seeds}.",
+        k.sigma1_rad,
+        k.bias_for_sigma_rad_s(0, 5.0) * ssis_common::DEG_H_PER_RAD_S,
+        k.bias_for_sigma_rad_s(3, 5.0) * ssis_common::DEG_H_PER_RAD_S
+    );
+    s
+}
+
+/// The table line of one fault family (see [`report`]'s header for the columns).
+fn family_line(s: &mut String, name: &str, runs: &[(usize, FaultRun)]) {
+    use std::fmt::Write;
+    let n = runs.len();
+    let det: Vec<f64> = runs.iter().filter_map(|(_, r)| r.detected_after_steps.map(|x| x as f64)).collect();
+    let right = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| j == *i)).count();
+    let right10 = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, t)| j == *i && t <= 10.0)).count();
+    let t_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.isolated.map(|(_, t)| t)).collect();
+    let after_iso: Vec<f64> = runs.iter().filter_map(|(_, r)| r.att_after_isolation_arcsec).collect();
+    let max = |f: &dyn Fn(&FaultRun) -> f64| runs.iter().map(|(_, r)| f(r)).fold(0.0f64, f64::max);
+    let sum = |f: &dyn Fn(&FaultRun) -> u64| runs.iter().map(|(_, r)| f(r)).sum::<u64>();
+    let fog_fault = name.starts_with("FOG");
+    let healthy = |i: usize, j: usize| !fog_fault || j != i;
+    let wrong = runs.iter().filter(|(i, r)| r.isolated.is_some_and(|(j, _)| healthy(*i, j))).count();
+    // False alarms: samples of a healthy gyro dropped as spikes and, for faults that
+    // are not a FOG's, any parity alarm (isolations of a healthy gyro: their own
+    // column).
+    let false_alarms: u64 = runs
+        .iter()
+        .map(|(i, r)| {
+            let spikes: u64 = r
+                .counters
+                .fog
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| healthy(*i, *j))
+                .map(|(_, c)| u64::from(c.spikes))
+                .sum();
+            spikes + if fog_fault { 0 } else { u64::from(r.alarms) }
+        })
+        .sum();
+    let spikes = if runs.iter().any(|(_, r)| r.spikes_sent > 0) {
+        format!("{} of {} sent", sum(&|r| u64::from(r.spikes)), sum(&|r| u64::from(r.spikes_sent)))
+    } else {
+        sum(&|r| u64::from(r.spikes)).to_string()
+    };
+    let _ = writeln!(
+        s,
+        "| {name} | {n} | {}/{n} | {} / {} | {} | {wrong} | {} / {} | {:.1} / {:.1} / {:.1} | {} / {} | {:.2} | {false_alarms} | \
+         {} / {spikes} / {} |",
+        det.len(),
+        fmt_opt(median(det.clone()), 0),
+        fmt_opt(det.iter().copied().reduce(f64::max), 0),
+        if fog_fault { format!("{right}/{n} ({right10}/{n})") } else { "–".into() },
+        fmt_opt(median(t_iso.clone()), 2),
+        fmt_opt(t_iso.iter().copied().reduce(f64::max), 2),
+        max(&|r| r.att_before_arcsec),
+        max(&|r| r.att_during_arcsec),
+        max(&|r| r.att_after_arcsec),
+        fmt_opt(median(after_iso.clone()), 1),
+        fmt_opt(after_iso.iter().copied().reduce(f64::max), 1),
+        max(&|r| r.jump_after_arcsec),
+        sum(&|r| u64::from(r.alarms)),
+        sum(&|r| u64::from(r.st_gated)),
+    );
+}
+
+/// The star-tracker outage families' attitude errors, a line each.
+fn outage_lines(s: &mut String, rows: &[CampaignRow]) {
+    use std::fmt::Write;
     for CampaignRow { name, runs, .. } in rows.iter().filter(|r| r.name.starts_with("star tracker outage")) {
         let errs: Vec<f64> = runs.iter().map(|(_, r)| r.att_during_arcsec.max(r.att_after_arcsec)).collect();
         let within = errs.iter().filter(|&&e| e <= 15.0).count();
@@ -554,6 +576,12 @@ pub fn report(
             errs.len()
         );
     }
+}
+
+/// The star-tracker outliers rejected, the nominal frames refused, the corrupted frames
+/// accepted over all runs, and the long nominal flight's figures.
+fn frame_lines(s: &mut String, rows: &[CampaignRow], nominal: Option<&FaultRun>, nominal_hours: f64) {
+    use std::fmt::Write;
     let (mut sent, mut acc, mut nom, mut refused, mut cs, mut ca) = (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
     for CampaignRow { name, runs, .. } in rows {
         for (_, r) in runs {
@@ -601,13 +629,4 @@ pub fn report(
             r.att_before_arcsec
         );
     }
-    let _ = writeln!(
-        s,
-        "- Scale: σ₁ = {:.3e} rad (parity residual noise per 5 ms sample); a 5σ₁ step is {:.1} °/h on FOG1–3 and \
-         {:.1} °/h on FOG4. Seeds per FOG: {seeds}.",
-        k.sigma1_rad,
-        k.bias_for_sigma_rad_s(0, 5.0) * ssis_common::DEG_H_PER_RAD_S,
-        k.bias_for_sigma_rad_s(3, 5.0) * ssis_common::DEG_H_PER_RAD_S
-    );
-    s
 }

@@ -296,29 +296,95 @@ pub fn candidate_terms(header: &super::session::Header) -> Vec<Kind> {
     v
 }
 
-/// Diagnoses `model` on a digest whose pass had slots for every user column.
+/// Diagnoses `model` on a digest whose pass had slots for every user column: the model
+/// fitted per FOG, the candidates tested on the sums (catalog terms, unused columns, the
+/// residual's spectral line), then ranked under the false-discovery rate.
 pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Diagnosis> {
     let kinds = model.kinds();
     let n_fog = d.basis.n_fog;
-    let mut bases = Vec::new();
-    let mut sums = Vec::new();
-    let mut train_res = Vec::new();
-    let mut train_coef = Vec::new();
-    let mut base_ho = Vec::new();
-    for fog in 0..n_fog {
-        let des = design(d, &kinds, fog)?;
-        let s = Sums::of(d, fog);
-        let (ho, tr) = held_out(&s, &des.cols);
-        base_ho.push(ho);
-        train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
-        train_coef.push(tr.coef);
-        bases.push(des);
-        sums.push(s);
+    let base = BaseFit::of(d, &kinds)?;
+    let mut ranked = Ranked::default();
+    for (kind, origin) in candidate_list(d, &kinds, &base, opt) {
+        let mut per_fog = Vec::new();
+        let mut why = None;
+        for fog in 0..n_fog {
+            match d.basis.functionals(&kind, fog) {
+                Ok(x) => {
+                    let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
+                    per_fog.push(test_fog(&base.sums[fog], &base.bases[fog], &x, base.base_ho[fog]))
+                }
+                Err(e) => {
+                    why = Some(e);
+                    per_fog.push(None);
+                }
+            }
+        }
+        ranked.consider(kind, origin, per_fog, why, &base.base_ho);
     }
+    // The strongest spectral line of the training residual, tested on the kept rows.
+    let existing_f: Vec<f64> =
+        kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
+    if let Some(f) = spectral_peak(d, &base.train_res, opt.max_frequencies, &existing_f) {
+        let (per_fog, origin) = spectral_line(d, &base, f);
+        ranked.consider(Kind::Sinusoid(f), origin, per_fog, None, &base.base_ho);
+    }
+    let Ranked { mut cands, skipped } = ranked;
+    cands.sort_by(|a, b| a.p_value.total_cmp(&b.p_value).then(a.after_rad_s.total_cmp(&b.after_rad_s)));
+    let pv: Vec<f64> = cands.iter().map(|c| c.p_value).collect();
+    let k = benjamini_hochberg(&pv, opt.fdr_level);
+    for c in cands.iter_mut().take(k) {
+        c.significant = true;
+    }
+    let anova = (0..n_fog).filter_map(|fog| anova_fog(d, &base.bases[fog], &base.sums[fog], fog)).collect();
+    let (n_train, n_test) = (base.sums[0].train.n, base.sums[0].test.n);
+    Ok(Diagnosis {
+        candidates: cands,
+        skipped,
+        anova,
+        base_rms_rad_s: base.base_ho,
+        fdr_level: opt.fdr_level,
+        n_train,
+        n_test,
+    })
+}
 
-    // Candidate list.
+/// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
+/// fit's coefficients and its residual on the kept rows.
+struct BaseFit {
+    bases: Vec<Design>,
+    sums: Vec<Sums>,
+    train_res: Vec<Vec<f64>>,
+    train_coef: Vec<Vec<f64>>,
+    base_ho: Vec<f64>,
+}
+
+impl BaseFit {
+    fn of(d: &Digest, kinds: &[Kind]) -> LabResult<BaseFit> {
+        let mut f = BaseFit {
+            bases: Vec::new(),
+            sums: Vec::new(),
+            train_res: Vec::new(),
+            train_coef: Vec::new(),
+            base_ho: Vec::new(),
+        };
+        for fog in 0..d.basis.n_fog {
+            let des = design(d, kinds, fog)?;
+            let s = Sums::of(d, fog);
+            let (ho, tr) = held_out(&s, &des.cols);
+            f.base_ho.push(ho);
+            f.train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
+            f.train_coef.push(tr.coef);
+            f.bases.push(des);
+            f.sums.push(s);
+        }
+        Ok(f)
+    }
+}
+
+/// The terms to test, each with where it came from: the catalog terms the model lacks, then
+/// the unused columns most correlated with the training residual.
+fn candidate_list(d: &Digest, kinds: &[Kind], base: &BaseFit, opt: &Options) -> Vec<(Kind, String)> {
     let mut list: Vec<(Kind, String)> = Vec::new();
-    let mut skipped = Vec::new();
     for c in Catalog::ALL {
         if !kinds.contains(&Kind::Catalog(c)) {
             list.push((Kind::Catalog(c), "catalog".into()));
@@ -336,15 +402,15 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     for c in d.extra_columns.iter().filter(|c| !used_vars.contains(c)) {
         let kind = Kind::Expr(c.clone());
         let mut r = 0.0f64;
-        for fog in 0..n_fog {
+        for fog in 0..d.basis.n_fog {
             let Ok(x) = d.basis.functionals(&kind, fog) else { continue };
-            let res = residual_functional(&bases[fog].cols, &train_coef[fog]);
+            let res = residual_functional(&base.bases[fog].cols, &base.train_coef[fog]);
             let unit = d.shifted(fog, &{
                 let mut v = vec![0.0; d.basis.m];
                 v[super::stream::ONE] = 1.0;
                 v
             });
-            let a = design_gram(&sums[fog].train, &[unit, d.shifted(fog, &x[0]), res]);
+            let a = design_gram(&base.sums[fog].train, &[unit, d.shifted(fog, &x[0]), res]);
             r = r.max(correlation(&a).abs());
         }
         cols.push((r, c.clone()));
@@ -353,13 +419,60 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     for (r, c) in cols.into_iter().take(opt.max_columns) {
         list.push((Kind::Expr(c), format!("unused column, |r| = {r:.2} with the training residual")));
     }
+    list
+}
 
-    // Tests on the sums.
-    let mut cands = Vec::new();
-    let mut consider = |kind: Kind, origin: String, per_fog: Vec<Option<FogTest>>, why: Option<String>| {
+/// The spectral line at `f`, Hz, tested per FOG on the kept rows; the tests and the origin.
+fn spectral_line(d: &Digest, base: &BaseFit, f: f64) -> (Vec<Option<FogTest>>, String) {
+    let m = d.basis.m;
+    let pad = |v: &Vec<f64>| {
+        let mut w = v.clone();
+        w.extend([0.0, 0.0]);
+        w
+    };
+    let unit = |k: usize| {
+        let mut w = vec![0.0; m + 2];
+        w[k] = 1.0;
+        w
+    };
+    let per_fog = (0..d.basis.n_fog)
+        .map(|fog| {
+            let s = kept_sums_with_sinusoid(d, fog, f);
+            let b = &base.bases[fog];
+            let design = Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() };
+            let (before, _) = held_out(&s, &design.cols);
+            test_fog(&s, &design, &[unit(m), unit(m + 1)], before)
+        })
+        .collect();
+    let mut origin = format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0);
+    if !d.all_kept() {
+        origin.push_str(&format!(" (tested on the {} kept rows)", d.kept.rows.len()));
+    }
+    (per_fog, origin)
+}
+
+/// The candidates tested so far, and the terms no FOG could test (with why).
+#[derive(Default)]
+struct Ranked {
+    cands: Vec<Candidate>,
+    skipped: Vec<(String, String)>,
+}
+
+impl Ranked {
+    /// Adds `kind`'s per-FOG tests: a candidate with its Bonferroni p-value over the FOGs
+    /// tested and the pooled RMS before and after (`base_ho` where a FOG was not tested),
+    /// or a skipped term when no FOG was.
+    fn consider(
+        &mut self,
+        kind: Kind,
+        origin: String,
+        per_fog: Vec<Option<FogTest>>,
+        why: Option<String>,
+        base_ho: &[f64],
+    ) {
         let tested: Vec<&FogTest> = per_fog.iter().flatten().collect();
         if tested.is_empty() {
-            skipped.push((kind.label(), why.unwrap_or_else(|| "not identifiable in this session".into())));
+            self.skipped.push((kind.label(), why.unwrap_or_else(|| "not identifiable in this session".into())));
             return;
         }
         let pmin = tested.iter().map(|t| t.p).fold(1.0, f64::min);
@@ -368,7 +481,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
             per_fog.iter().enumerate().map(|(i, t)| t.as_ref().map_or(base_ho[i], |t| t.before_rad_s)).collect();
         let after: Vec<f64> =
             per_fog.iter().enumerate().map(|(i, t)| t.as_ref().map_or(base_ho[i], |t| t.after_rad_s)).collect();
-        cands.push(Candidate {
+        self.cands.push(Candidate {
             kind,
             origin,
             per_fog,
@@ -377,70 +490,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
             after_rad_s: pooled(&after),
             significant: false,
         });
-    };
-    for (kind, origin) in list {
-        let mut per_fog = Vec::new();
-        let mut why = None;
-        for fog in 0..n_fog {
-            match d.basis.functionals(&kind, fog) {
-                Ok(x) => {
-                    let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
-                    per_fog.push(test_fog(&sums[fog], &bases[fog], &x, base_ho[fog]))
-                }
-                Err(e) => {
-                    why = Some(e);
-                    per_fog.push(None);
-                }
-            }
-        }
-        consider(kind, origin, per_fog, why);
     }
-    // The strongest spectral line of the training residual, tested on the kept rows.
-    let existing_f: Vec<f64> =
-        kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
-    if let Some(f) = spectral_peak(d, &train_res, opt.max_frequencies, &existing_f) {
-        let m = d.basis.m;
-        let pad = |v: &Vec<f64>| {
-            let mut w = v.clone();
-            w.extend([0.0, 0.0]);
-            w
-        };
-        let unit = |k: usize| {
-            let mut w = vec![0.0; m + 2];
-            w[k] = 1.0;
-            w
-        };
-        let per_fog = (0..n_fog)
-            .map(|fog| {
-                let s = kept_sums_with_sinusoid(d, fog, f);
-                let base = Design { cols: bases[fog].cols.iter().map(pad).collect(), owner: bases[fog].owner.clone() };
-                let (before, _) = held_out(&s, &base.cols);
-                test_fog(&s, &base, &[unit(m), unit(m + 1)], before)
-            })
-            .collect();
-        let mut origin = format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0);
-        if !d.all_kept() {
-            origin.push_str(&format!(" (tested on the {} kept rows)", d.kept.rows.len()));
-        }
-        consider(Kind::Sinusoid(f), origin, per_fog, None);
-    }
-    cands.sort_by(|a, b| a.p_value.total_cmp(&b.p_value).then(a.after_rad_s.total_cmp(&b.after_rad_s)));
-    let pv: Vec<f64> = cands.iter().map(|c| c.p_value).collect();
-    let k = benjamini_hochberg(&pv, opt.fdr_level);
-    for c in cands.iter_mut().take(k) {
-        c.significant = true;
-    }
-    let anova = (0..n_fog).filter_map(|fog| anova_fog(d, &bases[fog], &sums[fog], fog)).collect();
-    let (n_train, n_test) = (sums[0].train.n, sums[0].test.n);
-    Ok(Diagnosis {
-        candidates: cands,
-        skipped,
-        anova,
-        base_rms_rad_s: base_ho,
-        fdr_level: opt.fdr_level,
-        n_train,
-        n_test,
-    })
 }
 
 /// Correlation of x and y from the normal-equation matrix of (1, x, y).

@@ -198,125 +198,23 @@ pub fn generate(spec: &Spec) -> SimSession {
 /// the header and the truth.
 pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<String>, Truth) {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
-    let deg_h = 1.0 / DEG_H_PER_RAD_S;
-    let arcsec = std::f64::consts::PI / 180.0 / 3600.0;
+    let truth = draw_truth(spec, &mut rng);
     let n01 = Normal::new(0.0, 1.0).expect("unit normal");
-    let mut gauss = |s: f64, rng: &mut ChaCha8Rng| s * n01.sample(rng);
-    let signed = |lo: f64, hi: f64, rng: &mut ChaCha8Rng| {
-        let m = rng.random_range(lo..hi);
-        if rng.random_bool(0.5) {
-            m
-        } else {
-            -m
-        }
-    };
-    let noise = ARW_DEG_SQRT_H * deg_h * 60.0 / spec.dt_s.sqrt(); // °/√h → rad/√s, over Δt
-    let ang = |rng: &mut ChaCha8Rng, g: &mut dyn FnMut(f64, &mut ChaCha8Rng) -> f64| g(100.0 * arcsec, rng);
-    let misalignment = Misalignment {
-        d12_rad: ang(&mut rng, &mut gauss),
-        d13_rad: ang(&mut rng, &mut gauss),
-        d21_rad: ang(&mut rng, &mut gauss),
-        d23_rad: ang(&mut rng, &mut gauss),
-        d31_rad: ang(&mut rng, &mut gauss),
-        d32_rad: ang(&mut rng, &mut gauss),
-        d42_rad: ang(&mut rng, &mut gauss),
-        d43_rad: ang(&mut rng, &mut gauss),
-    };
-    let h = spec.hidden;
-    let per_fog = |rng: &mut ChaCha8Rng, f: &mut dyn FnMut(&mut ChaCha8Rng) -> f64| -> Vec<f64> {
-        (0..N_FOG).map(|_| f(rng)).collect()
-    };
-    let bias = per_fog(&mut rng, &mut |r| gauss(0.1 * deg_h, r));
-    let k = per_fog(&mut rng, &mut |r| gauss(1e-3 / 3.0, r));
-    let full = h == Hidden::FullThermal;
-    let a: Vec<[f64; 2]> = (0..N_FOG)
-        .map(|_| {
-            let a1 = signed(0.01, 0.03, &mut rng) * deg_h;
-            let a2 = if full { signed(2e-4, 6e-4, &mut rng) * deg_h } else { 0.0 };
-            [a1, a2]
-        })
-        .collect();
-    let g = per_fog(&mut rng, &mut |r| {
-        if h == Hidden::TempRate || full {
-            signed(15.0, 25.0, r) * deg_h
-        } else {
-            0.0
-        }
-    });
-    let hh = per_fog(&mut rng, &mut |r| if full { signed(0.5, 1.0, r) * deg_h } else { 0.0 });
-    let k_asym = per_fog(&mut rng, &mut |r| if h == Hidden::SfAsymmetry { signed(10e-6, 20e-6, r) } else { 0.0 });
-    let b_h = (B0_NT[0] * B0_NT[0] + B0_NT[1] * B0_NT[1]).sqrt();
-    let magnetic_rad_s_per_nt: Vec<[f64; 2]> = (0..N_FOG)
-        .map(|i| {
-            if h != Hidden::Magnetic {
-                return [0.0, 0.0];
-            }
-            let c = signed(0.08, 0.15, &mut rng) * deg_h / b_h;
-            // The horizontal direction of the loop plane (FOG1's u is vertical: use v).
-            if i == 1 {
-                [0.0, c]
-            } else {
-                [c, 0.0]
-            }
-        })
-        .collect();
-    let sin2psi = per_fog(&mut rng, &mut |r| if h == Hidden::Sin2Psi { signed(0.08, 0.12, r) * deg_h } else { 0.0 });
-    let t_ref = 25.0;
-    let truth = Truth {
-        noise_rad_s: noise,
-        bias_rad_s: bias,
-        k,
-        misalignment,
-        a_rad_s: a,
-        g,
-        h: hh,
-        k_asym,
-        magnetic_rad_s_per_nt,
-        sin2psi_rad_s: sin2psi,
-        t_ref_degc: t_ref,
-    };
-
-    let axes = misalignment.axes(GAMMA_NOMINAL_RAD);
+    let gauss = |s: f64, rng: &mut ChaCha8Rng| s * n01.sample(rng);
+    let noise = truth.noise_rad_s;
+    let t_ref = truth.t_ref_degc;
+    let axes = truth.misalignment.axes(GAMMA_NOMINAL_RAD);
     let nominal = Misalignment::default().axes(GAMMA_NOMINAL_RAD);
     let planes: Vec<_> = (0..N_FOG).map(loop_plane).collect();
     let knots = chamber_profile();
     let t_offset: Vec<f64> = (0..N_FOG).map(|_| gauss(0.3, &mut rng)).collect();
     let turntable = matches!(spec.motion, Motion::Turntable { .. });
-    let mut header = vec!["t_s".to_string()];
-    header.extend((0..N_FOG).map(|i| format!("fog{i}_rad_s")));
-    header.extend((0..N_FOG).map(|i| format!("fog{i}_t_degc")));
-    if turntable {
-        header.extend(["psi_rad".into(), "lat_rad".into()]);
-    } else {
-        header.extend(["ref_x_rad_s".into(), "ref_y_rad_s".into(), "ref_z_rad_s".into()]);
-    }
-    if spec.field_columns {
-        header.extend(["b_x_nt".into(), "b_y_nt".into(), "b_z_nt".into()]);
-    }
-    header.push("chamber_rh_pct".into());
+    let header = header(spec);
     let mut humidity = 40.0;
-    let rate_fractions: [f64; 8] = [0.1, -0.1, 0.2, -0.2, 0.5, -0.5, 1.0, -1.0];
     let mut row = Vec::with_capacity(header.len());
     for j in 0..spec.rows {
         let t_end = (j + 1) as f64 * spec.dt_s;
-        // Motion: rate vector (constant over the interval), azimuth, field.
-        let (omega, psi, screened) = match &spec.motion {
-            Motion::Turntable { dwell_rows, screened } => {
-                let pos = j / dwell_rows.max(&1);
-                let series = (pos / 24).min(screened.len().saturating_sub(1));
-                let psi = (pos % 24) as f64 * 15f64.to_radians();
-                (earth_rate_ics(psi, KHARKOV_LAT_RAD), psi, screened.get(series).copied().unwrap_or(false))
-            }
-            Motion::RateTable { dwell_rows, peak_deg_s } => {
-                let setting = (j / dwell_rows.max(&1)) % (3 * rate_fractions.len());
-                let axis = setting / rate_fractions.len();
-                let rate = (peak_deg_s * rate_fractions[setting % rate_fractions.len()]).to_radians();
-                let mut w = [0.0; 3];
-                // The table axis is vertical: the Earth's vertical rate adds along it.
-                w[axis] = rate + EARTH_RATE_RAD_S * KHARKOV_LAT_RAD.sin();
-                (w, 0.0, false)
-            }
-        };
+        let (omega, psi, screened) = motion_at(&spec.motion, j);
         let fscale = if screened { 0.01 } else { 1.0 };
         let (c, s) = (psi.cos(), psi.sin());
         let field =
@@ -372,6 +270,127 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
         row_out(&row);
     }
     (header, truth)
+}
+
+/// The hidden errors of a session, drawn from `rng` (the first draws of the seed).
+fn draw_truth(spec: &Spec, rng: &mut ChaCha8Rng) -> Truth {
+    let deg_h = 1.0 / DEG_H_PER_RAD_S;
+    let arcsec = std::f64::consts::PI / 180.0 / 3600.0;
+    let n01 = Normal::new(0.0, 1.0).expect("unit normal");
+    let mut gauss = |s: f64, rng: &mut ChaCha8Rng| s * n01.sample(rng);
+    let signed = |lo: f64, hi: f64, rng: &mut ChaCha8Rng| {
+        let m = rng.random_range(lo..hi);
+        if rng.random_bool(0.5) {
+            m
+        } else {
+            -m
+        }
+    };
+    let noise = ARW_DEG_SQRT_H * deg_h * 60.0 / spec.dt_s.sqrt(); // °/√h → rad/√s, over Δt
+    let ang = |rng: &mut ChaCha8Rng, g: &mut dyn FnMut(f64, &mut ChaCha8Rng) -> f64| g(100.0 * arcsec, rng);
+    let misalignment = Misalignment {
+        d12_rad: ang(rng, &mut gauss),
+        d13_rad: ang(rng, &mut gauss),
+        d21_rad: ang(rng, &mut gauss),
+        d23_rad: ang(rng, &mut gauss),
+        d31_rad: ang(rng, &mut gauss),
+        d32_rad: ang(rng, &mut gauss),
+        d42_rad: ang(rng, &mut gauss),
+        d43_rad: ang(rng, &mut gauss),
+    };
+    let h = spec.hidden;
+    let per_fog = |rng: &mut ChaCha8Rng, f: &mut dyn FnMut(&mut ChaCha8Rng) -> f64| -> Vec<f64> {
+        (0..N_FOG).map(|_| f(rng)).collect()
+    };
+    let bias = per_fog(rng, &mut |r| gauss(0.1 * deg_h, r));
+    let k = per_fog(rng, &mut |r| gauss(1e-3 / 3.0, r));
+    let full = h == Hidden::FullThermal;
+    let a: Vec<[f64; 2]> = (0..N_FOG)
+        .map(|_| {
+            let a1 = signed(0.01, 0.03, rng) * deg_h;
+            let a2 = if full { signed(2e-4, 6e-4, rng) * deg_h } else { 0.0 };
+            [a1, a2]
+        })
+        .collect();
+    let g = per_fog(rng, &mut |r| {
+        if h == Hidden::TempRate || full {
+            signed(15.0, 25.0, r) * deg_h
+        } else {
+            0.0
+        }
+    });
+    let hh = per_fog(rng, &mut |r| if full { signed(0.5, 1.0, r) * deg_h } else { 0.0 });
+    let k_asym = per_fog(rng, &mut |r| if h == Hidden::SfAsymmetry { signed(10e-6, 20e-6, r) } else { 0.0 });
+    let b_h = (B0_NT[0] * B0_NT[0] + B0_NT[1] * B0_NT[1]).sqrt();
+    let magnetic_rad_s_per_nt: Vec<[f64; 2]> = (0..N_FOG)
+        .map(|i| {
+            if h != Hidden::Magnetic {
+                return [0.0, 0.0];
+            }
+            let c = signed(0.08, 0.15, rng) * deg_h / b_h;
+            // The horizontal direction of the loop plane (FOG1's u is vertical: use v).
+            if i == 1 {
+                [0.0, c]
+            } else {
+                [c, 0.0]
+            }
+        })
+        .collect();
+    let sin2psi = per_fog(rng, &mut |r| if h == Hidden::Sin2Psi { signed(0.08, 0.12, r) * deg_h } else { 0.0 });
+    let t_ref = 25.0;
+    Truth {
+        noise_rad_s: noise,
+        bias_rad_s: bias,
+        k,
+        misalignment,
+        a_rad_s: a,
+        g,
+        h: hh,
+        k_asym,
+        magnetic_rad_s_per_nt,
+        sin2psi_rad_s: sin2psi,
+        t_ref_degc: t_ref,
+    }
+}
+
+/// The session's column names, in row order.
+fn header(spec: &Spec) -> Vec<String> {
+    let mut header = vec!["t_s".to_string()];
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_rad_s")));
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_t_degc")));
+    if matches!(spec.motion, Motion::Turntable { .. }) {
+        header.extend(["psi_rad".into(), "lat_rad".into()]);
+    } else {
+        header.extend(["ref_x_rad_s".into(), "ref_y_rad_s".into(), "ref_z_rad_s".into()]);
+    }
+    if spec.field_columns {
+        header.extend(["b_x_nt".into(), "b_y_nt".into(), "b_z_nt".into()]);
+    }
+    header.push("chamber_rh_pct".into());
+    header
+}
+
+/// Row `j`'s motion: the rate vector (constant over the interval), rad/s, the azimuth, rad,
+/// and whether the field is screened.
+fn motion_at(motion: &Motion, j: usize) -> ([f64; 3], f64, bool) {
+    let rate_fractions: [f64; 8] = [0.1, -0.1, 0.2, -0.2, 0.5, -0.5, 1.0, -1.0];
+    match motion {
+        Motion::Turntable { dwell_rows, screened } => {
+            let pos = j / dwell_rows.max(&1);
+            let series = (pos / 24).min(screened.len().saturating_sub(1));
+            let psi = (pos % 24) as f64 * 15f64.to_radians();
+            (earth_rate_ics(psi, KHARKOV_LAT_RAD), psi, screened.get(series).copied().unwrap_or(false))
+        }
+        Motion::RateTable { dwell_rows, peak_deg_s } => {
+            let setting = (j / dwell_rows.max(&1)) % (3 * rate_fractions.len());
+            let axis = setting / rate_fractions.len();
+            let rate = (peak_deg_s * rate_fractions[setting % rate_fractions.len()]).to_radians();
+            let mut w = [0.0; 3];
+            // The table axis is vertical: the Earth's vertical rate adds along it.
+            w[axis] = rate + EARTH_RATE_RAD_S * KHARKOV_LAT_RAD.sin();
+            (w, 0.0, false)
+        }
+    }
 }
 
 impl SimSession {

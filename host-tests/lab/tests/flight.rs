@@ -4,12 +4,13 @@
 //!
 //! Figures print with `cargo test --test flight -- --nocapture`.
 
+use ssis::calib::CalibrationTable;
 use ssis_common::DEG_H_PER_RAD_S;
-use ssis_lab::fit::{fit_model, residuals};
+use ssis_lab::fit::{fit_model, residuals, Fitted};
 use ssis_lab::model::{Catalog, Kind, Model};
-use ssis_lab::session::read_session;
+use ssis_lab::session::{read_session, Session};
 use ssis_lab::simulate::generate;
-use ssis_lab::stream::prepare;
+use ssis_lab::stream::{prepare, Prepared};
 
 mod common;
 use common::{dh, scratch, session};
@@ -41,7 +42,6 @@ use common::{dh, scratch, session};
 /// and G reproduces the lab's residual to 1 %.
 #[test]
 fn d_round_trip_to_flight() {
-    use nalgebra::{Matrix3x4, Matrix4x3, Vector3, Vector4};
     let dir = scratch("flight");
     let (sim, s) = session(&dir, "replay", 5, true);
     let kinds: Vec<Kind> =
@@ -51,32 +51,7 @@ fn d_round_trip_to_flight() {
             .collect();
     let fitted = fit_model(&Model::new(&kinds), &s).unwrap();
     assert!(fitted.not_identified.is_empty(), "{:?}", fitted.not_identified);
-    // The session is longer than the kept rows: the largest |residual| comes from the pass's
-    // extremes (reading again only the first segments whose bound they cannot beat) and must
-    // equal a full second pass's.
-    {
-        use ssis_lab::fit::{complete, fit_digest, max_abs_residuals, max_proof, spec_for};
-        let model = Model::new(&kinds);
-        let d = ssis_lab::stream::digest((&s).into(), &spec_for(&model, &[], 10), None).unwrap();
-        let f = fit_digest(&model, &d).unwrap();
-        let proof = max_proof(&d, &f.model).unwrap().expect("no extremes");
-        let fast = complete(f.clone(), &s, &d).unwrap();
-        let scanned = max_abs_residuals((&s).into(), &d, &f.model, usize::MAX).unwrap();
-        println!(
-            "  largest |residual| over {} rows, deg/h: from the extremes + {} of {} segments ({} rows) read again \
-             {:?}, full second pass {:?}",
-            s.len(),
-            proof.segments_to_read(),
-            proof.bound[0].len(),
-            proof.rows_to_read(),
-            fast.summary.iter().map(|x| dh(x.max_abs_residual_rad_s)).collect::<Vec<_>>(),
-            scanned.iter().map(|v| dh(*v)).collect::<Vec<_>>()
-        );
-        assert!(proof.segments_to_read() < proof.bound[0].len(), "the extremes saved nothing");
-        for (a, b) in fast.summary.iter().zip(&scanned) {
-            assert!((a.max_abs_residual_rad_s / b - 1.0).abs() < 1e-9, "{} vs {b}", a.max_abs_residual_rad_s);
-        }
-    }
+    largest_residual_from_extremes(&s, &kinds);
     let e = ssis_lab::export::to_table(&fitted.model, &ssis::calib::CalibrationTable::DEFAULT).unwrap();
     assert!(e.not_applied.is_empty());
     // Through both file forms, as the firmware would get it.
@@ -87,11 +62,44 @@ fn d_round_trip_to_flight() {
     assert_eq!(table, ssis_common::table::read_toml(&tp).unwrap());
     let prep = prepare(&s, &fitted.model).unwrap();
     let residual = residuals(&fitted.model, &s).unwrap();
-    let axes = table.axes();
-    let nominal = ssis_session::nominal_axes();
     let floor = sim.truth.noise_rad_s;
 
-    // Per FOG: the exported table in the flight compensation, with the lab's T and G.
+    per_fog_through_compensation(&s, &fitted, &table, &prep, floor);
+    through_the_core(&s, &table, &prep, &residual);
+}
+
+/// The session is longer than the kept rows: the largest |residual| comes from the pass's
+/// extremes (reading again only the first segments whose bound they cannot beat) and must
+/// equal a full second pass's.
+fn largest_residual_from_extremes(s: &Session, kinds: &[Kind]) {
+    use ssis_lab::fit::{complete, fit_digest, max_abs_residuals, max_proof, spec_for};
+    let model = Model::new(kinds);
+    let d = ssis_lab::stream::digest(s.into(), &spec_for(&model, &[], 10), None).unwrap();
+    let f = fit_digest(&model, &d).unwrap();
+    let proof = max_proof(&d, &f.model).unwrap().expect("no extremes");
+    let fast = complete(f.clone(), s, &d).unwrap();
+    let scanned = max_abs_residuals(s.into(), &d, &f.model, usize::MAX).unwrap();
+    println!(
+        "  largest |residual| over {} rows, deg/h: from the extremes + {} of {} segments ({} rows) read again \
+         {:?}, full second pass {:?}",
+        s.len(),
+        proof.segments_to_read(),
+        proof.bound[0].len(),
+        proof.rows_to_read(),
+        fast.summary.iter().map(|x| dh(x.max_abs_residual_rad_s)).collect::<Vec<_>>(),
+        scanned.iter().map(|v| dh(*v)).collect::<Vec<_>>()
+    );
+    assert!(proof.segments_to_read() < proof.bound[0].len(), "the extremes saved nothing");
+    for (a, b) in fast.summary.iter().zip(&scanned) {
+        assert!((a.max_abs_residual_rad_s / b - 1.0).abs() < 1e-9, "{} vs {b}", a.max_abs_residual_rad_s);
+    }
+}
+
+/// Per FOG: the exported table in the flight compensation, with the lab's T and G.
+fn per_fog_through_compensation(s: &Session, fitted: &Fitted, table: &CalibrationTable, prep: &Prepared, floor: f64) {
+    use nalgebra::Vector3;
+    let axes = table.axes();
+    let nominal = ssis_session::nominal_axes();
     for fog in 0..4 {
         let t = s.fogs[fog].t_degc.as_ref().unwrap();
         let g = prep.g_degc_s[fog].as_ref().unwrap();
@@ -121,10 +129,16 @@ fn d_round_trip_to_flight() {
         assert!((fb / lb - 1.0).abs() < 1e-9, "the error before compensation differs");
         assert!((fa / la - 1.0).abs() <= 0.01, "FOG{fog}: flight residual differs from the lab's by more than 1 %");
     }
+}
 
-    // Through the flight core: frames, links, step().
-    let start = ssis_lab::replay::replay(&s, &ssis::calib::CalibrationTable::DEFAULT).unwrap();
-    let done = ssis_lab::replay::replay(&s, &table).unwrap();
+/// Through the flight core (frames, links, step()): the error falls as the lab predicted,
+/// row by row and as a whole.
+fn through_the_core(s: &Session, table: &CalibrationTable, prep: &Prepared, residual: &[Vec<f64>]) {
+    use nalgebra::{Matrix3x4, Matrix4x3, Vector3, Vector4};
+    let axes = table.axes();
+    let nominal = ssis_session::nominal_axes();
+    let start = ssis_lab::replay::replay(s, &ssis::calib::CalibrationTable::DEFAULT).unwrap();
+    let done = ssis_lab::replay::replay(s, table).unwrap();
     for r in [&start, &done] {
         assert_eq!(r.steps_degraded, 0, "the core did not use every FOG in every step");
         assert_eq!((r.frames_out, r.frames_out_bad), (s.len() as u64, 0), "output frames");
@@ -149,11 +163,11 @@ fn d_round_trip_to_flight() {
     };
     let (diff_rms, diff_max) = differs(&done);
     // Control: the same table without its temperature-rate term must be told apart.
-    let mut no_g = table;
+    let mut no_g = *table;
     for f in no_g.fog.iter_mut() {
         f.thermal_g_rad_s_per_degc_s = 0.0;
     }
-    let (control_rms, _) = differs(&ssis_lab::replay::replay(&s, &no_g).unwrap());
+    let (control_rms, _) = differs(&ssis_lab::replay::replay(s, &no_g).unwrap());
     println!(
         "  row by row, core error minus the lab's predicted error: RMS {:.5} deg/h, max {:.5} deg/h \
          (control, table without g: RMS {:.5} deg/h)",

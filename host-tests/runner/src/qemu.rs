@@ -205,17 +205,24 @@ pub fn build_firmware() -> Result<PathBuf> {
 
 /// Builds a target binary of the root crate (release) and returns its ELF path.
 pub fn build_target_bin(name: &str) -> Result<PathBuf> {
-    let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", name])
-        .current_dir(repo_root())
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("CARGO_BUILD_TARGET")
-        .status()
-        .context("cannot run cargo to build the firmware")?;
+    let status = cargo_build(&["--bin".as_ref(), name.as_ref()])?;
     if !status.success() {
         bail!("building {name} failed ({status})");
     }
     Ok(repo_root().join("target/thumbv7em-none-eabihf/release").join(name))
+}
+
+/// `cargo build --release --quiet` with `args` at the repository root, with the
+/// environment's target directory and target unset (the root's `.cargo` config decides).
+fn cargo_build(args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
+    Command::new("cargo")
+        .args(["build", "--release", "--quiet"])
+        .args(args)
+        .current_dir(repo_root())
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .status()
+        .context("cannot run cargo to build the firmware")
 }
 
 /// Runs a target binary that needs no link (an on-target test) in QEMU until it exits
@@ -271,14 +278,14 @@ pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
 /// `target/test-hooks`, so the flight build is left alone; returns its ELF path.
 pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
     let dir = repo_root().join("target/test-hooks");
-    let status = Command::new("cargo")
-        .args(["build", "--release", "--quiet", "--bin", name, "--features", "test-hooks", "--target-dir"])
-        .arg(&dir)
-        .current_dir(repo_root())
-        .env_remove("CARGO_TARGET_DIR")
-        .env_remove("CARGO_BUILD_TARGET")
-        .status()
-        .context("cannot run cargo to build the firmware")?;
+    let status = cargo_build(&[
+        "--bin".as_ref(),
+        name.as_ref(),
+        "--features".as_ref(),
+        "test-hooks".as_ref(),
+        "--target-dir".as_ref(),
+        dir.as_os_str(),
+    ])?;
     if !status.success() {
         bail!("building {name} with test hooks failed ({status})");
     }
@@ -452,7 +459,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     };
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
-        s.frames_before_data = unit.enter_lockstep()?;
+        unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
         Some(Reference::new(&sim)?)
     } else {
         None
@@ -475,7 +482,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             // more than MAX_LEAD steps ahead of the outputs received.
             let due = started + dt * (n.saturating_sub(LEAD) as u32);
             loop {
-                while let Ok(b) = unit.rx.try_recv() {
+                while let Ok((_, b)) = unit.rx.try_recv() {
                     outputs.take(&b, &mut s, &mut eval, &mut on_step);
                 }
                 if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
@@ -496,8 +503,10 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             }
             let step =
                 ControlFrame { command: command::STEP, fog_bytes: sender.fog_total, st_bytes: sender.st_total, arg: 0 };
-            unit.ctl.write_all(&step.to_bytes())?;
-            unit.await_output(n, &opts.elf, |b, s| outputs.take(b, s, &mut eval, &mut on_step), &mut s)?;
+            unit.control(&step)?;
+            let before = s.frames_out;
+            let take = |s: &mut QemuSummary, _, b: &[u8]| outputs.take(b, s, &mut eval, &mut on_step);
+            unit.await_output(n, &opts.elf, &mut s, take, |s| s.frames_out != before)?;
         }
         if let Some(b) = &bar {
             if n.is_multiple_of(200) {
@@ -508,13 +517,12 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     // Collect what is still coming, then end the run.
     let t_end = Instant::now();
     while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
-        if let Ok(b) = unit.rx.recv_timeout(Duration::from_millis(50)) {
+        if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(50)) {
             outputs.take(&b, &mut s, &mut eval, &mut on_step);
         }
     }
-    unit.ctl.write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
-    let status = wait_exit(&mut unit.q.child, Duration::from_secs(10))?;
-    while let Ok(b) = unit.rx.try_recv() {
+    let status = unit.end()?;
+    while let Ok((_, b)) = unit.rx.try_recv() {
         outputs.take(&b, &mut s, &mut eval, &mut on_step);
     }
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
@@ -528,53 +536,79 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     Ok(s)
 }
 
-/// The spacecraft firmware running in QEMU: the process, its three UARTs (control and
-/// output, FOG bus, star tracker), the output link's bytes as they arrive, and the thread
-/// collecting the defmt log.
-struct Unit {
-    q: Qemu,
-    ctl: UnixStream,
-    fog: UnixStream,
-    star: UnixStream,
-    rx: mpsc::Receiver<Vec<u8>>,
+/// A firmware running in QEMU: the process, its UARTs in order (UART0 takes the control
+/// frames), the chunks its output UARTs send as they arrive (UART, bytes), and the thread
+/// collecting the defmt log. The spacecraft runner and the launch-vehicle runner
+/// (`crate::qemu_lv`) drive it alike.
+pub(crate) struct Unit {
+    pub(crate) q: Qemu,
+    pub(crate) uarts: Vec<UnixStream>,
+    pub(crate) rx: mpsc::Receiver<(usize, Vec<u8>)>,
     /// Until the log is read ([`Unit::log`]).
     log_thread: Option<std::thread::JoinHandle<Vec<u8>>>,
 }
 
 impl Unit {
-    /// Starts QEMU on the firmware with the table's flash region (two copies,
-    /// `ssis::calib::store`, as a flight image, or the options' image) and connects the
-    /// UARTs.
-    fn boot(sim: &Simulation, opts: &QemuOptions) -> Result<Unit> {
+    /// Starts QEMU on `elf` with `n_uarts` UARTs and `-icount` with `icount` if given; each
+    /// (file name, bytes, address) of `images` is written to the run's directory and loaded
+    /// into flash; a thread reads each UART of `outputs`.
+    pub(crate) fn start(
+        elf: &Path,
+        n_uarts: usize,
+        icount: Option<&str>,
+        images: &[(&str, &[u8], u64)],
+        outputs: &[usize],
+    ) -> Result<Unit> {
         static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let dir = std::env::temp_dir().join(format!("ssis-qemu-{}-{k}", std::process::id()));
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir)?;
-        let table_path = dir.join("table.img");
-        match &opts.table_image {
-            Some(img) => std::fs::write(&table_path, img)?,
-            None => std::fs::write(&table_path, store::image(&sim.table))?,
+        let mut loaders = Vec::with_capacity(images.len());
+        for (name, bytes, addr) in images {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes)?;
+            loaders.push((path, *addr));
         }
-        let icount = opts.icount.then_some("shift=0");
-        let Started { q, uarts, log_thread } = start_qemu(&opts.elf, dir, 3, icount, &[(table_path, 0x10000)])?;
-        let [ctl, fog, star] =
-            <[UnixStream; 3]>::try_from(uarts).map_err(|_| anyhow::anyhow!("three UARTs expected"))?;
-        let (tx, rx) = mpsc::channel::<Vec<u8>>();
-        spawn_reader(&ctl, tx, |b| b)?;
-        Ok(Unit { q, ctl, fog, star, rx, log_thread: Some(log_thread) })
+        let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders)?;
+        let (tx, rx) = mpsc::channel();
+        for &i in outputs {
+            spawn_reader(&uarts[i], tx.clone(), move |b| (i, b))?;
+        }
+        Ok(Unit { q, uarts, rx, log_thread: Some(log_thread) })
     }
 
-    /// Switches the booted firmware to lockstep; returns the output frames it sent on its
-    /// own tick meanwhile (they carry no sample).
-    fn enter_lockstep(&mut self) -> Result<u64> {
-        let mut frames = 0;
+    /// Starts QEMU on the spacecraft firmware with the table's flash region (two copies,
+    /// `ssis::calib::store`, as a flight image, or the options' image): UART0 control and
+    /// output, UART1 FOG bus, UART2 star tracker.
+    fn boot(sim: &Simulation, opts: &QemuOptions) -> Result<Unit> {
+        let image = match &opts.table_image {
+            Some(img) => img.clone(),
+            None => store::image(&sim.table).to_vec(),
+        };
+        Unit::start(&opts.elf, 3, opts.icount.then_some("shift=0"), &[("table.img", &image, 0x10000)], &[0])
+    }
+
+    /// Sends a control frame with `command` alone.
+    pub(crate) fn command(&mut self, command: u8) -> Result<()> {
+        self.control(&ControlFrame { command, ..Default::default() })
+    }
+
+    /// Sends a control frame on UART0.
+    pub(crate) fn control(&mut self, c: &ControlFrame) -> Result<()> {
+        self.uarts[0].write_all(&c.to_bytes())?;
+        Ok(())
+    }
+
+    /// Switches the booted firmware to lockstep, handing `take` what it sends on its own
+    /// tick meanwhile (frames that carry no sample).
+    pub(crate) fn enter_lockstep(&mut self, mut take: impl FnMut(usize, &[u8])) -> Result<()> {
         // First a frame from the firmware's own tick: it has booted and is in its loop.
         match self.rx.recv_timeout(Duration::from_secs(20)) {
-            Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
+            Ok((i, b)) => take(i, &b),
             Err(_) => bail!("no output from the firmware within 20 s of boot"),
         }
-        self.ctl.write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        self.command(command::LOCKSTEP)?;
         // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
         // sensor byte may go out before that, or it would integrate a sample on a tick.
         // In lockstep it is silent between STEPs: wait for 100 ms of silence (10 s cap).
@@ -582,28 +616,29 @@ impl Unit {
         let t0 = Instant::now();
         while t0.elapsed() < Duration::from_secs(10) {
             match self.rx.recv_timeout(Duration::from_millis(100)) {
-                Ok(b) => frames += (b.len() / OutputFrame::LEN) as u64,
+                Ok((i, b)) => take(i, &b),
                 Err(mpsc::RecvTimeoutError::Timeout) => break,
-                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed UART0"),
+                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its output UARTs"),
             }
         }
-        Ok(frames)
+        Ok(())
     }
 
-    /// Lockstep: waits for the output of step `n`, handing every chunk to `take`; when none
-    /// comes within 10 s, fails with QEMU's exit status and the firmware's last words.
-    fn await_output(
+    /// Lockstep: waits until `done` holds for the output of step `n`, handing every chunk
+    /// to `take` with `state`; when nothing comes within 10 s, fails with QEMU's exit status
+    /// and the firmware's last words.
+    pub(crate) fn await_output<S>(
         &mut self,
         n: u64,
         elf: &Path,
-        mut take: impl FnMut(&[u8], &mut QemuSummary),
-        s: &mut QemuSummary,
+        state: &mut S,
+        mut take: impl FnMut(&mut S, usize, &[u8]),
+        done: impl Fn(&S) -> bool,
     ) -> Result<()> {
-        let before = s.frames_out;
         let t0 = Instant::now();
-        while s.frames_out == before {
+        while !done(state) {
             match self.rx.recv_timeout(Duration::from_secs(10)) {
-                Ok(b) => take(&b, s),
+                Ok((i, b)) => take(state, i, &b),
                 Err(_) => {
                     let waited = t0.elapsed();
                     let status = wait_exit(&mut self.q.child, Duration::from_secs(2))?;
@@ -626,7 +661,7 @@ impl Unit {
     /// Fault injection: sends `STALL` instead of `STEP` and ends the run at the watchdog
     /// reset (or stops QEMU after 20 s); the summary so far with the time to the exit.
     fn stall(mut self, mut s: QemuSummary, elf: &Path) -> Result<QemuSummary> {
-        self.ctl.write_all(&ControlFrame { command: command::STALL, ..Default::default() }.to_bytes())?;
+        self.command(command::STALL)?;
         let t_stall = Instant::now();
         let status = wait_exit(&mut self.q.child, Duration::from_secs(20))?;
         if status.is_none() {
@@ -638,8 +673,14 @@ impl Unit {
         Ok(s)
     }
 
+    /// Sends `END` and waits up to 10 s for QEMU to exit; its status if it did.
+    pub(crate) fn end(&mut self) -> Result<Option<std::process::ExitStatus>> {
+        self.command(command::END)?;
+        wait_exit(&mut self.q.child, Duration::from_secs(10))
+    }
+
     /// The end of a run: the progress bar closed, QEMU stopped, its exit code and log.
-    fn finish(
+    pub(crate) fn finish(
         &mut self,
         status: Option<std::process::ExitStatus>,
         bar: Option<indicatif::ProgressBar>,
@@ -697,8 +738,8 @@ impl Sender {
         s.st_frames_in += (input.st_bytes.len() / ssis::frames::star::StarFrame::LEN) as u64;
         let fog_sent = self.fog_corrupt.apply(&fog_bytes);
         let st_sent = self.st_corrupt.apply(&input.st_bytes);
-        unit.fog.write_all(&fog_sent)?;
-        unit.star.write_all(&st_sent)?;
+        unit.uarts[1].write_all(&fog_sent)?;
+        unit.uarts[2].write_all(&st_sent)?;
         self.fog_total = self.fog_total.wrapping_add(fog_sent.len() as u32);
         self.st_total = self.st_total.wrapping_add(st_sent.len() as u32);
         Ok((fog_sent, st_sent))
@@ -780,18 +821,9 @@ impl FrameCheck {
         }
         s.frames_out += 1;
         if let Some(r) = self.reference.pop_front() {
-            // The board fills in its own step time and overruns, and its frame counter
-            // also counts the frames sent on its own tick before lockstep; everything
-            // else must be bit-identical to the in-process core's frame.
-            let mask = |mut x: OutputFrame| {
-                x.counter = 0;
-                x.counters.step_ticks = 0;
-                x.counters.overruns = 0;
-                x
-            };
             use ssis::frames::Frame;
             match OutputFrame::decode(&r) {
-                Ok(rf) if mask(rf) == mask(f) => s.equal_frames += 1,
+                Ok(rf) if masked(rf) == masked(f) => s.equal_frames += 1,
                 _ => s.differing_frames += 1,
             }
         }
@@ -825,22 +857,14 @@ pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<s
     }
 }
 
-/// The end of a run: the progress bar closed, QEMU stopped, its exit code and decoded
-/// defmt log.
-pub(crate) fn finish_run(
-    q: &mut Qemu,
-    status: Option<std::process::ExitStatus>,
-    bar: Option<indicatif::ProgressBar>,
-    log_thread: std::thread::JoinHandle<Vec<u8>>,
-    elf: &Path,
-) -> (Option<i32>, Vec<String>) {
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
-    let code = status.and_then(|st| st.code());
-    let _ = q.child.kill();
-    let log = log_thread.join().unwrap_or_default();
-    (code, decode_defmt(elf, &log).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")]))
+/// An output frame without what the board fills in itself (its step time and overruns)
+/// and its frame counter (which also counts the frames sent on its own tick before
+/// lockstep): everything left must be bit-identical to the in-process core's frame.
+pub(crate) fn masked(mut f: OutputFrame) -> OutputFrame {
+    f.counter = 0;
+    f.counters.step_ticks = 0;
+    f.counters.overruns = 0;
+    f
 }
 
 pub(crate) fn progress_bar(show: bool, steps: u64, name: &str) -> Option<indicatif::ProgressBar> {

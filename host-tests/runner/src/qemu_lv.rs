@@ -32,10 +32,9 @@
 use std::collections::VecDeque;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use std::sync::mpsc;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use rand::SeedableRng;
 use rand_chacha::ChaCha20Rng;
 use serde::{Deserialize, Serialize};
@@ -51,10 +50,7 @@ use ssis::frames::Frame;
 use ssis::nav::init::PadInit;
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 
-use crate::qemu::{
-    check_qemu_and_elf, decode_defmt, finish_run, progress_bar, spawn_reader, start_qemu, wait_exit, Started,
-    INSTR_PER_TICK,
-};
+use crate::qemu::{check_qemu_and_elf, masked, progress_bar, Unit, INSTR_PER_TICK};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_sim::accel::{AccelModel, AccelSpec};
 use ssis_sim::fog::{FogModel, FogSpec};
@@ -469,36 +465,7 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
     };
     init.validate().map_err(|e| anyhow::anyhow!("pad block: {e:?}"))?;
     let mut replay = Replay::new(&table, &init)?;
-
-    static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("ssis-qemu-lv-{}-{k}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir)?;
-    let table_path = dir.join("table.img");
-    std::fs::write(&table_path, store::image(&table))?;
-    let mut lvdata = vec![0xFFu8; INIT_OFFSET + ssis::nav::init::BLOCK_LEN];
-    lvdata[..ssis::calib::accel::TABLE_LEN].copy_from_slice(&AccelTable::IDEAL.to_bytes());
-    lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());
-    let lvdata_path = dir.join("lvdata.img");
-    std::fs::write(&lvdata_path, &lvdata)?;
-    let calib_addr = symbol(&opts.elf, "_calib_start")?;
-    let lvdata_addr = symbol(&opts.elf, "_lvdata_start")?;
-
-    // sleep=off: an idle guest's virtual time jumps to its next timer deadline at once
-    // instead of following the host's clock, so a stall of the QEMU process on a loaded
-    // host cannot add tens of milliseconds to virtual time in one jump (which tripped the
-    // watchdog between two steps). Instruction counts are the same; the idle waits
-    // between lockstep steps cost some host time.
-    let icount = opts.icount.then_some("shift=0,sleep=off");
-    let loaders = [(table_path, calib_addr), (lvdata_path, lvdata_addr)];
-    let Started { mut q, mut uarts, log_thread } = start_qemu(&opts.elf, dir, 5, icount, &loaders)?;
-    // Outputs: UART0 (flight) and UART2 (navigation), each read by a thread.
-    let (tx, rx) = mpsc::channel::<(usize, Vec<u8>)>();
-    for i in [0usize, 2] {
-        spawn_reader(&uarts[i], tx.clone(), move |b| (i, b))?;
-    }
-    drop(tx);
+    let mut unit = boot(opts, &table, &init)?;
 
     let started = Instant::now();
     let steps = (sc.duration_s / dt_s).round() as u64;
@@ -510,100 +477,137 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
         period_ticks_budget: 25 * profile.dt_us,
         ..Default::default()
     };
-    let mut flight_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
-    let mut nav_dec: StreamDecoder<NavOutputFrame, 256> = StreamDecoder::new();
-    let mut flight_got: VecDeque<OutputFrame> = VecDeque::new();
-    let mut nav_got: VecDeque<NavOutputFrame> = VecDeque::new();
-    let mut bad = 0u64;
-    let mut take = |(i, b): (usize, Vec<u8>), fg: &mut VecDeque<OutputFrame>, ng: &mut VecDeque<NavOutputFrame>| {
-        if i == 0 {
-            flight_dec.push_slice(&b, |r| match r {
-                Ok(f) => fg.push_back(f),
-                Err(_) => bad += 1,
-            });
-        } else {
-            nav_dec.push_slice(&b, |r| match r {
-                Ok(f) => ng.push_back(f),
-                Err(_) => bad += 1,
-            });
-        }
-    };
-
-    // Lockstep: first a frame from the firmware's own tick (booted, in its loop), then
-    // LOCKSTEP and 100 ms of silence (frames of that time carry no sample).
-    match rx.recv_timeout(Duration::from_secs(20)) {
-        Ok(m) => take(m, &mut flight_got, &mut nav_got),
-        Err(_) => bail!("no output from the firmware within 20 s of boot"),
-    }
-    uarts[0].write_all(&ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
-    let t0 = Instant::now();
-    while t0.elapsed() < Duration::from_secs(10) {
-        match rx.recv_timeout(Duration::from_millis(100)) {
-            Ok(m) => take(m, &mut flight_got, &mut nav_got),
-            Err(mpsc::RecvTimeoutError::Timeout) => break,
-            Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its UARTs"),
-        }
-    }
-    s.frames_before_data = flight_got.len() as u64;
-    anyhow::ensure!(nav_got.is_empty(), "navigation frames before the first sample");
-    flight_got.clear();
+    let mut out = LvOutputs::default();
+    // Frames of the firmware's own tick before lockstep carry no sample.
+    unit.enter_lockstep(|i, b| out.take(i, b))?;
+    s.frames_before_data = out.flight.len() as u64;
+    anyhow::ensure!(out.nav.is_empty(), "navigation frames before the first sample");
+    out.flight.clear();
 
     let bar = progress_bar(opts.progress, steps, &sc.name);
-    let (mut fog_total, mut accel_total, mut gnss_total) = (0u32, 0u32, 0u32);
+    let mut sender = LvSender::default();
     let mut prev_work: Option<usize> = None;
-    let mask = |mut x: OutputFrame| {
-        // The board fills in its step time and overruns, and its frame counter also
-        // counts the frames sent on its own tick before lockstep.
-        x.counter = 0;
-        x.counters.step_ticks = 0;
-        x.counters.overruns = 0;
-        x
-    };
     for n in 1..=steps {
         let b = sensors.step(n);
+        let step = sender.send(&mut unit, &b, &mut s)?;
+        let (ref_flight, ref_nav, work) = replay.period(&b);
+        unit.control(&step)?;
+        let want_nav = ref_nav.len() / NavOutputFrame::LEN;
+        let done = |o: &LvOutputs| !o.flight.is_empty() && o.nav.len() >= want_nav;
+        unit.await_output(n, &opts.elf, &mut out, |o, i, b| o.take(i, b), done)?;
+        out.check(&mut s, &ref_flight, &ref_nav, &b.truth, prev_work);
+        prev_work = Some(work_kind(work));
+        if let Some(bar) = &bar {
+            if n.is_multiple_of(800) {
+                bar.set_position(n);
+            }
+        }
+    }
+    s.bad_bytes = out.bad;
+    let status = unit.end()?;
+    (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
+    s.firmware_times = firmware_times(&s.log);
+    s.wall_s = started.elapsed().as_secs_f64();
+    Ok(s)
+}
+
+/// Starts QEMU on the launch-vehicle firmware with the FOG table (two copies) and the
+/// LVDATA region (accelerometer table, pad initialisation block) at the addresses the
+/// ELF names; reads the flight (UART0) and navigation (UART2) outputs.
+fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit) -> Result<Unit> {
+    let mut lvdata = vec![0xFFu8; INIT_OFFSET + ssis::nav::init::BLOCK_LEN];
+    lvdata[..ssis::calib::accel::TABLE_LEN].copy_from_slice(&AccelTable::IDEAL.to_bytes());
+    lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());
+    let calib_addr = symbol(&opts.elf, "_calib_start")?;
+    let lvdata_addr = symbol(&opts.elf, "_lvdata_start")?;
+    // sleep=off: an idle guest's virtual time jumps to its next timer deadline at once
+    // instead of following the host's clock, so a stall of the QEMU process on a loaded
+    // host cannot add tens of milliseconds to virtual time in one jump (which tripped the
+    // watchdog between two steps). Instruction counts are the same; the idle waits
+    // between lockstep steps cost some host time.
+    let icount = opts.icount.then_some("shift=0,sleep=off");
+    let images: [(&str, &[u8], u64); 2] =
+        [("table.img", &store::image(table), calib_addr), ("lvdata.img", &lvdata, lvdata_addr)];
+    Unit::start(&opts.elf, 5, icount, &images, &[0, 2])
+}
+
+/// The sensor links as the runner writes them (UART1 FOG bus, UART3 accelerometer bus,
+/// UART4 GNSS receiver) and the byte totals a STEP names.
+#[derive(Default)]
+struct LvSender {
+    fog_total: u32,
+    accel_total: u32,
+    gnss_total: u32,
+}
+
+impl LvSender {
+    /// Sends one step's bytes, counting its frames into `s`; the STEP that names them.
+    fn send(&mut self, unit: &mut Unit, b: &StepBytes, s: &mut LvSummary) -> Result<ControlFrame> {
         s.frames_in[0] += (b.fog.len() / 16) as u64;
         s.frames_in[1] += (b.accel.len() / 16) as u64;
         s.frames_in[2] += (b.gnss.len() / GnssFrame::LEN) as u64;
-        uarts[1].write_all(&b.fog)?;
-        uarts[3].write_all(&b.accel)?;
-        uarts[4].write_all(&b.gnss)?;
-        fog_total = fog_total.wrapping_add(b.fog.len() as u32);
-        accel_total = accel_total.wrapping_add(b.accel.len() as u32);
-        gnss_total = gnss_total.wrapping_add(b.gnss.len() as u32);
-        let (ref_flight, ref_nav, work) = replay.period(&b);
-        let step = ControlFrame {
+        unit.uarts[1].write_all(&b.fog)?;
+        unit.uarts[3].write_all(&b.accel)?;
+        unit.uarts[4].write_all(&b.gnss)?;
+        self.fog_total = self.fog_total.wrapping_add(b.fog.len() as u32);
+        self.accel_total = self.accel_total.wrapping_add(b.accel.len() as u32);
+        self.gnss_total = self.gnss_total.wrapping_add(b.gnss.len() as u32);
+        Ok(ControlFrame {
             command: command::STEP,
-            fog_bytes: fog_total,
-            st_bytes: accel_total,
-            arg: (gnss_total & 0xFFFF) as u16,
-        };
-        uarts[0].write_all(&step.to_bytes())?;
-        let want_nav = ref_nav.len() / NavOutputFrame::LEN;
-        let t_wait = Instant::now();
-        while flight_got.is_empty() || nav_got.len() < want_nav {
-            match rx.recv_timeout(Duration::from_secs(10)) {
-                Ok(m) => take(m, &mut flight_got, &mut nav_got),
-                Err(e) => {
-                    // Say why: QEMU's exit status and the firmware's log.
-                    let status = wait_exit(&mut q.child, Duration::from_secs(2))?;
-                    let _ = q.child.kill();
-                    let log = log_thread.join().unwrap_or_default();
-                    let log = decode_defmt(&opts.elf, &log).unwrap_or_default();
-                    bail!(
-                        "no output for step {n} within {:?} ({e}); QEMU exit {status:?}; log {log:?}",
-                        t_wait.elapsed()
-                    )
-                }
-            }
+            fog_bytes: self.fog_total,
+            st_bytes: self.accel_total,
+            arg: (self.gnss_total & 0xFFFF) as u16,
+        })
+    }
+}
+
+/// The two output links as the runner reads them: frames decoded and queued until checked
+/// against the replay's, undecodable bytes counted.
+#[derive(Default)]
+struct LvOutputs {
+    flight_dec: StreamDecoder<OutputFrame, 256>,
+    nav_dec: StreamDecoder<NavOutputFrame, 256>,
+    flight: VecDeque<OutputFrame>,
+    nav: VecDeque<NavOutputFrame>,
+    bad: u64,
+}
+
+impl LvOutputs {
+    /// Decodes a chunk of UART `i` (0 flight, 2 navigation).
+    fn take(&mut self, i: usize, b: &[u8]) {
+        let bad = &mut self.bad;
+        if i == 0 {
+            let got = &mut self.flight;
+            self.flight_dec.push_slice(b, |r| match r {
+                Ok(f) => got.push_back(f),
+                Err(_) => *bad += 1,
+            });
+        } else {
+            let got = &mut self.nav;
+            self.nav_dec.push_slice(b, |r| match r {
+                Ok(f) => got.push_back(f),
+                Err(_) => *bad += 1,
+            });
         }
-        // The flight frame.
-        if let Some(f) = flight_got.pop_front() {
+    }
+
+    /// Checks one step's frames against the replay's (`ref_flight`, `ref_nav`) and the
+    /// navigation frames against `truth`; the flight frame's step time is classed by the
+    /// previous period's filter work (`prev_work`), which it carries.
+    fn check(
+        &mut self,
+        s: &mut LvSummary,
+        ref_flight: &[u8],
+        ref_nav: &[u8],
+        truth: &ssis::nav::NavState,
+        prev_work: Option<usize>,
+    ) {
+        if let Some(f) = self.flight.pop_front() {
             s.flight_frames += 1;
-            match OutputFrame::decode(&ref_flight) {
-                Ok(r) if mask(r) == mask(f) => s.flight_equal += 1,
+            match OutputFrame::decode(ref_flight) {
+                Ok(r) if masked(r) == masked(f) => s.flight_equal += 1,
                 _ => s.flight_differing += 1,
             }
-            // It carries the previous period's step + filter work.
             if let Some(k) = prev_work {
                 if let Some(t) = s.period_ticks.get_mut(k) {
                     t.push(u32::from(f.counters.step_ticks));
@@ -611,10 +615,8 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
             }
             s.overruns = f.counters.overruns;
         }
-        prev_work = Some(work_kind(work));
-        // The navigation frames.
         for r in ref_nav.chunks_exact(NavOutputFrame::LEN) {
-            let Some(f) = nav_got.pop_front() else { break };
+            let Some(f) = self.nav.pop_front() else { break };
             s.nav_frames += 1;
             if f.to_bytes()[..] == r[..] {
                 s.nav_equal += 1;
@@ -623,30 +625,26 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
             }
             let st = f.state();
             let err = (
-                (st.r_e_m - b.truth.r_e_m).norm(),
-                (st.v_e_m_s - b.truth.v_e_m_s).norm(),
-                angle_between(&st.q_eb, &b.truth.q_eb),
+                (st.r_e_m - truth.r_e_m).norm(),
+                (st.v_e_m_s - truth.v_e_m_s).norm(),
+                angle_between(&st.q_eb, &truth.q_eb),
             );
             s.max_err = (s.max_err.0.max(err.0), s.max_err.1.max(err.1), s.max_err.2.max(err.2));
             s.final_err = err;
             s.fixes = (f.fixes_used, f.fixes_refused);
         }
-        if let Some(bar) = &bar {
-            if n.is_multiple_of(800) {
-                bar.set_position(n);
-            }
-        }
     }
-    s.bad_bytes = bad;
-    uarts[0].write_all(&ControlFrame { command: command::END, ..Default::default() }.to_bytes())?;
-    let status = wait_exit(&mut q.child, Duration::from_secs(10))?;
-    (s.exit_code, s.log) = finish_run(&mut q, status, bar, log_thread, &opts.elf);
-    for l in &s.log {
+}
+
+/// The firmware's END report per kind of period, from its `lv_times` log lines.
+fn firmware_times(log: &[String]) -> [Option<FirmwareTimes>; 3] {
+    let mut times = [None; 3];
+    for l in log {
         let w: Vec<&str> = l.split_whitespace().collect();
         if w.first() == Some(&"lv_times") {
             let num = |i: usize| w.get(i).and_then(|v| v.parse::<u64>().ok()).unwrap_or(0);
             if let Some(k) = WORK_KINDS.iter().position(|n| w.get(1) == Some(n)) {
-                s.firmware_times[k] = Some(FirmwareTimes {
+                times[k] = Some(FirmwareTimes {
                     periods: num(3),
                     step_mean_x100: num(5),
                     step_max: num(7),
@@ -656,6 +654,5 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
             }
         }
     }
-    s.wall_s = started.elapsed().as_secs_f64();
-    Ok(s)
+    times
 }
