@@ -81,6 +81,25 @@ impl Attitude {
         }
     }
 
+    /// Bridges `samples` sample intervals lost on every link with the held per-sample
+    /// increment `held_rad` (rad, bias removed): one rotation by `samples × held_rad`,
+    /// which is exact at constant rate, with no coning term (parallel increments). The
+    /// increment history becomes the held one, as if each lost sample had been it.
+    /// A non-finite increment is refused: Λ is kept and `false` returned.
+    pub fn bridge(&mut self, held_rad: &Vector3<f64>, samples: u16) -> bool {
+        let span = held_rad * f64::from(samples);
+        if !(span.x.is_finite() && span.y.is_finite() && span.z.is_finite()) {
+            return false;
+        }
+        self.q *= math::quat_from_rotvec(&span);
+        if !math::normalize(&mut self.q) {
+            self.renorm_failures = self.renorm_failures.saturating_add(1);
+        }
+        self.prev2 = *held_rad;
+        self.prev1 = *held_rad;
+        true
+    }
+
     /// Integrates one body increment Δθ (rad, ICS, bias already removed).
     /// A non-finite increment is refused: Λ is kept and `false` returned.
     pub fn step(&mut self, dtheta_rad: &Vector3<f64>) -> bool {

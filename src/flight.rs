@@ -326,6 +326,17 @@ impl FlightCore {
         // Bounded: at most one pass per queued sample.
         for _ in 0..FOG_QUEUE {
             let Some(target) = self.fog_intake.next_sample(&mut self.telemetry.counters) else { break };
+            let lost = self.fog_intake.take_lost();
+            if lost > 0 {
+                // Samples lost on every link: turn through them on the last body
+                // increment, as a bridge does, so the attitude and its history keep up
+                // with the clock (skipping them would drop their rotation).
+                let held = self.last_body_dtheta - self.observer.drift_rad_s() * dt_s;
+                let _ = self.attitude.bridge(&held, lost);
+                let span_end_us = self.fog_intake.time_us(self.profile.dt_us);
+                self.observer.record(span_end_us, self.attitude.quaternion());
+                on_increment(span_end_us, &(self.last_body_dtheta * f64::from(lost)));
+            }
             // Intake, channel checks, compensation.
             let mut sample = self.take_sample(target, dt_s);
             let time_us = self.fog_intake.time_us(self.profile.dt_us);
@@ -543,8 +554,8 @@ impl FlightCore {
                     }
                     st_status::LISTENED
                 }
-                Err(_) => {
-                    counters.bump(Counter::StFramesRejected);
+                Err(e) => {
+                    counters.bump(star_refusal(e));
                     st_status::REFUSED
                 }
             };
@@ -564,11 +575,20 @@ impl FlightCore {
                 counters.bump(Counter::StUpdatesGated);
                 st_status::REFUSED
             }
-            Err(_) => {
-                counters.bump(Counter::StFramesRejected);
+            Err(e) => {
+                counters.bump(star_refusal(e));
                 st_status::REFUSED
             }
         }
+    }
+}
+
+/// The counter of a star-tracker frame the observer could not use (not gated): older
+/// than the attitude history is a late frame, not a bad one.
+fn star_refusal(e: UpdateError) -> Counter {
+    match e {
+        UpdateError::Stale => Counter::StFramesLate,
+        _ => Counter::StFramesRejected,
     }
 }
 

@@ -119,6 +119,8 @@ pub struct FogIntake {
     waited: u32,
     /// Samples were lost before the next one taken.
     gap: bool,
+    /// Samples lost on every link just before the next one, not yet bridged.
+    lost: u16,
 }
 
 impl FogIntake {
@@ -133,6 +135,7 @@ impl FogIntake {
             last_present: fitted,
             waited: 0,
             gap: false,
+            lost: 0,
         }
     }
 
@@ -267,7 +270,9 @@ impl FogIntake {
             let o = oldest_newer?;
             let lost = o.wrapping_sub(e);
             counters.add(Counter::FogSamplesMissing, u32::from(lost).saturating_mul(fitted.count()));
-            self.clock.index = self.clock.index.saturating_add(u64::from(lost));
+            // The clock moves over the lost span only when the core bridges it
+            // ([`FogIntake::take_lost`]): the attitude must turn through it too.
+            self.lost = lost;
             self.clock.expected = Some(o);
             self.gap = true;
             return Some(o);
@@ -280,6 +285,15 @@ impl FogIntake {
             return Some(e);
         }
         None
+    }
+
+    /// Samples lost on every link just before the sample [`FogIntake::next_sample`]
+    /// returned (0 if none): the caller bridges them, and the clock moves over them here.
+    #[inline]
+    pub fn take_lost(&mut self) -> u16 {
+        let lost = core::mem::take(&mut self.lost);
+        self.clock.index = self.clock.index.saturating_add(u64::from(lost));
+        lost
     }
 
     /// Starts taking sample `target`: advances the clock; returns the health bits every

@@ -108,7 +108,7 @@ declare_counters! {
         FogFramesRejected fog_frames_rejected "FOG frames rejected by the decoders (all FOGs)",
         FogSamplesMissing fog_samples_missing "FOG samples that did not arrive in time (all FOGs)",
         StFramesAccepted st_frames_accepted "star-tracker frames that updated the observer",
-        StFramesRejected st_frames_rejected "star-tracker frames rejected (decoder, invalid flag, stale, too far ahead)",
+        StFramesRejected st_frames_rejected "star-tracker frames rejected (decoder, invalid flag, too far ahead)",
         StUpdatesGated st_updates_gated "star-tracker frames refused by the observer's gate",
         Overruns overruns "steps that overran their deadline (reported by the board)",
         FdiAlarms fdi_alarms "parity alarms raised",
@@ -120,6 +120,7 @@ declare_counters! {
         IoErrors io_errors "link driver errors",
         OutputDropped output_dropped "output frames dropped",
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
+        StFramesLate st_frames_late "star-tracker frames older than the attitude history (came late, or the unit bridged past them)",
     }
     paged [
         FdiAlarms,
@@ -131,6 +132,7 @@ declare_counters! {
         IoErrors,
         OutputDropped,
         FogSamplesStale,
+        StFramesLate,
     ]
 }
 
