@@ -584,11 +584,13 @@ impl FlightCore {
 }
 
 /// The counter of a star-tracker frame the observer could not use (not gated): older
-/// than the attitude history is a late frame, not a bad one.
+/// than the attitude history is a late frame and newer than it an early one (the unit's
+/// clock, not the frame, is off); only a bad quaternion is a bad frame.
 fn star_refusal(e: UpdateError) -> Counter {
     match e {
         UpdateError::Stale => Counter::StFramesLate,
-        _ => Counter::StFramesRejected,
+        UpdateError::Future => Counter::StFramesEarly,
+        UpdateError::Gated | UpdateError::BadQuaternion => Counter::StFramesRejected,
     }
 }
 

@@ -86,23 +86,28 @@ impl StarIntake {
         }
         // The decoder's counts change only with bytes.
         let decoded_rej = if rep.bytes > 0 { self.decoder.stats().rejected() } else { self.rejected_seen };
-        let new_rej = decoded_rej.saturating_sub(self.rejected_seen).saturating_add(overflow);
+        let new_rej = decoded_rej.saturating_sub(self.rejected_seen);
         self.rejected_seen = decoded_rej;
         if new_rej > 0 {
             status |= st_status::REFUSED;
             counters.add(Counter::StFramesRejected, new_rej);
         }
+        if overflow > 0 {
+            // Frames waiting for the unit's clock pushed out by newer ones: early.
+            status |= st_status::REFUSED;
+            counters.add(Counter::StFramesEarly, overflow);
+        }
         status
     }
 
     /// The next pending frame at unit time `now_us`; frames further ahead than
-    /// [`ST_MAX_LEAD_US`] are dropped and counted.
+    /// [`ST_MAX_LEAD_US`] are dropped and counted early.
     pub fn next_due(&mut self, now_us: u64, counters: &mut Counters) -> Pending {
         let Some(f) = self.pending.front().copied() else { return Pending::Wait };
         if f.time_us > now_us {
             if f.time_us - now_us > ST_MAX_LEAD_US {
                 let _ = self.pending.pop_front();
-                counters.bump(Counter::StFramesRejected);
+                counters.bump(Counter::StFramesEarly);
                 return Pending::Refused;
             }
             return Pending::Wait;

@@ -108,7 +108,7 @@ declare_counters! {
         FogFramesRejected fog_frames_rejected "FOG frames rejected by the decoders (all FOGs)",
         FogSamplesMissing fog_samples_missing "FOG samples that did not arrive in time (all FOGs)",
         StFramesAccepted st_frames_accepted "star-tracker frames that updated the observer",
-        StFramesRejected st_frames_rejected "star-tracker frames rejected (decoder, invalid flag, too far ahead)",
+        StFramesRejected st_frames_rejected "star-tracker frames rejected as bad (decoder, invalid flag, not a unit quaternion)",
         StUpdatesGated st_updates_gated "star-tracker frames refused by the observer's gate",
         Overruns overruns "steps that overran their deadline (reported by the board)",
         FdiAlarms fdi_alarms "parity alarms raised",
@@ -121,6 +121,7 @@ declare_counters! {
         OutputDropped output_dropped "output frames dropped",
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
         StFramesLate st_frames_late "star-tracker frames older than the attitude history (came late, or the unit bridged past them)",
+        StFramesEarly st_frames_early "star-tracker frames too far ahead of the unit's clock (more than 1 s, or more than the pending queue holds)",
     }
     paged [
         FdiAlarms,
@@ -133,6 +134,7 @@ declare_counters! {
         OutputDropped,
         FogSamplesStale,
         StFramesLate,
+        StFramesEarly,
     ]
 }
 
