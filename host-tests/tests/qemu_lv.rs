@@ -17,7 +17,7 @@ fn lv_firmware_keeps_1_25_ms_and_matches_the_host_replay() {
     if let Some(g) = sc.gnss.as_mut() {
         g.outages_s = vec![[5.0, 8.0]];
     }
-    let s = run_qemu_lv(&sc, &LvOptions { elf, icount: true, progress: false }).expect("QEMU run");
+    let s = run_qemu_lv(&sc, &LvOptions { elf, progress: false }).expect("QEMU run");
     println!("{}", s.report());
     assert_eq!(s.exit_code, Some(0), "firmware did not end cleanly");
     assert_eq!(s.steps, 9_600);

@@ -4,7 +4,9 @@
 //!
 //! - [`qemu`]: the spacecraft firmware (`ssis-fw`), lock-step or real time; building the
 //!   firmware and the on-target test binaries.
+//! - [`progress`]: waits on QEMU bounded by its processor time, not the wall clock.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
 
+pub mod progress;
 pub mod qemu;
 pub mod qemu_lv;

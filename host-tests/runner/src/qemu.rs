@@ -29,12 +29,17 @@ use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
+use ssis::telemetry::{page, Counter};
 
+use crate::progress::{Patience, ICOUNT_LOCKSTEP, QEMU_CPU_PATIENCE_S};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::stats::AxisStats;
 use ssis_sim::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
 use ssis_sim::scenario::Scenario;
 
+/// QEMU processor time without an output byte that shows the firmware has switched to
+/// lockstep, s.
+const SILENCE_CPU_S: f64 = 0.05;
 /// Steps the runner may be ahead of the outputs it has received (real time).
 pub const MAX_LEAD: u64 = 6;
 /// Steps of frames sent before the first output is awaited (real time).
@@ -49,6 +54,10 @@ pub struct QemuOptions {
     pub elf: PathBuf,
     /// Lockstep (deterministic, with the in-process comparison) instead of real time.
     pub lockstep: bool,
+    /// Lockstep paced at the real rate: no step is sent before its time, and a step the
+    /// host could not send in time waits (the unit is held, nothing is lost); how far the
+    /// run fell behind is reported ([`QemuSummary::host`]).
+    pub paced: bool,
     /// `-icount shift=0`: one instruction per ns of virtual time, for instruction counts.
     pub icount: bool,
     /// Damage every N-th byte sent on every link, alternately a bit flip and a drop
@@ -66,6 +75,9 @@ pub struct QemuOptions {
     /// A sensor fault injected into the simulator's frames before they are sent
     /// (`ssis_faults`); the in-process comparison gets the same bytes.
     pub fault: Option<ssis_faults::Fault>,
+    /// The runner itself stops for this long before sending this step (a host that falls
+    /// behind, made repeatable for tests of the lateness report).
+    pub host_stall: Option<(u64, Duration)>,
 }
 
 impl QemuOptions {
@@ -76,12 +88,14 @@ impl QemuOptions {
         QemuOptions {
             elf,
             lockstep: true,
+            paced: false,
             icount: false,
             corrupt_every: 0,
             progress: false,
             stall_at_step: None,
             table_image: None,
             fault: None,
+            host_stall: None,
         }
     }
 }
@@ -109,6 +123,8 @@ pub struct QemuSummary {
     pub frames_before_data: u64,
     /// The unit's counters from its last output frame.
     pub last_frame: OutputFrame,
+    /// The counter page as last seen, by page id (`ssis::telemetry::page`).
+    pub paged: Vec<u16>,
     /// Lockstep: output frames identical to the in-process core's.
     pub equal_frames: u64,
     /// Lockstep: output frames that differ from the in-process core's.
@@ -132,6 +148,8 @@ pub struct QemuSummary {
     pub wall_s: f64,
     /// Whether instruction counting was on.
     pub icount: bool,
+    /// How well the host kept the run's pace.
+    pub host: HostPace,
 }
 
 impl QemuSummary {
@@ -161,6 +179,12 @@ impl QemuSummary {
             c.st_updates_gated,
             c.overruns
         );
+        let _ = writeln!(
+            s,
+            "star-tracker timing: late (older than the attitude history) {}, early (ahead of the unit's clock) {}",
+            self.paged_counter(Counter::StFramesLate),
+            self.paged_counter(Counter::StFramesEarly)
+        );
         let unit = if self.icount { "instructions" } else { "SysTick ticks (40 ns)" };
         let k = if self.icount { INSTR_PER_TICK } else { 1.0 };
         let _ = writeln!(
@@ -173,6 +197,9 @@ impl QemuSummary {
             f64::from(self.step_ticks_max[1]) * k,
             self.step_counts[1]
         );
+        if let Some(l) = self.host.line(self.steps, u64::from(c.overruns)) {
+            let _ = writeln!(s, "{l}");
+        }
         if self.equal_frames + self.differing_frames > 0 {
             let _ = writeln!(
                 s,
@@ -185,6 +212,80 @@ impl QemuSummary {
         }
         let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
         s
+    }
+}
+
+impl QemuSummary {
+    /// Unit counter `c` from the counter page as last seen (0 if never paged).
+    pub fn paged_counter(&self, c: Counter) -> u16 {
+        (0..page::COUNT)
+            .find(|&id| page::entry(id) == Some(page::Entry::Unit(c)))
+            .and_then(|id| self.paged.get(usize::from(id)).copied())
+            .unwrap_or(0)
+    }
+}
+
+/// How the run was paced, and how well this host kept up (the unit is not judged here).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct HostPace {
+    /// The pacing: lockstep as fast as possible, lockstep at the real rate, or real time.
+    pub mode: Pacing,
+    /// Steps whose bytes the runner sent after the step's own tick (real time: the unit
+    /// met the sample late or not at all; paced: the unit was held for it).
+    pub late_steps: u64,
+    /// The largest of those delays, s.
+    pub late_max_s: f64,
+    /// Real time: the largest lag of the output frames behind real time, s.
+    pub out_lag_max_s: f64,
+}
+
+/// How a run is paced.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub enum Pacing {
+    /// Lockstep as fast as the host goes (deterministic).
+    #[default]
+    Lockstep,
+    /// Lockstep at the real rate (deterministic; a slow host delays, never drops).
+    Paced,
+    /// The firmware's own tick; QEMU's clock follows the host's.
+    RealTime,
+}
+
+impl HostPace {
+    /// Real time: the share of steps the host delayed (late sends plus the unit's
+    /// overruns, which in real time under QEMU are the host's: the firmware's step needs
+    /// a few per cent of its budget in counted instructions), %.
+    pub fn late_pct(&self, steps: u64, overruns: u64) -> f64 {
+        100.0 * (self.late_steps + overruns) as f64 / steps.max(1) as f64
+    }
+
+    /// The summary line on the host's pace (none for plain lockstep).
+    fn line(&self, steps: u64, overruns: u64) -> Option<String> {
+        let ms = |s: f64| s * 1e3;
+        match self.mode {
+            Pacing::Lockstep => None,
+            Pacing::Paced if self.late_steps == 0 => {
+                Some("pace: lockstep at the real rate, the host kept up (no step late)".into())
+            }
+            Pacing::Paced => Some(format!(
+                "pace: lockstep at the real rate; the host fell behind on {} of {steps} steps, at most {:.2} s; \
+                 the unit was held meanwhile, no sample lost",
+                self.late_steps, self.late_max_s
+            )),
+            Pacing::RealTime if self.late_steps + overruns == 0 => Some(format!(
+                "host kept up: every sample sent before its tick, outputs at most {:.0} ms behind real time",
+                ms(self.out_lag_max_s)
+            )),
+            Pacing::RealTime => Some(format!(
+                "host late: {} of {steps} samples sent after their tick (worst {:.0} ms), outputs up to {:.0} ms \
+                 behind real time, {overruns} overruns caused by the host ({:.2} % of steps); QEMU's clock follows \
+                 this host's, so the accuracy figures reflect the host, not the unit; rerun without --real-time",
+                self.late_steps,
+                ms(self.late_max_s),
+                ms(self.out_lag_max_s),
+                self.late_pct(steps, overruns)
+            )),
+        }
     }
 }
 
@@ -226,15 +327,16 @@ fn cargo_build(args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
 }
 
 /// Runs a target binary that needs no link (an on-target test) in QEMU until it exits
-/// through semihosting or `timeout` passes; returns its exit code (`None`: stopped at the
-/// timeout) and its decoded defmt log.
-pub fn run_bare(elf: &Path, timeout: Duration) -> Result<(Option<i32>, Vec<String>)> {
-    run_bare_with(elf, timeout, false)
+/// through semihosting or QEMU has used `patience` of processor time (a busy host does
+/// not count against it, [`crate::progress`]); returns its exit code (`None`: stopped)
+/// and its decoded defmt log.
+pub fn run_bare(elf: &Path, patience: Duration) -> Result<(Option<i32>, Vec<String>)> {
+    run_bare_with(elf, patience, false)
 }
 
 /// [`run_bare`], with `-icount shift=0` when `icount` (one instruction per ns of virtual
 /// time: SysTick differences become instruction counts, [`INSTR_PER_TICK`] a tick).
-pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Option<i32>, Vec<String>)> {
+pub fn run_bare_with(elf: &Path, patience: Duration, icount: bool) -> Result<(Option<i32>, Vec<String>)> {
     let mut cmd = Command::new("qemu-system-arm");
     cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]).args([
         "-serial",
@@ -243,7 +345,7 @@ pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Opt
         "enable=on,target=native",
     ]);
     if icount {
-        cmd.args(["-icount", "shift=0"]);
+        cmd.args(["-icount", ICOUNT_LOCKSTEP]);
     }
     let mut child = cmd
         .arg("-kernel")
@@ -259,7 +361,7 @@ pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Opt
         let _ = stdout.read_to_end(&mut buf);
         buf
     });
-    let status = wait_exit(&mut child, timeout)?;
+    let status = wait_exit(&mut child, patience.as_secs_f64())?;
     if status.is_none() {
         let _ = child.kill();
         let _ = child.wait();
@@ -308,7 +410,7 @@ impl Drop for Qemu {
 
 pub(crate) fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> Result<UnixStream> {
     listener.set_nonblocking(true)?;
-    let t0 = Instant::now();
+    let patience = Patience::new(child, QEMU_CPU_PATIENCE_S);
     loop {
         match listener.accept() {
             Ok((s, _)) => {
@@ -319,8 +421,8 @@ pub(crate) fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> 
                 if let Some(st) = child.try_wait()? {
                     bail!("qemu-system-arm exited ({st}) before connecting {what}");
                 }
-                if t0.elapsed() > Duration::from_secs(20) {
-                    bail!("qemu-system-arm did not connect {what} within 20 s");
+                if let Some(why) = patience.exhausted() {
+                    bail!("qemu-system-arm did not connect {what}: {why}");
                 }
                 std::thread::sleep(Duration::from_millis(5));
             }
@@ -454,7 +556,16 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         steps: sim.steps,
         duration_s: sc.duration_s,
         accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
-        icount: opts.icount,
+        icount: opts.icount || opts.lockstep,
+        paged: vec![0; usize::from(page::COUNT)],
+        host: HostPace {
+            mode: match (opts.lockstep, opts.paced) {
+                (true, false) => Pacing::Lockstep,
+                (true, true) => Pacing::Paced,
+                (false, _) => Pacing::RealTime,
+            },
+            ..Default::default()
+        },
         ..Default::default()
     };
     let mut outputs = Outputs::new(opts.lockstep);
@@ -470,6 +581,9 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ssis_common::ARCSEC_PER_RAD;
     let mut injector = opts.fault.map(|f| (f, ssis_faults::Injector::new(f, sigma_st_rad, sc.seed)));
     let mut injected = ssis_faults::FaultRun::default();
+    // Real time from here: step n's tick is at t0 + n·Δt.
+    let t0 = Instant::now();
+    let tick = |n: u64| t0 + dt * (n as u32);
     while let Some(mut input) = sim.next_step() {
         if let Some((f, inj)) = injector.as_mut() {
             let t_s = input.n as f64 * dt_s;
@@ -480,10 +594,12 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         if !opts.lockstep {
             // Real time: the frames of step n go out LEAD steps before its tick, and never
             // more than MAX_LEAD steps ahead of the outputs received.
-            let due = started + dt * (n.saturating_sub(LEAD) as u32);
+            let due = t0 + dt * (n.saturating_sub(LEAD) as u32);
             loop {
                 while let Ok((_, b)) = unit.rx.try_recv() {
                     outputs.take(&b, &mut s, &mut eval, &mut on_step);
+                    let lag = Instant::now().saturating_duration_since(tick(s.frames_out)).as_secs_f64();
+                    s.host.out_lag_max_s = s.host.out_lag_max_s.max(lag);
                 }
                 if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
                     break;
@@ -492,6 +608,24 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
                     bail!("QEMU exited early ({st})");
                 }
                 std::thread::sleep(Duration::from_micros(200));
+            }
+        }
+        if let Some((_, d)) = opts.host_stall.filter(|(at, _)| *at == n) {
+            std::thread::sleep(d);
+        }
+        if opts.lockstep && opts.paced {
+            // Paced: not before its time; a late step is held, not dropped.
+            let now = Instant::now();
+            if now < tick(n) {
+                std::thread::sleep(tick(n) - now);
+            }
+        }
+        let late_s = Instant::now().saturating_duration_since(tick(n)).as_secs_f64();
+        if late_s > 0.0 && (!opts.lockstep || opts.paced) {
+            // Paced runs sleep until the tick, so only a delay beyond a step counts.
+            if !opts.lockstep || late_s > dt_s {
+                s.host.late_steps += 1;
+                s.host.late_max_s = s.host.late_max_s.max(late_s);
             }
         }
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
@@ -586,7 +720,11 @@ impl Unit {
             Some(img) => img.clone(),
             None => store::image(&sim.table).to_vec(),
         };
-        Unit::start(&opts.elf, 3, opts.icount.then_some("shift=0"), &[("table.img", &image, 0x10000)], &[0])
+        // Lockstep always counts instructions with virtual time bound to them
+        // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount
+        // runs one instruction per ns while busy.
+        let icount = if opts.lockstep { Some(ICOUNT_LOCKSTEP) } else { opts.icount.then_some("shift=0") };
+        Unit::start(&opts.elf, 3, icount, &[("table.img", &image, 0x10000)], &[0])
     }
 
     /// Sends a control frame with `command` alone.
@@ -604,29 +742,57 @@ impl Unit {
     /// tick meanwhile (frames that carry no sample).
     pub(crate) fn enter_lockstep(&mut self, mut take: impl FnMut(usize, &[u8])) -> Result<()> {
         // First a frame from the firmware's own tick: it has booted and is in its loop.
-        match self.rx.recv_timeout(Duration::from_secs(20)) {
-            Ok((i, b)) => take(i, &b),
-            Err(_) => bail!("no output from the firmware within 20 s of boot"),
+        let boot = Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S);
+        loop {
+            match self.rx.recv_timeout(Duration::from_millis(100)) {
+                Ok((i, b)) => {
+                    take(i, &b);
+                    break;
+                }
+                Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its output UARTs"),
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    if let Some(st) = self.q.child.try_wait()? {
+                        bail!("QEMU exited ({st}) before the firmware's first output");
+                    }
+                    if let Some(why) = boot.exhausted() {
+                        bail!("no output from the firmware after boot: {why}");
+                    }
+                }
+            }
         }
         self.command(command::LOCKSTEP)?;
         // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
         // sensor byte may go out before that, or it would integrate a sample on a tick.
-        // In lockstep it is silent between STEPs: wait for 100 ms of silence (10 s cap).
-        // Frames of that time carry no sample (time tag 0) and are set aside.
-        let t0 = Instant::now();
-        while t0.elapsed() < Duration::from_secs(10) {
-            match self.rx.recv_timeout(Duration::from_millis(100)) {
-                Ok((i, b)) => take(i, &b),
-                Err(mpsc::RecvTimeoutError::Timeout) => break,
+        // In lockstep it is silent between STEPs. Silence is counted in QEMU's processor
+        // time, not the wall clock's: on its own tick (virtual time jumping from tick to
+        // tick, `sleep=off`) the firmware sends a frame every few microseconds of it, so
+        // [`SILENCE_CPU_S`] of it without a byte proves the switch, however slowly the
+        // host runs QEMU. Frames of that time carry no sample (time tag 0), set aside.
+        let mut quiet = Patience::new(&self.q.child, SILENCE_CPU_S);
+        let cap = Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S);
+        loop {
+            match self.rx.recv_timeout(Duration::from_millis(20)) {
+                Ok((i, b)) => {
+                    take(i, &b);
+                    quiet = Patience::new(&self.q.child, SILENCE_CPU_S);
+                }
+                Err(mpsc::RecvTimeoutError::Timeout) => {
+                    if quiet.exhausted().is_some() && quiet.wall() >= Duration::from_millis(100) {
+                        return Ok(());
+                    }
+                    if let Some(why) = cap.exhausted() {
+                        bail!("the firmware did not fall silent after LOCKSTEP: {why}");
+                    }
+                }
                 Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its output UARTs"),
             }
         }
-        Ok(())
     }
 
     /// Lockstep: waits until `done` holds for the output of step `n`, handing every chunk
-    /// to `take` with `state`; when nothing comes within 10 s, fails with QEMU's exit status
-    /// and the firmware's last words.
+    /// to `take` with `state`; when QEMU exits, or uses [`QEMU_CPU_PATIENCE_S`] of
+    /// processor time without it (a busy host does not count), fails with QEMU's exit
+    /// status and the firmware's last words.
     pub(crate) fn await_output<S>(
         &mut self,
         n: u64,
@@ -635,25 +801,35 @@ impl Unit {
         mut take: impl FnMut(&mut S, usize, &[u8]),
         done: impl Fn(&S) -> bool,
     ) -> Result<()> {
-        let t0 = Instant::now();
+        // Started at the first pause only: most steps' output is already on its way.
+        let mut patience: Option<Patience> = None;
         while !done(state) {
-            match self.rx.recv_timeout(Duration::from_secs(10)) {
-                Ok((i, b)) => take(state, i, &b),
-                Err(_) => {
-                    let waited = t0.elapsed();
-                    let status = wait_exit(&mut self.q.child, Duration::from_secs(2))?;
-                    if status.is_none() {
-                        let _ = self.q.child.kill();
-                        let _ = self.q.child.wait();
-                    }
-                    let log = self.log(elf);
-                    bail!(
-                        "no output frame for step {n} within {waited:?}; QEMU exit {:?}; firmware log: {}",
-                        status.and_then(|st| st.code()),
-                        log.join(" | ")
-                    )
+            let why = match self.rx.recv_timeout(Duration::from_millis(200)) {
+                Ok((i, b)) => {
+                    take(state, i, &b);
+                    continue;
                 }
+                Err(mpsc::RecvTimeoutError::Disconnected) => "QEMU closed its output UARTs".to_string(),
+                Err(mpsc::RecvTimeoutError::Timeout) => match (
+                    self.q.child.try_wait()?,
+                    patience.get_or_insert_with(|| Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S)).exhausted(),
+                ) {
+                    (Some(st), _) => format!("QEMU exited ({st})"),
+                    (None, Some(why)) => why,
+                    (None, None) => continue,
+                },
+            };
+            let status = wait_exit(&mut self.q.child, 2.0)?;
+            if status.is_none() {
+                let _ = self.q.child.kill();
+                let _ = self.q.child.wait();
             }
+            let log = self.log(elf);
+            bail!(
+                "no output frame for step {n}: {why}; QEMU exit {:?}; firmware log: {}",
+                status.and_then(|st| st.code()),
+                log.join(" | ")
+            )
         }
         Ok(())
     }
@@ -663,7 +839,7 @@ impl Unit {
     fn stall(mut self, mut s: QemuSummary, elf: &Path) -> Result<QemuSummary> {
         self.command(command::STALL)?;
         let t_stall = Instant::now();
-        let status = wait_exit(&mut self.q.child, Duration::from_secs(20))?;
+        let status = wait_exit(&mut self.q.child, QEMU_CPU_PATIENCE_S)?;
         if status.is_none() {
             let _ = self.q.child.kill();
         }
@@ -673,10 +849,11 @@ impl Unit {
         Ok(s)
     }
 
-    /// Sends `END` and waits up to 10 s for QEMU to exit; its status if it did.
+    /// Sends `END` and waits for QEMU to exit (up to 10 s of its processor time); its
+    /// status if it did.
     pub(crate) fn end(&mut self) -> Result<Option<std::process::ExitStatus>> {
         self.command(command::END)?;
-        wait_exit(&mut self.q.child, Duration::from_secs(10))
+        wait_exit(&mut self.q.child, 10.0)
     }
 
     /// The end of a run: the progress bar closed, QEMU stopped, its exit code and log.
@@ -837,33 +1014,44 @@ impl FrameCheck {
         self.prev_st_updated = o.st_status & st_status::UPDATED != 0;
         self.last_drift = f.drift_rad_s();
         s.last_frame = f;
+        if let Some(v) = s.paged.get_mut(usize::from(f.page_id)) {
+            *v = f.page_value;
+        }
         if let Some(rec) = eval.evaluate(&o) {
             on_step(&rec);
         }
     }
 }
 
-/// Waits up to `timeout` for QEMU to exit; `None` if it is still running.
-pub(crate) fn wait_exit(child: &mut Child, timeout: Duration) -> Result<Option<std::process::ExitStatus>> {
-    let t0 = Instant::now();
+/// Waits for QEMU to exit while it uses up to `cpu_s` of processor time
+/// ([`Patience`]); `None` if it is still running.
+pub(crate) fn wait_exit(child: &mut Child, cpu_s: f64) -> Result<Option<std::process::ExitStatus>> {
+    let patience = Patience::new(child, cpu_s);
     loop {
         if let Some(st) = child.try_wait()? {
             return Ok(Some(st));
         }
-        if t0.elapsed() > timeout {
+        if patience.exhausted().is_some() {
             return Ok(None);
         }
         std::thread::sleep(Duration::from_millis(5));
     }
 }
 
-/// An output frame without what the board fills in itself (its step time and overruns)
-/// and its frame counter (which also counts the frames sent on its own tick before
+/// An output frame without what the board fills in itself (its step time, overruns and
+/// dropped outputs) and its frame counter (which also counts the frames sent on its own tick before
 /// lockstep): everything left must be bit-identical to the in-process core's frame.
 pub(crate) fn masked(mut f: OutputFrame) -> OutputFrame {
     f.counter = 0;
     f.counters.step_ticks = 0;
     f.counters.overruns = 0;
+    // Output frames the board's TX ring dropped (before lockstep, on its own tick, while
+    // the runner was busy): the board's count, as overruns are. A frame dropped in
+    // lockstep shows as a missing output instead ([`QemuSummary::frames_out`]).
+    if page::entry(f.page_id) == Some(page::Entry::Unit(Counter::OutputDropped)) {
+        f.page_value = 0;
+    }
+    f.flags &= !ssis::frames::output::flags::OUTPUT_DROPPED;
     f
 }
 

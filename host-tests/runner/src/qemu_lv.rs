@@ -118,8 +118,6 @@ impl LvScenario {
 pub struct LvOptions {
     /// Firmware ELF (`ssis-fw-lv`).
     pub elf: PathBuf,
-    /// `-icount shift=0`: step times in instructions.
-    pub icount: bool,
     /// Show a progress bar.
     pub progress: bool,
 }
@@ -473,7 +471,7 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
         name: sc.name.clone(),
         steps,
         duration_s: sc.duration_s,
-        icount: opts.icount,
+        icount: true,
         period_ticks_budget: 25 * profile.dt_us,
         ..Default::default()
     };
@@ -520,12 +518,10 @@ fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit) -> Result<Un
     lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());
     let calib_addr = symbol(&opts.elf, "_calib_start")?;
     let lvdata_addr = symbol(&opts.elf, "_lvdata_start")?;
-    // sleep=off: an idle guest's virtual time jumps to its next timer deadline at once
-    // instead of following the host's clock, so a stall of the QEMU process on a loaded
-    // host cannot add tens of milliseconds to virtual time in one jump (which tripped the
-    // watchdog between two steps). Instruction counts are the same; the idle waits
-    // between lockstep steps cost some host time.
-    let icount = opts.icount.then_some("shift=0,sleep=off");
+    // Lockstep with virtual time bound to the instructions executed (`sleep=off`): a
+    // stall of the QEMU process on a loaded host cannot add tens of milliseconds to
+    // virtual time in one jump (which tripped the watchdog between two steps).
+    let icount = Some(crate::progress::ICOUNT_LOCKSTEP);
     let images: [(&str, &[u8], u64); 2] =
         [("table.img", &store::image(table), calib_addr), ("lvdata.img", &lvdata, lvdata_addr)];
     Unit::start(&opts.elf, 5, icount, &images, &[0, 2])

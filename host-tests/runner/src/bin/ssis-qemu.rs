@@ -1,5 +1,11 @@
 //! `ssis-qemu`: run a scenario on the firmware in QEMU (mps2-an500), fed by the
 //! simulator over the emulated UARTs, and report against truth. `--help` for options.
+//!
+//! Pacing: by default lockstep at the real rate (the unit is held when the host falls
+//! behind, so the result does not depend on the host's load; the lateness is reported);
+//! `--lockstep` as fast as the host goes; `--real-time` the firmware's own tick, which
+//! measures the host as much as the unit and fails the run when the host delayed more
+//! than `--max-host-late-pct` of the steps.
 //! A launch-vehicle ascent scenario (`kind = "lv-ascent"`, e.g. `scenarios/lv-ascent.toml`)
 //! runs on `ssis-fw-lv` at 1.25 ms in lockstep (`ssis_runner::qemu_lv`).
 
@@ -23,12 +29,21 @@ struct Args {
     /// or ssis-fw-lv for a launch-vehicle ascent).
     #[arg(long)]
     elf: Option<PathBuf>,
-    /// Lockstep: step on control frames and compare every output frame with the
-    /// in-process flight core (deterministic; not real time). A launch-vehicle ascent
-    /// always runs in lockstep.
-    #[arg(long)]
+    /// Lockstep as fast as the host goes, not paced at the real rate (the output is the
+    /// same). A launch-vehicle ascent always runs in lockstep.
+    #[arg(long, conflicts_with = "real_time")]
     lockstep: bool,
-    /// Count instructions (-icount shift=0): step times are then instructions.
+    /// Free-running real time on the firmware's own tick, QEMU's clock following the
+    /// host's: a study of the deadline on this host. Exits non-zero when the host
+    /// delayed more than --max-host-late-pct of the steps.
+    #[arg(long)]
+    real_time: bool,
+    /// --real-time: the share of steps (samples sent after their tick plus overruns)
+    /// the host may delay before the run fails, %.
+    #[arg(long, default_value_t = 0.5)]
+    max_host_late_pct: f64,
+    /// Step times in instructions (-icount shift=0). Lockstep runs always count them;
+    /// with --real-time, virtual time then runs at one instruction per ns while busy.
     #[arg(long)]
     icount: bool,
     /// Damage every N-th byte sent on every link (alternately a bit flip and a drop).
@@ -37,6 +52,10 @@ struct Args {
     /// Output directory for the CSV log and the SVG plot.
     #[arg(long, default_value = "out")]
     out: PathBuf,
+    /// Fail the run when the attitude error 3σ after settling exceeds this on any axis,
+    /// arcsec (an acceptance bound for scripted runs).
+    #[arg(long)]
+    max_att_3sigma_arcsec: Option<f64>,
     /// Shorten the scenario to this many seconds.
     #[arg(long)]
     duration: Option<f64>,
@@ -79,13 +98,15 @@ fn real_main() -> Result<bool> {
     let mut n = 0u64;
     let opts = QemuOptions {
         elf: elf.clone(),
-        lockstep: a.lockstep,
+        lockstep: !a.real_time,
+        paced: !a.real_time && !a.lockstep,
         icount: a.icount,
         corrupt_every: a.corrupt_every,
         progress: true,
         stall_at_step: None,
         table_image: None,
         fault: None,
+        host_stall: None,
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;
@@ -105,6 +126,22 @@ fn real_main() -> Result<bool> {
     }
     println!("wrote {} and {}", csv_path.display(), svg.display());
     let clean = s.exit_code == Some(0) && s.frames_out_bad == 0 && s.differing_frames == 0 && s.frames_out > 0;
+    if let Some(max) = a.max_att_3sigma_arcsec {
+        let att = s.accuracy.att.three_sigma();
+        if !att.iter().all(|e| *e <= max) {
+            eprintln!("error: attitude error 3σ {att:.2?}″ exceeds --max-att-3sigma-arcsec {max}");
+            return Ok(false);
+        }
+    }
+    let late_pct = s.host.late_pct(s.steps, u64::from(s.last_frame.counters.overruns));
+    if a.real_time && late_pct > a.max_host_late_pct {
+        eprintln!(
+            "error: the host delayed {late_pct:.2} % of the steps (over --max-host-late-pct {}): this run measured \
+             the host, not the unit; rerun without --real-time",
+            a.max_host_late_pct
+        );
+        return Ok(false);
+    }
     Ok(clean)
 }
 
@@ -119,7 +156,8 @@ fn run_lv(a: &Args) -> Result<bool> {
         Some(e) => e.clone(),
         None => ssis_runner::qemu_lv::build_firmware()?,
     };
-    let s = run_qemu_lv(&sc, &LvOptions { elf: elf.clone(), icount: a.icount, progress: true })?;
+    anyhow::ensure!(!a.real_time, "a launch-vehicle ascent runs in lockstep only (no --real-time)");
+    let s = run_qemu_lv(&sc, &LvOptions { elf: elf.clone(), progress: true })?;
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
