@@ -50,14 +50,10 @@ pub enum LabError {
     /// A model file that is malformed, or a term the session cannot feed.
     #[error("{0}")]
     Model(String),
-    /// A file that cannot be written.
-    #[error("{path}: cannot write: {source}")]
-    Write {
-        /// The file.
-        path: String,
-        /// The cause.
-        source: std::io::Error,
-    },
+    /// A file that cannot be written, or may not be (`ssis_common::output`); the message
+    /// names it.
+    #[error("{0}")]
+    Write(String),
     /// Anything the numerics refuse (too few samples, nothing to fit).
     #[error("{0}")]
     Numeric(String),
@@ -66,10 +62,8 @@ pub enum LabError {
 /// Result of the lab library.
 pub type LabResult<T> = Result<T, LabError>;
 
-/// Writes `bytes` to `path` through a temporary file and a rename (never a half file).
+/// Writes `bytes` to `path` through a temporary file and a rename (never a half file),
+/// under the output rules of `ssis_common::output`.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> LabResult<()> {
-    ssis_common::table::write_atomic(path, bytes).map_err(|e| LabError::Write {
-        path: path.display().to_string(),
-        source: std::io::Error::other(format!("{e:#}")),
-    })
+    ssis_common::table::write_atomic(path, bytes).map_err(|e| LabError::Write(format!("{e:#}")))
 }

@@ -4,11 +4,14 @@
 //! effect is missing, add it, watch the held-out error fall, export the flight table.
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use ssis_common::cli::{self, json};
+use ssis_common::output::{self, Origin, Own};
 use ssis_common::DEG_H_PER_RAD_S;
 use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
 use ssis_lab::export::to_table;
@@ -31,6 +34,9 @@ use ssis_lab::{report, simulate};
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Replace existing files at output paths (never an input, never a model version).
+    #[arg(long, global = true)]
+    force: bool,
 }
 
 #[derive(Subcommand)]
@@ -303,10 +309,68 @@ fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<Histo
         .collect())
 }
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    match cli.cmd {
+    let started = cli::start("ssis-lab", cli.force, false).and_then(|()| files(&cli.cmd));
+    cli::finish_unit(started.and_then(|()| run(cli.cmd)))
+}
+
+/// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
+/// refusal comes before any work. Plots at derived names are replaced when they are ours.
+fn files(cmd: &Cmd) -> Result<()> {
+    let svg = |p: &Path, title: &str| output::claim(p, Origin::Default(Own::Svg(title.into())));
+    let named = |p: &Path| output::claim(p, Origin::Named);
+    let inputs = |paths: &[&Path]| paths.iter().for_each(|p| output::input(p));
+    // Every version of the model is read (the history).
+    let versions = |model: &Path| history_files(model).iter().for_each(|(_, p)| output::input(p));
+    let name = match cmd {
+        Cmd::Init { model, .. } => output::claim(model, Origin::New).map(|()| "init")?,
+        Cmd::Compare { model, session, plots, .. } => {
+            inputs(&[model, session]);
+            for (i, d) in (0..4).flat_map(|i| plots.iter().map(move |d| (i, d))) {
+                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, deg/h"))?;
+            }
+            "compare"
+        }
+        Cmd::Diagnose { model, session, .. } => {
+            inputs(&[model, session]);
+            "diagnose"
+        }
+        Cmd::Add { model, session, .. } => {
+            inputs(&[model, session]);
+            versions(model);
+            let h = model.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(model)));
+            svg(&h, "held-out RMS on ").map(|()| "add")?
+        }
+        Cmd::Export { model, base, toml, bin } => {
+            inputs(&[model]);
+            base.iter().for_each(|b| output::input(b));
+            toml.iter().chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
+        }
+        Cmd::Report { model, session, out } => {
+            inputs(&[model, session]);
+            versions(model);
+            named(out).map(|()| "report")?
+        }
+        Cmd::Replay { session, table } => {
+            inputs(&[session]);
+            table.iter().for_each(|t| output::input(t));
+            "replay"
+        }
+        Cmd::Import { log, out, .. } => {
+            inputs(&[log]);
+            named(out).map(|()| "import")?
+        }
+        Cmd::Simulate { out, .. } => named(out).map(|()| "simulate")?,
+    };
+    cli::report("command", || json!(name));
+    Ok(())
+}
+
+/// One subcommand, one function.
+fn run(cmd: Cmd) -> Result<()> {
+    match cmd {
         Cmd::Init { model, terms, t_ref_degc, g_window_s } => init(model, terms, t_ref_degc, g_window_s),
         Cmd::Compare { model, session, evaluate, plots, blocks } => {
             compare_cmd(model, session, evaluate, plots, blocks)
@@ -413,6 +477,9 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     if path.exists() {
         bail!("{} exists: the lab never overwrites a model", path.display());
     }
+    // Written whole (or not at all) before anything is printed: a closed pipe cannot cut it.
+    output::claim(&path, Origin::New)?;
+    ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
     println!("held-out residual RMS, deg/h ({} blocks):", blocks);
     println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
     for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
@@ -429,7 +496,6 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     if !out.not_identified.is_empty() {
         println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
     }
-    ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
     println!("history on {} (held-out RMS, deg/h):", session.display());
@@ -556,7 +622,7 @@ fn import_cmd(
     }
     .context("log refused")?;
     println!("{rep}");
-    ssis_lab::session::write_session_csv(&s, &out)?;
+    ssis_lab::write_atomic(&out, ssis_lab::session::session_csv(&s).as_bytes())?;
     println!("wrote {} ({} samples, body axes as fog0..fog2)", out.display(), s.len());
     Ok(())
 }

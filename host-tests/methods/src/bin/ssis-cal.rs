@@ -1,13 +1,17 @@
 //! `ssis-cal`: the paper's calibration methods on ground-test sessions and on flight
 //! telemetry (`docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each
 //! prints a table, writes an SVG plot and, with `--table`, updates the calibration table
-//! (TOML, atomic; an unreadable existing table is refused, never overwritten).
+//! (TOML, atomic; an unreadable existing table is refused, never overwritten; a missing one
+//! is refused unless `--new-table`).
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use ssis::calib::CalibrationTable;
+use ssis_common::cli::{self, json};
+use ssis_common::output::{self, Origin, Own};
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 use ssis_methods::{self as methods, allan, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova, Series};
 use ssis_session::read_session;
@@ -20,6 +24,12 @@ use ssis_session::read_session;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Replace existing files at output paths (never an input).
+    #[arg(long, global = true)]
+    force: bool,
+    /// With --table: start a nominal table there (refused where a file exists).
+    #[arg(long, global = true)]
+    new_table: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -192,16 +202,88 @@ enum Sim {
     },
 }
 
-fn main() {
+fn main() -> ExitCode {
     ssis_session::exit_plainly_on_truncated_map();
-    if let Err(e) = run(Cli::parse()) {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
-    }
+    let cli = Cli::parse();
+    let started = cli::start("ssis-cal", cli.force, false).and_then(|()| files(&cli.cmd, cli.new_table));
+    cli::finish_unit(started.and_then(|()| run(cli)))
+}
+
+/// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
+/// refusal comes before any work. A plot at its default name is replaced when it is one of
+/// ours (its title); the table a method updates is both input and output.
+fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
+    let plot = |p: &Path, default: &str, title: &str| {
+        let o = if p == Path::new(default) { Origin::Default(Own::Svg(title.into())) } else { Origin::Named };
+        output::claim(p, o)
+    };
+    let table = |t: &Path| -> Result<()> {
+        match (t.exists(), new_table) {
+            (false, false) => {
+                bail!("{}: no such table: refused (--new-table starts a nominal table there)", t.display())
+            }
+            (true, true) => bail!(
+                "{}: exists: --new-table starts a table only where none is (without it the table is updated)",
+                t.display()
+            ),
+            _ => output::update(t),
+        }
+    };
+    let named = |p: &Path| output::claim(p, Origin::Named);
+    let name = match cmd {
+        Cmd::Simulate { what: Sim::Magnetic { unscreened, screened, .. } } => {
+            named(unscreened)?;
+            named(screened)?;
+            "simulate magnetic"
+        }
+        Cmd::Simulate { what: Sim::Static { out, .. } } => named(out).map(|()| "simulate static")?,
+        Cmd::Simulate { what: Sim::Turns { out, .. } } => named(out).map(|()| "simulate turns")?,
+        Cmd::Simulate { what: Sim::Sins { out, .. } } => named(out).map(|()| "simulate sins")?,
+        Cmd::Simulate { what: Sim::Orbital { outdir, table, .. } } => {
+            table.iter().for_each(|t| output::input(t));
+            for f in ["output.bin", "star.bin", "flown.toml"] {
+                output::claim(&outdir.join(f), Origin::Default(Own::Nothing))?;
+            }
+            "simulate orbital"
+        }
+        Cmd::Magnetic { unscreened, screened, plot: p } => {
+            output::input(unscreened);
+            output::input(screened);
+            plot(p, "magnetic.svg", "Magnetic component").map(|()| "magnetic")?
+        }
+        Cmd::Thermal { plot: p, table: t, .. } => {
+            t.as_deref().map(table).transpose()?;
+            plot(p, "thermal.svg", "Thermal test: cell means").map(|()| "thermal")?
+        }
+        Cmd::Allan { session, plot: p, table: t, .. } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "allan.svg", "Overlapping Allan deviation").map(|()| "allan")?
+        }
+        Cmd::Turns { session, plot: p, table: t } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "turns.svg", "First method: equation residuals").map(|()| "turns")?
+        }
+        Cmd::Sins { session, plot: p, table: t } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "sins.svg", "Second method: SINS deflections").map(|()| "sins")?
+        }
+        Cmd::Orbital { output: o, star, table: t, plot: p } => {
+            output::input(o);
+            output::input(star);
+            table(t)?;
+            plot(p, "orbital.svg", "Orbital calibration: observer drift").map(|()| "orbital")?
+        }
+    };
+    cli::report("command", || json!(name));
+    Ok(())
 }
 
 /// Reads the table to update (an existing file must parse: it is never overwritten by a
-/// default), or the default when the file does not exist.
+/// default), or the default when the file does not exist (`--new-table`: [`files`] refuses
+/// a missing table without it).
 fn load_table(path: &Path) -> Result<CalibrationTable> {
     if path.exists() {
         ssis_common::table::read_toml(path)
