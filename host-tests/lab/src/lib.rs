@@ -24,6 +24,7 @@
 //! - [`export`]: the calibration table the firmware loads, from the onboard terms.
 //! - [`simulate`]: a session generator with known effects, for tests and demos.
 //! - [`report`]: one self-contained HTML page of a session's loop.
+//! - [`json`]: the `--json` form of the summaries (docs/JSON.md).
 //! - [`replay`]: a session turned into FOG frames and replayed through the flight core
 //!   (`FlightCore::step`) with a calibration table: the round trip from the lab to flight.
 
@@ -31,6 +32,7 @@ pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod framelog;
+pub mod json;
 pub mod lsq;
 pub mod model;
 pub mod plot;

@@ -1,6 +1,6 @@
 //! `ssis-lab` against a careless user: outputs onto inputs (however spelt), existing
-//! files without `--force`, closed pipes. Every refusal leaves every file of the
-//! directory byte-identical.
+//! files without `--force`, closed pipes, and `--json` (docs/JSON.md). Every refusal
+//! leaves every file of the directory byte-identical.
 
 #[path = "../../tests/hostile_common/mod.rs"]
 mod hostile;
@@ -102,6 +102,7 @@ fn closed_pipe_ends_diagnose_compare_quietly() {
     for lines in [0, 1] {
         closed_pipe(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], lines);
         closed_pipe(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", "s.csv"], lines);
+        closed_pipe(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv", "--json"], lines);
     }
 }
 
@@ -131,4 +132,32 @@ fn closed_pipe_during_add_leaves_a_consistent_model_set() {
     assert_eq!(versions_consistent(&s), 2, "the version is written before anything is printed");
     closed_pipe(LAB, &s, &["add", "aging", "--model", "m.v2.toml", "--session", "s.csv"], 1);
     assert_eq!(versions_consistent(&s), 3);
+}
+
+#[test]
+fn json_diagnose_compare_add() {
+    let s = lab_dir("json");
+    let d = json_of(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv", "--json"], true);
+    has_documented_keys(&d, "ssis-lab diagnose");
+    assert_eq!(at(&d, "/command"), "diagnose");
+    assert_eq!(at(&d, "/diagnosis/candidates/0/rank"), 1);
+    assert_eq!(at(&d, "/diagnosis/most_significant"), "temp_rate");
+    assert!(at(&d, "/diagnosis/candidates/0/p_value").as_f64().unwrap() < 1e-6);
+    assert!(at(&d, "/diagnosis/candidates/0/after_deg_h").as_f64().unwrap() > 0.0);
+    let c = json_of(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", "s.csv", "--json"], true);
+    has_documented_keys(&c, "ssis-lab compare");
+    let fog0 = at(&c, "/fit/fogs/0");
+    for key in ["rms_error_deg_h", "rms_residual_deg_h", "max_abs_residual_deg_h", "explained_fraction"] {
+        assert!(fog0[key].is_number(), "{key} in {fog0}");
+    }
+    let a = json_of(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "s.csv", "--json"], true);
+    has_documented_keys(&a, "ssis-lab add");
+    assert_eq!(at(&a, "/added/version"), 2);
+    assert!(at(&a, "/added/pooled_after_deg_h").as_f64() < at(&a, "/added/pooled_before_deg_h").as_f64());
+    assert_eq!(at(&a, "/history").as_array().unwrap().len(), 2);
+    let written = at(&a, "/files_written").as_array().unwrap();
+    assert!(written.iter().any(|w| w == "m.v2.toml"), "{written:?}");
+    // A refusal in JSON mode: still one object, with the error naming the file.
+    let r = json_of(LAB, &s, &["simulate", "thermal", "s.csv", "--json"], false);
+    assert!(at(&r, "/error").as_str().unwrap().contains("s.csv"));
 }

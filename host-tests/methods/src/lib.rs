@@ -24,9 +24,11 @@
 //!   factors from 360° maneuvers under star-tracker reference, and the FOG-to-star-tracker
 //!   misalignment by recursive least squares.
 //!
-//! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots.
+//! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots;
+//! [`json`] is the `--json` form of each method's summary.
 
 pub mod allan;
+pub mod json;
 pub mod magnetic;
 pub mod misalign_sins;
 pub mod misalign_turns;

@@ -1,6 +1,6 @@
 //! `ssis-cal` against a careless user: a mistyped `--table`, plots onto inputs, default
-//! plots over files that are not ours, a table kept when the method fails, closed pipes.
-//! Every refusal leaves every file byte-identical.
+//! plots over files that are not ours, a table kept when the method fails, closed pipes,
+//! `--json` (docs/JSON.md). Every refusal leaves every file byte-identical.
 
 #[path = "../../tests/hostile_common/mod.rs"]
 mod hostile;
@@ -81,4 +81,39 @@ fn closed_pipe_ends_allan_quietly() {
     closed_pipe(CAL, &s, &["allan", "--session", "st.csv", "--table", "cal.toml"], 1);
     // The table is either updated whole or left as it was.
     ssis_common::table::read_toml(&s.path("cal.toml")).unwrap();
+}
+
+#[test]
+fn json_allan() {
+    let s = cal_dir("json");
+    let v = json_of(CAL, &s, &["allan", "--session", "st.csv", "--table", "cal.toml", "--json"], true);
+    has_documented_keys(&v, "ssis-cal allan");
+    has_documented_keys(&v, "ssis-cal METHOD --table");
+    assert_eq!(at(&v, "/command"), "allan");
+    let arw = at(&v, "/allan/arw_deg_sqrt_h/value").as_f64().unwrap();
+    assert!((arw - 0.005).abs() < 0.001, "ARW {arw} °/√h (truth 0.005)");
+    assert!(at(&v, "/allan/points/0/tau_s").is_number());
+    assert!(at(&v, "/allan/rrw_deg_h_sqrt_h/ci95_high").is_number());
+    assert_eq!(at(&v, "/table/path"), "cal.toml");
+    assert_eq!(at(&v, "/table/revision"), 1);
+    let written = at(&v, "/files_written").as_array().unwrap();
+    assert_eq!(written.len(), 2, "{written:?}");
+}
+
+#[test]
+fn json_of_every_ground_method_has_the_documented_keys() {
+    let s = Scratch::new("json-methods");
+    succeeds(CAL, &s, &["simulate", "turns", "t.csv"], &[]);
+    succeeds(CAL, &s, &["simulate", "sins", "r.csv"], &[]);
+    succeeds(CAL, &s, &["simulate", "magnetic", "u.csv", "sc.csv"], &[]);
+    let runs: [(&str, &[&str]); 4] = [
+        ("ssis-cal turns", &["turns", "--session", "t.csv"]),
+        ("ssis-cal sins", &["sins", "--session", "r.csv"]),
+        ("ssis-cal magnetic", &["magnetic", "--unscreened", "u.csv", "--screened", "sc.csv"]),
+        ("ssis-cal thermal", &["thermal", "--simulate", "batch-i"]),
+    ];
+    for (name, args) in runs {
+        let v = json_of(CAL, &s, &[args, &["--json"]].concat(), true);
+        has_documented_keys(&v, name);
+    }
 }

@@ -5,6 +5,8 @@
 //! - [`qemu`]: the spacecraft firmware (`ssis-fw`), lock-step or real time; building the
 //!   firmware and the on-target test binaries.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
+//! - [`json`]: the `--json` form of both summaries (docs/JSON.md).
 
+pub mod json;
 pub mod qemu;
 pub mod qemu_lv;

@@ -1,6 +1,6 @@
 //! `ssis-qemu` against a careless user, refused before QEMU starts (no QEMU needed): the
-//! output directory's log and plot onto inputs or onto files that are not ours. Every
-//! refusal leaves every file byte-identical.
+//! output directory's log and plot onto inputs or onto files that are not ours, `--json`
+//! on a refusal. Every refusal leaves every file byte-identical.
 
 #[path = "../../tests/hostile_common/mod.rs"]
 mod hostile;
@@ -41,4 +41,15 @@ fn outputs_onto_the_scenario_or_the_elf_are_refused() {
     std::fs::remove_file(s.path("out/tiny-qemu.csv")).unwrap();
     std::fs::hard_link(s.path("fw.elf"), s.path("out/tiny-qemu.svg")).unwrap();
     refused(QEMU, &s, &["s.toml", "--elf", "./fw.elf", "--out", "./out/"], &["tiny-qemu.svg", "input ./fw.elf"]);
+}
+
+#[test]
+fn json_on_a_refusal() {
+    let s = qemu_dir("json");
+    s.file("out/tiny-qemu.csv", "mine\n");
+    let v = json_of(QEMU, &s, &["s.toml", "--elf", "fw.elf", "--out", "out", "--json"], false);
+    assert_eq!(at(&v, "/tool"), "ssis-qemu");
+    assert_eq!(at(&v, "/command"), "run");
+    assert!(at(&v, "/error").as_str().unwrap().contains("out/tiny-qemu.csv"));
+    assert_eq!(at(&v, "/files_written").as_array().unwrap().len(), 0);
 }

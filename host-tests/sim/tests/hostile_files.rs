@@ -1,6 +1,6 @@
 //! `ssis-sim` against a careless user: `table to-bin A A`, `run S.toml --csv S.toml`, the
-//! same through `./x/../` and links, existing files without `--force`, closed pipes.
-//! Every refusal leaves every file byte-identical.
+//! same through `./x/../` and links, existing files without `--force`, closed pipes,
+//! `--json` (docs/JSON.md). Every refusal leaves every file byte-identical.
 
 #[path = "../../tests/hostile_common/mod.rs"]
 mod hostile;
@@ -66,4 +66,19 @@ fn closed_pipe_ends_run_and_show_quietly() {
         closed_pipe(SIM, &s, &["table", "show", "a.toml"], lines);
         closed_pipe(SIM, &s, &["run", "s.toml", "--csv", "o.csv", "--force"], lines);
     }
+}
+
+#[test]
+fn json_run() {
+    let s = sim_dir("json");
+    let v = json_of(SIM, &s, &["run", "s.toml", "--csv", "o.csv", "--json"], true);
+    has_documented_keys(&v, "ssis-sim run");
+    has_documented_keys(&json_of(SIM, &s, &["gains", "--json"], true), "ssis-sim gains");
+    assert_eq!(at(&v, "/command"), "run");
+    assert_eq!(at(&v, "/run/steps"), 1000);
+    assert_eq!(at(&v, "/run/accuracy/attitude_error_3sigma_arcsec").as_array().unwrap().len(), 3);
+    assert!(at(&v, "/run/counters/fog_samples_missing").is_u64());
+    assert_eq!(at(&v, "/files_written/0"), "o.csv");
+    let r = json_of(SIM, &s, &["table", "to-bin", "a.toml", "a.toml", "--json"], false);
+    assert!(at(&r, "/error").as_str().unwrap().contains("a.toml"));
 }

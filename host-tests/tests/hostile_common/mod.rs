@@ -176,3 +176,26 @@ pub fn json_of(exe: &str, s: &Scratch, args: &[&str], ok: bool) -> Value {
 pub fn at<'a>(v: &'a Value, pointer: &str) -> &'a Value {
     v.pointer(pointer).unwrap_or_else(|| panic!("no `{pointer}` in {v}"))
 }
+
+/// The keys docs/JSON.md lists for a command (the section headed `### `NAME``, or
+/// `## Every command` for "every command"): the JSON pointers in its table's first column.
+pub fn documented(name: &str) -> Vec<String> {
+    let doc = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/JSON.md")).unwrap();
+    let heading = if name == "every command" { "## Every command".to_string() } else { format!("### `{name}`") };
+    let mut lines = doc.lines().skip_while(|l| l.trim() != heading).skip(1);
+    let mut keys = Vec::new();
+    for l in lines.by_ref().take_while(|l| !l.starts_with("## ") && !l.starts_with("### ")) {
+        if let Some(rest) = l.strip_prefix("| `/") {
+            keys.push(format!("/{}", rest.split('`').next().unwrap()));
+        }
+    }
+    assert!(!keys.is_empty(), "docs/JSON.md lists no key for `{name}`");
+    keys
+}
+
+/// Every key docs/JSON.md lists for `name` (and for every command) is in `v`.
+pub fn has_documented_keys(v: &Value, name: &str) {
+    for key in documented("every command").into_iter().chain(documented(name)) {
+        assert!(v.pointer(&key).is_some(), "`{name}`: documented key {key} missing from {v}");
+    }
+}

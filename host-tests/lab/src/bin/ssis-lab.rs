@@ -37,6 +37,9 @@ struct Cli {
     /// Replace existing files at output paths (never an input, never a model version).
     #[arg(long, global = true)]
     force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -312,7 +315,7 @@ fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<Histo
 fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    let started = cli::start("ssis-lab", cli.force, false).and_then(|()| files(&cli.cmd));
+    let started = cli::start("ssis-lab", cli.force, cli.json).and_then(|()| files(&cli.cmd));
     cli::finish_unit(started.and_then(|()| run(cli.cmd)))
 }
 
@@ -406,6 +409,9 @@ fn init(model: PathBuf, terms: String, t_ref_degc: f64, g_window_s: f64) -> Resu
 fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<PathBuf>, blocks: usize) -> Result<()> {
     let m = load_model(&model)?;
     let c = pass(&session, "comparing on", |pb| compare(&m, Source::File(&session), evaluate, blocks, Some(pb)))?;
+    cli::report("fit", || {
+        ssis_lab::json::comparison(&c, &model.display().to_string(), &session.display().to_string(), evaluate)
+    });
     let (f, ho) = (&c.fitted, &c.held_out_rad_s);
     println!(
         "{} on {} ({} samples, {}): {}",
@@ -458,6 +464,7 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     let m = load_model(&model)?;
     let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
     let d = pass(&session, "diagnosing on", |pb| diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb)))?;
+    cli::report("diagnosis", || ssis_lab::json::diagnosis(&d));
     print_diagnosis(&d);
     Ok(())
 }
@@ -480,6 +487,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     // Written whole (or not at all) before anything is printed: a closed pipe cannot cut it.
     output::claim(&path, Origin::New)?;
     ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
+    cli::report("added", || ssis_lab::json::added(&out, &kind, &path.display().to_string()));
     println!("held-out residual RMS, deg/h ({} blocks):", blocks);
     println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
     for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
@@ -498,6 +506,9 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     }
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
+    cli::report("history", || {
+        json!(h.iter().map(|(v, r, per, terms)| ssis_lab::json::history_row(*v, *r, per, terms)).collect::<Vec<_>>())
+    });
     println!("history on {} (held-out RMS, deg/h):", session.display());
     for (v, r, per, terms) in &h {
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
@@ -533,6 +544,11 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
         println!("wrote {}", p.display());
     }
     println!("applied onboard: {}", e.applied.join(", "));
+    cli::report("export", || {
+        let not_applied: Vec<_> = e.not_applied.iter().map(|(k, why)| json!({"term": k, "why": why})).collect();
+        let not_identified = m.fit.as_ref().map(|f| f.not_identified.clone()).unwrap_or_default();
+        json!({"applied_onboard": e.applied, "not_applied": not_applied, "not_identified": not_identified})
+    });
     if let Some(f) = m.fit.as_ref().filter(|f| !f.not_identified.is_empty()) {
         println!(
             "WARNING: {} could not identify {} (exported as 0; their constant part is in the bias)",
@@ -579,6 +595,17 @@ fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let r = r.with_context(|| format!("cannot replay {}", session.display()))?;
     let n = r.error_rad_s.len() as f64;
     let axis = |a: usize| dh((r.error_rad_s.iter().map(|e| e[a] * e[a]).sum::<f64>() / n).sqrt());
+    cli::report("replay", || {
+        json!({
+            "steps": r.error_rad_s.len(),
+            "step_s": f64::from(r.dt_us) * 1e-6,
+            "body_rate_error_rms_deg_h": [axis(0), axis(1), axis(2)],
+            "body_rate_error_rms_norm_deg_h": dh(r.rms_error_rad_s(None)),
+            "steps_degraded": r.steps_degraded,
+            "frames_out": r.frames_out,
+            "frames_out_bad": r.frames_out_bad,
+        })
+    });
     println!(
         "{} through FlightCore::step() with {} ({} steps of {} s, {} FOGs)",
         s.file,

@@ -30,6 +30,9 @@ struct Cli {
     /// With --table: start a nominal table there (refused where a file exists).
     #[arg(long, global = true)]
     new_table: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -205,7 +208,7 @@ enum Sim {
 fn main() -> ExitCode {
     ssis_session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    let started = cli::start("ssis-cal", cli.force, false).and_then(|()| files(&cli.cmd, cli.new_table));
+    let started = cli::start("ssis-cal", cli.force, cli.json).and_then(|()| files(&cli.cmd, cli.new_table));
     cli::finish_unit(started.and_then(|()| run(cli)))
 }
 
@@ -296,6 +299,7 @@ fn save_table(path: &Path, t: &mut CalibrationTable) -> Result<()> {
     t.revision = t.revision.wrapping_add(1);
     ssis_common::table::write_toml(path, t).with_context(|| format!("{}: table not written", path.display()))?;
     println!("updated {} (revision {})", path.display(), t.revision);
+    cli::report("table", || json!({"path": path.display().to_string(), "revision": t.revision}));
     Ok(())
 }
 
@@ -362,6 +366,7 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
             magnetic::predicted_phase_rad(b0).to_degrees()
         );
     }
+    cli::report("magnetic", || methods::json::magnetic(&r, b0));
     let psi_deg: Vec<f64> = r.psi_rad.iter().map(|p| p.to_degrees()).collect();
     let mut series = Vec::new();
     for (k, (name, form)) in [("x", magnetic::Form::Sin), ("y", magnetic::Form::Cos)].into_iter().enumerate() {
@@ -408,6 +413,7 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
     };
     let (cells, samples) = sim.simulate(seed, 12_000);
     let (a, model) = thermal_anova::analyse_and_fit(&cells, &samples, 25.0)?;
+    cli::report("thermal", || methods::json::thermal(&a, model.as_ref()));
     println!("two-factor ANOVA (Tables 1-2), {} cells of N = {}", a.n_cells, a.n_per_cell);
     println!("        F      ν1         ν2   crit 5 %  crit 1 %   p          significant");
     for (name, t) in [("F_T ", a.t), ("F_G ", a.g), ("F_TG", a.tg)] {
@@ -503,6 +509,7 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
     let tau0 = s.median_dt_s();
     let pts = allan::overlapping_adev(&f.rate_rad_s, tau0, 8)?;
     let nt = allan::noise_terms(&pts)?;
+    cli::report("allan", || methods::json::allan(&pts, &nt));
     println!("tau s        adev °/h     95 % interval");
     for p in &pts {
         println!(
@@ -564,6 +571,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
         _ => ssis::calib::GAMMA_NOMINAL_RAD,
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
+    cli::report("turns", || methods::json::turns(&turns, &r));
     println!("turn  up   ψ0 deg   Θ_T* deg   ω* deg/s");
     for (k, t) in turns.iter().enumerate() {
         println!(
@@ -613,6 +621,7 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     };
     let revs = misalign_sins::reversals_from_session(&s, scale)?;
     let r = misalign_sins::solve(&revs, &m0, gamma)?;
+    cli::report("sins", || methods::json::sins(&m0, from, &r));
     println!("rev  up   ψ0 deg   turn deg   measured after ″ (h1, h2)   residual ″ start → end");
     for (k, rv) in revs.iter().enumerate() {
         println!(
@@ -701,6 +710,7 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
             );
         }
     }
+    cli::report("orbital", || methods::json::orbital(&r, tau));
     let dh = |v: f64| v * DEG_H_PER_RAD_S;
     println!("{} maneuvers found; observer τ = {tau:.0} s", r.maneuvers.len());
     println!(

@@ -46,11 +46,14 @@ struct Args {
     /// Replace existing files at output paths (never an input).
     #[arg(long)]
     force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long)]
+    json: bool,
 }
 
 fn main() -> ExitCode {
     let a = Args::parse();
-    cli::finish(cli::start("ssis-qemu", a.force, false).and_then(|()| real_main(a)))
+    cli::finish(cli::start("ssis-qemu", a.force, a.json).and_then(|()| real_main(a)))
 }
 
 fn real_main(a: Args) -> Result<bool> {
@@ -103,6 +106,7 @@ fn real_main(a: Args) -> Result<bool> {
     })?;
     w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", csv_path.display(), e.error()))?.commit()?;
     write_svg(&svg, &svg_title, &points)?;
+    cli::report("run", || ssis_runner::json::qemu_summary(&s));
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
@@ -124,6 +128,7 @@ fn run_lv(a: &Args) -> Result<bool> {
         None => ssis_runner::qemu_lv::build_firmware()?,
     };
     let s = run_qemu_lv(&sc, &LvOptions { elf: elf.clone(), icount: a.icount, progress: true })?;
+    cli::report("run", || ssis_runner::json::lv_summary(&s));
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");

@@ -24,6 +24,9 @@ struct Cli {
     /// Replace existing files at output paths (never an input).
     #[arg(long, global = true)]
     force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -93,7 +96,7 @@ enum TableCmd {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let started = cli::start("ssis-sim", cli.force, false).and_then(|()| files(&cli.cmd));
+    let started = cli::start("ssis-sim", cli.force, cli.json).and_then(|()| files(&cli.cmd));
     cli::finish_unit(started.and_then(|()| real_main(cli.cmd)))
 }
 
@@ -131,6 +134,7 @@ fn real_main(cmd: Cmd) -> Result<()> {
                 gains_override: None,
             };
             let g = steady_state_gains(&cfg).map_err(|e| anyhow::anyhow!("no gains: {e:?}"))?;
+            cli::report("gains", || json!({"k_b": g.k_b[0], "k_u_per_s": g.k_u_per_s[0], "st_period_s": st_period}));
             println!("K_B = {:.6}  K_U = {:.6e} /s  (per update, every {st_period} s)", g.k_b[0], g.k_u_per_s[0]);
             Ok(())
         }
@@ -180,6 +184,7 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     }
     print!("{}", summary.report());
     let wall = started.elapsed().as_secs_f64();
+    cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
     println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s / wall);
     Ok(())
 }
