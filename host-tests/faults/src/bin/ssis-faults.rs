@@ -6,7 +6,7 @@
 //! flight for false alarms. Writes the table as Markdown.
 //!
 //! ```text
-//! cargo run --release --bin ssis-faults -- --seeds 25 --nominal-hours 24 --out ../docs/FAULT-CAMPAIGN.md
+//! cargo run --release --bin ssis-faults -- --seeds 25 --nominal-hours 24 --out ../docs/FAULT-CAMPAIGN.md --force
 //! ```
 
 use std::path::PathBuf;
