@@ -82,3 +82,34 @@ fn json_run() {
     let r = json_of(SIM, &s, &["table", "to-bin", "a.toml", "a.toml", "--json"], false);
     assert!(at(&r, "/error").as_str().unwrap().contains("a.toml"));
 }
+
+/// Ctrl-C during `run --csv`: the process ends, the log's temporary file is removed and
+/// every file that was there is untouched.
+#[test]
+fn ctrl_c_leaves_no_temporary() {
+    let s = sim_dir("ctrl-c");
+    s.file("long.toml", "name = \"long\"\nprofile = \"spacecraft\"\nduration_s = 36000\nseed = 1\nsettle_s = 1\n");
+    let before = s.snapshot();
+    let mut child = std::process::Command::new(SIM)
+        .current_dir(&s.dir)
+        .args(["run", "long.toml", "--csv", "long.csv"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    let partial = || s.snapshot().into_keys().any(|p| p.to_string_lossy().contains(".partial"));
+    let t0 = std::time::Instant::now();
+    while !partial() && t0.elapsed().as_secs() < 10 {
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    assert!(partial(), "no temporary file while the run writes its log");
+    let kill = std::process::Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let status = child.wait().unwrap();
+    println!("run after SIGINT: {status:?}");
+    no_temporaries(&s);
+    let after = s.snapshot();
+    for (p, bytes) in &before {
+        assert_eq!(after.get(p), Some(bytes), "{} changed", p.display());
+    }
+}
