@@ -1,13 +1,17 @@
 //! What every host crate shares: the unit conversions, the mock links that carry bytes
 //! between the simulator and the flight core, the calibration table's files, plots and
-//! running statistics.
+//! running statistics, and what every tool's `main` shares.
 //!
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`table`]: the calibration table as TOML, binary and two-copy image files.
 //! - [`plot`]: plots of a run (SVG).
 //! - [`stats`]: running error statistics per axis.
+//! - [`output`]: every file a tool writes: never onto an input, never half-written.
+//! - [`cli`]: a tool's process: closed pipes, Ctrl-C, `--json`, the exit status.
 
+pub mod cli;
 pub mod mock;
+pub mod output;
 pub mod plot;
 pub mod stats;
 pub mod table;

@@ -16,11 +16,11 @@ pub struct PlotPoint {
     pub rate_deg_h: [f64; 3],
 }
 
-/// Writes a two-panel SVG of `points` to `path` (through a temporary file).
+/// Writes a two-panel SVG of `points` to `path` (through [`crate::output`]).
 pub fn write_svg(path: &Path, title: &str, points: &[PlotPoint]) -> Result<()> {
-    let tmp = path.with_extension("partial.svg");
+    let mut svg = String::new();
     {
-        let root = SVGBackend::new(&tmp, (1100, 800)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (1100, 800)).into_drawing_area();
         root.fill(&WHITE)?;
         let root = root.titled(title, ("sans-serif", 22))?;
         let (top, bottom) = root.split_vertically(400);
@@ -29,8 +29,7 @@ pub fn write_svg(path: &Path, title: &str, points: &[PlotPoint]) -> Result<()> {
         panel(&bottom, "rate (drift estimate) error, deg/h", t_max, points, |p| p.rate_deg_h)?;
         root.present()?;
     }
-    std::fs::rename(&tmp, path)?;
-    Ok(())
+    crate::output::write(path, svg.as_bytes())
 }
 
 fn panel<DB: DrawingBackend>(

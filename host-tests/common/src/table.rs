@@ -4,7 +4,7 @@
 //! under `[table]`; the binary is [`ssis::calib::binary`], and the flash image of the table
 //! region (two copies) is [`ssis::calib::store`]. Reading names the file, line and field
 //! that is wrong; writing goes through a temporary file and a rename, so a failed write
-//! never leaves a half-written table where a good one was.
+//! never leaves a half-written table where a good one was (`crate::output`).
 
 use std::path::Path;
 
@@ -50,12 +50,10 @@ pub fn read_binary(path: &Path) -> Result<CalibrationTable> {
     binary::decode(&bytes).map_err(|e| anyhow::anyhow!("{}: table refused: {e:?}", path.display()))
 }
 
-/// Writes `bytes` to `path` atomically (temporary file + rename).
+/// Writes `bytes` to `path` atomically (temporary file + rename) under the output rules
+/// of [`crate::output`].
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    let tmp = path.with_extension("partial");
-    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot replace {}", path.display()))?;
-    Ok(())
+    crate::output::write(path, bytes)
 }
 
 /// Writes the TOML form.

@@ -24,6 +24,7 @@
 //! - [`export`]: the calibration table the firmware loads, from the onboard terms.
 //! - [`simulate`]: a session generator with known effects, for tests and demos.
 //! - [`report`]: one self-contained HTML page of a session's loop.
+//! - [`json`]: the `--json` form of the summaries (docs/JSON.md).
 //! - [`replay`]: a session turned into FOG frames and replayed through the flight core
 //!   (`FlightCore::step`) with a calibration table: the round trip from the lab to flight.
 
@@ -31,6 +32,7 @@ pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod framelog;
+pub mod json;
 pub mod lsq;
 pub mod model;
 pub mod plot;
@@ -50,14 +52,10 @@ pub enum LabError {
     /// A model file that is malformed, or a term the session cannot feed.
     #[error("{0}")]
     Model(String),
-    /// A file that cannot be written.
-    #[error("{path}: cannot write: {source}")]
-    Write {
-        /// The file.
-        path: String,
-        /// The cause.
-        source: std::io::Error,
-    },
+    /// A file that cannot be written, or may not be (`ssis_common::output`); the message
+    /// names it.
+    #[error("{0}")]
+    Write(String),
     /// Anything the numerics refuse (too few samples, nothing to fit).
     #[error("{0}")]
     Numeric(String),
@@ -66,10 +64,8 @@ pub enum LabError {
 /// Result of the lab library.
 pub type LabResult<T> = Result<T, LabError>;
 
-/// Writes `bytes` to `path` through a temporary file and a rename (never a half file).
+/// Writes `bytes` to `path` through a temporary file and a rename (never a half file),
+/// under the output rules of `ssis_common::output`.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> LabResult<()> {
-    ssis_common::table::write_atomic(path, bytes).map_err(|e| LabError::Write {
-        path: path.display().to_string(),
-        source: std::io::Error::other(format!("{e:#}")),
-    })
+    ssis_common::table::write_atomic(path, bytes).map_err(|e| LabError::Write(format!("{e:#}")))
 }

@@ -24,9 +24,11 @@
 //!   factors from 360° maneuvers under star-tracker reference, and the FOG-to-star-tracker
 //!   misalignment by recursive least squares.
 //!
-//! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots.
+//! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots;
+//! [`json`] is the `--json` form of each method's summary.
 
 pub mod allan;
+pub mod json;
 pub mod magnetic;
 pub mod misalign_sins;
 pub mod misalign_turns;
@@ -70,7 +72,8 @@ pub struct Series {
     pub markers: bool,
 }
 
-/// Writes a one-panel SVG plot of `series` to `path` (atomic).
+/// Writes a one-panel SVG plot of `series` to `path` (atomic, under the output rules of
+/// `ssis_common::output`).
 pub fn xy_svg(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[Series]) -> Result<()> {
     let all = series.iter().flat_map(|s| s.points.iter().copied());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY);
@@ -88,9 +91,9 @@ pub fn xy_svg(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[
         y1 += 1.0;
     }
     let pad = 0.05 * (y1 - y0);
-    let tmp = path.with_extension("partial.svg");
+    let mut svg = String::new();
     {
-        let root = SVGBackend::new(&tmp, (900, 560)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut svg, (900, 560)).into_drawing_area();
         root.fill(&WHITE).map_err(|e| anyhow!("{e}"))?;
         let mut chart = ChartBuilder::on(&root)
             .caption(title, ("sans-serif", 18))
@@ -126,8 +129,7 @@ pub fn xy_svg(path: &Path, title: &str, x_label: &str, y_label: &str, series: &[
             .map_err(|e| anyhow!("{e}"))?;
         root.present().map_err(|e| anyhow!("{e}"))?;
     }
-    std::fs::rename(&tmp, path).map_err(|e| anyhow!("cannot replace {}: {e}", path.display()))?;
-    Ok(())
+    ssis_common::output::write(path, svg.as_bytes())
 }
 
 /// Least squares x = argmin |A x − b| (SVD), with the covariance factor (AᵀA)⁻¹.

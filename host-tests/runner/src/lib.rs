@@ -6,7 +6,9 @@
 //!   firmware and the on-target test binaries.
 //! - [`progress`]: waits on QEMU bounded by its processor time, not the wall clock.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
+//! - [`json`]: the `--json` form of both summaries (docs/JSON.md).
 
+pub mod json;
 pub mod progress;
 pub mod qemu;
 pub mod qemu_lv;

@@ -1329,9 +1329,9 @@ pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -
     Ok(b.finish(&h))
 }
 
-/// Writes a session in memory as a session file (temporary file and rename): its columns
-/// in file order, each value in Rust's shortest form that reads back to the same `f64`.
-pub fn write_session_csv(session: &Session, path: &Path) -> std::io::Result<()> {
+/// A session in memory as the text of a session file: its columns in file order, each
+/// value in Rust's shortest form that reads back to the same `f64`.
+pub fn session_csv(session: &Session) -> String {
     use std::fmt::Write;
     let mut out = String::new();
     let _ = writeln!(out, "{}", session.names.join(","));
@@ -1341,9 +1341,15 @@ pub fn write_session_csv(session: &Session, path: &Path) -> std::io::Result<()> 
         }
         out.push('\n');
     }
+    out
+}
+
+/// Writes a session in memory as a session file ([`session_csv`]; temporary file and
+/// rename).
+pub fn write_session_csv(session: &Session, path: &Path) -> std::io::Result<()> {
     let tmp = path.with_extension("partial");
     let named = |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: cannot write: {e}", path.display()));
-    std::fs::write(&tmp, out.as_bytes()).map_err(named)?;
+    std::fs::write(&tmp, session_csv(session).as_bytes()).map_err(named)?;
     std::fs::rename(&tmp, path).map_err(named)
 }
 

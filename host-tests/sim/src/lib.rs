@@ -12,6 +12,7 @@
 //!   vibration) with exact body increments.
 //! - [`scenario`]: scenarios as TOML files a user can write.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
+//! - [`json`]: the `--json` form of a run's summary (docs/JSON.md).
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth).
 
@@ -20,6 +21,7 @@ pub mod corrupt;
 pub mod fog;
 pub mod gnss;
 pub mod harness;
+pub mod json;
 pub mod launch;
 pub mod lv;
 pub mod scenario;

@@ -6,14 +6,16 @@
 //! flight for false alarms. Writes the table as Markdown.
 //!
 //! ```text
-//! cargo run --release --bin ssis-faults -- --seeds 25 --nominal-hours 24 --out ../docs/FAULT-CAMPAIGN.md
+//! cargo run --release --bin ssis-faults -- --seeds 25 --nominal-hours 24 --out ../docs/FAULT-CAMPAIGN.md --force
 //! ```
 
 use std::path::PathBuf;
+use std::process::ExitCode;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
+use ssis_common::{cli, output};
 use ssis_faults::{self as faults, CampaignRow, Fault, FaultKind};
 
 /// Fault-injection campaign.
@@ -26,9 +28,13 @@ struct Args {
     /// Hours of nominal flight for the false-alarm count (0: skip).
     #[arg(long, default_value_t = 1.0)]
     nominal_hours: f64,
-    /// Markdown table to write (stdout always gets it).
+    /// Markdown table to write (stdout always gets it); an existing file is replaced only
+    /// with --force.
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Replace an existing --out file.
+    #[arg(long)]
+    force: bool,
     /// Start of the star-tracker outage, s: after the observer's drift estimate has
     /// settled (the 15″ goal is for a unit in steady state).
     #[arg(long, default_value_t = 1800.0)]
@@ -97,8 +103,16 @@ fn utc_date() -> String {
     format!("{y:04}-{m:02}-{d:02}")
 }
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     let args = Args::parse();
+    cli::finish_unit(cli::start("ssis-faults", args.force, false).and_then(|()| campaign(&args)))
+}
+
+/// The campaign: every plan, the nominal flight, the document.
+fn campaign(args: &Args) -> Result<()> {
+    if let Some(p) = &args.out {
+        output::claim(p, output::Origin::Named)?;
+    }
     let started = std::time::Instant::now();
     let probe = faults::scenario(1, 1.0)?;
     let k = faults::FaultScale::of(&probe)?;
@@ -174,7 +188,7 @@ fn main() -> Result<()> {
     );
     println!("{md}");
     if let Some(p) = &args.out {
-        std::fs::write(p, &md).with_context(|| format!("writing {}", p.display()))?;
+        output::write(p, md.as_bytes())?;
         eprintln!("wrote {}", p.display());
     }
     Ok(())

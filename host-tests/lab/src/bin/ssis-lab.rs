@@ -4,11 +4,14 @@
 //! effect is missing, add it, watch the held-out error fall, export the flight table.
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use ssis_common::cli::{self, json};
+use ssis_common::output::{self, Origin, Own};
 use ssis_common::DEG_H_PER_RAD_S;
 use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
 use ssis_lab::export::to_table;
@@ -31,6 +34,12 @@ use ssis_lab::{report, simulate};
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Replace existing files at output paths (never an input, never a model version).
+    #[arg(long, global = true)]
+    force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -303,10 +312,68 @@ fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<Histo
         .collect())
 }
 
-fn main() -> Result<()> {
+fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    match cli.cmd {
+    let started = cli::start("ssis-lab", cli.force, cli.json).and_then(|()| files(&cli.cmd));
+    cli::finish_unit(started.and_then(|()| run(cli.cmd)))
+}
+
+/// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
+/// refusal comes before any work. Plots at derived names are replaced when they are ours.
+fn files(cmd: &Cmd) -> Result<()> {
+    let svg = |p: &Path, title: &str| output::claim(p, Origin::Default(Own::Svg(title.into())));
+    let named = |p: &Path| output::claim(p, Origin::Named);
+    let inputs = |paths: &[&Path]| paths.iter().for_each(|p| output::input(p));
+    // Every version of the model is read (the history).
+    let versions = |model: &Path| history_files(model).iter().for_each(|(_, p)| output::input(p));
+    let name = match cmd {
+        Cmd::Init { model, .. } => output::claim(model, Origin::New).map(|()| "init")?,
+        Cmd::Compare { model, session, plots, .. } => {
+            inputs(&[model, session]);
+            for (i, d) in (0..4).flat_map(|i| plots.iter().map(move |d| (i, d))) {
+                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, deg/h"))?;
+            }
+            "compare"
+        }
+        Cmd::Diagnose { model, session, .. } => {
+            inputs(&[model, session]);
+            "diagnose"
+        }
+        Cmd::Add { model, session, .. } => {
+            inputs(&[model, session]);
+            versions(model);
+            let h = model.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(model)));
+            svg(&h, "held-out RMS on ").map(|()| "add")?
+        }
+        Cmd::Export { model, base, toml, bin } => {
+            inputs(&[model]);
+            base.iter().for_each(|b| output::input(b));
+            toml.iter().chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
+        }
+        Cmd::Report { model, session, out } => {
+            inputs(&[model, session]);
+            versions(model);
+            named(out).map(|()| "report")?
+        }
+        Cmd::Replay { session, table } => {
+            inputs(&[session]);
+            table.iter().for_each(|t| output::input(t));
+            "replay"
+        }
+        Cmd::Import { log, out, .. } => {
+            inputs(&[log]);
+            named(out).map(|()| "import")?
+        }
+        Cmd::Simulate { out, .. } => named(out).map(|()| "simulate")?,
+    };
+    cli::report("command", || json!(name));
+    Ok(())
+}
+
+/// One subcommand, one function.
+fn run(cmd: Cmd) -> Result<()> {
+    match cmd {
         Cmd::Init { model, terms, t_ref_degc, g_window_s } => init(model, terms, t_ref_degc, g_window_s),
         Cmd::Compare { model, session, evaluate, plots, blocks } => {
             compare_cmd(model, session, evaluate, plots, blocks)
@@ -342,6 +409,9 @@ fn init(model: PathBuf, terms: String, t_ref_degc: f64, g_window_s: f64) -> Resu
 fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<PathBuf>, blocks: usize) -> Result<()> {
     let m = load_model(&model)?;
     let c = pass(&session, "comparing on", |pb| compare(&m, Source::File(&session), evaluate, blocks, Some(pb)))?;
+    cli::report("fit", || {
+        ssis_lab::json::comparison(&c, &model.display().to_string(), &session.display().to_string(), evaluate)
+    });
     let (f, ho) = (&c.fitted, &c.held_out_rad_s);
     println!(
         "{} on {} ({} samples, {}): {}",
@@ -394,6 +464,7 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     let m = load_model(&model)?;
     let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
     let d = pass(&session, "diagnosing on", |pb| diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb)))?;
+    cli::report("diagnosis", || ssis_lab::json::diagnosis(&d));
     print_diagnosis(&d);
     Ok(())
 }
@@ -413,6 +484,10 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     if path.exists() {
         bail!("{} exists: the lab never overwrites a model", path.display());
     }
+    // Written whole (or not at all) before anything is printed: a closed pipe cannot cut it.
+    output::claim(&path, Origin::New)?;
+    ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
+    cli::report("added", || ssis_lab::json::added(&out, &kind, &path.display().to_string()));
     println!("held-out residual RMS, deg/h ({} blocks):", blocks);
     println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
     for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
@@ -429,9 +504,11 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     if !out.not_identified.is_empty() {
         println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
     }
-    ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
+    cli::report("history", || {
+        json!(h.iter().map(|(v, r, per, terms)| ssis_lab::json::history_row(*v, *r, per, terms)).collect::<Vec<_>>())
+    });
     println!("history on {} (held-out RMS, deg/h):", session.display());
     for (v, r, per, terms) in &h {
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
@@ -467,6 +544,11 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
         println!("wrote {}", p.display());
     }
     println!("applied onboard: {}", e.applied.join(", "));
+    cli::report("export", || {
+        let not_applied: Vec<_> = e.not_applied.iter().map(|(k, why)| json!({"term": k, "why": why})).collect();
+        let not_identified = m.fit.as_ref().map(|f| f.not_identified.clone()).unwrap_or_default();
+        json!({"applied_onboard": e.applied, "not_applied": not_applied, "not_identified": not_identified})
+    });
     if let Some(f) = m.fit.as_ref().filter(|f| !f.not_identified.is_empty()) {
         println!(
             "WARNING: {} could not identify {} (exported as 0; their constant part is in the bias)",
@@ -513,6 +595,17 @@ fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let r = r.with_context(|| format!("cannot replay {}", session.display()))?;
     let n = r.error_rad_s.len() as f64;
     let axis = |a: usize| dh((r.error_rad_s.iter().map(|e| e[a] * e[a]).sum::<f64>() / n).sqrt());
+    cli::report("replay", || {
+        json!({
+            "steps": r.error_rad_s.len(),
+            "step_s": f64::from(r.dt_us) * 1e-6,
+            "body_rate_error_rms_deg_h": [axis(0), axis(1), axis(2)],
+            "body_rate_error_rms_norm_deg_h": dh(r.rms_error_rad_s(None)),
+            "steps_degraded": r.steps_degraded,
+            "frames_out": r.frames_out,
+            "frames_out_bad": r.frames_out_bad,
+        })
+    });
     println!(
         "{} through FlightCore::step() with {} ({} steps of {} s, {} FOGs)",
         s.file,
@@ -556,7 +649,7 @@ fn import_cmd(
     }
     .context("log refused")?;
     println!("{rep}");
-    ssis_lab::session::write_session_csv(&s, &out)?;
+    ssis_lab::write_atomic(&out, ssis_lab::session::session_csv(&s).as_bytes())?;
     println!("wrote {} ({} samples, body axes as fog0..fog2)", out.display(), s.len());
     Ok(())
 }

@@ -1,13 +1,17 @@
 //! `ssis-cal`: the paper's calibration methods on ground-test sessions and on flight
 //! telemetry (`docs/TUTORIAL-CALIBRATION.md`). One subcommand per method; each
 //! prints a table, writes an SVG plot and, with `--table`, updates the calibration table
-//! (TOML, atomic; an unreadable existing table is refused, never overwritten).
+//! (TOML, atomic; an unreadable existing table is refused, never overwritten; a missing one
+//! is refused unless `--new-table`).
 
 use std::path::{Path, PathBuf};
+use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
 use ssis::calib::CalibrationTable;
+use ssis_common::cli::{self, json};
+use ssis_common::output::{self, Origin, Own};
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 use ssis_methods::{self as methods, allan, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova, Series};
 use ssis_session::read_session;
@@ -20,6 +24,15 @@ use ssis_session::read_session;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Replace existing files at output paths (never an input).
+    #[arg(long, global = true)]
+    force: bool,
+    /// With --table: start a nominal table there (refused where a file exists).
+    #[arg(long, global = true)]
+    new_table: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -192,16 +205,88 @@ enum Sim {
     },
 }
 
-fn main() {
+fn main() -> ExitCode {
     ssis_session::exit_plainly_on_truncated_map();
-    if let Err(e) = run(Cli::parse()) {
-        eprintln!("error: {e:#}");
-        std::process::exit(1);
-    }
+    let cli = Cli::parse();
+    let started = cli::start("ssis-cal", cli.force, cli.json).and_then(|()| files(&cli.cmd, cli.new_table));
+    cli::finish_unit(started.and_then(|()| run(cli)))
+}
+
+/// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
+/// refusal comes before any work. A plot at its default name is replaced when it is one of
+/// ours (its title); the table a method updates is both input and output.
+fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
+    let plot = |p: &Path, default: &str, title: &str| {
+        let o = if p == Path::new(default) { Origin::Default(Own::Svg(title.into())) } else { Origin::Named };
+        output::claim(p, o)
+    };
+    let table = |t: &Path| -> Result<()> {
+        match (t.exists(), new_table) {
+            (false, false) => {
+                bail!("{}: no such table: refused (--new-table starts a nominal table there)", t.display())
+            }
+            (true, true) => bail!(
+                "{}: exists: --new-table starts a table only where none is (without it the table is updated)",
+                t.display()
+            ),
+            _ => output::update(t),
+        }
+    };
+    let named = |p: &Path| output::claim(p, Origin::Named);
+    let name = match cmd {
+        Cmd::Simulate { what: Sim::Magnetic { unscreened, screened, .. } } => {
+            named(unscreened)?;
+            named(screened)?;
+            "simulate magnetic"
+        }
+        Cmd::Simulate { what: Sim::Static { out, .. } } => named(out).map(|()| "simulate static")?,
+        Cmd::Simulate { what: Sim::Turns { out, .. } } => named(out).map(|()| "simulate turns")?,
+        Cmd::Simulate { what: Sim::Sins { out, .. } } => named(out).map(|()| "simulate sins")?,
+        Cmd::Simulate { what: Sim::Orbital { outdir, table, .. } } => {
+            table.iter().for_each(|t| output::input(t));
+            for f in ["output.bin", "star.bin", "flown.toml"] {
+                output::claim(&outdir.join(f), Origin::Default(Own::Nothing))?;
+            }
+            "simulate orbital"
+        }
+        Cmd::Magnetic { unscreened, screened, plot: p } => {
+            output::input(unscreened);
+            output::input(screened);
+            plot(p, "magnetic.svg", "Magnetic component").map(|()| "magnetic")?
+        }
+        Cmd::Thermal { plot: p, table: t, .. } => {
+            t.as_deref().map(table).transpose()?;
+            plot(p, "thermal.svg", "Thermal test: cell means").map(|()| "thermal")?
+        }
+        Cmd::Allan { session, plot: p, table: t, .. } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "allan.svg", "Overlapping Allan deviation").map(|()| "allan")?
+        }
+        Cmd::Turns { session, plot: p, table: t } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "turns.svg", "First method: equation residuals").map(|()| "turns")?
+        }
+        Cmd::Sins { session, plot: p, table: t } => {
+            output::input(session);
+            t.as_deref().map(table).transpose()?;
+            plot(p, "sins.svg", "Second method: SINS deflections").map(|()| "sins")?
+        }
+        Cmd::Orbital { output: o, star, table: t, plot: p } => {
+            output::input(o);
+            output::input(star);
+            table(t)?;
+            plot(p, "orbital.svg", "Orbital calibration: observer drift").map(|()| "orbital")?
+        }
+    };
+    cli::report("command", || json!(name));
+    Ok(())
 }
 
 /// Reads the table to update (an existing file must parse: it is never overwritten by a
-/// default), or the default when the file does not exist.
+/// default), or the default when the file does not exist (`--new-table`: [`files`] refuses
+/// a missing table without it).
 fn load_table(path: &Path) -> Result<CalibrationTable> {
     if path.exists() {
         ssis_common::table::read_toml(path)
@@ -214,6 +299,7 @@ fn save_table(path: &Path, t: &mut CalibrationTable) -> Result<()> {
     t.revision = t.revision.wrapping_add(1);
     ssis_common::table::write_toml(path, t).with_context(|| format!("{}: table not written", path.display()))?;
     println!("updated {} (revision {})", path.display(), t.revision);
+    cli::report("table", || json!({"path": path.display().to_string(), "revision": t.revision}));
     Ok(())
 }
 
@@ -280,6 +366,7 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
             magnetic::predicted_phase_rad(b0).to_degrees()
         );
     }
+    cli::report("magnetic", || methods::json::magnetic(&r, b0));
     let psi_deg: Vec<f64> = r.psi_rad.iter().map(|p| p.to_degrees()).collect();
     let mut series = Vec::new();
     for (k, (name, form)) in [("x", magnetic::Form::Sin), ("y", magnetic::Form::Cos)].into_iter().enumerate() {
@@ -326,6 +413,7 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
     };
     let (cells, samples) = sim.simulate(seed, 12_000);
     let (a, model) = thermal_anova::analyse_and_fit(&cells, &samples, 25.0)?;
+    cli::report("thermal", || methods::json::thermal(&a, model.as_ref()));
     println!("two-factor ANOVA (Tables 1-2), {} cells of N = {}", a.n_cells, a.n_per_cell);
     println!("        F      ν1         ν2   crit 5 %  crit 1 %   p          significant");
     for (name, t) in [("F_T ", a.t), ("F_G ", a.g), ("F_TG", a.tg)] {
@@ -421,6 +509,7 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
     let tau0 = s.median_dt_s();
     let pts = allan::overlapping_adev(&f.rate_rad_s, tau0, 8)?;
     let nt = allan::noise_terms(&pts)?;
+    cli::report("allan", || methods::json::allan(&pts, &nt));
     println!("tau s        adev °/h     95 % interval");
     for p in &pts {
         println!(
@@ -482,6 +571,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
         _ => ssis::calib::GAMMA_NOMINAL_RAD,
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
+    cli::report("turns", || methods::json::turns(&turns, &r));
     println!("turn  up   ψ0 deg   Θ_T* deg   ω* deg/s");
     for (k, t) in turns.iter().enumerate() {
         println!(
@@ -531,6 +621,7 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     };
     let revs = misalign_sins::reversals_from_session(&s, scale)?;
     let r = misalign_sins::solve(&revs, &m0, gamma)?;
+    cli::report("sins", || methods::json::sins(&m0, from, &r));
     println!("rev  up   ψ0 deg   turn deg   measured after ″ (h1, h2)   residual ″ start → end");
     for (k, rv) in revs.iter().enumerate() {
         println!(
@@ -619,6 +710,7 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
             );
         }
     }
+    cli::report("orbital", || methods::json::orbital(&r, tau));
     let dh = |v: f64| v * DEG_H_PER_RAD_S;
     println!("{} maneuvers found; observer τ = {tau:.0} s", r.maneuvers.len());
     println!(

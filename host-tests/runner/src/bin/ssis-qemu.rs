@@ -14,6 +14,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::Parser;
+use ssis_common::cli;
+use ssis_common::output::{self, Origin, Own};
 use ssis_common::plot::{write_svg, PlotPoint};
 use ssis_runner::qemu::{build_firmware, default_elf, elf_sizes, run_qemu, QemuOptions};
 use ssis_runner::qemu_lv::{run_qemu_lv, LvOptions, LvScenario};
@@ -49,7 +51,8 @@ struct Args {
     /// Damage every N-th byte sent on every link (alternately a bit flip and a drop).
     #[arg(long, default_value_t = 0)]
     corrupt_every: u64,
-    /// Output directory for the CSV log and the SVG plot.
+    /// Output directory for the CSV log and the SVG plot (SCENARIO-qemu.csv and .svg: a
+    /// file there that is not one of ours is replaced only with --force).
     #[arg(long, default_value = "out")]
     out: PathBuf,
     /// Fail the run when the attitude error 3σ after settling exceeds this on any axis,
@@ -59,21 +62,25 @@ struct Args {
     /// Shorten the scenario to this many seconds.
     #[arg(long)]
     duration: Option<f64>,
+    /// Replace existing files at output paths (never an input).
+    #[arg(long)]
+    force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long)]
+    json: bool,
 }
 
 fn main() -> ExitCode {
-    match real_main() {
-        Ok(true) => ExitCode::SUCCESS,
-        Ok(false) => ExitCode::FAILURE,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    let a = Args::parse();
+    cli::finish(cli::start("ssis-qemu", a.force, a.json).and_then(|()| real_main(a)))
 }
 
-fn real_main() -> Result<bool> {
-    let a = Args::parse();
+fn real_main(a: Args) -> Result<bool> {
+    cli::report("command", || cli::json!("run"));
+    output::input(&a.scenario);
+    if let Some(e) = &a.elf {
+        output::input(e);
+    }
     if LvScenario::is_lv_file(&a.scenario) {
         return run_lv(&a);
     }
@@ -82,6 +89,11 @@ fn real_main() -> Result<bool> {
         sc.duration_s = d;
         sc.settle_s = sc.settle_s.min(d / 2.0);
     }
+    let csv_path = a.out.join(format!("{}-qemu.csv", sc.name));
+    let svg = a.out.join(format!("{}-qemu.svg", sc.name));
+    let svg_title = format!("{} on ssis-fw in QEMU", sc.name);
+    output::claim(&csv_path, Origin::Default(Own::CsvHeader(CSV_HEADER.join(","))))?;
+    output::claim(&svg, Origin::Default(Own::Svg(svg_title.clone())))?;
     let elf = match a.elf {
         Some(e) => e,
         None => {
@@ -90,9 +102,7 @@ fn real_main() -> Result<bool> {
         }
     };
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
-    let csv_path = a.out.join(format!("{}-qemu.csv", sc.name));
-    let tmp = csv_path.with_extension("partial");
-    let mut w = csv::Writer::from_path(&tmp)?;
+    let mut w = csv::Writer::from_writer(output::create(&csv_path)?);
     w.write_record(CSV_HEADER)?;
     let mut points = Vec::new();
     let mut n = 0u64;
@@ -115,11 +125,9 @@ fn real_main() -> Result<bool> {
             points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
         }
     })?;
-    w.flush()?;
-    drop(w);
-    std::fs::rename(&tmp, &csv_path)?;
-    let svg = a.out.join(format!("{}-qemu.svg", sc.name));
-    write_svg(&svg, &format!("{} on ssis-fw in QEMU", sc.name), &points)?;
+    w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", csv_path.display(), e.error()))?.commit()?;
+    write_svg(&svg, &svg_title, &points)?;
+    cli::report("run", || ssis_runner::json::qemu_summary(&s));
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
@@ -158,6 +166,7 @@ fn run_lv(a: &Args) -> Result<bool> {
     };
     anyhow::ensure!(!a.real_time, "a launch-vehicle ascent runs in lockstep only (no --real-time)");
     let s = run_qemu_lv(&sc, &LvOptions { elf: elf.clone(), progress: true })?;
+    cli::report("run", || ssis_runner::json::lv_summary(&s));
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");

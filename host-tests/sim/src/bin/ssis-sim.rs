@@ -1,15 +1,17 @@
 //! `ssis-sim`: run scenarios through the flight core on the host, handle calibration
 //! tables, compute observer gains, measure replay speed. `ssis-sim --help` for all.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use ssis::calib::{store, CalibrationTable, ObserverConfig};
 use ssis::observer::steady_state_gains;
+use ssis_common::cli::{self, json};
+use ssis_common::output::{self, Origin};
 use ssis_common::table;
 use ssis_sim::harness::{run, CSV_HEADER};
 use ssis_sim::scenario::Scenario;
@@ -19,6 +21,12 @@ use ssis_sim::scenario::Scenario;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
+    /// Replace existing files at output paths (never an input).
+    #[arg(long, global = true)]
+    force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    json: bool,
 }
 
 #[derive(Subcommand)]
@@ -61,7 +69,7 @@ enum Cmd {
 enum TableCmd {
     /// Write the default table (nominal geometry, the paper's observer figures) as TOML.
     New {
-        /// Output file (.toml); refused if it exists.
+        /// Output file (.toml); refused if it exists (unless --force).
         out: PathBuf,
     },
     /// Convert a TOML table to the binary form the firmware loads.
@@ -87,17 +95,34 @@ enum TableCmd {
 }
 
 fn main() -> ExitCode {
-    match real_main() {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e:#}");
-            ExitCode::FAILURE
-        }
+    let cli = Cli::parse();
+    let started = cli::start("ssis-sim", cli.force, cli.json).and_then(|()| files(&cli.cmd));
+    cli::finish_unit(started.and_then(|()| real_main(cli.cmd)))
+}
+
+/// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
+/// refusal comes before any work.
+fn files(cmd: &Cmd) -> Result<()> {
+    let (name, input, out): (&str, Option<&Path>, Option<&Path>) = match cmd {
+        Cmd::Run { scenario, csv, .. } => ("run", Some(scenario), csv.as_deref()),
+        Cmd::Table { cmd: TableCmd::New { out } } => ("table new", None, Some(out)),
+        Cmd::Table { cmd: TableCmd::ToBin { input, out } } => ("table to-bin", Some(input), Some(out)),
+        Cmd::Table { cmd: TableCmd::ToImage { input, out } } => ("table to-image", Some(input), Some(out)),
+        Cmd::Table { cmd: TableCmd::Show { input } } => ("table show", Some(input), None),
+        Cmd::Gains { .. } => ("gains", None, None),
+    };
+    cli::report("command", || json!(name));
+    if let Some(p) = input {
+        output::input(p);
+    }
+    match out {
+        Some(p) => output::claim(p, Origin::Named),
+        None => Ok(()),
     }
 }
 
-fn real_main() -> Result<()> {
-    match Cli::parse().cmd {
+fn real_main(cmd: Cmd) -> Result<()> {
+    match cmd {
         Cmd::Run { scenario, csv, every } => run_scenario(&scenario, csv, every.max(1)),
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
@@ -109,6 +134,7 @@ fn real_main() -> Result<()> {
                 gains_override: None,
             };
             let g = steady_state_gains(&cfg).map_err(|e| anyhow::anyhow!("no gains: {e:?}"))?;
+            cli::report("gains", || json!({"k_b": g.k_b[0], "k_u_per_s": g.k_u_per_s[0], "st_period_s": st_period}));
             println!("K_B = {:.6}  K_U = {:.6e} /s  (per update, every {st_period} s)", g.k_b[0], g.k_u_per_s[0]);
             Ok(())
         }
@@ -126,13 +152,10 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     );
     bar.set_message(sc.name.clone());
     let mut writer = match &csv {
-        Some(p) => {
-            let tmp = p.with_extension("partial");
-            Some((csv::Writer::from_path(&tmp).with_context(|| format!("cannot write {}", tmp.display()))?, tmp))
-        }
+        Some(p) => Some(csv::Writer::from_writer(output::create(p)?)),
         None => None,
     };
-    if let Some((w, _)) = writer.as_mut() {
+    if let Some(w) = writer.as_mut() {
         w.write_record(CSV_HEADER)?;
     }
     let started = Instant::now();
@@ -143,7 +166,7 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
         if n.is_multiple_of(2000) {
             bar.set_position(n);
         }
-        if let Some((w, _)) = writer.as_mut() {
+        if let Some(w) = writer.as_mut() {
             if n.is_multiple_of(every) && csv_err.is_none() {
                 if let Err(e) = w.write_record(r.csv_row()) {
                     csv_err = Some(e);
@@ -155,13 +178,13 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     if let Some(e) = csv_err {
         return Err(e.into());
     }
-    if let (Some((mut w, tmp)), Some(p)) = (writer, csv) {
-        w.flush()?;
-        std::fs::rename(&tmp, &p)?;
+    if let (Some(w), Some(p)) = (writer, csv) {
+        w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
         println!("wrote {}", p.display());
     }
     print!("{}", summary.report());
     let wall = started.elapsed().as_secs_f64();
+    cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
     println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s / wall);
     Ok(())
 }
@@ -169,7 +192,6 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
 fn table_cmd(cmd: TableCmd) -> Result<()> {
     match cmd {
         TableCmd::New { out } => {
-            anyhow::ensure!(!out.exists(), "{} exists; not overwritten", out.display());
             table::write_toml(&out, &CalibrationTable::DEFAULT)?;
             println!("wrote {}", out.display());
         }
