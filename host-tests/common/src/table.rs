@@ -28,7 +28,7 @@ pub fn parse_toml(text: &str, origin: &str) -> Result<CalibrationTable> {
     if f.format != TOML_FORMAT {
         bail!("{origin}: field `format`: expected \"{TOML_FORMAT}\", found \"{}\"", f.format);
     }
-    f.table.validate().map_err(|e| anyhow::anyhow!("{origin}: table refused: {e:?}"))?;
+    f.table.validate().map_err(|e| anyhow::anyhow!("{origin}: table refused: {e}"))?;
     Ok(f.table)
 }
 
@@ -47,7 +47,7 @@ pub fn read_toml(path: &Path) -> Result<CalibrationTable> {
 /// Reads a binary table file.
 pub fn read_binary(path: &Path) -> Result<CalibrationTable> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    binary::decode(&bytes).map_err(|e| anyhow::anyhow!("{}: table refused: {e:?}", path.display()))
+    binary::decode(&bytes).map_err(|e| anyhow::anyhow!("{}: table refused: {e}", path.display()))
 }
 
 /// Writes `bytes` to `path` atomically (temporary file + rename).
@@ -60,20 +60,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Writes the TOML form.
 pub fn write_toml(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, to_toml(t)?.as_bytes())
 }
 
 /// Writes the binary form.
 pub fn write_binary(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, &binary::encode(t))
 }
 
 /// Writes the flash image of the table region: `t` in both slots (generation 1), the rest
 /// erased (what the QEMU board loads at 0x10000).
 pub fn write_image(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, &store::image(t))
 }
 

@@ -105,7 +105,7 @@ pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
         };
     }
     table.misalignment = mis;
-    table.validate().map_err(|e| LabError::Model(format!("the exported table is refused: {e:?}")))?;
+    table.validate().map_err(|e| LabError::Model(format!("the exported table is refused: {e}")))?;
     let mut applied = Vec::new();
     let mut not_applied = Vec::new();
     for k in &kinds {

@@ -161,7 +161,7 @@ impl Scenario {
         if let Some(o) = self.table.observer {
             t.observer = o;
         }
-        t.validate().map_err(|e| anyhow::anyhow!("unit table invalid: {e:?}"))?;
+        t.validate().map_err(|e| anyhow::anyhow!("unit table invalid: {e}"))?;
         Ok(t)
     }
 }
