@@ -276,6 +276,13 @@ impl Kind {
     }
 }
 
+/// How a fit names regressor `m` of `kind` for FOG `fog` among those it could not identify
+/// (`FOG0 scale_factor.k`; the model's `fit.not_identified`).
+pub fn regressor_id(fog: usize, kind: &Kind, m: usize) -> String {
+    let lab = kind.regressor_labels(fog);
+    format!("FOG{fog} {}.{}", kind.label(), lab.get(m).map_or("?", |l| l.0.as_str()))
+}
+
 /// The two misalignment angles of each FOG, in the order of its regressors.
 pub const MISALIGNMENT_ANGLES: [[&str; 2]; 4] = [["d12", "d13"], ["d21", "d23"], ["d31", "d32"], ["d42", "d43"]];
 

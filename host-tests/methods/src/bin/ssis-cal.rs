@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use ssis::calib::CalibrationTable;
+use ssis::calib::{CalibrationTable, Field, FogTerm};
+use ssis_common::table::TableDoc;
+use ssis_common::update::Origin;
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 use ssis_methods::{self as methods, allan, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova, Series};
 use ssis_session::read_session;
@@ -200,20 +202,33 @@ fn main() {
     }
 }
 
-/// Reads the table to update (an existing file must parse: it is never overwritten by a
-/// default), or the default when the file does not exist.
-fn load_table(path: &Path) -> Result<CalibrationTable> {
+/// Reads the table to update with its provenance (an existing file must parse: it is never
+/// overwritten by a default), or the default when the file does not exist.
+fn load_table(path: &Path) -> Result<TableDoc> {
     if path.exists() {
-        ssis_common::table::read_toml(path)
+        ssis_common::table::read_doc(path)
     } else {
-        Ok(CalibrationTable::DEFAULT)
+        Ok(TableDoc::new(CalibrationTable::DEFAULT))
     }
 }
 
-fn save_table(path: &Path, t: &mut CalibrationTable) -> Result<()> {
-    t.revision = t.revision.wrapping_add(1);
-    ssis_common::table::write_toml(path, t).with_context(|| format!("{}: table not written", path.display()))?;
-    println!("updated {} (revision {})", path.display(), t.revision);
+/// Writes `base` with the `set` fields of `proposed` (everything else kept bit for bit, the
+/// revision raised by one, the provenance of the set fields recorded) and prints the change
+/// field by field.
+fn save_table(
+    path: &Path,
+    base: &TableDoc,
+    proposed: &CalibrationTable,
+    set: &[Field],
+    command: &str,
+    session: String,
+) -> Result<()> {
+    let origin = Origin { command: format!("ssis-cal {command}"), session, model: None };
+    let (doc, changes) = ssis_common::update::apply(base, proposed, set, &origin)
+        .with_context(|| format!("{}: table not written", path.display()))?;
+    ssis_common::table::write_doc(path, &doc).with_context(|| format!("{}: table not written", path.display()))?;
+    print!("{}", ssis_common::update::report(base, &doc, &changes, &origin));
+    println!("updated {} (revision {})", path.display(), doc.table.revision);
     Ok(())
 }
 
@@ -392,13 +407,21 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
                 if fog > 3 {
                     bail!("--fog {fog}: the unit has FOGs 0-3");
                 }
-                let mut t = load_table(&path)?;
+                let base = load_table(&path)?;
+                let mut t = base.table;
                 let f = &mut t.fog[fog];
                 f.t_ref_degc = m.t_ref_degc;
                 f.thermal_t_rad_s = m.a_rad_s;
                 f.thermal_g_rad_s_per_degc_s = m.g_rad_s_per_degc_s;
                 f.thermal_tg_rad_s_per_degc2_s = m.h_rad_s_per_degc2_s;
-                save_table(&path, &mut t)?;
+                let i = fog as u8;
+                let set = [FogTerm::TRef, FogTerm::ThermalT1, FogTerm::ThermalT2, FogTerm::ThermalT3]
+                    .into_iter()
+                    .chain([FogTerm::ThermalG, FogTerm::ThermalTg])
+                    .map(|term| Field::Fog(i, term))
+                    .collect::<Vec<_>>();
+                let name = if matches!(simulate, Batch::BatchI) { "batch-i" } else { "batch-ii" };
+                save_table(&path, &base, &t, &set, "thermal", format!("simulated {name}, seed {seed}"))?;
             }
         }
         None => {
@@ -465,10 +488,11 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
     methods::xy_svg(&plot, "Overlapping Allan deviation", "log10 τ, s", "log10 σ, °/h", &series)?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
         t.observer.arw_deg_sqrt_h = a.0;
         t.observer.rrw_deg_h_sqrt_h = k.0;
-        save_table(&path, &mut t)?;
+        save_table(&path, &base, &t, &[Field::Arw, Field::Rrw], "allan", session.display().to_string())?;
     }
     Ok(())
 }
@@ -478,7 +502,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     let s = read_session(&session, None)?;
     let (turns, lat) = misalign_turns::turns_from_session(&s)?;
     let gamma = match &table {
-        Some(p) if p.exists() => load_table(p)?.gamma_rad,
+        Some(p) if p.exists() => load_table(p)?.table.gamma_rad,
         _ => ssis::calib::GAMMA_NOMINAL_RAD,
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
@@ -505,9 +529,11 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     methods::xy_svg(&plot, "First method: equation residuals", "equation", "″", &series)?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
         t.misalignment = r.misalignment;
-        save_table(&path, &mut t)?;
+        let set = [Field::D12, Field::D13, Field::D21, Field::D23, Field::D31, Field::D32, Field::D42, Field::D43];
+        save_table(&path, &base, &t, &set, "turns", session.display().to_string())?;
     }
     Ok(())
 }
@@ -517,7 +543,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
 fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let s = read_session(&session, None)?;
     let start = match &table {
-        Some(p) if p.exists() => Some(load_table(p)?),
+        Some(p) if p.exists() => Some(load_table(p)?.table),
         _ => None,
     };
     let (m0, gamma, scale, from) = match &start {
@@ -585,9 +611,12 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     )?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
         t.misalignment = r.misalignment;
-        save_table(&path, &mut t)?;
+        // The second method refines the orthogonal triad only: δ42 and δ43 stay.
+        let set = [Field::D12, Field::D13, Field::D21, Field::D23, Field::D31, Field::D32];
+        save_table(&path, &base, &t, &set, "sins", session.display().to_string())?;
     }
     Ok(())
 }
@@ -596,7 +625,8 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
 /// into the table flown.
 fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) -> Result<()> {
     let tel = orbital::Telemetry::read(&output, &star)?;
-    let flown = load_table(&table)?;
+    let flown_doc = load_table(&table)?;
+    let flown = flown_doc.table;
     println!(
         "decoded {} output frames, {} star frames ({} and {} refused)",
         tel.out.len(),
@@ -685,9 +715,15 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     }
     methods::xy_svg(&plot, "Orbital calibration: observer drift estimate", "t, s", "°/h", &series)?;
     println!("wrote {}", plot.display());
-    let mut t = r.table;
-    t.revision = flown.revision;
-    save_table(&table, &mut t)?;
+    let mut set: Vec<Field> = (0..4).map(|i| Field::Fog(i, FogTerm::Bias)).collect();
+    if r.scale.is_some() {
+        set.extend((0..4).map(|i| Field::Fog(i, FogTerm::ScaleFactor)));
+    }
+    if r.mount.is_some() {
+        set.extend((0..4).map(Field::StMountQ));
+    }
+    let session = format!("{} + {}", output.display(), star.display());
+    save_table(&table, &flown_doc, &r.table, &set, "orbital", session)?;
     Ok(())
 }
 

@@ -84,10 +84,29 @@ enum TableCmd {
         /// Table file (.toml, .bin or .img).
         input: PathBuf,
     },
+    /// Compare two tables (any form) field by field in engineering units. Exit status as
+    /// diff(1): 0 identical, 1 different, 2 trouble (a table unreadable or refused).
+    Diff {
+        /// Table A (.toml, .bin or .img).
+        a: PathBuf,
+        /// Table B.
+        b: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
-    match real_main() {
+    let cli = Cli::parse();
+    if let Cmd::Table { cmd: TableCmd::Diff { a, b } } = &cli.cmd {
+        return match table_diff(a, b) {
+            Ok(true) => ExitCode::SUCCESS,
+            Ok(false) => ExitCode::from(1),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::from(2)
+            }
+        };
+    }
+    match real_main(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
             eprintln!("error: {e:#}");
@@ -96,8 +115,8 @@ fn main() -> ExitCode {
     }
 }
 
-fn real_main() -> Result<()> {
-    match Cli::parse().cmd {
+fn real_main(cli: Cli) -> Result<()> {
+    match cli.cmd {
         Cmd::Run { scenario, csv, every } => run_scenario(&scenario, csv, every.max(1)),
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
@@ -184,22 +203,40 @@ fn table_cmd(cmd: TableCmd) -> Result<()> {
             println!("wrote {} ({} bytes, two copies, revision {})", out.display(), store::REGION_LEN, t.revision);
         }
         TableCmd::Show { input } => {
-            let t = if input.extension().is_some_and(|e| e == "img") {
-                let (t, loaded) = table::read_image(&input)?;
+            let (t, loaded) = table::read_any(&input)?;
+            if let Some(loaded) = loaded {
                 for (slot, e) in ["A", "B"].iter().zip(loaded.slot_errors) {
                     if let Some(e) = e {
-                        eprintln!("{}: copy {slot} refused: {e:?}", input.display());
+                        eprintln!("{}: copy {slot} refused: {e}", input.display());
                     }
                 }
                 eprintln!("{}: using {:?}, generation {}", input.display(), loaded.source, loaded.generation);
-                t
-            } else if input.extension().is_some_and(|e| e == "bin") {
-                table::read_binary(&input)?
-            } else {
-                table::read_toml(&input)?
-            };
+            }
             print!("{}", table::to_toml(&t)?);
+        }
+        TableCmd::Diff { a, b } => {
+            table_diff(&a, &b)?;
         }
     }
     Ok(())
+}
+
+/// `table diff`: every field that differs, A → B in engineering units; `true` when the
+/// tables are identical (every field bit for bit, and the revision). Provenance is not
+/// compared.
+fn table_diff(a: &std::path::Path, b: &std::path::Path) -> Result<bool> {
+    let (ta, _) = table::read_any(a)?;
+    let (tb, _) = table::read_any(b)?;
+    let changes = ssis_common::update::diff(&ta, &tb);
+    if ta.revision != tb.revision {
+        println!("  revision  {} → {}", ta.revision, tb.revision);
+    }
+    print!("{}", ssis_common::update::render(&changes));
+    let same = changes.is_empty() && ta.revision == tb.revision;
+    if same {
+        println!("{} and {} are identical (every field bit for bit, and the revision)", a.display(), b.display());
+    } else {
+        println!("{} field(s) differ between {} and {}", changes.len(), a.display(), b.display());
+    }
+    Ok(same)
 }
