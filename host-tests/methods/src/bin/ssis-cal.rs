@@ -54,8 +54,18 @@ enum Cmd {
     /// Two-factor ANOVA of Tables 1-2, and the thermal model when it is worth building.
     Thermal {
         /// Simulated batch in the paper's Table 1 design (N = 240 000 at 5 ms).
-        #[arg(long, value_enum)]
-        simulate: Batch,
+        #[arg(long, value_enum, required_unless_present = "session", conflicts_with = "session")]
+        simulate: Option<Batch>,
+        /// A chamber session (docs/SESSION-FORMAT.md) with the FOG's temperature column:
+        /// samples are sorted into the T × G levels.
+        #[arg(long)]
+        session: Option<PathBuf>,
+        /// T levels of the design, °C.
+        #[arg(long, value_delimiter = ',', default_values_t = thermal_anova::TABLE1_T_DEGC)]
+        t_levels_degc: Vec<f64>,
+        /// G levels of the design, °C/min.
+        #[arg(long, value_delimiter = ',', allow_negative_numbers = true, default_values_t = thermal_anova::TABLE1_G_DEGC_MIN)]
+        g_levels_degc_min: Vec<f64>,
         /// Seed of the simulation.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -237,7 +247,15 @@ fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Simulate { what } => simulate(what),
         Cmd::Magnetic { unscreened, screened, plot } => magnetic_cmd(unscreened, screened, plot),
-        Cmd::Thermal { simulate, seed, fog, plot, table } => thermal_cmd(simulate, seed, fog, plot, table),
+        Cmd::Thermal { simulate, session, t_levels_degc, g_levels_degc_min, seed, fog, plot, table } => {
+            let levels = thermal_anova::Levels { t_degc: t_levels_degc, g_degc_min: g_levels_degc_min };
+            let input = match (simulate, session) {
+                (_, Some(s)) => ThermalInput::Session(s, levels),
+                (Some(b), None) => ThermalInput::Simulate(b, seed),
+                (None, None) => bail!("give --session or --simulate"),
+            };
+            thermal_cmd(input, fog, plot, table)
+        }
         Cmd::Allan { session, fog, plot, table } => allan_cmd(session, fog, plot, table),
         Cmd::Turns { session, plot, table } => turns_cmd(session, plot, table),
         Cmd::Sins { session, plot, table } => sins_cmd(session, plot, table),
@@ -332,15 +350,48 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
     Ok(())
 }
 
-/// The two-factor ANOVA of a simulated batch and, when T is significant, the thermal model (into
-/// the table with `--table`).
-fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
-    let sim = match simulate {
-        Batch::BatchI => thermal_anova::BatchSim::batch_i(),
-        Batch::BatchII => thermal_anova::BatchSim::batch_ii(),
+/// What the thermal analysis runs on.
+enum ThermalInput {
+    /// A simulated batch of the paper's design, with its seed.
+    Simulate(Batch, u64),
+    /// A user's chamber session and the design's levels.
+    Session(PathBuf, thermal_anova::Levels),
+}
+
+/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
+/// significant, the thermal model (into the table with `--table`).
+fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
+    let (cells, samples, levels, source) = match input {
+        ThermalInput::Simulate(batch, seed) => {
+            let sim = match batch {
+                Batch::BatchI => thermal_anova::BatchSim::batch_i(),
+                Batch::BatchII => thermal_anova::BatchSim::batch_ii(),
+            };
+            let (cells, samples) = sim.simulate(seed, 12_000);
+            let name = if matches!(batch, Batch::BatchI) { "batch-i" } else { "batch-ii" };
+            (cells, samples, thermal_anova::Levels::default(), format!("simulated {name}, seed {seed}"))
+        }
+        ThermalInput::Session(path, levels) => {
+            let s = read_session(&path, None)?;
+            let window_s = (2.0 * s.median_dt_s()).max(60.0);
+            let c = thermal_anova::chamber_cells(&s, fog, &levels, window_s)?;
+            println!(
+                "{}: FOG{fog}, {} samples in {} cells (N = {} each, cells held {:?}), {} between levels left out",
+                path.display(),
+                c.counts.iter().sum::<usize>(),
+                c.cells.len(),
+                c.cells.first().map_or(0, |x| x.y.len()),
+                c.counts,
+                c.outside
+            );
+            (c.cells, c.samples, levels, path.display().to_string())
+        }
     };
-    let (cells, samples) = sim.simulate(seed, 12_000);
-    let (a, model) = thermal_anova::analyse_and_fit(&cells, &samples, 25.0)?;
+    let t_lo = levels.t_degc.iter().copied().fold(f64::INFINITY, f64::min);
+    let t_hi = levels.t_degc.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let t_ref = (t_lo + t_hi) / 2.0;
+    let (a, model) =
+        thermal_anova::analyse_and_fit_levels(&cells, &samples, (levels.t_degc.len(), levels.g_degc_min.len()), t_ref)?;
     println!("two-factor ANOVA (Tables 1-2), {} cells of N = {}", a.n_cells, a.n_per_cell);
     println!("        F      ν1         ν2   crit 5 %  crit 1 %   p          significant");
     for (name, t) in [("F_T ", a.t), ("F_G ", a.g), ("F_TG", a.tg)] {
@@ -362,13 +413,13 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
         );
     }
     let mut series = Vec::new();
-    for (g, gl) in thermal_anova::TABLE1_G_DEGC_MIN.iter().enumerate() {
+    for (g, gl) in levels.g_degc_min.iter().enumerate() {
         let pts = cells
             .iter()
             .filter(|c| c.g_level == g)
             .map(|c| {
                 let m = c.y.iter().sum::<f64>() / c.y.len() as f64;
-                (thermal_anova::TABLE1_T_DEGC[c.t_level], m * DEG_H_PER_RAD_S)
+                (levels.t_degc[c.t_level], m * DEG_H_PER_RAD_S)
             })
             .collect();
         series.push(Series { label: format!("cell means, G = {gl} °C/min"), points: pts, markers: true });
@@ -386,9 +437,9 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
                 m.h_rad_s_per_degc2_s * DEG_H_PER_RAD_S / 60.0,
                 m.rms_rad_s * DEG_H_PER_RAD_S
             );
-            for (g, gl) in thermal_anova::TABLE1_G_DEGC_MIN.iter().enumerate() {
+            for (g, gl) in levels.g_degc_min.iter().enumerate() {
                 let gs = gl / 60.0;
-                let pts = (10..=40)
+                let pts = (t_lo.floor() as i32..=t_hi.ceil() as i32)
                     .map(|t| {
                         let dt = t as f64 - m.t_ref_degc;
                         let y = m.bias_rad_s
@@ -420,8 +471,7 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
                     .chain([FogTerm::ThermalG, FogTerm::ThermalTg])
                     .map(|term| Field::Fog(i, term))
                     .collect::<Vec<_>>();
-                let name = if matches!(simulate, Batch::BatchI) { "batch-i" } else { "batch-ii" };
-                save_table(&path, &base, &t, &set, "thermal", format!("simulated {name}, seed {seed}"))?;
+                save_table(&path, &base, &t, &set, "thermal", source.clone())?;
             }
         }
         None => {
@@ -440,10 +490,10 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
 /// the table).
 fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let s = read_session(&session, None)?;
-    let Some(f) = s.fogs.get(fog) else { bail!("{}: no FOG{fog} column", session.display()) };
+    let rates = allan::static_rates(&s, fog)?;
     let tau0 = s.median_dt_s();
-    let pts = allan::overlapping_adev(&f.rate_rad_s, tau0, 8)?;
-    let nt = allan::noise_terms(&pts)?;
+    let pts = allan::overlapping_adev(&rates, tau0, 8).with_context(|| session.display().to_string())?;
+    let nt = allan::noise_terms(&pts).with_context(|| session.display().to_string())?;
     println!("tau s        adev °/h     95 % interval");
     for p in &pts {
         println!(
@@ -455,14 +505,14 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
         );
     }
     let (a, b, k) = (nt.arw_deg_sqrt_h, nt.bias_instability_deg_h, nt.rrw_deg_h_sqrt_h);
-    println!("ARW  {:.5} °/√h     [{:.5}, {:.5}]", a.0, a.1, a.2);
-    println!("B    {:.5} °/h      [{:.5}, {:.5}] at τ = {:.0} s", b.0, b.1, b.2, nt.tau_min_s);
-    println!("RRW  {:.5} °/h/√h   [{:.5}, {:.5}]", k.0, k.1, k.2);
+    println!("ARW  {} °/√h", a.text(5));
+    println!("B    {} °/h at τ = {:.0} s (longest τ {:.0} s)", b.text(5), nt.tau_min_s, nt.tau_max_s);
+    println!("RRW  {} °/h/√h", k.text(5));
     let fitted: Vec<(f64, f64)> = pts
         .iter()
         .map(|p| {
-            let n = a.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/√h → rad/√s
-            let kk = k.0 / 3600.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/h/√h → rad/s/√s
+            let n = a.value().unwrap_or(0.0) / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/√h → rad/√s
+            let kk = k.value().unwrap_or(0.0) / 3600.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/h/√h → rad/s/√s
             let v = (n * n / p.tau_s + kk * kk * p.tau_s / 3.0).sqrt();
             (p.tau_s.log10(), (v * DEG_H_PER_RAD_S).log10())
         })
@@ -490,9 +540,21 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
     if let Some(path) = table {
         let base = load_table(&path)?;
         let mut t = base.table;
-        t.observer.arw_deg_sqrt_h = a.0;
-        t.observer.rrw_deg_h_sqrt_h = k.0;
-        save_table(&path, &base, &t, &[Field::Arw, Field::Rrw], "allan", session.display().to_string())?;
+        let mut set = Vec::new();
+        for (field, e) in [(Field::Arw, a), (Field::Rrw, k)] {
+            match e.value() {
+                Some(v) => {
+                    field.set(&mut t, v);
+                    set.push(field);
+                }
+                None => println!("{field} kept at the base's value: this session does not resolve it"),
+            }
+        }
+        if set.is_empty() {
+            println!("{} left unchanged: the session resolves neither ARW nor RRW", path.display());
+        } else {
+            save_table(&path, &base, &t, &set, "allan", session.display().to_string())?;
+        }
     }
     Ok(())
 }
