@@ -3,6 +3,7 @@
 
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
@@ -11,7 +12,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use ssis::calib::{store, CalibrationTable, ObserverConfig};
 use ssis::observer::steady_state_gains;
 use ssis_common::table;
-use ssis_sim::harness::{run, CSV_HEADER};
+use ssis_sim::harness::{run_until, CSV_HEADER};
 use ssis_sim::scenario::Scenario;
 
 #[derive(Parser)]
@@ -34,6 +35,9 @@ enum Cmd {
         /// Steps per CSV row.
         #[arg(long, default_value_t = 20)]
         every: u64,
+        /// Run a scenario longer than 30 days of simulated time.
+        #[arg(long)]
+        allow_long: bool,
     },
     /// Calibration-table tools.
     Table {
@@ -94,6 +98,37 @@ enum TableCmd {
     },
 }
 
+/// Set by the SIGINT handler: end the run after this step.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Ctrl-C: ask the run to stop (async-signal-safe: one atomic store).
+extern "C" fn on_sigint(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::Relaxed);
+}
+
+/// Installs [`on_sigint`] for SIGINT (Ctrl-C) for the rest of the process.
+fn stop_on_ctrl_c() {
+    // SAFETY: a handler that only stores to an atomic, installed with an emptied mask.
+    unsafe {
+        let mut sa: libc::sigaction = std::mem::zeroed();
+        sa.sa_sigaction = on_sigint as extern "C" fn(libc::c_int) as usize;
+        libc::sigemptyset(&mut sa.sa_mask);
+        libc::sigaction(libc::SIGINT, &sa, std::ptr::null_mut());
+    }
+}
+
+/// Exit status of a run a source delivered nothing to (its summary has no figure).
+const EXIT_SILENT_SOURCE: u8 = 3;
+/// Exit status of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
+const EXIT_INTERRUPTED: u8 = 130;
+
+/// How a run ended, when it ran to its end without an error.
+enum RunEnd {
+    Complete,
+    SilentSource,
+    Interrupted,
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     if let Cmd::Table { cmd: TableCmd::Diff { a, b } } = &cli.cmd {
@@ -103,6 +138,18 @@ fn main() -> ExitCode {
             Err(e) => {
                 eprintln!("error: {e:#}");
                 ExitCode::from(2)
+            }
+        };
+    }
+    if let Cmd::Run { scenario, csv, every, allow_long } = cli.cmd {
+        stop_on_ctrl_c();
+        return match run_scenario(&scenario, csv, every.max(1), allow_long) {
+            Ok(RunEnd::Complete) => ExitCode::SUCCESS,
+            Ok(RunEnd::SilentSource) => ExitCode::from(EXIT_SILENT_SOURCE),
+            Ok(RunEnd::Interrupted) => ExitCode::from(EXIT_INTERRUPTED),
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                ExitCode::FAILURE
             }
         };
     }
@@ -117,7 +164,9 @@ fn main() -> ExitCode {
 
 fn real_main(cli: Cli) -> Result<()> {
     match cli.cmd {
-        Cmd::Run { scenario, csv, every } => run_scenario(&scenario, csv, every.max(1)),
+        Cmd::Run { scenario, csv, every, allow_long } => {
+            run_scenario(&scenario, csv, every.max(1), allow_long).map(|_| ())
+        }
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
             let cfg = ObserverConfig {
@@ -134,8 +183,10 @@ fn real_main(cli: Cli) -> Result<()> {
     }
 }
 
-fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Result<()> {
-    let sc = Scenario::from_file(path)?;
+/// Runs a scenario: the summary, a CSV with `--csv`; how it ended (a source that
+/// delivered nothing, Ctrl-C: the partial summary, no CSV and no `.partial` file left).
+fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64, allow_long: bool) -> Result<RunEnd> {
+    let sc = Scenario::from_file_with(path, allow_long)?;
     let dt = sc.profile.profile().dt_s();
     let steps = (sc.duration_s / dt).round() as u64;
     let bar = ProgressBar::new(steps);
@@ -157,32 +208,61 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     let started = Instant::now();
     let mut n = 0u64;
     let mut csv_err = None;
-    let summary = run(&sc, |r| {
-        n += 1;
-        if n.is_multiple_of(2000) {
-            bar.set_position(n);
-        }
-        if let Some((w, _)) = writer.as_mut() {
-            if n.is_multiple_of(every) && csv_err.is_none() {
-                if let Err(e) = w.write_record(r.csv_row()) {
-                    csv_err = Some(e);
+    let summary = run_until(
+        &sc,
+        || INTERRUPTED.load(Ordering::Relaxed),
+        |r| {
+            n += 1;
+            if n.is_multiple_of(2000) {
+                bar.set_position(n);
+            }
+            if let Some((w, _)) = writer.as_mut() {
+                if n.is_multiple_of(every) && csv_err.is_none() {
+                    if let Err(e) = w.write_record(r.csv_row()) {
+                        csv_err = Some(e);
+                    }
                 }
             }
-        }
-    })?;
+        },
+    );
     bar.finish_and_clear();
+    let interrupted = summary.as_ref().is_ok_and(|s| s.stopped_at_step.is_some());
+    if let Some((w, tmp)) = writer {
+        drop(w);
+        if summary.is_err() || csv_err.is_some() || interrupted {
+            let _ = std::fs::remove_file(&tmp);
+        } else if let Some(p) = &csv {
+            std::fs::rename(&tmp, p).with_context(|| format!("cannot replace {}", p.display()))?;
+            println!("wrote {}", p.display());
+        }
+    }
+    let summary = summary?;
     if let Some(e) = csv_err {
         return Err(e.into());
     }
-    if let (Some((mut w, tmp)), Some(p)) = (writer, csv) {
-        w.flush()?;
-        std::fs::rename(&tmp, &p)?;
-        println!("wrote {}", p.display());
-    }
     print!("{}", summary.report());
     let wall = started.elapsed().as_secs_f64();
-    println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s / wall);
-    Ok(())
+    let ran = summary.stopped_at_step.unwrap_or(summary.steps) as f64 / summary.steps.max(1) as f64;
+    println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s * ran / wall);
+    if interrupted {
+        eprintln!(
+            "interrupted (Ctrl-C): the summary above is partial{}",
+            if csv.is_some() { "; no CSV written" } else { "" }
+        );
+        return Ok(RunEnd::Interrupted);
+    }
+    let silent = summary.silent_sources();
+    if !silent.is_empty() {
+        for s in &silent {
+            eprintln!("error: {}: {s}", path.display());
+        }
+        eprintln!(
+            "error: {}: no accuracy figure: a source delivered nothing (the 3σ above is not a result)",
+            path.display()
+        );
+        return Ok(RunEnd::SilentSource);
+    }
+    Ok(RunEnd::Complete)
 }
 
 fn table_cmd(cmd: TableCmd) -> Result<()> {
