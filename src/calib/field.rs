@@ -382,12 +382,22 @@ impl fmt::Display for FieldError {
         let v = self.value();
         let what =
             if v.is_finite() { "is outside its plausible range" } else { "is not a finite number; plausible range" };
-        write!(f, "field {} = {} {}", self.field, v * s.eng_per_unit, s.eng_unit)?;
+        write!(f, "field {} = {} {}", self.field, nine_digits(v * s.eng_per_unit), s.eng_unit)?;
         if s.unit != s.eng_unit {
-            write!(f, " ({v:e} {})", if s.unit.is_empty() { "-" } else { s.unit })?;
+            write!(f, " ({v:e}{}{})", if s.unit.is_empty() { "" } else { " " }, s.unit)?;
         }
         write!(f, " {what} {} … {} {} (docs/CALIBRATION.md)", s.eng_range.0, s.eng_range.1, s.eng_unit)
     }
+}
+
+/// `v` rounded to nine significant digits (so that 0.05 × 10⁶ prints as 50000, not
+/// 50000.00000000001).
+fn nine_digits(v: f64) -> f64 {
+    if v == 0.0 || !v.is_finite() {
+        return v;
+    }
+    let scale = libm::pow(10.0, 8.0 - libm::floor(libm::log10(libm::fabs(v))));
+    libm::round(v * scale) / scale
 }
 
 #[cfg(target_os = "none")]

@@ -61,6 +61,17 @@ pub const TEMPERATURE_RANGE_DEGC: (f64, f64) = (-100.0, 150.0);
 /// (`1e300`), whatever the column's unit.
 pub const ABSURD_MAGNITUDE: f64 = 1e12;
 
+/// `v` as a person reads it: plain between 10⁻⁴ and 10⁷ (four decimals at most), else with
+/// an exponent (`1e300`).
+fn readable(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e7).contains(&v.abs()) {
+        let s = format!("{v:.4}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
 /// The physical range of a column of `role`, in its unit, and the words that say why.
 pub fn physical_range(role: Role) -> ((f64, f64), &'static str) {
     let r = MEASURING_RANGE_RAD_S;
@@ -527,11 +538,15 @@ impl Header {
             let ((lo, hi), why) = physical_range(role);
             if !(lo..=hi).contains(&v) {
                 let deg = if matches!(role, Role::FogRate(_) | Role::TableRate | Role::Reference(_)) {
-                    format!(" ({:.4} °/s)", v.to_degrees())
+                    format!(" ({} °/s)", readable(v.to_degrees()))
                 } else {
                     String::new()
                 };
-                return Some((SessionErrorKind::OutOfRange, k, format!("`{}`{per}{deg} is outside {why}", row[k])));
+                return Some((
+                    SessionErrorKind::OutOfRange,
+                    k,
+                    format!("`{}`{per}{deg} is outside {why}", readable(row[k])),
+                ));
             }
         }
         None

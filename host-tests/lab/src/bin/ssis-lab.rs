@@ -455,7 +455,7 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
         Some(p) => ssis_common::table::read_doc(p)?,
         None => ssis_common::table::TableDoc::new(ssis::calib::CalibrationTable::DEFAULT),
     };
-    let e = to_table(&m, &base_doc.table)?;
+    let e = to_table(&m, &base_doc.table).with_context(|| format!("{}: nothing written", model.display()))?;
     if toml.is_none() && bin.is_none() {
         bail!("nothing to write: give --toml and/or --bin");
     }
