@@ -127,3 +127,33 @@ fn another_defaulted_table_flags_the_output_too() {
     assert!(b.defaulted);
     assert_eq!(flown, table());
 }
+
+/// A copy whose CRCs are good but whose table holds an implausible number (the issue's
+/// turntable run read as noise: RRW 53,954 °/h/√h) is refused before activation; the
+/// boot log names the field, its value and the range, and the unit flies on the other copy.
+#[test]
+fn a_copy_with_an_implausible_field_is_refused_at_boot_naming_it() {
+    use ssis::calib::{Field, FieldError, TableError};
+    let good = table();
+    let mut bad = good;
+    bad.revision = 43;
+    bad.observer.rrw_deg_h_sqrt_h = 53_954.0;
+    let mut image = store::image(&good).to_vec();
+    // Copy A: the bad table, newer generation, intact record.
+    image[..store::RECORD_LEN].copy_from_slice(&store::encode_record(&bad, 2));
+    let mut board = Stm32h7Flash::programmed(&image);
+    let (flown, b) = boot_on(&mut board, Profile::SPACECRAFT, false);
+    let refusal = StoreError::Table(TableError::Field(FieldError::new(Field::Rrw, 53_954.0)));
+    assert_eq!(b.loaded.slot_errors, [Some(refusal), None]);
+    assert_eq!((flown, b.loaded.source, b.defaulted), (good, Source::Stored(Slot::B), false));
+    let log: Vec<String> = b.events().map(|e| e.to_string()).collect();
+    assert_eq!(log.len(), 1);
+    for m in ["copy A refused", "observer.rrw_deg_h_sqrt_h", "53954", "0.0001 … 0.1 °/h/√h"] {
+        assert!(log[0].contains(m), "`{}` lacks `{m}`", log[0]);
+    }
+    // Both copies implausible: the default table flies, flagged.
+    let mut board = Stm32h7Flash::programmed(&store::image(&bad));
+    let (flown, b) = boot_on(&mut board, Profile::SPACECRAFT, false);
+    assert_eq!((flown, b.defaulted), (CalibrationTable::DEFAULT, true));
+    assert_eq!(b.loaded.slot_errors, [Some(refusal); 2]);
+}

@@ -3,7 +3,7 @@
 
 use proptest::prelude::*;
 use ssis::calib::binary::{decode, encode, TABLE_LEN};
-use ssis::calib::{CalibrationTable, ObserverGains, TableError};
+use ssis::calib::{CalibrationTable, Field, FieldError, FogTerm, ObserverGains, TableError};
 use ssis_common::table;
 
 fn sample_table() -> CalibrationTable {
@@ -74,18 +74,18 @@ fn invalid_values_refused_even_with_good_crc() {
     let mut buf = [0u8; TABLE_LEN];
     // encode_into does not validate (a lab may want to see a bad table), decode does.
     ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
-    assert_eq!(decode(&buf), Err(TableError::NotFinite));
+    assert_eq!(decode(&buf), Err(TableError::Field(FieldError::new(Field::Fog(1, FogTerm::Bias), f64::NAN))));
     let mut t = sample_table();
     t.misalignment.d21_rad = 0.2;
     ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
-    assert_eq!(decode(&buf), Err(TableError::OutOfRange));
+    assert_eq!(decode(&buf), Err(TableError::Field(FieldError::new(Field::D21, 0.2))));
     // γ (FOG4's angle) NaN or infinite: a NaN passes every `>` range test, so it needs
     // its own check (the calib fuzz target found a table with γ = NaN accepted).
     for g in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
         let mut t = sample_table();
         t.gamma_rad = g;
         ssis::calib::binary::encode_into(&t, &mut buf).expect("encode");
-        assert_eq!(decode(&buf), Err(TableError::NotFinite), "gamma {g}");
+        assert_eq!(decode(&buf), Err(TableError::Field(FieldError::new(Field::Gamma, g))), "gamma {g}");
     }
 }
 
@@ -125,5 +125,66 @@ proptest! {
         if let Ok(t) = decode(&bytes) {
             prop_assert!(t.validate().is_ok());
         }
+    }
+}
+
+/// The value at a field's path (`fog[0].thermal_t_rad_s[1]`) under `[table]` of a TOML form.
+fn toml_value_at(doc: &toml::Value, path: &str) -> Option<f64> {
+    let mut v = doc.get("table")?;
+    for part in path.split('.') {
+        let (key, idx) = match part.split_once('[') {
+            Some((k, rest)) => (k, Some(rest.trim_end_matches(']').parse::<usize>().ok()?)),
+            None => (part, None),
+        };
+        v = v.get(key)?;
+        if let Some(i) = idx {
+            v = v.get(i)?;
+        }
+    }
+    v.as_float()
+}
+
+#[test]
+fn every_field_in_storage_order_with_its_toml_name() {
+    let t = sample_table();
+    let stored = ssis::calib::binary::fields(&t);
+    let doc: toml::Value = toml::from_str(&table::to_toml(&t).expect("toml")).expect("parses");
+    let all: Vec<Field> = Field::all().collect();
+    assert_eq!(all.len(), stored.len());
+    for (k, f) in all.iter().enumerate() {
+        assert_eq!(f.get(&t).to_bits(), stored[k].to_bits(), "{f} is not storage slot {k}");
+        assert_eq!(toml_value_at(&doc, &f.to_string()).map(f64::to_bits), Some(stored[k].to_bits()), "{f}");
+        // Setting it changes that slot only.
+        let mut u = t;
+        f.set(&mut u, 0.123);
+        let after = ssis::calib::binary::fields(&u);
+        for (j, (a, b)) in stored.iter().zip(after).enumerate() {
+            assert_eq!(a.to_bits() == b.to_bits(), j != k, "setting {f} changed slot {j}");
+        }
+        // The nominal table is inside every range.
+        assert!(f.spec().admits(f.get(&CalibrationTable::DEFAULT)) || f.is_gain(), "{f}");
+    }
+}
+
+#[test]
+fn implausible_values_are_refused_naming_field_value_and_range() {
+    // The turntable run read as noise: ARW 0.48 °/√h and RRW 53,954 °/h/√h.
+    for (field, v, must) in [
+        (Field::Arw, 0.48, ["observer.arw_deg_sqrt_h", "0.48", "0.0005 … 0.05 °/√h"]),
+        (Field::Rrw, 53_954.0, ["observer.rrw_deg_h_sqrt_h", "53954", "0.0001 … 0.1 °/h/√h"]),
+        (Field::Fog(2, FogTerm::Bias), 1e-3, ["fog[2].bias_rad_s", "206.26", "-100 … 100 °/h"]),
+    ] {
+        let mut t = sample_table();
+        field.set(&mut t, v);
+        let e = t.validate().expect_err("refused");
+        assert_eq!(e, TableError::Field(FieldError::new(field, v)));
+        let text = e.to_string();
+        for m in must {
+            assert!(text.contains(m), "`{text}` lacks `{m}`");
+        }
+        // Writing it is refused too, with the same words.
+        let w = table::to_toml(&t).map(|s| table::parse_toml(&s, "x.toml"));
+        let msg = format!("{:#}", w.expect("serialises").expect_err("refused on read"));
+        assert!(msg.contains("x.toml") && msg.contains(&field.to_string()), "{msg}");
     }
 }

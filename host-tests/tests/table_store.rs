@@ -8,7 +8,7 @@ use ssis::calib::store::{
     self, decode_record, encode_record, load, prepare_update, Slot, Source, StoreError, RECORD_LEN, REGION_LEN,
     SLOT_STRIDE,
 };
-use ssis::calib::{CalibrationTable, ObserverGains, TableError};
+use ssis::calib::{CalibrationTable, Field, FieldError, FogTerm, ObserverGains, TableError};
 
 fn sample_table() -> CalibrationTable {
     let mut t = CalibrationTable::DEFAULT;
@@ -203,7 +203,10 @@ fn fallback_order() {
     bad.fog[2].bias_rad_s = f64::NAN;
     region[..RECORD_LEN].copy_from_slice(&encode_record(&bad, 9));
     let l = load(&region);
-    assert_eq!((l.table, l.slot_errors[0]), (old, Some(StoreError::Table(TableError::NotFinite))));
+    assert_eq!(
+        (l.table, l.slot_errors[0]),
+        (old, Some(StoreError::Table(TableError::Field(FieldError::new(Field::Fog(2, FogTerm::Bias), f64::NAN)))))
+    );
     // Generation 0 is never written and never accepted.
     region[..RECORD_LEN].copy_from_slice(&encode_record(&new, 0));
     assert_eq!(load(&region).slot_errors[0], Some(StoreError::BadGeneration));
@@ -262,10 +265,11 @@ fn an_invalid_table_is_never_prepared() {
     let region = store::image(&sample_table());
     let mut bad = other_table();
     bad.fog[1].scale_factor_error = f64::INFINITY;
-    assert_eq!(prepare_update(&region, &bad), Err(StoreError::Table(TableError::NotFinite)));
+    let refused = |f: Field, v: f64| Err(StoreError::Table(TableError::Field(FieldError::new(f, v))));
+    assert_eq!(prepare_update(&region, &bad), refused(Field::Fog(1, FogTerm::ScaleFactor), f64::INFINITY));
     bad = other_table();
     bad.misalignment.d21_rad = 0.3;
-    assert_eq!(prepare_update(&region, &bad), Err(StoreError::Table(TableError::OutOfRange)));
+    assert_eq!(prepare_update(&region, &bad), refused(Field::D21, 0.3));
     // On an empty region the first table goes to slot A, generation 1.
     let u = prepare_update(&[0xFF; REGION_LEN], &other_table()).expect("update");
     assert_eq!((u.slot, u.generation), (Slot::A, 1));

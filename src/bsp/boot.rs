@@ -2,7 +2,10 @@
 //! `host-tests/tests/boot.rs` on the STM32H7's calibration flash layout).
 //!
 //! 1. **Table**: the two stored copies ([`store::load`]): the newest good one, else the
-//!    other, else [`CalibrationTable::DEFAULT`], flagged in every output frame.
+//!    other, else [`CalibrationTable::DEFAULT`], flagged in every output frame. A copy is
+//!    good only after its CRCs *and* [`CalibrationTable::validate`]: every field finite and
+//!    within its plausible range (`calib::field`); a copy that fails is refused before it
+//!    is activated, and the boot log names the field, its value and the range.
 //! 2. **Flight core** built from that table. Should the core refuse a stored table
 //!    that passed its checks (gains or geometry), it is built on the default table,
 //!    flagged; if it refuses even that, the board cannot fly ([`BootError`]).
@@ -60,7 +63,7 @@ impl core::fmt::Display for BootEvent {
     /// The text of the boot log's line (the target's defmt line says the same).
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            BootEvent::CopyRefused(slot, e) => write!(f, "calibration copy {slot:?} refused ({e:?})"),
+            BootEvent::CopyRefused(slot, e) => write!(f, "calibration copy {slot:?} refused ({e})"),
             BootEvent::NoCopyPassed => write!(f, "no calibration copy passed: flying on the default table"),
             BootEvent::CoreRefused(rev, e) => {
                 write!(f, "flight core refused table revision {rev} ({e:?}): flying on the default table")

@@ -116,7 +116,7 @@ pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
     }
     let [flags, p0, p1, p2] = r.take::<4>()?;
     if flags & !1 != 0 || p0 != 0 || p1 != 0 || p2 != 0 {
-        return Err(TableError::OutOfRange);
+        return Err(TableError::BadFlags);
     }
     let t = from_fields(revision, &v, flags & 1 == 1);
     t.validate()?;

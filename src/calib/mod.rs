@@ -23,8 +23,11 @@
 
 pub mod accel;
 pub mod binary;
+pub mod field;
 pub mod section;
 pub mod store;
+
+pub use field::{Field, FieldError, FogTerm};
 
 use crate::math;
 use nalgebra::Vector3;
@@ -233,55 +236,23 @@ impl CalibrationTable {
         observer: ObserverConfig::PAPER,
     };
 
-    /// Checks that every number is finite and in a physically sensible range.
+    /// Checks that every number is finite and within its plausible range ([`field`]: the
+    /// ranges and why), and that the star-tracker mount is a unit quaternion. The refusal
+    /// names the first field outside, in storage order, with its value. No allocation, no
+    /// panic: the boot policy runs it on every stored copy before accepting it.
     pub fn validate(&self) -> Result<(), TableError> {
-        let finite = |x: f64| x.is_finite();
-        for f in &self.fog {
-            let all = [
-                f.bias_rad_s,
-                f.scale_factor_error,
-                f.t_ref_degc,
-                f.thermal_g_rad_s_per_degc_s,
-                f.thermal_tg_rad_s_per_degc2_s,
-            ];
-            if !all.iter().copied().all(finite) || !f.thermal_t_rad_s.iter().copied().all(finite) {
-                return Err(TableError::NotFinite);
+        for f in Field::all() {
+            if f.is_gain() && self.observer.gains_override.is_none() {
+                continue;
             }
-            if f.scale_factor_error.abs() > 0.1 || f.bias_rad_s.abs() > 0.01 {
-                return Err(TableError::OutOfRange);
+            let v = f.get(self);
+            if !f.spec().admits(v) {
+                return Err(TableError::Field(FieldError::new(f, v)));
             }
         }
-        let m = &self.misalignment;
-        let angles = [m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad];
-        // γ too: a NaN passes every `>` range test below (found by the `calib` fuzz target).
-        if !angles.iter().copied().all(finite) || !finite(self.gamma_rad) {
-            return Err(TableError::NotFinite);
-        }
-        if angles.iter().any(|a| a.abs() > 0.05) || (self.gamma_rad - GAMMA_NOMINAL_RAD).abs() > 0.05 {
-            return Err(TableError::OutOfRange);
-        }
-        let q = self.st_mount_q;
-        if !q.iter().copied().all(finite) {
-            return Err(TableError::NotFinite);
-        }
-        let n2: f64 = q.iter().map(|x| x * x).sum();
+        let n2: f64 = self.st_mount_q.iter().map(|x| x * x).sum();
         if (n2 - 1.0).abs() > 1e-9 {
-            return Err(TableError::OutOfRange);
-        }
-        if !(self.t_rate_filter_s.is_finite() && self.t_rate_filter_s > 0.0) {
-            return Err(TableError::OutOfRange);
-        }
-        let o = &self.observer;
-        let figures = [o.arw_deg_sqrt_h, o.rrw_deg_h_sqrt_h, o.st_sigma_arcsec, o.st_period_s];
-        if !figures.iter().copied().all(|x| x.is_finite() && x > 0.0) {
-            return Err(TableError::OutOfRange);
-        }
-        if let Some(g) = &o.gains_override {
-            let ok = g.k_b.iter().all(|k| k.is_finite() && *k > 0.0 && *k < 1.0)
-                && g.k_u_per_s.iter().all(|k| k.is_finite() && *k >= 0.0 && *k < 1.0);
-            if !ok {
-                return Err(TableError::OutOfRange);
-            }
+            return Err(TableError::MountNotUnit);
         }
         Ok(())
     }
@@ -314,10 +285,24 @@ pub enum TableError {
     BadLength,
     /// CRC-32 mismatch.
     BadCrc,
-    /// A field is NaN or infinite.
-    NotFinite,
-    /// A field is outside its physical range.
-    OutOfRange,
+    /// A number that is not finite or outside its plausible range: which, and its value.
+    Field(FieldError),
+    /// The star-tracker mount quaternion is not of unit length (within 1e-9 in |q|²).
+    MountNotUnit,
+    /// Flag or padding bits that this format does not define are set.
+    BadFlags,
+    /// The encoded table does not decode back to the same table.
+    RoundTrip,
     /// Output buffer too small for encoding.
     BufferTooSmall,
+}
+
+impl core::fmt::Display for TableError {
+    /// The variant's name, and for a refused field its name, value and range.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            TableError::Field(e) => write!(f, "{e}"),
+            other => write!(f, "{other:?}"),
+        }
+    }
 }

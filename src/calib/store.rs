@@ -71,6 +71,17 @@ pub enum StoreError {
     GenerationExhausted,
 }
 
+impl core::fmt::Display for StoreError {
+    /// The variant's name; a refused table says why (a refused field with its name, value
+    /// and range).
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            StoreError::Table(e) => write!(f, "{e}"),
+            other => write!(f, "{other:?}"),
+        }
+    }
+}
+
 /// One of the two slots.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -237,7 +248,7 @@ pub fn prepare_update(region: &[u8], new: &CalibrationTable) -> Result<Update, S
     let record = encode_record(new, generation);
     match decode_record(&record) {
         Ok((t, g)) if g == generation && t == *new => Ok(Update { slot, generation, record }),
-        Ok(_) => Err(StoreError::Table(TableError::OutOfRange)),
+        Ok(_) => Err(StoreError::Table(TableError::RoundTrip)),
         Err(e) => Err(e),
     }
 }

@@ -3,7 +3,9 @@
 //! running statistics, and what every tool's `main` shares.
 //!
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
-//! - [`table`]: the calibration table as TOML, binary and two-copy image files.
+//! - [`table`]: the calibration table as TOML (with per-field provenance), binary and
+//!   two-copy image files.
+//! - [`update`]: table updates that keep what they cannot improve; per-field differences.
 //! - [`plot`]: plots of a run (SVG).
 //! - [`stats`]: running error statistics per axis.
 //! - [`output`]: every file a tool writes: never onto an input, never half-written.
@@ -15,6 +17,7 @@ pub mod output;
 pub mod plot;
 pub mod stats;
 pub mod table;
+pub mod update;
 
 /// Arcseconds per radian.
 pub const ARCSEC_PER_RAD: f64 = 180.0 * 3600.0 / std::f64::consts::PI;

@@ -1,53 +1,130 @@
 //! The calibration table's readable TOML form on the host, and its binary form on disk.
 //!
-//! The TOML is a `format` line and the serde form of [`ssis::calib::CalibrationTable`]
-//! under `[table]`; the binary is [`ssis::calib::binary`], and the flash image of the table
-//! region (two copies) is [`ssis::calib::store`]. Reading names the file, line and field
-//! that is wrong; writing goes through a temporary file and a rename, so a failed write
-//! never leaves a half-written table where a good one was (`crate::output`).
+//! The TOML is a `format` line, the serde form of [`ssis::calib::CalibrationTable`] under
+//! `[table]` and, optionally, one `[[provenance]]` entry per field a tool set ([`Provenance`]:
+//! which command, session and model version); the binary is [`ssis::calib::binary`], and
+//! the flash image of the table region (two copies) is [`ssis::calib::store`]. Provenance is
+//! ground-side only: the binary and the image carry the table alone, so a table converts to
+//! the same bytes with or without it. Reading names the file, line and field that is wrong;
+//! writing goes through a temporary file and a rename, so a failed write never leaves a
+//! half-written table where a good one was (`crate::output`).
 
 use std::path::Path;
 
 use anyhow::{bail, Context, Result};
 use serde::{Deserialize, Serialize};
-use ssis::calib::{binary, store, CalibrationTable};
+use ssis::calib::{binary, store, CalibrationTable, Field};
 
 /// TOML format tag written at the top of every table file.
 pub const TOML_FORMAT: &str = "ssis-calibration-table/1";
+
+/// Who set one field of a table: a `[[provenance]]` entry of the TOML form.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Provenance {
+    /// The field's path under `[table]` (`fog[0].bias_rad_s`, docs/CALIBRATION.md).
+    pub field: String,
+    /// The command that set it (`ssis-lab export`, `ssis-cal allan`, …).
+    pub command: String,
+    /// The session (or telemetry) file the value came from, as given to the command.
+    pub session: String,
+    /// The model file, for a value exported from a model.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model: Option<String>,
+    /// The model's version.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub model_version: Option<u32>,
+    /// The table revision that update wrote.
+    pub revision: u32,
+}
+
+/// A table file's content: the table and the provenance of the fields tools set.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TableDoc {
+    /// The table (what the firmware gets).
+    pub table: CalibrationTable,
+    /// One entry per field set by a tool, in storage order.
+    pub provenance: Vec<Provenance>,
+}
+
+impl TableDoc {
+    /// A table with no provenance.
+    pub fn new(table: CalibrationTable) -> Self {
+        TableDoc { table, provenance: Vec::new() }
+    }
+}
 
 #[derive(Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 struct TableFile {
     format: String,
     table: CalibrationTable,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    provenance: Vec<Provenance>,
 }
 
-/// Parses the TOML form; `origin` names the source in errors.
-pub fn parse_toml(text: &str, origin: &str) -> Result<CalibrationTable> {
+/// The field named `name` (its path under `[table]`).
+pub fn field_named(name: &str) -> Option<Field> {
+    Field::all().find(|f| f.to_string() == name)
+}
+
+/// Parses the TOML form with its provenance; `origin` names the source in errors.
+pub fn parse_doc(text: &str, origin: &str) -> Result<TableDoc> {
     let f: TableFile = toml::from_str(text).map_err(|e| anyhow::anyhow!("{origin}: {e}"))?;
     if f.format != TOML_FORMAT {
         bail!("{origin}: field `format`: expected \"{TOML_FORMAT}\", found \"{}\"", f.format);
     }
-    f.table.validate().map_err(|e| anyhow::anyhow!("{origin}: table refused: {e:?}"))?;
-    Ok(f.table)
+    f.table.validate().map_err(|e| anyhow::anyhow!("{origin}: table refused: {e}"))?;
+    for p in &f.provenance {
+        if field_named(&p.field).is_none() {
+            bail!("{origin}: provenance names `{}`, which is not a field of the table (docs/CALIBRATION.md)", p.field);
+        }
+    }
+    Ok(TableDoc { table: f.table, provenance: f.provenance })
+}
+
+/// Parses the TOML form; `origin` names the source in errors. Provenance is checked and
+/// left out.
+pub fn parse_toml(text: &str, origin: &str) -> Result<CalibrationTable> {
+    parse_doc(text, origin).map(|d| d.table)
+}
+
+/// The TOML form of `doc`.
+pub fn doc_to_toml(doc: &TableDoc) -> Result<String> {
+    let f = TableFile { format: TOML_FORMAT.to_string(), table: doc.table, provenance: doc.provenance.clone() };
+    Ok(toml::to_string_pretty(&f)?)
 }
 
 /// The TOML form of `t`.
 pub fn to_toml(t: &CalibrationTable) -> Result<String> {
-    let f = TableFile { format: TOML_FORMAT.to_string(), table: *t };
-    Ok(toml::to_string_pretty(&f)?)
+    doc_to_toml(&TableDoc::new(*t))
 }
 
-/// Reads a TOML table file.
-pub fn read_toml(path: &Path) -> Result<CalibrationTable> {
+/// Reads a TOML table file with its provenance.
+pub fn read_doc(path: &Path) -> Result<TableDoc> {
     let text = std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
-    parse_toml(&text, &path.display().to_string())
+    parse_doc(text.strip_prefix('\u{feff}').unwrap_or(&text), &path.display().to_string())
+}
+
+/// Reads a TOML table file (its provenance checked and left out: what `to-bin` converts).
+pub fn read_toml(path: &Path) -> Result<CalibrationTable> {
+    read_doc(path).map(|d| d.table)
+}
+
+/// Reads a table in any of its forms by the file's extension: `.img` (the flash image, as
+/// the firmware loads it; the load's report comes along), `.bin`, else TOML.
+pub fn read_any(path: &Path) -> Result<(CalibrationTable, Option<store::Loaded>)> {
+    match path.extension().and_then(|e| e.to_str()) {
+        Some("img") => read_image(path).map(|(t, l)| (t, Some(l))),
+        Some("bin") => read_binary(path).map(|t| (t, None)),
+        _ => read_toml(path).map(|t| (t, None)),
+    }
 }
 
 /// Reads a binary table file.
 pub fn read_binary(path: &Path) -> Result<CalibrationTable> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    binary::decode(&bytes).map_err(|e| anyhow::anyhow!("{}: table refused: {e:?}", path.display()))
+    binary::decode(&bytes).map_err(|e| anyhow::anyhow!("{}: table refused: {e}", path.display()))
 }
 
 /// Writes `bytes` to `path` atomically (temporary file + rename) under the output rules
@@ -58,20 +135,26 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
 
 /// Writes the TOML form.
 pub fn write_toml(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, to_toml(t)?.as_bytes())
+}
+
+/// Writes the TOML form with its provenance.
+pub fn write_doc(path: &Path, doc: &TableDoc) -> Result<()> {
+    doc.table.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
+    write_atomic(path, doc_to_toml(doc)?.as_bytes())
 }
 
 /// Writes the binary form.
 pub fn write_binary(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, &binary::encode(t))
 }
 
 /// Writes the flash image of the table region: `t` in both slots (generation 1), the rest
 /// erased (what the QEMU board loads at 0x10000).
 pub fn write_image(path: &Path, t: &CalibrationTable) -> Result<()> {
-    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e:?}"))?;
+    t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, &store::image(t))
 }
 

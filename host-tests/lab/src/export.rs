@@ -13,18 +13,28 @@
 //!
 //! Not onboard, reported as such: `sf_asymmetry`, `sf_nonlinearity`, `magnetic`, `aging`,
 //! sinusoids and expressions.
+//!
+//! **Only what the session identifies.** A field is exported only when its term is in the
+//! model and the fit identified its regressor (the model's `fit.not_identified`); every
+//! other field keeps the base table's value (`ssis_common::update::apply` copies the
+//! exported fields onto the base bit for bit). T_ref goes with the terms in ΔT (a1..a3, h):
+//! it is exported when one of them is. A thermal-chamber session thus sets biases and
+//! thermal terms and leaves the scale factors, misalignment, geometry, mount and observer
+//! figures of the base as they were.
 
-use ssis::calib::{CalibrationTable, FogCal, Misalignment, N_FOG};
+use ssis::calib::{CalibrationTable, Field, FogTerm, N_FOG};
 
-use super::model::{axis_with, misalignment_partials, partials_at, set_angle, Catalog, Kind, Model};
+use super::model::{axis_with, misalignment_partials, partials_at, regressor_id, Catalog, Kind, Model};
 use super::session::nominal_axes;
 use super::{LabError, LabResult};
 
 /// A table made from a model, and what it leaves out.
 #[derive(Debug, Clone)]
 pub struct Export {
-    /// The table.
+    /// The base with the model's values in the fields of [`Export::set`].
     pub table: CalibrationTable,
+    /// The fields the model's session identified, in storage order: only these change.
+    pub set: Vec<Field>,
     /// Terms written to the table.
     pub applied: Vec<String>,
     /// Terms the firmware cannot apply, with the reason.
@@ -63,49 +73,75 @@ pub fn exact_axis(fog: usize, k_lin: f64, d_lin: [f64; 2]) -> (f64, [f64; 2]) {
     (norm - 1.0, d)
 }
 
-/// Builds the table from `model` (fitted), on top of `base` for everything the model does
-/// not describe (geometry γ, star-tracker mount, observer, G filter).
+/// The misalignment field of angle `k` (0 or 1, the order of
+/// [`super::model::MISALIGNMENT_ANGLES`]) of FOG `fog`.
+pub fn angle_field(fog: usize, k: usize) -> Field {
+    const ANGLES: [[Field; 2]; N_FOG] =
+        [[Field::D12, Field::D13], [Field::D21, Field::D23], [Field::D31, Field::D32], [Field::D42, Field::D43]];
+    ANGLES[fog.min(N_FOG - 1)][k.min(1)]
+}
+
+/// Builds the table from `model` (fitted) on top of `base`: the fields the model's session
+/// identified (module doc) take the model's values, every other field keeps the base's.
 pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
     let kinds = model.kinds();
     let n_fog = model.terms.iter().map(|t| t.coef.len()).max().unwrap_or(0);
     if n_fog > N_FOG {
         return Err(LabError::Model(format!("the table holds {N_FOG} FOGs, the model has {n_fog}")));
     }
+    let not_identified = model.fit.as_ref().map_or(&[][..], |f| &f.not_identified[..]);
+    let position = |c: Catalog| kinds.iter().position(|k| *k == Kind::Catalog(c));
     let coef = |c: Catalog, fog: usize, m: usize| -> f64 {
-        kinds
-            .iter()
-            .position(|k| *k == Kind::Catalog(c))
-            .and_then(|t| model.terms[t].coef.get(fog))
-            .and_then(|v| v.get(m))
-            .copied()
-            .unwrap_or(0.0)
+        position(c).and_then(|t| model.terms[t].coef.get(fog)).and_then(|v| v.get(m)).copied().unwrap_or(0.0)
+    };
+    let identified = |c: Catalog, fog: usize, m: usize| -> bool {
+        position(c).is_some_and(|t| model.terms[t].coef.get(fog).is_some_and(|v| m < v.len()))
+            && !not_identified.contains(&regressor_id(fog, &Kind::Catalog(c), m))
     };
     let mut table = *base;
-    table.revision = model.version;
-    let mut mis = Misalignment::default();
+    let mut set = Vec::new();
+    let mut put = |table: &mut CalibrationTable, f: Field, v: f64| {
+        f.set(table, v);
+        set.push(f);
+    };
     for fog in 0..n_fog {
+        let i = fog as u8;
         let (k, d) = exact_axis(
             fog,
             coef(Catalog::ScaleFactor, fog, 0),
             [coef(Catalog::Misalignment, fog, 0), coef(Catalog::Misalignment, fog, 1)],
         );
-        set_angle(&mut mis, fog, 0, d[0]);
-        set_angle(&mut mis, fog, 1, d[1]);
-        table.fog[fog] = FogCal {
-            bias_rad_s: coef(Catalog::Bias, fog, 0),
-            scale_factor_error: k,
-            t_ref_degc: model.t_ref_degc,
-            thermal_t_rad_s: [
-                coef(Catalog::ThermalT1, fog, 0),
-                coef(Catalog::ThermalT2, fog, 0),
-                coef(Catalog::ThermalT3, fog, 0),
-            ],
-            thermal_g_rad_s_per_degc_s: coef(Catalog::TempRate, fog, 0),
-            thermal_tg_rad_s_per_degc2_s: coef(Catalog::TTimesG, fog, 0),
-        };
+        if identified(Catalog::Bias, fog, 0) {
+            put(&mut table, Field::Fog(i, FogTerm::Bias), coef(Catalog::Bias, fog, 0));
+        }
+        if identified(Catalog::ScaleFactor, fog, 0) {
+            put(&mut table, Field::Fog(i, FogTerm::ScaleFactor), k);
+        }
+        for (m, angle) in d.iter().enumerate() {
+            if identified(Catalog::Misalignment, fog, m) {
+                put(&mut table, angle_field(fog, m), *angle);
+            }
+        }
+        let thermal = [
+            (Catalog::ThermalT1, FogTerm::ThermalT1),
+            (Catalog::ThermalT2, FogTerm::ThermalT2),
+            (Catalog::ThermalT3, FogTerm::ThermalT3),
+            (Catalog::TempRate, FogTerm::ThermalG),
+            (Catalog::TTimesG, FogTerm::ThermalTg),
+        ];
+        let mut in_dt = false;
+        for (c, term) in thermal {
+            if identified(c, fog, 0) {
+                put(&mut table, Field::Fog(i, term), coef(c, fog, 0));
+                in_dt |= c != Catalog::TempRate;
+            }
+        }
+        if in_dt {
+            put(&mut table, Field::Fog(i, FogTerm::TRef), model.t_ref_degc);
+        }
     }
-    table.misalignment = mis;
-    table.validate().map_err(|e| LabError::Model(format!("the exported table is refused: {e:?}")))?;
+    set.sort_by_key(|f| Field::all().position(|g| g == *f));
+    table.validate().map_err(|e| LabError::Model(format!("the exported table is refused: {e}")))?;
     let mut applied = Vec::new();
     let mut not_applied = Vec::new();
     for k in &kinds {
@@ -115,5 +151,5 @@ pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
             not_applied.push((k.label(), not_onboard_reason(k).to_string()));
         }
     }
-    Ok(Export { table, applied, not_applied })
+    Ok(Export { table, set, applied, not_applied })
 }

@@ -233,8 +233,7 @@ fn summarize(model: &Model, d: &Digest, fit: bool) -> LabResult<Fitted> {
                 slot.resize(m + 1, 0.0);
                 slot[m] = ls.coef[c];
                 if !ls.identified[c] {
-                    let lab = kinds[t].regressor_labels(fog);
-                    missing.push(format!("FOG{fog} {}.{}", kinds[t].label(), lab.get(m).map_or("?", |l| l.0.as_str())));
+                    missing.push(super::model::regressor_id(fog, &kinds[t], m));
                 }
             }
             ls.coef

@@ -276,6 +276,13 @@ impl Kind {
     }
 }
 
+/// How a fit names regressor `m` of `kind` for FOG `fog` among those it could not identify
+/// (`FOG0 scale_factor.k`; the model's `fit.not_identified`).
+pub fn regressor_id(fog: usize, kind: &Kind, m: usize) -> String {
+    let lab = kind.regressor_labels(fog);
+    format!("FOG{fog} {}.{}", kind.label(), lab.get(m).map_or("?", |l| l.0.as_str()))
+}
+
 /// The two misalignment angles of each FOG, in the order of its regressors.
 pub const MISALIGNMENT_ANGLES: [[&str; 2]; 4] = [["d12", "d13"], ["d21", "d23"], ["d31", "d32"], ["d42", "d43"]];
 
@@ -315,10 +322,71 @@ impl Model {
             }
             seen.push(k);
         }
-        if m.g_window_s.is_nan() || m.g_window_s < 0.0 {
-            return Err(LabError::Model(format!("{origin}: `g_window_s` must be 0 (automatic) or positive")));
+        if !m.g_window_s.is_finite() || m.g_window_s < 0.0 {
+            return Err(LabError::Model(format!(
+                "{origin}: field `g_window_s` = {}: must be 0 (automatic) or a positive number of seconds",
+                m.g_window_s
+            )));
         }
+        m.check_numbers().map_err(|e| LabError::Model(format!("{origin}: {e}")))?;
         Ok(m)
+    }
+
+    /// The physics a TOML parser cannot check: a supported version, a finite reference
+    /// temperature within the session range, finite coefficients, one set per FOG (as many
+    /// as the fit's FOGs, or as the other fitted terms), each with its term's number of
+    /// regressors. The message names the field.
+    fn check_numbers(&self) -> Result<(), String> {
+        if self.version == 0 {
+            return Err("field `version` = 0: model versions start at 1".into());
+        }
+        let (lo, hi) = ssis_session::TEMPERATURE_RANGE_DEGC;
+        if !(lo..=hi).contains(&self.t_ref_degc) {
+            return Err(format!(
+                "field `t_ref_degc` = {}: must be a temperature within {lo} … {hi} °C",
+                self.t_ref_degc
+            ));
+        }
+        let fit_fogs = self.fit.as_ref().map(|f| f.held_out_rms_deg_h.len()).filter(|n| *n > 0);
+        let n_fog = fit_fogs.or_else(|| self.terms.iter().map(|t| t.coef.len()).max()).unwrap_or(0);
+        let by = if fit_fogs.is_some() { "its fit (`fit.held_out_rms_deg_h`)" } else { "another term" };
+        for (j, t) in self.terms.iter().enumerate() {
+            let kind = Kind::of_spec(t).map_err(|e| e.to_string())?;
+            let name = format!("term {} (`{}`)", j + 1, kind.label());
+            if let (Kind::Sinusoid(f), false) = (&kind, t.freq_hz.is_some_and(|f| f.is_finite() && f > 0.0)) {
+                return Err(format!("{name}: field `freq_hz` = {f}: must be a positive frequency"));
+            }
+            if t.coef.is_empty() {
+                continue;
+            }
+            if t.coef.len() != n_fog {
+                return Err(format!(
+                    "{name}: field `coef` holds coefficients for {} FOGs, {by} for {n_fog}: one set per FOG",
+                    t.coef.len()
+                ));
+            }
+            for (fog, c) in t.coef.iter().enumerate() {
+                let labels = kind.regressor_labels(fog);
+                if c.len() != labels.len() {
+                    let names: Vec<&str> = labels.iter().map(|l| l.0.as_str()).collect();
+                    return Err(format!(
+                        "{name}: field `coef[{fog}]` holds {} values, the term has {} per FOG ({})",
+                        c.len(),
+                        labels.len(),
+                        names.join(", ")
+                    ));
+                }
+                if let Some((m, v)) = c.iter().enumerate().find(|(_, v)| !v.is_finite()) {
+                    return Err(format!("{name}: field `coef[{fog}][{m}]` = {v} is not a finite number"));
+                }
+            }
+        }
+        if let Some(f) = &self.fit {
+            if let Some((i, v)) = f.held_out_rms_deg_h.iter().enumerate().find(|(_, v)| !v.is_finite() || **v < 0.0) {
+                return Err(format!("field `fit.held_out_rms_deg_h[{i}]` = {v}: must be a finite RMS"));
+            }
+        }
+        Ok(())
     }
 
     /// Reads a model file.

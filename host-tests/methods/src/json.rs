@@ -14,6 +14,14 @@ fn interval(v: (f64, f64, f64)) -> Value {
     json!({"value": v.0, "ci95_low": v.1, "ci95_high": v.2})
 }
 
+/// An Allan noise term: resolved (value and 95 % interval) or only a 95 % upper bound.
+fn estimate(e: &allan::Estimate) -> Value {
+    match *e {
+        allan::Estimate::Resolved { value, lo, hi } => interval((value, lo, hi)),
+        allan::Estimate::UpperBound(u) => json!({"upper_bound_95": u}),
+    }
+}
+
 /// `magnetic`: the eq. (1)/(2) fits per FOG and the site's field.
 pub fn magnetic(r: &magnetic::MagneticResult, field_nt: Option<[f64; 3]>) -> Value {
     let fit = |f: &magnetic::SinusoidFit| {
@@ -92,10 +100,10 @@ pub fn allan(points: &[allan::AdevPoint], nt: &allan::NoiseTerms) -> Value {
         .collect();
     json!({
         "points": pts,
-        "arw_deg_sqrt_h": interval(nt.arw_deg_sqrt_h),
-        "bias_instability_deg_h": interval(nt.bias_instability_deg_h),
+        "arw_deg_sqrt_h": estimate(&nt.arw_deg_sqrt_h),
+        "bias_instability_deg_h": estimate(&nt.bias_instability_deg_h),
         "bias_instability_tau_s": nt.tau_min_s,
-        "rrw_deg_h_sqrt_h": interval(nt.rrw_deg_h_sqrt_h),
+        "rrw_deg_h_sqrt_h": estimate(&nt.rrw_deg_h_sqrt_h),
     })
 }
 

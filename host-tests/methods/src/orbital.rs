@@ -566,7 +566,7 @@ pub fn calibrate(t: &Telemetry, table: &CalibrationTable, s: &Settings) -> Resul
         scale = Some(sc);
         mount = Some(m);
     }
-    new.validate().map_err(|e| anyhow!("the calibrated table is refused: {e:?}"))?;
+    new.validate().map_err(|e| anyhow!("the calibrated table is refused: {e}"))?;
     Ok(OrbitalResult { maneuvers, bias, scale, mount, table: new })
 }
 

@@ -354,9 +354,168 @@ pub fn fit_model(samples: &[[f64; 3]], t_ref_degc: f64) -> Result<ThermalModel> 
     })
 }
 
-/// The paper's procedure: the analysis of variance first, the model only when worth it.
+/// The paper's procedure: the analysis of variance first, the model only when worth it
+/// (Table 1's 4 × 3 levels).
 pub fn analyse_and_fit(cells: &[Cell], samples: &[[f64; 3]], t_ref_degc: f64) -> Result<(Anova, Option<ThermalModel>)> {
-    let a = anova(cells, TABLE1_T_DEGC.len(), TABLE1_G_DEGC_MIN.len())?;
+    analyse_and_fit_levels(cells, samples, (TABLE1_T_DEGC.len(), TABLE1_G_DEGC_MIN.len()), t_ref_degc)
+}
+
+/// [`analyse_and_fit`] for `levels` = (u1, u2) levels of T and G.
+pub fn analyse_and_fit_levels(
+    cells: &[Cell],
+    samples: &[[f64; 3]],
+    levels: (usize, usize),
+    t_ref_degc: f64,
+) -> Result<(Anova, Option<ThermalModel>)> {
+    let a = anova(cells, levels.0, levels.1)?;
     let m = if a.model_worth_building() { Some(fit_model(samples, t_ref_degc)?) } else { None };
     Ok((a, m))
+}
+
+/// The levels a chamber session is sorted into: a sample belongs to level j of T when its
+/// temperature is within half the smallest spacing of the levels from T_j, likewise for G.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Levels {
+    /// T levels, °C.
+    pub t_degc: Vec<f64>,
+    /// G levels, °C/min.
+    pub g_degc_min: Vec<f64>,
+}
+
+impl Default for Levels {
+    /// Table 1's design.
+    fn default() -> Self {
+        Levels { t_degc: TABLE1_T_DEGC.to_vec(), g_degc_min: TABLE1_G_DEGC_MIN.to_vec() }
+    }
+}
+
+/// The level of `levels` that `x` belongs to (within half the smallest spacing).
+fn level_of(levels: &[f64], x: f64) -> Option<usize> {
+    let half = half_spacing(levels);
+    levels.iter().position(|l| (x - l).abs() < half)
+}
+
+/// The temperature rate G = dT/dt at each sample, °C/s: the slope of the least-squares line
+/// through the temperatures within ±`window_s`/2 (prefix sums, one pass).
+pub fn temperature_rate(t_s: &[f64], temp_degc: &[f64], window_s: f64) -> Vec<f64> {
+    let n = t_s.len();
+    let t0 = t_s.first().copied().unwrap_or(0.0);
+    let mut pre = vec![[0.0f64; 5]; n + 1];
+    for k in 0..n {
+        let (t, y) = (t_s[k] - t0, temp_degc[k]);
+        let p = pre[k];
+        pre[k + 1] = [p[0] + 1.0, p[1] + t, p[2] + y, p[3] + t * t, p[4] + t * y];
+    }
+    let (mut lo, mut hi) = (0usize, 0usize);
+    (0..n)
+        .map(|k| {
+            while t_s[lo] < t_s[k] - window_s / 2.0 {
+                lo += 1;
+            }
+            while hi < n && t_s[hi] <= t_s[k] + window_s / 2.0 {
+                hi += 1;
+            }
+            let s: Vec<f64> = (0..5).map(|j| pre[hi][j] - pre[lo][j]).collect();
+            let den = s[0] * s[3] - s[1] * s[1];
+            if s[0] < 2.0 || den <= 0.0 {
+                0.0
+            } else {
+                (s[0] * s[4] - s[1] * s[2]) / den
+            }
+        })
+        .collect()
+}
+
+/// A user's chamber session sorted into the design's cells, for FOG `fog`.
+#[derive(Debug, Clone)]
+pub struct Chamber {
+    /// The cells present, each cut to the same N (the smallest cell's).
+    pub cells: Vec<Cell>,
+    /// (T °C, G °C/s, y rad/s), block means of the samples in cells, for the model fit.
+    pub samples: Vec<[f64; 3]>,
+    /// Samples that fell in no cell (between levels: transitions).
+    pub outside: usize,
+    /// Samples per cell before the cut, in the order of `cells`.
+    pub counts: Vec<usize>,
+}
+
+/// Sorts FOG `fog` of a chamber session into the cells of `levels` (module doc), with
+/// Y = ω − s⁰·ω_ref (the FOG's output less the reference rate along its nominal axis) and G
+/// from the FOG's temperature over a `window_s` window. Refused, saying what the session
+/// lacks: the FOG, its temperature column, a level of T or G with no sample, or cells too
+/// small.
+pub fn chamber_cells(s: &ssis_session::Session, fog: usize, levels: &Levels, window_s: f64) -> Result<Chamber> {
+    let file = &s.file;
+    let Some(f) = s.fogs.get(fog) else {
+        bail!("{file}: the session has no `fog{fog}_rad_s` (or `fog{fog}_rad`) column: no FOG{fog} output")
+    };
+    let Some(temp) = f.t_degc.as_ref() else {
+        bail!(
+            "{file}: the session lacks `fog{fog}_t_degc`: the thermal analysis needs the FOG's temperature \
+             (docs/SESSION-FORMAT.md)"
+        )
+    };
+    let axis = ssis_session::nominal_axes()[fog.min(3)];
+    let t_s = s.t_s();
+    let g = temperature_rate(t_s, temp, window_s);
+    let mut by_cell: Vec<((usize, usize), Vec<usize>)> = Vec::new();
+    let mut outside = 0;
+    for k in 0..t_s.len() {
+        match (level_of(&levels.t_degc, temp[k]), level_of(&levels.g_degc_min, g[k] * 60.0)) {
+            (Some(j), Some(l)) => match by_cell.iter_mut().find(|c| c.0 == (j, l)) {
+                Some(c) => c.1.push(k),
+                None => by_cell.push(((j, l), vec![k])),
+            },
+            _ => outside += 1,
+        }
+    }
+    for (j, tl) in levels.t_degc.iter().enumerate() {
+        if !by_cell.iter().any(|c| c.0 .0 == j) {
+            bail!(
+                "{file}: no sample of FOG{fog} at T = {tl} °C (±{:.3} °C) at any of the G levels: the session lacks \
+                 that temperature level (levels {:?} °C; --t-levels-degc sets them)",
+                half_spacing(&levels.t_degc),
+                levels.t_degc
+            );
+        }
+    }
+    for (l, gl) in levels.g_degc_min.iter().enumerate() {
+        if !by_cell.iter().any(|c| c.0 .1 == l) {
+            bail!(
+                "{file}: no sample of FOG{fog} at G = {gl} °C/min (±{:.3} °C/min, G from `fog{fog}_t_degc` over \
+                 {window_s:.0} s) at any T level: the session lacks that gradient level (levels {:?} °C/min; \
+                 --g-levels-degc-min sets them)",
+                half_spacing(&levels.g_degc_min),
+                levels.g_degc_min
+            );
+        }
+    }
+    by_cell.sort_by_key(|c| c.0);
+    let n = by_cell.iter().map(|c| c.1.len()).min().unwrap_or(0);
+    if n < 2 {
+        bail!("{file}: a cell of the design has fewer than 2 samples of FOG{fog}: the session is too short per cell");
+    }
+    let y = |k: usize| {
+        let w = s.ref_rad_s[k];
+        f.rate_rad_s[k] - (axis.x * w[0] + axis.y * w[1] + axis.z * w[2])
+    };
+    let cells = by_cell
+        .iter()
+        .map(|((j, l), ks)| Cell { t_level: *j, g_level: *l, y: ks.iter().take(n).map(|&k| y(k)).collect() })
+        .collect();
+    let used: usize = by_cell.iter().map(|c| c.1.len()).sum();
+    let block = used.div_ceil(20_000).max(1);
+    let mut samples = Vec::new();
+    for (_, ks) in &by_cell {
+        for chunk in ks.chunks(block) {
+            let m = chunk.len() as f64;
+            let mean = |v: &dyn Fn(usize) -> f64| chunk.iter().map(|&k| v(k)).sum::<f64>() / m;
+            samples.push([mean(&|k| temp[k]), mean(&|k| g[k]), mean(&y)]);
+        }
+    }
+    Ok(Chamber { cells, samples, outside, counts: by_cell.iter().map(|c| c.1.len()).collect() })
+}
+
+fn half_spacing(levels: &[f64]) -> f64 {
+    levels.windows(2).map(|w| (w[1] - w[0]).abs()).fold(f64::INFINITY, f64::min) / 2.0
 }

@@ -39,6 +39,53 @@ pub enum SessionErrorKind {
     FieldCount,
     /// A value that is a number but not acceptable (time not increasing).
     BadValue,
+    /// A number outside its physical range (a rate beyond the FOG's measuring range, a
+    /// temperature outside −100…+150 °C, an absurd magnitude).
+    OutOfRange,
+    /// The last line has no line end: the file may have been cut while it was written.
+    Truncated,
+    /// Not UTF-8 text (a UTF-16 byte-order mark).
+    Encoding,
+}
+
+/// The FOG's measuring range, rad/s: ±100 °/s, that of the launch-vehicle unit, the larger
+/// of the two units' (`ssis::flight::Profile`). A session's FOG rates (or increments over
+/// their interval) and reference rates beyond it are refused.
+pub const MEASURING_RANGE_RAD_S: f64 = 100.0 * std::f64::consts::PI / 180.0;
+
+/// The temperatures a session may hold, °C (a FOG or chamber outside is a wrong column or
+/// unit: kelvin, a sensor fault code).
+pub const TEMPERATURE_RANGE_DEGC: (f64, f64) = (-100.0, 150.0);
+
+/// Largest magnitude of any value of any column: beyond it a number is a corrupted field
+/// (`1e300`), whatever the column's unit.
+pub const ABSURD_MAGNITUDE: f64 = 1e12;
+
+/// `v` as a person reads it: plain between 10⁻⁴ and 10⁷ (four decimals at most), else with
+/// an exponent (`1e300`).
+fn readable(v: f64) -> String {
+    if v == 0.0 || (1e-4..1e7).contains(&v.abs()) {
+        let s = format!("{v:.4}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
+/// The physical range of a column of `role`, in its unit, and the words that say why.
+pub fn physical_range(role: Role) -> ((f64, f64), &'static str) {
+    let r = MEASURING_RANGE_RAD_S;
+    match role {
+        Role::FogRate(_) => ((-r, r), "the FOG's measuring range, ±100 °/s"),
+        Role::TableRate | Role::Reference(_) => ((-r, r), "the FOG's measuring range, ±100 °/s (a reference rate)"),
+        Role::FogTemp(_) => (TEMPERATURE_RANGE_DEGC, "−100 … +150 °C"),
+        Role::Lat => {
+            let h = std::f64::consts::FRAC_PI_2;
+            ((-h, h), "±π/2 rad (a latitude in degrees?)")
+        }
+        Role::Field(_) => ((-1e7, 1e7), "±10⁷ nT (10 mT; the Earth's field is about 5·10⁴ nT)"),
+        _ => ((-ABSURD_MAGNITUDE, ABSURD_MAGNITUDE), "±10¹² in any unit"),
+    }
 }
 
 /// A refused session: file, line, column and what is wrong.
@@ -476,6 +523,35 @@ impl Header {
         }
     }
 
+    /// Checks one row's values against their columns' physical ranges ([`physical_range`];
+    /// a FOG increment as the rate over its interval since `prev_t`, if there is one): the
+    /// first value outside, as kind, 0-based column and message.
+    pub fn check_values(&self, row: &[f64], prev_t: Option<f64>) -> Option<(SessionErrorKind, usize, String)> {
+        for (k, (&v, &role)) in row.iter().zip(&self.roles).enumerate() {
+            let (v, role, per) = match (role, prev_t) {
+                (Role::FogIncrement(i), Some(p)) => {
+                    (v / (row[self.layout.t] - p), Role::FogRate(i), " over its interval")
+                }
+                (Role::FogIncrement(_), None) => (v, Role::Extra, ""),
+                _ => (v, role, ""),
+            };
+            let ((lo, hi), why) = physical_range(role);
+            if !(lo..=hi).contains(&v) {
+                let deg = if matches!(role, Role::FogRate(_) | Role::TableRate | Role::Reference(_)) {
+                    format!(" ({} °/s)", readable(v.to_degrees()))
+                } else {
+                    String::new()
+                };
+                return Some((
+                    SessionErrorKind::OutOfRange,
+                    k,
+                    format!("`{}`{per}{deg} is outside {why}", readable(row[k])),
+                ));
+            }
+        }
+        None
+    }
+
     /// A header of any numeric CSV with a `t_s` column and the `required` ones (every column
     /// a user column; for logs that are not sessions, `ssis_lab::framelog`).
     pub fn plain(file: &str, names: Vec<String>, line: u64, required: &[&str]) -> Result<Header, SessionError> {
@@ -779,6 +855,8 @@ pub struct RowReader {
     last_t: f64,
     rows: u64,
     bytes: u64,
+    /// The last line [`RowReader::next_line`] returned ended the file without a `\n`.
+    unterminated: bool,
 }
 
 /// The bytes a [`RowReader`] reads from: the whole file mapped ([`map_file`]), or read
@@ -910,6 +988,7 @@ impl RowReader {
             last_t: f64::NEG_INFINITY,
             rows: 0,
             bytes: 0,
+            unterminated: false,
         };
         let names = loop {
             let Some((a, b)) = r.next_line().map_err(|e| io(&e))? else {
@@ -921,7 +1000,20 @@ impl RowReader {
                     message: "the file is empty: expected a header line naming the columns".into(),
                 });
             };
-            let line = &r.buf[a..b];
+            let mut line = &r.buf[a..b];
+            if r.line == 1 {
+                if line.starts_with(&[0xFF, 0xFE]) || line.starts_with(&[0xFE, 0xFF]) {
+                    return Err(SessionError {
+                        kind: SessionErrorKind::Encoding,
+                        file: file_name,
+                        line: 1,
+                        column: None,
+                        message: "the file is UTF-16 text (byte-order mark FF FE or FE FF): save it as UTF-8".into(),
+                    });
+                }
+                // A UTF-8 byte-order mark (spreadsheets write one) is not part of the first name.
+                line = line.strip_prefix(&[0xEF, 0xBB, 0xBF]).unwrap_or(line);
+            }
             if !skipped_line(line) {
                 break line.split(|&c| c == b',').map(|f| String::from_utf8_lossy(trim(f)).to_string()).collect();
             }
@@ -960,6 +1052,7 @@ impl RowReader {
             }
             if self.eof {
                 if self.start < self.end {
+                    self.unterminated = true;
                     let (a, b) = (self.start, self.end);
                     self.start = self.end;
                     self.line += 1;
@@ -1076,6 +1169,21 @@ impl RowReader {
                         return Err(self.header.err(kind, line_no, Some(col), msg));
                     }
                 }
+                if self.unterminated {
+                    let last = line.rsplit(|&c| c == b',').next().map(trim).unwrap_or(&[]);
+                    let (line_no, col) = (self.line, self.values.len().saturating_sub(1));
+                    return Err(self.header.err(
+                        SessionErrorKind::Truncated,
+                        line_no,
+                        Some(col),
+                        format!(
+                            "the file ends inside this line, after `{}` with no line end: it may be truncated (cut \
+                             while being written?), a number cut short reads as another; every line of a session \
+                             ends with a newline",
+                            String::from_utf8_lossy(last)
+                        ),
+                    ));
+                }
             }
             let t = self.values[t_col];
             if t <= self.last_t {
@@ -1086,6 +1194,11 @@ impl RowReader {
                     Some(t_col),
                     "time does not increase",
                 ));
+            }
+            let prev = (self.rows > 0).then_some(self.last_t);
+            if let Some((kind, col, msg)) = self.header.check_values(&self.values, prev) {
+                let line_no = self.line;
+                return Err(self.header.err(kind, line_no, Some(col), msg));
             }
             self.last_t = t;
             self.rows += 1;
@@ -1321,6 +1434,9 @@ pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -
         if row[h.layout.t] <= last_t {
             return Err(h.err(SessionErrorKind::BadValue, line, Some(h.layout.t), "time does not increase"));
         }
+        if let Some((kind, col, msg)) = h.check_values(&row, (j > 0).then_some(last_t)) {
+            return Err(h.err(kind, line, Some(col), msg));
+        }
         last_t = row[h.layout.t];
         if conv.convert(&row, &mut rec) {
             b.push(&SampleRef::of_record(&rec, h.layout.n_fog));
@@ -1461,7 +1577,7 @@ mod read_paths {
 
     /// A regular file is mapped, a pipe is read a chunk at a time: the same rows, bit for
     /// bit, through comments, blank lines, spaces, CRLF ends, a line longer than a read
-    /// chunk (a comment) and a last line without `\n`.
+    /// chunk (a comment); and both refuse a last line without `\n` as possibly truncated.
     #[test]
     fn mapped_and_read_give_the_same_rows() {
         let mut text = String::from("# a session\nt_s, fog0_rad_s ,fog0_t_degc,ref_x_rad_s,ref_y_rad_s,ref_z_rad_s\n");
@@ -1477,7 +1593,7 @@ mod read_paths {
                 25.0 + 1e-3 * k as f64
             ));
         }
-        text.push_str("50.0,1e-5,25.1,1.75e-2,0,0");
+        text.push_str("50.0,1e-5,25.1,1.75e-2,0,-5.72e-5\n");
         let dir = std::env::temp_dir().join(format!("ssis-read-paths-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("a temporary directory");
         let file = dir.join("s.csv");
@@ -1494,10 +1610,31 @@ mod read_paths {
         let rw = std::fs::OpenOptions::new().read(true).write(true).open(&fifo).expect("opens");
         assert!(super::map_file(&rw).is_none(), "a pipe is read");
         drop(rw);
-        let writer = std::thread::spawn(move || std::fs::write(&fifo, text).expect("written to the pipe"));
+        let whole = text.clone();
+        let writer = std::thread::spawn(move || std::fs::write(&fifo, whole).expect("written to the pipe"));
         let read = rows(&dir.join("s.fifo"));
         writer.join().expect("the writer ends");
         assert_eq!(read, mapped);
+        // The same file cut inside its last number (`-5.72e-5` → `-5.72`): refused, mapped or read.
+        let cut = &text[..text.len() - 4];
+        std::fs::write(&file, cut).expect("written");
+        let refusal = |path: &std::path::Path| {
+            let mut rr = RowReader::open(path).expect("opens");
+            loop {
+                match rr.next_row() {
+                    Ok(Some(_)) => {}
+                    Ok(None) => panic!("a cut last line was read as a row"),
+                    Err(e) => return e,
+                }
+            }
+        };
+        let e = refusal(&file);
+        assert_eq!((e.kind, e.line), (super::SessionErrorKind::Truncated, 5004), "{e}");
+        let (fifo, cut) = (dir.join("s.fifo"), cut.to_string());
+        let writer = std::thread::spawn(move || std::fs::write(&fifo, cut).expect("written to the pipe"));
+        let e2 = refusal(&dir.join("s.fifo"));
+        writer.join().expect("the writer ends");
+        assert_eq!(e2.to_string(), e.to_string().replace("s.csv", "s.fifo"));
         let _ = std::fs::remove_dir_all(&dir);
     }
 

@@ -333,10 +333,22 @@ pub struct Summary {
     pub star_link: LinkStats,
     /// Turn-on FOG biases drawn, °/h.
     pub fog_random_bias_deg_h: [f64; N_FOG],
+    /// The run was stopped before this step (interrupted): the figures are partial.
+    pub stopped_at_step: Option<u64>,
+    /// The FOGs the unit has.
+    pub fogs: FogSet,
+    /// Whether the unit has a star tracker and the scenario enables it.
+    pub star_tracker: bool,
 }
 
 /// Runs `sc` through the in-process core, calling `on_step` with every step's record.
-pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
+pub fn run(sc: &Scenario, on_step: impl FnMut(&Record)) -> Result<Summary> {
+    run_until(sc, || false, on_step)
+}
+
+/// [`run`], stopping early (a partial summary, [`Summary::stopped_at_step`]) once `stop`
+/// returns true; it is asked before every step.
+pub fn run_until(sc: &Scenario, mut stop: impl FnMut() -> bool, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
     let mut sim = Simulation::new(sc)?;
     let mut eval = Evaluator::new(&sim);
     let profile = sim.profile;
@@ -351,7 +363,12 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
     let mut out_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let (mut frames_out, mut frames_bad, mut mismatch) = (0u64, 0u64, 0u64);
     let mut last = None;
+    let mut stopped_at_step = None;
     while let Some(input) = sim.next_step() {
+        if stop() {
+            stopped_at_step = Some(input.n - 1);
+            break;
+        }
         eval.push_truth(input.truth);
         let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, profile.fogs);
         last = Some(out);
@@ -383,6 +400,9 @@ pub fn run(sc: &Scenario, mut on_step: impl FnMut(&Record)) -> Result<Summary> {
         fog_links: [0, 1, 2, 3].map(|i| fog_links[i].stats()),
         star_link: star_link.stats(),
         fog_random_bias_deg_h: sim.fog_random_bias_rad_s().map(|b| b * DEG_H_PER_RAD_S),
+        stopped_at_step,
+        fogs: profile.fogs,
+        star_tracker: profile.star_tracker && sc.star_tracker.enabled,
     })
 }
 
@@ -394,11 +414,47 @@ pub fn frame_matches(f: &OutputFrame, out: &StepOutput) -> bool {
 }
 
 impl Summary {
+    /// The sources that delivered nothing, in words (empty when every source delivered): a
+    /// FOG link that dropped every byte, a star tracker none of whose frames the unit
+    /// accepted, or no step evaluated after settling. A run with any has no accuracy figure
+    /// to report (its 3σ would print as 0.00″).
+    pub fn silent_sources(&self) -> Vec<String> {
+        let mut out = Vec::new();
+        for (i, l) in self.fog_links.iter().enumerate().filter(|(i, _)| self.fogs.contains(*i)) {
+            if l.sent > 0 && l.dropped == l.sent {
+                out.push(format!(
+                    "FOG{i}'s link delivered nothing: all {} bytes dropped (links.fog.drop_prob)",
+                    l.sent
+                ));
+            }
+        }
+        if self.star_tracker && self.counters.st_frames_accepted == 0 {
+            let l = &self.star_link;
+            out.push(format!(
+                "the star tracker delivered no frame the unit accepted ({} bytes sent, {} dropped, {} frames rejected)",
+                l.sent, l.dropped, self.counters.st_frames_rejected
+            ));
+        }
+        if self.accuracy.att.count() == 0 {
+            out.push(format!("no step was evaluated after settling at {:.0} s", self.accuracy.settle_s));
+        }
+        out
+    }
+
     /// A report a person can read.
     pub fn report(&self) -> String {
         use std::fmt::Write;
         let mut s = String::new();
         let _ = writeln!(s, "scenario  {}  ({:.0} s simulated, {} steps)", self.name, self.duration_s, self.steps);
+        if let Some(n) = self.stopped_at_step {
+            let _ = writeln!(
+                s,
+                "INTERRUPTED after {n} of {} steps ({:.1} s of {:.0} s): the figures below are partial",
+                self.steps,
+                self.duration_s * n as f64 / self.steps.max(1) as f64,
+                self.duration_s
+            );
+        }
         s.push_str(&self.accuracy.table());
         let c = &self.counters;
         let _ = writeln!(

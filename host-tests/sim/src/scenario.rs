@@ -127,24 +127,102 @@ pub struct Scenario {
     pub base_dir: PathBuf,
 }
 
+/// Longest simulated time a scenario runs without `--allow-long`, s (30 days): a longer one
+/// is most likely a typo (hours written as seconds) and would run for days.
+pub const LONG_DURATION_S: f64 = 30.0 * 86_400.0;
+
 impl Scenario {
-    /// Reads and checks a scenario file; errors name the file, line and field.
+    /// Reads and checks a scenario file; errors name the file, line and field. Longer than
+    /// [`LONG_DURATION_S`] is refused ([`Scenario::from_file_with`] allows it).
     pub fn from_file(path: &Path) -> Result<Self> {
+        Self::from_file_with(path, false)
+    }
+
+    /// [`Scenario::from_file`], with durations over 30 days allowed when `allow_long`.
+    pub fn from_file_with(path: &Path, allow_long: bool) -> Result<Self> {
         let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scenario {}", path.display()))?;
         let mut sc: Scenario = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e))?;
         sc.base_dir = path.parent().map(Path::to_path_buf).unwrap_or_default();
         sc.check().with_context(|| format!("{}: invalid scenario", path.display()))?;
+        anyhow::ensure!(
+            allow_long || sc.duration_s <= LONG_DURATION_S,
+            "{}: invalid scenario: field `duration_s` = {} s ({:.1} days) is over 30 days (hours written as seconds?); \
+             give --allow-long to run it",
+            path.display(),
+            sc.duration_s,
+            sc.duration_s / 86_400.0
+        );
         Ok(sc)
     }
 
-    /// Sanity checks that TOML types cannot express.
+    /// Checks that TOML types cannot express, each refusal naming the field: every number
+    /// finite; durations and rates positive; probabilities in [0, 1]; axes not zero.
     pub fn check(&self) -> Result<()> {
-        anyhow::ensure!(self.duration_s > 0.0 && self.duration_s.is_finite(), "duration_s must be > 0");
-        anyhow::ensure!(self.settle_s >= 0.0 && self.settle_s < self.duration_s, "settle_s must be in [0, duration_s)");
+        let value = toml::Value::try_from(self).context("the scenario does not serialise")?;
+        if let Some((path, v)) = first_non_finite(&value, String::new()) {
+            anyhow::bail!("field `{path}` = {v} is not a finite number");
+        }
+        anyhow::ensure!(self.duration_s > 0.0, "field `duration_s` = {}: must be > 0", self.duration_s);
         anyhow::ensure!(
-            !self.star_tracker.enabled || self.star_tracker.rate_hz > 0.0,
-            "star_tracker.rate_hz must be > 0"
+            self.settle_s >= 0.0 && self.settle_s < self.duration_s,
+            "field `settle_s` = {}: must be in [0, duration_s = {})",
+            self.settle_s,
+            self.duration_s
         );
+        let st = &self.star_tracker;
+        anyhow::ensure!(!st.enabled || st.rate_hz > 0.0, "field `star_tracker.rate_hz` = {}: must be > 0", st.rate_hz);
+        for (name, v) in [
+            ("star_tracker.sigma_3sigma_arcsec", st.sigma_3sigma_arcsec),
+            ("star_tracker.latency_ms", st.latency_ms),
+            ("fog.arw_deg_sqrt_h", self.fog.arw_deg_sqrt_h),
+            ("fog.rrw_deg_h_sqrt_h", self.fog.rrw_deg_h_sqrt_h),
+            ("fog.random_bias_3sigma_deg_h", self.fog.random_bias_3sigma_deg_h),
+            ("fog.random_scale_3sigma", self.fog.random_scale_3sigma),
+            ("fog.random_axis_3sigma_arcsec", self.fog.random_axis_3sigma_arcsec),
+        ] {
+            anyhow::ensure!(v >= 0.0, "field `{name}` = {v}: must be ≥ 0");
+        }
+        for (k, o) in st.outages.iter().enumerate() {
+            anyhow::ensure!(
+                o[0] < o[1],
+                "field `star_tracker.outages[{k}]` = {o:?}: must be [start, end) with start < end"
+            );
+        }
+        anyhow::ensure!(
+            self.fog.temperature.sine_period_s > 0.0,
+            "field `fog.temperature.sine_period_s` = {}: must be > 0",
+            self.fog.temperature.sine_period_s
+        );
+        for (link, imp) in [("fog", &self.links.fog), ("star", &self.links.star)] {
+            for (name, p) in [("drop_prob", imp.drop_prob), ("bit_flip_prob", imp.bit_flip_prob)] {
+                anyhow::ensure!(
+                    (0.0..=1.0).contains(&p),
+                    "field `links.{link}.{name}` = {p}: a probability must be in [0, 1]"
+                );
+            }
+        }
+        let zero = |a: [f64; 3]| a.iter().map(|x| x * x).sum::<f64>() < 1e-24;
+        for (k, sl) in self.motion.slews.iter().enumerate() {
+            anyhow::ensure!(
+                !zero(sl.axis),
+                "field `motion.slews[{k}].axis` = {:?}: the axis must not be zero",
+                sl.axis
+            );
+            anyhow::ensure!(
+                sl.duration_s > 0.0,
+                "field `motion.slews[{k}].duration_s` = {}: must be > 0",
+                sl.duration_s
+            );
+        }
+        for (k, m) in self.motion.modes.iter().enumerate() {
+            anyhow::ensure!(!zero(m.axis), "field `motion.modes[{k}].axis` = {:?}: the axis must not be zero", m.axis);
+        }
+        if let Some(q) = self.motion.initial_q {
+            anyhow::ensure!(
+                q.iter().map(|x| x * x).sum::<f64>() > 1e-24,
+                "field `motion.initial_q` = {q:?}: must not be zero"
+            );
+        }
         Ok(())
     }
 
@@ -161,7 +239,20 @@ impl Scenario {
         if let Some(o) = self.table.observer {
             t.observer = o;
         }
-        t.validate().map_err(|e| anyhow::anyhow!("unit table invalid: {e:?}"))?;
+        t.validate().map_err(|e| anyhow::anyhow!("unit table invalid: {e}"))?;
         Ok(t)
+    }
+}
+
+/// The path and value of the first number in `v` that is not finite (`motion.slews[0].axis[1]`).
+fn first_non_finite(v: &toml::Value, path: String) -> Option<(String, f64)> {
+    match v {
+        toml::Value::Float(f) if !f.is_finite() => Some((path, *f)),
+        toml::Value::Array(a) => a.iter().enumerate().find_map(|(k, x)| first_non_finite(x, format!("{path}[{k}]"))),
+        toml::Value::Table(t) => t.iter().find_map(|(key, x)| {
+            let p = if path.is_empty() { key.clone() } else { format!("{path}.{key}") };
+            first_non_finite(x, p)
+        }),
+        _ => None,
     }
 }

@@ -12,6 +12,7 @@ use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin, Own};
+use ssis_common::update;
 use ssis_common::DEG_H_PER_RAD_S;
 use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
 use ssis_lab::export::to_table;
@@ -527,20 +528,28 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
     if m.fit.is_none() && m.terms.iter().all(|t| t.coef.is_empty()) {
         bail!("{}: the model has no coefficients: fit it first (ssis-lab add or compare)", model.display());
     }
-    let base_table = match &base {
-        Some(p) => ssis_common::table::read_toml(p)?,
-        None => ssis::calib::CalibrationTable::DEFAULT,
+    let base_doc = match &base {
+        Some(p) => ssis_common::table::read_doc(p)?,
+        None => ssis_common::table::TableDoc::new(ssis::calib::CalibrationTable::DEFAULT),
     };
-    let e = to_table(&m, &base_table)?;
+    let e = to_table(&m, &base_doc.table).with_context(|| format!("{}: nothing written", model.display()))?;
     if toml.is_none() && bin.is_none() {
         bail!("nothing to write: give --toml and/or --bin");
     }
+    let origin = update::Origin {
+        command: "ssis-lab export".into(),
+        session: m.fit.as_ref().map_or_else(|| "(coefficients as written in the model)".into(), |f| f.session.clone()),
+        model: Some((model.display().to_string(), m.version)),
+    };
+    let (doc, changes) = ssis_common::update::apply(&base_doc, &e.table, &e.set, &origin)
+        .with_context(|| format!("{}: nothing written", model.display()))?;
+    print!("{}", ssis_common::update::report(&base_doc, &doc, &changes, &origin));
     if let Some(p) = &toml {
-        ssis_common::table::write_toml(p, &e.table)?;
+        ssis_common::table::write_doc(p, &doc)?;
         println!("wrote {}", p.display());
     }
     if let Some(p) = &bin {
-        ssis_common::table::write_binary(p, &e.table)?;
+        ssis_common::table::write_binary(p, &doc.table)?;
         println!("wrote {}", p.display());
     }
     println!("applied onboard: {}", e.applied.join(", "));
@@ -551,7 +560,7 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
     });
     if let Some(f) = m.fit.as_ref().filter(|f| !f.not_identified.is_empty()) {
         println!(
-            "WARNING: {} could not identify {} (exported as 0; their constant part is in the bias)",
+            "{} could not identify {}: those fields keep the base's values (their constant part is in the bias)",
             f.session,
             f.not_identified.join(", ")
         );

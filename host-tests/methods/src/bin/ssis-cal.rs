@@ -9,9 +9,11 @@ use std::process::ExitCode;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand, ValueEnum};
-use ssis::calib::CalibrationTable;
+use ssis::calib::{CalibrationTable, Field, FogTerm};
 use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin, Own};
+use ssis_common::table::TableDoc;
+use ssis_common::update;
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 use ssis_methods::{self as methods, allan, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova, Series};
 use ssis_session::read_session;
@@ -65,8 +67,18 @@ enum Cmd {
     /// Two-factor ANOVA of Tables 1-2, and the thermal model when it is worth building.
     Thermal {
         /// Simulated batch in the paper's Table 1 design (N = 240 000 at 5 ms).
-        #[arg(long, value_enum)]
-        simulate: Batch,
+        #[arg(long, value_enum, required_unless_present = "session", conflicts_with = "session")]
+        simulate: Option<Batch>,
+        /// A chamber session (docs/SESSION-FORMAT.md) with the FOG's temperature column:
+        /// samples are sorted into the T × G levels.
+        #[arg(long)]
+        session: Option<PathBuf>,
+        /// T levels of the design, °C.
+        #[arg(long, value_delimiter = ',', default_values_t = thermal_anova::TABLE1_T_DEGC)]
+        t_levels_degc: Vec<f64>,
+        /// G levels of the design, °C/min.
+        #[arg(long, value_delimiter = ',', allow_negative_numbers = true, default_values_t = thermal_anova::TABLE1_G_DEGC_MIN)]
+        g_levels_degc_min: Vec<f64>,
         /// Seed of the simulation.
         #[arg(long, default_value_t = 1)]
         seed: u64,
@@ -254,7 +266,8 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
             output::input(screened);
             plot(p, "magnetic.svg", "Magnetic component").map(|()| "magnetic")?
         }
-        Cmd::Thermal { plot: p, table: t, .. } => {
+        Cmd::Thermal { plot: p, table: t, session, .. } => {
+            session.iter().for_each(|s| output::input(s));
             t.as_deref().map(table).transpose()?;
             plot(p, "thermal.svg", "Thermal test: cell means").map(|()| "thermal")?
         }
@@ -284,22 +297,35 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
     Ok(())
 }
 
-/// Reads the table to update (an existing file must parse: it is never overwritten by a
-/// default), or the default when the file does not exist (`--new-table`: [`files`] refuses
-/// a missing table without it).
-fn load_table(path: &Path) -> Result<CalibrationTable> {
+/// Reads the table to update with its provenance (an existing file must parse: it is never
+/// overwritten by a default), or the default when the file does not exist (`--new-table`:
+/// [`files`] refuses a missing table without it).
+fn load_table(path: &Path) -> Result<TableDoc> {
     if path.exists() {
-        ssis_common::table::read_toml(path)
+        ssis_common::table::read_doc(path)
     } else {
-        Ok(CalibrationTable::DEFAULT)
+        Ok(TableDoc::new(CalibrationTable::DEFAULT))
     }
 }
 
-fn save_table(path: &Path, t: &mut CalibrationTable) -> Result<()> {
-    t.revision = t.revision.wrapping_add(1);
-    ssis_common::table::write_toml(path, t).with_context(|| format!("{}: table not written", path.display()))?;
-    println!("updated {} (revision {})", path.display(), t.revision);
-    cli::report("table", || json!({"path": path.display().to_string(), "revision": t.revision}));
+/// Writes `base` with the `set` fields of `proposed` (everything else kept bit for bit, the
+/// revision raised by one, the provenance of the set fields recorded) and prints the change
+/// field by field.
+fn save_table(
+    path: &Path,
+    base: &TableDoc,
+    proposed: &CalibrationTable,
+    set: &[Field],
+    command: &str,
+    session: String,
+) -> Result<()> {
+    let origin = update::Origin { command: format!("ssis-cal {command}"), session, model: None };
+    let (doc, changes) = ssis_common::update::apply(base, proposed, set, &origin)
+        .with_context(|| format!("{}: table not written", path.display()))?;
+    ssis_common::table::write_doc(path, &doc).with_context(|| format!("{}: table not written", path.display()))?;
+    print!("{}", ssis_common::update::report(base, &doc, &changes, &origin));
+    println!("updated {} (revision {})", path.display(), doc.table.revision);
+    cli::report("table", || json!({"path": path.display().to_string(), "revision": doc.table.revision}));
     Ok(())
 }
 
@@ -308,7 +334,15 @@ fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Simulate { what } => simulate(what),
         Cmd::Magnetic { unscreened, screened, plot } => magnetic_cmd(unscreened, screened, plot),
-        Cmd::Thermal { simulate, seed, fog, plot, table } => thermal_cmd(simulate, seed, fog, plot, table),
+        Cmd::Thermal { simulate, session, t_levels_degc, g_levels_degc_min, seed, fog, plot, table } => {
+            let levels = thermal_anova::Levels { t_degc: t_levels_degc, g_degc_min: g_levels_degc_min };
+            let input = match (simulate, session) {
+                (_, Some(s)) => ThermalInput::Session(s, levels),
+                (Some(b), None) => ThermalInput::Simulate(b, seed),
+                (None, None) => bail!("give --session or --simulate"),
+            };
+            thermal_cmd(input, fog, plot, table)
+        }
         Cmd::Allan { session, fog, plot, table } => allan_cmd(session, fog, plot, table),
         Cmd::Turns { session, plot, table } => turns_cmd(session, plot, table),
         Cmd::Sins { session, plot, table } => sins_cmd(session, plot, table),
@@ -404,15 +438,48 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
     Ok(())
 }
 
-/// The two-factor ANOVA of a simulated batch and, when T is significant, the thermal model (into
-/// the table with `--table`).
-fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
-    let sim = match simulate {
-        Batch::BatchI => thermal_anova::BatchSim::batch_i(),
-        Batch::BatchII => thermal_anova::BatchSim::batch_ii(),
+/// What the thermal analysis runs on.
+enum ThermalInput {
+    /// A simulated batch of the paper's design, with its seed.
+    Simulate(Batch, u64),
+    /// A user's chamber session and the design's levels.
+    Session(PathBuf, thermal_anova::Levels),
+}
+
+/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
+/// significant, the thermal model (into the table with `--table`).
+fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
+    let (cells, samples, levels, source) = match input {
+        ThermalInput::Simulate(batch, seed) => {
+            let sim = match batch {
+                Batch::BatchI => thermal_anova::BatchSim::batch_i(),
+                Batch::BatchII => thermal_anova::BatchSim::batch_ii(),
+            };
+            let (cells, samples) = sim.simulate(seed, 12_000);
+            let name = if matches!(batch, Batch::BatchI) { "batch-i" } else { "batch-ii" };
+            (cells, samples, thermal_anova::Levels::default(), format!("simulated {name}, seed {seed}"))
+        }
+        ThermalInput::Session(path, levels) => {
+            let s = read_session(&path, None)?;
+            let window_s = (2.0 * s.median_dt_s()).max(60.0);
+            let c = thermal_anova::chamber_cells(&s, fog, &levels, window_s)?;
+            println!(
+                "{}: FOG{fog}, {} samples in {} cells (N = {} each, cells held {:?}), {} between levels left out",
+                path.display(),
+                c.counts.iter().sum::<usize>(),
+                c.cells.len(),
+                c.cells.first().map_or(0, |x| x.y.len()),
+                c.counts,
+                c.outside
+            );
+            (c.cells, c.samples, levels, path.display().to_string())
+        }
     };
-    let (cells, samples) = sim.simulate(seed, 12_000);
-    let (a, model) = thermal_anova::analyse_and_fit(&cells, &samples, 25.0)?;
+    let t_lo = levels.t_degc.iter().copied().fold(f64::INFINITY, f64::min);
+    let t_hi = levels.t_degc.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let t_ref = (t_lo + t_hi) / 2.0;
+    let (a, model) =
+        thermal_anova::analyse_and_fit_levels(&cells, &samples, (levels.t_degc.len(), levels.g_degc_min.len()), t_ref)?;
     cli::report("thermal", || methods::json::thermal(&a, model.as_ref()));
     println!("two-factor ANOVA (Tables 1-2), {} cells of N = {}", a.n_cells, a.n_per_cell);
     println!("        F      ν1         ν2   crit 5 %  crit 1 %   p          significant");
@@ -435,13 +502,13 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
         );
     }
     let mut series = Vec::new();
-    for (g, gl) in thermal_anova::TABLE1_G_DEGC_MIN.iter().enumerate() {
+    for (g, gl) in levels.g_degc_min.iter().enumerate() {
         let pts = cells
             .iter()
             .filter(|c| c.g_level == g)
             .map(|c| {
                 let m = c.y.iter().sum::<f64>() / c.y.len() as f64;
-                (thermal_anova::TABLE1_T_DEGC[c.t_level], m * DEG_H_PER_RAD_S)
+                (levels.t_degc[c.t_level], m * DEG_H_PER_RAD_S)
             })
             .collect();
         series.push(Series { label: format!("cell means, G = {gl} °C/min"), points: pts, markers: true });
@@ -459,9 +526,9 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
                 m.h_rad_s_per_degc2_s * DEG_H_PER_RAD_S / 60.0,
                 m.rms_rad_s * DEG_H_PER_RAD_S
             );
-            for (g, gl) in thermal_anova::TABLE1_G_DEGC_MIN.iter().enumerate() {
+            for (g, gl) in levels.g_degc_min.iter().enumerate() {
                 let gs = gl / 60.0;
-                let pts = (10..=40)
+                let pts = (t_lo.floor() as i32..=t_hi.ceil() as i32)
                     .map(|t| {
                         let dt = t as f64 - m.t_ref_degc;
                         let y = m.bias_rad_s
@@ -480,13 +547,20 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
                 if fog > 3 {
                     bail!("--fog {fog}: the unit has FOGs 0-3");
                 }
-                let mut t = load_table(&path)?;
+                let base = load_table(&path)?;
+                let mut t = base.table;
                 let f = &mut t.fog[fog];
                 f.t_ref_degc = m.t_ref_degc;
                 f.thermal_t_rad_s = m.a_rad_s;
                 f.thermal_g_rad_s_per_degc_s = m.g_rad_s_per_degc_s;
                 f.thermal_tg_rad_s_per_degc2_s = m.h_rad_s_per_degc2_s;
-                save_table(&path, &mut t)?;
+                let i = fog as u8;
+                let set = [FogTerm::TRef, FogTerm::ThermalT1, FogTerm::ThermalT2, FogTerm::ThermalT3]
+                    .into_iter()
+                    .chain([FogTerm::ThermalG, FogTerm::ThermalTg])
+                    .map(|term| Field::Fog(i, term))
+                    .collect::<Vec<_>>();
+                save_table(&path, &base, &t, &set, "thermal", source.clone())?;
             }
         }
         None => {
@@ -505,10 +579,10 @@ fn thermal_cmd(simulate: Batch, seed: u64, fog: usize, plot: PathBuf, table: Opt
 /// the table).
 fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let s = read_session(&session, None)?;
-    let Some(f) = s.fogs.get(fog) else { bail!("{}: no FOG{fog} column", session.display()) };
+    let rates = allan::static_rates(&s, fog)?;
     let tau0 = s.median_dt_s();
-    let pts = allan::overlapping_adev(&f.rate_rad_s, tau0, 8)?;
-    let nt = allan::noise_terms(&pts)?;
+    let pts = allan::overlapping_adev(&rates, tau0, 8).with_context(|| session.display().to_string())?;
+    let nt = allan::noise_terms(&pts).with_context(|| session.display().to_string())?;
     cli::report("allan", || methods::json::allan(&pts, &nt));
     println!("tau s        adev °/h     95 % interval");
     for p in &pts {
@@ -521,14 +595,14 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
         );
     }
     let (a, b, k) = (nt.arw_deg_sqrt_h, nt.bias_instability_deg_h, nt.rrw_deg_h_sqrt_h);
-    println!("ARW  {:.5} °/√h     [{:.5}, {:.5}]", a.0, a.1, a.2);
-    println!("B    {:.5} °/h      [{:.5}, {:.5}] at τ = {:.0} s", b.0, b.1, b.2, nt.tau_min_s);
-    println!("RRW  {:.5} °/h/√h   [{:.5}, {:.5}]", k.0, k.1, k.2);
+    println!("ARW  {} °/√h", a.text(5));
+    println!("B    {} °/h at τ = {:.0} s (longest τ {:.0} s)", b.text(5), nt.tau_min_s, nt.tau_max_s);
+    println!("RRW  {} °/h/√h", k.text(5));
     let fitted: Vec<(f64, f64)> = pts
         .iter()
         .map(|p| {
-            let n = a.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/√h → rad/√s
-            let kk = k.0 / 3600.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/h/√h → rad/s/√s
+            let n = a.value().unwrap_or(0.0) / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/√h → rad/√s
+            let kk = k.value().unwrap_or(0.0) / 3600.0 / 60.0 / DEG_H_PER_RAD_S * 3600.0; // °/h/√h → rad/s/√s
             let v = (n * n / p.tau_s + kk * kk * p.tau_s / 3.0).sqrt();
             (p.tau_s.log10(), (v * DEG_H_PER_RAD_S).log10())
         })
@@ -554,10 +628,23 @@ fn allan_cmd(session: PathBuf, fog: usize, plot: PathBuf, table: Option<PathBuf>
     methods::xy_svg(&plot, "Overlapping Allan deviation", "log10 τ, s", "log10 σ, °/h", &series)?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
-        t.observer.arw_deg_sqrt_h = a.0;
-        t.observer.rrw_deg_h_sqrt_h = k.0;
-        save_table(&path, &mut t)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
+        let mut set = Vec::new();
+        for (field, e) in [(Field::Arw, a), (Field::Rrw, k)] {
+            match e.value() {
+                Some(v) => {
+                    field.set(&mut t, v);
+                    set.push(field);
+                }
+                None => println!("{field} kept at the base's value: this session does not resolve it"),
+            }
+        }
+        if set.is_empty() {
+            println!("{} left unchanged: the session resolves neither ARW nor RRW", path.display());
+        } else {
+            save_table(&path, &base, &t, &set, "allan", session.display().to_string())?;
+        }
     }
     Ok(())
 }
@@ -567,7 +654,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     let s = read_session(&session, None)?;
     let (turns, lat) = misalign_turns::turns_from_session(&s)?;
     let gamma = match &table {
-        Some(p) if p.exists() => load_table(p)?.gamma_rad,
+        Some(p) if p.exists() => load_table(p)?.table.gamma_rad,
         _ => ssis::calib::GAMMA_NOMINAL_RAD,
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
@@ -595,9 +682,11 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     methods::xy_svg(&plot, "First method: equation residuals", "equation", "″", &series)?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
         t.misalignment = r.misalignment;
-        save_table(&path, &mut t)?;
+        let set = [Field::D12, Field::D13, Field::D21, Field::D23, Field::D31, Field::D32, Field::D42, Field::D43];
+        save_table(&path, &base, &t, &set, "turns", session.display().to_string())?;
     }
     Ok(())
 }
@@ -607,7 +696,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
 fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
     let s = read_session(&session, None)?;
     let start = match &table {
-        Some(p) if p.exists() => Some(load_table(p)?),
+        Some(p) if p.exists() => Some(load_table(p)?.table),
         _ => None,
     };
     let (m0, gamma, scale, from) = match &start {
@@ -676,9 +765,12 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     )?;
     println!("wrote {}", plot.display());
     if let Some(path) = table {
-        let mut t = load_table(&path)?;
+        let base = load_table(&path)?;
+        let mut t = base.table;
         t.misalignment = r.misalignment;
-        save_table(&path, &mut t)?;
+        // The second method refines the orthogonal triad only: δ42 and δ43 stay.
+        let set = [Field::D12, Field::D13, Field::D21, Field::D23, Field::D31, Field::D32];
+        save_table(&path, &base, &t, &set, "sins", session.display().to_string())?;
     }
     Ok(())
 }
@@ -687,7 +779,8 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
 /// into the table flown.
 fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) -> Result<()> {
     let tel = orbital::Telemetry::read(&output, &star)?;
-    let flown = load_table(&table)?;
+    let flown_doc = load_table(&table)?;
+    let flown = flown_doc.table;
     println!(
         "decoded {} output frames, {} star frames ({} and {} refused)",
         tel.out.len(),
@@ -777,9 +870,15 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     }
     methods::xy_svg(&plot, "Orbital calibration: observer drift estimate", "t, s", "°/h", &series)?;
     println!("wrote {}", plot.display());
-    let mut t = r.table;
-    t.revision = flown.revision;
-    save_table(&table, &mut t)?;
+    let mut set: Vec<Field> = (0..4).map(|i| Field::Fog(i, FogTerm::Bias)).collect();
+    if r.scale.is_some() {
+        set.extend((0..4).map(|i| Field::Fog(i, FogTerm::ScaleFactor)));
+    }
+    if r.mount.is_some() {
+        set.extend((0..4).map(Field::StMountQ));
+    }
+    let session = format!("{} + {}", output.display(), star.display());
+    save_table(&table, &flown_doc, &r.table, &set, "orbital", session)?;
     Ok(())
 }
 

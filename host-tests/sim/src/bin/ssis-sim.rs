@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::Result;
@@ -13,7 +14,7 @@ use ssis::observer::steady_state_gains;
 use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin};
 use ssis_common::table;
-use ssis_sim::harness::{run, CSV_HEADER};
+use ssis_sim::harness::{run_until, CSV_HEADER};
 use ssis_sim::scenario::Scenario;
 
 #[derive(Parser)]
@@ -42,6 +43,9 @@ enum Cmd {
         /// Steps per CSV row.
         #[arg(long, default_value_t = 20)]
         every: u64,
+        /// Run a scenario longer than 30 days of simulated time.
+        #[arg(long)]
+        allow_long: bool,
     },
     /// Calibration-table tools.
     Table {
@@ -92,27 +96,93 @@ enum TableCmd {
         /// Table file (.toml, .bin or .img).
         input: PathBuf,
     },
+    /// Compare two tables (any form) field by field in engineering units. Exit status as
+    /// diff(1): 0 identical, 1 different, 2 trouble (a table unreadable or refused).
+    Diff {
+        /// Table A (.toml, .bin or .img).
+        a: PathBuf,
+        /// Table B.
+        b: PathBuf,
+    },
+}
+
+/// Set by the SIGINT handler: end the run after this step.
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+/// Ctrl-C: ask the run to stop (async-signal-safe: one atomic store).
+extern "C" fn on_sigint(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::Relaxed);
+}
+
+/// Installs [`on_sigint`] for SIGINT (Ctrl-C) for the rest of the process.
+fn stop_on_ctrl_c() {
+    // SAFETY: a handler that only stores to an atomic, installed with an emptied mask.
+    unsafe {
+        let mut sa: libc::sigaction = std::mem::zeroed();
+        sa.sa_sigaction = on_sigint as extern "C" fn(libc::c_int) as usize;
+        libc::sigemptyset(&mut sa.sa_mask);
+        libc::sigaction(libc::SIGINT, &sa, std::ptr::null_mut());
+    }
+}
+
+/// Exit status of a run a source delivered nothing to (its summary has no figure).
+const EXIT_SILENT_SOURCE: u8 = 3;
+/// Exit status of a run ended by Ctrl-C (128 + SIGINT, as a shell reports it).
+const EXIT_INTERRUPTED: u8 = 130;
+
+/// How a run ended, when it ran to its end without an error.
+enum RunEnd {
+    Complete,
+    SilentSource,
+    Interrupted,
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let started = cli::start("ssis-sim", cli.force, cli.json).and_then(|()| files(&cli.cmd));
-    cli::finish_unit(started.and_then(|()| real_main(cli.cmd)))
+    if let Err(e) = cli::start("ssis-sim", cli.force, cli.json).and_then(|()| files(&cli.cmd)) {
+        return cli::finish_unit(Err(e));
+    }
+    match cli.cmd {
+        Cmd::Table { cmd: TableCmd::Diff { a, b } } => {
+            // Exit status as diff(1): 0 identical, 1 different, 2 trouble.
+            let r = table_diff(&a, &b);
+            let code = match &r {
+                Ok(true) => 0,
+                Ok(false) => 1,
+                Err(_) => 2,
+            };
+            let _ = cli::finish(r.map(|_| true));
+            ExitCode::from(code)
+        }
+        Cmd::Run { scenario, csv, every, allow_long } => {
+            stop_on_ctrl_c();
+            let r = run_scenario(&scenario, csv, every.max(1), allow_long);
+            let code = match &r {
+                Ok(RunEnd::SilentSource) => Some(EXIT_SILENT_SOURCE),
+                Ok(RunEnd::Interrupted) => Some(EXIT_INTERRUPTED),
+                _ => None,
+            };
+            let exit = cli::finish(r.map(|e| matches!(e, RunEnd::Complete)));
+            code.map_or(exit, ExitCode::from)
+        }
+        cmd => cli::finish_unit(real_main(cmd)),
+    }
 }
 
 /// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
 /// refusal comes before any work.
 fn files(cmd: &Cmd) -> Result<()> {
-    let (name, input, out): (&str, Option<&Path>, Option<&Path>) = match cmd {
-        Cmd::Run { scenario, csv, .. } => ("run", Some(scenario), csv.as_deref()),
-        Cmd::Table { cmd: TableCmd::New { out } } => ("table new", None, Some(out)),
-        Cmd::Table { cmd: TableCmd::ToBin { input, out } } => ("table to-bin", Some(input), Some(out)),
-        Cmd::Table { cmd: TableCmd::ToImage { input, out } } => ("table to-image", Some(input), Some(out)),
-        Cmd::Table { cmd: TableCmd::Show { input } } => ("table show", Some(input), None),
-        Cmd::Gains { .. } => ("gains", None, None),
+    let (name, inputs, out): (&str, [Option<&Path>; 2], Option<&Path>) = match cmd {
+        Cmd::Run { scenario, csv, .. } => ("run", [Some(scenario), None], csv.as_deref()),
+        Cmd::Table { cmd: TableCmd::New { out } } => ("table new", [None, None], Some(out)),
+        Cmd::Table { cmd: TableCmd::ToBin { input, out } } => ("table to-bin", [Some(input), None], Some(out)),
+        Cmd::Table { cmd: TableCmd::ToImage { input, out } } => ("table to-image", [Some(input), None], Some(out)),
+        Cmd::Table { cmd: TableCmd::Show { input } } => ("table show", [Some(input), None], None),
+        Cmd::Table { cmd: TableCmd::Diff { a, b } } => ("table diff", [Some(a), Some(b)], None),
+        Cmd::Gains { .. } => ("gains", [None, None], None),
     };
     cli::report("command", || json!(name));
-    if let Some(p) = input {
+    for p in inputs.into_iter().flatten() {
         output::input(p);
     }
     match out {
@@ -123,7 +193,9 @@ fn files(cmd: &Cmd) -> Result<()> {
 
 fn real_main(cmd: Cmd) -> Result<()> {
     match cmd {
-        Cmd::Run { scenario, csv, every } => run_scenario(&scenario, csv, every.max(1)),
+        Cmd::Run { scenario, csv, every, allow_long } => {
+            run_scenario(&scenario, csv, every.max(1), allow_long).map(|_| ())
+        }
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
             let cfg = ObserverConfig {
@@ -141,8 +213,10 @@ fn real_main(cmd: Cmd) -> Result<()> {
     }
 }
 
-fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Result<()> {
-    let sc = Scenario::from_file(path)?;
+/// Runs a scenario: the summary, a CSV with `--csv`; how it ended (a source that
+/// delivered nothing, Ctrl-C: the partial summary, no CSV and no `.partial` file left).
+fn run_scenario(path: &Path, csv: Option<PathBuf>, every: u64, allow_long: bool) -> Result<RunEnd> {
+    let sc = Scenario::from_file_with(path, allow_long)?;
     let dt = sc.profile.profile().dt_s();
     let steps = (sc.duration_s / dt).round() as u64;
     let bar = ProgressBar::new(steps);
@@ -161,32 +235,61 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     let started = Instant::now();
     let mut n = 0u64;
     let mut csv_err = None;
-    let summary = run(&sc, |r| {
-        n += 1;
-        if n.is_multiple_of(2000) {
-            bar.set_position(n);
-        }
-        if let Some(w) = writer.as_mut() {
-            if n.is_multiple_of(every) && csv_err.is_none() {
-                if let Err(e) = w.write_record(r.csv_row()) {
-                    csv_err = Some(e);
+    let summary = run_until(
+        &sc,
+        || INTERRUPTED.load(Ordering::Relaxed),
+        |r| {
+            n += 1;
+            if n.is_multiple_of(2000) {
+                bar.set_position(n);
+            }
+            if let Some(w) = writer.as_mut() {
+                if n.is_multiple_of(every) && csv_err.is_none() {
+                    if let Err(e) = w.write_record(r.csv_row()) {
+                        csv_err = Some(e);
+                    }
                 }
             }
-        }
-    })?;
+        },
+    );
     bar.finish_and_clear();
+    let interrupted = summary.as_ref().is_ok_and(|s| s.stopped_at_step.is_some());
+    // A CSV is kept only from a run that ended well; otherwise its temporary file goes
+    // with the writer.
+    if let (Some(w), Some(p)) = (writer, &csv) {
+        if summary.is_ok() && csv_err.is_none() && !interrupted {
+            w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
+            println!("wrote {}", p.display());
+        }
+    }
+    let summary = summary?;
     if let Some(e) = csv_err {
         return Err(e.into());
-    }
-    if let (Some(w), Some(p)) = (writer, csv) {
-        w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
-        println!("wrote {}", p.display());
     }
     print!("{}", summary.report());
     let wall = started.elapsed().as_secs_f64();
     cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
-    println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s / wall);
-    Ok(())
+    let ran = summary.stopped_at_step.unwrap_or(summary.steps) as f64 / summary.steps.max(1) as f64;
+    println!("wall time {wall:.1} s ({:.0}x real time)", sc.duration_s * ran / wall);
+    if interrupted {
+        eprintln!(
+            "interrupted (Ctrl-C): the summary above is partial{}",
+            if csv.is_some() { "; no CSV written" } else { "" }
+        );
+        return Ok(RunEnd::Interrupted);
+    }
+    let silent = summary.silent_sources();
+    if !silent.is_empty() {
+        for s in &silent {
+            eprintln!("error: {}: {s}", path.display());
+        }
+        eprintln!(
+            "error: {}: no accuracy figure: a source delivered nothing (the 3σ above is not a result)",
+            path.display()
+        );
+        return Ok(RunEnd::SilentSource);
+    }
+    Ok(RunEnd::Complete)
 }
 
 fn table_cmd(cmd: TableCmd) -> Result<()> {
@@ -206,22 +309,40 @@ fn table_cmd(cmd: TableCmd) -> Result<()> {
             println!("wrote {} ({} bytes, two copies, revision {})", out.display(), store::REGION_LEN, t.revision);
         }
         TableCmd::Show { input } => {
-            let t = if input.extension().is_some_and(|e| e == "img") {
-                let (t, loaded) = table::read_image(&input)?;
+            let (t, loaded) = table::read_any(&input)?;
+            if let Some(loaded) = loaded {
                 for (slot, e) in ["A", "B"].iter().zip(loaded.slot_errors) {
                     if let Some(e) = e {
-                        eprintln!("{}: copy {slot} refused: {e:?}", input.display());
+                        eprintln!("{}: copy {slot} refused: {e}", input.display());
                     }
                 }
                 eprintln!("{}: using {:?}, generation {}", input.display(), loaded.source, loaded.generation);
-                t
-            } else if input.extension().is_some_and(|e| e == "bin") {
-                table::read_binary(&input)?
-            } else {
-                table::read_toml(&input)?
-            };
+            }
             print!("{}", table::to_toml(&t)?);
+        }
+        TableCmd::Diff { a, b } => {
+            table_diff(&a, &b)?;
         }
     }
     Ok(())
+}
+
+/// `table diff`: every field that differs, A → B in engineering units; `true` when the
+/// tables are identical (every field bit for bit, and the revision). Provenance is not
+/// compared.
+fn table_diff(a: &Path, b: &Path) -> Result<bool> {
+    let (ta, _) = table::read_any(a)?;
+    let (tb, _) = table::read_any(b)?;
+    let changes = ssis_common::update::diff(&ta, &tb);
+    if ta.revision != tb.revision {
+        println!("  revision  {} → {}", ta.revision, tb.revision);
+    }
+    print!("{}", ssis_common::update::render(&changes));
+    let same = changes.is_empty() && ta.revision == tb.revision;
+    if same {
+        println!("{} and {} are identical (every field bit for bit, and the revision)", a.display(), b.display());
+    } else {
+        println!("{} field(s) differ between {} and {}", changes.len(), a.display(), b.display());
+    }
+    Ok(same)
 }
