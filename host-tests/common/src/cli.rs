@@ -31,6 +31,26 @@ static JSON_FD: AtomicI32 = AtomicI32::new(-1);
 /// The JSON object being assembled: tool, command, the command's fields.
 static JSON: Mutex<Option<serde_json::Map<String, Value>>> = Mutex::new(None);
 
+/// The options every tool's command line shares (flattened into its `Cli`):
+/// `--force` and `--json`.
+#[derive(clap::Args, Debug, Clone, Copy)]
+pub struct Flags {
+    /// Replace existing files at output paths (never an input; model versions are never
+    /// replaced).
+    #[arg(long, global = true)]
+    pub force: bool,
+    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
+    #[arg(long, global = true)]
+    pub json: bool,
+}
+
+impl Flags {
+    /// [`start`] with these options.
+    pub fn start(&self, tool: &str) -> Result<()> {
+        start(tool, self.force, self.json)
+    }
+}
+
 /// Sets up a tool's process: the output rules (`force`: `--force`), the signal handlers,
 /// and with `json` (`--json`) the JSON object on standard output. `tool` names the run in
 /// the JSON object; the command sets `command` with [`report`].

@@ -35,12 +35,8 @@ use ssis_lab::{report, simulate};
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
-    /// Replace existing files at output paths (never an input, never a model version).
-    #[arg(long, global = true)]
-    force: bool,
-    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
-    #[arg(long, global = true)]
-    json: bool,
+    #[command(flatten)]
+    flags: cli::Flags,
 }
 
 #[derive(Subcommand)]
@@ -316,7 +312,7 @@ fn history(model_path: &Path, session: &Path, blocks: usize) -> Result<Vec<Histo
 fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    let started = cli::start("ssis-lab", cli.force, cli.json).and_then(|()| files(&cli.cmd));
+    let started = cli.flags.start("ssis-lab").and_then(|()| files(&cli.cmd));
     cli::finish_unit(started.and_then(|()| run(cli.cmd)))
 }
 

@@ -26,15 +26,11 @@ use ssis_session::read_session;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
-    /// Replace existing files at output paths (never an input).
-    #[arg(long, global = true)]
-    force: bool,
+    #[command(flatten)]
+    flags: cli::Flags,
     /// With --table: start a nominal table there (refused where a file exists).
     #[arg(long, global = true)]
     new_table: bool,
-    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
-    #[arg(long, global = true)]
-    json: bool,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -220,7 +216,7 @@ enum Sim {
 fn main() -> ExitCode {
     ssis_session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
-    let started = cli::start("ssis-cal", cli.force, cli.json).and_then(|()| files(&cli.cmd, cli.new_table));
+    let started = cli.flags.start("ssis-cal").and_then(|()| files(&cli.cmd, cli.new_table));
     cli::finish_unit(started.and_then(|()| run(cli)))
 }
 

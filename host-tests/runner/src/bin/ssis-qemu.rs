@@ -62,17 +62,13 @@ struct Args {
     /// Shorten the scenario to this many seconds.
     #[arg(long)]
     duration: Option<f64>,
-    /// Replace existing files at output paths (never an input).
-    #[arg(long)]
-    force: bool,
-    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
-    #[arg(long)]
-    json: bool,
+    #[command(flatten)]
+    flags: cli::Flags,
 }
 
 fn main() -> ExitCode {
     let a = Args::parse();
-    cli::finish(cli::start("ssis-qemu", a.force, a.json).and_then(|()| real_main(a)))
+    cli::finish(a.flags.start("ssis-qemu").and_then(|()| real_main(a)))
 }
 
 fn real_main(a: Args) -> Result<bool> {

@@ -22,12 +22,8 @@ use ssis_sim::scenario::Scenario;
 struct Cli {
     #[command(subcommand)]
     cmd: Cmd,
-    /// Replace existing files at output paths (never an input).
-    #[arg(long, global = true)]
-    force: bool,
-    /// Print one JSON object on standard output (docs/JSON.md); the text goes to standard error.
-    #[arg(long, global = true)]
-    json: bool,
+    #[command(flatten)]
+    flags: cli::Flags,
 }
 
 #[derive(Subcommand)]
@@ -139,7 +135,7 @@ enum RunEnd {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if let Err(e) = cli::start("ssis-sim", cli.force, cli.json).and_then(|()| files(&cli.cmd)) {
+    if let Err(e) = cli.flags.start("ssis-sim").and_then(|()| files(&cli.cmd)) {
         return cli::finish_unit(Err(e));
     }
     match cli.cmd {
