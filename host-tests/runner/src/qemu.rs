@@ -621,12 +621,12 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             }
         }
         let late_s = Instant::now().saturating_duration_since(tick(n)).as_secs_f64();
-        if late_s > 0.0 && (!opts.lockstep || opts.paced) {
-            // Paced runs sleep until the tick, so only a delay beyond a step counts.
-            if !opts.lockstep || late_s > dt_s {
-                s.host.late_steps += 1;
-                s.host.late_max_s = s.host.late_max_s.max(late_s);
-            }
+        // Real time: any send after the tick is late; paced runs sleep until the tick, so
+        // only a delay beyond a step counts; plain lockstep keeps no pace.
+        let late = if opts.lockstep { opts.paced && late_s > dt_s } else { late_s > 0.0 };
+        if late {
+            s.host.late_steps += 1;
+            s.host.late_max_s = s.host.late_max_s.max(late_s);
         }
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
         eval.push_truth(input.truth);
