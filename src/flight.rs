@@ -287,6 +287,11 @@ impl FlightCore {
         self.telemetry.counters.bump(Counter::Overruns);
     }
 
+    /// Board: a control frame arrived and was ignored (a flight build has no test hooks).
+    pub fn note_control_ignored(&mut self) {
+        self.telemetry.counters.bump(Counter::ControlIgnored);
+    }
+
     /// Board: how long the previous step took, in board ticks (goes into the frame).
     pub fn set_step_ticks(&mut self, ticks: u16) {
         self.telemetry.set_step_ticks(ticks);

@@ -26,7 +26,8 @@
 //!   8 MiB below 0x2000_0000 unchecked).
 //! - Semihosting: the defmt log ([`semihosting_sink`]) and the exit code of a QEMU run
 //!   ([`exit`]).
-//! - The main loop's pacing ([`Pacer`]): the timer, or lockstep driven by control frames.
+//! - The main loop's pacing ([`Pacer`]): the timer, or (test builds only) lockstep
+//!   driven by control frames.
 #![allow(unsafe_code)]
 
 use core::cell::UnsafeCell;
@@ -413,10 +414,40 @@ impl Times {
     }
 }
 
+/// Whether this build honours the control frames (LOCKSTEP, STEP, END, STALL): only a
+/// test build (`test-hooks`, the binaries that invoke [`mps2_test_hooks!`](crate::mps2_test_hooks)).
+pub const TEST_HOOKS: bool = cfg!(feature = "test-hooks");
+
+#[cfg(feature = "test-hooks")]
+extern "C" {
+    /// Defined only by [`mps2_test_hooks!`](crate::mps2_test_hooks), which the test
+    /// binaries invoke and the flight firmwares do not: a flight firmware built with
+    /// `test-hooks` refers to it from [`Pacer::new`] and fails to link, naming the cause.
+    #[link_name = "ERROR(ssis): test hooks in a flight firmware. ssis-fw and ssis-fw-lv never have the test-hooks feature; build ssis-fw-test or ssis-fw-lv-test (README: Flight build and test build)"]
+    static TEST_HOOKS_BUILD: u8;
+}
+
+/// Marks a binary as a test build, allowed the test hooks: defines the symbol that
+/// [`Pacer`] refers to in a `test-hooks` build. Invoked by the test builds of the
+/// firmwares (`ssis-fw-test`, `ssis-fw-lv-test`), never by a flight firmware, so a flight
+/// firmware built with `test-hooks` does not link (the check is the linker's, as the
+/// no-panic proof is).
+#[macro_export]
+macro_rules! mps2_test_hooks {
+    () => {
+        #[allow(unsafe_code)]
+        #[used]
+        #[export_name = "ERROR(ssis): test hooks in a flight firmware. ssis-fw and ssis-fw-lv never have the test-hooks feature; build ssis-fw-test or ssis-fw-lv-test (README: Flight build and test build)"]
+        static SSIS_TEST_HOOKS_BUILD: u8 = 1;
+    };
+}
+
 /// Paces the main loop: on the timer (one step per SysTick, a missed tick an overrun),
-/// or in lockstep (test equipment: one step per STEP control frame, once the bytes it
-/// names have arrived), and ends the run on END. Control frames arrive on the UART whose
-/// RX feeds `ctl`.
+/// or, in a test build ([`TEST_HOOKS`]), in lockstep (test equipment: one step per STEP
+/// control frame, once the bytes it names have arrived), ending the run on END. Control
+/// frames arrive on the UART whose RX feeds `ctl`; a flight build counts each one
+/// ([`Counter::ControlIgnored`](crate::telemetry::Counter::ControlIgnored)) and acts on
+/// none, so it keeps stepping on its timer whatever arrives.
 pub struct Pacer {
     map: &'static UartMap,
     ctl: RxRingReader<'static, 64>,
@@ -433,6 +464,10 @@ pub struct Pacer {
 impl Pacer {
     /// Paces a loop whose UARTs are `map` and whose control frames land in `ctl`.
     pub fn new(map: &'static UartMap, ctl: &'static RxRing<64>) -> Self {
+        #[cfg(feature = "test-hooks")]
+        // SAFETY: a one-byte static defined by `mps2_test_hooks!`; read once, only so
+        // that a binary without it does not link.
+        let _ = unsafe { core::ptr::read_volatile(core::ptr::addr_of!(TEST_HOOKS_BUILD)) };
         Pacer {
             map,
             ctl: ctl.reader(),
@@ -448,27 +483,31 @@ impl Pacer {
     }
 
     /// Start of a pass: takes what the UARTs received and the control frames; whether a
-    /// step is due. In lockstep, the next STEP frame once `arrived(frame)` says its bytes
-    /// are in; on the timer, a new tick (each tick missed since the last step counts an
-    /// overrun of `core`).
+    /// step is due. In lockstep (test build), the next STEP frame once `arrived(frame)`
+    /// says its bytes are in; on the timer, a new tick (each tick missed since the last
+    /// step counts an overrun of `core`). A flight build counts every control frame in
+    /// `core` and ignores it.
     pub fn due(&mut self, core: &mut FlightCore, arrived: impl Fn(&ControlFrame) -> bool) -> bool {
         poll_rx(self.map);
         let Pacer { ctl, decoder, steps_due, scratch, lockstep, began, end, stall, .. } = self;
         let _ = drain(ctl, 64, scratch, |bytes| {
             decoder.push_slice(bytes, |r| {
-                if let Ok(c) = r {
-                    match c.command {
-                        command::LOCKSTEP => {
-                            *lockstep = true;
-                            *began = true;
-                        }
-                        command::STEP => {
-                            let _ = steps_due.push_back(c);
-                        }
-                        command::END => *end = true,
-                        command::STALL if cfg!(feature = "test-hooks") => *stall = true,
-                        _ => {}
+                let Ok(c) = r else { return };
+                if !TEST_HOOKS {
+                    core.note_control_ignored();
+                    return;
+                }
+                match c.command {
+                    command::LOCKSTEP => {
+                        *lockstep = true;
+                        *began = true;
                     }
+                    command::STEP => {
+                        let _ = steps_due.push_back(c);
+                    }
+                    command::END => *end = true,
+                    command::STALL => *stall = true,
+                    _ => {}
                 }
             });
         });
@@ -503,11 +542,11 @@ impl Pacer {
         core::mem::take(&mut self.began)
     }
 
-    /// End of a pass: sends the output, feeds the watchdog, and once END has come and
-    /// every output ring is empty, calls `report` and ends the run with success; sleeps
-    /// until the next interrupt when no step was due. In a `test-hooks` build a STALL
-    /// control frame stops the loop here without feeding the watchdog (the fault being
-    /// injected: it ends only by the watchdog).
+    /// End of a pass: sends the output, feeds the watchdog, and once END has come (test
+    /// build) and every output ring is empty, calls `report` and ends the run with
+    /// success; sleeps until the next interrupt when no step was due. In a test build a
+    /// STALL control frame stops the loop here without feeding the watchdog (the fault
+    /// being injected: it ends only by the watchdog).
     pub fn end_pass(&mut self, due: bool, report: impl FnOnce()) {
         pump_tx(self.map);
         if self.stall {

@@ -120,6 +120,7 @@ declare_counters! {
         IoErrors io_errors "link driver errors",
         OutputDropped output_dropped "output frames dropped",
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
+        ControlIgnored control_ignored "control frames (LOCKSTEP, STEP, END, STALL) ignored: a flight build has no test hooks",
     }
     paged [
         FdiAlarms,
@@ -131,6 +132,7 @@ declare_counters! {
         IoErrors,
         OutputDropped,
         FogSamplesStale,
+        ControlIgnored,
     ]
 }
 

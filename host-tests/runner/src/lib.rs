@@ -5,6 +5,12 @@
 //! - [`qemu`]: the spacecraft firmware (`ssis-fw`), lock-step or real time; building the
 //!   firmware and the on-target test binaries.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
+//! - [`flight_build`]: a flight build (no test hooks) under the runner's control frames.
+//!
+//! The runner drives the test builds (`ssis-fw-test`, `ssis-fw-lv-test`: the flight
+//! firmwares with their test hooks); a flight build ignores control frames and runs in
+//! real time only.
 
+pub mod flight_build;
 pub mod qemu;
 pub mod qemu_lv;

@@ -132,6 +132,9 @@ pub struct QemuSummary {
     pub wall_s: f64,
     /// Whether instruction counting was on.
     pub icount: bool,
+    /// The firmware was a flight build (no test hooks): run in real time and stopped by
+    /// the runner at the end, since it ignores END (no end-of-run report).
+    pub flight_build: bool,
 }
 
 impl QemuSummary {
@@ -183,14 +186,42 @@ impl QemuSummary {
         for l in &self.log {
             let _ = writeln!(s, "firmware: {l}");
         }
-        let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        if self.flight_build {
+            let _ = writeln!(s, "QEMU stopped by the runner (a flight build ignores END: no end-of-run report)");
+        } else {
+            let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        }
         s
+    }
+
+    /// Whether the run ended as it should: every output decoded, none different from
+    /// the in-process core's (lockstep), and a clean exit (a flight build is stopped by
+    /// the runner instead).
+    pub fn clean(&self) -> bool {
+        let ended = self.exit_code == Some(0) || self.flight_build && self.exit_code.is_none();
+        ended && self.frames_out_bad == 0 && self.differing_frames == 0 && self.frames_out > 0
     }
 }
 
-/// The firmware ELF built by `cargo build --release` at the repository root.
+/// The test build of the spacecraft firmware (`ssis-fw-test`, the runner's default):
+/// `ssis-fw` with its test hooks, built by [`build_firmware`] into `target/test-hooks`.
 pub fn default_elf() -> PathBuf {
+    repo_root().join("target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test")
+}
+
+/// The flight build of the spacecraft firmware (`cargo build --release` at the root):
+/// it ignores control frames, so it runs only in real time.
+pub fn flight_elf() -> PathBuf {
     repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw")
+}
+
+/// Whether `elf` is a test build (it defines the symbol of `ssis::mps2_test_hooks!`, so
+/// it honours LOCKSTEP, STEP, END and STALL); a flight build ignores them.
+pub fn is_test_build(elf: &Path) -> Result<bool> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    Ok(file.symbols().any(|s| s.name().is_ok_and(|n| n.starts_with("ERROR(ssis): test hooks"))))
 }
 
 /// The repository root (`host-tests/runner/../..`).
@@ -198,8 +229,15 @@ pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
 }
 
-/// Builds the firmware (release, thumb target) if it is out of date.
+/// Builds the test build of the firmware (`ssis-fw-test`: release, thumb target, test
+/// hooks) if it is out of date; what the runner and the QEMU tests run.
 pub fn build_firmware() -> Result<PathBuf> {
+    build_test_hooks_bin("ssis-fw-test")
+}
+
+/// Builds the flight firmware (`ssis-fw`, `cargo build --release` at the root) if it is
+/// out of date.
+pub fn build_flight_firmware() -> Result<PathBuf> {
     build_target_bin("ssis-fw")
 }
 
@@ -269,9 +307,10 @@ pub fn run_bare_with(elf: &Path, timeout: Duration, icount: bool) -> Result<(Opt
 }
 
 /// Builds the firmware with the `test-hooks` feature (fault injection) into its own
-/// target directory, so the flight build is left alone; returns the ELF path.
+/// target directory, so the flight build is left alone; returns the ELF path (the same
+/// as [`build_firmware`]).
 pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
-    build_test_hooks_bin("ssis-fw")
+    build_firmware()
 }
 
 /// Builds a target binary of the root crate with the `test-hooks` feature (release) into
@@ -443,6 +482,14 @@ pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
 /// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
 pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
     check_qemu_and_elf(&opts.elf)?;
+    let flight_build = !is_test_build(&opts.elf)?;
+    if flight_build && opts.lockstep {
+        bail!(
+            "{} is a flight build: it ignores LOCKSTEP, STEP and END. Lockstep needs the test build \
+             (ssis-fw-test, `cargo build --release --bin ssis-fw-test --features test-hooks --target-dir target/test-hooks`)",
+            opts.elf.display()
+        );
+    }
     let mut sim = Simulation::new(sc)?;
     anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let mut eval = Evaluator::new(&sim);
@@ -455,6 +502,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         duration_s: sc.duration_s,
         accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
         icount: opts.icount,
+        flight_build,
         ..Default::default()
     };
     let mut outputs = Outputs::new(opts.lockstep);
@@ -521,7 +569,8 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             outputs.take(&b, &mut s, &mut eval, &mut on_step);
         }
     }
-    let status = unit.end()?;
+    // A flight build ignores END: it is stopped by `finish` below.
+    let status = if flight_build { None } else { unit.end()? };
     while let Ok((_, b)) = unit.rx.try_recv() {
         outputs.take(&b, &mut s, &mut eval, &mut on_step);
     }

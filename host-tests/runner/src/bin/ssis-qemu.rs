@@ -19,8 +19,10 @@ use ssis_sim::scenario::Scenario;
 struct Args {
     /// Scenario file (TOML).
     scenario: PathBuf,
-    /// Firmware ELF (default: build it and use target/thumbv7em-none-eabihf/release/ssis-fw,
-    /// or ssis-fw-lv for a launch-vehicle ascent).
+    /// Firmware ELF (default: build the test build and use
+    /// target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test, or ssis-fw-lv-test for
+    /// a launch-vehicle ascent). A flight build (ssis-fw) ignores control frames: it runs
+    /// in real time only, and the runner stops it at the end.
     #[arg(long)]
     elf: Option<PathBuf>,
     /// Lockstep: step on control frames and compare every output frame with the
@@ -104,8 +106,7 @@ fn real_main() -> Result<bool> {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
     }
     println!("wrote {} and {}", csv_path.display(), svg.display());
-    let clean = s.exit_code == Some(0) && s.frames_out_bad == 0 && s.differing_frames == 0 && s.frames_out > 0;
-    Ok(clean)
+    Ok(s.clean())
 }
 
 /// A launch-vehicle ascent on `ssis-fw-lv` (lockstep at 1.25 ms).
