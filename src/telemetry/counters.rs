@@ -121,6 +121,16 @@ declare_counters! {
         OutputDropped output_dropped "output frames dropped",
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
         ControlIgnored control_ignored "control frames (LOCKSTEP, STEP, END, STALL) ignored: a flight build has no test hooks",
+        TcAccepted tc_accepted "telecommands accepted (authenticated, in sequence) and acted on",
+        TcCorrupt tc_corrupt "telecommand frames rejected by the decoder (CRC-32C, malformed fields)",
+        TcUnauthenticated tc_unauthenticated "telecommands refused: the MAC does not verify (wrong key, forged, no key provisioned)",
+        TcReplayed tc_replayed "telecommands refused: the sequence number of the last accepted one (replayed)",
+        TcOutOfSequence tc_out_of_sequence "telecommands refused: a sequence number below the last accepted one",
+        TcRefused tc_refused "authenticated telecommands refused by the table upload (chunk, table, arm or fire not valid now)",
+        TableActivations table_activations "calibration tables activated by command",
+        TableRevision table_revision "the active calibration table's revision (saturating)",
+        TableCrcLow table_crc_low "the active calibration table's CRC-32, low 16 bits",
+        TableCrcHigh table_crc_high "the active calibration table's CRC-32, high 16 bits",
     }
     paged [
         FdiAlarms,
@@ -133,6 +143,16 @@ declare_counters! {
         OutputDropped,
         FogSamplesStale,
         ControlIgnored,
+        TcAccepted,
+        TcCorrupt,
+        TcUnauthenticated,
+        TcReplayed,
+        TcOutOfSequence,
+        TcRefused,
+        TableActivations,
+        TableRevision,
+        TableCrcLow,
+        TableCrcHigh,
     ]
 }
 

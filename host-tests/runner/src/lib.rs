@@ -6,6 +6,8 @@
 //!   firmware and the on-target test binaries.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
 //! - [`flight_build`]: a flight build (no test hooks) under the runner's control frames.
+//! - [`telecommands`]: the command link's side of a lockstep run (telecommands by step,
+//!   the in-process reference's command link).
 //!
 //! The runner drives the test builds (`ssis-fw-test`, `ssis-fw-lv-test`: the flight
 //! firmwares with their test hooks); a flight build ignores control frames and runs in
@@ -14,3 +16,4 @@
 pub mod flight_build;
 pub mod qemu;
 pub mod qemu_lv;
+pub mod telecommands;

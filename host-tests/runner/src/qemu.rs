@@ -66,6 +66,12 @@ pub struct QemuOptions {
     /// A sensor fault injected into the simulator's frames before they are sent
     /// (`ssis_faults`); the in-process comparison gets the same bytes.
     pub fault: Option<ssis_faults::Fault>,
+    /// The command key's record to load into the KEY region (`ssis::telecommand::auth`;
+    /// none: the unit has no key and refuses every telecommand).
+    pub key_record: Option<Vec<u8>>,
+    /// Telecommand bytes sent on UART0 before a step's STEP frame, by step (lockstep);
+    /// the in-process core's command link gets the same bytes before the same step.
+    pub commands: Vec<(u64, Vec<u8>)>,
 }
 
 impl QemuOptions {
@@ -82,6 +88,8 @@ impl QemuOptions {
             stall_at_step: None,
             table_image: None,
             fault: None,
+            key_record: None,
+            commands: Vec::new(),
         }
     }
 }
@@ -135,6 +143,14 @@ pub struct QemuSummary {
     /// The firmware was a flight build (no test hooks): run in real time and stopped by
     /// the runner at the end, since it ignores END (no end-of-run report).
     pub flight_build: bool,
+    /// Command reports the firmware sent (after the output frame of a step in which a
+    /// STATUS telecommand was accepted).
+    pub command_reports: Vec<ssis::frames::telecommand::CommandReport>,
+    /// Lockstep: the command reports of the in-process core's command link.
+    pub reference_reports: Vec<ssis::frames::telecommand::CommandReport>,
+    /// (time tag µs, page id, value) of every output frame whose counter page is a unit
+    /// counter (`ssis::telemetry::PAGED`: the command link's counters, the active table).
+    pub unit_pages: Vec<(u64, u8, u16)>,
 }
 
 impl QemuSummary {
@@ -508,7 +524,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
         unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
-        Some(Reference::new(&sim)?)
+        Some(Reference::new(&sim, opts)?)
     } else {
         None
     };
@@ -545,7 +561,9 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
         eval.push_truth(input.truth);
         if let Some(r) = reference.as_mut() {
-            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent));
+            let commands = crate::telecommands::due(&opts.commands, n);
+            unit.uarts[0].write_all(&commands)?;
+            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent, &commands, &mut s));
             if opts.stall_at_step == Some(n) {
                 return unit.stall(s, &opts.elf);
             }
@@ -575,6 +593,8 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         outputs.take(&b, &mut s, &mut eval, &mut on_step);
     }
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
+    // Each command report cost the output frames' decoder one rejected candidate.
+    s.frames_out_bad = s.frames_out_bad.saturating_sub(s.command_reports.len() as u64);
     for (k, t) in outputs.check.ticks.iter().enumerate() {
         s.step_ticks_mean[k] = t.mean()[0];
         s.step_counts[k] = t.count();
@@ -635,7 +655,11 @@ impl Unit {
             Some(img) => img.clone(),
             None => store::image(&sim.table).to_vec(),
         };
-        Unit::start(&opts.elf, 3, opts.icount.then_some("shift=0"), &[("table.img", &image, 0x10000)], &[0])
+        let mut images = vec![("table.img", &image[..], crate::qemu_lv::symbol(&opts.elf, "_calib_start")?)];
+        if let Some(key) = &opts.key_record {
+            images.push(("key.img", &key[..], crate::qemu_lv::symbol(&opts.elf, "_key_start")?));
+        }
+        Unit::start(&opts.elf, 3, opts.icount.then_some("shift=0"), &images, &[0])
     }
 
     /// Sends a control frame with `command` alone.
@@ -795,33 +819,42 @@ impl Sender {
     }
 }
 
-/// Lockstep reference: the same core in-process on the same bytes.
+/// Lockstep reference: the same core in-process on the same bytes, with the same
+/// command link on a copy of the table's flash region.
 struct Reference {
     core: FlightCore,
     fog: MockLink,
     star: MockLink,
     out: MockSink,
+    commands: crate::telecommands::ReferenceLink,
 }
 
 impl Reference {
-    fn new(sim: &Simulation) -> Result<Reference> {
+    fn new(sim: &Simulation, opts: &QemuOptions) -> Result<Reference> {
         let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default() })
+        let image = opts.table_image.clone().unwrap_or_else(|| store::image(&sim.table).to_vec());
+        let commands = crate::telecommands::ReferenceLink::new(opts.key_record.as_deref(), &image);
+        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default(), commands })
     }
 
-    /// One step on the bytes the firmware was sent; the output bytes it writes.
-    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8]) -> Vec<u8> {
+    /// One step on the bytes the firmware was sent (telecommands before the step); the
+    /// output frame's bytes. A command report goes to `s`.
+    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8], commands: &[u8], s: &mut QemuSummary) -> Vec<u8> {
+        self.commands.receive(commands, &mut self.core);
         self.fog.send(fog_sent);
         self.star.send(st_sent);
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         self.core.step(&mut links);
+        s.reference_reports.extend(self.commands.take_report());
         std::mem::take(&mut self.out.bytes)
     }
 }
 
-/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]).
+/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]);
+/// command reports decoded beside them.
 struct Outputs {
     dec: StreamDecoder<OutputFrame, 256>,
+    reports: StreamDecoder<ssis::frames::telecommand::CommandReport, 64>,
     check: FrameCheck,
 }
 
@@ -829,6 +862,7 @@ impl Outputs {
     fn new(lockstep: bool) -> Outputs {
         Outputs {
             dec: StreamDecoder::new(),
+            reports: StreamDecoder::new(),
             check: FrameCheck {
                 lockstep,
                 reference: Default::default(),
@@ -841,6 +875,11 @@ impl Outputs {
 
     /// Decodes a chunk of the output link and checks every frame in it.
     fn take(&mut self, bytes: &[u8], s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        self.reports.push_slice(bytes, |r| {
+            if let Ok(r) = r {
+                s.command_reports.push(r);
+            }
+        });
         let check = &mut self.check;
         self.dec.push_slice(bytes, |r| match r {
             Ok(f) => check.frame(f, s, eval, on_step),
@@ -885,6 +924,9 @@ impl FrameCheck {
         }
         self.prev_st_updated = o.st_status & st_status::UPDATED != 0;
         self.last_drift = f.drift_rad_s();
+        if f.page_id >= ssis::telemetry::page::FOG_PAGES {
+            s.unit_pages.push((f.time_us, f.page_id, f.page_value));
+        }
         s.last_frame = f;
         if let Some(rec) = eval.evaluate(&o) {
             on_step(&rec);

@@ -77,7 +77,7 @@ static GNSS_RX: RxRing<256> = RxRing::new();
 /// ever fills it.
 static NO_STAR_RX: RxRing<4> = RxRing::new();
 /// Control receive buffer.
-static CTL_RX: RxRing<64> = RxRing::new();
+static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
 /// Flight output transmit buffer (83-byte frames).
 static OUT_TX: TxRing<256> = TxRing::new();
 /// Navigation output transmit buffer (64-byte frames).
@@ -193,11 +193,16 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     loop {
         // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
         // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
-        let due = pacer.due(core, |c| {
-            FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
-                && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
-                && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
-        });
+        let due = pacer.due(
+            core,
+            |c| {
+                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+                    && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+                    && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
+            },
+            // No command link on the launch vehicle.
+            |_, _| {},
+        );
         if pacer.lockstep_began() {
             // The statistics cover the lockstep run only (not the empty steps on the
             // timer before it).

@@ -3,20 +3,26 @@
 //!
 //! Every SysTick the main loop runs one [`FlightCore::step`] on what the UART interrupts
 //! have put into the receive rings, measures how long the step took (SysTick ticks, into
-//! the output frame) and counts a missed tick as an overrun. A runner may switch it to
-//! lockstep (one step per control frame, once the bytes it names have arrived) for exact
-//! host/QEMU comparisons, and ends a run with a control frame: the firmware logs its
-//! figures (defmt over semihosting) and exits QEMU with success. A panic cannot happen
-//! (the release build links only without a panic path); a hard fault exits with failure.
+//! the output frame) and counts a missed tick as an overrun. Telecommands arriving on
+//! UART0's receive line go to the command link ([`CommandLink`]: authenticated, acted on
+//! between two steps; a table update is written into the calibration region and flown
+//! from the next step); a STATUS command's report follows the next output frame. In its
+//! test build (`ssis-fw-test`) a runner may switch it to lockstep (one step per control
+//! frame, once the bytes it names have arrived) for exact host/QEMU comparisons, and ends
+//! a run with a control frame: the firmware logs its figures (defmt over semihosting) and
+//! exits QEMU with success; the flight build ignores control frames. A panic cannot
+//! happen (the release build links only without a panic path); a hard fault exits with
+//! failure.
 //!
 //! | UART | RX | TX |
 //! |---|---|---|
-//! | 0 | control frames (test equipment) | output frames |
+//! | 0 | telecommands; control frames (test equipment, test build only) | output frames, command reports |
 //! | 1 | FOG bus: all four FOGs, told apart by `fog_id` | — |
 //! | 2 | star tracker | — |
 //!
-//! Memory: `memory.x` (64 KiB flash, 32 KiB RAM: 28 KiB of stack at the bottom, 4 KiB of
-//! statics above; the calibration table's two copies in their own 4 KiB region).
+//! Memory: `memory.x` (128 KiB flash, 32 KiB RAM: 28 KiB of stack at the bottom, 4 KiB
+//! of statics above; the calibration table's two copies and the command key in their
+//! own regions).
 
 use core::convert::Infallible;
 
@@ -26,7 +32,9 @@ use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis::bsp::Board;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::output::OutputFrame;
-use ssis::link::{RxRing, TxRing};
+use ssis::frames::telecommand::{CommandReport, Telecommand};
+use ssis::link::{write_frame, RxRing, TxRing};
+use ssis::telecommand::{CommandLink, Outcome};
 
 /// Watchdog period in steps (warning after one period, reset after two).
 const WATCHDOG_STEPS: u32 = 10;
@@ -35,8 +43,8 @@ const WATCHDOG_STEPS: u32 = 10;
 static FOG_RX: RxRing<512> = RxRing::new();
 /// Star-tracker receive buffer.
 static ST_RX: RxRing<256> = RxRing::new();
-/// Control receive buffer.
-static CTL_RX: RxRing<64> = RxRing::new();
+/// Control line receive buffer (telecommands, control frames).
+static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
 /// Output transmit buffer (two output frames).
 static OUT_TX: TxRing<256> = TxRing::new();
 
@@ -51,11 +59,13 @@ static UARTS: UartMap = [
 
 ssis::mps2_firmware!(UARTS);
 
-/// Step times: all steps, and those with a star-tracker update.
+/// Step times: all steps, and those with a star-tracker update; and the command link's
+/// time for the bytes that completed a telecommand (decode, CRC-32C, HMAC, action).
 #[derive(Default)]
 struct StepTimes {
     all: Times,
     st: Times,
+    tc: Times,
 }
 
 #[cortex_m_rt::entry]
@@ -87,13 +97,40 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
 
     let mut links =
         Links { fog: FogLinks::Bus(FOG_RX.reader()), star: ST_RX.reader(), out: OUT_TX.frame_writer(OutputFrame::LEN) };
+    let mut reports = OUT_TX.frame_writer(CommandReport::LEN);
+    let mut link = CommandLink::new(mps2::key_area());
+    defmt::info!("command link: key id {}", link.key_id());
+    if mps2::TEST_HOOKS {
+        // The cost of one MAC verification (HMAC-SHA-256 of a telecommand, constant
+        // time): instructions under QEMU -icount (40 a tick).
+        let t = Stopwatch::start();
+        let ok = link.authenticator().verify(&Telecommand::default());
+        defmt::info!("hmac_verify_ticks {} (verified {})", t.ticks(), ok);
+    }
+    let mut flash = mps2::CalibRegion;
     let mut pacer = Pacer::new(&UARTS, &CTL_RX);
     let mut times = StepTimes::default();
     loop {
-        let due = pacer.due(core, |c| {
-            FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
-                && ST_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
-        });
+        let due = pacer.due(
+            core,
+            |c| {
+                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+                    && ST_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+            },
+            |core, bytes| {
+                let t = Stopwatch::start();
+                let mut commands = 0u32;
+                link.receive(bytes, core, &mut flash, |o| {
+                    commands += 1;
+                    if let Outcome::Refused(r) = o {
+                        defmt::warn!("telecommand refused: {}", r);
+                    }
+                });
+                if commands > 0 {
+                    times.tc.push(t.ticks());
+                }
+            },
+        );
         if due {
             let t = Stopwatch::start();
             let out = core.step(&mut links);
@@ -102,6 +139,9 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
             times.all.push(ticks);
             if out.st_status & st_status::UPDATED != 0 {
                 times.st.push(ticks);
+            }
+            if let Some(r) = link.take_report() {
+                let _ = write_frame(&mut reports, &r.to_bytes());
             }
         }
         pacer.end_pass(due, || report_end(core, &times));
@@ -119,5 +159,6 @@ fn report_end(core: &FlightCore, t: &StepTimes) {
         t.st.mean_x100(),
         t.st.max
     );
+    defmt::info!("tc_receives {} tc_mean_ticks_x100 {} tc_max_ticks {}", t.tc.n, t.tc.mean_x100(), t.tc.max);
     mps2::report(core, FOG_RX.overflows().saturating_add(ST_RX.overflows()));
 }

@@ -88,6 +88,8 @@ fn real_main() -> Result<bool> {
         stall_at_step: None,
         table_image: None,
         fault: None,
+        key_record: None,
+        commands: Vec::new(),
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;

@@ -72,7 +72,7 @@ enum TableCmd {
         out: PathBuf,
     },
     /// Convert a TOML table to the flash image of the table region (two copies), what the
-    /// QEMU board loads at 0x10000.
+    /// QEMU board loads at its CALIB region (0x0002_0000).
     ToImage {
         /// Input TOML.
         input: PathBuf,
