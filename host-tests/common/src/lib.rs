@@ -2,11 +2,13 @@
 //! between the simulator and the flight core, the calibration table's files, plots and
 //! running statistics.
 //!
+//! - [`keyfile`]: the command key's file (the ground's copy of the unit's key).
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`table`]: the calibration table as TOML, binary and two-copy image files.
 //! - [`plot`]: plots of a run (SVG).
 //! - [`stats`]: running error statistics per axis.
 
+pub mod keyfile;
 pub mod mock;
 pub mod plot;
 pub mod stats;

@@ -40,6 +40,11 @@ enum Cmd {
         #[command(subcommand)]
         cmd: TableCmd,
     },
+    /// Command-key tools (the key of the unit's command link, docs/ICD.md Telecommand).
+    Key {
+        #[command(subcommand)]
+        cmd: KeyCmd,
+    },
     /// Steady-state observer gains for noise figures (defaults: the paper's sensors).
     Gains {
         /// Angle random walk, °/√h.
@@ -84,6 +89,43 @@ enum TableCmd {
         /// Table file (.toml, .bin or .img).
         input: PathBuf,
     },
+    /// Turn a table into the telecommands that upload and activate it in flight: 8
+    /// TABLE_CHUNK, TABLE_ARM, TABLE_FIRE (98-byte frames, sealed under the key, sequence
+    /// numbers from --seq), written one after the other to --out.
+    UploadCmds {
+        /// Table file (.toml, .bin or .img); checked as the unit checks it.
+        input: PathBuf,
+        /// Key file (`ssis-sim key new`).
+        #[arg(long)]
+        key: PathBuf,
+        /// Sequence number of the first telecommand: above the last one the unit
+        /// accepted (its command report's `last_seq`).
+        #[arg(long)]
+        seq: u32,
+        /// Output file of the telecommand frames.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum KeyCmd {
+    /// Make a new random key (from the operating system) and write it as a key file.
+    New {
+        /// Key file to write (refused if it exists; readable by its owner only).
+        out: PathBuf,
+        /// Key id (≥ 1), reported in the unit's command report.
+        #[arg(long, default_value_t = 1)]
+        id: u16,
+    },
+    /// Write a key's record for the unit's protected KEY region (44 bytes; the QEMU
+    /// runner loads it at the ELF's `_key_start`, 0x0002_1000).
+    ToImage {
+        /// Key file.
+        key: PathBuf,
+        /// Output image.
+        out: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -100,6 +142,7 @@ fn real_main() -> Result<()> {
     match Cli::parse().cmd {
         Cmd::Run { scenario, csv, every } => run_scenario(&scenario, csv, every.max(1)),
         Cmd::Table { cmd } => table_cmd(cmd),
+        Cmd::Key { cmd } => key_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
             let cfg = ObserverConfig {
                 arw_deg_sqrt_h: arw,
@@ -166,6 +209,38 @@ fn run_scenario(path: &std::path::Path, csv: Option<PathBuf>, every: u64) -> Res
     Ok(())
 }
 
+/// A table from a TOML, binary (.bin) or image (.img) file, checked.
+fn read_any(input: &std::path::Path) -> Result<CalibrationTable> {
+    if input.extension().is_some_and(|e| e == "img") {
+        Ok(table::read_image(input)?.0)
+    } else if input.extension().is_some_and(|e| e == "bin") {
+        table::read_binary(input)
+    } else {
+        table::read_toml(input)
+    }
+}
+
+fn key_cmd(cmd: KeyCmd) -> Result<()> {
+    match cmd {
+        KeyCmd::New { out, id } => {
+            let k = ssis_common::keyfile::new_key(id)?;
+            ssis_common::keyfile::write_key(&out, &k)?;
+            println!("wrote {} (key id {id}; a secret: keep it with the ground's keys)", out.display());
+        }
+        KeyCmd::ToImage { key, out } => {
+            let k = ssis_common::keyfile::read_key(&key)?;
+            table::write_atomic(&out, &k.to_record())?;
+            println!(
+                "wrote {} (key record, {} bytes, key id {})",
+                out.display(),
+                ssis::telecommand::auth::KEY_RECORD_LEN,
+                k.id
+            );
+        }
+    }
+    Ok(())
+}
+
 fn table_cmd(cmd: TableCmd) -> Result<()> {
     match cmd {
         TableCmd::New { out } => {
@@ -182,6 +257,25 @@ fn table_cmd(cmd: TableCmd) -> Result<()> {
             let t = table::read_toml(&input)?;
             table::write_image(&out, &t)?;
             println!("wrote {} ({} bytes, two copies, revision {})", out.display(), store::REGION_LEN, t.revision);
+        }
+        TableCmd::UploadCmds { input, key, seq, out } => {
+            let t = read_any(&input)?;
+            let k = ssis_common::keyfile::read_key(&key)?;
+            anyhow::ensure!(seq >= 1, "sequence numbers start at 1");
+            let cmds = ssis::telecommand::upload::upload_sequence(&k, &t, seq);
+            let bytes: Vec<u8> = cmds.iter().flat_map(|c| c.to_bytes()).collect();
+            table::write_atomic(&out, &bytes)?;
+            println!(
+                "wrote {} ({} telecommands, {} bytes): table revision {}, CRC-32 {:08x}, key id {}, sequence {}..={}",
+                out.display(),
+                cmds.len(),
+                bytes.len(),
+                t.revision,
+                ssis::flight::table_crc(&t),
+                k.id,
+                seq,
+                seq.saturating_add(cmds.len() as u32 - 1)
+            );
         }
         TableCmd::Show { input } => {
             let t = if input.extension().is_some_and(|e| e == "img") {
