@@ -141,6 +141,7 @@ struct Sample {
 /// `repr(C)` in this order: the state every step touches first, the large stages last,
 /// so the hot fields sit within the M7's short load offsets of one base address.
 #[repr(C)]
+#[derive(Clone)]
 pub struct FlightCore {
     profile: Profile,
     last_body_dtheta: Vector3<f64>,

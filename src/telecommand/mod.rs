@@ -76,6 +76,7 @@ pub enum Outcome {
 }
 
 /// The command link of one unit.
+#[derive(Clone)]
 pub struct CommandLink {
     decoder: StreamDecoder<Telecommand, 128>,
     auth: Authenticator,
