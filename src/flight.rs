@@ -159,13 +159,14 @@ pub struct FlightCore {
     /// Parity fault logic (`None` without four FOGs).
     fdi: Option<ParityMonitor>,
     star_intake: StarIntake,
-    /// CRC-32 of the table in use (its binary form's last four bytes).
-    table_crc: u32,
     /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
     fixed_flags: u8,
     /// FOGs whose temperature sensor has failed (bit i).
     temp_failed_bits: u8,
     observer: Observer<HISTORY>,
+    /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
+    /// step, so after the hot state).
+    table_crc: u32,
 }
 
 impl FlightCore {

@@ -117,6 +117,10 @@ impl CommandLink {
     /// Takes the bytes that arrived on the command line: every telecommand completed by
     /// them is checked and acted on (`core` switched, `flash` written, counters counted
     /// in `core`), calling `on_command` with each outcome.
+    ///
+    /// Never inlined: the main loop calls it only when bytes arrived, and kept out of the
+    /// loop's body it leaves the inlined step's code as it was without a command link.
+    #[inline(never)]
     pub fn receive<F: CalibFlash + ?Sized>(
         &mut self,
         bytes: &[u8],
