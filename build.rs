@@ -2,7 +2,7 @@
 //! this directory, and defmt's), so nested board packages keep their own.
 //!
 //! The launch-vehicle firmware (`ssis-fw-lv`, and the binaries tested in its layout:
-//! `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
+//! `ssis-fw-lv-test`, `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
 //! `link/memory-lv.x`. cortex-m-rt's link.x includes `memory.x`, which the linker looks
 //! for in the working directory (this one) before the search path, so that binary is
 //! linked with a copy of link.x that includes `memory-lv.x` instead (written to OUT_DIR
@@ -17,14 +17,14 @@ fn main() {
     println!("cargo:rerun-if-changed=link/memory-lv.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
-        for bin in ["ssis-fw", "ssis-selftest", "ssis-stackcheck"] {
+        for bin in ["ssis-fw", "ssis-fw-test", "ssis-selftest", "ssis-stackcheck"] {
             println!("cargo:rustc-link-arg-bin={bin}=-Tlink.x");
         }
         match lv_link_script(Path::new(&dir)) {
             Ok(lv_dir) => {
                 // The navigation benchmark is launch-vehicle code: the LV budget (its
                 // GNSS update needs more stack than the spacecraft's 28 KiB region).
-                for bin in ["ssis-fw-lv", "ssis-navbench", "ssis-stackcheck-lv"] {
+                for bin in ["ssis-fw-lv", "ssis-fw-lv-test", "ssis-navbench", "ssis-stackcheck-lv"] {
                     println!("cargo:rustc-link-arg-bin={bin}=-L{}", lv_dir.display());
                     println!("cargo:rustc-link-arg-bin={bin}=-Tlink-lv.x");
                 }

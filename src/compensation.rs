@@ -58,6 +58,13 @@ impl ThermalTracker {
         ThermalTracker { estimator: TempRateEstimator::new(dt_s, tau_s) }
     }
 
+    /// A new time constant `tau_s` (a table switch); the tracked T and G stay.
+    pub fn set_time_constant(&mut self, dt_s: f64, tau_s: f64) {
+        let fresh = TempRateEstimator::new(dt_s, tau_s);
+        self.estimator.alpha = fresh.alpha;
+        self.estimator.beta_per_s = fresh.beta_per_s;
+    }
+
     /// The temperature predicted for a reading `dt_s` after the last one (`None` before
     /// the first).
     #[inline]

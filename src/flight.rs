@@ -141,6 +141,7 @@ struct Sample {
 /// `repr(C)` in this order: the state every step touches first, the large stages last,
 /// so the hot fields sit within the M7's short load offsets of one base address.
 #[repr(C)]
+#[derive(Clone)]
 pub struct FlightCore {
     profile: Profile,
     last_body_dtheta: Vector3<f64>,
@@ -163,27 +164,24 @@ pub struct FlightCore {
     /// FOGs whose temperature sensor has failed (bit i).
     temp_failed_bits: u8,
     observer: Observer<HISTORY>,
+    /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
+    /// step, so after the hot state).
+    table_crc: u32,
 }
 
 impl FlightCore {
     /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
     /// was invalid and `table` is the default; flagged in every output frame).
     pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
-        let combiner = Combiner::new(&table.axes());
-        if combiner.solution(profile.fogs).is_err() {
-            return Err(CoreError::Geometry);
-        }
+        let combiner = checked_combiner(profile, table)?;
         let observer = Observer::from_config(&table.observer)?;
         let dt = profile.dt_s();
-        // σ₁: the ARW's angle noise in one sample (the table's noise figure).
-        let noise_rad = table.observer.arw_deg_sqrt_h * core::f64::consts::PI / 180.0 / 60.0 * crate::math::sqrt(dt);
-        let fdi = match (profile.fogs == FogSet::ALL, combiner.solution(FogSet::ALL), combiner.triads()) {
-            (true, Ok(all), Some(triads)) => ParityMonitor::new(combiner.parity_vector(), all, triads, noise_rad, dt),
-            _ => None,
-        };
+        let noise_rad = sample_noise_rad(table, dt);
+        let fdi = parity_monitor(profile, &combiner, noise_rad, dt);
         Ok(FlightCore {
             profile,
             table: *table,
+            table_crc: table_crc(table),
             fixed_flags: if profile.star_tracker { flags::ST_IN_USE } else { 0 }
                 | if table_defaulted { flags::TABLE_DEFAULTED } else { 0 },
             rx_scratch: WordAligned([0; RX_CHUNK]),
@@ -201,6 +199,60 @@ impl FlightCore {
             telemetry: Telemetry::new(),
             last_output: StepOutput::START,
         })
+    }
+
+    /// Whether the core would fly on `table` ([`FlightCore::switch_table`] would take it):
+    /// its fitted FOGs span 3-D space and the observer's gains can be computed.
+    pub fn check_table(profile: Profile, table: &CalibrationTable) -> Result<(), CoreError> {
+        checked_combiner(profile, table)?;
+        crate::observer::steady_state(&table.observer)?;
+        Ok(())
+    }
+
+    /// Whether a table may be switched now: not while a parity alarm stands (its
+    /// isolation fit runs on the table it began with).
+    pub fn ready_for_table(&self) -> bool {
+        !self.fdi.as_ref().is_some_and(|m| m.alarm())
+    }
+
+    /// Switches to `table` between two steps: compensation, combination, the parity
+    /// monitor's geometry, the star-tracker mount, the temperature-rate filter and the
+    /// observer's gains take the new values from the next step on; the attitude, the
+    /// drift estimate, the histories, the counters, an isolated FOG and the flags stay.
+    /// So the attitude changes only by what the new values imply. Refused (nothing
+    /// changed) if [`FlightCore::check_table`] refuses `table`.
+    pub fn switch_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
+        let combiner = checked_combiner(self.profile, table)?;
+        self.observer.retune(&table.observer)?;
+        let dt = self.profile.dt_s();
+        let noise_rad = sample_noise_rad(table, dt);
+        let mut fdi = parity_monitor(self.profile, &combiner, noise_rad, dt);
+        if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
+            new.carry_from(old);
+        }
+        for m in self.channel_monitors.iter_mut() {
+            m.set_noise(noise_rad);
+        }
+        for t in self.thermal.iter_mut() {
+            t.set_time_constant(dt, table.t_rate_filter_s);
+        }
+        self.fdi = fdi;
+        self.combiner = combiner;
+        self.mount = table.st_mount();
+        self.table = *table;
+        self.table_crc = table_crc(table);
+        Ok(())
+    }
+
+    /// CRC-32 of the table in use (the last four bytes of its binary form).
+    pub fn table_crc(&self) -> u32 {
+        self.table_crc
+    }
+
+    /// Command link and board: one more event of counter `c` (the telecommand counters;
+    /// the counters the core derives itself are not changed by it).
+    pub fn note(&mut self, c: Counter) {
+        self.telemetry.counters.bump(c);
     }
 
     /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
@@ -242,6 +294,9 @@ impl FlightCore {
             Counter::FdiTransients => fdi().transients,
             Counter::FdiIsolations => fdi().isolations,
             Counter::StReacquired => self.observer.stats().reacquired,
+            Counter::TableRevision => self.table.revision,
+            Counter::TableCrcLow => self.table_crc & 0xFFFF,
+            Counter::TableCrcHigh => self.table_crc >> 16,
             _ => self.telemetry.counters.get(c),
         }
     }
@@ -285,6 +340,11 @@ impl FlightCore {
     /// Board: the previous step overran its deadline.
     pub fn note_overrun(&mut self) {
         self.telemetry.counters.bump(Counter::Overruns);
+    }
+
+    /// Board: a control frame arrived and was ignored (a flight build has no test hooks).
+    pub fn note_control_ignored(&mut self) {
+        self.telemetry.counters.bump(Counter::ControlIgnored);
     }
 
     /// Board: how long the previous step took, in board ticks (goes into the frame).
@@ -592,6 +652,35 @@ fn star_refusal(e: UpdateError) -> Counter {
         UpdateError::Future => Counter::StFramesEarly,
         UpdateError::Gated | UpdateError::BadQuaternion => Counter::StFramesRejected,
     }
+}
+
+/// The combiner of `table`'s geometry, if the profile's FOGs span 3-D space with it.
+fn checked_combiner(profile: Profile, table: &CalibrationTable) -> Result<Combiner, CoreError> {
+    let combiner = Combiner::new(&table.axes());
+    match combiner.solution(profile.fogs) {
+        Ok(_) => Ok(combiner),
+        Err(_) => Err(CoreError::Geometry),
+    }
+}
+
+/// σ₁: the ARW's angle noise in one sample of `dt_s` (the table's noise figure), rad.
+fn sample_noise_rad(table: &CalibrationTable, dt_s: f64) -> f64 {
+    table.observer.arw_deg_sqrt_h * core::f64::consts::PI / 180.0 / 60.0 * crate::math::sqrt(dt_s)
+}
+
+/// The parity fault logic for the profile (four FOGs) on `combiner`'s geometry.
+fn parity_monitor(profile: Profile, combiner: &Combiner, noise_rad: f64, dt_s: f64) -> Option<ParityMonitor> {
+    match (profile.fogs == FogSet::ALL, combiner.solution(FogSet::ALL), combiner.triads()) {
+        (true, Ok(all), Some(triads)) => ParityMonitor::new(combiner.parity_vector(), all, triads, noise_rad, dt_s),
+        _ => None,
+    }
+}
+
+/// CRC-32 of `table`'s binary form (its last four bytes: what the table store and the
+/// command link name a table by).
+pub fn table_crc(table: &CalibrationTable) -> u32 {
+    let bytes = crate::calib::binary::encode(table);
+    bytes.last_chunk::<4>().map_or(0, |c| u32::from_le_bytes(*c))
 }
 
 /// FOG `i`'s frame through the channel checks (integrity) and compensation.

@@ -23,6 +23,8 @@
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
 //! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
 //! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
+//! [`telecommand`] is the command link: authenticated telecommands, the in-flight table
+//! update.
 //! [`bsp`] is the board seam: the boot policy every board shares (host and target) and,
 //! for the target only, the Cortex-M7 and QEMU `mps2-an500` board code.
 #![no_std]
@@ -42,4 +44,5 @@ pub mod link;
 pub mod math;
 pub mod nav;
 pub mod observer;
+pub mod telecommand;
 pub mod telemetry;

@@ -250,6 +250,17 @@ impl<const H: usize> Observer<H> {
         Ok(Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady))
     }
 
+    /// A new table's figures (a table switch): its gains, star-tracker noise and gate
+    /// figures from the next update on; the drift estimate, the history, the alignment
+    /// and the statistics stay. Nothing changes if the gains cannot be computed.
+    pub fn retune(&mut self, cfg: &ObserverConfig) -> Result<(), GainError> {
+        let steady = steady_state(cfg)?;
+        self.gains = cfg.gains_override.unwrap_or(steady.gains);
+        self.sigma_st_rad = cfg.st_sigma_arcsec * ARCSEC_RAD;
+        self.steady = steady;
+        Ok(())
+    }
+
     /// Gains in use.
     pub fn gains(&self) -> &ObserverGains {
         &self.gains

@@ -7,7 +7,12 @@
 //! - the on-target test binary (`ssis-selftest`): built-in test and a replay digest equal
 //!   to the host's;
 //! - stack overflow (`ssis-stackcheck`, `ssis-stackcheck-lv`: each firmware's layout): a
-//!   fault reported below the stack, statics intact.
+//!   fault reported below the stack, statics intact;
+//! - the flight build (`ssis-fw`, no test hooks): every control frame the runner uses is
+//!   counted and ignored, the unit keeps stepping on its timer with unchanged output; and
+//!   with the `test-hooks` feature it does not link.
+//!
+//! Everything else runs the test build (`ssis-fw-test`), which honours control frames.
 
 use std::path::Path;
 
@@ -336,4 +341,60 @@ fn bias_step_on_fog2_in_qemu_is_isolated_as_on_the_host() {
     // Host runs of this fault on six seeds: 2.3–15″ after isolation (the fit's gain is
     // known to 10 %, and the error at isolation is 65–90″).
     assert!(err_after_isolation < 30.0, "attitude {err_after_isolation:.1}″ after isolation");
+}
+
+/// The flight build given every control frame the runner uses (LOCKSTEP, STEP, END,
+/// STALL): it must count and ignore them, keep stepping on its own timer (no lockstep, no
+/// exit, no stall into a watchdog reset), and every output frame before and after them
+/// must be the one the same core gives in-process on the same (empty) links, apart from
+/// the page that shows the ignored frames.
+#[test]
+fn a_flight_build_ignores_every_control_frame_and_keeps_flying() {
+    use std::time::Duration;
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = ssis_runner::qemu::build_flight_firmware().expect("flight firmware builds");
+    assert!(!ssis_runner::qemu::is_test_build(&elf).expect("ELF readable"), "ssis-fw has test hooks");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let sc = Scenario::from_file(&path).expect("scenario");
+    let table = ssis_sim::harness::Simulation::new(&sc).expect("simulation").table;
+    let c = ssis_runner::flight_build::control_frames_on_flight_build(
+        &elf,
+        &table,
+        Duration::from_millis(500),
+        Duration::from_millis(1500),
+    )
+    .expect("QEMU runs the flight build");
+    for l in &c.log {
+        println!("firmware: {l}");
+    }
+    println!(
+        "flight build: {} frames before and {} after {} control frames; {} equal to the in-process core, {} different; \
+         ignored-control page shows {}; counter gaps {}; still running {}",
+        c.frames_before, c.frames_after, c.sent, c.equal, c.differing, c.ignored_shown, c.counter_gaps, c.still_running
+    );
+    assert!(c.still_running, "the flight build ended or stalled on a control frame");
+    // 1.5 s on its 5 ms timer is 300 steps; a loaded host may slow QEMU's real time.
+    assert!(c.frames_after >= 100, "only {} frames after the control frames: it stopped stepping", c.frames_after);
+    assert_eq!(c.differing, 0, "output changed");
+    assert_eq!(c.equal, c.frames_before + c.frames_after);
+    assert_eq!(c.counter_gaps, 0, "frames lost");
+    assert_eq!(u32::from(c.ignored_shown), c.sent, "every control frame counted once");
+}
+
+/// A flight firmware cannot have the test hooks: built with `test-hooks`, `ssis-fw` fails
+/// to link on the symbol that names the cause (only the test builds define it).
+#[test]
+fn a_flight_firmware_with_test_hooks_does_not_link() {
+    let root = ssis_runner::qemu::repo_root();
+    let out = std::process::Command::new("cargo")
+        .args(["build", "--release", "--quiet", "--bin", "ssis-fw", "--features", "test-hooks", "--target-dir"])
+        .arg(root.join("target/test-hooks"))
+        .current_dir(&root)
+        .env_remove("CARGO_TARGET_DIR")
+        .env_remove("CARGO_BUILD_TARGET")
+        .output()
+        .expect("cargo runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "ssis-fw linked with test hooks");
+    assert!(err.contains("ERROR(ssis): test hooks in a flight firmware"), "not refused for its test hooks: {err}");
 }

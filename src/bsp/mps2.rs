@@ -26,7 +26,8 @@
 //!   8 MiB below 0x2000_0000 unchecked).
 //! - Semihosting: the defmt log ([`semihosting_sink`]) and the exit code of a QEMU run
 //!   ([`exit`]).
-//! - The main loop's pacing ([`Pacer`]): the timer, or lockstep driven by control frames.
+//! - The main loop's pacing ([`Pacer`]): the timer, or (test builds only) lockstep
+//!   driven by control frames.
 #![allow(unsafe_code)]
 
 use core::cell::UnsafeCell;
@@ -346,14 +347,63 @@ pub fn semihosting_sink(bytes: &[u8]) {
 
 extern "C" {
     static _calib_start: u8;
+    static _key_start: u8;
     static _lvdata_start: u8;
 }
 
 /// The stored calibration table region (4 KiB at `_calib_start`: two copies,
 /// `calib::store`).
 pub fn calib_area() -> &'static [u8] {
-    // SAFETY: the CALIB region of the layout, 4 KiB, always mapped, read-only here.
+    // SAFETY: the CALIB region of the layout, 4 KiB, always mapped. Written only by
+    // `CalibRegion` from the main loop, which holds no slice of it across a write.
     unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), crate::calib::store::REGION_LEN) }
+}
+
+/// The command key's record in the protected KEY region (`memory.x`, at `_key_start`;
+/// `telecommand::auth`). The firmware never writes it.
+pub fn key_area() -> &'static [u8] {
+    // SAFETY: the KEY region of the spacecraft layout, at least this long, always
+    // mapped, never written by the firmware.
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_key_start), crate::telecommand::auth::KEY_RECORD_LEN) }
+}
+
+/// The calibration region as flash the command link writes (`calib::store::stage` and
+/// `commit`). On QEMU's mps2 the region is RAM: an erase writes `FF`, a program writes
+/// the bytes, each byte by a volatile store, so a reset between two leaves exactly the
+/// bytes written before it (what a power loss does to NOR flash, byte for byte).
+pub struct CalibRegion;
+
+impl CalibRegion {
+    fn write(offset: usize, bytes: impl Iterator<Item = u8>) {
+        let base = core::ptr::addr_of!(_calib_start) as *mut u8;
+        for (i, b) in bytes.enumerate() {
+            // SAFETY: offset + i < REGION_LEN (checked by the callers): inside the CALIB
+            // region, mapped and writable on this board; no slice of it is held now.
+            unsafe { core::ptr::write_volatile(base.wrapping_add(offset + i), b) }
+        }
+    }
+}
+
+impl crate::calib::store::CalibFlash for CalibRegion {
+    fn region(&self) -> &[u8] {
+        calib_area()
+    }
+
+    fn erase(&mut self, slot: crate::calib::store::Slot) -> Result<(), crate::calib::store::FlashError> {
+        Self::write(slot.offset(), core::iter::repeat_n(0xFF, crate::calib::store::SLOT_STRIDE));
+        Ok(())
+    }
+
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), crate::calib::store::FlashError> {
+        use crate::calib::store::FlashError;
+        let end = offset.checked_add(bytes.len()).ok_or(FlashError::OutOfRange)?;
+        let at = calib_area().get(offset..end).ok_or(FlashError::OutOfRange)?;
+        if at.iter().any(|&b| b != 0xFF) {
+            return Err(FlashError::NotErased);
+        }
+        Self::write(offset, bytes.iter().copied());
+        Ok(())
+    }
 }
 
 /// `len` bytes at `offset` in the launch-vehicle layout's LVDATA region
@@ -413,16 +463,49 @@ impl Times {
     }
 }
 
+/// Bytes of the control line's receive ring (control frames and telecommands).
+pub const CTL_RX_LEN: usize = 256;
+
+/// Whether this build honours the control frames (LOCKSTEP, STEP, END, STALL): only a
+/// test build (`test-hooks`, the binaries that invoke [`mps2_test_hooks!`](crate::mps2_test_hooks)).
+pub const TEST_HOOKS: bool = cfg!(feature = "test-hooks");
+
+#[cfg(feature = "test-hooks")]
+extern "C" {
+    /// Defined only by [`mps2_test_hooks!`](crate::mps2_test_hooks), which the test
+    /// binaries invoke and the flight firmwares do not: a flight firmware built with
+    /// `test-hooks` refers to it from [`Pacer::new`] and fails to link, naming the cause.
+    #[link_name = "ERROR(ssis): test hooks in a flight firmware. ssis-fw and ssis-fw-lv never have the test-hooks feature; build ssis-fw-test or ssis-fw-lv-test (README: Flight build and test build)"]
+    static TEST_HOOKS_BUILD: u8;
+}
+
+/// Marks a binary as a test build, allowed the test hooks: defines the symbol that
+/// [`Pacer`] refers to in a `test-hooks` build. Invoked by the test builds of the
+/// firmwares (`ssis-fw-test`, `ssis-fw-lv-test`), never by a flight firmware, so a flight
+/// firmware built with `test-hooks` does not link (the check is the linker's, as the
+/// no-panic proof is).
+#[macro_export]
+macro_rules! mps2_test_hooks {
+    () => {
+        #[allow(unsafe_code)]
+        #[used]
+        #[export_name = "ERROR(ssis): test hooks in a flight firmware. ssis-fw and ssis-fw-lv never have the test-hooks feature; build ssis-fw-test or ssis-fw-lv-test (README: Flight build and test build)"]
+        static SSIS_TEST_HOOKS_BUILD: u8 = 1;
+    };
+}
+
 /// Paces the main loop: on the timer (one step per SysTick, a missed tick an overrun),
-/// or in lockstep (test equipment: one step per STEP control frame, once the bytes it
-/// names have arrived), and ends the run on END. Control frames arrive on the UART whose
-/// RX feeds `ctl`.
+/// or, in a test build ([`TEST_HOOKS`]), in lockstep (test equipment: one step per STEP
+/// control frame, once the bytes it names have arrived), ending the run on END. Control
+/// frames arrive on the UART whose RX feeds `ctl`; a flight build counts each one
+/// ([`Counter::ControlIgnored`](crate::telemetry::Counter::ControlIgnored)) and acts on
+/// none, so it keeps stepping on its timer whatever arrives.
 pub struct Pacer {
     map: &'static UartMap,
-    ctl: RxRingReader<'static, 64>,
+    ctl: RxRingReader<'static, CTL_RX_LEN>,
     decoder: StreamDecoder<ControlFrame, 32>,
     steps_due: Deque<ControlFrame, 8>,
-    scratch: [u8; 32],
+    scratch: [u8; 128],
     lockstep: bool,
     began: bool,
     end: bool,
@@ -432,13 +515,17 @@ pub struct Pacer {
 
 impl Pacer {
     /// Paces a loop whose UARTs are `map` and whose control frames land in `ctl`.
-    pub fn new(map: &'static UartMap, ctl: &'static RxRing<64>) -> Self {
+    pub fn new(map: &'static UartMap, ctl: &'static RxRing<CTL_RX_LEN>) -> Self {
+        #[cfg(feature = "test-hooks")]
+        // SAFETY: a one-byte static defined by `mps2_test_hooks!`; read once, only so
+        // that a binary without it does not link.
+        let _ = unsafe { core::ptr::read_volatile(core::ptr::addr_of!(TEST_HOOKS_BUILD)) };
         Pacer {
             map,
             ctl: ctl.reader(),
             decoder: StreamDecoder::new(),
             steps_due: Deque::new(),
-            scratch: [0; 32],
+            scratch: [0; 128],
             lockstep: false,
             began: false,
             end: false,
@@ -448,27 +535,39 @@ impl Pacer {
     }
 
     /// Start of a pass: takes what the UARTs received and the control frames; whether a
-    /// step is due. In lockstep, the next STEP frame once `arrived(frame)` says its bytes
-    /// are in; on the timer, a new tick (each tick missed since the last step counts an
-    /// overrun of `core`).
-    pub fn due(&mut self, core: &mut FlightCore, arrived: impl Fn(&ControlFrame) -> bool) -> bool {
+    /// step is due. In lockstep (test build), the next STEP frame once `arrived(frame)`
+    /// says its bytes are in; on the timer, a new tick (each tick missed since the last
+    /// step counts an overrun of `core`). A flight build counts every control frame in
+    /// `core` and ignores it. Every byte of the control line also goes to `on_line` (the
+    /// command link's telecommands share it), before the control frames it completes
+    /// are acted on.
+    pub fn due(
+        &mut self,
+        core: &mut FlightCore,
+        arrived: impl Fn(&ControlFrame) -> bool,
+        mut on_line: impl FnMut(&mut FlightCore, &[u8]),
+    ) -> bool {
         poll_rx(self.map);
         let Pacer { ctl, decoder, steps_due, scratch, lockstep, began, end, stall, .. } = self;
-        let _ = drain(ctl, 64, scratch, |bytes| {
+        let _ = drain(ctl, CTL_RX_LEN, scratch, |bytes| {
+            on_line(core, bytes);
             decoder.push_slice(bytes, |r| {
-                if let Ok(c) = r {
-                    match c.command {
-                        command::LOCKSTEP => {
-                            *lockstep = true;
-                            *began = true;
-                        }
-                        command::STEP => {
-                            let _ = steps_due.push_back(c);
-                        }
-                        command::END => *end = true,
-                        command::STALL if cfg!(feature = "test-hooks") => *stall = true,
-                        _ => {}
+                let Ok(c) = r else { return };
+                if !TEST_HOOKS {
+                    core.note_control_ignored();
+                    return;
+                }
+                match c.command {
+                    command::LOCKSTEP => {
+                        *lockstep = true;
+                        *began = true;
                     }
+                    command::STEP => {
+                        let _ = steps_due.push_back(c);
+                    }
+                    command::END => *end = true,
+                    command::STALL => *stall = true,
+                    _ => {}
                 }
             });
         });
@@ -503,11 +602,11 @@ impl Pacer {
         core::mem::take(&mut self.began)
     }
 
-    /// End of a pass: sends the output, feeds the watchdog, and once END has come and
-    /// every output ring is empty, calls `report` and ends the run with success; sleeps
-    /// until the next interrupt when no step was due. In a `test-hooks` build a STALL
-    /// control frame stops the loop here without feeding the watchdog (the fault being
-    /// injected: it ends only by the watchdog).
+    /// End of a pass: sends the output, feeds the watchdog, and once END has come (test
+    /// build) and every output ring is empty, calls `report` and ends the run with
+    /// success; sleeps until the next interrupt when no step was due. In a test build a
+    /// STALL control frame stops the loop here without feeding the watchdog (the fault
+    /// being injected: it ends only by the watchdog).
     pub fn end_pass(&mut self, due: bool, report: impl FnOnce()) {
         pump_tx(self.map);
         if self.stall {

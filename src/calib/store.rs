@@ -29,6 +29,13 @@
 //! table or the whole new one, never a mixture. A second [`prepare_update`] with the same
 //! table then overwrites the older slot, giving two copies again.
 //!
+//! **Updating in flight** (the command link, `crate::telecommand`): [`stage`] writes the
+//! new record into the slot not holding the active copy with its CRC left erased, so
+//! the copy is refused until [`commit`] writes those four bytes; the active copy is
+//! never touched. A power loss at any byte gives the old table or, after the last CRC
+//! byte, the new one (`host-tests/tests/table_store.rs` cuts the command path at every
+//! byte written).
+//!
 //! Why it is enough: CRC-32/ISO-HDLC has Hamming distance 4 over this record length
 //! (3,872 bits), so every 1-, 2- and 3-bit error in a record is detected; the host test
 //! `host-tests/tests/table.rs` enumerates every 1- and 2-bit flip and every truncation.
@@ -69,6 +76,74 @@ pub enum StoreError {
     Table(TableError),
     /// No generation left (the newest copy has `u32::MAX`).
     GenerationExhausted,
+    /// Writing the flash failed.
+    Flash(FlashError),
+    /// What reads back from the flash is not what was written.
+    Readback,
+}
+
+/// Why the table's flash could not be written.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum FlashError {
+    /// The bytes would lie outside the region.
+    OutOfRange,
+    /// A byte to be programmed is not erased (`FF`).
+    NotErased,
+    /// The flash controller reported a failure.
+    Failed,
+}
+
+/// The table's flash region as a writer sees it: NOR flash, erased a slot at a time to
+/// `FF`, programmed only where erased. The QEMU board's region is RAM behind this trait;
+/// [`RamFlash`] is the same on the host.
+pub trait CalibFlash {
+    /// The region as it reads now ([`REGION_LEN`] bytes).
+    fn region(&self) -> &[u8];
+    /// Erases `slot` (every byte of its [`SLOT_STRIDE`] to `FF`).
+    fn erase(&mut self, slot: Slot) -> Result<(), FlashError>;
+    /// Programs `bytes` at `offset` in the region; every byte there must be erased.
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError>;
+}
+
+/// A [`CalibFlash`] in RAM (host tests, fuzzing, the in-process replay of the runner).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct RamFlash {
+    /// The region's bytes.
+    pub bytes: [u8; REGION_LEN],
+}
+
+impl RamFlash {
+    /// A region holding `image` (cut or padded with `FF` to [`REGION_LEN`]).
+    pub fn new(image: &[u8]) -> Self {
+        let mut bytes = [0xFF; REGION_LEN];
+        for (d, s) in bytes.iter_mut().zip(image) {
+            *d = *s;
+        }
+        RamFlash { bytes }
+    }
+}
+
+impl CalibFlash for RamFlash {
+    fn region(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    fn erase(&mut self, slot: Slot) -> Result<(), FlashError> {
+        let s = self.bytes.get_mut(slot.offset()..slot.offset() + SLOT_STRIDE).ok_or(FlashError::OutOfRange)?;
+        s.fill(0xFF);
+        Ok(())
+    }
+
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), FlashError> {
+        let end = offset.checked_add(bytes.len()).ok_or(FlashError::OutOfRange)?;
+        let dst = self.bytes.get_mut(offset..end).ok_or(FlashError::OutOfRange)?;
+        if dst.iter().any(|&b| b != 0xFF) {
+            return Err(FlashError::NotErased);
+        }
+        dst.copy_from_slice(bytes);
+        Ok(())
+    }
 }
 
 impl core::fmt::Display for StoreError {
@@ -250,6 +325,48 @@ pub fn prepare_update(region: &[u8], new: &CalibrationTable) -> Result<Update, S
         Ok((t, g)) if g == generation && t == *new => Ok(Update { slot, generation, record }),
         Ok(_) => Err(StoreError::Table(TableError::RoundTrip)),
         Err(e) => Err(e),
+    }
+}
+
+/// [`prepare_update`] for [`stage`]: the same record, unless its CRC came out as erased
+/// flash (`FF FF FF FF`, one record in 2^32), which a staged record with its CRC left
+/// unwritten would then already carry: then with the generation after.
+pub fn prepare_staged_update(region: &[u8], new: &CalibrationTable) -> Result<Update, StoreError> {
+    let mut u = prepare_update(region, new)?;
+    if u.record.last_chunk::<4>() == Some(&[0xFF; 4]) {
+        u.generation = u.generation.checked_add(1).ok_or(StoreError::GenerationExhausted)?;
+        u.record = encode_record(new, u.generation);
+    }
+    Ok(u)
+}
+
+/// Writes `u`'s record into its slot, all but its CRC: the slot is erased, then
+/// programmed and read back. Its last four bytes stay erased, so [`load`] refuses the
+/// copy (BadCrc) and keeps returning the active one, at every byte of the way and after
+/// a power loss; [`commit`] makes it the active copy.
+pub fn stage<F: CalibFlash + ?Sized>(flash: &mut F, u: &Update) -> Result<(), StoreError> {
+    let (body, _) = u.record.split_last_chunk::<4>().ok_or(StoreError::Truncated)?;
+    flash.erase(u.slot).map_err(StoreError::Flash)?;
+    flash.program(u.slot.offset(), body).map_err(StoreError::Flash)?;
+    let at = flash.region().get(u.slot.offset()..u.slot.offset() + RECORD_LEN).ok_or(StoreError::Truncated)?;
+    match at.split_last_chunk::<4>() {
+        Some((b, crc)) if b == body && crc == &[0xFF; 4] => Ok(()),
+        _ => Err(StoreError::Readback),
+    }
+}
+
+/// Activates a record staged by [`stage`]: programs its CRC. The switch is atomic at
+/// every byte: until the last of the four is written the copy fails its CRC (the old
+/// table loads); once it is, the whole new record with the higher generation loads.
+/// Then checks that [`load`] returns it.
+pub fn commit<F: CalibFlash + ?Sized>(flash: &mut F, u: &Update) -> Result<(), StoreError> {
+    let (_, crc) = u.record.split_last_chunk::<4>().ok_or(StoreError::Truncated)?;
+    flash.program(u.slot.offset() + RECORD_LEN - 4, crc).map_err(StoreError::Flash)?;
+    let l = load(flash.region());
+    if l.source == Source::Stored(u.slot) && l.generation == u.generation {
+        Ok(())
+    } else {
+        Err(StoreError::Readback)
     }
 }
 

@@ -1,6 +1,7 @@
-//! Control frame (kind 0x40, 16 bytes): ground or test equipment → unit, on the output
-//! link's receive line. Not used in flight; it lets a runner step the unit in lockstep
-//! with a simulator and end a run.
+//! Control frame (kind 0x40, 16 bytes): test equipment → unit, on the output link's
+//! receive line. It lets a runner step the unit in lockstep with a simulator and end a
+//! run; only a test build (`test-hooks`) acts on it, a flight build counts and ignores it
+//! (`bsp::mps2::Pacer`).
 //!
 //! | off | size | field | type | meaning |
 //! |---|---|---|---|---|
@@ -13,7 +14,7 @@
 //! | 14 | 2 | crc | u16 | CRC16 over bytes 0..14 |
 //!
 //! In lockstep the unit steps once per `STEP`, after it has received the totals named.
-//! `STALL` exists for the watchdog test and is acted on only by a `test-hooks` build.
+//! `STALL` exists for the watchdog test.
 
 use super::{kind, DecodeError, FieldReader, FieldWriter, Frame};
 
@@ -28,8 +29,7 @@ pub mod command {
     pub const STEP: u8 = 2;
     /// Report and end the run (under QEMU: exit with success).
     pub const END: u8 = 3;
-    /// Fault injection: stop feeding the watchdog (the main loop spins). Honoured only
-    /// by firmware built with the `test-hooks` feature; others ignore it.
+    /// Fault injection: stop feeding the watchdog (the main loop spins).
     pub const STALL: u8 = 4;
 }
 

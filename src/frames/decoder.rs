@@ -61,6 +61,7 @@ impl DecoderStats {
 
 /// Streaming decoder of frames of type `F` with a buffer of `CAP` bytes
 /// (`CAP >= F::LEN`, checked at compile time by [`StreamDecoder::new`]).
+#[derive(Clone)]
 pub struct StreamDecoder<F: Frame, const CAP: usize> {
     buf: Vec<u8, CAP>,
     stats: DecoderStats,

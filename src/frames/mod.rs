@@ -15,6 +15,9 @@
 //!   [`navout::NavOutputFrame`] (64 bytes),
 //!   [`output::OutputFrame`] (83 bytes), each with raw-count fields, physical-unit
 //!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
+//!   [`control::ControlFrame`] (16 bytes, test equipment), and the command link's
+//!   [`telecommand::Telecommand`] (98 bytes, with a CRC-32C in place of the CRC-16) and
+//!   [`telecommand::CommandReport`] (32 bytes);
 //! - [`decoder::StreamDecoder`]: a fixed-capacity byte-stream decoder that hunts for
 //!   sync, checks kind, CRC and fields, counts every rejection and resynchronises inside
 //!   rejected bytes, so a frame that follows garbage is not lost.
@@ -29,6 +32,7 @@ pub mod gnss;
 pub mod navout;
 pub mod output;
 pub mod star;
+pub mod telecommand;
 
 /// The two sync bytes that open every frame.
 pub const SYNC: [u8; 2] = [0xEB, 0x90];
@@ -47,8 +51,12 @@ pub mod kind {
     pub const OUTPUT: u8 = 0x30;
     /// Navigation output frame ([`super::navout::NavOutputFrame`], launch-vehicle unit).
     pub const NAV_OUTPUT: u8 = 0x31;
-    /// Control frame (test and ground equipment → unit).
+    /// Control frame (test equipment → unit).
     pub const CONTROL: u8 = 0x40;
+    /// Telecommand (ground → unit, [`super::telecommand::Telecommand`]).
+    pub const TELECOMMAND: u8 = 0x50;
+    /// Command report (unit → ground, [`super::telecommand::CommandReport`]).
+    pub const COMMAND_REPORT: u8 = 0x51;
 }
 
 /// Bytes before the fields: sync (2) and kind (1).

@@ -42,6 +42,7 @@ pub struct Arrival {
 }
 
 /// One FOG's receive path: decoder and sample queue.
+#[derive(Clone)]
 struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
     queue: Deque<FogFrame, FOG_QUEUE>,
@@ -107,6 +108,7 @@ struct SampleClock {
 }
 
 /// The FOG intake stage.
+#[derive(Clone)]
 pub struct FogIntake {
     fitted: FogSet,
     channels: [FogChannel; N_FOG],

@@ -29,6 +29,7 @@ pub enum Pending {
 }
 
 /// The star-tracker intake stage.
+#[derive(Clone)]
 pub struct StarIntake {
     decoder: StreamDecoder<StarFrame, 64>,
     pending: Deque<StarFrame, ST_PENDING>,

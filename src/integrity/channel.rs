@@ -52,6 +52,12 @@ impl ChannelMonitor {
         }
     }
 
+    /// A new table's noise figure: the stuck check on or off as [`ChannelMonitor::new`]
+    /// decides; the memory of the checks stays.
+    pub fn set_noise(&mut self, noise_rad: f64) {
+        self.stuck_enabled = ChannelMonitor::new(noise_rad).stuck_enabled;
+    }
+
     /// Whether the sample's raw increment is stuck (do not use the sample).
     #[inline]
     pub fn stuck(&mut self, frame: &FogFrame) -> bool {

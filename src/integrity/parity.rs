@@ -222,6 +222,16 @@ impl ParityMonitor {
         })
     }
 
+    /// Takes over from `old` (the same unit's monitor on the table before a switch):
+    /// a gyro it isolated stays isolated, and its counters go on. The residual's
+    /// statistics start again on the new geometry.
+    pub fn carry_from(&mut self, old: &ParityMonitor) {
+        if let FdiState::Isolated(i) = old.state {
+            self.state = FdiState::Isolated(i);
+        }
+        self.counters = old.counters;
+    }
+
     /// State of the fault logic.
     pub fn state(&self) -> FdiState {
         self.state

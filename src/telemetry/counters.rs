@@ -122,6 +122,17 @@ declare_counters! {
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
         StFramesLate st_frames_late "star-tracker frames older than the attitude history (came late, or the unit bridged past them)",
         StFramesEarly st_frames_early "star-tracker frames too far ahead of the unit's clock (more than 1 s, or more than the pending queue holds)",
+        ControlIgnored control_ignored "control frames (LOCKSTEP, STEP, END, STALL) ignored: a flight build has no test hooks",
+        TcAccepted tc_accepted "telecommands accepted (authenticated, in sequence) and acted on",
+        TcCorrupt tc_corrupt "telecommand frames rejected by the decoder (CRC-32C, malformed fields)",
+        TcUnauthenticated tc_unauthenticated "telecommands refused: the MAC does not verify (wrong key, forged, no key provisioned)",
+        TcReplayed tc_replayed "telecommands refused: the sequence number of the last accepted one (replayed)",
+        TcOutOfSequence tc_out_of_sequence "telecommands refused: a sequence number below the last accepted one",
+        TcRefused tc_refused "authenticated telecommands refused by the table upload (chunk, table, arm or fire not valid now)",
+        TableActivations table_activations "calibration tables activated by command",
+        TableRevision table_revision "the active calibration table's revision (saturating)",
+        TableCrcLow table_crc_low "the active calibration table's CRC-32, low 16 bits",
+        TableCrcHigh table_crc_high "the active calibration table's CRC-32, high 16 bits",
     }
     paged [
         FdiAlarms,
@@ -135,6 +146,17 @@ declare_counters! {
         FogSamplesStale,
         StFramesLate,
         StFramesEarly,
+        ControlIgnored,
+        TcAccepted,
+        TcCorrupt,
+        TcUnauthenticated,
+        TcReplayed,
+        TcOutOfSequence,
+        TcRefused,
+        TableActivations,
+        TableRevision,
+        TableCrcLow,
+        TableCrcHigh,
     ]
 }
 

@@ -98,9 +98,11 @@ impl StepOutput {
 /// word (a byte array can land at any offset in the core, and a misaligned copy of the
 /// 83-byte output frame cost ~180 instructions a step more on the M7).
 #[repr(C, align(4))]
+#[derive(Clone)]
 pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);
 
 /// The telemetry stage: counters and the output link's state.
+#[derive(Clone)]
 pub struct Telemetry {
     /// The counters (the fault logic's and the observer's are read from them).
     pub(crate) counters: Counters,

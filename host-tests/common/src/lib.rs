@@ -2,6 +2,7 @@
 //! between the simulator and the flight core, the calibration table's files, plots and
 //! running statistics, and what every tool's `main` shares.
 //!
+//! - [`keyfile`]: the command key's file (the ground's copy of the unit's key).
 //! - [`mock`]: links that delay, drop, split and corrupt bytes.
 //! - [`table`]: the calibration table as TOML (with per-field provenance), binary and
 //!   two-copy image files.
@@ -12,6 +13,7 @@
 //! - [`cli`]: a tool's process: closed pipes, Ctrl-C, `--json`, the exit status.
 
 pub mod cli;
+pub mod keyfile;
 pub mod mock;
 pub mod output;
 pub mod plot;

@@ -152,7 +152,7 @@ pub fn write_binary(path: &Path, t: &CalibrationTable) -> Result<()> {
 }
 
 /// Writes the flash image of the table region: `t` in both slots (generation 1), the rest
-/// erased (what the QEMU board loads at 0x10000).
+/// erased (what the QEMU board loads at its CALIB region, 0x0002_0000).
 pub fn write_image(path: &Path, t: &CalibrationTable) -> Result<()> {
     t.validate().map_err(|e| anyhow::anyhow!("table refused: {e}"))?;
     write_atomic(path, &store::image(t))

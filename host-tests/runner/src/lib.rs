@@ -7,8 +7,17 @@
 //! - [`progress`]: waits on QEMU bounded by its processor time, not the wall clock.
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
 //! - [`json`]: the `--json` form of both summaries (docs/JSON.md).
+//! - [`flight_build`]: a flight build (no test hooks) under the runner's control frames.
+//! - [`telecommands`]: the command link's side of a lockstep run (telecommands by step,
+//!   the in-process reference's command link).
+//!
+//! The runner drives the test builds (`ssis-fw-test`, `ssis-fw-lv-test`: the flight
+//! firmwares with their test hooks); a flight build ignores control frames and runs in
+//! real time only.
 
+pub mod flight_build;
 pub mod json;
 pub mod progress;
 pub mod qemu;
 pub mod qemu_lv;
+pub mod telecommands;

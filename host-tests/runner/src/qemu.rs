@@ -78,6 +78,12 @@ pub struct QemuOptions {
     /// The runner itself stops for this long before sending this step (a host that falls
     /// behind, made repeatable for tests of the lateness report).
     pub host_stall: Option<(u64, Duration)>,
+    /// The command key's record to load into the KEY region (`ssis::telecommand::auth`;
+    /// none: the unit has no key and refuses every telecommand).
+    pub key_record: Option<Vec<u8>>,
+    /// Telecommand bytes sent on UART0 before a step's STEP frame, by step (lockstep);
+    /// the in-process core's command link gets the same bytes before the same step.
+    pub commands: Vec<(u64, Vec<u8>)>,
 }
 
 impl QemuOptions {
@@ -96,6 +102,8 @@ impl QemuOptions {
             table_image: None,
             fault: None,
             host_stall: None,
+            key_record: None,
+            commands: Vec::new(),
         }
     }
 }
@@ -150,6 +158,17 @@ pub struct QemuSummary {
     pub icount: bool,
     /// How well the host kept the run's pace.
     pub host: HostPace,
+    /// The firmware was a flight build (no test hooks): run in real time and stopped by
+    /// the runner at the end, since it ignores END (no end-of-run report).
+    pub flight_build: bool,
+    /// Command reports the firmware sent (after the output frame of a step in which a
+    /// STATUS telecommand was accepted).
+    pub command_reports: Vec<ssis::frames::telecommand::CommandReport>,
+    /// Lockstep: the command reports of the in-process core's command link.
+    pub reference_reports: Vec<ssis::frames::telecommand::CommandReport>,
+    /// (time tag µs, page id, value) of every output frame whose counter page is a unit
+    /// counter (`ssis::telemetry::PAGED`: the command link's counters, the active table).
+    pub unit_pages: Vec<(u64, u8, u16)>,
 }
 
 impl QemuSummary {
@@ -210,8 +229,20 @@ impl QemuSummary {
         for l in &self.log {
             let _ = writeln!(s, "firmware: {l}");
         }
-        let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        if self.flight_build {
+            let _ = writeln!(s, "QEMU stopped by the runner (a flight build ignores END: no end-of-run report)");
+        } else {
+            let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
+        }
         s
+    }
+
+    /// Whether the run ended as it should: every output decoded, none different from
+    /// the in-process core's (lockstep), and a clean exit (a flight build is stopped by
+    /// the runner instead).
+    pub fn clean(&self) -> bool {
+        let ended = self.exit_code == Some(0) || self.flight_build && self.exit_code.is_none();
+        ended && self.frames_out_bad == 0 && self.differing_frames == 0 && self.frames_out > 0
     }
 }
 
@@ -289,9 +320,25 @@ impl HostPace {
     }
 }
 
-/// The firmware ELF built by `cargo build --release` at the repository root.
+/// The test build of the spacecraft firmware (`ssis-fw-test`, the runner's default):
+/// `ssis-fw` with its test hooks, built by [`build_firmware`] into `target/test-hooks`.
 pub fn default_elf() -> PathBuf {
+    repo_root().join("target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test")
+}
+
+/// The flight build of the spacecraft firmware (`cargo build --release` at the root):
+/// it ignores control frames, so it runs only in real time.
+pub fn flight_elf() -> PathBuf {
     repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw")
+}
+
+/// Whether `elf` is a test build (it defines the symbol of `ssis::mps2_test_hooks!`, so
+/// it honours LOCKSTEP, STEP, END and STALL); a flight build ignores them.
+pub fn is_test_build(elf: &Path) -> Result<bool> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    Ok(file.symbols().any(|s| s.name().is_ok_and(|n| n.starts_with("ERROR(ssis): test hooks"))))
 }
 
 /// The repository root (`host-tests/runner/../..`).
@@ -299,8 +346,15 @@ pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
 }
 
-/// Builds the firmware (release, thumb target) if it is out of date.
+/// Builds the test build of the firmware (`ssis-fw-test`: release, thumb target, test
+/// hooks) if it is out of date; what the runner and the QEMU tests run.
 pub fn build_firmware() -> Result<PathBuf> {
+    build_test_hooks_bin("ssis-fw-test")
+}
+
+/// Builds the flight firmware (`ssis-fw`, `cargo build --release` at the root) if it is
+/// out of date.
+pub fn build_flight_firmware() -> Result<PathBuf> {
     build_target_bin("ssis-fw")
 }
 
@@ -371,9 +425,10 @@ pub fn run_bare_with(elf: &Path, patience: Duration, icount: bool) -> Result<(Op
 }
 
 /// Builds the firmware with the `test-hooks` feature (fault injection) into its own
-/// target directory, so the flight build is left alone; returns the ELF path.
+/// target directory, so the flight build is left alone; returns the ELF path (the same
+/// as [`build_firmware`]).
 pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
-    build_test_hooks_bin("ssis-fw")
+    build_firmware()
 }
 
 /// Builds a target binary of the root crate with the `test-hooks` feature (release) into
@@ -545,6 +600,14 @@ pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
 /// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
 pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
     check_qemu_and_elf(&opts.elf)?;
+    let flight_build = !is_test_build(&opts.elf)?;
+    if flight_build && opts.lockstep {
+        bail!(
+            "{} is a flight build: it ignores LOCKSTEP, STEP and END. Lockstep needs the test build \
+             (ssis-fw-test, `cargo build --release --bin ssis-fw-test --features test-hooks --target-dir target/test-hooks`)",
+            opts.elf.display()
+        );
+    }
     let mut sim = Simulation::new(sc)?;
     anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let mut eval = Evaluator::new(&sim);
@@ -566,12 +629,13 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             },
             ..Default::default()
         },
+        flight_build,
         ..Default::default()
     };
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
         unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
-        Some(Reference::new(&sim)?)
+        Some(Reference::new(&sim, opts)?)
     } else {
         None
     };
@@ -631,7 +695,9 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
         eval.push_truth(input.truth);
         if let Some(r) = reference.as_mut() {
-            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent));
+            let commands = crate::telecommands::due(&opts.commands, n);
+            unit.uarts[0].write_all(&commands)?;
+            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent, &commands, &mut s));
             if opts.stall_at_step == Some(n) {
                 return unit.stall(s, &opts.elf);
             }
@@ -655,11 +721,14 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             outputs.take(&b, &mut s, &mut eval, &mut on_step);
         }
     }
-    let status = unit.end()?;
+    // A flight build ignores END: it is stopped by `finish` below.
+    let status = if flight_build { None } else { unit.end()? };
     while let Ok((_, b)) = unit.rx.try_recv() {
         outputs.take(&b, &mut s, &mut eval, &mut on_step);
     }
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
+    // Each command report cost the output frames' decoder one rejected candidate.
+    s.frames_out_bad = s.frames_out_bad.saturating_sub(s.command_reports.len() as u64);
     for (k, t) in outputs.check.ticks.iter().enumerate() {
         s.step_ticks_mean[k] = t.mean()[0];
         s.step_counts[k] = t.count();
@@ -720,11 +789,15 @@ impl Unit {
             Some(img) => img.clone(),
             None => store::image(&sim.table).to_vec(),
         };
+        let mut images = vec![("table.img", &image[..], crate::qemu_lv::symbol(&opts.elf, "_calib_start")?)];
+        if let Some(key) = &opts.key_record {
+            images.push(("key.img", &key[..], crate::qemu_lv::symbol(&opts.elf, "_key_start")?));
+        }
         // Lockstep always counts instructions with virtual time bound to them
         // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount
         // runs one instruction per ns while busy.
         let icount = if opts.lockstep { Some(ICOUNT_LOCKSTEP) } else { opts.icount.then_some("shift=0") };
-        Unit::start(&opts.elf, 3, icount, &[("table.img", &image, 0x10000)], &[0])
+        Unit::start(&opts.elf, 3, icount, &images, &[0])
     }
 
     /// Sends a control frame with `command` alone.
@@ -923,33 +996,42 @@ impl Sender {
     }
 }
 
-/// Lockstep reference: the same core in-process on the same bytes.
+/// Lockstep reference: the same core in-process on the same bytes, with the same
+/// command link on a copy of the table's flash region.
 struct Reference {
     core: FlightCore,
     fog: MockLink,
     star: MockLink,
     out: MockSink,
+    commands: crate::telecommands::ReferenceLink,
 }
 
 impl Reference {
-    fn new(sim: &Simulation) -> Result<Reference> {
+    fn new(sim: &Simulation, opts: &QemuOptions) -> Result<Reference> {
         let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default() })
+        let image = opts.table_image.clone().unwrap_or_else(|| store::image(&sim.table).to_vec());
+        let commands = crate::telecommands::ReferenceLink::new(opts.key_record.as_deref(), &image);
+        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default(), commands })
     }
 
-    /// One step on the bytes the firmware was sent; the output bytes it writes.
-    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8]) -> Vec<u8> {
+    /// One step on the bytes the firmware was sent (telecommands before the step); the
+    /// output frame's bytes. A command report goes to `s`.
+    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8], commands: &[u8], s: &mut QemuSummary) -> Vec<u8> {
+        self.commands.receive(commands, &mut self.core);
         self.fog.send(fog_sent);
         self.star.send(st_sent);
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         self.core.step(&mut links);
+        s.reference_reports.extend(self.commands.take_report());
         std::mem::take(&mut self.out.bytes)
     }
 }
 
-/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]).
+/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]);
+/// command reports decoded beside them.
 struct Outputs {
     dec: StreamDecoder<OutputFrame, 256>,
+    reports: StreamDecoder<ssis::frames::telecommand::CommandReport, 64>,
     check: FrameCheck,
 }
 
@@ -957,6 +1039,7 @@ impl Outputs {
     fn new(lockstep: bool) -> Outputs {
         Outputs {
             dec: StreamDecoder::new(),
+            reports: StreamDecoder::new(),
             check: FrameCheck {
                 lockstep,
                 reference: Default::default(),
@@ -969,6 +1052,11 @@ impl Outputs {
 
     /// Decodes a chunk of the output link and checks every frame in it.
     fn take(&mut self, bytes: &[u8], s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+        self.reports.push_slice(bytes, |r| {
+            if let Ok(r) = r {
+                s.command_reports.push(r);
+            }
+        });
         let check = &mut self.check;
         self.dec.push_slice(bytes, |r| match r {
             Ok(f) => check.frame(f, s, eval, on_step),
@@ -1013,6 +1101,9 @@ impl FrameCheck {
         }
         self.prev_st_updated = o.st_status & st_status::UPDATED != 0;
         self.last_drift = f.drift_rad_s();
+        if f.page_id >= ssis::telemetry::page::FOG_PAGES {
+            s.unit_pages.push((f.time_us, f.page_id, f.page_value));
+        }
         s.last_frame = f;
         if let Some(v) = s.paged.get_mut(usize::from(f.page_id)) {
             *v = f.page_value;

@@ -1,4 +1,4 @@
-//! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`): the ascent
+//! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`, its test build `ssis-fw-lv-test`): the ascent
 //! simulator ([`ssis_sim::launch`], FOG, accelerometer and GNSS models) feeds the
 //! firmware over five emulated UARTs at its 1.25 ms step, in lockstep, and the runner
 //! replays the same bytes through the same `FlightCore` + `NavUnit` in-process: every
@@ -318,18 +318,19 @@ impl LvSummary {
     }
 }
 
-/// The launch-vehicle firmware ELF built by `cargo build --release` at the root.
+/// The launch-vehicle firmware's test build (`ssis-fw-lv-test`: `ssis-fw-lv` with its
+/// test hooks, as [`build_firmware`] builds it); the lockstep runner needs its hooks.
 pub fn default_elf() -> PathBuf {
-    crate::qemu::repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw-lv")
+    crate::qemu::repo_root().join("target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-lv-test")
 }
 
-/// Builds `ssis-fw-lv` (release, thumb target) if it is out of date.
+/// Builds `ssis-fw-lv-test` (release, thumb target, test hooks) if it is out of date.
 pub fn build_firmware() -> Result<PathBuf> {
-    crate::qemu::build_target_bin("ssis-fw-lv")
+    crate::qemu::build_test_hooks_bin("ssis-fw-lv-test")
 }
 
 /// Address of a symbol in an ELF.
-fn symbol(elf: &Path, name: &str) -> Result<u64> {
+pub(crate) fn symbol(elf: &Path, name: &str) -> Result<u64> {
     use object::{Object, ObjectSymbol};
     let data = std::fs::read(elf)?;
     let file = object::File::parse(&*data)?;

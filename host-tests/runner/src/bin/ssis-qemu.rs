@@ -17,7 +17,7 @@ use clap::Parser;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin, Own};
 use ssis_common::plot::{write_svg, PlotPoint};
-use ssis_runner::qemu::{build_firmware, default_elf, elf_sizes, run_qemu, QemuOptions};
+use ssis_runner::qemu::{build_firmware, default_elf, elf_sizes, is_test_build, run_qemu, QemuOptions};
 use ssis_runner::qemu_lv::{run_qemu_lv, LvOptions, LvScenario};
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::scenario::Scenario;
@@ -27,8 +27,10 @@ use ssis_sim::scenario::Scenario;
 struct Args {
     /// Scenario file (TOML).
     scenario: PathBuf,
-    /// Firmware ELF (default: build it and use target/thumbv7em-none-eabihf/release/ssis-fw,
-    /// or ssis-fw-lv for a launch-vehicle ascent).
+    /// Firmware ELF (default: build the test build and use
+    /// target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test, or ssis-fw-lv-test for
+    /// a launch-vehicle ascent). A flight build (ssis-fw) ignores control frames: it runs
+    /// in real time only, and the runner stops it at the end.
     #[arg(long)]
     elf: Option<PathBuf>,
     /// Lockstep as fast as the host goes, not paced at the real rate (the output is the
@@ -97,6 +99,15 @@ fn real_main(a: Args) -> Result<bool> {
             default_elf()
         }
     };
+    // A flight build ignores control frames: without --lockstep it runs in real time.
+    let real_time = a.real_time || !a.lockstep && !is_test_build(&elf)?;
+    if real_time && !a.real_time {
+        eprintln!(
+            "note: {} is a flight build (no test hooks): it runs in real time (--real-time); the test build \
+             (the default ELF) runs paced lockstep",
+            elf.display()
+        );
+    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut w = csv::Writer::from_writer(output::create(&csv_path)?);
     w.write_record(CSV_HEADER)?;
@@ -104,8 +115,8 @@ fn real_main(a: Args) -> Result<bool> {
     let mut n = 0u64;
     let opts = QemuOptions {
         elf: elf.clone(),
-        lockstep: !a.real_time,
-        paced: !a.real_time && !a.lockstep,
+        lockstep: !real_time,
+        paced: !real_time && !a.lockstep,
         icount: a.icount,
         corrupt_every: a.corrupt_every,
         progress: true,
@@ -113,6 +124,8 @@ fn real_main(a: Args) -> Result<bool> {
         table_image: None,
         fault: None,
         host_stall: None,
+        key_record: None,
+        commands: Vec::new(),
     };
     let s = run_qemu(&sc, &opts, |r| {
         n += 1;
@@ -129,7 +142,7 @@ fn real_main(a: Args) -> Result<bool> {
         println!("ELF: flash {flash} bytes, static RAM {ram} bytes");
     }
     println!("wrote {} and {}", csv_path.display(), svg.display());
-    let clean = s.exit_code == Some(0) && s.frames_out_bad == 0 && s.differing_frames == 0 && s.frames_out > 0;
+    let clean = s.clean();
     if let Some(max) = a.max_att_3sigma_arcsec {
         let att = s.accuracy.att.three_sigma();
         if !att.iter().all(|e| *e <= max) {
@@ -138,7 +151,7 @@ fn real_main(a: Args) -> Result<bool> {
         }
     }
     let late_pct = s.host.late_pct(s.steps, u64::from(s.last_frame.counters.overruns));
-    if a.real_time && late_pct > a.max_host_late_pct {
+    if real_time && late_pct > a.max_host_late_pct {
         eprintln!(
             "error: the host delayed {late_pct:.2} % of the steps (over --max-host-late-pct {}): this run measured \
              the host, not the unit; rerun without --real-time",

@@ -48,6 +48,11 @@ enum Cmd {
         #[command(subcommand)]
         cmd: TableCmd,
     },
+    /// Command-key tools (the key of the unit's command link, docs/ICD.md Telecommand).
+    Key {
+        #[command(subcommand)]
+        cmd: KeyCmd,
+    },
     /// Steady-state observer gains for noise figures (defaults: the paper's sensors).
     Gains {
         /// Angle random walk, °/√h.
@@ -80,7 +85,7 @@ enum TableCmd {
         out: PathBuf,
     },
     /// Convert a TOML table to the flash image of the table region (two copies), what the
-    /// QEMU board loads at 0x10000.
+    /// QEMU board loads at its CALIB region (0x0002_0000).
     ToImage {
         /// Input TOML.
         input: PathBuf,
@@ -99,6 +104,43 @@ enum TableCmd {
         a: PathBuf,
         /// Table B.
         b: PathBuf,
+    },
+    /// Turn a table into the telecommands that upload and activate it in flight: 8
+    /// TABLE_CHUNK, TABLE_ARM, TABLE_FIRE (98-byte frames, sealed under the key, sequence
+    /// numbers from --seq), written one after the other to --out.
+    UploadCmds {
+        /// Table file (.toml, .bin or .img); checked as the unit checks it.
+        input: PathBuf,
+        /// Key file (`ssis-sim key new`).
+        #[arg(long)]
+        key: PathBuf,
+        /// Sequence number of the first telecommand: above the last one the unit
+        /// accepted (its command report's `last_seq`).
+        #[arg(long)]
+        seq: u32,
+        /// Output file of the telecommand frames.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
+enum KeyCmd {
+    /// Make a new random key (from the operating system) and write it as a key file.
+    New {
+        /// Key file to write (refused if it exists; readable by its owner only).
+        out: PathBuf,
+        /// Key id (≥ 1), reported in the unit's command report.
+        #[arg(long, default_value_t = 1)]
+        id: u16,
+    },
+    /// Write a key's record for the unit's protected KEY region (44 bytes; the QEMU
+    /// runner loads it at the ELF's `_key_start`, 0x0002_1000).
+    ToImage {
+        /// Key file.
+        key: PathBuf,
+        /// Output image.
+        out: PathBuf,
     },
 }
 
@@ -175,6 +217,14 @@ fn files(cmd: &Cmd) -> Result<()> {
         Cmd::Table { cmd: TableCmd::ToImage { input, out } } => ("table to-image", [Some(input), None], Some(out)),
         Cmd::Table { cmd: TableCmd::Show { input } } => ("table show", [Some(input), None], None),
         Cmd::Table { cmd: TableCmd::Diff { a, b } } => ("table diff", [Some(a), Some(b)], None),
+        Cmd::Table { cmd: TableCmd::UploadCmds { input, key, out, .. } } => {
+            ("table upload-cmds", [Some(input), Some(key)], Some(out))
+        }
+        Cmd::Key { cmd: KeyCmd::New { out, .. } } => {
+            cli::report("command", || json!("key new"));
+            return output::claim(out, Origin::New);
+        }
+        Cmd::Key { cmd: KeyCmd::ToImage { key, out } } => ("key to-image", [Some(key), None], Some(out)),
         Cmd::Gains { .. } => ("gains", [None, None], None),
     };
     cli::report("command", || json!(name));
@@ -193,6 +243,7 @@ fn real_main(cmd: Cmd) -> Result<()> {
             run_scenario(&scenario, csv, every.max(1), allow_long).map(|_| ())
         }
         Cmd::Table { cmd } => table_cmd(cmd),
+        Cmd::Key { cmd } => key_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {
             let cfg = ObserverConfig {
                 arw_deg_sqrt_h: arw,
@@ -288,6 +339,27 @@ fn run_scenario(path: &Path, csv: Option<PathBuf>, every: u64, allow_long: bool)
     Ok(RunEnd::Complete)
 }
 
+fn key_cmd(cmd: KeyCmd) -> Result<()> {
+    match cmd {
+        KeyCmd::New { out, id } => {
+            let k = ssis_common::keyfile::new_key(id)?;
+            ssis_common::keyfile::write_key(&out, &k)?;
+            println!("wrote {} (key id {id}; a secret: keep it with the ground's keys)", out.display());
+        }
+        KeyCmd::ToImage { key, out } => {
+            let k = ssis_common::keyfile::read_key(&key)?;
+            table::write_atomic(&out, &k.to_record())?;
+            println!(
+                "wrote {} (key record, {} bytes, key id {})",
+                out.display(),
+                ssis::telecommand::auth::KEY_RECORD_LEN,
+                k.id
+            );
+        }
+    }
+    Ok(())
+}
+
 fn table_cmd(cmd: TableCmd) -> Result<()> {
     match cmd {
         TableCmd::New { out } => {
@@ -303,6 +375,25 @@ fn table_cmd(cmd: TableCmd) -> Result<()> {
             let t = table::read_toml(&input)?;
             table::write_image(&out, &t)?;
             println!("wrote {} ({} bytes, two copies, revision {})", out.display(), store::REGION_LEN, t.revision);
+        }
+        TableCmd::UploadCmds { input, key, seq, out } => {
+            let t = table::read_any(&input)?.0;
+            let k = ssis_common::keyfile::read_key(&key)?;
+            anyhow::ensure!(seq >= 1, "sequence numbers start at 1");
+            let cmds = ssis::telecommand::upload::upload_sequence(&k, &t, seq);
+            let bytes: Vec<u8> = cmds.iter().flat_map(|c| c.to_bytes()).collect();
+            table::write_atomic(&out, &bytes)?;
+            println!(
+                "wrote {} ({} telecommands, {} bytes): table revision {}, CRC-32 {:08x}, key id {}, sequence {}..={}",
+                out.display(),
+                cmds.len(),
+                bytes.len(),
+                t.revision,
+                ssis::flight::table_crc(&t),
+                k.id,
+                seq,
+                seq.saturating_add(cmds.len() as u32 - 1)
+            );
         }
         TableCmd::Show { input } => {
             let (t, loaded) = table::read_any(&input)?;

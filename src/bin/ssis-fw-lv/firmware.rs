@@ -1,0 +1,269 @@
+//! `ssis-fw-lv`: the launch-vehicle unit on a Cortex-M7, here the QEMU `mps2-an500`
+//! board: three FOGs and three accelerometers, the flight core and the
+//! strapdown navigation with loosely coupled GNSS aiding, every 1.25 ms.
+//!
+//! Each period (a SysTick, or a STEP control frame in lockstep):
+//!
+//! 1. the step: [`FlightCore::step_with`] (FOG bus → decoding, compensation,
+//!    combination, attitude, flight output frame on UART0), and from its hook, for each
+//!    integrated FOG sample, [`NavUnit::step`] (accelerometer bus → compensation,
+//!    strapdown step in ECEF, GNSS frames held, navigation output frame on UART2);
+//! 2. the output frames are handed to the UARTs (real time; in lockstep after 3, so the
+//!    runner's next bytes cannot interrupt the measured filter work);
+//! 3. the heavy filter work, [`NavUnit::filter_work`]: a held GNSS fix's update (about
+//!    67,000 instructions) or the 15×15 covariance propagation every 80 steps (about
+//!    54,000). It runs after the outputs, so it never delays a sample's output frame,
+//!    and to completion in the same period, so the next period's step starts on time;
+//!    the design needs the step and the filter work together to fit 1.25 ms, and checks
+//!    it every period.
+//!
+//! Overruns: on the timer, a SysTick that passes without a step taken (the previous
+//! period's work, or anything else, ran past it); in lockstep, where there is no tick to
+//! miss, a period whose step + filter work took longer than the 1.25 ms period. Either
+//! is counted in the flight output frame. The step time in the output frame is the
+//! previous period's step + filter work, in SysTick ticks (40 instructions under
+//! QEMU `-icount shift=0`).
+//!
+//! Lockstep (test equipment only): a STEP control frame names the byte totals the runner
+//! has sent so far, and the unit steps once they have arrived; in this unit its fields
+//! mean FOG bus total (`fog_bytes`), accelerometer bus total (`st_bytes`, the LV unit has
+//! no star tracker) and GNSS link total modulo 2^16 (`arg`), see `docs/ICD.md`.
+//!
+//! | UART | RX | TX |
+//! |---|---|---|
+//! | 0 | control frames (test equipment) | flight output frames (kind 0x30) |
+//! | 1 | FOG bus: FOG1..FOG3, told apart by `fog_id` | — |
+//! | 2 | — | navigation output frames (kind 0x31) |
+//! | 3 | accelerometer bus: X, Y, Z, told apart by `accel_id` | — |
+//! | 4 | GNSS receiver (kind 0x21) | — |
+//!
+//! Board: `ssis::bsp::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
+//! (128 KiB flash, 64 KiB RAM: 60 KiB of stack at the bottom, 4 KiB of statics above;
+//! FOG table, accelerometer section and pad initialisation block in their own regions,
+//! loaded separately).
+
+use core::convert::Infallible;
+
+use cortex_m::peripheral::SYST;
+use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis::bsp::Board;
+use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
+use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::frames::navout::NavOutputFrame;
+use ssis::frames::output::OutputFrame;
+use ssis::link::{RxRing, TxRing};
+use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
+use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
+
+/// Watchdog period in steps (warning after one period, reset after two): 40 steps,
+/// 50 ms, the spacecraft unit's watchdog time (10 of its 5 ms steps). Ten 1.25 ms steps
+/// (12.5 ms) proved too short under QEMU: with `-icount shift=0` and the guest idle,
+/// QEMU adds a host stall of its own process to virtual time in one jump, and a 25 ms
+/// stall on the loaded build machine reset the unit between two steps.
+const WATCHDOG_STEPS: u32 = 40;
+
+/// Offset of the pad initialisation block in the LVDATA region (the accelerometer
+/// section is at 0).
+const INIT_OFFSET: usize = 0x100;
+
+/// FOG bus receive buffer (three 16-byte frames per 1.25 ms step, ten steps of margin).
+static FOG_RX: RxRing<512> = RxRing::new();
+/// Accelerometer bus receive buffer (three 16-byte frames per step).
+static ACCEL_RX: RxRing<512> = RxRing::new();
+/// GNSS receive buffer (45-byte frames, 1 Hz).
+static GNSS_RX: RxRing<256> = RxRing::new();
+/// The star-tracker link of the flight core: the launch vehicle has none, so nothing
+/// ever fills it.
+static NO_STAR_RX: RxRing<4> = RxRing::new();
+/// Control receive buffer.
+static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
+/// Flight output transmit buffer (83-byte frames).
+static OUT_TX: TxRing<256> = TxRing::new();
+/// Navigation output transmit buffer (64-byte frames).
+static NAV_TX: TxRing<256> = TxRing::new();
+
+/// This firmware's UARTs (table in the module doc).
+static UARTS: UartMap = [
+    Uart { rx: Some(&CTL_RX), tx: Some(&OUT_TX) },
+    Uart { rx: Some(&FOG_RX), tx: None },
+    Uart { rx: None, tx: Some(&NAV_TX) },
+    Uart { rx: Some(&ACCEL_RX), tx: None },
+    Uart { rx: Some(&GNSS_RX), tx: None },
+];
+
+ssis::mps2_firmware!(UARTS);
+
+/// Step-time statistics: per kind of filter work (none, propagation, GNSS update or
+/// refusal), the step alone and the whole period (step + filter work).
+#[derive(Default)]
+struct StepTimes {
+    step: [Times; 3],
+    period: [Times; 3],
+}
+
+fn kind(w: FilterWork) -> usize {
+    match w {
+        FilterWork::None => 0,
+        FilterWork::Propagated => 1,
+        FilterWork::Updated | FilterWork::Refused(_) => 2,
+    }
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    mps2::start();
+    let mut board = Mps2;
+    let Some(cp) = cortex_m::Peripherals::take() else { board.stop(false) };
+    let profile = Profile::LAUNCH_VEHICLE;
+    // The accelerometer section is only checked here, for the defaulted flag (either
+    // table defaulted: flagged in every flight output frame); `fly` decodes it again
+    // where the navigation is built, so `main`'s frame does not hold it under the loop.
+    let accel_defaulted = accel_section().is_err();
+    match boot::boot(&mut board, profile, accel_defaulted, |_, core, report| fly(core, report, cp.SYST, profile)) {
+        Ok(never) => match never {},
+        Err(e) => {
+            defmt::error!("cannot fly: {}", e);
+            board.stop(false)
+        }
+    }
+}
+
+/// The accelerometer section (LVDATA + 0), decoded.
+fn accel_section() -> Result<AccelCompensator, AccelTableError> {
+    AccelTable::from_bytes(mps2::lvdata(0, ACCEL_TABLE_LEN)).and_then(|t| t.compensator())
+}
+
+/// The navigation set up on the booted core, then the main loop.
+fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile) -> Infallible {
+    let accel = match accel_section() {
+        Ok(c) => c,
+        Err(e) => {
+            defmt::warn!("accelerometer section refused ({}): flying on the ideal one", e);
+            match AccelTable::IDEAL.compensator() {
+                Ok(c) => c,
+                Err(e) => {
+                    defmt::error!("ideal accelerometer section refused: {}", e);
+                    mps2::exit(false)
+                }
+            }
+        }
+    };
+    let init = match PadInit::from_bytes(mps2::lvdata(INIT_OFFSET, INIT_BLOCK_LEN)) {
+        Ok(i) => i,
+        Err(e) => {
+            defmt::error!("no valid pad initialisation block ({}): cannot navigate", e);
+            mps2::exit(false)
+        }
+    };
+    // The core's attitude starts at the pad attitude: its output is the body in ECEF
+    // frozen at lift-off (an inertial frame); the navigation carries q_eb itself.
+    core.align(init.state.q_eb);
+    // Borrowed where it was built, never moved: one copy on the stack.
+    let mut built = NavUnit::new(init.state, profile.dt_s(), accel, init.gnss);
+    let nav = match &mut built {
+        Ok(n) => n,
+        Err(e) => {
+            defmt::error!("navigation refused the pad state: {}", e);
+            mps2::exit(false)
+        }
+    };
+    defmt::info!(
+        "ssis-fw-lv up: table revision {}, defaulted {}, pad block revision {}, step {} us",
+        core.table().revision,
+        report.defaulted,
+        init.revision,
+        profile.dt_us
+    );
+    mps2::init(syst, profile.dt_us, &UARTS);
+    mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
+
+    let mut links = Links {
+        fog: FogLinks::Bus(FOG_RX.reader()),
+        // No star tracker on the launch vehicle: an empty link, never filled.
+        star: NO_STAR_RX.reader(),
+        out: OUT_TX.frame_writer(OutputFrame::LEN),
+    };
+    let mut nav_links =
+        NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };
+    let mut pacer = Pacer::new(&UARTS, &CTL_RX);
+    let mut times = StepTimes::default();
+    let period = mps2::ticks_per_step();
+    let mut nav_steps = 0u32;
+    loop {
+        // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
+        // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
+        let due = pacer.due(
+            core,
+            |c| {
+                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+                    && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+                    && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
+            },
+            // No command link on the launch vehicle.
+            |_, _| {},
+        );
+        if pacer.lockstep_began() {
+            // The statistics cover the lockstep run only (not the empty steps on the
+            // timer before it).
+            times = StepTimes::default();
+        }
+        if due {
+            let t = Stopwatch::start();
+            core.step_with(&mut links, |t_us, body| {
+                nav.step(body, t_us, &mut nav_links);
+                nav_steps = nav_steps.wrapping_add(1);
+            });
+            let step_ticks = t.ticks();
+            if !pacer.lockstep() {
+                mps2::pump_tx(&UARTS);
+            }
+            let work = nav.filter_work();
+            let busy = t.ticks();
+            if pacer.lockstep() && busy > period {
+                core.note_overrun();
+            }
+            core.set_step_ticks(u16::try_from(busy).unwrap_or(u16::MAX));
+            let k = kind(work);
+            if let Some(t) = times.step.get_mut(k) {
+                t.push(step_ticks);
+            }
+            if let Some(t) = times.period.get_mut(k) {
+                t.push(busy);
+            }
+        }
+        pacer.end_pass(due, || report_end(core, nav, &times, nav_steps));
+    }
+}
+
+/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads them).
+fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
+    for (k, name) in ["none", "propagation", "gnss_update"].into_iter().enumerate() {
+        let (s, p) = (t.step.get(k).copied().unwrap_or_default(), t.period.get(k).copied().unwrap_or_default());
+        defmt::info!(
+            "lv_times {} periods {} step_mean_ticks_x100 {} step_max_ticks {} period_mean_ticks_x100 {} period_max_ticks {}",
+            name,
+            s.n,
+            s.mean_x100(),
+            s.max,
+            p.mean_x100(),
+            p.max
+        );
+    }
+    let overflows = FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows());
+    mps2::report(core, overflows);
+    let n = nav.counters();
+    let (used, refused) = nav.nav().counts();
+    defmt::info!(
+        "nav steps {} accel_rejected {} accel_held {} gnss_rejected {} gnss_superseded {} nav_faults {} out_dropped {} fixes_used {} fixes_refused {}",
+        nav_steps,
+        n.accel_frames_rejected,
+        n.accel_steps_held,
+        n.gnss_frames_rejected,
+        n.gnss_fixes_superseded,
+        n.nav_faults,
+        n.output_dropped,
+        used,
+        refused
+    );
+}

@@ -1,0 +1,164 @@
+//! `ssis-fw`: the flight core on a Cortex-M7, here the QEMU `mps2-an500` board
+//! (`ssis::bsp::mps2`), spacecraft profile: four FOGs on one bus, a star tracker, 5 ms.
+//!
+//! Every SysTick the main loop runs one [`FlightCore::step`] on what the UART interrupts
+//! have put into the receive rings, measures how long the step took (SysTick ticks, into
+//! the output frame) and counts a missed tick as an overrun. Telecommands arriving on
+//! UART0's receive line go to the command link ([`CommandLink`]: authenticated, acted on
+//! between two steps; a table update is written into the calibration region and flown
+//! from the next step); a STATUS command's report follows the next output frame. In its
+//! test build (`ssis-fw-test`) a runner may switch it to lockstep (one step per control
+//! frame, once the bytes it names have arrived) for exact host/QEMU comparisons, and ends
+//! a run with a control frame: the firmware logs its figures (defmt over semihosting) and
+//! exits QEMU with success; the flight build ignores control frames. A panic cannot
+//! happen (the release build links only without a panic path); a hard fault exits with
+//! failure.
+//!
+//! | UART | RX | TX |
+//! |---|---|---|
+//! | 0 | telecommands; control frames (test equipment, test build only) | output frames, command reports |
+//! | 1 | FOG bus: all four FOGs, told apart by `fog_id` | — |
+//! | 2 | star tracker | — |
+//!
+//! Memory: `memory.x` (128 KiB flash, 32 KiB RAM: 28 KiB of stack at the bottom, 4 KiB
+//! of statics above; the calibration table's two copies and the command key in their
+//! own regions).
+
+use core::convert::Infallible;
+
+use cortex_m::peripheral::SYST;
+use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis::bsp::Board;
+use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
+use ssis::frames::output::OutputFrame;
+use ssis::frames::telecommand::{CommandReport, Telecommand};
+use ssis::link::{write_frame, RxRing, TxRing};
+use ssis::telecommand::{CommandLink, Outcome};
+
+/// Watchdog period in steps (warning after one period, reset after two).
+const WATCHDOG_STEPS: u32 = 10;
+
+/// FOG bus receive buffer (four FOG frames per step, several steps of margin).
+static FOG_RX: RxRing<512> = RxRing::new();
+/// Star-tracker receive buffer.
+static ST_RX: RxRing<256> = RxRing::new();
+/// Control line receive buffer (telecommands, control frames).
+static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
+/// Output transmit buffer (two output frames).
+static OUT_TX: TxRing<256> = TxRing::new();
+
+/// This firmware's UARTs (table in the module doc).
+static UARTS: UartMap = [
+    Uart { rx: Some(&CTL_RX), tx: Some(&OUT_TX) },
+    Uart { rx: Some(&FOG_RX), tx: None },
+    Uart { rx: Some(&ST_RX), tx: None },
+    Uart::OFF,
+    Uart::OFF,
+];
+
+ssis::mps2_firmware!(UARTS);
+
+/// Step times: all steps, and those with a star-tracker update; and the command link's
+/// time for the bytes that completed a telecommand (decode, CRC-32C, HMAC, action).
+#[derive(Default)]
+struct StepTimes {
+    all: Times,
+    st: Times,
+    tc: Times,
+}
+
+#[cortex_m_rt::entry]
+fn main() -> ! {
+    mps2::start();
+    let mut board = Mps2;
+    let Some(cp) = cortex_m::Peripherals::take() else { board.stop(false) };
+    let profile = Profile::SPACECRAFT;
+    match boot::boot(&mut board, profile, false, |_, core, report| fly(core, report, cp.SYST, profile)) {
+        Ok(never) => match never {},
+        Err(e) => {
+            defmt::error!("cannot fly: {}", e);
+            board.stop(false)
+        }
+    }
+}
+
+/// The main loop, on the booted core.
+fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile) -> Infallible {
+    defmt::info!(
+        "ssis-fw up: table revision {}, defaulted {}, step {} us",
+        core.table().revision,
+        report.defaulted,
+        profile.dt_us
+    );
+    mps2::init(syst, profile.dt_us, &UARTS);
+    // Ten steps without a pass of the loop give the warning, twenty the reset.
+    mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
+
+    let mut links =
+        Links { fog: FogLinks::Bus(FOG_RX.reader()), star: ST_RX.reader(), out: OUT_TX.frame_writer(OutputFrame::LEN) };
+    let mut reports = OUT_TX.frame_writer(CommandReport::LEN);
+    let mut link = CommandLink::new(mps2::key_area());
+    defmt::info!("command link: key id {}", link.key_id());
+    if mps2::TEST_HOOKS {
+        // The cost of one MAC verification (HMAC-SHA-256 of a telecommand, constant
+        // time): instructions under QEMU -icount (40 a tick).
+        let t = Stopwatch::start();
+        let ok = link.authenticator().verify(&Telecommand::default());
+        defmt::info!("hmac_verify_ticks {} (verified {})", t.ticks(), ok);
+    }
+    let mut flash = mps2::CalibRegion;
+    let mut pacer = Pacer::new(&UARTS, &CTL_RX);
+    let mut times = StepTimes::default();
+    loop {
+        let due = pacer.due(
+            core,
+            |c| {
+                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+                    && ST_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+            },
+            |core, bytes| {
+                let t = Stopwatch::start();
+                let mut commands = 0u32;
+                link.receive(bytes, core, &mut flash, |o| {
+                    commands += 1;
+                    if let Outcome::Refused(r) = o {
+                        defmt::warn!("telecommand refused: {}", r);
+                    }
+                });
+                if commands > 0 {
+                    times.tc.push(t.ticks());
+                }
+            },
+        );
+        if due {
+            let t = Stopwatch::start();
+            let out = core.step(&mut links);
+            let ticks = t.ticks();
+            core.set_step_ticks(u16::try_from(ticks).unwrap_or(u16::MAX));
+            times.all.push(ticks);
+            if out.st_status & st_status::UPDATED != 0 {
+                times.st.push(ticks);
+            }
+            if let Some(r) = link.take_report() {
+                let _ = write_frame(&mut reports, &r.to_bytes());
+            }
+        }
+        pacer.end_pass(due, || report_end(core, &times));
+    }
+}
+
+/// The end-of-run figures, on the defmt log.
+fn report_end(core: &FlightCore, t: &StepTimes) {
+    defmt::info!(
+        "steps {} mean_ticks_x100 {} max_ticks {} st_steps {} st_mean_ticks_x100 {} st_max_ticks {}",
+        t.all.n,
+        t.all.mean_x100(),
+        t.all.max,
+        t.st.n,
+        t.st.mean_x100(),
+        t.st.max
+    );
+    defmt::info!("tc_receives {} tc_mean_ticks_x100 {} tc_max_ticks {}", t.tc.n, t.tc.mean_x100(), t.tc.max);
+    mps2::report(core, FOG_RX.overflows().saturating_add(ST_RX.overflows()));
+}
