@@ -233,22 +233,30 @@ fn print_diagnosis(d: &Diagnosis) {
         100.0 * d.fdr_level
     );
     println!(
-        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  origin",
-        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop"
+        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  {:>27}  origin",
+        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop", "removed deg/h (1 sigma)"
     );
     for (r, c) in d.candidates.iter().enumerate() {
+        let (rm, lo, hi) = c.removed_rad_s();
         println!(
-            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {}{}",
+            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {:>9.5} [{:.5}, {:.5}]  {}{}",
             r + 1,
             c.kind.label(),
             c.p_value,
             dh(c.before_rad_s),
             dh(c.after_rad_s),
             100.0 * (1.0 - c.after_rad_s / c.before_rad_s),
+            dh(rm),
+            dh(lo),
+            dh(hi),
             c.origin,
             if c.significant { "  ** significant" } else { "" }
         );
     }
+    println!(
+        "p: the larger of the GLS F-test's and the held-out improvement's under each FOG's noise model \
+         (white + Gauss-Markov, fitted on the test blocks' residual); removed: sqrt(before^2 - after^2)"
+    );
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");
     }
