@@ -321,7 +321,8 @@ fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
     let started = cli.flags.start("ssis-lab").and_then(|()| files(&cli.cmd));
-    cli::finish_unit(started.and_then(|()| run(cli.cmd)))
+    let force = cli.flags.force;
+    cli::finish_unit(started.and_then(|()| run(cli.cmd, force)))
 }
 
 /// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
@@ -376,15 +377,15 @@ fn files(cmd: &Cmd) -> Result<()> {
     Ok(())
 }
 
-/// One subcommand, one function.
-fn run(cmd: Cmd) -> Result<()> {
+/// One subcommand, one function (`force`: `--force`).
+fn run(cmd: Cmd, force: bool) -> Result<()> {
     match cmd {
         Cmd::Init { model, terms, t_ref_degc, g_window_s } => init(model, terms, t_ref_degc, g_window_s),
         Cmd::Compare { model, session, evaluate, plots, blocks } => {
             compare_cmd(model, session, evaluate, plots, blocks)
         }
         Cmd::Diagnose { model, session, level, blocks } => diagnose_cmd(model, session, level, blocks),
-        Cmd::Add { term, model, session, blocks } => add_cmd(term, model, session, blocks),
+        Cmd::Add { term, model, session, blocks } => add_cmd(term, model, session, blocks, force),
         Cmd::Export { model, base, toml, bin } => export_cmd(model, base, toml, bin),
         Cmd::Report { model, session, out } => report_cmd(model, session, out),
         Cmd::Replay { session, table } => replay_cmd(session, table),
@@ -475,10 +476,22 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
 }
 
 /// `add`: the next model version with one more term, its held-out gain and the history of versions.
-fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Result<()> {
+fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force: bool) -> Result<()> {
     let m = load_model(&model)?;
     let kind = Kind::parse_arg(&term)?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
+    let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
+    if a > b && !force {
+        bail!(
+            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} deg/h over {} blocks); no version written \
+             (--force writes it anyway)",
+            session.display(),
+            kind.label(),
+            dh(b),
+            dh(a),
+            blocks
+        );
+    }
     let newest = history_files(&model).last().map_or(0, |v| v.0).max(m.version);
     if newest > m.version {
         println!("note: {} is version {}, newer versions exist up to {newest}", model.display(), m.version);
