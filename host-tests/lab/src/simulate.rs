@@ -194,9 +194,23 @@ pub fn generate(spec: &Spec) -> SimSession {
     SimSession { header, rows, truth }
 }
 
+/// The hidden effect of a preset session per FOG and row, rad/s: the part of each FOG's error
+/// that the preset's hidden effect adds (g·G for `TempRate`, the asymmetry, magnetic and
+/// sin 2ψ terms), for tests that compare what the lab removes with the truth.
+pub fn hidden_effect_rad_s(spec: &Spec) -> Vec<Vec<f64>> {
+    let mut out: Vec<Vec<f64>> = (0..N_FOG).map(|_| Vec::with_capacity(spec.rows)).collect();
+    generate_rows(spec, |_, h| out.iter_mut().zip(h).for_each(|(o, v)| o.push(*v)));
+    out
+}
+
 /// Generates a session row by row: `row` gets each row's values in header order; returns
 /// the header and the truth.
 pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<String>, Truth) {
+    generate_rows(spec, |r, _| row_out(r))
+}
+
+/// [`generate_with`], with each row's hidden effect per FOG, rad/s.
+fn generate_rows(spec: &Spec, mut row_out: impl FnMut(&[f64], &[f64; N_FOG])) -> (Vec<String>, Truth) {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let truth = draw_truth(spec, &mut rng);
     let n01 = Normal::new(0.0, 1.0).expect("unit normal");
@@ -224,10 +238,11 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
         row.clear();
         row.push(t_end);
         let mut temps = Vec::new();
+        let mut hidden = [0.0; N_FOG];
         for i in 0..N_FOG {
             // Thermal terms averaged over the interval.
             let m = 16;
-            let (mut drift, mut tmean) = (0.0, 0.0);
+            let (mut drift, mut tmean, mut g_part) = (0.0, 0.0, 0.0);
             for l in 0..m {
                 let tau = t_end - spec.dt_s + (l as f64 + 0.5) * spec.dt_s / m as f64;
                 let (temp, gr) = match spec.thermal {
@@ -239,12 +254,18 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
                 };
                 let d = temp - t_ref;
                 drift += truth.a_rad_s[i][0] * d + truth.a_rad_s[i][1] * d * d + (truth.g[i] + truth.h[i] * d) * gr;
+                g_part += truth.g[i] * gr;
                 tmean += temp;
             }
             drift /= m as f64;
             tmean /= m as f64;
             let input = axes[i].dot(&w);
             let _ = nominal[i];
+            let beyond = truth.k_asym[i] * input.abs()
+                + truth.magnetic_rad_s_per_nt[i][0] * planes[i][0].dot(&bvec)
+                + truth.magnetic_rad_s_per_nt[i][1] * planes[i][1].dot(&bvec)
+                + truth.sin2psi_rad_s[i] * (2.0 * psi).sin();
+            hidden[i] = beyond + if spec.hidden == Hidden::TempRate { g_part / m as f64 } else { 0.0 };
             let raw = (1.0 + truth.k[i]) * input
                 + truth.bias_rad_s[i]
                 + drift
@@ -267,7 +288,7 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
         }
         humidity += gauss(0.5, &mut rng);
         row.push(humidity);
-        row_out(&row);
+        row_out(&row, &hidden);
     }
     (header, truth)
 }
