@@ -104,3 +104,22 @@ fn white_noise_false_discovery_rate() {
     println!("white noise: significant effect on {flagged} of 100 sessions (nominal level 1 %)");
     assert!(flagged <= 1, "{flagged} of 100 white-noise sessions flagged");
 }
+
+/// F critical values to 4 significant digits (tables and the χ² limit): F(4, 2,399,990) at
+/// 5 % is 2.37194 (χ²₄ 5 % point / 4 = 2.37193 for ν₂ → ∞).
+#[test]
+fn f_critical_values() {
+    use ssis_lab::diagnose::f_critical;
+    for (q, d1, d2, want) in [
+        (0.05, 4, 2_399_990, 2.37194),
+        (0.05, 2, 4, 6.94427),
+        (0.01, 2, 4, 18.0),
+        (0.05, 1, 10, 4.96460),
+        (0.01, 4, 20, 4.43069),
+        (0.05, 1, 1_000_000, 3.84147),
+    ] {
+        let got = f_critical(q, d1, d2);
+        println!("F({d1}, {d2}) at {q}: {got:.6} (want {want})");
+        assert!(((got - want) / want).abs() < 5e-5, "F({d1}, {d2}) at {q}: {got} vs {want}");
+    }
+}

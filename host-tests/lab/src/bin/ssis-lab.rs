@@ -14,7 +14,9 @@ use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin, Own};
 use ssis_common::update;
 use ssis_common::DEG_H_PER_RAD_S;
-use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
+use ssis_lab::diagnose::{
+    anova_beside_main, candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options,
+};
 use ssis_lab::export::to_table;
 use ssis_lab::fit::{
     add_term, compare, complete, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
@@ -287,6 +289,9 @@ fn print_diagnosis(d: &Diagnosis) {
                 f_critical(0.01, f.1, f.2)
             );
         }
+    }
+    for line in anova_beside_main(d) {
+        println!("{line}");
     }
 }
 
