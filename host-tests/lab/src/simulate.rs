@@ -14,7 +14,8 @@
 //! averaged over 16 points inside each interval. Magnitudes follow the paper: ARW
 //! 0.005 °/√h, bias ±0.3 °/h and scale factor ±0.1 %, axes ±300″ (3σ, before calibration);
 //! magnetic sensitivity 0.05–0.15 °/h under the Earth's field (eqs. 1–3, the field of the
-//! paper's Kharkov test, B₀ = (21846, 5967, −42340) nT, turned by the azimuth ψ).
+//! paper's Kharkov test, B₀ = (21846, 5967, −42340) nT north, west, up, turned into the
+//! session's frame at the azimuth ψ by `ssis_session::field_ics_nt`).
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -22,13 +23,14 @@ use rand_distr::{Distribution, Normal};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
 use super::model::loop_plane;
-use super::session::{earth_rate_ics, EARTH_RATE_RAD_S};
+use super::session::{earth_rate_ics, field_ics_nt, EARTH_RATE_RAD_S};
 use super::LabResult;
 use ssis_common::DEG_H_PER_RAD_S;
 
 /// Latitude of the paper's test site (Kharkov, 50.048°), rad.
 pub const KHARKOV_LAT_RAD: f64 = 50.048 * std::f64::consts::PI / 180.0;
-/// The paper's field at the test site in the frame of its B_Π formula, nT.
+/// The paper's field at the test site, (north, west, up), nT (turned into the session's frame
+/// by `ssis_session::field_ics_nt`).
 pub const B0_NT: [f64; 3] = [21846.0, 5967.0, -42340.0];
 /// Angle random walk of the paper's FOG, °/√h.
 pub const ARW_DEG_SQRT_H: f64 = 0.005;
@@ -230,9 +232,7 @@ fn generate_rows(spec: &Spec, mut row_out: impl FnMut(&[f64], &[f64; N_FOG])) ->
         let t_end = (j + 1) as f64 * spec.dt_s;
         let (omega, psi, screened) = motion_at(&spec.motion, j);
         let fscale = if screened { 0.01 } else { 1.0 };
-        let (c, s) = (psi.cos(), psi.sin());
-        let field =
-            [fscale * (B0_NT[0] * c + B0_NT[1] * s), fscale * (-B0_NT[0] * s + B0_NT[1] * c), fscale * B0_NT[2]];
+        let field = field_ics_nt(B0_NT, psi).map(|v| fscale * v);
         let w = nalgebra::Vector3::from(omega);
         let bvec = nalgebra::Vector3::from(field);
         row.clear();

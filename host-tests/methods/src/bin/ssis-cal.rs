@@ -381,9 +381,7 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
     let b0 = match &u.field_nt {
         Some(f) => {
             let psi = u.column("psi_rad").map_or(0.0, |p| p[0]);
-            let (sn, c) = psi.sin_cos();
-            let b = f[0];
-            Some([b[0] * c - b[1] * sn, b[0] * sn + b[1] * c, b[2]])
+            Some(ssis_session::field_nwu_nt(f[0], psi))
         }
         None => None,
     };
@@ -421,7 +419,8 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
                 label: format!("α_{name} / 1000, deg (eq. 3)"),
                 points: (0..=360)
                     .map(|d| {
-                        let b = magnetic::field_ics_nt(b0, (d as f64).to_radians());
+                        // The plot's azimuth is the paper's ψ_Π = −ψ.
+                        let b = magnetic::field_ics_nt(b0, -(d as f64).to_radians());
                         (d as f64, magnetic::alpha_rad(b, axis).to_degrees() / 1000.0)
                     })
                     .collect(),
