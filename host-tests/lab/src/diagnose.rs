@@ -107,6 +107,9 @@ pub struct Candidate {
     pub after_rad_s: f64,
     /// Passes Benjamini–Hochberg at the level.
     pub significant: bool,
+    /// FOGs the session cannot test it on, each with the terms it is mixed with there and
+    /// the experiment that separates them.
+    pub untested: Vec<(usize, String)>,
 }
 
 /// The paper's two-factor ANOVA for one FOG (Table 2's ratios).
@@ -316,6 +319,69 @@ fn whitened_gain(ws: &Sums, cols0: &[Vec<f64>], cols1: &[Vec<f64>]) -> Gain {
     Gain { d: quad(&l0) - quad(&l1), sd: 2.0 * quad(&delta).sqrt(), n: ws.test.n }
 }
 
+/// Why a candidate (functionals `x`) cannot be identified next to the base design (`none`:
+/// no regressor of it was), or can barely be (a regressor of which less than 5 % of the norm
+/// is not explained by the base columns): the base terms its regressors are mixed with
+/// (those whose share of the candidate's fit on the base columns is above 5 %), and the
+/// experiment that separates them. `None` when it is well identified.
+fn confounding(all: &Gram, base: &Design, kinds: &[Kind], x: &[Vec<f64>], cand: &Kind, none: bool) -> Option<String> {
+    let k = base.k();
+    let mut with: Vec<String> = Vec::new();
+    let mut worst = 1.0f64;
+    for xc in x {
+        let mut cols = base.cols[..k].to_vec();
+        cols.push(xc.clone());
+        let a = design_gram(all, &cols);
+        let fit = lstsq_gram(&a, all.n);
+        let norm = a[(k, k)].max(0.0).sqrt();
+        worst = worst.min(if norm > 0.0 { fit.sse.sqrt() / norm } else { 0.0 });
+        for (c, &(t, _)) in base.owner.iter().enumerate() {
+            let share = fit.coef[c].abs() * a[(c, c)].max(0.0).sqrt() / norm.max(f64::MIN_POSITIVE);
+            let name = kinds[t].label();
+            if share > 0.05 && !with.contains(&name) {
+                with.push(name);
+            }
+        }
+    }
+    if !none && worst >= 0.05 {
+        return None;
+    }
+    let mixed = if with.is_empty() {
+        "it does not vary in this session".to_string()
+    } else {
+        format!("mixed with {}", with.join(", "))
+    };
+    let what = if none {
+        "not identifiable in this session".to_string()
+    } else {
+        format!("barely identifiable in this session ({:.1} % of a regressor is its own)", 100.0 * worst)
+    };
+    Some(format!("{what}: {mixed}; separate with {}", separating_experiment(cand)))
+}
+
+/// The experiment that separates a term from those a simple session mixes it with.
+pub fn separating_experiment(kind: &Kind) -> &'static str {
+    match kind {
+        Kind::Catalog(c) => match c {
+            Catalog::Magnetic => {
+                "a screened turn (the paper's eq. 2: the difference of an unscreened and a screened run removes bias, \
+                 scale factor and the Earth-rate leak of misalignment) or a second set of azimuths with another axis up"
+            }
+            Catalog::ScaleFactor | Catalog::SfAsymmetry | Catalog::SfNonlinearity | Catalog::Misalignment => {
+                "a rate table (several rates of both signs about each axis) or turns with each axis up"
+            }
+            Catalog::ThermalT1 | Catalog::ThermalT2 | Catalog::ThermalT3 => {
+                "temperature levels (chamber holds at several T)"
+            }
+            Catalog::TempRate | Catalog::TTimesG => "temperature ramps at several rates G (the paper's Table 1 levels)",
+            Catalog::Aging => "a repeat run on another day, or a longer session",
+            Catalog::Bias => "any session",
+        },
+        Kind::Sinusoid(_) => "a longer session (more periods)",
+        Kind::Expr(_) => "a session in which that quantity varies on its own",
+    }
+}
+
 /// Strongest sinusoid in the training residuals at the kept rows (pooled over FOGs): Hz.
 fn spectral_peak(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Option<f64> {
     let train: Vec<usize> = (0..d.kept.rows.len()).filter(|&k| trains(d.kept.block[k])).collect();
@@ -461,11 +527,18 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     for (kind, origin) in candidate_list(d, &kinds, &base, opt) {
         let mut per_fog = Vec::new();
         let mut why = None;
+        let mut untested = Vec::new();
         for fog in 0..n_fog {
             match d.basis.functionals(&kind, fog) {
                 Ok(x) => {
                     let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
-                    per_fog.push(test_fog(&base.sums[fog], &base.bases[fog], &x, &base.ctx(d, fog)))
+                    let t = test_fog(&base.sums[fog], &base.bases[fog], &x, &base.ctx(d, fog));
+                    if let Some(c) = confounding(&base.sums[fog].all, &base.bases[fog], &kinds, &x, &kind, t.is_none())
+                    {
+                        why.get_or_insert_with(|| c.clone());
+                        untested.push((fog, c));
+                    }
+                    per_fog.push(t)
                 }
                 Err(e) => {
                     why = Some(e);
@@ -474,6 +547,9 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
             }
         }
         ranked.consider(kind, origin, per_fog, why, &base.base_ho);
+        if let Some(c) = ranked.cands.last_mut() {
+            c.untested = untested;
+        }
     }
     // The strongest spectral line of the training residual, tested on the kept rows.
     let existing_f: Vec<f64> =
@@ -656,6 +732,7 @@ impl Ranked {
             before_rad_s: pooled(&before),
             after_rad_s: pooled(&after),
             significant: false,
+            untested: Vec::new(),
         });
     }
 }

@@ -196,3 +196,27 @@ fn magnetic_preset_field_frame() {
     println!("field frame checked at {} azimuths", azimuths.len());
     assert!(azimuths.len() >= 24);
 }
+
+/// A level turntable without a screened run cannot separate magnetic sensitivity from
+/// bias, scale factor and misalignment: `diagnose` names the terms and the screened turn.
+#[test]
+fn confounded_magnetic_names_terms_and_experiment() {
+    use ssis_lab::simulate::Motion;
+    let mut spec = preset("magnetic", 6, true).unwrap();
+    spec.motion = Motion::Turntable { dwell_rows: 3, screened: vec![false, false, false, false] };
+    let sim = generate(&spec);
+    let dir = scratch("confounded");
+    let path = dir.join("unscreened.csv");
+    sim.write_csv(&path).unwrap();
+    let s = read_session(&path, None).unwrap();
+    let d = diagnose(&starting_model("magnetic"), &s, &Options::default()).unwrap();
+    let c = d.candidates.iter().find(|c| c.kind.label() == "magnetic").expect("magnetic tested on some FOG");
+    for (fog, w) in &c.untested {
+        println!("magnetic, FOG{fog}: {w}");
+    }
+    let why = c.untested.iter().find(|(f, _)| *f == 0).map(|(_, w)| w.clone());
+    let why = why.expect("FOG0's magnetic term should be reported as confounded without a screened run");
+    for must in ["mixed with", "misalignment", "screened turn", "eq. 2"] {
+        assert!(why.contains(must), "reason lacks `{must}`: {why}");
+    }
+}

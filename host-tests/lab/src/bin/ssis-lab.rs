@@ -262,6 +262,11 @@ fn print_diagnosis(d: &Diagnosis) {
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");
     }
+    for c in &d.candidates {
+        for (fog, why) in &c.untested {
+            println!("      {:<34} FOG{fog}: {why}", c.kind.label());
+        }
+    }
     match d.significant().next() {
         None => println!("no significant missing effect (level {} %)", 100.0 * d.fdr_level),
         Some(c) => {
@@ -519,13 +524,27 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     println!(" all {:>12.5} {:>12.5} {:>7.1}%", dh(b), dh(a), 100.0 * (1.0 - a / b));
     let t = out.model.terms.len() - 1;
+    let first: usize = out.model.terms[..t].iter().map(|x| x.coef.first().map_or(0, Vec::len)).sum();
     for (fog, c) in out.model.terms[t].coef.iter().enumerate() {
         let labels = kind.regressor_labels(fog);
-        let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+        let units = kind.eng_units(fog);
+        let text: Vec<String> = c
+            .iter()
+            .zip(&labels)
+            .zip(&units)
+            .enumerate()
+            .map(|(m, ((v, (n, _)), (u, f)))| {
+                let sd = out.sigma.get(fog).and_then(|s| s.get(first + m)).copied().unwrap_or(f64::NAN);
+                format!("{n} = {:.5} ± {:.5} {u} (1σ)", v * f, sd * f)
+            })
+            .collect();
         println!("  {} FOG{fog}: {}", kind.label(), text.join(", "));
     }
     if !out.not_identified.is_empty() {
         println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
+    }
+    for w in ssis_lab::export::implausible(&out.model) {
+        println!("WARNING: {w}");
     }
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
