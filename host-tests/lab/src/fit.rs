@@ -506,6 +506,13 @@ pub struct AddOutcome {
     /// 1σ of the coefficients per FOG, in the design order of the new model's terms, SI
     /// ([`coef_sigma`]).
     pub sigma: Vec<Vec<f64>>,
+    /// Per FOG, the residual at the kept rows of the model before and after (each fitted on
+    /// every row), rad/s.
+    pub residual_before_rad_s: Vec<Vec<f64>>,
+    /// After.
+    pub residual_after_rad_s: Vec<Vec<f64>>,
+    /// Time between kept rows, s.
+    pub kept_dt_s: f64,
 }
 
 /// Adds `kind` to `model`, refits on the session and measures the held-out RMS before and
@@ -527,6 +534,7 @@ pub fn add_term<'a>(
     let d = digest(source.into(), &spec_for(&next, &[], n_blocks), None)?;
     let before = held_out_rms(&kinds, &d)?;
     let after = held_out_rms(&next.kinds(), &d)?;
+    let before_fit = fit_digest(model, &d)?;
     let fitted = fit_digest(&next, &d)?;
     let mut model = fitted.model;
     model.fit = Some(FitRecord {
@@ -536,7 +544,16 @@ pub fn add_term<'a>(
         not_identified: fitted.not_identified.clone(),
     });
     let sigma = coef_sigma(&d, &next.kinds())?;
-    Ok(AddOutcome { model, before_rad_s: before, after_rad_s: after, not_identified: fitted.not_identified, sigma })
+    Ok(AddOutcome {
+        model,
+        before_rad_s: before,
+        after_rad_s: after,
+        not_identified: fitted.not_identified,
+        sigma,
+        residual_before_rad_s: before_fit.sample.residual,
+        residual_after_rad_s: fitted.sample.residual,
+        kept_dt_s: d.dt_s * d.kept.stride.max(1) as f64,
+    })
 }
 
 /// File name of version `v` of a model whose file is `path`: `stem.vN.toml` next to it.

@@ -395,3 +395,40 @@ pub fn held_out_gain(nm: &NoiseModel, bins: &Bins, z: &[f64], m: usize, l0: &[f6
     }
     Gain { d, sd: 2.0 * var.max(0.0).sqrt(), n }
 }
+
+/// RMS of the means of `x` (equally spaced by `dt_s`) over consecutive windows of about
+/// `tau_s` (a whole number of samples, about the overall mean) and the window used, s; `None`
+/// when τ is shorter than a sample or fewer than two windows fit.
+pub fn tau_mean_rms(x: &[f64], dt_s: f64, tau_s: f64) -> Option<(f64, f64)> {
+    let k = (tau_s / dt_s).round() as usize;
+    if k == 0 || tau_s < 0.5 * dt_s || x.len() / k < 2 {
+        return None;
+    }
+    let means: Vec<f64> = x.chunks_exact(k).map(|c| c.iter().sum::<f64>() / k as f64).collect();
+    let m = means.iter().sum::<f64>() / means.len() as f64;
+    Some((k as f64 * dt_s, (means.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / means.len() as f64).sqrt()))
+}
+
+/// Overlapping Allan deviation of the rate series `x` (equally spaced by `dt_s`) at cluster
+/// sizes 1, 2, 4, … up to a quarter of the series: (τ in s, σ_A in the unit of x).
+pub fn allan_deviation(x: &[f64], dt_s: f64) -> Vec<(f64, f64)> {
+    // Angle θ_k = Σ x dt; σ²(m) = Σ (θ_{k+2m} − 2θ_{k+m} + θ_k)² / (2 τ² (N − 2m)).
+    let mut theta = Vec::with_capacity(x.len() + 1);
+    theta.push(0.0);
+    let mut acc = 0.0;
+    for v in x {
+        acc += v * dt_s;
+        theta.push(acc);
+    }
+    let n = theta.len();
+    let mut out = Vec::new();
+    let mut m = 1;
+    while 4 * m <= x.len() {
+        let tau = m as f64 * dt_s;
+        let terms = n - 2 * m;
+        let s: f64 = (0..terms).map(|k| (theta[k + 2 * m] - 2.0 * theta[k + m] + theta[k]).powi(2)).sum();
+        out.push((tau, (s / (2.0 * tau * tau * terms as f64)).sqrt()));
+        m *= 2;
+    }
+    out
+}

@@ -80,6 +80,59 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
     Ok(svg)
 }
 
+/// An Allan deviation curve: (τ s, σ_A rad/s) per cluster size.
+pub type AllanCurve = Vec<(f64, f64)>;
+
+/// Allan deviation of the residual before and after an `add`, per FOG, with the white-noise
+/// floor σ₁ √(Δt/τ) of the residual after (log-log, °/h against s), as an SVG string.
+/// `curves[fog]` = (before, after), each (τ s, σ_A rad/s); `floor[fog]` = σ₁ rad/s at `dt_s`.
+pub fn allan_svg(title: &str, curves: &[(AllanCurve, AllanCurve)], floor: &[f64], dt_s: f64) -> LabResult<String> {
+    use ssis_common::DEG_H_PER_RAD_S as DH;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (800, 520)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let all = || curves.iter().flat_map(|(a, b)| a.iter().chain(b.iter()));
+        let (t0, t1) = all().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (y0, y1) = all().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1 * DH), b.max(p.1 * DH)));
+        if !(t0 < t1 && y0 > 0.0 && y0 < y1) {
+            return Err(LabError::Numeric("too few samples for an Allan deviation".into()));
+        }
+        let mut chart = ChartBuilder::on(&root)
+            .margin(12)
+            .caption(title, ("sans-serif", 16))
+            .x_label_area_size(35)
+            .y_label_area_size(70)
+            .build_cartesian_2d((t0..t1).log_scale(), ((y0 * 0.5)..(y1 * 2.0)).log_scale())
+            .map_err(perr)?;
+        chart
+            .configure_mesh()
+            .x_desc("averaging time tau, s")
+            .y_desc("Allan deviation of the residual, deg/h")
+            .draw()
+            .map_err(perr)?;
+        for (fog, ((before, after), f)) in curves.iter().zip(floor).enumerate() {
+            let c = Palette99::pick(fog).to_rgba();
+            let dashed = before.iter().map(|p| (p.0, p.1 * DH)).collect::<Vec<_>>();
+            chart
+                .draw_series(DashedLineSeries::new(dashed, 6, 4, c.stroke_width(1)))
+                .map_err(perr)?
+                .label(format!("FOG{fog} before"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c));
+            chart
+                .draw_series(LineSeries::new(after.iter().map(|p| (p.0, p.1 * DH)), c.stroke_width(2)))
+                .map_err(perr)?
+                .label(format!("FOG{fog} after"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+            let fl = after.iter().map(|p| (p.0, f * DH * (dt_s / p.0).sqrt())).collect::<Vec<_>>();
+            chart.draw_series(LineSeries::new(fl, BLACK.mix(0.35))).map_err(perr)?;
+        }
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
 /// Writes an SVG string atomically.
 pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
     super::write_atomic(path, svg.as_bytes())

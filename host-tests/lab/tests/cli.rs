@@ -224,4 +224,12 @@ fn add_refuses_a_worse_version() {
     let out = lab(&["add", "aging", "--model", "m.v1.toml", "--session", "th.csv", "--force"]);
     assert!(out.status.success(), "--force: {}", String::from_utf8_lossy(&out.stderr));
     assert!(dir.join("m.v2.toml").exists(), "--force wrote no version");
+    // The error fall: the systematic part removed, the residual at averaging times, the
+    // Allan deviation before and after.
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    for must in ["systematic part removed", "residual RMS of tau-means", "floor", "m.v2.allan.svg"] {
+        assert!(text.contains(must), "add output lacks `{must}`: {text}");
+    }
+    let svg = std::fs::read_to_string(dir.join("m.v2.allan.svg")).unwrap();
+    assert!(svg.contains("FOG3 before") && svg.contains("FOG3 after"), "Allan plot lacks a FOG's curves");
 }

@@ -485,6 +485,32 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     Ok(())
 }
 
+/// What `add` removed, per FOG: the systematic part √(before² − after²) of the held-out RMS,
+/// and the residual (every kept row, the models fitted on all rows) as RMS of 1-s, 100-s and
+/// 1000-s means before and after, beside the white-noise floor at that averaging time.
+fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
+    use ssis_lab::noise::{allan_deviation, tau_mean_rms};
+    let dt = out.kept_dt_s;
+    println!("systematic part removed, sqrt(before^2 - after^2) of the held-out RMS, deg/h:");
+    for (fog, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
+        println!("  FOG{fog} {:.5}", dh((b * b - a * a).max(0.0).sqrt()));
+    }
+    println!("residual RMS of tau-means, deg/h (before -> after; white floor from the Allan deviation at one sample):");
+    for (fog, (rb, ra)) in out.residual_before_rad_s.iter().zip(&out.residual_after_rad_s).enumerate() {
+        let sigma1 = allan_deviation(ra, dt).first().map_or(f64::NAN, |p| p.1);
+        let cells: Vec<String> = [1.0, 100.0, 1000.0]
+            .iter()
+            .map(|&tau| match (tau_mean_rms(rb, dt, tau), tau_mean_rms(ra, dt, tau)) {
+                (Some((t, b)), Some((_, a))) => {
+                    format!("{t:>5} s {:.5} -> {:.5} (floor {:.5})", dh(b), dh(a), dh(sigma1 * (dt / t).sqrt()))
+                }
+                _ => format!("{tau:>5} s -"),
+            })
+            .collect();
+        println!("  FOG{fog} {}", cells.join(" | "));
+    }
+}
+
 /// `add`: the next model version with one more term, its held-out gain and the history of versions.
 fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force: bool) -> Result<()> {
     let m = load_model(&model)?;
@@ -546,6 +572,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     for w in ssis_lab::export::implausible(&out.model) {
         println!("WARNING: {w}");
     }
+    print_error_fall(&out);
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
     cli::report("history", || {
@@ -555,6 +582,24 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     for (v, r, per, terms) in &h {
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
         println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
+    }
+    let curves: Vec<_> = out
+        .residual_before_rad_s
+        .iter()
+        .zip(&out.residual_after_rad_s)
+        .map(|(b, a)| {
+            (ssis_lab::noise::allan_deviation(b, out.kept_dt_s), ssis_lab::noise::allan_deviation(a, out.kept_dt_s))
+        })
+        .collect();
+    let floor: Vec<f64> = curves.iter().map(|c| c.1.first().map_or(0.0, |p| p.1)).collect();
+    let allan_path =
+        path.with_file_name(format!("{}.v{}.allan.svg", ssis_lab::fit::model_stem(&path), out.model.version));
+    let title = format!("residual before/after {} (dashed/solid), white floor (grey)", kind.label());
+    if let Ok(svg) = ssis_lab::plot::allan_svg(&title, &curves, &floor, out.kept_dt_s) {
+        match write_svg(&allan_path, &svg) {
+            Ok(()) => println!("wrote {}", allan_path.display()),
+            Err(e) => println!("not written: {e:#}"),
+        }
     }
     let svg_path = path.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(&path)));
     let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
