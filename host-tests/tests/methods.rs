@@ -45,6 +45,22 @@ fn magnetic_kharkov_worked_example() {
     assert!((ax - 90.0).abs() < 1e-9, "α_x {ax}");
 }
 
+/// The real field at Kharkov from WMM2025 against IGRF-14 for 2025 (north, west, up:
+/// 19,361 / −3,137 / −47,632 nT), and how far the paper's dipole tilt is from it.
+#[test]
+fn magnetic_wmm_field_at_kharkov() {
+    let wmm = magnetic::wmm_field_nwu_nt(50.0 + 3.0 / 60.0, 36.0 + 17.0 / 60.0, 150.0, 2025, 1).unwrap();
+    let igrf = [19361.0, -3137.0, -47632.0];
+    let dipole = magnetic::DipoleTilt::PAPER.field_ocs_nt(&magnetic::DipoleTilt::PAPER.kharkov());
+    println!("Kharkov 2025.0, nT (north, west, up): WMM {wmm:.0?}, IGRF-14 {igrf:?}, dipole tilt {dipole:.0?}");
+    for k in 0..3 {
+        assert!((wmm[k] - igrf[k]).abs() < 200.0, "component {k}: WMM {} vs IGRF {}", wmm[k], igrf[k]);
+    }
+    let off: Vec<f64> = (0..3).map(|k| (dipole[k] - wmm[k]).abs() / 1000.0).collect();
+    println!("dipole tilt off by {off:.1?} µT");
+    assert!(off.iter().any(|&o| o > 2.0));
+}
+
 /// One frame for the field: at every azimuth the session's field columns (written by
 /// `ssis-cal simulate magnetic`) have the site's north and west components along the
 /// session's own north and west (the directions its Earth rate gives, `earth_rate_ics`);

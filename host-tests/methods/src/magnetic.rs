@@ -125,6 +125,31 @@ impl DipoleTilt {
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
+/// The Earth's main field at a site and date from the World Magnetic Model (WMM2025, the
+/// `world_magnetic_model` crate), as (north, west, up) components, nT — the real field, where
+/// the paper's dipole tilt ([`DipoleTilt`]) is 2.5–9 µT off at Kharkov. `lat_deg`,
+/// `lon_deg`: WGS 84; `height_m` above the ellipsoid; `year` and `day_of_year` (1 …).
+pub fn wmm_field_nwu_nt(lat_deg: f64, lon_deg: f64, height_m: f64, year: i32, day_of_year: u16) -> Result<[f64; 3]> {
+    use world_magnetic_model::time::Date;
+    use world_magnetic_model::uom::si::angle::degree;
+    use world_magnetic_model::uom::si::f32::{Angle, Length};
+    use world_magnetic_model::uom::si::length::meter;
+    use world_magnetic_model::uom::si::magnetic_flux_density::nanotesla;
+    use world_magnetic_model::GeomagneticField;
+    let date =
+        Date::from_ordinal_date(year, day_of_year).map_err(|e| anyhow::anyhow!("date {year}-{day_of_year}: {e}"))?;
+    let f = GeomagneticField::new(
+        Length::new::<meter>(height_m as f32),
+        Angle::new::<degree>(lat_deg as f32),
+        Angle::new::<degree>(lon_deg as f32),
+        date,
+    )
+    .map_err(|e| anyhow::anyhow!("WMM at {lat_deg}°, {lon_deg}°, {height_m} m, {year}-{day_of_year}: {e}"))?;
+    // WMM gives X north, Y east, Z down.
+    let (x, y, z) = (f.x().get::<nanotesla>() as f64, f.y().get::<nanotesla>() as f64, f.z().get::<nanotesla>() as f64);
+    Ok([x, -y, -z])
+}
+
 /// The field in the ICS at the session's azimuth ψ (clockwise), from (north, west, up)
 /// components: the paper's B_Π at ψ_Π = −ψ (module text).
 pub fn field_ics_nt(b0_nt: [f64; 3], psi_rad: f64) -> [f64; 3] {
