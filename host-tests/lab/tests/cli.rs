@@ -232,4 +232,8 @@ fn add_refuses_a_worse_version() {
     }
     let svg = std::fs::read_to_string(dir.join("m.v2.allan.svg")).unwrap();
     assert!(svg.contains("FOG3 before") && svg.contains("FOG3 after"), "Allan plot lacks a FOG's curves");
+    let hist = std::fs::read_to_string(dir.join("m.history-fogs.svg")).unwrap();
+    for must in ["v2 +aging", "white-noise floor", "FOG3"] {
+        assert!(hist.contains(must), "history plot lacks `{must}`");
+    }
 }

@@ -605,6 +605,23 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
     write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", session.display()), &pts)?)?;
     println!("wrote {}", svg_path.display());
+    // Per FOG, with the term each version added and the white floor (pooled σ₁ of the residual).
+    let mut rows: Vec<(u32, Vec<f64>, String)> = Vec::new();
+    let mut prev: Vec<&str> = Vec::new();
+    for (v, _, per, terms) in &h {
+        let now: Vec<&str> = terms.split(", ").collect();
+        let added: Vec<&str> = now.iter().filter(|t| !prev.contains(t)).copied().collect();
+        let label = if prev.is_empty() { "start".to_string() } else { format!("+{}", added.join(" +")) };
+        rows.push((*v, per.clone(), label));
+        prev = now;
+    }
+    let floor_deg_h = dh(pooled(&floor));
+    let fogs_path = path.with_file_name(format!("{}.history-fogs.svg", ssis_lab::fit::model_stem(&path)));
+    let title = format!("held-out RMS per FOG on {}", session.display());
+    match ssis_lab::plot::history_fogs_svg(&title, &rows, floor_deg_h).and_then(|svg| write_svg(&fogs_path, &svg)) {
+        Ok(()) => println!("wrote {}", fogs_path.display()),
+        Err(e) => println!("not written: {e:#}"),
+    }
     Ok(())
 }
 
