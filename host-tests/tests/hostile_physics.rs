@@ -718,14 +718,15 @@ fn export_from_a_thermal_session_keeps_the_base_and_flies_within_10_percent() {
     }
     // What it identifies is close to the truth, with its provenance.
     for (i, f) in fogs.iter().enumerate() {
-        let (b, g) = (new.fog[i].bias_rad_s / DEG_H, new.fog[i].thermal_g_rad_s_per_degc_s / DEG_H);
+        let (b, g) = (new.fog[i].bias_rad_s / DEG_H, new.fog[i].thermal_g_rad_s_per_degc_s / DEG_H / 60.0);
         println!(
-            "FOG{i}: bias {b:.4} °/h (truth {:.4}), g {g:.3} °/h per °C/s (truth {:.3})",
+            "FOG{i}: bias {b:.4} °/h (truth {:.4}), g {g:.4} °/h per °C/min (truth {:.4})",
             f.bias_rad_s / DEG_H,
-            f.thermal_g_rad_s_per_degc_s / DEG_H
+            f.thermal_g_rad_s_per_degc_s / DEG_H / 60.0
         );
         assert!(
-            (b - f.bias_rad_s / DEG_H).abs() < 0.03 && (g / (f.thermal_g_rad_s_per_degc_s / DEG_H) - 1.0).abs() < 0.05
+            (b - f.bias_rad_s / DEG_H).abs() < 0.03
+                && (g / (f.thermal_g_rad_s_per_degc_s / DEG_H / 60.0) - 1.0).abs() < 0.05
         );
     }
     assert_eq!(doc.provenance.len(), 16);
@@ -737,7 +738,7 @@ fn export_from_a_thermal_session_keeps_the_base_and_flies_within_10_percent() {
         "ssis-sim",
         &["table", "diff", "base.toml", "new.toml"],
         1,
-        &["revision  5 → 6", "fog[0].bias_rad_s", "°/h per °C/s"],
+        &["revision  5 → 6", "fog[0].bias_rad_s", "°/h per °C/min"],
     );
 
     // Flown: the exported table within 10 % of the base's attitude error; the table as the

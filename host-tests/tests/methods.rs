@@ -37,11 +37,60 @@ fn magnetic_kharkov_worked_example() {
     );
     assert!(rel(dphi_paper, -15.3) < 0.005);
     assert!(rel(dphi_model, -15.3) < 0.005);
-    // At the maximum of Δf_x (ψ = 90° − Δφ) the field is orthogonal to FOGX: α_x = 90°.
+    // At the maximum of Δf_x (ψ_Π = 90° − Δφ, the session's ψ = −ψ_Π) the field is
+    // orthogonal to FOGX: α_x = 90°.
     let psi = std::f64::consts::FRAC_PI_2 - dphi_paper.to_radians();
-    let bp = magnetic::field_ics_nt([21846.0, 5967.0, -42340.0], psi);
+    let bp = magnetic::field_ics_nt([21846.0, 5967.0, -42340.0], -psi);
     let ax = magnetic::alpha_rad(bp, [1.0, 0.0, 0.0]).to_degrees();
     assert!((ax - 90.0).abs() < 1e-9, "α_x {ax}");
+}
+
+/// The real field at Kharkov from WMM2025 against IGRF-14 for 2025 (north, west, up:
+/// 19,361 / −3,137 / −47,632 nT), and how far the paper's dipole tilt is from it.
+#[test]
+fn magnetic_wmm_field_at_kharkov() {
+    let wmm = magnetic::wmm_field_nwu_nt(50.0 + 3.0 / 60.0, 36.0 + 17.0 / 60.0, 150.0, 2025, 1).unwrap();
+    let igrf = [19361.0, -3137.0, -47632.0];
+    let dipole = magnetic::DipoleTilt::PAPER.field_ocs_nt(&magnetic::DipoleTilt::PAPER.kharkov());
+    println!("Kharkov 2025.0, nT (north, west, up): WMM {wmm:.0?}, IGRF-14 {igrf:?}, dipole tilt {dipole:.0?}");
+    for k in 0..3 {
+        assert!((wmm[k] - igrf[k]).abs() < 200.0, "component {k}: WMM {} vs IGRF {}", wmm[k], igrf[k]);
+    }
+    let off: Vec<f64> = (0..3).map(|k| (dipole[k] - wmm[k]).abs() / 1000.0).collect();
+    println!("dipole tilt off by {off:.1?} µT");
+    assert!(off.iter().any(|&o| o > 2.0));
+}
+
+/// One frame for the field: at every azimuth the session's field columns (written by
+/// `ssis-cal simulate magnetic`) have the site's north and west components along the
+/// session's own north and west (the directions its Earth rate gives, `earth_rate_ics`);
+/// at ψ = 90° the Kharkov field is (−5959, 21846, −42343) nT.
+#[test]
+fn magnetic_field_frame_agrees_with_the_session() {
+    let b = [21846.0, 5959.0, -42343.0];
+    let at90 = ssis_session::field_ics_nt(b, std::f64::consts::FRAC_PI_2);
+    println!("field at psi = 90 deg: {at90:?} nT");
+    assert!(at90.iter().zip([-5959.0, 21846.0, -42343.0]).all(|(a, w)| (a - w).abs() < 1e-9), "{at90:?}");
+    let sim = magnetic::MagneticSim::kharkov();
+    let (pu, ps) = (tmp("frame-unscreened.csv"), tmp("frame-screened.csv"));
+    sim.write(&pu, &ps, 9).unwrap();
+    let u = read_session(&pu, None).unwrap();
+    let psi = u.column("psi_rad").unwrap();
+    let field = u.field_nt.as_ref().unwrap();
+    let mut seen = std::collections::BTreeSet::new();
+    for (r, f) in field.iter().enumerate() {
+        let w = u.ref_rad_s[r];
+        let horiz = w[0].hypot(w[1]);
+        let north = [w[0] / horiz, w[1] / horiz, 0.0];
+        let west = [-north[1], north[0], 0.0]; // up × north
+        let dot = |a: [f64; 3], b: &[f64; 3]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
+        let (bn, bw) = (dot(north, f), dot(west, f));
+        if seen.insert((psi[r].to_degrees().round()) as i64) {
+            println!("psi {:>5.1} deg: B.north {bn:>9.1}  B.west {bw:>9.1}  B_z {:>9.1} nT", psi[r].to_degrees(), f[2]);
+        }
+        assert!((bn - sim.b0_nt[0]).abs() < 1e-6 && (bw - sim.b0_nt[1]).abs() < 1e-6, "row {r}: {bn} {bw}");
+    }
+    assert!(seen.len() >= 24, "azimuths seen: {}", seen.len());
 }
 
 #[test]

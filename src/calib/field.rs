@@ -19,7 +19,8 @@
 //! - T_ref: −60…+100 °C, the span the firmware trusts a FOG's temperature sensor over;
 //! - thermal coefficients: each term alone at most the bias bound, 100 °/h, at the edge of
 //!   |ΔT| = 50 °C and |G| = 0.1 °C/s (6 °C/min, beyond any chamber ramp): a1 ±2 °/h/°C,
-//!   a2 ±0.04 °/h/°C², a3 ±8·10⁻⁴ °/h/°C³, g ±1000 °/h per °C/s, h ±20 °/h per °C²/s;
+//!   a2 ±0.04 °/h/°C², a3 ±8·10⁻⁴ °/h/°C³, g ±16.7 °/h per °C/min (±1000 °/h per °C/s),
+//!   h ±0.333 °/h per °C·°C/min;
 //! - misalignment angles: ±3600″ (1°), 12 × the ±306″ before calibration; γ within 1° of
 //!   its nominal 125°15'52";
 //! - star-tracker mount: each component of a unit quaternion in −1…1 (and |q| = 1);
@@ -222,8 +223,12 @@ impl Field {
                 FogTerm::ThermalT1 => Spec::new("rad/s/°C", "°/h per °C", DEG_H, -2.0, 2.0),
                 FogTerm::ThermalT2 => Spec::new("rad/s/°C²", "°/h per °C²", DEG_H, -0.04, 0.04),
                 FogTerm::ThermalT3 => Spec::new("rad/s/°C³", "°/h per °C³", DEG_H, -8e-4, 8e-4),
-                FogTerm::ThermalG => Spec::new("rad/s per °C/s", "°/h per °C/s", DEG_H, -1000.0, 1000.0),
-                FogTerm::ThermalTg => Spec::new("rad/s per °C²/s", "°/h per °C²/s", DEG_H, -20.0, 20.0),
+                FogTerm::ThermalG => {
+                    Spec::new("rad/s per °C/s", "°/h per °C/min", DEG_H / 60.0, -1000.0 / 60.0, 1000.0 / 60.0)
+                }
+                FogTerm::ThermalTg => {
+                    Spec::new("rad/s per °C²/s", "°/h per °C·°C/min", DEG_H / 60.0, -20.0 / 60.0, 20.0 / 60.0)
+                }
             },
             Field::D12 | Field::D13 | Field::D21 | Field::D23 | Field::D31 | Field::D32 | Field::D42 | Field::D43 => {
                 Spec::new("rad", "″", ARCSEC, -3600.0, 3600.0)

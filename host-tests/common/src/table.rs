@@ -89,10 +89,57 @@ pub fn parse_toml(text: &str, origin: &str) -> Result<CalibrationTable> {
     parse_doc(text, origin).map(|d| d.table)
 }
 
-/// The TOML form of `doc`.
+/// The TOML form of `doc`, each field's value also in engineering units in a comment
+/// (`bias_rad_s = 1e-6  # 0.206265 °/h`; the value itself stays in SI, what the firmware
+/// loads).
 pub fn doc_to_toml(doc: &TableDoc) -> Result<String> {
     let f = TableFile { format: TOML_FORMAT.to_string(), table: doc.table, provenance: doc.provenance.clone() };
-    Ok(toml::to_string_pretty(&f)?)
+    Ok(with_engineering_comments(&toml::to_string_pretty(&f)?, &doc.table))
+}
+
+/// Appends to each line of a field under `[table]` a comment with its value in
+/// engineering units (fields whose unit is already the engineering one are left bare).
+fn with_engineering_comments(text: &str, t: &CalibrationTable) -> String {
+    let mut out = String::with_capacity(text.len() + text.len() / 2);
+    let (mut prefix, mut fog, mut array): (Option<String>, i32, Option<(String, usize)>) = (None, -1, None);
+    for line in text.lines() {
+        let trimmed = line.trim();
+        let mut name = None;
+        if trimmed.starts_with('[') && !trimmed.starts_with("[ ") && array.is_none() {
+            prefix = match trimmed {
+                "[table]" => Some(String::new()),
+                "[[table.fog]]" => {
+                    fog += 1;
+                    Some(format!("fog[{fog}]."))
+                }
+                "[table.misalignment]" => Some("misalignment.".into()),
+                "[table.observer]" => Some("observer.".into()),
+                _ => None,
+            };
+        } else if let Some((key, i)) = array.as_mut() {
+            if trimmed == "]" {
+                array = None;
+            } else {
+                name = Some(format!("{key}[{i}]"));
+                *i += 1;
+            }
+        } else if let (Some(p), Some((key, value))) = (&prefix, trimmed.split_once(" = ")) {
+            if value == "[" {
+                array = Some((format!("{p}{key}"), 0));
+            } else {
+                name = Some(format!("{p}{key}"));
+            }
+        }
+        out.push_str(line);
+        if let Some(f) = name.as_deref().and_then(field_named) {
+            let s = f.spec();
+            if s.eng_per_unit != 1.0 && !s.eng_unit.is_empty() {
+                out.push_str(&format!("  # {} {}", super::update::significant(f.get(t) * s.eng_per_unit), s.eng_unit));
+            }
+        }
+        out.push('\n');
+    }
+    out
 }
 
 /// The TOML form of `t`.

@@ -34,6 +34,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, trains, Design, Sums};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
+use super::noise::{held_out_gain, whitened, Bins, Gain, NoiseModel};
 use super::stream::{digest, Digest, Source};
 use super::LabResult;
 
@@ -59,18 +60,34 @@ impl Default for Options {
 /// One FOG's test of one candidate.
 #[derive(Debug, Clone)]
 pub struct FogTest {
-    /// F statistic on the test blocks.
+    /// F statistic on the test blocks, of the GLS fits under the noise model.
     pub f: f64,
     /// Numerator degrees of freedom (identified candidate regressors).
     pub df1: usize,
     /// Denominator degrees of freedom.
     pub df2: usize,
-    /// p-value.
+    /// p-value of the candidate on this FOG: the larger of the F-test's and the held-out
+    /// improvement's (both must reject).
     pub p: f64,
+    /// p-value of the GLS F-test alone.
+    pub p_f: f64,
+    /// Held-out improvement: the drop of the mean-square residual per test row, (rad/s)²,
+    /// with its 1σ under the noise model; p-value of "no improvement" (one-sided).
+    pub gain_rad2_s2: (f64, f64, f64),
     /// Held-out RMS without / with the candidate, rad/s.
     pub before_rad_s: f64,
     /// Held-out RMS with the candidate, rad/s.
     pub after_rad_s: f64,
+}
+
+impl FogTest {
+    /// The systematic part the candidate removes on the test blocks, √(before² − after²),
+    /// rad/s (0 when it removes nothing), and that figure's 1σ interval ends.
+    pub fn removed_rad_s(&self) -> (f64, f64, f64) {
+        let (g, sd, _) = self.gain_rad2_s2;
+        let r = |x: f64| x.max(0.0).sqrt();
+        (r(g), r(g - sd), r(g + sd))
+    }
 }
 
 /// A candidate term and its evidence.
@@ -90,6 +107,9 @@ pub struct Candidate {
     pub after_rad_s: f64,
     /// Passes Benjamini–Hochberg at the level.
     pub significant: bool,
+    /// FOGs the session cannot test it on, each with the terms it is mixed with there and
+    /// the experiment that separates them.
+    pub untested: Vec<(usize, String)>,
 }
 
 /// The paper's two-factor ANOVA for one FOG (Table 2's ratios).
@@ -130,6 +150,19 @@ pub struct Diagnosis {
     pub n_test: usize,
 }
 
+impl Candidate {
+    /// The systematic part the candidate removes on the test blocks, pooled over FOGs,
+    /// √(before² − after²) of the mean squares, rad/s, with the ends of its 1σ interval
+    /// under the noise model.
+    pub fn removed_rad_s(&self) -> (f64, f64, f64) {
+        let n = self.per_fog.len().max(1) as f64;
+        let g = self.per_fog.iter().flatten().map(|t| t.gain_rad2_s2.0).sum::<f64>() / n;
+        let sd = self.per_fog.iter().flatten().map(|t| t.gain_rad2_s2.1.powi(2)).sum::<f64>().sqrt() / n;
+        let r = |x: f64| x.max(0.0).sqrt();
+        (r(g), r(g - sd), r(g + sd))
+    }
+}
+
 impl Diagnosis {
     /// The significant candidates, best first.
     pub fn significant(&self) -> impl Iterator<Item = &Candidate> {
@@ -147,22 +180,206 @@ fn f_sf(f: f64, d1: usize, d2: usize) -> f64 {
     }
 }
 
-/// F quantile (critical value) at upper-tail probability `q`.
+/// F quantile (critical value) at upper-tail probability `q`: the root of sf(x) = q by
+/// bisection on the upper tail to a relative 1e-13 (statrs' own inverse stops early: 2.37075
+/// for F(4, 2,399,990) at 5 %, where the value is 2.37194).
 pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
-    FisherSnedecor::new(d1 as f64, d2 as f64).map_or(f64::NAN, |d| d.inverse_cdf(1.0 - q))
+    if !(q > 0.0 && q < 1.0) || d1 == 0 || d2 == 0 {
+        return f64::NAN;
+    }
+    let Ok(dist) = FisherSnedecor::new(d1 as f64, d2 as f64) else { return f64::NAN };
+    let (mut lo, mut hi) = (0.0f64, 1.0f64);
+    while dist.sf(hi) > q {
+        lo = hi;
+        hi *= 2.0;
+        if hi > 1e300 {
+            return f64::INFINITY;
+        }
+    }
+    while hi - lo > 1e-13 * hi {
+        let mid = 0.5 * (lo + hi);
+        if dist.sf(mid) > q {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// The paper's ANOVA beside the main test, per FOG: for G (F_G against the candidate
+/// `temp_rate`) and T (F_T against `thermal_t1`, or the first thermal term the model lacks),
+/// each with its degrees of freedom and p-value, and a one-line reason where one is
+/// significant at 5 % and the other not.
+pub fn anova_beside_main(d: &Diagnosis) -> Vec<String> {
+    let mut out = Vec::new();
+    let find = |names: &[&'static str], fog: usize| -> Option<(&'static str, FogTest)> {
+        names.iter().find_map(|&n| {
+            d.candidates.iter().find(|c| c.kind.label() == n).and_then(|c| c.per_fog.get(fog)?.clone().map(|t| (n, t)))
+        })
+    };
+    for a in &d.anova {
+        for (factor, f, names) in
+            [("G", a.f_g, &["temp_rate"][..]), ("T", a.f_t, &["thermal_t1", "thermal_t2", "thermal_t3"][..])]
+        {
+            let Some((name, t)) = find(names, a.fog) else { continue };
+            let mut line = format!(
+                "FOG{} {factor}: ANOVA F = {:.2} (nu {}, {}) p {:.2e} | main test {name}: F = {:.2} (nu {}, {}) p {:.2e}",
+                a.fog, f.0, f.1, f.2, f.3, t.f, t.df1, t.df2, t.p
+            );
+            let (anova_sig, main_sig) = (f.3 < 0.05, t.p < 0.05);
+            if anova_sig != main_sig {
+                line.push_str(if main_sig {
+                    " -- disagree: the ANOVA tests the factor against the T x G interaction mean square, \
+                       with few degrees of freedom (the paper's design), so it has little power; the main test \
+                       uses the residual under the noise model"
+                } else {
+                    " -- disagree: the ANOVA takes residual samples as independent and the levels as categories; \
+                     under the fitted noise model the slow bias wander explains the level differences"
+                });
+            }
+            out.push(line);
+        }
+    }
+    out
+}
+
+/// What the tests of one FOG need: the bins, the kept rows' basis vectors (rows × m) and
+/// the noise model of the base model's residual (where the alternative's fit starts).
+struct NoiseCtx<'a> {
+    base: &'a NoiseModel,
+    bins: &'a Bins,
+    z: &'a [f64],
+    m: usize,
+}
+
+impl NoiseCtx<'_> {
+    /// The noise model of the test blocks' residual of `cols` (y last) fitted on the training
+    /// blocks, and the GLS sums under it.
+    fn under(&self, s: &Sums, cols: &[Vec<f64>]) -> (NoiseModel, Sums) {
+        let fit = lstsq_gram(&design_gram(&s.train, cols), s.train.n);
+        let l = residual_functional(cols, &fit.coef);
+        let res: Vec<f64> = self.z.chunks_exact(self.m).map(|z| z.iter().zip(&l).map(|(a, b)| a * b).sum()).collect();
+        let nm = NoiseModel::fit_from(self.bins, &res, Some(self.base));
+        let ws = whitened(&nm, self.bins, self.z, self.m);
+        (nm, ws)
+    }
 }
 
 /// Tests one candidate (functionals `cand`) on one FOG against the base design `base` (y
-/// last): F on the test blocks, held-out RMS after on the test blocks of a training fit.
-fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], base_ho: f64) -> Option<FogTest> {
+/// last), under the noise model of the test blocks' residual of base + candidate fitted on
+/// the training blocks (a real effect left in the residual would be taken for noise; noise
+/// the candidate fitted on the test blocks would be missing from it):
+///
+/// - the GLS F-test on the test blocks (both nested models fitted there);
+/// - the held-out improvement in the noise model's own metric: both models fitted by GLS on
+///   the training blocks, D = Σ (ũ₀² − ũ₁²) over the whitened test residuals, whose standard
+///   deviation given the training fit is 2 ‖δ̃‖ (δ̃ = ũ₀ − ũ₁; whitened noise has unit
+///   variance), one-sided p of D ≤ 0;
+/// - the held-out RMS before and after (ordinary fits on the training blocks, what `add`
+///   reports) and the drop of the mean square with its 1σ under the noise model
+///   ([`held_out_gain`]).
+///
+/// The candidate's p-value on the FOG is the larger of the two tests' (both must reject),
+/// and 1 when its held-out RMS is not lower.
+fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], nz: &NoiseCtx) -> Option<FogTest> {
     let cols = base.with(cand);
-    let ls0 = lstsq_gram(&design_gram(&s.test, &base.cols), s.test.n);
-    let ls1 = lstsq_gram(&design_gram(&s.test, &cols), s.test.n);
+    let (nm, ws) = nz.under(s, &cols);
+    let ws = &ws;
+    let ls0 = lstsq_gram(&design_gram(&ws.test, &base.cols), ws.test.n);
+    let ls1 = lstsq_gram(&design_gram(&ws.test, &cols), ws.test.n);
     let q = ls1.p.checked_sub(ls0.p).filter(|&q| q > 0)?;
     let df2 = ls1.n.checked_sub(ls1.p).filter(|&d| d > 0)?;
-    let f = ((ls0.sse - ls1.sse) / q as f64) / (ls1.sse / df2 as f64);
-    let (after, _) = held_out(s, &cols);
-    Some(FogTest { f, df1: q, df2, p: f_sf(f, q, df2), before_rad_s: base_ho, after_rad_s: after })
+    let f = ((ls0.sse - ls1.sse).max(0.0) / q as f64) / (ls1.sse / df2 as f64);
+    let p_f = f_sf(f, q, df2);
+    let p_w = whitened_gain(ws, &base.cols, &cols).p();
+    let (before, tr0) = held_out(s, &base.cols);
+    let (after, tr1) = held_out(s, &cols);
+    let l0 = residual_functional(&base.cols, &tr0.coef);
+    let l1 = residual_functional(&cols, &tr1.coef);
+    let gain = held_out_gain(&nm, nz.bins, nz.z, nz.m, &l0, &l1);
+    let (g, sd) = gain.per_row();
+    let p = if after < before { p_f.max(p_w) } else { 1.0 };
+    Some(FogTest { f, df1: q, df2, p, p_f, gain_rad2_s2: (g, sd, gain.p()), before_rad_s: before, after_rad_s: after })
+}
+
+/// The held-out improvement of design `cols1` over `cols0` (y last) in the whitened metric:
+/// both fitted by GLS on the training blocks, evaluated on the test blocks' whitened sums.
+fn whitened_gain(ws: &Sums, cols0: &[Vec<f64>], cols1: &[Vec<f64>]) -> Gain {
+    let f0 = lstsq_gram(&design_gram(&ws.train, cols0), ws.train.n);
+    let f1 = lstsq_gram(&design_gram(&ws.train, cols1), ws.train.n);
+    let l0 = residual_functional(cols0, &f0.coef);
+    let l1 = residual_functional(cols1, &f1.coef);
+    let g = ws.test.full();
+    let quad = |l: &[f64]| -> f64 {
+        let v = nalgebra::DVector::from_column_slice(l);
+        (v.transpose() * &g * &v)[(0, 0)].max(0.0)
+    };
+    let delta: Vec<f64> = l0.iter().zip(&l1).map(|(a, b)| a - b).collect();
+    Gain { d: quad(&l0) - quad(&l1), sd: 2.0 * quad(&delta).sqrt(), n: ws.test.n }
+}
+
+/// Why a candidate (functionals `x`) cannot be identified next to the base design (`none`:
+/// no regressor of it was), or can barely be (a regressor of which less than 5 % of the norm
+/// is not explained by the base columns): the base terms its regressors are mixed with
+/// (those whose share of the candidate's fit on the base columns is above 5 %), and the
+/// experiment that separates them. `None` when it is well identified.
+fn confounding(all: &Gram, base: &Design, kinds: &[Kind], x: &[Vec<f64>], cand: &Kind, none: bool) -> Option<String> {
+    let k = base.k();
+    let mut with: Vec<String> = Vec::new();
+    let mut worst = 1.0f64;
+    for xc in x {
+        let mut cols = base.cols[..k].to_vec();
+        cols.push(xc.clone());
+        let a = design_gram(all, &cols);
+        let fit = lstsq_gram(&a, all.n);
+        let norm = a[(k, k)].max(0.0).sqrt();
+        worst = worst.min(if norm > 0.0 { fit.sse.sqrt() / norm } else { 0.0 });
+        for (c, &(t, _)) in base.owner.iter().enumerate() {
+            let share = fit.coef[c].abs() * a[(c, c)].max(0.0).sqrt() / norm.max(f64::MIN_POSITIVE);
+            let name = kinds[t].label();
+            if share > 0.05 && !with.contains(&name) {
+                with.push(name);
+            }
+        }
+    }
+    if !none && worst >= 0.05 {
+        return None;
+    }
+    let mixed = if with.is_empty() {
+        "it does not vary in this session".to_string()
+    } else {
+        format!("mixed with {}", with.join(", "))
+    };
+    let what = if none {
+        "not identifiable in this session".to_string()
+    } else {
+        format!("barely identifiable in this session ({:.1} % of a regressor is its own)", 100.0 * worst)
+    };
+    Some(format!("{what}: {mixed}; separate with {}", separating_experiment(cand)))
+}
+
+/// The experiment that separates a term from those a simple session mixes it with.
+pub fn separating_experiment(kind: &Kind) -> &'static str {
+    match kind {
+        Kind::Catalog(c) => match c {
+            Catalog::Magnetic => {
+                "a screened turn (the paper's eq. 2: the difference of an unscreened and a screened run removes bias, \
+                 scale factor and the Earth-rate leak of misalignment) or a second set of azimuths with another axis up"
+            }
+            Catalog::ScaleFactor | Catalog::SfAsymmetry | Catalog::SfNonlinearity | Catalog::Misalignment => {
+                "a rate table (several rates of both signs about each axis) or turns with each axis up"
+            }
+            Catalog::ThermalT1 | Catalog::ThermalT2 | Catalog::ThermalT3 => {
+                "temperature levels (chamber holds at several T)"
+            }
+            Catalog::TempRate | Catalog::TTimesG => "temperature ramps at several rates G (the paper's Table 1 levels)",
+            Catalog::Aging => "a repeat run on another day, or a longer session",
+            Catalog::Bias => "any session",
+        },
+        Kind::Sinusoid(_) => "a longer session (more periods)",
+        Kind::Expr(_) => "a session in which that quantity varies on its own",
+    }
 }
 
 /// Strongest sinusoid in the training residuals at the kept rows (pooled over FOGs): Hz.
@@ -239,15 +456,18 @@ fn spectral_peak(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f6
     best.1
 }
 
-/// Sums over the kept rows of FOG `fog` of the basis extended by sin 2πft and cos 2πft.
-fn kept_sums_with_sinusoid(d: &Digest, fog: usize, f_hz: f64) -> Sums {
+/// The kept rows of FOG `fog` with the basis extended by sin 2πft and cos 2πft (rows × (m + 2)),
+/// and their sums.
+fn kept_with_sinusoid(d: &Digest, fog: usize, f_hz: f64) -> (Vec<f64>, Sums) {
     let m = d.basis.m;
     let mut s = Sums { all: Gram::new(m + 2), train: Gram::new(m + 2), test: Gram::new(m + 2) };
-    let mut z = vec![0.0; m + 2];
+    let mut out = Vec::with_capacity(d.kept.rows.len() * (m + 2));
     for (k, zk) in d.kept.z[fog].chunks_exact(m).enumerate() {
-        z[..m].copy_from_slice(zk);
         let (sn, cs) = (2.0 * std::f64::consts::PI * f_hz * d.kept.t_s[k]).sin_cos();
-        (z[m], z[m + 1]) = (sn, cs);
+        let at = out.len();
+        out.extend_from_slice(zk);
+        out.extend([sn, cs]);
+        let z = &out[at..];
         let g = if trains(d.kept.block[k]) { &mut s.train } else { &mut s.test };
         for a in 0..m + 2 {
             for b in a..m + 2 {
@@ -258,7 +478,7 @@ fn kept_sums_with_sinusoid(d: &Digest, fog: usize, f_hz: f64) -> Sums {
     }
     s.all.add(&s.train);
     s.all.add(&s.test);
-    s
+    (out, s)
 }
 
 /// Diagnoses `model` on a session (one pass).
@@ -307,11 +527,18 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     for (kind, origin) in candidate_list(d, &kinds, &base, opt) {
         let mut per_fog = Vec::new();
         let mut why = None;
+        let mut untested = Vec::new();
         for fog in 0..n_fog {
             match d.basis.functionals(&kind, fog) {
                 Ok(x) => {
                     let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
-                    per_fog.push(test_fog(&base.sums[fog], &base.bases[fog], &x, base.base_ho[fog]))
+                    let t = test_fog(&base.sums[fog], &base.bases[fog], &x, &base.ctx(d, fog));
+                    if let Some(c) = confounding(&base.sums[fog].all, &base.bases[fog], &kinds, &x, &kind, t.is_none())
+                    {
+                        why.get_or_insert_with(|| c.clone());
+                        untested.push((fog, c));
+                    }
+                    per_fog.push(t)
                 }
                 Err(e) => {
                     why = Some(e);
@@ -320,6 +547,9 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
             }
         }
         ranked.consider(kind, origin, per_fog, why, &base.base_ho);
+        if let Some(c) = ranked.cands.last_mut() {
+            c.untested = untested;
+        }
     }
     // The strongest spectral line of the training residual, tested on the kept rows.
     let existing_f: Vec<f64> =
@@ -349,28 +579,36 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
 }
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
-/// fit's coefficients and its residual on the kept rows.
+/// fit's coefficients and its residual on the kept rows; the bins of the kept rows, the
+/// noise model of the test blocks' residual of the training fit.
 struct BaseFit {
     bases: Vec<Design>,
     sums: Vec<Sums>,
     train_res: Vec<Vec<f64>>,
     train_coef: Vec<Vec<f64>>,
     base_ho: Vec<f64>,
+    bins: Bins,
+    noise: Vec<NoiseModel>,
 }
 
 impl BaseFit {
     fn of(d: &Digest, kinds: &[Kind]) -> LabResult<BaseFit> {
+        let bins = Bins::of(d);
         let mut f = BaseFit {
             bases: Vec::new(),
             sums: Vec::new(),
             train_res: Vec::new(),
             train_coef: Vec::new(),
             base_ho: Vec::new(),
+            bins,
+            noise: Vec::new(),
         };
         for fog in 0..d.basis.n_fog {
             let des = design(d, kinds, fog)?;
             let s = Sums::of(d, fog);
             let (ho, tr) = held_out(&s, &des.cols);
+            let nm = NoiseModel::fit(&f.bins, &kept_residual(d, fog, &des.cols, &tr.coef));
+            f.noise.push(nm);
             f.base_ho.push(ho);
             f.train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
             f.train_coef.push(tr.coef);
@@ -378,6 +616,11 @@ impl BaseFit {
             f.sums.push(s);
         }
         Ok(f)
+    }
+
+    /// The noise context of FOG `fog` on the digest's own basis.
+    fn ctx<'a>(&'a self, d: &'a Digest, fog: usize) -> NoiseCtx<'a> {
+        NoiseCtx { base: &self.noise[fog], bins: &self.bins, z: &d.kept.z[fog], m: d.basis.m }
     }
 }
 
@@ -437,11 +680,11 @@ fn spectral_line(d: &Digest, base: &BaseFit, f: f64) -> (Vec<Option<FogTest>>, S
     };
     let per_fog = (0..d.basis.n_fog)
         .map(|fog| {
-            let s = kept_sums_with_sinusoid(d, fog, f);
+            let (z, s) = kept_with_sinusoid(d, fog, f);
             let b = &base.bases[fog];
             let design = Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() };
-            let (before, _) = held_out(&s, &design.cols);
-            test_fog(&s, &design, &[unit(m), unit(m + 1)], before)
+            let ctx = NoiseCtx { base: &base.noise[fog], bins: &base.bins, z: &z, m: m + 2 };
+            test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)
         })
         .collect();
     let mut origin = format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0);
@@ -489,6 +732,7 @@ impl Ranked {
             before_rad_s: pooled(&before),
             after_rad_s: pooled(&after),
             significant: false,
+            untested: Vec::new(),
         });
     }
 }

@@ -153,3 +153,48 @@ pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
     }
     Ok(Export { table, set, applied, not_applied })
 }
+
+/// The table field regressor `m` of `kind` sets for FOG `fog` (close to first order: the
+/// scale factor and the angles are set through [`exact_axis`]), if any.
+pub fn table_field(kind: &Kind, fog: usize, m: usize) -> Option<Field> {
+    let i = fog.min(N_FOG - 1) as u8;
+    let Kind::Catalog(c) = kind else { return None };
+    Some(match c {
+        Catalog::Bias => Field::Fog(i, FogTerm::Bias),
+        Catalog::ScaleFactor => Field::Fog(i, FogTerm::ScaleFactor),
+        Catalog::Misalignment => angle_field(fog, m),
+        Catalog::ThermalT1 => Field::Fog(i, FogTerm::ThermalT1),
+        Catalog::ThermalT2 => Field::Fog(i, FogTerm::ThermalT2),
+        Catalog::ThermalT3 => Field::Fog(i, FogTerm::ThermalT3),
+        Catalog::TempRate => Field::Fog(i, FogTerm::ThermalG),
+        Catalog::TTimesG => Field::Fog(i, FogTerm::ThermalTg),
+        _ => return None,
+    })
+}
+
+/// Every fitted coefficient of `model` outside its table field's plausible range
+/// (`docs/CALIBRATION.md`), as a sentence naming the FOG, the term, the value and the range
+/// in engineering units.
+pub fn implausible(model: &Model) -> Vec<String> {
+    let mut out = Vec::new();
+    for (t, kind) in model.terms.iter().zip(model.kinds()) {
+        for (fog, c) in t.coef.iter().enumerate() {
+            for (m, v) in c.iter().enumerate() {
+                let Some(f) = table_field(&kind, fog, m) else { continue };
+                let spec = f.spec();
+                if !spec.admits(*v) {
+                    out.push(format!(
+                        "FOG{fog} {}: {:.6} {} is outside the table's plausible range {} … {} {}",
+                        regressor_id(fog, &kind, m),
+                        v * spec.eng_per_unit,
+                        spec.eng_unit,
+                        spec.eng_range.0,
+                        spec.eng_range.1,
+                        spec.eng_unit
+                    ));
+                }
+            }
+        }
+    }
+    out
+}

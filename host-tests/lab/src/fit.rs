@@ -463,6 +463,35 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
     Ok(out)
 }
 
+/// The 1σ of every coefficient of `kinds` per FOG (design order, SI; 0 where not
+/// identified) under the noise model of the training fit's residual on the test blocks
+/// ([`super::noise`]): the generalised least-squares covariance (XᵀΣ⁻¹X)⁻¹ over every block,
+/// scaled by the whitened residual's variance.
+pub fn coef_sigma(d: &Digest, kinds: &[Kind]) -> LabResult<Vec<Vec<f64>>> {
+    let bins = super::noise::Bins::of(d);
+    (0..d.basis.n_fog)
+        .map(|fog| {
+            let des = design(d, kinds, fog)?;
+            let s = Sums::of(d, fog);
+            let tr = lstsq_gram(&design_gram(&s.train, &des.cols), s.train.n);
+            let nm = super::noise::NoiseModel::fit(&bins, &kept_residual(d, fog, &des.cols, &tr.coef));
+            let ws = super::noise::whitened(&nm, &bins, &d.kept.z[fog], d.basis.m);
+            let a = design_gram(&ws.all, &des.cols);
+            let ls = lstsq_gram(&a, ws.all.n);
+            let keep: Vec<usize> = (0..des.k()).filter(|&c| ls.identified[c]).collect();
+            let s2 = ls.sse / ls.n.saturating_sub(ls.p).max(1) as f64;
+            let sub = nalgebra::DMatrix::from_fn(keep.len(), keep.len(), |i, j| a[(keep[i], keep[j])]);
+            let mut sigma = vec![0.0; des.k()];
+            if let Some(inv) = sub.try_inverse() {
+                for (i, &c) in keep.iter().enumerate() {
+                    sigma[c] = (inv[(i, i)].max(0.0) * s2).sqrt();
+                }
+            }
+            Ok(sigma)
+        })
+        .collect()
+}
+
 /// What adding a term did.
 #[derive(Debug, Clone)]
 pub struct AddOutcome {
@@ -474,6 +503,16 @@ pub struct AddOutcome {
     pub after_rad_s: Vec<f64>,
     /// Regressors the session could not identify.
     pub not_identified: Vec<String>,
+    /// 1σ of the coefficients per FOG, in the design order of the new model's terms, SI
+    /// ([`coef_sigma`]).
+    pub sigma: Vec<Vec<f64>>,
+    /// Per FOG, the residual at the kept rows of the model before and after (each fitted on
+    /// every row), rad/s.
+    pub residual_before_rad_s: Vec<Vec<f64>>,
+    /// After.
+    pub residual_after_rad_s: Vec<Vec<f64>>,
+    /// Time between kept rows, s.
+    pub kept_dt_s: f64,
 }
 
 /// Adds `kind` to `model`, refits on the session and measures the held-out RMS before and
@@ -495,6 +534,7 @@ pub fn add_term<'a>(
     let d = digest(source.into(), &spec_for(&next, &[], n_blocks), None)?;
     let before = held_out_rms(&kinds, &d)?;
     let after = held_out_rms(&next.kinds(), &d)?;
+    let before_fit = fit_digest(model, &d)?;
     let fitted = fit_digest(&next, &d)?;
     let mut model = fitted.model;
     model.fit = Some(FitRecord {
@@ -503,7 +543,17 @@ pub fn add_term<'a>(
         held_out_rms_deg_h: after.iter().map(|v| v * DEG_H_PER_RAD_S).collect(),
         not_identified: fitted.not_identified.clone(),
     });
-    Ok(AddOutcome { model, before_rad_s: before, after_rad_s: after, not_identified: fitted.not_identified })
+    let sigma = coef_sigma(&d, &next.kinds())?;
+    Ok(AddOutcome {
+        model,
+        before_rad_s: before,
+        after_rad_s: after,
+        not_identified: fitted.not_identified,
+        sigma,
+        residual_before_rad_s: before_fit.sample.residual,
+        residual_after_rad_s: fitted.sample.residual,
+        kept_dt_s: d.dt_s * d.kept.stride.max(1) as f64,
+    })
 }
 
 /// File name of version `v` of a model whose file is `path`: `stem.vN.toml` next to it.

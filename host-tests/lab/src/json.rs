@@ -70,6 +70,8 @@ pub fn diagnosis(d: &Diagnosis) -> Value {
                 "before_deg_h": dh(c.before_rad_s),
                 "after_deg_h": dh(c.after_rad_s),
                 "drop_fraction": 1.0 - c.after_rad_s / c.before_rad_s,
+                "removed_deg_h": dh(c.removed_rad_s().0),
+                "removed_1sigma_deg_h": [dh(c.removed_rad_s().1), dh(c.removed_rad_s().2)],
                 "origin": c.origin,
                 "significant": c.significant,
             })

@@ -18,6 +18,8 @@
 //!   equations, their Cholesky solution with rank-deficient regressors dropped.
 //! - [`fit`]: a model fitted to a session from the pass's sums (which regressors were
 //!   dropped, reported), held-out time blocks.
+//! - [`noise`]: the residual's noise model (white + a bank of Gauss–Markov processes, fitted
+//!   by Whittle's likelihood), the GLS sums and the held-out improvement's interval under it.
 //! - [`diagnose`]: candidate terms tested by nested-model F-tests on held-out blocks,
 //!   Benjamini–Hochberg FDR control, the paper's two-factor ANOVA (T × G, Tables 1–2).
 //! - [`plot`]: residual plots (SVG) and the history of model versions.
@@ -35,6 +37,7 @@ pub mod framelog;
 pub mod json;
 pub mod lsq;
 pub mod model;
+pub mod noise;
 pub mod plot;
 pub mod replay;
 pub mod report;

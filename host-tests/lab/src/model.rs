@@ -276,6 +276,34 @@ impl Kind {
     }
 }
 
+impl Kind {
+    /// The engineering unit of each regressor's coefficient (the same as `ssis-cal` and the
+    /// table's TOML comments) and the factor from the SI coefficient to it: °/h, ppm, ″,
+    /// °/h per °C (°C², °C³), °/h per °C/min, °/h per µT, °/h per hour.
+    pub fn eng_units(&self, fog: usize) -> Vec<(&'static str, f64)> {
+        use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S as DH};
+        let n = self.regressor_labels(fog).len();
+        let u = match self {
+            Kind::Catalog(c) => match c {
+                Catalog::Bias => ("°/h", DH),
+                Catalog::ScaleFactor | Catalog::SfAsymmetry => ("ppm", 1e6),
+                Catalog::SfNonlinearity => ("ppm per °/s", 1e6 * std::f64::consts::PI / 180.0),
+                Catalog::Misalignment => ("″", ARCSEC_PER_RAD),
+                Catalog::ThermalT1 => ("°/h per °C", DH),
+                Catalog::ThermalT2 => ("°/h per °C²", DH),
+                Catalog::ThermalT3 => ("°/h per °C³", DH),
+                Catalog::TempRate => ("°/h per °C/min", DH / 60.0),
+                Catalog::TTimesG => ("°/h per °C·°C/min", DH / 60.0),
+                Catalog::Magnetic => ("°/h per µT", DH * 1000.0),
+                Catalog::Aging => ("°/h per hour", DH),
+            },
+            Kind::Sinusoid(_) => ("°/h", DH),
+            Kind::Expr(_) => ("°/h per unit", DH),
+        };
+        vec![u; n]
+    }
+}
+
 /// How a fit names regressor `m` of `kind` for FOG `fog` among those it could not identify
 /// (`FOG0 scale_factor.k`; the model's `fit.not_identified`).
 pub fn regressor_id(fog: usize, kind: &Kind, m: usize) -> String {

@@ -80,6 +80,113 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
     Ok(svg)
 }
 
+/// An Allan deviation curve: (τ s, σ_A rad/s) per cluster size.
+pub type AllanCurve = Vec<(f64, f64)>;
+
+/// Allan deviation of the residual before and after an `add`, per FOG, with the white-noise
+/// floor σ₁ √(Δt/τ) of the residual after (log-log, °/h against s), as an SVG string.
+/// `curves[fog]` = (before, after), each (τ s, σ_A rad/s); `floor[fog]` = σ₁ rad/s at `dt_s`.
+pub fn allan_svg(title: &str, curves: &[(AllanCurve, AllanCurve)], floor: &[f64], dt_s: f64) -> LabResult<String> {
+    use ssis_common::DEG_H_PER_RAD_S as DH;
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (800, 520)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let all = || curves.iter().flat_map(|(a, b)| a.iter().chain(b.iter()));
+        let (t0, t1) = all().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+        let (y0, y1) = all().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1 * DH), b.max(p.1 * DH)));
+        if !(t0 < t1 && y0 > 0.0 && y0 < y1) {
+            return Err(LabError::Numeric("too few samples for an Allan deviation".into()));
+        }
+        let mut chart = ChartBuilder::on(&root)
+            .margin(12)
+            .caption(title, ("sans-serif", 16))
+            .x_label_area_size(35)
+            .y_label_area_size(70)
+            .build_cartesian_2d((t0..t1).log_scale(), ((y0 * 0.5)..(y1 * 2.0)).log_scale())
+            .map_err(perr)?;
+        chart
+            .configure_mesh()
+            .x_desc("averaging time tau, s")
+            .y_desc("Allan deviation of the residual, deg/h")
+            .draw()
+            .map_err(perr)?;
+        for (fog, ((before, after), f)) in curves.iter().zip(floor).enumerate() {
+            let c = Palette99::pick(fog).to_rgba();
+            let dashed = before.iter().map(|p| (p.0, p.1 * DH)).collect::<Vec<_>>();
+            chart
+                .draw_series(DashedLineSeries::new(dashed, 6, 4, c.stroke_width(1)))
+                .map_err(perr)?
+                .label(format!("FOG{fog} before"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c));
+            chart
+                .draw_series(LineSeries::new(after.iter().map(|p| (p.0, p.1 * DH)), c.stroke_width(2)))
+                .map_err(perr)?
+                .label(format!("FOG{fog} after"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+            let fl = after.iter().map(|p| (p.0, f * DH * (dt_s / p.0).sqrt())).collect::<Vec<_>>();
+            chart.draw_series(LineSeries::new(fl, BLACK.mix(0.35))).map_err(perr)?;
+        }
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
+/// The history of model versions per FOG, as an SVG string: held-out RMS (°/h) of each FOG
+/// per version, the x axis labelled with the version and the term it added, and the
+/// white-noise floor (grey). `rows` = (version, per-FOG held-out RMS °/h, the term added).
+pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg_h: f64) -> LabResult<String> {
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (900, 480)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let vmax = rows.iter().flat_map(|r| r.1.iter()).fold(floor_deg_h, |m, v| m.max(*v)) * 1.15;
+        let (v0, v1) = (rows.first().map_or(1, |r| r.0), rows.last().map_or(1, |r| r.0));
+        let label = |x: &f64| {
+            let v = x.round() as u32;
+            rows.iter()
+                .find(|r| r.0 == v && (x - v as f64).abs() < 1e-6)
+                .map_or(String::new(), |r| format!("v{v} {}", r.2))
+        };
+        let mut chart = ChartBuilder::on(&root)
+            .margin(14)
+            .caption(title, ("sans-serif", 16))
+            .x_label_area_size(40)
+            .y_label_area_size(60)
+            .build_cartesian_2d((v0 as f64 - 0.5)..(v1 as f64 + 0.5), 0.0..vmax)
+            .map_err(perr)?;
+        chart
+            .configure_mesh()
+            .x_desc("model version, term added")
+            .y_desc("held-out residual RMS, deg/h")
+            .x_labels(2 * (rows.len() + 1))
+            .x_label_formatter(&label)
+            .draw()
+            .map_err(perr)?;
+        let n_fog = rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
+        for fog in 0..n_fog {
+            let c = Palette99::pick(fog).to_rgba();
+            let pts: Vec<(f64, f64)> = rows.iter().filter_map(|r| r.1.get(fog).map(|v| (r.0 as f64, *v))).collect();
+            chart
+                .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
+                .map_err(perr)?
+                .label(format!("FOG{fog}"))
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], c.stroke_width(2)));
+            chart.draw_series(pts.iter().map(|p| Circle::new(*p, 3, c.filled()))).map_err(perr)?;
+        }
+        let fl = vec![(v0 as f64 - 0.5, floor_deg_h), (v1 as f64 + 0.5, floor_deg_h)];
+        chart
+            .draw_series(LineSeries::new(fl, BLACK.mix(0.4)))
+            .map_err(perr)?
+            .label(format!("white-noise floor {floor_deg_h:.4} deg/h"))
+            .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.mix(0.4)));
+        chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
 /// Writes an SVG string atomically.
 pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
     super::write_atomic(path, svg.as_bytes())

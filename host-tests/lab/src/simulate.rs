@@ -14,7 +14,8 @@
 //! averaged over 16 points inside each interval. Magnitudes follow the paper: ARW
 //! 0.005 °/√h, bias ±0.3 °/h and scale factor ±0.1 %, axes ±300″ (3σ, before calibration);
 //! magnetic sensitivity 0.05–0.15 °/h under the Earth's field (eqs. 1–3, the field of the
-//! paper's Kharkov test, B₀ = (21846, 5967, −42340) nT, turned by the azimuth ψ).
+//! paper's Kharkov test, B₀ = (21846, 5967, −42340) nT north, west, up, turned into the
+//! session's frame at the azimuth ψ by `ssis_session::field_ics_nt`).
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -22,13 +23,14 @@ use rand_distr::{Distribution, Normal};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
 use super::model::loop_plane;
-use super::session::{earth_rate_ics, EARTH_RATE_RAD_S};
+use super::session::{earth_rate_ics, field_ics_nt, EARTH_RATE_RAD_S};
 use super::LabResult;
 use ssis_common::DEG_H_PER_RAD_S;
 
 /// Latitude of the paper's test site (Kharkov, 50.048°), rad.
 pub const KHARKOV_LAT_RAD: f64 = 50.048 * std::f64::consts::PI / 180.0;
-/// The paper's field at the test site in the frame of its B_Π formula, nT.
+/// The paper's field at the test site, (north, west, up), nT (turned into the session's frame
+/// by `ssis_session::field_ics_nt`).
 pub const B0_NT: [f64; 3] = [21846.0, 5967.0, -42340.0];
 /// Angle random walk of the paper's FOG, °/√h.
 pub const ARW_DEG_SQRT_H: f64 = 0.005;
@@ -194,9 +196,23 @@ pub fn generate(spec: &Spec) -> SimSession {
     SimSession { header, rows, truth }
 }
 
+/// The hidden effect of a preset session per FOG and row, rad/s: the part of each FOG's error
+/// that the preset's hidden effect adds (g·G for `TempRate`, the asymmetry, magnetic and
+/// sin 2ψ terms), for tests that compare what the lab removes with the truth.
+pub fn hidden_effect_rad_s(spec: &Spec) -> Vec<Vec<f64>> {
+    let mut out: Vec<Vec<f64>> = (0..N_FOG).map(|_| Vec::with_capacity(spec.rows)).collect();
+    generate_rows(spec, |_, h| out.iter_mut().zip(h).for_each(|(o, v)| o.push(*v)));
+    out
+}
+
 /// Generates a session row by row: `row` gets each row's values in header order; returns
 /// the header and the truth.
 pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<String>, Truth) {
+    generate_rows(spec, |r, _| row_out(r))
+}
+
+/// [`generate_with`], with each row's hidden effect per FOG, rad/s.
+fn generate_rows(spec: &Spec, mut row_out: impl FnMut(&[f64], &[f64; N_FOG])) -> (Vec<String>, Truth) {
     let mut rng = ChaCha8Rng::seed_from_u64(spec.seed);
     let truth = draw_truth(spec, &mut rng);
     let n01 = Normal::new(0.0, 1.0).expect("unit normal");
@@ -216,18 +232,17 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
         let t_end = (j + 1) as f64 * spec.dt_s;
         let (omega, psi, screened) = motion_at(&spec.motion, j);
         let fscale = if screened { 0.01 } else { 1.0 };
-        let (c, s) = (psi.cos(), psi.sin());
-        let field =
-            [fscale * (B0_NT[0] * c + B0_NT[1] * s), fscale * (-B0_NT[0] * s + B0_NT[1] * c), fscale * B0_NT[2]];
+        let field = field_ics_nt(B0_NT, psi).map(|v| fscale * v);
         let w = nalgebra::Vector3::from(omega);
         let bvec = nalgebra::Vector3::from(field);
         row.clear();
         row.push(t_end);
         let mut temps = Vec::new();
+        let mut hidden = [0.0; N_FOG];
         for i in 0..N_FOG {
             // Thermal terms averaged over the interval.
             let m = 16;
-            let (mut drift, mut tmean) = (0.0, 0.0);
+            let (mut drift, mut tmean, mut g_part) = (0.0, 0.0, 0.0);
             for l in 0..m {
                 let tau = t_end - spec.dt_s + (l as f64 + 0.5) * spec.dt_s / m as f64;
                 let (temp, gr) = match spec.thermal {
@@ -239,12 +254,18 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
                 };
                 let d = temp - t_ref;
                 drift += truth.a_rad_s[i][0] * d + truth.a_rad_s[i][1] * d * d + (truth.g[i] + truth.h[i] * d) * gr;
+                g_part += truth.g[i] * gr;
                 tmean += temp;
             }
             drift /= m as f64;
             tmean /= m as f64;
             let input = axes[i].dot(&w);
             let _ = nominal[i];
+            let beyond = truth.k_asym[i] * input.abs()
+                + truth.magnetic_rad_s_per_nt[i][0] * planes[i][0].dot(&bvec)
+                + truth.magnetic_rad_s_per_nt[i][1] * planes[i][1].dot(&bvec)
+                + truth.sin2psi_rad_s[i] * (2.0 * psi).sin();
+            hidden[i] = beyond + if spec.hidden == Hidden::TempRate { g_part / m as f64 } else { 0.0 };
             let raw = (1.0 + truth.k[i]) * input
                 + truth.bias_rad_s[i]
                 + drift
@@ -267,7 +288,7 @@ pub fn generate_with(spec: &Spec, mut row_out: impl FnMut(&[f64])) -> (Vec<Strin
         }
         humidity += gauss(0.5, &mut rng);
         row.push(humidity);
-        row_out(&row);
+        row_out(&row, &hidden);
     }
     (header, truth)
 }
@@ -481,4 +502,163 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
         },
         _ => return None,
     })
+}
+
+/// The effect a [`DriftSpec`] session hides.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DriftEffect {
+    /// Nothing the model (bias, a1) lacks.
+    None,
+    /// Temperature-rate sensitivity, 0.1–0.15 °/h per °C/min.
+    TempRate,
+    /// Aging: a drift ramp of 0.02–0.03 °/h per hour.
+    Aging,
+    /// Sensitivity to the supply voltage (the `supply_v` column), 0.05–0.08 °/h per V.
+    Supply,
+}
+
+/// A 24-h static chamber session of 60-s means with realistic gyro noise: angle random walk
+/// 0.005 °/√h, a Gauss–Markov bias wander of 0.005–0.01 °/h (τ 0.5–2 h) per FOG and, with
+/// `flicker`, a flicker-like sum of five Gauss–Markov terms (τ 0.03–3 h, 0.003 °/h each).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DriftSpec {
+    /// Random seed.
+    pub seed: u64,
+    /// The hidden effect.
+    pub effect: DriftEffect,
+    /// Whether to add the flicker-like terms.
+    pub flicker: bool,
+    /// Whether the bias wanders at all (false: white noise only).
+    pub wander: bool,
+}
+
+/// A drift session and its truth.
+#[derive(Debug, Clone)]
+pub struct DriftSession {
+    /// The session.
+    pub sim: SimSession,
+    /// Per FOG: the hidden effect's coefficient, rad/s per its unit (°C/s, hour, V).
+    pub coef: Vec<f64>,
+    /// Per FOG: RMS of the hidden effect about its mean over the session, rad/s.
+    pub effect_rms_rad_s: Vec<f64>,
+    /// Per FOG: (σ, τ in s) of each Gauss–Markov term, rad/s.
+    pub wander: Vec<Vec<(f64, f64)>>,
+}
+
+/// Generates a [`DriftSpec`] session: 1440 rows of 60-s means, static at ψ = 0 in the thermal
+/// chamber (bias and a1 = 0.01–0.03 °/h per °C as the table's model), a supply voltage
+/// column (`supply_v`, levels of 27–29 V held 10–40 min) and a humidity column.
+pub fn drift_session(spec: &DriftSpec) -> DriftSession {
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed ^ 0x5eed_d21f_7000);
+    let n01 = Normal::new(0.0, 1.0).expect("unit normal");
+    let deg_h = 1.0 / DEG_H_PER_RAD_S;
+    let (dt, rows): (f64, usize) = (60.0, 1440);
+    let white = ARW_DEG_SQRT_H * deg_h * 60.0 / dt.sqrt();
+    let signed = |lo: f64, hi: f64, rng: &mut ChaCha8Rng| {
+        let m = rng.random_range(lo..hi);
+        if rng.random_bool(0.5) {
+            m
+        } else {
+            -m
+        }
+    };
+    let axes = Misalignment::default().axes(GAMMA_NOMINAL_RAD);
+    let omega = nalgebra::Vector3::from(earth_rate_ics(0.0, KHARKOV_LAT_RAD));
+    let mut bias = Vec::new();
+    let mut a1 = Vec::new();
+    let mut coef = Vec::new();
+    let mut wander = Vec::new();
+    for _ in 0..N_FOG {
+        bias.push(0.1 * deg_h * n01.sample(&mut rng));
+        a1.push(signed(0.01, 0.03, &mut rng) * deg_h);
+        coef.push(match spec.effect {
+            DriftEffect::None => 0.0,
+            DriftEffect::TempRate => signed(0.1, 0.15, &mut rng) * deg_h * 60.0,
+            DriftEffect::Aging => signed(0.02, 0.03, &mut rng) * deg_h,
+            DriftEffect::Supply => signed(0.05, 0.08, &mut rng) * deg_h,
+        });
+        let mut w = Vec::new();
+        if spec.wander {
+            w.push((rng.random_range(0.005..0.01) * deg_h, rng.random_range(0.5..2.0) * 3600.0));
+        }
+        if spec.flicker {
+            for tau_h in [0.03, 0.1, 0.3, 1.0, 3.0] {
+                w.push((0.003 * deg_h, tau_h * 3600.0));
+            }
+        }
+        wander.push(w);
+    }
+    let mut state: Vec<Vec<f64>> =
+        wander.iter().map(|w| w.iter().map(|&(s, _)| s * n01.sample(&mut rng)).collect()).collect();
+    let knots = chamber_profile();
+    let t_offset: Vec<f64> = (0..N_FOG).map(|_| 0.3 * n01.sample(&mut rng)).collect();
+    let mut header = vec!["t_s".to_string()];
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_rad_s")));
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_t_degc")));
+    header.extend(["psi_rad", "lat_rad", "supply_v", "chamber_rh_pct"].map(String::from));
+    let (mut supply, mut hold_until, mut humidity) = (28.0, 0.0, 40.0);
+    let mut out = Vec::with_capacity(rows);
+    let mut effects: Vec<Vec<f64>> = (0..N_FOG).map(|_| Vec::with_capacity(rows)).collect();
+    for j in 0..rows {
+        let t_end = (j + 1) as f64 * dt;
+        if t_end > hold_until {
+            supply = rng.random_range(27.0..29.0);
+            hold_until = t_end + rng.random_range(600.0..2400.0);
+        }
+        let mut row = vec![t_end];
+        let mut temps = Vec::new();
+        for i in 0..N_FOG {
+            let m = 16;
+            let (mut drift, mut tmean, mut gmean) = (0.0, 0.0, 0.0);
+            for l in 0..m {
+                let tau = t_end - dt + (l as f64 + 0.5) * dt / m as f64;
+                let (v, gr) = chamber(&knots, tau);
+                drift += a1[i] * (v + t_offset[i] - 25.0);
+                tmean += v + t_offset[i];
+                gmean += gr;
+            }
+            let (drift, tmean, gmean) = (drift / m as f64, tmean / m as f64, gmean / m as f64);
+            let hours = (t_end - 0.5 * dt) / 3600.0;
+            let effect = match spec.effect {
+                DriftEffect::None => 0.0,
+                DriftEffect::TempRate => coef[i] * gmean,
+                DriftEffect::Aging => coef[i] * hours,
+                DriftEffect::Supply => coef[i] * (supply - 28.0),
+            };
+            effects[i].push(effect);
+            let mut wn = 0.0;
+            for (x, &(s, tau)) in state[i].iter_mut().zip(&wander[i]) {
+                let phi = (-dt / tau).exp();
+                *x = phi * *x + s * (1.0 - phi * phi).sqrt() * n01.sample(&mut rng);
+                wn += *x;
+            }
+            row.push(axes[i].dot(&omega) + bias[i] + drift + effect + wn + white * n01.sample(&mut rng));
+            temps.push(tmean + 0.002 * n01.sample(&mut rng));
+        }
+        row.extend(temps);
+        humidity += 0.5 * n01.sample(&mut rng);
+        row.extend([0.0, KHARKOV_LAT_RAD, supply + 0.01 * n01.sample(&mut rng), humidity]);
+        out.push(row);
+    }
+    let effect_rms_rad_s = effects
+        .iter()
+        .map(|e| {
+            let m = e.iter().sum::<f64>() / e.len() as f64;
+            (e.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / e.len() as f64).sqrt()
+        })
+        .collect();
+    let truth = Truth {
+        noise_rad_s: white,
+        bias_rad_s: bias,
+        k: vec![0.0; N_FOG],
+        misalignment: Misalignment::default(),
+        a_rad_s: a1.iter().map(|&a| [a, 0.0]).collect(),
+        g: if spec.effect == DriftEffect::TempRate { coef.clone() } else { vec![0.0; N_FOG] },
+        h: vec![0.0; N_FOG],
+        k_asym: vec![0.0; N_FOG],
+        magnetic_rad_s_per_nt: vec![[0.0; 2]; N_FOG],
+        sin2psi_rad_s: vec![0.0; N_FOG],
+        t_ref_degc: 25.0,
+    };
+    DriftSession { sim: SimSession { header, rows: out, truth }, coef, effect_rms_rad_s, wander }
 }

@@ -204,3 +204,36 @@ fn f_report_renders_in_headless_chromium() {
     let h2 = check.lines().find_map(|l| l.strip_prefix("h2 ")).unwrap_or("");
     assert_eq!(h2, "Fit|Diagnosis|History|Residuals", "sections");
 }
+
+/// `add` refuses a term that makes the held-out RMS worse (aging on a session without it),
+/// exits non-zero and writes no version; with `--force` it writes it.
+#[test]
+fn add_refuses_a_worse_version() {
+    let dir = scratch("worse");
+    let lab = |args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_ssis-lab")).current_dir(&dir).args(args).output().unwrap()
+    };
+    assert!(lab(&["simulate", "thermal", "th.csv", "--seed", "3", "--no-hidden"]).status.success());
+    assert!(lab(&["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).status.success());
+    let out = lab(&["add", "aging", "--model", "m.v1.toml", "--session", "th.csv"]);
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    println!("add aging: exit {:?}: {}", out.status.code(), err.trim());
+    assert!(!out.status.success(), "a worse version was accepted");
+    assert!(err.contains("th.csv") && err.contains("worse") && err.contains("deg/h"), "message: {err}");
+    assert!(!dir.join("m.v2.toml").exists(), "a worse version was written");
+    let out = lab(&["add", "aging", "--model", "m.v1.toml", "--session", "th.csv", "--force"]);
+    assert!(out.status.success(), "--force: {}", String::from_utf8_lossy(&out.stderr));
+    assert!(dir.join("m.v2.toml").exists(), "--force wrote no version");
+    // The error fall: the systematic part removed, the residual at averaging times, the
+    // Allan deviation before and after.
+    let text = String::from_utf8_lossy(&out.stdout).to_string();
+    for must in ["systematic part removed", "residual RMS of tau-means", "floor", "m.v2.allan.svg"] {
+        assert!(text.contains(must), "add output lacks `{must}`: {text}");
+    }
+    let svg = std::fs::read_to_string(dir.join("m.v2.allan.svg")).unwrap();
+    assert!(svg.contains("FOG3 before") && svg.contains("FOG3 after"), "Allan plot lacks a FOG's curves");
+    let hist = std::fs::read_to_string(dir.join("m.history-fogs.svg")).unwrap();
+    for must in ["v2 +aging", "white-noise floor", "FOG3"] {
+        assert!(hist.contains(must), "history plot lacks `{must}`");
+    }
+}

@@ -5,9 +5,10 @@
 //! Figures print with `cargo test --test effects -- --nocapture`.
 
 use ssis_lab::diagnose::{diagnose, Options};
-use ssis_lab::fit::{add_term, pooled, DEFAULT_BLOCKS};
+use ssis_lab::fit::{add_term, held_out_many, pooled, DEFAULT_BLOCKS};
 use ssis_lab::model::{Catalog, Kind};
-use ssis_lab::simulate::SimSession;
+use ssis_lab::session::nominal_axes;
+use ssis_lab::simulate::{hidden_effect_rad_s, preset, SimSession};
 
 mod common;
 use common::{dh, scratch, session, starting_model};
@@ -33,6 +34,27 @@ fn hidden_effect(name: &str, term: Catalog, truth_of: impl Fn(&SimSession, usize
     }
     assert_eq!(d.candidates[0].kind, Kind::Catalog(term), "{name}: the true effect is not ranked first");
     assert!(d.candidates[0].significant);
+    // The systematic part the term removes on the test blocks against the true effect's RMS
+    // there, after what the starting model absorbs of it (fitted on the training blocks: a
+    // noise-free session whose error is the hidden effect alone), pooled over FOGs.
+    let hidden = hidden_effect_rad_s(&preset(name, 7, true).unwrap());
+    let mut effect_only = s.clone();
+    let axes = nominal_axes();
+    for (fog, h) in hidden.iter().enumerate() {
+        effect_only.fogs[fog].rate_rad_s =
+            s.ref_rad_s.iter().zip(h).map(|(w, v)| axes[fog].dot(&nalgebra::Vector3::from(*w)) + v).collect();
+    }
+    let per_fog = held_out_many(std::slice::from_ref(&model), &effect_only, DEFAULT_BLOCKS, None).unwrap().remove(0);
+    let (true_rms, (removed, lo, hi)) = (pooled(&per_fog), d.candidates[0].removed_rad_s());
+    println!(
+        "  removed {:.4} deg/h (1 sigma {:.4} .. {:.4}), true effect RMS on the test blocks {:.4} deg/h ({:+.1} %)",
+        dh(removed),
+        dh(lo),
+        dh(hi),
+        dh(true_rms),
+        100.0 * (removed / true_rms - 1.0)
+    );
+    assert!((removed / true_rms - 1.0).abs() <= 0.2, "{name}: removed {removed:e} vs true {true_rms:e} rad/s");
     let out = add_term(&model, &Kind::Catalog(term), &s, DEFAULT_BLOCKS).unwrap();
     let floor = sim.truth.noise_rad_s;
     let t = out.model.kinds().iter().position(|k| *k == Kind::Catalog(term)).unwrap();

@@ -169,3 +169,54 @@ fn j_increment_sessions() {
     println!("  {e}");
     assert!(e.contains("fewer than 3 data rows"), "{e}");
 }
+
+/// The field columns of `simulate magnetic` are in the session's frame: at every azimuth
+/// their components along the session's north and west (from its Earth rate) are the site's.
+#[test]
+fn magnetic_preset_field_frame() {
+    use ssis_lab::simulate::B0_NT;
+    let dir = common::scratch("field-frame");
+    let (_, s) = common::session(&dir, "magnetic", 4, true);
+    let psi = s.column("psi_rad").unwrap();
+    let field = s.field_nt.as_ref().unwrap();
+    let mut azimuths = std::collections::BTreeSet::new();
+    for (r, f) in field.iter().enumerate() {
+        let w = s.ref_rad_s[r];
+        let h = w[0].hypot(w[1]);
+        let (n, we) = ([w[0] / h, w[1] / h], [-w[1] / h, w[0] / h]);
+        let (bn, bw) = (n[0] * f[0] + n[1] * f[1], we[0] * f[0] + we[1] * f[1]);
+        if bn.hypot(bw) < 1000.0 {
+            continue; // inside the screen (1 % of the field)
+        }
+        azimuths.insert(psi[r].to_degrees().round() as i64);
+        // The columns carry 5 nT of noise.
+        assert!((bn - B0_NT[0]).abs() < 30.0, "row {r}: north {bn}");
+        assert!((bw - B0_NT[1]).abs() < 30.0, "row {r}: west {bw}");
+    }
+    println!("field frame checked at {} azimuths", azimuths.len());
+    assert!(azimuths.len() >= 24);
+}
+
+/// A level turntable without a screened run cannot separate magnetic sensitivity from
+/// bias, scale factor and misalignment: `diagnose` names the terms and the screened turn.
+#[test]
+fn confounded_magnetic_names_terms_and_experiment() {
+    use ssis_lab::simulate::Motion;
+    let mut spec = preset("magnetic", 6, true).unwrap();
+    spec.motion = Motion::Turntable { dwell_rows: 3, screened: vec![false, false, false, false] };
+    let sim = generate(&spec);
+    let dir = scratch("confounded");
+    let path = dir.join("unscreened.csv");
+    sim.write_csv(&path).unwrap();
+    let s = read_session(&path, None).unwrap();
+    let d = diagnose(&starting_model("magnetic"), &s, &Options::default()).unwrap();
+    let c = d.candidates.iter().find(|c| c.kind.label() == "magnetic").expect("magnetic tested on some FOG");
+    for (fog, w) in &c.untested {
+        println!("magnetic, FOG{fog}: {w}");
+    }
+    let why = c.untested.iter().find(|(f, _)| *f == 0).map(|(_, w)| w.clone());
+    let why = why.expect("FOG0's magnetic term should be reported as confounded without a screened run");
+    for must in ["mixed with", "misalignment", "screened turn", "eq. 2"] {
+        assert!(why.contains(must), "reason lacks `{must}`: {why}");
+    }
+}

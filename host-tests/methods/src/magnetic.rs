@@ -29,10 +29,16 @@
 //! form that reproduces the worked example; [`DipoleTilt::eta_as_printed_rad`] keeps the
 //! printed one for comparison.
 //!
-//! Projection into the ICS (the paper's matrix, a turn by ψ about Z):
-//! B_Π = (B0X cos ψ + B0Y sin ψ, −B0X sin ψ + B0Y cos ψ, B0Z); eq. (3):
-//! cos α_j = B_Πj / |B_Π|. The maximum of |Δf_x| is where α_x = 90°, which gives the phase
-//! Δφ = −arctg(B0Y/B0X) (−15.28° for Kharkov; the paper: −15.3°).
+//! Projection into the ICS (the paper's matrix, a turn by ψ_Π about Z):
+//! B_Π = (B0X cos ψ_Π + B0Y sin ψ_Π, −B0X sin ψ_Π + B0Y cos ψ_Π, B0Z), with (B0X, B0Y, B0Z)
+//! the (north, west, up) components; eq. (3): cos α_j = B_Πj / |B_Π|. The maximum of |Δf_x|
+//! is where α_x = 90°, which gives the phase Δφ = −arctg(B0Y/B0X) (−15.28° for Kharkov; the
+//! paper: −15.3°).
+//!
+//! **Azimuth.** The paper's ψ_Π turns counter-clockwise; a session's `psi_rad` is clockwise
+//! from north (`docs/SESSION-FORMAT.md`), so ψ_Π = −ψ. Fields and Earth rates here are in the
+//! session's frame ([`field_ics_nt`] is `ssis_session::field_ics_nt`, which equals B_Π at
+//! ψ_Π = −ψ); eqs. (1) and (2) are fitted in the paper's ψ_Π, so Δφ is the paper's.
 
 use std::path::Path;
 
@@ -119,10 +125,35 @@ impl DipoleTilt {
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
-/// B_Π: the field in the ICS at azimuth ψ (the paper's matrix).
+/// The Earth's main field at a site and date from the World Magnetic Model (WMM2025, the
+/// `world_magnetic_model` crate), as (north, west, up) components, nT — the real field, where
+/// the paper's dipole tilt ([`DipoleTilt`]) is 2.5–9 µT off at Kharkov. `lat_deg`,
+/// `lon_deg`: WGS 84; `height_m` above the ellipsoid; `year` and `day_of_year` (1 …).
+pub fn wmm_field_nwu_nt(lat_deg: f64, lon_deg: f64, height_m: f64, year: i32, day_of_year: u16) -> Result<[f64; 3]> {
+    use world_magnetic_model::time::Date;
+    use world_magnetic_model::uom::si::angle::degree;
+    use world_magnetic_model::uom::si::f32::{Angle, Length};
+    use world_magnetic_model::uom::si::length::meter;
+    use world_magnetic_model::uom::si::magnetic_flux_density::nanotesla;
+    use world_magnetic_model::GeomagneticField;
+    let date =
+        Date::from_ordinal_date(year, day_of_year).map_err(|e| anyhow::anyhow!("date {year}-{day_of_year}: {e}"))?;
+    let f = GeomagneticField::new(
+        Length::new::<meter>(height_m as f32),
+        Angle::new::<degree>(lat_deg as f32),
+        Angle::new::<degree>(lon_deg as f32),
+        date,
+    )
+    .map_err(|e| anyhow::anyhow!("WMM at {lat_deg}°, {lon_deg}°, {height_m} m, {year}-{day_of_year}: {e}"))?;
+    // WMM gives X north, Y east, Z down.
+    let (x, y, z) = (f.x().get::<nanotesla>() as f64, f.y().get::<nanotesla>() as f64, f.z().get::<nanotesla>() as f64);
+    Ok([x, -y, -z])
+}
+
+/// The field in the ICS at the session's azimuth ψ (clockwise), from (north, west, up)
+/// components: the paper's B_Π at ψ_Π = −ψ (module text).
 pub fn field_ics_nt(b0_nt: [f64; 3], psi_rad: f64) -> [f64; 3] {
-    let (s, c) = psi_rad.sin_cos();
-    [b0_nt[0] * c + b0_nt[1] * s, -b0_nt[0] * s + b0_nt[1] * c, b0_nt[2]]
+    ssis_session::field_ics_nt(b0_nt, psi_rad)
 }
 
 /// α_j (eq. 3): angle between B_Π and the sensitive axis `axis` (unit), rad.
@@ -238,7 +269,8 @@ pub fn position_means(s: &Session) -> Result<Vec<(f64, Vec<f64>)>> {
 /// Result of the unscreened/screened analysis.
 #[derive(Debug, Clone)]
 pub struct MagneticResult {
-    /// Azimuths of the positions, rad.
+    /// Azimuths of the positions in the paper's sense, ψ_Π = −ψ of the session, rad (the
+    /// fits' argument).
     pub psi_rad: Vec<f64>,
     /// Δf_x, Δf_y at each position (unscreened − screened), rad/s.
     pub diff_rad_s: [Vec<f64>; 2],
@@ -250,8 +282,8 @@ pub struct MagneticResult {
     pub magnetic: [SinusoidFit; 2],
 }
 
-/// Eq. (1) on both runs and eq. (2) on their difference. The runs must visit the same
-/// azimuths in the same order.
+/// Eq. (1) on both runs and eq. (2) on their difference, in the paper's azimuth ψ_Π = −ψ.
+/// The runs must visit the same azimuths in the same order.
 pub fn analyse(unscreened: &Session, screened: &Session) -> Result<MagneticResult> {
     let u = position_means(unscreened)?;
     let s = position_means(screened)?;
@@ -267,7 +299,7 @@ pub fn analyse(unscreened: &Session, screened: &Session) -> Result<MagneticResul
     if u.first().is_none_or(|p| p.1.len() < 2) {
         bail!("{}: the magnetic method needs FOG0 (X) and FOG1 (Y)", unscreened.file);
     }
-    let psi: Vec<f64> = u.iter().map(|p| p.0).collect();
+    let psi: Vec<f64> = u.iter().map(|p| -p.0).collect();
     let col = |v: &[(f64, Vec<f64>)], i: usize| -> Vec<f64> { v.iter().map(|p| p.1[i]).collect() };
     let forms = [Form::Sin, Form::Cos];
     let mut fu = Vec::new();

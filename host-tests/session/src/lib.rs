@@ -285,6 +285,29 @@ pub fn earth_rate_ics(psi_rad: f64, lat_rad: f64) -> [f64; 3] {
     [n * psi_rad.cos(), n * psi_rad.sin(), u]
 }
 
+/// The Earth's field in ICS for the turntable geometry of `docs/SESSION-FORMAT.md` (the frame
+/// of [`earth_rate_ics`]: Z_P up, X_P at azimuth ψ from north, clockwise), from its local
+/// components (north, west, up), nT: X_P = (cos ψ, −sin ψ, 0) and Y_P = (sin ψ, cos ψ, 0) in
+/// (north, west, up), so
+///
+/// ```text
+/// B = (B_N cos ψ − B_W sin ψ,  B_N sin ψ + B_W cos ψ,  B_U)
+/// ```
+///
+/// The paper's B_Π matrix (eq. 3) is this with its azimuth counted counter-clockwise,
+/// ψ_Π = −ψ. At ψ = 90° the paper's Kharkov field (21846, 5959, −42343) gives
+/// (−5959, 21846, −42343).
+pub fn field_ics_nt(b_nwu_nt: [f64; 3], psi_rad: f64) -> [f64; 3] {
+    let (s, c) = psi_rad.sin_cos();
+    [b_nwu_nt[0] * c - b_nwu_nt[1] * s, b_nwu_nt[0] * s + b_nwu_nt[1] * c, b_nwu_nt[2]]
+}
+
+/// The inverse of [`field_ics_nt`]: (north, west, up) components from the ICS ones at ψ.
+pub fn field_nwu_nt(b_ics_nt: [f64; 3], psi_rad: f64) -> [f64; 3] {
+    let (s, c) = psi_rad.sin_cos();
+    [b_ics_nt[0] * c + b_ics_nt[1] * s, -b_ics_nt[0] * s + b_ics_nt[1] * c, b_ics_nt[2]]
+}
+
 /// Parses the number at the start of `b` (spaces already skipped), returning the value and
 /// the bytes it took, or `None` when `b` does not start with one. `b` may go on past the
 /// field (the number ends at the first byte that cannot continue it).

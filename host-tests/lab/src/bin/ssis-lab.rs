@@ -14,7 +14,9 @@ use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin, Own};
 use ssis_common::update;
 use ssis_common::DEG_H_PER_RAD_S;
-use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options};
+use ssis_lab::diagnose::{
+    anova_beside_main, candidate_terms, diagnose_digest, diagnose_with_progress, f_critical, Diagnosis, Options,
+};
 use ssis_lab::export::to_table;
 use ssis_lab::fit::{
     add_term, compare, complete, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
@@ -233,24 +235,37 @@ fn print_diagnosis(d: &Diagnosis) {
         100.0 * d.fdr_level
     );
     println!(
-        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  origin",
-        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop"
+        "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  {:>27}  origin",
+        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop", "removed deg/h (1 sigma)"
     );
     for (r, c) in d.candidates.iter().enumerate() {
+        let (rm, lo, hi) = c.removed_rad_s();
         println!(
-            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {}{}",
+            "{:>4}  {:<34} {:>10.2e}  {:>12.5} {:>12.5} {:>6.1}%  {:>9.5} [{:.5}, {:.5}]  {}{}",
             r + 1,
             c.kind.label(),
             c.p_value,
             dh(c.before_rad_s),
             dh(c.after_rad_s),
             100.0 * (1.0 - c.after_rad_s / c.before_rad_s),
+            dh(rm),
+            dh(lo),
+            dh(hi),
             c.origin,
             if c.significant { "  ** significant" } else { "" }
         );
     }
+    println!(
+        "p: the larger of the GLS F-test's and the held-out improvement's under each FOG's noise model \
+         (white + Gauss-Markov, fitted on the test blocks' residual); removed: sqrt(before^2 - after^2)"
+    );
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");
+    }
+    for c in &d.candidates {
+        for (fog, why) in &c.untested {
+            println!("      {:<34} FOG{fog}: {why}", c.kind.label());
+        }
     }
     match d.significant().next() {
         None => println!("no significant missing effect (level {} %)", 100.0 * d.fdr_level),
@@ -279,6 +294,9 @@ fn print_diagnosis(d: &Diagnosis) {
                 f_critical(0.01, f.1, f.2)
             );
         }
+    }
+    for line in anova_beside_main(d) {
+        println!("{line}");
     }
 }
 
@@ -313,7 +331,8 @@ fn main() -> ExitCode {
     ssis_lab::session::exit_plainly_on_truncated_map();
     let cli = Cli::parse();
     let started = cli.flags.start("ssis-lab").and_then(|()| files(&cli.cmd));
-    cli::finish_unit(started.and_then(|()| run(cli.cmd)))
+    let force = cli.flags.force;
+    cli::finish_unit(started.and_then(|()| run(cli.cmd, force)))
 }
 
 /// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
@@ -368,15 +387,15 @@ fn files(cmd: &Cmd) -> Result<()> {
     Ok(())
 }
 
-/// One subcommand, one function.
-fn run(cmd: Cmd) -> Result<()> {
+/// One subcommand, one function (`force`: `--force`).
+fn run(cmd: Cmd, force: bool) -> Result<()> {
     match cmd {
         Cmd::Init { model, terms, t_ref_degc, g_window_s } => init(model, terms, t_ref_degc, g_window_s),
         Cmd::Compare { model, session, evaluate, plots, blocks } => {
             compare_cmd(model, session, evaluate, plots, blocks)
         }
         Cmd::Diagnose { model, session, level, blocks } => diagnose_cmd(model, session, level, blocks),
-        Cmd::Add { term, model, session, blocks } => add_cmd(term, model, session, blocks),
+        Cmd::Add { term, model, session, blocks } => add_cmd(term, model, session, blocks, force),
         Cmd::Export { model, base, toml, bin } => export_cmd(model, base, toml, bin),
         Cmd::Report { model, session, out } => report_cmd(model, session, out),
         Cmd::Replay { session, table } => replay_cmd(session, table),
@@ -466,11 +485,49 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     Ok(())
 }
 
+/// What `add` removed, per FOG: the systematic part √(before² − after²) of the held-out RMS,
+/// and the residual (every kept row, the models fitted on all rows) as RMS of 1-s, 100-s and
+/// 1000-s means before and after, beside the white-noise floor at that averaging time.
+fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
+    use ssis_lab::noise::{allan_deviation, tau_mean_rms};
+    let dt = out.kept_dt_s;
+    println!("systematic part removed, sqrt(before^2 - after^2) of the held-out RMS, deg/h:");
+    for (fog, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
+        println!("  FOG{fog} {:.5}", dh((b * b - a * a).max(0.0).sqrt()));
+    }
+    println!("residual RMS of tau-means, deg/h (before -> after; white floor from the Allan deviation at one sample):");
+    for (fog, (rb, ra)) in out.residual_before_rad_s.iter().zip(&out.residual_after_rad_s).enumerate() {
+        let sigma1 = allan_deviation(ra, dt).first().map_or(f64::NAN, |p| p.1);
+        let cells: Vec<String> = [1.0, 100.0, 1000.0]
+            .iter()
+            .map(|&tau| match (tau_mean_rms(rb, dt, tau), tau_mean_rms(ra, dt, tau)) {
+                (Some((t, b)), Some((_, a))) => {
+                    format!("{t:>5} s {:.5} -> {:.5} (floor {:.5})", dh(b), dh(a), dh(sigma1 * (dt / t).sqrt()))
+                }
+                _ => format!("{tau:>5} s -"),
+            })
+            .collect();
+        println!("  FOG{fog} {}", cells.join(" | "));
+    }
+}
+
 /// `add`: the next model version with one more term, its held-out gain and the history of versions.
-fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Result<()> {
+fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force: bool) -> Result<()> {
     let m = load_model(&model)?;
     let kind = Kind::parse_arg(&term)?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
+    let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
+    if a > b && !force {
+        bail!(
+            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} deg/h over {} blocks); no version written \
+             (--force writes it anyway)",
+            session.display(),
+            kind.label(),
+            dh(b),
+            dh(a),
+            blocks
+        );
+    }
     let newest = history_files(&model).last().map_or(0, |v| v.0).max(m.version);
     if newest > m.version {
         println!("note: {} is version {}, newer versions exist up to {newest}", model.display(), m.version);
@@ -493,14 +550,29 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     println!(" all {:>12.5} {:>12.5} {:>7.1}%", dh(b), dh(a), 100.0 * (1.0 - a / b));
     let t = out.model.terms.len() - 1;
+    let first: usize = out.model.terms[..t].iter().map(|x| x.coef.first().map_or(0, Vec::len)).sum();
     for (fog, c) in out.model.terms[t].coef.iter().enumerate() {
         let labels = kind.regressor_labels(fog);
-        let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+        let units = kind.eng_units(fog);
+        let text: Vec<String> = c
+            .iter()
+            .zip(&labels)
+            .zip(&units)
+            .enumerate()
+            .map(|(m, ((v, (n, _)), (u, f)))| {
+                let sd = out.sigma.get(fog).and_then(|s| s.get(first + m)).copied().unwrap_or(f64::NAN);
+                format!("{n} = {:.5} ± {:.5} {u} (1σ)", v * f, sd * f)
+            })
+            .collect();
         println!("  {} FOG{fog}: {}", kind.label(), text.join(", "));
     }
     if !out.not_identified.is_empty() {
         println!("not identifiable in this session (left at zero): {}", out.not_identified.join(", "));
     }
+    for w in ssis_lab::export::implausible(&out.model) {
+        println!("WARNING: {w}");
+    }
+    print_error_fall(&out);
     println!("wrote {} (version {})", path.display(), out.model.version);
     let h = history(&path, &session, blocks)?;
     cli::report("history", || {
@@ -511,10 +583,45 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize) -> Res
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
         println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
     }
+    let curves: Vec<_> = out
+        .residual_before_rad_s
+        .iter()
+        .zip(&out.residual_after_rad_s)
+        .map(|(b, a)| {
+            (ssis_lab::noise::allan_deviation(b, out.kept_dt_s), ssis_lab::noise::allan_deviation(a, out.kept_dt_s))
+        })
+        .collect();
+    let floor: Vec<f64> = curves.iter().map(|c| c.1.first().map_or(0.0, |p| p.1)).collect();
+    let allan_path =
+        path.with_file_name(format!("{}.v{}.allan.svg", ssis_lab::fit::model_stem(&path), out.model.version));
+    let title = format!("residual before/after {} (dashed/solid), white floor (grey)", kind.label());
+    if let Ok(svg) = ssis_lab::plot::allan_svg(&title, &curves, &floor, out.kept_dt_s) {
+        match write_svg(&allan_path, &svg) {
+            Ok(()) => println!("wrote {}", allan_path.display()),
+            Err(e) => println!("not written: {e:#}"),
+        }
+    }
     let svg_path = path.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(&path)));
     let pts: Vec<(u32, f64)> = h.iter().map(|x| (x.0, x.1)).collect();
     write_svg(&svg_path, &history_svg(&format!("held-out RMS on {}", session.display()), &pts)?)?;
     println!("wrote {}", svg_path.display());
+    // Per FOG, with the term each version added and the white floor (pooled σ₁ of the residual).
+    let mut rows: Vec<(u32, Vec<f64>, String)> = Vec::new();
+    let mut prev: Vec<&str> = Vec::new();
+    for (v, _, per, terms) in &h {
+        let now: Vec<&str> = terms.split(", ").collect();
+        let added: Vec<&str> = now.iter().filter(|t| !prev.contains(t)).copied().collect();
+        let label = if prev.is_empty() { "start".to_string() } else { format!("+{}", added.join(" +")) };
+        rows.push((*v, per.clone(), label));
+        prev = now;
+    }
+    let floor_deg_h = dh(pooled(&floor));
+    let fogs_path = path.with_file_name(format!("{}.history-fogs.svg", ssis_lab::fit::model_stem(&path)));
+    let title = format!("held-out RMS per FOG on {}", session.display());
+    match ssis_lab::plot::history_fogs_svg(&title, &rows, floor_deg_h).and_then(|svg| write_svg(&fogs_path, &svg)) {
+        Ok(()) => println!("wrote {}", fogs_path.display()),
+        Err(e) => println!("not written: {e:#}"),
+    }
     Ok(())
 }
 

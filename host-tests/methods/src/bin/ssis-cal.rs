@@ -59,6 +59,14 @@ enum Cmd {
         /// SVG of Δf_x, Δf_y and α_x, α_y against ψ.
         #[arg(long, default_value = "magnetic.svg")]
         plot: PathBuf,
+        /// The site, `LAT_DEG,LON_DEG[,HEIGHT_M]` (WGS 84): with `--date`, the predicted phase
+        /// uses the World Magnetic Model's field there (the real field) instead of the session's
+        /// field columns.
+        #[arg(long, requires = "date")]
+        site: Option<String>,
+        /// Date of the test, `YYYY-DDD` (day of the year), for `--site`.
+        #[arg(long, requires = "site")]
+        date: Option<String>,
     },
     /// Two-factor ANOVA of Tables 1-2, and the thermal model when it is worth building.
     Thermal {
@@ -257,7 +265,7 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
             }
             "simulate orbital"
         }
-        Cmd::Magnetic { unscreened, screened, plot: p } => {
+        Cmd::Magnetic { unscreened, screened, plot: p, .. } => {
             output::input(unscreened);
             output::input(screened);
             plot(p, "magnetic.svg", "Magnetic component").map(|()| "magnetic")?
@@ -329,7 +337,9 @@ fn save_table(
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Simulate { what } => simulate(what),
-        Cmd::Magnetic { unscreened, screened, plot } => magnetic_cmd(unscreened, screened, plot),
+        Cmd::Magnetic { unscreened, screened, plot, site, date } => {
+            magnetic_cmd(unscreened, screened, plot, site, date)
+        }
         Cmd::Thermal { simulate, session, t_levels_degc, g_levels_degc_min, seed, fog, plot, table } => {
             let levels = thermal_anova::Levels { t_degc: t_levels_degc, g_degc_min: g_levels_degc_min };
             let input = match (simulate, session) {
@@ -359,7 +369,35 @@ fn simulate(what: Sim) -> Result<()> {
 
 /// Magnetic sensitivity from an unscreened and a screened session: the eq. (1)/(2) fits, the field
 /// at the site, the plot.
-fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result<()> {
+/// The World Magnetic Model's field at `--site` on `--date`, (north, west, up) nT.
+fn wmm_at(site: &str, date: &str) -> Result<[f64; 3]> {
+    let v: Vec<f64> = site
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|e| anyhow::anyhow!("--site `{site}`: {e} (expected LAT_DEG,LON_DEG[,HEIGHT_M])"))?;
+    if !(2..=3).contains(&v.len()) {
+        bail!("--site `{site}`: expected LAT_DEG,LON_DEG[,HEIGHT_M]");
+    }
+    let (y, d) = date.split_once('-').ok_or_else(|| anyhow::anyhow!("--date `{date}`: expected YYYY-DDD"))?;
+    let (y, d) = (
+        y.parse::<i32>().map_err(|e| anyhow::anyhow!("--date `{date}`: year: {e}"))?,
+        d.parse::<u16>().map_err(|e| anyhow::anyhow!("--date `{date}`: day of the year: {e}"))?,
+    );
+    magnetic::wmm_field_nwu_nt(v[0], v[1], v.get(2).copied().unwrap_or(0.0), y, d)
+}
+
+fn magnetic_cmd(
+    unscreened: PathBuf,
+    screened: PathBuf,
+    plot: PathBuf,
+    site: Option<String>,
+    date: Option<String>,
+) -> Result<()> {
+    let wmm = match (&site, &date) {
+        (Some(s), Some(d)) => Some(wmm_at(s, d)?),
+        _ => None,
+    };
     let (u, s) = (read_session(&unscreened, None)?, read_session(&screened, None)?);
     let r = magnetic::analyse(&u, &s)?;
     println!("eq. (1)/(2) fits, °/h and degrees        δΩ        S      Δφ     σ(Δφ)   rms");
@@ -378,12 +416,20 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
         }
     }
     // The field from the session (its first row, ψ of that row) back to the OCS.
+    if let Some(w) = wmm {
+        println!(
+            "WMM2025 field at the site (north, west, up) = ({:.0}, {:.0}, {:.0}) nT: predicted Δφ = {:.2}° (used below)",
+            w[0],
+            w[1],
+            w[2],
+            magnetic::predicted_phase_rad(w).to_degrees()
+        );
+    }
     let b0 = match &u.field_nt {
+        _ if wmm.is_some() => wmm,
         Some(f) => {
             let psi = u.column("psi_rad").map_or(0.0, |p| p[0]);
-            let (sn, c) = psi.sin_cos();
-            let b = f[0];
-            Some([b[0] * c - b[1] * sn, b[0] * sn + b[1] * c, b[2]])
+            Some(ssis_session::field_nwu_nt(f[0], psi))
         }
         None => None,
     };
@@ -421,7 +467,8 @@ fn magnetic_cmd(unscreened: PathBuf, screened: PathBuf, plot: PathBuf) -> Result
                 label: format!("α_{name} / 1000, deg (eq. 3)"),
                 points: (0..=360)
                     .map(|d| {
-                        let b = magnetic::field_ics_nt(b0, (d as f64).to_radians());
+                        // The plot's azimuth is the paper's ψ_Π = −ψ.
+                        let b = magnetic::field_ics_nt(b0, -(d as f64).to_radians());
                         (d as f64, magnetic::alpha_rad(b, axis).to_degrees() / 1000.0)
                     })
                     .collect(),

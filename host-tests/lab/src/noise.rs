@@ -1,0 +1,434 @@
+//! The residual's noise model, and the tests and intervals that hold under it.
+//!
+//! A FOG's output error is not white: besides angle random walk (white rate noise) its bias
+//! wanders (bias instability, flicker, Gauss–Markov drift of 0.005–0.01 °/h with correlation
+//! times of hours). Tests that treat residuals as independent then find "effects" in the
+//! wander. The lab models the residual e of the model under test, per FOG, as
+//!
+//! ```text
+//! e_t = w_t + Σ_j x_j,t        w white (σ_w²),  x_j first-order Gauss–Markov (q_j, τ_j)
+//! ```
+//!
+//! on **bins**: the kept rows of a pass ([`super::stream::Kept`]: every row of a session up to
+//! 40,000 samples) are grouped into at most [`MAX_BINS`] bins of consecutive rows inside one
+//! time block. Within a bin the wander is constant, so the deviations from the bin mean are
+//! white with the row variance σ_w² (estimated from them). The series of bin means ē_b has the
+//! spectrum
+//!
+//! ```text
+//! S(ω) = θ₀ + Σ_j θ_j (1 − ρ_j²) / (1 − 2 ρ_j cos ω + ρ_j²),   ρ_j = exp(−1/τ_j),
+//! ```
+//!
+//! with τ_j = 1, 2, 4, … bins up to the session's length (a fixed bank; θ ≥ 0). The θ are
+//! fitted to the periodogram of the bin means of the baseline model's residual by Whittle's
+//! likelihood, with the multiplicative updates of Itakura–Saito NMF (exponent ½, which never
+//! lowers the likelihood; Févotte & Idier 2011). The autocovariance of the bin means is then
+//! γ(k) = θ₀ δ_k + Σ θ_j ρ_j^|k|.
+//!
+//! Under that model:
+//! - [`whitened`]: generalised least squares. In each block the bin means of the basis are
+//!   whitened by the Cholesky factor of the block's covariance (L⁻¹ z̄), the within-bin
+//!   deviations are divided by σ_w; their sums z̃ z̃ᵀ are a Gram matrix like the pass's, so
+//!   every design's GLS fit and nested F-test follows from them exactly as the white ones do.
+//!   Blocks are whitened separately (their mutual correlation is ignored).
+//! - [`held_out_gain`]: the held-out improvement D = Σ (r₀² − r₁²) over the test rows of two
+//!   models fitted on the training rows and its standard deviation, 2 √(δᵀ Σ δ) with δ = r₀ − r₁
+//!   and Σ the model's covariance of the test rows (between-bin and within-bin parts). Given
+//!   the training fit, D's randomness is the test noise only; its mean is
+//!   Σ δ (2 s − δ) for the systematic part s, negative when the candidate only fitted noise.
+
+use nalgebra::DMatrix;
+
+use super::fit::{trains, Sums};
+use super::lsq::Gram;
+use super::stream::Digest;
+
+/// Bins at most (the covariance of a block is a dense matrix of its bins).
+pub const MAX_BINS: usize = 2000;
+
+/// Iterations of the Whittle fit.
+const WHITTLE_ITER: usize = 300;
+
+/// The kept rows of a digest grouped into bins of consecutive rows of one block.
+#[derive(Debug, Clone)]
+pub struct Bins {
+    /// Kept rows per bin (the last bin of a block may have fewer).
+    pub rows: usize,
+    /// First kept row of each bin, and the end (one more entry than bins).
+    pub start: Vec<usize>,
+    /// Block of each bin.
+    pub block: Vec<usize>,
+    /// Time between bins, s.
+    pub dt_s: f64,
+}
+
+impl Bins {
+    /// The bins of `d`'s kept rows.
+    pub fn of(d: &Digest) -> Bins {
+        let blocks = &d.kept.block;
+        let n = blocks.len();
+        let per = n.div_ceil(MAX_BINS).max(1);
+        let (mut start, mut block) = (Vec::new(), Vec::new());
+        let mut k = 0;
+        while k < n {
+            let b = blocks[k];
+            start.push(k);
+            block.push(b);
+            let mut e = k + 1;
+            while e < n && e - k < per && blocks[e] == b {
+                e += 1;
+            }
+            k = e;
+        }
+        start.push(n);
+        let dt_s = d.dt_s * (d.kept.stride.max(1) * per) as f64;
+        Bins { rows: per, start, block, dt_s }
+    }
+
+    /// Number of bins.
+    pub fn len(&self) -> usize {
+        self.block.len()
+    }
+
+    /// Whether there are no bins.
+    pub fn is_empty(&self) -> bool {
+        self.block.is_empty()
+    }
+
+    fn range(&self, b: usize) -> std::ops::Range<usize> {
+        self.start[b]..self.start[b + 1]
+    }
+
+    /// The bins of each block, in order (bins of one block are consecutive).
+    fn per_block(&self) -> Vec<(usize, std::ops::Range<usize>)> {
+        let mut v: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
+        for (b, &blk) in self.block.iter().enumerate() {
+            match v.last_mut() {
+                Some((x, r)) if *x == blk => r.end = b + 1,
+                _ => v.push((blk, b..b + 1)),
+            }
+        }
+        v
+    }
+}
+
+/// One FOG's noise model (see the module text). Variances in (rad/s)².
+#[derive(Debug, Clone)]
+pub struct NoiseModel {
+    /// Variance of one kept row's white part (within bins); 0 when bins are single rows.
+    pub white_row_var: f64,
+    /// θ₀: the white variance of a full bin's mean.
+    pub white_bin_var: f64,
+    /// Gauss–Markov components of the bin means: (variance θ_j, correlation time τ_j in bins).
+    pub gm: Vec<(f64, f64)>,
+    /// Kept rows per bin.
+    pub bin_rows: usize,
+    /// Time between bins, s.
+    pub bin_dt_s: f64,
+}
+
+impl NoiseModel {
+    /// The model fitted to a residual `res` at the kept rows, binned by `bins`, on the bins
+    /// of the test blocks (concatenated in time order).
+    pub fn fit(bins: &Bins, res: &[f64]) -> NoiseModel {
+        NoiseModel::fit_from(bins, res, None)
+    }
+
+    /// [`NoiseModel::fit`] starting from another fit on the same bins (fewer iterations).
+    pub fn fit_from(bins: &Bins, res: &[f64], start: Option<&NoiseModel>) -> NoiseModel {
+        let (means, within, dof) = bin_means(bins, res, |b| !trains(b));
+        let white_row_var = if dof > 0 { within / dof as f64 } else { 0.0 };
+        let mut taus = Vec::new();
+        let mut tau = 1.0;
+        while tau <= means.len() as f64 {
+            taus.push(tau);
+            tau *= 2.0;
+        }
+        let rho: Vec<f64> = taus.iter().map(|t| (-1.0 / t).exp()).collect();
+        let init = start.filter(|s| s.gm.len() == rho.len()).map(|s| {
+            let mut t = vec![s.white_bin_var];
+            t.extend(s.gm.iter().map(|g| g.0));
+            t
+        });
+        let iter = if init.is_some() { WHITTLE_ITER / 4 } else { WHITTLE_ITER };
+        let theta = whittle(&means, &rho, init, iter);
+        NoiseModel {
+            white_row_var,
+            white_bin_var: theta[0],
+            gm: theta[1..].iter().zip(&taus).map(|(&q, &t)| (q, t)).collect(),
+            bin_rows: bins.rows,
+            bin_dt_s: bins.dt_s,
+        }
+    }
+
+    /// Covariance of the means of bins `lag` apart, the first of `n_a` rows.
+    pub fn cov(&self, lag: usize, n_a: usize) -> f64 {
+        let mut c: f64 = self.gm.iter().map(|&(q, t)| q * (-(lag as f64) / t).exp()).sum();
+        if lag == 0 {
+            c += self.white_bin_var * self.bin_rows as f64 / n_a.max(1) as f64;
+        }
+        c
+    }
+
+    /// RMS of one kept row's white noise, rad/s (the sample-level noise floor).
+    pub fn white_floor_rad_s(&self) -> f64 {
+        if self.bin_rows > 1 {
+            self.white_row_var.sqrt()
+        } else {
+            self.white_bin_var.sqrt()
+        }
+    }
+
+    /// Variance of the Gauss–Markov part, (rad/s)².
+    pub fn wander_var(&self) -> f64 {
+        self.gm.iter().map(|g| g.0).sum()
+    }
+}
+
+/// Bin means of `x` at the kept rows in the blocks `pick` chooses, the within-bin sum of
+/// squares and its degrees of freedom.
+fn bin_means(bins: &Bins, x: &[f64], pick: impl Fn(usize) -> bool) -> (Vec<f64>, f64, usize) {
+    let (mut means, mut ss, mut dof) = (Vec::with_capacity(bins.len()), 0.0, 0);
+    for b in (0..bins.len()).filter(|&b| pick(bins.block[b])) {
+        let r = &x[bins.range(b)];
+        let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
+        ss += r.iter().map(|v| (v - m) * (v - m)).sum::<f64>();
+        dof += r.len().saturating_sub(1);
+        means.push(m);
+    }
+    (means, ss, dof)
+}
+
+/// Whittle fit of θ (white first, then one per ρ) to the periodogram of `x`: `iter`
+/// multiplicative updates from `init` (or an even split of the variance).
+fn whittle(x: &[f64], rho: &[f64], init: Option<Vec<f64>>, iter: usize) -> Vec<f64> {
+    let n = x.len();
+    let mean = x.iter().sum::<f64>() / n.max(1) as f64;
+    let var = x.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n.max(1) as f64;
+    let mut theta = vec![var.max(f64::MIN_POSITIVE); rho.len() + 1];
+    if n < 4 || var <= 0.0 {
+        theta[1..].iter_mut().for_each(|t| *t = 0.0);
+        return theta;
+    }
+    match init {
+        Some(t) => theta.iter_mut().zip(t).for_each(|(a, b)| *a = b.max(1e-6 * var)),
+        None => {
+            theta[0] = 0.5 * var;
+            theta[1..].iter_mut().for_each(|t| *t = 0.5 * var / rho.len().max(1) as f64);
+        }
+    }
+    // Periodogram at the Fourier frequencies 2πk/n, k = 1 … n/2 (rotation per frequency).
+    let k_max = n / 2;
+    let mut per = Vec::with_capacity(k_max);
+    let mut h: Vec<Vec<f64>> = vec![Vec::with_capacity(k_max); rho.len() + 1];
+    for k in 1..=k_max {
+        let w = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+        let (ds, dc) = w.sin_cos();
+        let (mut s, mut c) = (0.0f64, 1.0f64);
+        let (mut re, mut im) = (0.0, 0.0);
+        for v in x {
+            let y = v - mean;
+            re += y * c;
+            im -= y * s;
+            (s, c) = (s * dc + c * ds, c * dc - s * ds);
+        }
+        per.push((re * re + im * im) / n as f64);
+        h[0].push(1.0);
+        for (j, &r) in rho.iter().enumerate() {
+            h[j + 1].push((1.0 - r * r) / (1.0 - 2.0 * r * w.cos() + r * r));
+        }
+    }
+    let mut s = vec![0.0; k_max];
+    for _ in 0..iter {
+        for (k, sk) in s.iter_mut().enumerate() {
+            *sk = theta.iter().zip(&h).map(|(t, hj)| t * hj[k]).sum::<f64>().max(f64::MIN_POSITIVE);
+        }
+        for (t, hj) in theta.iter_mut().zip(&h) {
+            let (mut a, mut b) = (0.0, 0.0);
+            for k in 0..k_max {
+                a += hj[k] * per[k] / (s[k] * s[k]);
+                b += hj[k] / s[k];
+            }
+            if b > 0.0 {
+                *t *= (a / b).sqrt();
+            }
+        }
+    }
+    theta
+}
+
+/// GLS sums: the kept rows' basis vectors `z` (rows × m, row-major) whitened under `nm`
+/// (see the module text), summed per training / test blocks. `n` of each is the number of
+/// whitened rows (bins plus within-bin degrees of freedom).
+pub fn whitened(nm: &NoiseModel, bins: &Bins, z: &[f64], m: usize) -> Sums {
+    let mut s = Sums { all: Gram::new(m), train: Gram::new(m), test: Gram::new(m) };
+    let blocks = bins.per_block();
+    let longest = blocks.iter().map(|(_, r)| r.len()).max().unwrap_or(0);
+    let acov: Vec<f64> = (0..longest).map(|k| nm.cov(k, nm.bin_rows)).collect();
+    for (blk, r) in blocks {
+        let nb = r.len();
+        let mut zbar = DMatrix::<f64>::zeros(nb, m);
+        let g = if trains(blk) { &mut s.train } else { &mut s.test };
+        let mut within = DMatrix::<f64>::zeros(m, m);
+        let mut dof = 0;
+        for (i, b) in r.clone().enumerate() {
+            let rows = bins.range(b);
+            let cnt = rows.len() as f64;
+            for k in rows.clone() {
+                let zk = &z[k * m..(k + 1) * m];
+                for a in 0..m {
+                    zbar[(i, a)] += zk[a] / cnt;
+                }
+            }
+            if rows.len() > 1 && nm.white_row_var > 0.0 {
+                for k in rows.clone() {
+                    let zk = &z[k * m..(k + 1) * m];
+                    for a in 0..m {
+                        let da = zk[a] - zbar[(i, a)];
+                        for c in a..m {
+                            within[(a, c)] += da * (zk[c] - zbar[(i, c)]);
+                        }
+                    }
+                }
+                dof += rows.len() - 1;
+            }
+        }
+        let cov = DMatrix::from_fn(nb, nb, |a, c| {
+            if a == c {
+                nm.cov(0, bins.range(r.start + a).len())
+            } else {
+                acov[a.abs_diff(c)]
+            }
+        });
+        let Some(ch) = nalgebra::Cholesky::new(cov) else { continue };
+        let x = ch.l().solve_lower_triangular(&zbar).unwrap_or(zbar);
+        let xtx = x.transpose() * &x;
+        for a in 0..m {
+            for c in a..m {
+                let w = if nm.white_row_var > 0.0 { within[(a, c)] / nm.white_row_var } else { 0.0 };
+                g.upper[a * m + c] += xtx[(a, c)] + w;
+            }
+        }
+        g.n += nb + dof;
+    }
+    s.all.add(&s.train);
+    s.all.add(&s.test);
+    s
+}
+
+/// A held-out improvement and its standard deviation under the noise model.
+#[derive(Debug, Clone, Copy)]
+pub struct Gain {
+    /// Σ (r₀² − r₁²) over the kept test rows, (rad/s)².
+    pub d: f64,
+    /// Its standard deviation, (rad/s)².
+    pub sd: f64,
+    /// Kept test rows.
+    pub n: usize,
+}
+
+impl Gain {
+    /// D / sd: how many standard deviations the improvement is above zero.
+    pub fn z(&self) -> f64 {
+        if self.sd > 0.0 {
+            self.d / self.sd
+        } else if self.d > 0.0 {
+            f64::INFINITY
+        } else {
+            f64::NEG_INFINITY
+        }
+    }
+
+    /// One-sided p-value of "no improvement" (D ≤ 0).
+    pub fn p(&self) -> f64 {
+        normal_sf(self.z())
+    }
+
+    /// The mean-square drop per test row and its 1σ, (rad/s)².
+    pub fn per_row(&self) -> (f64, f64) {
+        let n = self.n.max(1) as f64;
+        (self.d / n, self.sd / n)
+    }
+}
+
+/// Upper tail of the unit normal.
+pub fn normal_sf(z: f64) -> f64 {
+    use statrs::distribution::{ContinuousCDF, Normal};
+    if z.is_nan() {
+        return 1.0;
+    }
+    Normal::new(0.0, 1.0).map_or(1.0, |n| n.sf(z))
+}
+
+/// The held-out improvement of residual functional `l1` over `l0` (both fitted on the
+/// training blocks) on the kept test rows, with its standard deviation under `nm`.
+pub fn held_out_gain(nm: &NoiseModel, bins: &Bins, z: &[f64], m: usize, l0: &[f64], l1: &[f64]) -> Gain {
+    let dot = |l: &[f64], k: usize| -> f64 { z[k * m..(k + 1) * m].iter().zip(l).map(|(a, b)| a * b).sum() };
+    let (mut d, mut within, mut n) = (0.0, 0.0, 0usize);
+    // Test bins: (global index, rows, Σδ).
+    let mut tb: Vec<(usize, usize, f64)> = Vec::new();
+    for b in (0..bins.len()).filter(|&b| !trains(bins.block[b])) {
+        let rows = bins.range(b);
+        let deltas: Vec<f64> = rows
+            .clone()
+            .map(|k| {
+                let (r0, r1) = (dot(l0, k), dot(l1, k));
+                d += r0 * r0 - r1 * r1;
+                r0 - r1
+            })
+            .collect();
+        let sum: f64 = deltas.iter().sum();
+        let mean = sum / deltas.len().max(1) as f64;
+        within += deltas.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>();
+        n += deltas.len();
+        tb.push((b, deltas.len(), sum));
+    }
+    let mut var = nm.white_row_var * within;
+    let max_lag = bins.len();
+    let acov: Vec<f64> = (0..max_lag.max(1)).map(|k| nm.cov(k, nm.bin_rows)).collect();
+    for (i, &(a, na, sa)) in tb.iter().enumerate() {
+        var += sa * sa * nm.cov(0, na);
+        for &(b, _, sb) in &tb[i + 1..] {
+            let c = acov.get(b - a).copied().unwrap_or(0.0);
+            var += 2.0 * sa * sb * c;
+        }
+    }
+    Gain { d, sd: 2.0 * var.max(0.0).sqrt(), n }
+}
+
+/// RMS of the means of `x` (equally spaced by `dt_s`) over consecutive windows of about
+/// `tau_s` (a whole number of samples, about the overall mean) and the window used, s; `None`
+/// when τ is shorter than a sample or fewer than two windows fit.
+pub fn tau_mean_rms(x: &[f64], dt_s: f64, tau_s: f64) -> Option<(f64, f64)> {
+    let k = (tau_s / dt_s).round() as usize;
+    if k == 0 || tau_s < 0.5 * dt_s || x.len() / k < 2 {
+        return None;
+    }
+    let means: Vec<f64> = x.chunks_exact(k).map(|c| c.iter().sum::<f64>() / k as f64).collect();
+    let m = means.iter().sum::<f64>() / means.len() as f64;
+    Some((k as f64 * dt_s, (means.iter().map(|v| (v - m) * (v - m)).sum::<f64>() / means.len() as f64).sqrt()))
+}
+
+/// Overlapping Allan deviation of the rate series `x` (equally spaced by `dt_s`) at cluster
+/// sizes 1, 2, 4, … up to a quarter of the series: (τ in s, σ_A in the unit of x).
+pub fn allan_deviation(x: &[f64], dt_s: f64) -> Vec<(f64, f64)> {
+    // Angle θ_k = Σ x dt; σ²(m) = Σ (θ_{k+2m} − 2θ_{k+m} + θ_k)² / (2 τ² (N − 2m)).
+    let mut theta = Vec::with_capacity(x.len() + 1);
+    theta.push(0.0);
+    let mut acc = 0.0;
+    for v in x {
+        acc += v * dt_s;
+        theta.push(acc);
+    }
+    let n = theta.len();
+    let mut out = Vec::new();
+    let mut m = 1;
+    while 4 * m <= x.len() {
+        let tau = m as f64 * dt_s;
+        let terms = n - 2 * m;
+        let s: f64 = (0..terms).map(|k| (theta[k + 2 * m] - 2.0 * theta[k + m] + theta[k]).powi(2)).sum();
+        out.push((tau, (s / (2.0 * tau * tau * terms as f64)).sqrt()));
+        m *= 2;
+    }
+    out
+}
