@@ -1,4 +1,4 @@
-//! Output frame (kind 0x30, 83 bytes): the unit's state after each step.
+//! Output frame (kind 0x30, 85 bytes): the unit's state after each step.
 //!
 //! | off | size | field | type | scaling |
 //! |---|---|---|---|---|
@@ -17,16 +17,16 @@
 //! | 77 | 1 | fdi | u8 | bits 0–3: FOG i flies on a held temperature (sensor failed); bits 4–7: FOG i isolated by the fault logic |
 //! | 78 | 1 | page_id | u8 | which counter `page_value` carries (`crate::telemetry::page`); cycles through all, one a frame |
 //! | 79 | 2 | page_value | u16 | that counter, saturating |
-//! | 81 | 2 | crc | u16 | CRC16 over bytes 0..81 |
+//! | 81 | 4 | crc | u32 | CRC-32C over bytes 0..81 |
 //!
 //! The decoder checks only the envelope: every field value is accepted.
 
 use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of an output frame in bytes: 3 (header) + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 +
-/// 1 + 14 + 1 + 1 + 2 + 2 (CRC).
-pub const FRAME_LEN: usize = 83;
-const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 1 + 1 + 2 + 2);
+/// 1 + 14 + 1 + 1 + 2 + 4 (CRC).
+pub const FRAME_LEN: usize = 85;
+const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 1 + 1 + 2 + 4);
 
 /// FOG slots in the frame (FOG1..FOG4).
 pub const FOG_SLOTS: usize = 4;

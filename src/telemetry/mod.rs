@@ -96,7 +96,7 @@ impl StepOutput {
 
 /// A byte buffer on a word boundary: the ring copies in and out of it then run word by
 /// word (a byte array can land at any offset in the core, and a misaligned copy of the
-/// 83-byte output frame cost ~180 instructions a step more on the M7).
+/// output frame cost ~180 instructions a step more on the M7).
 #[repr(C, align(4))]
 #[derive(Clone)]
 pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);

@@ -7,7 +7,7 @@ use ssis::frames::decoder::{DecoderStats, StreamDecoder};
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::{self, OutputCounters, OutputFrame};
 use ssis::frames::star::{self, StarFrame};
-use ssis::frames::{DecodeError, Frame, CRC16, SYNC};
+use ssis::frames::{DecodeError, Frame, CRC32C, CRC_LEN, SYNC};
 
 // ---------------------------------------------------------------------------------------
 // Helpers
@@ -21,8 +21,8 @@ pub fn bytes_of<F: Frame>(f: &F) -> Vec<u8> {
 
 /// Recomputes the CRC of a frame whose bytes were edited.
 pub fn reseal(bytes: &mut [u8]) {
-    let n = bytes.len() - 2;
-    let crc = CRC16.checksum(&bytes[..n]).to_le_bytes();
+    let n = bytes.len() - CRC_LEN;
+    let crc = CRC32C.checksum(&bytes[..n]).to_le_bytes();
     bytes[n..].copy_from_slice(&crc);
 }
 
