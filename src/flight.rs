@@ -466,6 +466,7 @@ impl FlightCore {
         if self.telemetry.output_dropped_last() {
             status_flags |= flags::OUTPUT_DROPPED;
         }
+        let (att_sigma_rad, drift_sigma_rad_s) = self.observer.sigmas(now_us);
         let out = StepOutput {
             time_us: now_us,
             q: self.attitude.quaternion(),
@@ -477,6 +478,8 @@ impl FlightCore {
             flags: status_flags,
             fogs_used: used,
             fdi: fdi_bits,
+            att_sigma_rad,
+            drift_sigma_rad_s,
         };
         self.last_output = out;
         // Paged by the sample clock (not the frame counter), so a replay of the same

@@ -4,7 +4,7 @@
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::{Frame, CRC32C, CRC_LEN, SYNC};
 
-/// Largest frame (the output frame, 85 bytes) with room to spare.
+/// Largest frame (the output frame, 97 bytes) with room to spare.
 const MAX_LEN: usize = 128;
 
 /// Encodes `f` (panics if the encoder fails: that is a finding).

@@ -24,7 +24,7 @@ fn crc_check_value() {
 fn lengths_and_kinds() {
     assert_eq!((FogFrame::LEN, <FogFrame as Frame>::LEN, <FogFrame as Frame>::KIND), (18, 18, 0x10));
     assert_eq!((StarFrame::LEN, <StarFrame as Frame>::LEN, <StarFrame as Frame>::KIND), (34, 34, 0x20));
-    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (85, 85, 0x30));
+    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (97, 97, 0x30));
     assert_eq!([kind::FOG, kind::STAR, kind::OUTPUT], [0x10, 0x20, 0x30]);
 }
 
@@ -263,9 +263,11 @@ fn output_layout_offsets() {
         fdi: 0x91,
         page_id: 0x92,
         page_value: 0x9394,
+        att_sigma_counts: [0xA1, 0xA2, 0xA3],
+        drift_sigma_counts: [0xB1, 0xB2, 0xB3],
     };
     let b = f.to_bytes();
-    assert_eq!(b.len(), 85);
+    assert_eq!(b.len(), 97);
     assert_eq!(&b[..6], &[0xEB, 0x90, 0x30, 0x1F, 0x02, 0x01]);
     assert_eq!(&b[6..14], &0x1112_1314_1516_1718u64.to_le_bytes());
     let word = |off: usize| i32::from_le_bytes(b[off..off + 4].try_into().unwrap());
@@ -278,7 +280,8 @@ fn output_layout_offsets() {
     assert_eq!([63, 65, 67, 69, 71, 73, 75].map(half), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
     assert_eq!(&b[77..79], &[0x91, 0x92]);
     assert_eq!(half(79), 0x9394);
-    assert_eq!(word(81) as u32, CRC32C.checksum(&b[..81]));
+    assert_eq!([81, 83, 85, 87, 89, 91].map(half), [0xA1, 0xA2, 0xA3, 0xB1, 0xB2, 0xB3]);
+    assert_eq!(word(93) as u32, CRC32C.checksum(&b[..93]));
     assert_eq!(OutputFrame::decode(&b), Ok(f));
     assert_eq!(f.counters.step_ticks, 0x87);
     assert_eq!(f.counters.to_array(), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
@@ -312,6 +315,19 @@ fn output_physical_scaling() {
     assert!(!f.flag(output::flags::CONVERGED));
     assert_eq!(f.counters.overruns, 6);
     assert_eq!(OutputFrame::decode(&f.to_bytes()), Ok(f));
+    // The 1σ fields: unknown until set; 0.01″ and 1e-4 °/h counts; infinite (not
+    // aligned) and beyond the range saturate to "unknown", NaN gives 0.
+    assert_eq!(f.att_sigma_counts, [output::SIGMA_UNKNOWN; 3]);
+    assert_eq!(f.att_sigma_rad(), [f64::INFINITY; 3]);
+    let mut s = f;
+    let arcsec = std::f64::consts::PI / 180.0 / 3600.0;
+    // 1 °/h is 1″/s.
+    s.set_sigmas([1.0 * arcsec, f64::INFINITY, f64::NAN], [0.3 * arcsec, 1.0, 0.0]);
+    assert_eq!(s.att_sigma_counts, [100, u16::MAX, 0]);
+    assert_eq!(s.drift_sigma_counts, [3_000, u16::MAX, 0]);
+    assert!((s.att_sigma_rad()[0] / arcsec - 1.0).abs() < 1e-12);
+    assert!((s.drift_sigma_rad_s()[0] / arcsec - 0.3).abs() < 1e-12);
+    assert_eq!(OutputFrame::decode(&s.to_bytes()), Ok(s));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -389,6 +405,7 @@ proptest! {
             f.parity_rad(), f.fog_health, f.st_status, f.counters.to_array(),
         );
         (p.fdi, p.page_id, p.page_value) = (f.fdi, f.page_id, f.page_value);
+        p.set_sigmas(f.att_sigma_rad(), f.drift_sigma_rad_s());
         prop_assert_eq!(p, f);
     }
 

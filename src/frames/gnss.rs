@@ -20,7 +20,7 @@
 
 use nalgebra::Vector3;
 
-use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
+use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// One GNSS position/velocity fix, ECEF, the physical content of a
 /// [`GnssFrame`]; the navigation applies it after the step it is valid at the end of.
@@ -81,11 +81,6 @@ pub struct GnssFrame {
     pub sigma_pos_counts: u16,
     /// Velocity 1σ, counts of [`SIGMA_VEL_LSB_M_S`].
     pub sigma_vel_counts: u16,
-}
-
-fn counts_u16(value: f64, lsb: f64) -> u16 {
-    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
-    (value / lsb + 0.5) as u16
 }
 
 impl GnssFrame {

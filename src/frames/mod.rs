@@ -394,6 +394,13 @@ pub fn counts_i16(value: f64, lsb: f64) -> i16 {
     round_half_away(value / lsb) as i16
 }
 
+/// `value / lsb` rounded to the nearest count, saturated to the `u16` range (negative
+/// values give 0); NaN gives 0.
+pub fn counts_u16(value: f64, lsb: f64) -> u16 {
+    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
+    (value / lsb + 0.5) as u16
+}
+
 /// x rounded half away from zero, as f64 (truncation happens in the caller's `as`).
 #[inline]
 fn round_half_away(x: f64) -> f64 {

@@ -22,7 +22,7 @@
 
 use nalgebra::{Quaternion, Vector3};
 
-use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
+use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Navigation state at the end of a step (what [`NavOutputFrame`] carries; the
 /// navigation, `crate::nav`, computes it).
@@ -88,11 +88,6 @@ pub struct NavOutputFrame {
     pub fixes_used: u16,
     /// GNSS fixes refused.
     pub fixes_refused: u16,
-}
-
-fn counts_u16(value: f64, lsb: f64) -> u16 {
-    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
-    (value / lsb + 0.5) as u16
 }
 
 impl NavOutputFrame {

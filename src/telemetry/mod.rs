@@ -76,6 +76,12 @@ pub struct StepOutput {
     pub fogs_used: FogSet,
     /// Fault-logic bits: FOG i on a held temperature (bit i), FOG i isolated (bit 4 + i).
     pub fdi: u8,
+    /// The estimator's 1σ of the attitude error per ICS axis, rad (infinite: unknown,
+    /// before alignment).
+    pub att_sigma_rad: [f64; 3],
+    /// The estimator's 1σ of the drift-estimate error per ICS axis, rad/s (infinite:
+    /// unknown).
+    pub drift_sigma_rad_s: [f64; 3],
 }
 
 impl StepOutput {
@@ -91,6 +97,8 @@ impl StepOutput {
         flags: 0,
         fogs_used: FogSet(0),
         fdi: 0,
+        att_sigma_rad: [f64::INFINITY; 3],
+        drift_sigma_rad_s: [f64::INFINITY; 3],
     };
 }
 
@@ -169,6 +177,7 @@ impl Telemetry {
             ],
         );
         frame.fdi = o.fdi;
+        frame.set_sigmas(o.att_sigma_rad, o.drift_sigma_rad_s);
         frame.page_id = page_id;
         frame.page_value = sat(page_value);
         self.out_counter = self.out_counter.wrapping_add(1);
