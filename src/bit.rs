@@ -20,13 +20,14 @@ use crate::compensation::compensate_rate;
 use crate::flight::{FlightCore, FogLinks, Links, Profile};
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::FogFrame;
-use crate::frames::{DecodeError, CRC16};
+use crate::frames::{body_crc, DecodeError};
 
 /// The first known-answer test that failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub enum BitError {
-    /// CRC-16/CCITT-FALSE of "123456789" is not 0x29B1.
+    /// The frames' CRC-32C (its flight tables, [`body_crc`]) of "123456789" is not
+    /// 0xE3069283.
     FrameCrc,
     /// CRC-32/ISO-HDLC of "123456789" is not 0xCBF43926.
     TableCrc,
@@ -43,7 +44,8 @@ pub enum BitError {
 /// Runs the known-answer tests; `Ok` if all pass, else the first failure.
 pub fn power_on() -> Result<(), BitError> {
     const CHECK: &[u8] = b"123456789";
-    if CRC16.checksum(CHECK) != 0x29B1 {
+    // From the register's initial value 0xFFFFFFFF, as if there were no header.
+    if body_crc(crc::CRC_32_ISCSI.init, CHECK) != 0xE306_9283 {
         return Err(BitError::FrameCrc);
     }
     if binary::CRC32.checksum(CHECK) != 0xCBF4_3926 {

@@ -41,8 +41,10 @@ pub use crate::telemetry::{flags, health, st_status, Counter, Counters, FogCount
 
 /// Steps of attitude history for star-tracker latency (64 × 5 ms = 320 ms).
 pub const HISTORY: usize = 64;
-/// Bytes read from a link per chunk.
-const RX_CHUNK: usize = 64;
+/// Bytes read from a link per chunk: a step's four FOG frames on the bus (72 bytes, a
+/// multiple of 4, so runs stay word-aligned). A frame split across two chunks is
+/// decoded byte by byte instead of in place (`StreamDecoder::push_slice`).
+const RX_CHUNK: usize = 4 * FogFrame::LEN;
 
 /// Operating profile of the unit.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -464,6 +466,7 @@ impl FlightCore {
         if self.telemetry.output_dropped_last() {
             status_flags |= flags::OUTPUT_DROPPED;
         }
+        let (att_sigma_rad, drift_sigma_rad_s) = self.observer.sigmas(now_us);
         let out = StepOutput {
             time_us: now_us,
             q: self.attitude.quaternion(),
@@ -475,6 +478,8 @@ impl FlightCore {
             flags: status_flags,
             fogs_used: used,
             fdi: fdi_bits,
+            att_sigma_rad,
+            drift_sigma_rad_s,
         };
         self.last_output = out;
         // Paged by the sample clock (not the frame counter), so a replay of the same

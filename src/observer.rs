@@ -210,6 +210,9 @@ pub struct Observer<const H: usize> {
     /// Covariance of (attitude error, drift error) per axis after the last update:
     /// P11 rad², P12 rad²/s, P22 rad²/s² (the gate's expected mismatch variance).
     cov: [f64; 3],
+    /// The last 1σ of the attitude error (rad) and of the drift error (rad/s) reported
+    /// ([`Observer::sigmas`]): the start of the next step's Newton step; 0 none yet.
+    sigma_roots: [f64; 2],
     streak: Streak,
 }
 
@@ -239,6 +242,7 @@ impl<const H: usize> Observer<H> {
             steady,
             last_update_tag_us: None,
             cov: [0.0; 3],
+            sigma_roots: [0.0; 2],
             streak: Streak::default(),
         }
     }
@@ -378,6 +382,29 @@ impl<const H: usize> Observer<H> {
             p12 - tau * p22 - su2 * tau * tau / 2.0,
             p22 + su2 * tau,
         ]
+    }
+
+    /// The 1σ of the attitude error (rad) and of the drift error (rad/s) per axis at
+    /// `time_us`: the square roots of P11 and P22 of the running covariance propagated to
+    /// that time (the fixed gains in the Joseph form at each update, the gyros' random
+    /// walks between; the same on every axis). Infinite before alignment: unknown.
+    ///
+    /// Each root is one Newton step x ← (x + P/x)/2 from the last step's (relative error
+    /// ε²/2 for a start off by ε: below 2e-3 whenever P moved by less than 12.5 %, as it
+    /// does from step to step and at an update), and a full square root otherwise.
+    pub fn sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
+        if !self.aligned {
+            self.sigma_roots = [0.0; 2];
+            return ([f64::INFINITY; 3], [f64::INFINITY; 3]);
+        }
+        let [p11, _, p22] = self.propagated(time_us);
+        let [a, d] = &mut self.sigma_roots;
+        for (x, p) in [(a, p11), (d, p22)] {
+            let near = *x > 0.0 && (*x * *x - p).abs() <= 0.125 * p;
+            *x = if near { 0.5 * (*x + p / *x) } else { math::sqrt(p.max(0.0)) };
+        }
+        let [a, d] = self.sigma_roots;
+        ([a; 3], [d; 3])
     }
 
     /// Expected variance of a mismatch per axis, rad², for a frame with time tag

@@ -2,9 +2,9 @@
 //! whatever a decoder accepts must be exactly what an encoder would have sent.
 
 use ssis::frames::decoder::StreamDecoder;
-use ssis::frames::{Frame, CRC16, SYNC};
+use ssis::frames::{Frame, CRC32C, CRC_LEN, SYNC};
 
-/// Largest frame (the output frame, 83 bytes) with room to spare.
+/// Largest frame (the output frame, 97 bytes) with room to spare.
 const MAX_LEN: usize = 128;
 
 /// Encodes `f` (panics if the encoder fails: that is a finding).
@@ -17,7 +17,7 @@ pub fn encoded<F: Frame>(f: &F) -> Vec<u8> {
 /// Fuzzes frame type `F`. The first byte chooses how the rest is used, so that the fuzzer
 /// reaches the field checks behind the CRC:
 /// - bit 0: write sync and kind over the first three bytes;
-/// - bit 1: write the matching CRC over the last two bytes of the first `LEN`.
+/// - bit 1: write the matching CRC over the last four bytes of the first `LEN`.
 ///
 /// The rest is then decoded as one frame ([`Frame::decode`]) and streamed byte by byte
 /// through a [`StreamDecoder`]. Every accepted frame must re-encode to exactly the bytes
@@ -30,8 +30,8 @@ pub fn check_frame<F: Frame + PartialEq + core::fmt::Debug>(data: &[u8]) {
         bytes[2] = F::KIND;
     }
     if mode & 2 != 0 && bytes.len() >= F::LEN {
-        let crc = CRC16.checksum(&bytes[..F::LEN - 2]);
-        bytes[F::LEN - 2..F::LEN].copy_from_slice(&crc.to_le_bytes());
+        let crc = CRC32C.checksum(&bytes[..F::LEN - CRC_LEN]);
+        bytes[F::LEN - CRC_LEN..F::LEN].copy_from_slice(&crc.to_le_bytes());
     }
     if let Ok(f) = F::decode(&bytes) {
         assert_eq!(encoded(&f), bytes, "decode accepted bytes its encoder would not send");

@@ -13,14 +13,17 @@ use ssis_sim::accel::{AccelModel, AccelSpec};
 
 #[test]
 fn layout_and_icd_example() {
-    assert_eq!((AccelFrame::LEN, <AccelFrame as Frame>::KIND), (16, 0x11));
+    assert_eq!((AccelFrame::LEN, <AccelFrame as Frame>::KIND), (18, 0x11));
     assert_ne!(kind::ACCEL, kind::FOG);
     // docs/ICD.md example: X accelerometer, counter 258, 0.0125 m/s (10 m/s² over
     // 1.25 ms), 25.5 °C.
     let f = AccelFrame::from_physical(0, 258, 0, 0.0125, 25.5);
     assert_eq!(f.dv_counts, 3_355_443);
     let b = f.to_bytes();
-    assert_eq!(b, [0xEB, 0x90, 0x11, 0x00, 0x02, 0x01, 0x00, 0x33, 0x33, 0x33, 0x00, 0x80, 0x19, 0x00, 0xDA, 0x8C]);
+    assert_eq!(
+        b,
+        [0xEB, 0x90, 0x11, 0x00, 0x02, 0x01, 0x00, 0x33, 0x33, 0x33, 0x00, 0x80, 0x19, 0x00, 0x70, 0x3D, 0x24, 0x88]
+    );
     assert_eq!(AccelFrame::decode(&b), Ok(f));
     assert!((f.dv_m_s() - 0.0125).abs() <= 0.5 * AccelFrame::DV_LSB_M_S);
     assert_eq!(f.temperature_degc(), 25.5);
@@ -40,7 +43,7 @@ fn fields_out_of_range_are_rejected_and_values_saturate() {
     }
     let mut reserved = ok.to_bytes();
     reserved[13] = 1;
-    let crc = ssis::frames::CRC16.checksum(&reserved[..14]).to_le_bytes();
+    let crc = ssis::frames::CRC32C.checksum(&reserved[..14]).to_le_bytes();
     reserved[14..].copy_from_slice(&crc);
     assert_eq!(AccelFrame::decode(&reserved), Err(DecodeError::BadField));
     assert_eq!(AccelFrame::from_physical(0, 0, 0, 1e3, 0.0).dv_counts, i32::MAX);

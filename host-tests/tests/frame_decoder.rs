@@ -6,7 +6,7 @@ use ssis::frames::decoder::{DecoderStats, StreamDecoder};
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::star::StarFrame;
-use ssis::frames::{DecodeError, CRC16};
+use ssis::frames::{DecodeError, CRC32C};
 
 mod frames_common;
 use frames_common::*;
@@ -78,7 +78,7 @@ fn frames_split_into_any_chunks_decode_the_same() {
         (0..5).map(|i| StarFrame::from_physical(1, i, u64::from(i) * 250_000, [0.0, 0.6, 0.0, 0.8])).collect();
     let input: Vec<u8> = frames.iter().flat_map(|f| f.to_bytes()).collect();
     for chunk in 1..=input.len() {
-        let mut dec: StreamDecoder<StarFrame, 32> = StreamDecoder::new();
+        let mut dec: StreamDecoder<StarFrame, 34> = StreamDecoder::new();
         let mut got = Vec::new();
         for c in input.chunks(chunk) {
             dec.push_slice(c, |r| got.push(r));
@@ -92,24 +92,16 @@ fn frames_split_into_any_chunks_decode_the_same() {
 /// (it is a frame by every check), the real frame is lost, the next one is decoded.
 #[test]
 fn crc_collision_straddling_garbage_and_frame_is_the_one_exception() {
-    let real =
-        FogFrame { fog_id: 1, counter: 0x0042, status: 0, dtheta_counts: 0x1234_5678, temperature_counts: 0x0100 };
+    let real = FogFrame { fog_id: 1, counter: 0x0042, status: 0, dtheta_counts: 0, temperature_counts: 0x0100 };
+    // Candidate = tail (7 bytes) ++ r[0..11]: its dθ is r[0..4], its temperature r[4..6],
+    // its reserved byte r[6] (the real frame's status, 0) and its CRC r[7..11], the real
+    // frame's dθ, which any value may take: choose it to be the candidate's CRC.
+    let tail = [0xEB, 0x90, 0x10, 0x00, 0x42, 0x17, 0x00];
+    let mut cand = tail.to_vec();
+    cand.extend_from_slice(&real.to_bytes()[..7]);
+    let real = FogFrame { dtheta_counts: i32::from_le_bytes(CRC32C.checksum(&cand).to_le_bytes()), ..real };
     let next = FogFrame { counter: 0x0043, ..real };
     let r = real.to_bytes();
-    // Candidate = tail (8 bytes) ++ r[0..8]; its reserved byte is r[5] (= 0) and its CRC
-    // is r[6..8]. Choose the tail's counter bytes so that the CRC matches.
-    let target = u16::from_le_bytes([r[6], r[7]]);
-    let tail = (0..=u16::MAX)
-        .map(|c| {
-            let [c0, c1] = c.to_le_bytes();
-            [0xEB, 0x90, 0x10, 0x00, c0, c1, 0x00, 0x00]
-        })
-        .find(|t| {
-            let mut cand = t.to_vec();
-            cand.extend_from_slice(&r[..6]);
-            CRC16.checksum(&cand) == target
-        })
-        .expect("CRC-16 over two free bytes reaches every value");
     let mut input = vec![0x55; 5];
     input.extend(tail);
     input.extend(r);
@@ -119,9 +111,9 @@ fn crc_collision_straddling_garbage_and_frame_is_the_one_exception() {
     let oks = fed.oks();
     assert_eq!(oks.len(), 2, "{:?}", fed.results);
     assert_ne!(oks[0], real);
-    assert_eq!(&oks[0].to_bytes()[8..], &r[..8]);
+    assert_eq!(&oks[0].to_bytes()[7..], &r[..11]);
     assert_eq!(oks[1], next);
-    assert!(check_frame_after_garbage(&input[..5 + 8], &real));
+    assert!(check_frame_after_garbage(&input[..5 + 7], &real));
 }
 
 #[test]
@@ -157,7 +149,7 @@ proptest! {
         frames in prop::collection::vec(fog_frame(), 1..12),
         flips in prop::collection::vec(any::<prop::sample::Index>(), 1..=3),
     ) {
-        // CRC-16/CCITT detects every pattern of up to 3 flipped bits in a frame.
+        // The CRC-32C detects every pattern of up to 7 flipped bits in a FOG frame.
         let mut input: Vec<u8> = frames.iter().flat_map(|f| f.to_bytes()).collect();
         let mut hit = std::collections::BTreeSet::new();
         for i in &flips {
@@ -198,7 +190,7 @@ proptest! {
             prop_assert!(frames.contains(&f));
         }
         let intact = (0..frames.len())
-            .filter(|k| input[k * 32..(k + 1) * 32] == original[k * 32..(k + 1) * 32])
+            .filter(|k| input[k * StarFrame::LEN..(k + 1) * StarFrame::LEN] == original[k * StarFrame::LEN..(k + 1) * StarFrame::LEN])
             .count();
         prop_assert_eq!(fed.oks().len(), intact);
     }
@@ -212,7 +204,7 @@ proptest! {
     }
 
     #[test]
-    fn spliced_frame_is_recovered(a in fog_frame(), b in fog_frame(), n in 1usize..16) {
+    fn spliced_frame_is_recovered(a in fog_frame(), b in fog_frame(), n in 1usize..FogFrame::LEN) {
         // A prefix of one frame, then a whole frame.
         let prefix = a.to_bytes()[..n].to_vec();
         check_frame_after_garbage(&prefix, &b);
@@ -262,8 +254,8 @@ proptest! {
 
     #[test]
     fn push_slice_equals_push(input in prop::collection::vec(any::<u8>(), 0..300), cut in 1usize..40) {
-        let mut a: StreamDecoder<FogFrame, 16> = StreamDecoder::new();
-        let mut b: StreamDecoder<FogFrame, 16> = StreamDecoder::new();
+        let mut a: StreamDecoder<FogFrame, 18> = StreamDecoder::new();
+        let mut b: StreamDecoder<FogFrame, 18> = StreamDecoder::new();
         let one: Vec<_> = input.iter().filter_map(|&x| a.push(x)).collect();
         let mut two = Vec::new();
         for c in input.chunks(cut) {
@@ -276,7 +268,7 @@ proptest! {
 
 /// Decodes `input` byte by byte with `push`, returning the results and counters.
 fn feed_bytewise(input: &[u8]) -> (Vec<Result<FogFrame, DecodeError>>, DecoderStats) {
-    let mut d: StreamDecoder<FogFrame, 32> = StreamDecoder::new();
+    let mut d: StreamDecoder<FogFrame, 36> = StreamDecoder::new();
     let mut out = Vec::new();
     for &b in input {
         if let Some(r) = d.push(b) {
@@ -308,7 +300,7 @@ proptest! {
             }
         }
         let (want, want_stats) = feed_bytewise(&input);
-        let mut d: StreamDecoder<FogFrame, 32> = StreamDecoder::new();
+        let mut d: StreamDecoder<FogFrame, 36> = StreamDecoder::new();
         let mut got = Vec::new();
         for c in input.chunks(chunk) {
             d.push_slice(c, |r| got.push(r));

@@ -5,7 +5,7 @@ use proptest::prelude::*;
 use ssis::frames::fog::{self, FogFrame};
 use ssis::frames::output::{self, OutputCounters, OutputFrame};
 use ssis::frames::star::{self, StarFrame};
-use ssis::frames::{body_crc, header_crc, kind, DecodeError, EncodeError, Frame, CRC16, SYNC};
+use ssis::frames::{body_crc, header_crc, kind, DecodeError, EncodeError, Frame, CRC32C, SYNC};
 
 mod frames_common;
 use frames_common::*;
@@ -15,32 +15,34 @@ use frames_common::*;
 
 #[test]
 fn crc_check_value() {
-    assert_eq!(CRC16.checksum(b"123456789"), 0x29B1);
+    assert_eq!(CRC32C.checksum(b"123456789"), 0xE306_9283);
+    // The flight tables from the register's initial value, as if there were no header.
+    assert_eq!(body_crc(0xFFFF_FFFF, b"123456789"), 0xE306_9283);
 }
 
 #[test]
 fn lengths_and_kinds() {
-    assert_eq!((FogFrame::LEN, <FogFrame as Frame>::LEN, <FogFrame as Frame>::KIND), (16, 16, 0x10));
-    assert_eq!((StarFrame::LEN, <StarFrame as Frame>::LEN, <StarFrame as Frame>::KIND), (32, 32, 0x20));
-    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (83, 83, 0x30));
+    assert_eq!((FogFrame::LEN, <FogFrame as Frame>::LEN, <FogFrame as Frame>::KIND), (18, 18, 0x10));
+    assert_eq!((StarFrame::LEN, <StarFrame as Frame>::LEN, <StarFrame as Frame>::KIND), (34, 34, 0x20));
+    assert_eq!((OutputFrame::LEN, <OutputFrame as Frame>::LEN, <OutputFrame as Frame>::KIND), (97, 97, 0x30));
     assert_eq!([kind::FOG, kind::STAR, kind::OUTPUT], [0x10, 0x20, 0x30]);
 }
 
 #[test]
 fn encode_into_checks_the_buffer() {
     let f = FogFrame::from_physical(1, 2, 0, 1e-6, 20.0);
-    let mut small = [0u8; 15];
+    let mut small = [0u8; 17];
     assert_eq!(f.encode_into(&mut small), Err(EncodeError::BufferTooSmall));
-    let mut big = [0xAAu8; 20];
-    assert_eq!(f.encode_into(&mut big), Ok(16));
-    assert_eq!(&big[..16], &f.to_bytes());
-    assert_eq!(&big[16..], &[0xAA; 4]);
+    let mut big = [0xAAu8; 22];
+    assert_eq!(f.encode_into(&mut big), Ok(18));
+    assert_eq!(&big[..18], &f.to_bytes());
+    assert_eq!(&big[18..], &[0xAA; 4]);
 }
 
 #[test]
 fn decode_checks_length_sync_kind_crc() {
     let b = FogFrame::from_physical(1, 2, 0, 1e-6, 20.0).to_bytes();
-    assert_eq!(FogFrame::decode(&b[..15]), Err(DecodeError::BadLength));
+    assert_eq!(FogFrame::decode(&b[..17]), Err(DecodeError::BadLength));
     let mut long = b.to_vec();
     long.push(0);
     assert_eq!(FogFrame::decode(&long), Err(DecodeError::BadLength));
@@ -56,11 +58,82 @@ fn decode_checks_length_sync_kind_crc() {
     c[8] ^= 0x04;
     assert_eq!(FogFrame::decode(&c), Err(DecodeError::BadCrc));
     let mut c2 = b;
-    c2[15] ^= 0x80;
+    c2[17] ^= 0x80;
     assert_eq!(FogFrame::decode(&c2), Err(DecodeError::BadCrc));
     // The CRC is little-endian over bytes 0..14.
-    assert_eq!(u16::from_le_bytes([b[14], b[15]]), CRC16.checksum(&b[..14]));
+    assert_eq!(u32::from_le_bytes([b[14], b[15], b[16], b[17]]), CRC32C.checksum(&b[..14]));
     assert_eq!(FogFrame::decode(&b).map(|f| f.to_bytes()), Ok(b));
+}
+
+/// The CRC-32C's Hamming distance at every frame length of the ICD: no error pattern of
+/// 1 to d − 1 bits anywhere in the frame (data and CRC) leaves the CRC valid, d = 8 for
+/// the 14 covered bytes of the FOG, accelerometer and control frames and d = 6 for the
+/// others (docs/ICD.md, Common rules). The CRC is linear, so a pattern is undetected
+/// exactly when the syndromes of its bits (the CRC change a single bit causes; a CRC
+/// bit's own is itself) XOR to zero: 1 and 2 bits directly, 3 as a pair's XOR equal to a
+/// single syndrome, 4 as two pairs with the same XOR, 5 as a triple's XOR equal to a
+/// pair's, 6 as two triples with the same XOR, 7 as a quadruple's XOR equal to a
+/// triple's (an overlap of the two sets is an error of lower weight, already excluded).
+#[test]
+fn hamming_distance_of_the_crc_at_every_frame_length() {
+    use std::collections::HashSet;
+    for (frames, covered, d) in [
+        ("FOG, accelerometer, control", 14, 8),
+        ("star tracker, command report", 30, 6),
+        ("GNSS", 43, 6),
+        ("navigation output", 62, 6),
+        ("output", OutputFrame::LEN - 4, 6),
+        ("telecommand", ssis::frames::telecommand::CRC_COVERED_LEN, 6),
+    ] {
+        let base = vec![0u8; covered];
+        let c0 = CRC32C.checksum(&base);
+        let mut h: Vec<u32> = (0..covered * 8)
+            .map(|bit| {
+                let mut b = base.clone();
+                b[bit / 8] ^= 1 << (bit % 8);
+                CRC32C.checksum(&b) ^ c0
+            })
+            .collect();
+        h.extend((0..32).map(|j| 1u32 << j));
+        let n = h.len();
+        assert!(h.iter().all(|&x| x != 0), "{frames}: a 1-bit error is missed");
+        let singles: HashSet<u32> = h.iter().copied().collect();
+        assert_eq!(singles.len(), n, "{frames}: a 2-bit error is missed");
+        let mut pairs: HashSet<u32> = HashSet::with_capacity(n * n / 2);
+        for i in 0..n {
+            for j in i + 1..n {
+                let x = h[i] ^ h[j];
+                assert!(!singles.contains(&x), "{frames}: a 3-bit error is missed ({i}, {j})");
+                assert!(pairs.insert(x), "{frames}: a 4-bit error is missed ({i}, {j})");
+            }
+        }
+        let mut triples: HashSet<u32> = HashSet::new();
+        for i in 0..n {
+            for j in i + 1..n {
+                let x = h[i] ^ h[j];
+                for hk in &h[j + 1..] {
+                    let y = x ^ hk;
+                    assert!(!pairs.contains(&y), "{frames}: a 5-bit error is missed ({i}, {j})");
+                    if d > 6 {
+                        assert!(triples.insert(y), "{frames}: a 6-bit error is missed ({i}, {j})");
+                    }
+                }
+            }
+        }
+        if d > 7 {
+            for i in 0..n {
+                for j in i + 1..n {
+                    for k in j + 1..n {
+                        let x = h[i] ^ h[j] ^ h[k];
+                        for hl in &h[k + 1..] {
+                            assert!(!triples.contains(&(x ^ hl)), "{frames}: a 7-bit error is missed ({i}, {j}, {k})");
+                        }
+                    }
+                }
+            }
+        }
+        println!("{frames}: CRC-32C over {covered} bytes + CRC ({n} bits): every error of 1 to {} bits detected (Hamming distance >= {d})", d - 1);
+    }
 }
 
 // ---------------------------------------------------------------------------------------
@@ -127,7 +200,7 @@ fn star_layout_and_flags() {
     assert_eq!(&b[6..14], &[1, 2, 3, 4, 5, 6, 7, 8]);
     assert_eq!(&b[14..18], &0x4000_0000i32.to_le_bytes());
     assert_eq!(&b[18..22], &(-0x4000_0000i32).to_le_bytes());
-    assert_eq!(u16::from_le_bytes([b[30], b[31]]), CRC16.checksum(&b[..30]));
+    assert_eq!(u32::from_le_bytes(b[30..34].try_into().unwrap()), CRC32C.checksum(&b[..30]));
     let d = StarFrame::decode(&b).expect("decodes");
     assert_eq!(d, f);
     assert!(d.valid() && !d.high_rate());
@@ -190,9 +263,11 @@ fn output_layout_offsets() {
         fdi: 0x91,
         page_id: 0x92,
         page_value: 0x9394,
+        att_sigma_counts: [0xA1, 0xA2, 0xA3],
+        drift_sigma_counts: [0xB1, 0xB2, 0xB3],
     };
     let b = f.to_bytes();
-    assert_eq!(b.len(), 83);
+    assert_eq!(b.len(), 97);
     assert_eq!(&b[..6], &[0xEB, 0x90, 0x30, 0x1F, 0x02, 0x01]);
     assert_eq!(&b[6..14], &0x1112_1314_1516_1718u64.to_le_bytes());
     let word = |off: usize| i32::from_le_bytes(b[off..off + 4].try_into().unwrap());
@@ -205,7 +280,8 @@ fn output_layout_offsets() {
     assert_eq!([63, 65, 67, 69, 71, 73, 75].map(half), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
     assert_eq!(&b[77..79], &[0x91, 0x92]);
     assert_eq!(half(79), 0x9394);
-    assert_eq!(half(81), CRC16.checksum(&b[..81]));
+    assert_eq!([81, 83, 85, 87, 89, 91].map(half), [0xA1, 0xA2, 0xA3, 0xB1, 0xB2, 0xB3]);
+    assert_eq!(word(93) as u32, CRC32C.checksum(&b[..93]));
     assert_eq!(OutputFrame::decode(&b), Ok(f));
     assert_eq!(f.counters.step_ticks, 0x87);
     assert_eq!(f.counters.to_array(), [0x81, 0x82, 0x83, 0x84, 0x85, 0x86, 0x87]);
@@ -239,6 +315,19 @@ fn output_physical_scaling() {
     assert!(!f.flag(output::flags::CONVERGED));
     assert_eq!(f.counters.overruns, 6);
     assert_eq!(OutputFrame::decode(&f.to_bytes()), Ok(f));
+    // The 1σ fields: unknown until set; 0.01″ and 1e-4 °/h counts; infinite (not
+    // aligned) and beyond the range saturate to "unknown", NaN gives 0.
+    assert_eq!(f.att_sigma_counts, [output::SIGMA_UNKNOWN; 3]);
+    assert_eq!(f.att_sigma_rad(), [f64::INFINITY; 3]);
+    let mut s = f;
+    let arcsec = std::f64::consts::PI / 180.0 / 3600.0;
+    // 1 °/h is 1″/s.
+    s.set_sigmas([1.0 * arcsec, f64::INFINITY, f64::NAN], [0.3 * arcsec, 1.0, 0.0]);
+    assert_eq!(s.att_sigma_counts, [100, u16::MAX, 0]);
+    assert_eq!(s.drift_sigma_counts, [3_000, u16::MAX, 0]);
+    assert!((s.att_sigma_rad()[0] / arcsec - 1.0).abs() < 1e-12);
+    assert!((s.drift_sigma_rad_s()[0] / arcsec - 0.3).abs() < 1e-12);
+    assert_eq!(OutputFrame::decode(&s.to_bytes()), Ok(s));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -252,14 +341,14 @@ fn icd_example_frames() {
     let star = hex_block(&icd_star_example().to_bytes());
     let out = hex_block(&icd_output_example().to_bytes());
     println!("FOG:\n{fog}\nSTAR:\n{star}\nOUTPUT:\n{out}");
-    assert_eq!(fog, "EB 90 10 01 02 01 00 E3 36 1A 00 80 19 00 41 F5");
+    assert_eq!(fog, "EB 90 10 01 02 01 00 E3 36 1A 00 80 19 00 AD 60\nBD 86");
     for (name, hex) in [("FOG", &fog), ("star-tracker", &star), ("output", &out)] {
         assert!(ICD.contains(hex.as_str()), "docs/ICD.md lacks the {name} example:\n{hex}");
     }
     assert!(ICD.contains("## Links and UART mapping") && ICD.contains("| UART1 | 0x4000_5000 |"));
-    assert!(ICD.contains("## Control frame (kind 0x40, 16 bytes)"));
+    assert!(ICD.contains("## Control frame (kind 0x40, 18 bytes)"));
     assert!(ICD.contains("## Calibration table\n\nSee docs/CALIBRATION.md."));
-    assert!(ICD.contains("0x29B1"));
+    assert!(ICD.contains("0xE3069283"));
 }
 
 // ---------------------------------------------------------------------------------------
@@ -316,6 +405,7 @@ proptest! {
             f.parity_rad(), f.fog_health, f.st_status, f.counters.to_array(),
         );
         (p.fdi, p.page_id, p.page_value) = (f.fdi, f.page_id, f.page_value);
+        p.set_sigmas(f.att_sigma_rad(), f.drift_sigma_rad_s());
         prop_assert_eq!(p, f);
     }
 
@@ -331,14 +421,14 @@ proptest! {
 }
 
 proptest! {
-    /// The flight code's two-bytes-a-pass CRC (`frames::body_crc`, byte-swapped tables)
-    /// equals the `crc` crate's CRC-16/IBM-3740 over header and body, for every kind and
-    /// any body length (odd lengths take the one-byte tail).
+    /// The flight code's four-bytes-a-pass CRC (`frames::body_crc`) equals the `crc`
+    /// crate's CRC-32/ISCSI over header and body, for every kind and any body length
+    /// (lengths not a multiple of four take the one-byte tail).
     #[test]
     fn body_crc_equals_the_crc_crate(kind_byte in any::<u8>(), body in proptest::collection::vec(any::<u8>(), 0..200)) {
         let mut whole = SYNC.to_vec();
         whole.push(kind_byte);
         whole.extend_from_slice(&body);
-        prop_assert_eq!(body_crc(header_crc(kind_byte), &body), CRC16.checksum(&whole));
+        prop_assert_eq!(body_crc(header_crc(kind_byte), &body), CRC32C.checksum(&whole));
     }
 }

@@ -378,7 +378,7 @@ fn sim_run_whose_fog_links_deliver_nothing_says_so_and_fails() {
         3,
         &["s.toml", "FOG0's link delivered nothing", "no accuracy figure"],
     );
-    assert!(text.contains("all 64000 bytes dropped"), "{text}");
+    assert!(text.contains("all 72000 bytes dropped"), "{text}");
 }
 
 #[test]

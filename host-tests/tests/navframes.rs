@@ -26,12 +26,12 @@ fn example_fix() -> GnssFix {
 
 #[test]
 fn gnss_icd_example_and_validity() {
-    assert_eq!((GnssFrame::LEN, <GnssFrame as Frame>::KIND, kind::GNSS), (45, 0x21, 0x21));
+    assert_eq!((GnssFrame::LEN, <GnssFrame as Frame>::KIND, kind::GNSS), (47, 0x21, 0x21));
     let f = GnssFrame::from_physical(status::FIX_VALID | status::FIX_3D, 7, 12, 600_000_000, &example_fix());
     let b = f.to_bytes();
     let expected = hex(
         "EB 90 21 03 07 00 0C 00 46 C3 23 00 00 00 00 00 80 84 1E 80 00 09 3D 40 20 AA 44 00 00 9C FF 00 80 FA 00 \
-         00 20 58 1B F4 01 64 00 B4 2B",
+         00 20 58 1B F4 01 64 00 8A 05 3B 8B",
     );
     assert_eq!(b.to_vec(), expected);
     assert_eq!(GnssFrame::decode(&b), Ok(f));
@@ -87,14 +87,14 @@ fn gnss_stream_with_corruption() {
 
 #[test]
 fn nav_output_icd_example_and_round_trip() {
-    assert_eq!((NavOutputFrame::LEN, <NavOutputFrame as Frame>::KIND, kind::NAV_OUTPUT), (64, 0x31, 0x31));
+    assert_eq!((NavOutputFrame::LEN, <NavOutputFrame as Frame>::KIND, kind::NAV_OUTPUT), (66, 0x31, 0x31));
     let fix = example_fix();
     let st = NavState { q_eb: Quaternion::new(0.5, -0.5, 0.5, 0.5), v_e_m_s: fix.v_e_m_s, r_e_m: fix.r_e_m };
     let f = NavOutputFrame::from_physical(flags::GNSS_UPDATED, 9, 1_250_000, &st, (1.5, 0.05), (570, 0));
     let b = f.to_bytes();
     let expected = hex(
         "EB 90 31 01 09 00 D0 12 13 00 00 00 00 00 00 00 00 40 00 00 00 C0 00 00 00 40 00 00 00 40 00 00 9C FF 00 \
-         80 FA 00 00 20 58 1B 00 80 84 1E 80 00 09 3D 40 20 AA 44 96 00 32 00 3A 02 00 00 4A 95",
+         80 FA 00 00 20 58 1B 00 80 84 1E 80 00 09 3D 40 20 AA 44 96 00 32 00 3A 02 00 00 17 D1 36 5D",
     );
     assert_eq!(b.to_vec(), expected);
     assert_eq!(NavOutputFrame::decode(&b), Ok(f));

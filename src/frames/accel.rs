@@ -1,4 +1,4 @@
-//! Accelerometer sample frame (kind 0x11, 16 bytes): one velocity increment and
+//! Accelerometer sample frame (kind 0x11, 18 bytes): one velocity increment and
 //! temperature per sample interval from one pendulous accelerometer (launch-vehicle
 //! unit: three, AK-30 class, ±85 m/s²).
 //!
@@ -15,7 +15,7 @@
 //! | 7 | 4 | dv | i32 | LSB 2^-28 m/s (±8 m/s per sample) |
 //! | 11 | 2 | temperature | i16 | LSB 1/256 °C |
 //! | 13 | 1 | reserved | u8 | zero |
-//! | 14 | 2 | crc | u16 | CRC16 over bytes 0..14 |
+//! | 14 | 4 | crc | u32 | CRC-32C over bytes 0..14 |
 //!
 //! At 1.25 ms the full range ±85 m/s² is ±0.106 m/s per sample (2.9e7 counts); one LSB,
 //! 3.7e-9 m/s, is 3e-6 m/s² over a step, far below the accelerometer's own noise.
@@ -23,7 +23,7 @@
 use super::{counts_i16, counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of an accelerometer frame in bytes.
-pub const FRAME_LEN: usize = 16;
+pub const FRAME_LEN: usize = 18;
 
 /// Highest valid accelerometer id (X, Y, Z are ids 0..=2).
 pub const MAX_ACCEL_ID: u8 = 2;

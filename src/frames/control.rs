@@ -1,4 +1,4 @@
-//! Control frame (kind 0x40, 16 bytes): test equipment → unit, on the output link's
+//! Control frame (kind 0x40, 18 bytes): test equipment → unit, on the output link's
 //! receive line. It lets a runner step the unit in lockstep with a simulator and end a
 //! run; only a test build (`test-hooks`) acts on it, a flight build counts and ignores it
 //! (`bsp::mps2::Pacer`).
@@ -11,7 +11,7 @@
 //! | 4 | 4 | fog_bytes | u32 | lockstep: total bytes sent on the FOG bus so far |
 //! | 8 | 4 | st_bytes | u32 | lockstep: total bytes sent on the star-tracker link so far |
 //! | 12 | 2 | arg | u16 | command argument (reserved, 0) |
-//! | 14 | 2 | crc | u16 | CRC16 over bytes 0..14 |
+//! | 14 | 4 | crc | u32 | CRC-32C over bytes 0..14 |
 //!
 //! In lockstep the unit steps once per `STEP`, after it has received the totals named.
 //! `STALL` exists for the watchdog test.
@@ -19,7 +19,7 @@
 use super::{kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of a control frame in bytes.
-pub const FRAME_LEN: usize = 16;
+pub const FRAME_LEN: usize = 18;
 
 /// Command codes.
 pub mod command {

@@ -19,7 +19,7 @@
 //! except in one case: the garbage ends with `EB 90 KIND` followed by k − 3 bytes
 //! (k < LEN) such that those k bytes plus the first LEN − k bytes of the real frame have a
 //! matching CRC and valid fields. That candidate is a frame by every check the link
-//! defines (a CRC-16 collision, about 2^-16 for such a tail) and is accepted; the real
+//! defines (a CRC-32C collision, about 2^-32 for such a tail) and is accepted; the real
 //! frame starting inside it is lost, and the decoder is back in sync at most one frame
 //! later. No decoder without look-ahead can tell the two apart.
 //!

@@ -1,4 +1,4 @@
-//! FOG sample frame (kind 0x10, 16 bytes): one angle increment and temperature per
+//! FOG sample frame (kind 0x10, 18 bytes): one angle increment and temperature per
 //! sample interval from one fibre-optic gyro.
 //!
 //! | off | size | field | type | scaling |
@@ -11,12 +11,12 @@
 //! | 7 | 4 | dtheta | i32 | LSB 2^-36 rad |
 //! | 11 | 2 | temperature | i16 | LSB 1/256 °C |
 //! | 13 | 1 | reserved | u8 | zero |
-//! | 14 | 2 | crc | u16 | CRC16 over bytes 0..14 |
+//! | 14 | 4 | crc | u32 | CRC-32C over bytes 0..14 |
 
 use super::{counts_i16, counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of a FOG frame in bytes.
-pub const FRAME_LEN: usize = 16;
+pub const FRAME_LEN: usize = 18;
 
 /// Highest valid FOG id (FOG1..FOG4 are ids 0..=3).
 pub const MAX_FOG_ID: u8 = 3;

@@ -1,4 +1,4 @@
-//! GNSS fix frame (kind 0x21, 45 bytes): one position/velocity solution of the
+//! GNSS fix frame (kind 0x21, 47 bytes): one position/velocity solution of the
 //! launch vehicle's GNSS receiver (GPS/GLONASS), on its own RS-422 link.
 //!
 //! | off | size | field | type | scaling |
@@ -13,14 +13,14 @@
 //! | 27 | 12 | v x,y,z | 3 × i32 | ECEF velocity, LSB 2^-16 m/s (±32,768 m/s) |
 //! | 39 | 2 | sigma_pos | u16 | position 1σ per axis, LSB 0.01 m |
 //! | 41 | 2 | sigma_vel | u16 | velocity 1σ per axis, LSB 0.001 m/s |
-//! | 43 | 2 | crc | u16 | CRC16 over bytes 0..43 |
+//! | 43 | 4 | crc | u32 | CRC-32C over bytes 0..43 |
 //!
 //! A frame with reserved status bits set is rejected; a frame without the
 //! [`status::FIX_VALID`] bit decodes (it carries the receiver's state) but gives no fix.
 
 use nalgebra::Vector3;
 
-use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
+use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// One GNSS position/velocity fix, ECEF, the physical content of a
 /// [`GnssFrame`]; the navigation applies it after the step it is valid at the end of.
@@ -37,8 +37,8 @@ pub struct GnssFix {
 }
 
 /// Length of a GNSS frame in bytes.
-pub const FRAME_LEN: usize = 45;
-const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 1 + 8 + 12 + 12 + 2 + 2 + 2);
+pub const FRAME_LEN: usize = 47;
+const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 1 + 8 + 12 + 12 + 2 + 2 + 4);
 
 /// LSB of a position component: 2^-8 m.
 pub const POS_LSB_M: f64 = 1.0 / 256.0;
@@ -81,11 +81,6 @@ pub struct GnssFrame {
     pub sigma_pos_counts: u16,
     /// Velocity 1σ, counts of [`SIGMA_VEL_LSB_M_S`].
     pub sigma_vel_counts: u16,
-}
-
-fn counts_u16(value: f64, lsb: f64) -> u16 {
-    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
-    (value / lsb + 0.5) as u16
 }
 
 impl GnssFrame {

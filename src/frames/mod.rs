@@ -5,19 +5,19 @@
 //!
 //! What it provides:
 //! - the common envelope of every frame: [`SYNC`] (`EB 90`), one kind byte
-//!   ([`kind`]), the fields (little-endian), and a CRC-16/CCITT-FALSE ([`CRC16`]) over
+//!   ([`kind`]), the fields (little-endian), and a CRC-32C ([`CRC32C`]) over
 //!   everything before it, sent little-endian;
 //! - the [`Frame`] trait: one generic envelope codec ([`Frame::encode_into`],
 //!   [`Frame::decode`]) around each type's field codec, so that one streaming decoder
 //!   serves every frame type;
-//! - the frames: [`fog::FogFrame`] (16 bytes), [`accel::AccelFrame`] (16 bytes),
-//!   [`star::StarFrame`] (32 bytes), [`gnss::GnssFrame`] (45 bytes),
-//!   [`navout::NavOutputFrame`] (64 bytes),
-//!   [`output::OutputFrame`] (83 bytes), each with raw-count fields, physical-unit
+//! - the frames: [`fog::FogFrame`] (18 bytes), [`accel::AccelFrame`] (18 bytes),
+//!   [`star::StarFrame`] (34 bytes), [`gnss::GnssFrame`] (47 bytes),
+//!   [`navout::NavOutputFrame`] (66 bytes),
+//!   [`output::OutputFrame`] (85 bytes), each with raw-count fields, physical-unit
 //!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
-//!   [`control::ControlFrame`] (16 bytes, test equipment), and the command link's
-//!   [`telecommand::Telecommand`] (98 bytes, with a CRC-32C in place of the CRC-16) and
-//!   [`telecommand::CommandReport`] (32 bytes);
+//!   [`control::ControlFrame`] (18 bytes, test equipment), and the command link's
+//!   [`telecommand::Telecommand`] (98 bytes) and [`telecommand::CommandReport`]
+//!   (34 bytes);
 //! - [`decoder::StreamDecoder`]: a fixed-capacity byte-stream decoder that hunts for
 //!   sync, checks kind, CRC and fields, counts every rejection and resynchronises inside
 //!   rejected bytes, so a frame that follows garbage is not lost.
@@ -62,84 +62,91 @@ pub mod kind {
 /// Bytes before the fields: sync (2) and kind (1).
 pub const HEADER_LEN: usize = 3;
 /// Bytes of the trailing CRC.
-pub const CRC_LEN: usize = 2;
+pub const CRC_LEN: usize = 4;
 /// Envelope overhead of every frame: header and CRC.
 pub const OVERHEAD_LEN: usize = HEADER_LEN + CRC_LEN;
 
-/// The frame CRC: CRC-16/CCITT-FALSE (a.k.a. CRC-16/IBM-3740): polynomial 0x1021,
-/// init 0xFFFF, no reflection, xorout 0x0000; check value of `"123456789"` is 0x29B1.
-/// Computed over every byte before the CRC (sync and kind included), sent little-endian.
-pub const CRC16: crc::Crc<u16> = crc::Crc::<u16>::new(&crc::CRC_16_IBM_3740);
-
-/// The CRC register after a frame's constant header `EB 90 kind`. The CRC has no
-/// reflection and no final XOR, so the CRC of a whole frame is the CRC of its body
-/// continued from this register ([`body_crc`]): the three header bytes, the same in
-/// every frame of a kind, are folded in at compile time instead of at every frame.
-pub const fn header_crc(kind: u8) -> u16 {
-    let [s0, s1] = SYNC;
-    CRC16.checksum(&[s0, s1, kind])
-}
-
-/// CRC-16 of a frame whose header CRC is `header_crc` ([`header_crc`]) and whose bytes
-/// after the header, up to the CRC field, are `body`: equal to [`CRC16`] over the whole.
+/// The frame CRC: CRC-32C (Castagnoli; catalogue name CRC-32/ISCSI): polynomial
+/// 0x1EDC6F41, input and output reflected, init and xorout 0xFFFFFFFF; check value of
+/// `"123456789"` is 0xE3069283. Computed over every byte before the CRC (sync and kind
+/// included), sent little-endian.
 ///
-/// Two bytes a pass ("slicing by 2"): with T₀ the byte table of the polynomial and
-/// T₁\[x\] = T₀\[T₀\[x\] ≫ 8\] ⊕ (T₀\[x\] ≪ 8) (the table of a byte followed by a zero
-/// byte), crc ← T₁\[(crc ≫ 8) ⊕ b₀\] ⊕ T₀\[(crc & 0xFF) ⊕ b₁\], by the linearity of the
-/// CRC. The register and both tables are kept byte-swapped, so that the register XOR
-/// the two bytes read as one little-endian half-word gives both table indices at once:
-/// seven instructions for two bytes on the M7, against about ten for the `crc` crate's
-/// byte table (which offers one byte a pass or sixteen, whose setup outweighs the gain
-/// on 20–80-byte frames). 512 bytes more flash. `tests/frames.rs` checks it against
-/// [`CRC16`].
-#[inline]
-pub fn body_crc(header_crc: u16, body: &[u8]) -> u16 {
-    let [s0, s1] = &CRC_TABLES_SWAPPED;
-    let at = |t: &[u16; 256], i: u8| t.get(usize::from(i)).copied().unwrap_or(0);
-    let mut r = header_crc.swap_bytes();
-    let (pairs, rest) = body.as_chunks::<2>();
-    for pair in pairs {
-        let [x, y] = (r ^ u16::from_le_bytes(*pair)).to_le_bytes();
-        r = at(s1, x) ^ at(s0, y);
-    }
-    let mut crc = r.swap_bytes();
-    for &b in rest {
-        let [hi, _] = crc.to_be_bytes();
-        crc = at(s0, hi ^ b).swap_bytes() ^ (crc << 8);
-    }
-    crc
+/// Hamming distance at the frames' lengths (`host-tests/tests/frames.rs` proves both
+/// from the single-bit syndromes): 8 for the 14 bytes before the CRC of the FOG,
+/// accelerometer and control frames (every error of 1 to 7 bits detected), 6 for every
+/// longer frame up to the telecommand's 94 bytes (every error of 1 to 5 bits detected).
+/// Koopman's tables give this polynomial HD 8 up to 177 data bits and HD 6 up to 5,243.
+pub const CRC32C: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+
+/// The reflected CRC-32C polynomial (0x1EDC6F41 bit-reversed).
+const POLY_REFLECTED: u32 = 0x82F6_3B78;
+
+/// The CRC register after a frame's constant header `EB 90 kind` (init applied, xorout
+/// not). The CRC of a whole frame is the CRC of its body continued from this register
+/// ([`body_crc`]): the three header bytes, the same in every frame of a kind, are folded
+/// in at compile time instead of at every frame.
+pub const fn header_crc(kind: u8) -> u32 {
+    let [s0, s1] = SYNC;
+    // The crate's checksum is the register XOR xorout (reflected in and out).
+    CRC32C.checksum(&[s0, s1, kind]) ^ crc::CRC_32_ISCSI.xorout
 }
 
-/// T₀ and T₁ of [`body_crc`], each entry byte-swapped, built at compile time.
-static CRC_TABLES_SWAPPED: [[u16; 256]; 2] = crc_tables_swapped(0x1021);
+/// CRC-32C of a frame whose register after the header is `header_crc` ([`header_crc`])
+/// and whose bytes after the header, up to the CRC field, are `body`: equal to
+/// [`CRC32C`] over the whole.
+///
+/// Four bytes a pass ("slicing by 4"): with T₀ the byte table of the reflected
+/// polynomial and Tₖ\[x\] = (Tₖ₋₁\[x\] ≫ 8) ⊕ T₀\[Tₖ₋₁\[x\] & 0xFF\] (the table of a byte
+/// followed by k zero bytes), r ← T₃\[r₀\] ⊕ T₂\[r₁\] ⊕ T₁\[r₂\] ⊕ T₀\[r₃\] for
+/// r = crc ⊕ (the four bytes read as one little-endian word), rᵢ its bytes, by the
+/// linearity of the CRC: one word load, one XOR and four table loads per four bytes.
+/// 4 KiB of flash. `tests/frames.rs` checks it against [`CRC32C`].
+#[inline]
+pub fn body_crc(header_crc: u32, body: &[u8]) -> u32 {
+    let [t0, t1, t2, t3] = &CRC_TABLES;
+    let at = |t: &[u32; 256], i: u8| t.get(usize::from(i)).copied().unwrap_or(0);
+    let mut r = header_crc;
+    let (words, rest) = body.as_chunks::<4>();
+    for w in words {
+        let [b0, b1, b2, b3] = (r ^ u32::from_le_bytes(*w)).to_le_bytes();
+        r = at(t3, b0) ^ at(t2, b1) ^ at(t1, b2) ^ at(t0, b3);
+    }
+    for &b in rest {
+        let [lo, ..] = r.to_le_bytes();
+        r = at(t0, lo ^ b) ^ (r >> 8);
+    }
+    r ^ crc::CRC_32_ISCSI.xorout
+}
+
+/// T₀ … T₃ of [`body_crc`], built at compile time.
+static CRC_TABLES: [[u32; 256]; 4] = crc_tables(POLY_REFLECTED);
 
 #[allow(
     clippy::indexing_slicing,
     reason = "evaluated at compile time only (a static's initialiser): an index out of bounds is a build error, never a run-time panic"
 )]
-const fn crc_tables_swapped(poly: u16) -> [[u16; 256]; 2] {
-    let mut t = [[0u16; 256]; 2];
+const fn crc_tables(poly: u32) -> [[u32; 256]; 4] {
+    let mut t = [[0u32; 256]; 4];
     let mut i = 0;
     while i < 256 {
-        let mut c = (i as u16) << 8;
+        let mut c = i as u32;
         let mut k = 0;
         while k < 8 {
-            c = if c & 0x8000 != 0 { (c << 1) ^ poly } else { c << 1 };
+            c = if c & 1 != 0 { (c >> 1) ^ poly } else { c >> 1 };
             k += 1;
         }
         t[0][i] = c;
         i += 1;
     }
-    let mut i = 0;
-    while i < 256 {
-        let c = t[0][i];
-        t[1][i] = ((c << 8) ^ t[0][(c >> 8) as usize]).swap_bytes();
-        i += 1;
-    }
-    let mut i = 0;
-    while i < 256 {
-        t[0][i] = t[0][i].swap_bytes();
-        i += 1;
+    let mut k = 1;
+    while k < 4 {
+        let mut i = 0;
+        while i < 256 {
+            let c = t[k - 1][i];
+            t[k][i] = (c >> 8) ^ t[0][(c & 0xFF) as usize];
+            i += 1;
+        }
+        k += 1;
     }
     t
 }
@@ -177,14 +184,14 @@ pub trait Frame: Sized {
     /// The kind byte (see [`kind`]).
     const KIND: u8;
     /// [`header_crc`] of this kind, folded at compile time.
-    const HEADER_CRC: u16 = header_crc(Self::KIND);
+    const HEADER_CRC: u32 = header_crc(Self::KIND);
     /// Total frame length in bytes, sync and CRC included.
     const LEN: usize;
 
-    /// Writes the fields (the `LEN - 5` bytes between kind and CRC) to `w`.
+    /// Writes the fields (the `LEN - 7` bytes between kind and CRC) to `w`.
     fn write_fields(&self, w: &mut FieldWriter<'_>);
 
-    /// Reads and validates the fields from `r` (exactly `LEN - 5` bytes).
+    /// Reads and validates the fields from `r` (exactly `LEN - 7` bytes).
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError>;
 
     /// Encodes the frame into the first [`Frame::LEN`] bytes of `out`; returns the
@@ -235,7 +242,7 @@ pub fn check_envelope(frame: &[u8], kind: u8, len: usize) -> Result<&[u8], Decod
 }
 
 /// [`check_envelope`] with the kind's [`header_crc`] given (a constant per frame type).
-fn check_envelope_from(frame: &[u8], kind: u8, len: usize, header_crc: u16) -> Result<&[u8], DecodeError> {
+fn check_envelope_from(frame: &[u8], kind: u8, len: usize, header_crc: u32) -> Result<&[u8], DecodeError> {
     if frame.len() != len {
         return Err(DecodeError::BadLength);
     }
@@ -249,7 +256,7 @@ fn check_envelope_from(frame: &[u8], kind: u8, len: usize, header_crc: u16) -> R
         return Err(DecodeError::BadKind);
     }
     // The header was just checked to be `EB 90 kind`: continue from its register.
-    if body_crc(header_crc, body) != u16::from_le_bytes(*crc) {
+    if body_crc(header_crc, body) != u32::from_le_bytes(*crc) {
         return Err(DecodeError::BadCrc);
     }
     Ok(body)
@@ -385,6 +392,13 @@ pub fn counts_i32(value: f64, lsb: f64) -> i32 {
 /// `i16` range; NaN gives 0.
 pub fn counts_i16(value: f64, lsb: f64) -> i16 {
     round_half_away(value / lsb) as i16
+}
+
+/// `value / lsb` rounded to the nearest count, saturated to the `u16` range (negative
+/// values give 0); NaN gives 0.
+pub fn counts_u16(value: f64, lsb: f64) -> u16 {
+    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
+    (value / lsb + 0.5) as u16
 }
 
 /// x rounded half away from zero, as f64 (truncation happens in the caller's `as`).

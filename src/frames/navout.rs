@@ -1,4 +1,4 @@
-//! Navigation output frame (kind 0x31, 64 bytes): the launch-vehicle unit's navigation
+//! Navigation output frame (kind 0x31, 66 bytes): the launch-vehicle unit's navigation
 //! state after each step (attitude, velocity, position in ECEF).
 //!
 //! | off | size | field | type | scaling |
@@ -15,14 +15,14 @@
 //! | 56 | 2 | sigma_vel | u16 | filter velocity 1σ (3-D), LSB 0.001 m/s |
 //! | 58 | 2 | fixes_used | u16 | GNSS fixes used (saturating) |
 //! | 60 | 2 | fixes_refused | u16 | GNSS fixes refused (saturating) |
-//! | 62 | 2 | crc | u16 | CRC16 over bytes 0..62 |
+//! | 62 | 4 | crc | u32 | CRC-32C over bytes 0..62 |
 //!
 //! At 1.25 ms the frame is 51,200 bytes/s (512 kbit/s with start and stop bits). The
 //! decoder checks only the envelope: every field value is accepted.
 
 use nalgebra::{Quaternion, Vector3};
 
-use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
+use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Navigation state at the end of a step (what [`NavOutputFrame`] carries; the
 /// navigation, `crate::nav`, computes it).
@@ -37,8 +37,8 @@ pub struct NavState {
 }
 
 /// Length of a navigation output frame in bytes.
-pub const FRAME_LEN: usize = 64;
-const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 2 + 2 + 2 + 2 + 2);
+pub const FRAME_LEN: usize = 66;
+const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 2 + 2 + 2 + 2 + 4);
 
 /// LSB of a quaternion component: 2^-31.
 pub const Q_LSB: f64 = 1.0 / 2_147_483_648.0;
@@ -88,11 +88,6 @@ pub struct NavOutputFrame {
     pub fixes_used: u16,
     /// GNSS fixes refused.
     pub fixes_refused: u16,
-}
-
-fn counts_u16(value: f64, lsb: f64) -> u16 {
-    // `as` saturates and maps NaN to 0; +0.5 rounds the non-negative values.
-    (value / lsb + 0.5) as u16
 }
 
 impl NavOutputFrame {

@@ -1,4 +1,4 @@
-//! Output frame (kind 0x30, 83 bytes): the unit's state after each step.
+//! Output frame (kind 0x30, 97 bytes): the unit's state after each step.
 //!
 //! | off | size | field | type | scaling |
 //! |---|---|---|---|---|
@@ -17,16 +17,18 @@
 //! | 77 | 1 | fdi | u8 | bits 0–3: FOG i flies on a held temperature (sensor failed); bits 4–7: FOG i isolated by the fault logic |
 //! | 78 | 1 | page_id | u8 | which counter `page_value` carries (`crate::telemetry::page`); cycles through all, one a frame |
 //! | 79 | 2 | page_value | u16 | that counter, saturating |
-//! | 81 | 2 | crc | u16 | CRC16 over bytes 0..81 |
+//! | 81 | 6 | att_sigma x,y,z | 3 × u16 | the estimator's attitude-error 1σ, LSB 0.01″; 65535: unknown or larger |
+//! | 87 | 6 | drift_sigma x,y,z | 3 × u16 | its drift-error 1σ, LSB 1e-4 °/h; 65535: unknown or larger |
+//! | 93 | 4 | crc | u32 | CRC-32C over bytes 0..93 |
 //!
 //! The decoder checks only the envelope: every field value is accepted.
 
-use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
+use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of an output frame in bytes: 3 (header) + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 +
-/// 1 + 14 + 1 + 1 + 2 + 2 (CRC).
-pub const FRAME_LEN: usize = 83;
-const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 1 + 1 + 2 + 2);
+/// 1 + 14 + 1 + 1 + 2 + 6 + 6 + 4 (CRC).
+pub const FRAME_LEN: usize = 97;
+const _: () = assert!(FRAME_LEN == 3 + 1 + 2 + 8 + 16 + 12 + 12 + 4 + 4 + 1 + 14 + 1 + 1 + 2 + 6 + 6 + 4);
 
 /// FOG slots in the frame (FOG1..FOG4).
 pub const FOG_SLOTS: usize = 4;
@@ -42,6 +44,12 @@ pub const RATE_LSB_RAD_S: f64 = 1.0 / 1_073_741_824.0;
 pub const DRIFT_LSB_RAD_S: f64 = 1.0 / 1_099_511_627_776.0;
 /// LSB of the parity residual: 2^-36 rad.
 pub const PARITY_LSB_RAD: f64 = 1.0 / 68_719_476_736.0;
+/// LSB of the attitude-error 1σ: 0.01″ in rad (range 0 … 655.34″).
+pub const ATT_SIGMA_LSB_RAD: f64 = 0.01 * core::f64::consts::PI / 180.0 / 3600.0;
+/// LSB of the drift-error 1σ: 1e-4 °/h in rad/s (range 0 … 6.5534 °/h).
+pub const DRIFT_SIGMA_LSB_RAD_S: f64 = 1e-4 * core::f64::consts::PI / 180.0 / 3600.0;
+/// A 1σ field's count for "unknown (not aligned) or beyond the range".
+pub const SIGMA_UNKNOWN: u16 = u16::MAX;
 
 /// Bits of the output flags byte.
 pub mod flags {
@@ -147,6 +155,11 @@ pub struct OutputFrame {
     pub page_id: u8,
     /// The paged counter.
     pub page_value: u16,
+    /// The estimator's attitude-error 1σ per ICS axis, counts of [`ATT_SIGMA_LSB_RAD`]
+    /// ([`SIGMA_UNKNOWN`]: unknown or beyond the range).
+    pub att_sigma_counts: [u16; 3],
+    /// The estimator's drift-error 1σ per ICS axis, counts of [`DRIFT_SIGMA_LSB_RAD_S`].
+    pub drift_sigma_counts: [u16; 3],
 }
 
 impl OutputFrame {
@@ -184,7 +197,26 @@ impl OutputFrame {
             fdi: 0,
             page_id: 0,
             page_value: 0,
+            att_sigma_counts: [SIGMA_UNKNOWN; 3],
+            drift_sigma_counts: [SIGMA_UNKNOWN; 3],
         }
+    }
+
+    /// Sets the 1σ fields from the estimator's figures (rad, rad/s; rounded, saturated:
+    /// an infinite σ, unknown, gives [`SIGMA_UNKNOWN`]).
+    pub fn set_sigmas(&mut self, att_rad: [f64; 3], drift_rad_s: [f64; 3]) {
+        self.att_sigma_counts = att_rad.map(|s| counts_u16(s, ATT_SIGMA_LSB_RAD));
+        self.drift_sigma_counts = drift_rad_s.map(|s| counts_u16(s, DRIFT_SIGMA_LSB_RAD_S));
+    }
+
+    /// The attitude-error 1σ per axis, rad (infinite where [`SIGMA_UNKNOWN`]).
+    pub fn att_sigma_rad(&self) -> [f64; 3] {
+        self.att_sigma_counts.map(|c| sigma_of(c, ATT_SIGMA_LSB_RAD))
+    }
+
+    /// The drift-error 1σ per axis, rad/s (infinite where [`SIGMA_UNKNOWN`]).
+    pub fn drift_sigma_rad_s(&self) -> [f64; 3] {
+        self.drift_sigma_counts.map(|c| sigma_of(c, DRIFT_SIGMA_LSB_RAD_S))
     }
 
     /// Λ, scalar first (as sent, not renormalised).
@@ -247,6 +279,9 @@ impl Frame for OutputFrame {
         w.u8(self.fdi);
         w.u8(self.page_id);
         w.u16(self.page_value);
+        for c in self.att_sigma_counts.into_iter().chain(self.drift_sigma_counts) {
+            w.u16(c);
+        }
     }
 
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError> {
@@ -273,6 +308,17 @@ impl Frame for OutputFrame {
             fdi: r.u8()?,
             page_id: r.u8()?,
             page_value: r.u16()?,
+            att_sigma_counts: [r.u16()?, r.u16()?, r.u16()?],
+            drift_sigma_counts: [r.u16()?, r.u16()?, r.u16()?],
         })
+    }
+}
+
+/// A 1σ count in physical units: infinite for [`SIGMA_UNKNOWN`].
+fn sigma_of(count: u16, lsb: f64) -> f64 {
+    if count == SIGMA_UNKNOWN {
+        f64::INFINITY
+    } else {
+        f64::from(count) * lsb
     }
 }

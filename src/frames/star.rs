@@ -1,4 +1,4 @@
-//! Star-tracker frame (kind 0x20, 32 bytes): one attitude solution with its time tag.
+//! Star-tracker frame (kind 0x20, 34 bytes): one attitude solution with its time tag.
 //!
 //! | off | size | field | type | scaling |
 //! |---|---|---|---|---|
@@ -8,14 +8,14 @@
 //! | 4 | 2 | counter | u16 | frame counter, wraps |
 //! | 6 | 8 | time_tag | u64 | µs of unit time at which the quaternion holds |
 //! | 14 | 16 | q0..q3 | 4 × i32 | star-tracker frame in 2ECS, scalar first, LSB 2^-31 |
-//! | 30 | 2 | crc | u16 | CRC16 over bytes 0..30 |
+//! | 30 | 4 | crc | u32 | CRC-32C over bytes 0..30 |
 //!
 //! A quaternion whose norm differs from 1 by more than [`NORM_TOLERANCE`] is rejected.
 
 use super::{counts_i32, kind, DecodeError, FieldReader, FieldWriter, Frame};
 
 /// Length of a star-tracker frame in bytes.
-pub const FRAME_LEN: usize = 32;
+pub const FRAME_LEN: usize = 34;
 
 /// LSB of a quaternion component: 2^-31.
 pub const Q_LSB: f64 = 1.0 / 2_147_483_648.0;

@@ -1,10 +1,10 @@
 //! Telecommand frame (kind 0x50, 98 bytes): ground → unit, on the output link's receive
-//! line, and the unit's command report (kind 0x51, 32 bytes) on its output line.
+//! line, and the unit's command report (kind 0x51, 34 bytes) on its output line.
 //!
 //! A telecommand carries a sequence number and a message authentication code
 //! (HMAC-SHA-256 under the unit's key, truncated to [`MAC_LEN`] bytes: CCSDS Space Data
-//! Link Security allows truncation to 128 bits), and, in place of the link's CRC-16,
-//! a CRC-32C over everything before it. The MAC and the sequence are checked by
+//! Link Security allows truncation to 128 bits), and the CRC-32C of every frame over
+//! everything before it. The MAC and the sequence are checked by
 //! `crate::telecommand`; this module is the wire format only.
 //!
 //! | off | size | field | type | meaning |
@@ -21,10 +21,10 @@
 //! | 94 | 4 | crc | u32 | CRC-32C (Castagnoli) over bytes 0..94 |
 //!
 //! The CRC-32C detects every error of up to five bits in a frame: its Hamming distance
-//! at 752 data bits is 6 (`host-tests/tests/telecommand.rs` proves it for this length
-//! from the single-bit syndromes).
+//! at 752 data bits is 6 (`host-tests/tests/frames.rs` proves it for every frame's
+//! length from the single-bit syndromes).
 
-use super::{kind, DecodeError, EncodeError, FieldReader, FieldWriter, Frame, HEADER_LEN, SYNC};
+use super::{kind, DecodeError, FieldReader, FieldWriter, Frame, HEADER_LEN, SYNC};
 
 /// Length of a telecommand frame in bytes.
 pub const FRAME_LEN: usize = 98;
@@ -37,10 +37,8 @@ pub const MAC_COVERED_LEN: usize = 78;
 /// Bytes the CRC-32C covers (the frame up to the CRC).
 pub const CRC_COVERED_LEN: usize = FRAME_LEN - 4;
 
-/// CRC of a telecommand: CRC-32C (Castagnoli, catalogue name CRC-32/ISCSI): polynomial
-/// 0x1EDC6F41, reflected, init and xorout 0xFFFFFFFF; check value 0xE3069283. Sent
-/// little-endian.
-pub const CRC32C: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISCSI);
+/// The CRC of every frame, a telecommand's included (`super::CRC32C`).
+pub use super::CRC32C;
 
 /// Command codes.
 pub mod command {
@@ -153,45 +151,6 @@ impl Frame for Telecommand {
         }
         Ok(t)
     }
-
-    /// The envelope with a CRC-32C (four bytes) instead of the link's CRC-16.
-    fn encode_into(&self, out: &mut [u8]) -> Result<usize, EncodeError> {
-        let frame = out.get_mut(..FRAME_LEN).ok_or(EncodeError::BufferTooSmall)?;
-        let (covered, crc) = frame.split_last_chunk_mut::<4>().ok_or(EncodeError::BufferTooSmall)?;
-        let (head, body) = covered.split_first_chunk_mut::<HEADER_LEN>().ok_or(EncodeError::BufferTooSmall)?;
-        let [s0, s1] = SYNC;
-        *head = [s0, s1, Self::KIND];
-        let mut w = FieldWriter::new(body);
-        self.write_fields(&mut w);
-        if !w.is_complete() {
-            return Err(EncodeError::BufferTooSmall);
-        }
-        *crc = CRC32C.checksum(covered).to_le_bytes();
-        Ok(FRAME_LEN)
-    }
-
-    /// Checks, in order: length, sync, kind, CRC-32C, fields.
-    fn decode(frame: &[u8]) -> Result<Self, DecodeError> {
-        let frame: &[u8; FRAME_LEN] = frame.try_into().map_err(|_| DecodeError::BadLength)?;
-        let (covered, crc) = frame.split_last_chunk::<4>().ok_or(DecodeError::BadLength)?;
-        let (head, body) = covered.split_first_chunk::<HEADER_LEN>().ok_or(DecodeError::BadLength)?;
-        let [s0, s1, k] = *head;
-        if [s0, s1] != SYNC {
-            return Err(DecodeError::BadSync);
-        }
-        if k != Self::KIND {
-            return Err(DecodeError::BadKind);
-        }
-        if CRC32C.checksum(covered) != u32::from_le_bytes(*crc) {
-            return Err(DecodeError::BadCrc);
-        }
-        let mut r = FieldReader::new(body);
-        let t = Self::read_fields(&mut r)?;
-        if r.remaining() != 0 {
-            return Err(DecodeError::BadLength);
-        }
-        Ok(t)
-    }
 }
 
 /// State of the table upload, as the command report gives it.
@@ -207,9 +166,9 @@ pub mod upload_state {
 }
 
 /// Length of a command report in bytes.
-pub const REPORT_LEN: usize = 32;
+pub const REPORT_LEN: usize = 34;
 
-/// The unit's command report (kind 0x51, 32 bytes), sent after the output frame of the
+/// The unit's command report (kind 0x51, 34 bytes), sent after the output frame of the
 /// step in which an accepted STATUS command arrived.
 ///
 /// | off | size | field | type | meaning |
@@ -227,7 +186,7 @@ pub const REPORT_LEN: usize = 32;
 /// | 24 | 2 | accepted | u16 | commands accepted and acted on, saturating |
 /// | 26 | 2 | refused | u16 | commands refused (every reason), saturating |
 /// | 28 | 2 | reserved | u16 | 0 |
-/// | 30 | 2 | crc | u16 | CRC-16 over bytes 0..30 |
+/// | 30 | 4 | crc | u32 | CRC-32C over bytes 0..30 |
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct CommandReport {
     /// [`upload_state`].

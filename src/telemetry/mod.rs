@@ -76,6 +76,12 @@ pub struct StepOutput {
     pub fogs_used: FogSet,
     /// Fault-logic bits: FOG i on a held temperature (bit i), FOG i isolated (bit 4 + i).
     pub fdi: u8,
+    /// The estimator's 1σ of the attitude error per ICS axis, rad (infinite: unknown,
+    /// before alignment).
+    pub att_sigma_rad: [f64; 3],
+    /// The estimator's 1σ of the drift-estimate error per ICS axis, rad/s (infinite:
+    /// unknown).
+    pub drift_sigma_rad_s: [f64; 3],
 }
 
 impl StepOutput {
@@ -91,12 +97,14 @@ impl StepOutput {
         flags: 0,
         fogs_used: FogSet(0),
         fdi: 0,
+        att_sigma_rad: [f64::INFINITY; 3],
+        drift_sigma_rad_s: [f64::INFINITY; 3],
     };
 }
 
 /// A byte buffer on a word boundary: the ring copies in and out of it then run word by
 /// word (a byte array can land at any offset in the core, and a misaligned copy of the
-/// 83-byte output frame cost ~180 instructions a step more on the M7).
+/// output frame cost ~180 instructions a step more on the M7).
 #[repr(C, align(4))]
 #[derive(Clone)]
 pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);
@@ -169,6 +177,7 @@ impl Telemetry {
             ],
         );
         frame.fdi = o.fdi;
+        frame.set_sigmas(o.att_sigma_rad, o.drift_sigma_rad_s);
         frame.page_id = page_id;
         frame.page_value = sat(page_value);
         self.out_counter = self.out_counter.wrapping_add(1);

@@ -281,7 +281,7 @@ mod board {
     pub static FOG_RX: RxRing<512> = RxRing::new();
     /// Star-tracker receive buffer.
     pub static ST_RX: RxRing<512> = RxRing::new();
-    /// Output transmit buffer: three 83-byte output frames.
+    /// Output transmit buffer: three output frames (`docs/ICD.md`).
     pub static OUT_TX: TxRing<256> = TxRing::new();
 
     /// SysTick interrupts since start.

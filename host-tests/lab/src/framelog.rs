@@ -8,7 +8,7 @@
 //! model's terms describe what is left in the unit's output per axis (a residual bias, scale
 //! factor or cross-axis error, a drift the observer did not remove).
 //!
-//! - **Output capture** ([`read_output_capture`]): the bytes of the output link, 83-byte
+//! - **Output capture** ([`read_output_capture`]): the bytes of the output link, output
 //!   frames (`docs/ICD.md`) decoded by the flight code's own
 //!   [`ssis::frames::decoder::StreamDecoder`]. The measurement is the frame's rate (LSB
 //!   2^-30 rad/s) at t = its time tag (the end of the step, the rate the mean over that

@@ -9,7 +9,7 @@
 //!   per-block Gram matrices (memory independent of the number of rows), G = dT/dt over a
 //!   bounded look-ahead, a systematic sample of rows kept for plots.
 //! - [`framelog`]: the firmware's own logs as sessions: a raw capture of the output link
-//!   (83-byte output frames, bad frames counted) and the per-step CSV of `ssis-qemu`.
+//!   (output frames, bad frames counted) and the per-step CSV of `ssis-qemu`.
 //! - [`model`]: the error model as data, a versioned TOML file (`ssis-error-model/1`) with a
 //!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
 //!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's

@@ -3,14 +3,14 @@
 //! [`StreamDecoder`] between intact frames; every accepted frame is checked against the
 //! frames actually sent.
 //!
-//! One trial, for one frame type `F` (FOG, star tracker, output, control in turn): the
+//! One trial, for one frame type `F` (every kind of the ICD in turn, [`FRAME_TYPES`]): the
 //! stream `before · corrupted · after1 · after2` of random valid frames, where
 //! `corrupted` is a random valid frame damaged by one [`Corruption`] (always changing it:
 //! flipped bits are distinct, a substituted byte differs, insertions are strictly inside
 //! the frame, a truncation keeps 0..LEN−1 bytes), goes through a fresh decoder. Then:
 //! - an accepted frame whose bytes are none of the frames sent (`before`, `after1` or
 //!   `after2` at their own positions, or the undamaged `corrupted`) is a **corrupted frame
-//!   accepted** (only possible through a CRC-16 collision plus fields that pass their
+//!   accepted** (only possible through a CRC-32C collision plus fields that pass their
 //!   checks); the undamaged frame accepted is counted as **recovered** (the damage only
 //!   moved a boundary, e.g. a truncated last byte equal to the next frame's first);
 //! - `after1` not decoded is a **frame lost to resynchronisation**; `after2` not decoded
@@ -18,22 +18,26 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use ssis::frames::accel::AccelFrame;
 use ssis::frames::control::ControlFrame;
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
+use ssis::frames::gnss::GnssFrame;
+use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::star::StarFrame;
+use ssis::frames::telecommand::CommandReport;
 use ssis::frames::Frame;
 
 /// How a frame is damaged.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Corruption {
-    /// 1 to 3 distinct bits flipped (CRC-16/CCITT detects every such error at these
-    /// lengths: Hamming distance 4).
+    /// 1 to 5 distinct bits flipped (the CRC-32C detects every such error at every frame
+    /// length of the ICD: Hamming distance 6, 8 for the 18-byte frames).
     FewBits,
-    /// 4 to 16 distinct bits flipped anywhere in the frame.
+    /// 6 to 16 distinct bits flipped anywhere in the frame.
     ManyBits,
-    /// One burst of up to 16 bits (CRC-16 detects every burst of length ≤ 16).
+    /// One burst of up to 32 bits (the CRC-32C detects every burst of length ≤ 32).
     Burst,
     /// 1 to 4 bytes replaced by different random values.
     Substitution,
@@ -54,7 +58,7 @@ impl Corruption {
         Corruption::Insertion,
     ];
 
-    /// Whether the CRC-16 alone guarantees detection of this kind inside one frame.
+    /// Whether the CRC-32C alone guarantees detection of this kind inside one frame.
     pub fn guaranteed_by_crc(self) -> bool {
         matches!(self, Corruption::FewBits | Corruption::Burst)
     }
@@ -93,13 +97,17 @@ impl Cell {
 }
 
 /// Frame types in the order trials cycle through them.
-pub const FRAME_TYPES: [&str; 4] = ["fog", "star", "output", "control"];
+pub const FRAME_TYPES: [&str; N_TYPES] =
+    ["fog", "accel", "star", "gnss", "output", "nav output", "control", "command report"];
+
+/// Number of frame types.
+pub const N_TYPES: usize = 8;
 
 /// The whole result: `cells[frame type][corruption]`.
 #[derive(Debug, Clone, Default)]
 pub struct Report {
     /// Per frame type (see [`FRAME_TYPES`]) and corruption ([`Corruption::ALL`]).
-    pub cells: [[Cell; 6]; 4],
+    pub cells: [[Cell; 6]; N_TYPES],
 }
 
 impl Report {
@@ -155,20 +163,42 @@ fn unit_q(rng: &mut ChaCha8Rng) -> [f64; 4] {
     q.map(|c| c / n)
 }
 
-/// A pool of random frames of every type that the decoders accept (their bytes).
-fn pools(rng: &mut ChaCha8Rng, n: usize) -> [Vec<Vec<u8>>; 4] {
-    let mut out: [Vec<Vec<u8>>; 4] = Default::default();
-    while out.iter().any(|p| p.len() < n) {
-        let fog = FogFrame::from_physical(
+/// One random frame of type `t` ([`FRAME_TYPES`]), as bytes; the decoders may refuse it.
+fn random_frame(rng: &mut ChaCha8Rng, t: usize) -> (Vec<u8>, bool) {
+    fn enc<F: Frame>(f: &F) -> (Vec<u8>, bool) {
+        let b = encode(f);
+        let ok = F::decode(&b).is_ok();
+        (b, ok)
+    }
+    let r3 = |rng: &mut ChaCha8Rng, s: f64| [0; 3].map(|_: i32| rng.random_range(-s..s));
+    let q = |rng: &mut ChaCha8Rng| unit_q(rng).map(|c| (c * 2_147_483_647.0) as i32);
+    match t {
+        0 => enc(&FogFrame::from_physical(
             rng.random_range(0..4),
             rng.random(),
             0,
             rng.random_range(-1e-3..1e-3),
             rng.random_range(-40.0..80.0),
-        );
-        let star = StarFrame::from_physical(rng.random_range(0..2), rng.random(), rng.random(), unit_q(rng));
-        let r3 = |rng: &mut ChaCha8Rng, s: f64| [0; 3].map(|_: i32| rng.random_range(-s..s));
-        let output = OutputFrame::from_physical(
+        )),
+        1 => enc(&AccelFrame::from_physical(
+            rng.random_range(0..3),
+            rng.random(),
+            0,
+            rng.random_range(-0.1..0.1),
+            rng.random_range(-40.0..80.0),
+        )),
+        2 => enc(&StarFrame::from_physical(rng.random_range(0..2), rng.random(), rng.random(), unit_q(rng))),
+        3 => enc(&GnssFrame {
+            status: rng.random_range(0..8),
+            counter: rng.random(),
+            satellites: rng.random(),
+            time_tag_us: rng.random(),
+            r_counts: rng.random(),
+            v_counts: rng.random(),
+            sigma_pos_counts: rng.random(),
+            sigma_vel_counts: rng.random(),
+        }),
+        4 => enc(&OutputFrame::from_physical(
             0,
             rng.random(),
             rng.random(),
@@ -179,19 +209,48 @@ fn pools(rng: &mut ChaCha8Rng, n: usize) -> [Vec<Vec<u8>>; 4] {
             [0; 4],
             0,
             [0u16; 7].map(|_| rng.random()),
-        );
-        let control =
-            ControlFrame { command: rng.random_range(1..=4), fog_bytes: rng.random(), st_bytes: rng.random(), arg: 0 };
-        let cand = [encode(&fog), encode(&star), encode(&output), encode(&control)];
-        let ok = [
-            FogFrame::decode(&cand[0]).is_ok(),
-            StarFrame::decode(&cand[1]).is_ok(),
-            OutputFrame::decode(&cand[2]).is_ok(),
-            ControlFrame::decode(&cand[3]).is_ok(),
-        ];
-        for ((p, c), ok) in out.iter_mut().zip(cand).zip(ok) {
-            if ok && p.len() < n {
-                p.push(c);
+        )),
+        5 => enc(&NavOutputFrame {
+            flags: rng.random_range(0..16),
+            counter: rng.random(),
+            time_tag_us: rng.random(),
+            q_counts: q(rng),
+            v_counts: rng.random(),
+            r_counts: rng.random(),
+            sigma_pos_counts: rng.random(),
+            sigma_vel_counts: rng.random(),
+            fixes_used: rng.random(),
+            fixes_refused: rng.random(),
+        }),
+        6 => enc(&ControlFrame {
+            command: rng.random_range(1..=4),
+            fog_bytes: rng.random(),
+            st_bytes: rng.random(),
+            arg: 0,
+        }),
+        _ => enc(&CommandReport {
+            upload: rng.random_range(0..4),
+            last_seq: rng.random(),
+            chunks: rng.random(),
+            last_refusal: rng.random_range(0..12),
+            staged_crc: rng.random(),
+            table_revision: rng.random(),
+            table_crc: rng.random(),
+            key_id: rng.random(),
+            accepted: rng.random(),
+            refused: rng.random(),
+        }),
+    }
+}
+
+/// A pool of `n` random frames of every type that the decoders accept (their bytes).
+fn pools(rng: &mut ChaCha8Rng, n: usize) -> [Vec<Vec<u8>>; N_TYPES] {
+    let mut out: [Vec<Vec<u8>>; N_TYPES] = Default::default();
+    for (t, p) in out.iter_mut().enumerate() {
+        while p.len() < n {
+            let (bytes, ok) = random_frame(rng, t);
+            if ok {
+                p.push(bytes);
             }
         }
     }
@@ -214,16 +273,16 @@ pub fn corrupt(rng: &mut ChaCha8Rng, frame: &[u8], kind: Corruption) -> Vec<u8> 
     };
     match kind {
         Corruption::FewBits => {
-            let n = rng.random_range(1..=3);
+            let n = rng.random_range(1..=5);
             flip_distinct(rng, &mut v, n);
         }
         Corruption::ManyBits => {
-            let n = rng.random_range(4..=16);
+            let n = rng.random_range(6..=16);
             flip_distinct(rng, &mut v, n);
         }
         Corruption::Burst => {
             // A burst of length L: first and last bit flipped, the ones between random.
-            let len = rng.random_range(1..=16usize);
+            let len = rng.random_range(1..=32usize);
             let start = rng.random_range(0..=bits - len);
             for (k, b) in (start..start + len).enumerate() {
                 if k == 0 || k + 1 == len || rng.random::<bool>() {
@@ -308,15 +367,21 @@ pub fn run_trials(n: u64, seed: u64) -> Report {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let pools = pools(&mut rng, 256);
     let mut r = Report::default();
+    let n_types = N_TYPES as u64;
     for t in 0..n {
-        let f = (t % 4) as usize;
-        let k = ((t / 4) % 6) as usize;
+        let f = (t % n_types) as usize;
+        let k = ((t / n_types) % 6) as usize;
         let kind = Corruption::ALL[k];
+        let pool = &pools[f];
         let c = match f {
-            0 => trial::<FogFrame>(&mut rng, &pools[0], kind),
-            1 => trial::<StarFrame>(&mut rng, &pools[1], kind),
-            2 => trial::<OutputFrame>(&mut rng, &pools[2], kind),
-            _ => trial::<ControlFrame>(&mut rng, &pools[3], kind),
+            0 => trial::<FogFrame>(&mut rng, pool, kind),
+            1 => trial::<AccelFrame>(&mut rng, pool, kind),
+            2 => trial::<StarFrame>(&mut rng, pool, kind),
+            3 => trial::<GnssFrame>(&mut rng, pool, kind),
+            4 => trial::<OutputFrame>(&mut rng, pool, kind),
+            5 => trial::<NavOutputFrame>(&mut rng, pool, kind),
+            6 => trial::<ControlFrame>(&mut rng, pool, kind),
+            _ => trial::<CommandReport>(&mut rng, pool, kind),
         };
         r.cells[f][k].add(&c);
     }

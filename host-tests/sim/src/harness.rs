@@ -149,6 +149,10 @@ pub struct Observed {
     pub step_ticks: u16,
     /// Fault-logic bits (held temperatures, isolated FOGs; `docs/ICD.md`).
     pub fdi: u8,
+    /// The unit's attitude-error 1σ per axis, rad (infinite: unknown).
+    pub att_sigma_rad: [f64; 3],
+    /// The unit's drift-error 1σ per axis, rad/s (infinite: unknown).
+    pub drift_sigma_rad_s: [f64; 3],
 }
 
 impl From<&StepOutput> for Observed {
@@ -162,6 +166,8 @@ impl From<&StepOutput> for Observed {
             fogs_used: o.fogs_used,
             step_ticks: 0,
             fdi: o.fdi,
+            att_sigma_rad: o.att_sigma_rad,
+            drift_sigma_rad_s: o.drift_sigma_rad_s,
         }
     }
 }
@@ -184,6 +190,8 @@ impl From<&OutputFrame> for Observed {
             fogs_used: FogSet(used),
             step_ticks: f.counters.step_ticks,
             fdi: f.fdi,
+            att_sigma_rad: f.att_sigma_rad(),
+            drift_sigma_rad_s: f.drift_sigma_rad_s(),
         }
     }
 }

@@ -7,7 +7,7 @@ use ssis::frames::decoder::{DecoderStats, StreamDecoder};
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::{self, OutputCounters, OutputFrame};
 use ssis::frames::star::{self, StarFrame};
-use ssis::frames::{DecodeError, Frame, CRC16, SYNC};
+use ssis::frames::{DecodeError, Frame, CRC32C, CRC_LEN, SYNC};
 
 // ---------------------------------------------------------------------------------------
 // Helpers
@@ -21,8 +21,8 @@ pub fn bytes_of<F: Frame>(f: &F) -> Vec<u8> {
 
 /// Recomputes the CRC of a frame whose bytes were edited.
 pub fn reseal(bytes: &mut [u8]) {
-    let n = bytes.len() - 2;
-    let crc = CRC16.checksum(&bytes[..n]).to_le_bytes();
+    let n = bytes.len() - CRC_LEN;
+    let crc = CRC32C.checksum(&bytes[..n]).to_le_bytes();
     bytes[n..].copy_from_slice(&crc);
 }
 
@@ -143,12 +143,14 @@ pub fn output_frame() -> impl Strategy<Value = OutputFrame> + Clone {
         (any::<u8>(), any::<u16>(), any::<u64>(), any::<[i32; 4]>()),
         (any::<[i32; 3]>(), any::<[i32; 3]>(), any::<i32>()),
         (any::<[u8; 4]>(), any::<u8>(), any::<[u16; 7]>(), any::<(u8, u8, u16)>()),
+        (any::<[u16; 3]>(), any::<[u16; 3]>()),
     )
         .prop_map(
             |(
                 (flags, counter, time_us, q_counts),
                 (rate_counts, drift_counts, parity_counts),
                 (fog_health, st_status, c, (fdi, page_id, page_value)),
+                (att_sigma_counts, drift_sigma_counts),
             )| {
                 OutputFrame {
                     flags,
@@ -164,6 +166,8 @@ pub fn output_frame() -> impl Strategy<Value = OutputFrame> + Clone {
                     fdi,
                     page_id,
                     page_value,
+                    att_sigma_counts,
+                    drift_sigma_counts,
                 }
             },
         )
@@ -202,7 +206,7 @@ pub fn icd_star_example() -> StarFrame {
 }
 
 pub fn icd_output_example() -> OutputFrame {
-    OutputFrame::from_physical(
+    let mut f = OutputFrame::from_physical(
         output::flags::ST_IN_USE | output::flags::CONVERGED,
         200,
         1_000_000,
@@ -213,5 +217,8 @@ pub fn icd_output_example() -> OutputFrame {
         [0x01, 0x01, 0x01, 0x01],
         0x07,
         [0, 0, 4, 0, 0, 0, 1234],
-    )
+    );
+    // 1.25″ on each axis, 0.0070 °/h.
+    f.set_sigmas([1.25 / 206_264.806_247_096_36; 3], [0.007 * std::f64::consts::PI / 180.0 / 3600.0; 3]);
+    f
 }

@@ -67,9 +67,9 @@ const WATCHDOG_STEPS: u32 = 40;
 /// section is at 0).
 const INIT_OFFSET: usize = 0x100;
 
-/// FOG bus receive buffer (three 16-byte frames per 1.25 ms step, ten steps of margin).
+/// FOG bus receive buffer (three 18-byte frames per 1.25 ms step, nine steps of margin).
 static FOG_RX: RxRing<512> = RxRing::new();
-/// Accelerometer bus receive buffer (three 16-byte frames per step).
+/// Accelerometer bus receive buffer (three 18-byte frames per step).
 static ACCEL_RX: RxRing<512> = RxRing::new();
 /// GNSS receive buffer (45-byte frames, 1 Hz).
 static GNSS_RX: RxRing<256> = RxRing::new();
@@ -78,7 +78,7 @@ static GNSS_RX: RxRing<256> = RxRing::new();
 static NO_STAR_RX: RxRing<4> = RxRing::new();
 /// Control receive buffer.
 static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
-/// Flight output transmit buffer (83-byte frames).
+/// Flight output transmit buffer (output frames, `docs/ICD.md`).
 static OUT_TX: TxRing<256> = TxRing::new();
 /// Navigation output transmit buffer (64-byte frames).
 static NAV_TX: TxRing<256> = TxRing::new();

@@ -141,7 +141,7 @@ enum Cmd {
         #[arg(long)]
         table: Option<PathBuf>,
     },
-    /// Turn a firmware log into a session file: a raw capture of the output link (83-byte
+    /// Turn a firmware log into a session file: a raw capture of the output link (its
     /// output frames; the body rate is the measurement, bad frames are counted) or the per-step
     /// CSV of ssis-qemu / ssis-sim (the attitude is the measurement, the truth the reference).
     Import {

@@ -2,7 +2,7 @@
 //! (`ssis_sim::corrupt`), for BENCHMARKS.md.
 //!
 //! `cargo run --release --bin ssis-corrupt-bench -- [TRIALS] [SEED] [THREADS]`
-//! (defaults 10,000,000, 1, 1).
+//! (defaults 100,000,000, 1, 1).
 
 use std::time::Instant;
 
@@ -10,7 +10,7 @@ fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let num =
         |i: usize, d: u64| args.get(i).and_then(|s| s.replace('_', "").parse::<f64>().ok()).map_or(d, |v| v as u64);
-    let (n, seed, threads) = (num(0, 10_000_000), num(1, 1), num(2, 1));
+    let (n, seed, threads) = (num(0, 100_000_000), num(1, 1), num(2, 1));
     let t0 = Instant::now();
     let r = ssis_sim::corrupt::run_trials_parallel(n, seed, threads);
     let secs = t0.elapsed().as_secs_f64();
