@@ -32,7 +32,7 @@ fn on_firmware(
     let feed = Feed {
         name: format!("basilisk-{transport:?}"),
         profile: Profile::SPACECRAFT,
-        table: table.clone(),
+        table: *table,
         steps,
         settle_s: 30.0,
         next: Box::new(move || log.next_step().filter(|i| i.n <= steps)),

@@ -42,10 +42,10 @@ fn peer_simulator_log_replays_at_the_estimation_limit() {
     let att = s.accuracy.att.three_sigma();
     assert_eq!(s.frames_out, 36_000);
     assert!(s.accuracy.att.count() >= 2_400, "steps scored against truth: {}", s.accuracy.att.count());
-    for k in 0..3 {
+    for (k, a) in att.iter().enumerate() {
         let (post, mean) = (3.0 * limit.posterior_arcsec[k], 3.0 * limit.period_mean_arcsec[k]);
-        println!("axis {k}: 3σ {:.2}″, limit {post:.2}″ after update, {mean:.2}″ over the period", att[k]);
-        assert!(att[k] <= 1.1 * mean, "axis {k}: {:.2}″ over 1.1 × the limit {mean:.2}″", att[k]);
+        println!("axis {k}: 3σ {a:.2}″, limit {post:.2}″ after update, {mean:.2}″ over the period");
+        assert!(*a <= 1.1 * mean, "axis {k}: {a:.2}″ over 1.1 × the limit {mean:.2}″");
     }
     // The unit's own evidence agrees: residuals at the tracker's noise, no frame gated
     // beyond the gate's 0.1 %.

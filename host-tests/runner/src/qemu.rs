@@ -643,7 +643,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let feed = Feed {
         name: sc.name.clone(),
         profile: sim.profile,
-        table: sim.table.clone(),
+        table: sim.table,
         steps: sim.steps,
         settle_s: sc.settle_s,
         next: Box::new(move || {

@@ -37,7 +37,7 @@ pub fn run(a: &Args) -> Result<bool> {
     let feed = Feed {
         name: stem,
         profile,
-        table: table.clone(),
+        table,
         steps,
         settle_s: a.settle,
         next: Box::new(move || log_feed.next_step().filter(|i| i.n <= steps)),
