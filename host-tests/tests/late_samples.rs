@@ -66,7 +66,7 @@ fn fly(b: Bursts) -> Outcome {
         }
         held_st.extend_from_slice(&input.st_bytes);
         st_sent += (input.st_bytes.len() / StarFrame::LEN) as u64;
-        eval.push_truth(input.truth);
+        eval.push_truth(input.truth.expect("the simulator has truth"));
         if !(300..300 + b.hold).contains(&k) {
             let n_fog =
                 if b.fog_bytes_per_step == 0 { held_fog.len() } else { b.fog_bytes_per_step.min(held_fog.len()) };

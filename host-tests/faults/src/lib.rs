@@ -188,7 +188,9 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
             FaultKind::FogDropout(i) if active => profile.fogs.without(i),
             _ => profile.fogs,
         };
-        eval.push_truth(input.truth);
+        if let Some(t) = input.truth {
+            eval.push_truth(t);
+        }
         let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, sending);
         out_link.bytes.clear();
         r.steps += 1;

@@ -8,6 +8,8 @@
 //! - [`qemu_lv`]: the launch-vehicle firmware (`ssis-fw-lv`, 1.25 ms period).
 //! - [`json`]: the `--json` form of both summaries (docs/JSON.md).
 //! - [`flight_build`]: a flight build (no test hooks) under the runner's control frames.
+//! - [`transport`]: the UARTs as Unix sockets or serial ports (QEMU's pseudo-terminals,
+//!   the board's USB–RS-422 adapters).
 //! - [`telecommands`]: the command link's side of a lockstep run (telecommands by step,
 //!   the in-process reference's command link).
 //!
@@ -21,3 +23,4 @@ pub mod progress;
 pub mod qemu;
 pub mod qemu_lv;
 pub mod telecommands;
+pub mod transport;

@@ -32,6 +32,7 @@ use ssis::frames::output::OutputFrame;
 use ssis::telemetry::{page, Counter};
 
 use crate::progress::{Patience, ICOUNT_LOCKSTEP, QEMU_CPU_PATIENCE_S};
+use crate::transport::{open_serial, read_pty_names, Port, Transport, BAUD};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::stats::AxisStats;
 use ssis_sim::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
@@ -84,6 +85,9 @@ pub struct QemuOptions {
     /// Telecommand bytes sent on UART0 before a step's STEP frame, by step (lockstep);
     /// the in-process core's command link gets the same bytes before the same step.
     pub commands: Vec<(u64, Vec<u8>)>,
+    /// How the UARTs are reached: Unix sockets, or pseudo-terminals through the serial-port
+    /// path (the hardware-in-the-loop path).
+    pub transport: Transport,
 }
 
 impl QemuOptions {
@@ -104,6 +108,7 @@ impl QemuOptions {
             host_stall: None,
             key_record: None,
             commands: Vec::new(),
+            transport: Transport::Sockets,
         }
     }
 }
@@ -490,12 +495,13 @@ pub(crate) fn accept(listener: &UnixListener, child: &mut Child, what: &str) -> 
 /// thread collecting its stdout (the defmt log over semihosting).
 pub(crate) struct Started {
     pub(crate) q: Qemu,
-    pub(crate) uarts: Vec<UnixStream>,
+    pub(crate) uarts: Vec<Box<dyn Port>>,
     pub(crate) log_thread: std::thread::JoinHandle<Vec<u8>>,
 }
 
 /// Starts `qemu-system-arm -machine mps2-an500 -cpu cortex-m7` on `elf` with `n_uarts`
-/// serial ports, each a Unix socket in `dir` (removed with the returned [`Qemu`]),
+/// serial ports, each a Unix socket in `dir` (removed with the returned [`Qemu`]) or, with
+/// [`Transport::Pty`], a pseudo-terminal opened as a serial port,
 /// `-icount` with `icount` if given, semihosting, `-action watchdog=poweroff` (with
 /// `-icount`; otherwise `none`), and each
 /// (file, address) of `loaders` loaded with `-device loader`; waits for every UART to
@@ -506,8 +512,11 @@ pub(crate) fn start_qemu(
     n_uarts: usize,
     icount: Option<&str>,
     loaders: &[(PathBuf, u64)],
+    transport: Transport,
 ) -> Result<Started> {
-    let socks: Vec<PathBuf> = (0..n_uarts).map(|i| dir.join(format!("uart{i}.sock"))).collect();
+    let pty = transport == Transport::Pty;
+    let socks: Vec<PathBuf> =
+        if pty { Vec::new() } else { (0..n_uarts).map(|i| dir.join(format!("uart{i}.sock"))).collect() };
     let listeners = socks.iter().map(UnixListener::bind).collect::<std::io::Result<Vec<_>>>()?;
     let mut cmd = Command::new("qemu-system-arm");
     cmd.args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"]);
@@ -526,6 +535,11 @@ pub(crate) fn start_qemu(
         cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
         cmd.args(["-serial", &format!("chardev:u{i}")]);
     }
+    if pty {
+        for _ in 0..n_uarts {
+            cmd.args(["-serial", "pty"]);
+        }
+    }
     // Extra QEMU arguments for profiling (for example `-d in_asm,exec,nochain -D trace.log`,
     // read by `scripts/qemu-profile`); whitespace-separated.
     if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
@@ -538,26 +552,31 @@ pub(crate) fn start_qemu(
     cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
     let child = cmd.spawn().context("cannot start qemu-system-arm")?;
     let mut q = Qemu { child, dir };
-    let mut stdout = q.child.stdout.take().context("no stdout")?;
+    // QEMU names its pseudo-terminals on its standard output, before the firmware's log.
+    let mut stdout = std::io::BufReader::new(q.child.stdout.take().context("no stdout")?);
+    let ptys = if pty { read_pty_names(&mut stdout, n_uarts)? } else { Vec::new() };
     let log_thread = std::thread::spawn(move || {
         let mut buf = Vec::new();
         let _ = stdout.read_to_end(&mut buf);
         buf
     });
-    let mut uarts = Vec::with_capacity(n_uarts);
+    let mut uarts: Vec<Box<dyn Port>> = Vec::with_capacity(n_uarts);
     for (i, l) in listeners.iter().enumerate() {
-        uarts.push(accept(l, &mut q.child, &format!("UART{i}"))?);
+        uarts.push(Box::new(accept(l, &mut q.child, &format!("UART{i}"))?));
+    }
+    for p in &ptys {
+        uarts.push(Box::new(open_serial(p, BAUD)?));
     }
     Ok(Started { q, uarts, log_thread })
 }
 
 /// Reads `stream` on a thread until it closes, sending each chunk through `wrap` to `tx`.
 pub(crate) fn spawn_reader<T: Send + 'static>(
-    stream: &UnixStream,
+    stream: &dyn Port,
     tx: mpsc::Sender<T>,
     wrap: impl Fn(Vec<u8>) -> T + Send + 'static,
 ) -> Result<()> {
-    let mut reader = stream.try_clone()?;
+    let mut reader = stream.try_clone_port()?;
     std::thread::spawn(move || {
         let mut buf = [0u8; 4096];
         while let Ok(n) = reader.read(&mut buf) {
@@ -603,8 +622,60 @@ pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
     Ok(())
 }
 
+/// What the runner streams to the unit: its table and profile, and its steps' bytes one
+/// after the other (a simulated scenario, or a recorded log: `ssis_sim::replay::Feed`).
+pub struct Feed<'a> {
+    /// Name in the report.
+    pub name: String,
+    /// The unit's profile (the spacecraft unit's 5 ms).
+    pub profile: Profile,
+    /// The table the unit flies (loaded into its flash; the in-process core's too).
+    pub table: ssis::calib::CalibrationTable,
+    /// Steps to be sent.
+    pub steps: u64,
+    /// Statistics against truth from here, s.
+    pub settle_s: f64,
+    /// The next step's bytes, or `None` at the end.
+    pub next: Box<dyn FnMut() -> Option<StepInput> + 'a>,
+}
+
 /// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
 pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
+    let mut sim = Simulation::new(sc)?;
+    let dt_s = sim.profile.dt_s();
+    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ssis_common::ARCSEC_PER_RAD;
+    let mut injector = opts.fault.map(|f| (f, ssis_faults::Injector::new(f, sigma_st_rad, sc.seed)));
+    let mut injected = ssis_faults::FaultRun::default();
+    let feed = Feed {
+        name: sc.name.clone(),
+        profile: sim.profile,
+        table: sim.table,
+        steps: sim.steps,
+        settle_s: sc.settle_s,
+        next: Box::new(move || {
+            let mut input = sim.next_step()?;
+            if let Some((f, inj)) = injector.as_mut() {
+                let t_s = input.n as f64 * dt_s;
+                let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
+                inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
+            }
+            Some(input)
+        }),
+    };
+    run_feed(feed, opts, |_, r| {
+        if let Some(r) = r {
+            on_step(r);
+        }
+    })
+}
+
+/// Runs `feed` on the firmware in QEMU; `on_frame` sees every output frame with its record
+/// against truth (when the feed has truth for it).
+pub fn run_feed(
+    mut feed: Feed<'_>,
+    opts: &QemuOptions,
+    mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
+) -> Result<QemuSummary> {
     check_qemu_and_elf(&opts.elf)?;
     let flight_build = !is_test_build(&opts.elf)?;
     if flight_build && opts.lockstep {
@@ -614,17 +685,16 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             opts.elf.display()
         );
     }
-    let mut sim = Simulation::new(sc)?;
-    anyhow::ensure!(sim.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
-    let mut eval = Evaluator::new(&sim);
-    let mut unit = Unit::boot(&sim, opts)?;
+    anyhow::ensure!(feed.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
+    let mut eval = Evaluator::for_unit(&feed.table, &feed.profile, feed.settle_s);
+    let mut unit = Unit::boot(&feed.table, opts)?;
     let started = Instant::now();
-    let bar = progress_bar(opts.progress, sim.steps, &sc.name);
+    let bar = progress_bar(opts.progress, feed.steps, &feed.name);
     let mut s = QemuSummary {
-        name: sc.name.clone(),
-        steps: sim.steps,
-        duration_s: sc.duration_s,
-        accuracy: Accuracy { settle_s: sc.settle_s, ..Default::default() },
+        name: feed.name.clone(),
+        steps: feed.steps,
+        duration_s: feed.steps as f64 * feed.profile.dt_s(),
+        accuracy: Accuracy { settle_s: feed.settle_s, ..Default::default() },
         icount: opts.icount || opts.lockstep,
         paged: vec![0; usize::from(page::COUNT)],
         host: HostPace {
@@ -641,25 +711,17 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
         unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
-        Some(Reference::new(&sim, opts)?)
+        Some(Reference::new(&feed.table, feed.profile, opts)?)
     } else {
         None
     };
     let mut sender = Sender::new(opts.corrupt_every);
-    let dt = Duration::from_micros(u64::from(sim.profile.dt_us));
-    let dt_s = sim.profile.dt_s();
-    let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ssis_common::ARCSEC_PER_RAD;
-    let mut injector = opts.fault.map(|f| (f, ssis_faults::Injector::new(f, sigma_st_rad, sc.seed)));
-    let mut injected = ssis_faults::FaultRun::default();
+    let dt = Duration::from_micros(u64::from(feed.profile.dt_us));
+    let dt_s = feed.profile.dt_s();
     // Real time from here: step n's tick is at t0 + n·Δt.
     let t0 = Instant::now();
     let tick = |n: u64| t0 + dt * (n as u32);
-    while let Some(mut input) = sim.next_step() {
-        if let Some((f, inj)) = injector.as_mut() {
-            let t_s = input.n as f64 * dt_s;
-            let active = t_s > f.start_s && t_s <= f.start_s + f.duration_s;
-            inj.apply(&mut input, active, t_s - f.start_s, &mut injected);
-        }
+    while let Some(input) = (feed.next)() {
         let n = input.n;
         if !opts.lockstep {
             // Real time: the frames of step n go out LEAD steps before its tick, and never
@@ -667,7 +729,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             let due = t0 + dt * (n.saturating_sub(LEAD) as u32);
             loop {
                 while let Ok((_, b)) = unit.rx.try_recv() {
-                    outputs.take(&b, &mut s, &mut eval, &mut on_step);
+                    outputs.take(&b, &mut s, &mut eval, &mut on_frame);
                     let lag = Instant::now().saturating_duration_since(tick(s.frames_out)).as_secs_f64();
                     s.host.out_lag_max_s = s.host.out_lag_max_s.max(lag);
                 }
@@ -698,8 +760,10 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             s.host.late_steps += 1;
             s.host.late_max_s = s.host.late_max_s.max(late_s);
         }
-        let (fog_sent, st_sent) = sender.send(&mut unit, &input, &sim.profile, &mut s)?;
-        eval.push_truth(input.truth);
+        let (fog_sent, st_sent) = sender.send(&mut unit, &input, &feed.profile, &mut s)?;
+        if let Some(t) = input.truth {
+            eval.push_truth(t);
+        }
         if let Some(r) = reference.as_mut() {
             let commands = crate::telecommands::due(&opts.commands, n);
             unit.uarts[0].write_all(&commands)?;
@@ -711,7 +775,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
                 ControlFrame { command: command::STEP, fog_bytes: sender.fog_total, st_bytes: sender.st_total, arg: 0 };
             unit.control(&step)?;
             let before = s.frames_out;
-            let take = |s: &mut QemuSummary, _, b: &[u8]| outputs.take(b, s, &mut eval, &mut on_step);
+            let take = |s: &mut QemuSummary, _, b: &[u8]| outputs.take(b, s, &mut eval, &mut on_frame);
             unit.await_output(n, &opts.elf, &mut s, take, |s| s.frames_out != before)?;
         }
         if let Some(b) = &bar {
@@ -724,13 +788,13 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     let t_end = Instant::now();
     while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
         if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(50)) {
-            outputs.take(&b, &mut s, &mut eval, &mut on_step);
+            outputs.take(&b, &mut s, &mut eval, &mut on_frame);
         }
     }
     // A flight build ignores END: it is stopped by `finish` below.
     let status = if flight_build { None } else { unit.end()? };
     while let Ok((_, b)) = unit.rx.try_recv() {
-        outputs.take(&b, &mut s, &mut eval, &mut on_step);
+        outputs.take(&b, &mut s, &mut eval, &mut on_frame);
     }
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
     // Each command report cost the output frames' decoder one rejected candidate.
@@ -751,7 +815,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
 /// (`crate::qemu_lv`) drive it alike.
 pub(crate) struct Unit {
     pub(crate) q: Qemu,
-    pub(crate) uarts: Vec<UnixStream>,
+    pub(crate) uarts: Vec<Box<dyn Port>>,
     pub(crate) rx: mpsc::Receiver<(usize, Vec<u8>)>,
     /// Until the log is read ([`Unit::log`]).
     log_thread: Option<std::thread::JoinHandle<Vec<u8>>>,
@@ -767,6 +831,7 @@ impl Unit {
         icount: Option<&str>,
         images: &[(&str, &[u8], u64)],
         outputs: &[usize],
+        transport: Transport,
     ) -> Result<Unit> {
         static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -779,10 +844,10 @@ impl Unit {
             std::fs::write(&path, bytes)?;
             loaders.push((path, *addr));
         }
-        let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders)?;
+        let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders, transport)?;
         let (tx, rx) = mpsc::channel();
         for &i in outputs {
-            spawn_reader(&uarts[i], tx.clone(), move |b| (i, b))?;
+            spawn_reader(uarts[i].as_ref(), tx.clone(), move |b| (i, b))?;
         }
         Ok(Unit { q, uarts, rx, log_thread: Some(log_thread) })
     }
@@ -790,10 +855,10 @@ impl Unit {
     /// Starts QEMU on the spacecraft firmware with the table's flash region (two copies,
     /// `ssis::calib::store`, as a flight image, or the options' image): UART0 control and
     /// output, UART1 FOG bus, UART2 star tracker.
-    fn boot(sim: &Simulation, opts: &QemuOptions) -> Result<Unit> {
+    fn boot(table: &ssis::calib::CalibrationTable, opts: &QemuOptions) -> Result<Unit> {
         let image = match &opts.table_image {
             Some(img) => img.clone(),
-            None => store::image(&sim.table).to_vec(),
+            None => store::image(table).to_vec(),
         };
         let mut images = vec![("table.img", &image[..], crate::qemu_lv::symbol(&opts.elf, "_calib_start")?)];
         if let Some(key) = &opts.key_record {
@@ -803,7 +868,7 @@ impl Unit {
         // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount
         // runs one instruction per ns while busy.
         let icount = if opts.lockstep { Some(ICOUNT_LOCKSTEP) } else { opts.icount.then_some("shift=0") };
-        Unit::start(&opts.elf, 3, icount, &images, &[0])
+        Unit::start(&opts.elf, 3, icount, &images, &[0], opts.transport)
     }
 
     /// Sends a control frame with `command` alone.
@@ -986,7 +1051,7 @@ impl Sender {
     ) -> Result<(Vec<u8>, Vec<u8>)> {
         let mut fog_bytes = Vec::with_capacity(64);
         for (i, f) in input.fog_frames.iter().enumerate() {
-            if profile.fogs.contains(i) {
+            if profile.fogs.contains(i) && input.present.contains(i) {
                 fog_bytes.extend_from_slice(f);
                 s.fog_frames_in += 1;
             }
@@ -1013,9 +1078,9 @@ struct Reference {
 }
 
 impl Reference {
-    fn new(sim: &Simulation, opts: &QemuOptions) -> Result<Reference> {
-        let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        let image = opts.table_image.clone().unwrap_or_else(|| store::image(&sim.table).to_vec());
+    fn new(table: &ssis::calib::CalibrationTable, profile: Profile, opts: &QemuOptions) -> Result<Reference> {
+        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let image = opts.table_image.clone().unwrap_or_else(|| store::image(table).to_vec());
         let commands = crate::telecommands::ReferenceLink::new(opts.key_record.as_deref(), &image);
         Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default(), commands })
     }
@@ -1057,7 +1122,13 @@ impl Outputs {
     }
 
     /// Decodes a chunk of the output link and checks every frame in it.
-    fn take(&mut self, bytes: &[u8], s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+    fn take(
+        &mut self,
+        bytes: &[u8],
+        s: &mut QemuSummary,
+        eval: &mut Evaluator,
+        on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
+    ) {
         self.reports.push_slice(bytes, |r| {
             if let Ok(r) = r {
                 s.command_reports.push(r);
@@ -1065,7 +1136,7 @@ impl Outputs {
         });
         let check = &mut self.check;
         self.dec.push_slice(bytes, |r| match r {
-            Ok(f) => check.frame(f, s, eval, on_step),
+            Ok(f) => check.frame(f, s, eval, on_frame),
             Err(_) => s.frames_out_bad += 1,
         });
     }
@@ -1084,7 +1155,13 @@ struct FrameCheck {
 }
 
 impl FrameCheck {
-    fn frame(&mut self, f: OutputFrame, s: &mut QemuSummary, eval: &mut Evaluator, on_step: &mut impl FnMut(&Record)) {
+    fn frame(
+        &mut self,
+        f: OutputFrame,
+        s: &mut QemuSummary,
+        eval: &mut Evaluator,
+        on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
+    ) {
         if self.lockstep && f.time_us == 0 {
             // Sent on the firmware's own tick before lockstep began: no sample yet.
             s.frames_before_data += 1;
@@ -1114,9 +1191,8 @@ impl FrameCheck {
         if let Some(v) = s.paged.get_mut(usize::from(f.page_id)) {
             *v = f.page_value;
         }
-        if let Some(rec) = eval.evaluate(&o) {
-            on_step(&rec);
-        }
+        let rec = eval.evaluate(&o);
+        on_frame(&f, rec.as_ref());
     }
 }
 
@@ -1138,7 +1214,7 @@ pub(crate) fn wait_exit(child: &mut Child, cpu_s: f64) -> Result<Option<std::pro
 /// An output frame without what the board fills in itself (its step time, overruns and
 /// dropped outputs) and its frame counter (which also counts the frames sent on its own tick before
 /// lockstep): everything left must be bit-identical to the in-process core's frame.
-pub(crate) fn masked(mut f: OutputFrame) -> OutputFrame {
+pub fn masked(mut f: OutputFrame) -> OutputFrame {
     f.counter = 0;
     f.counters.step_ticks = 0;
     f.counters.overruns = 0;

@@ -54,10 +54,12 @@ pub struct StepInput {
     pub n: u64,
     /// One frame per FOG slot (only fitted slots are to be sent).
     pub fog_frames: [[u8; ssis::frames::fog::FogFrame::LEN]; N_FOG],
+    /// The FOG slots whose frame arrives in this step (a recorded log may lack some).
+    pub present: FogSet,
     /// Star-tracker bytes delivered in this step.
     pub st_bytes: Vec<u8>,
-    /// Truth of this step's sample.
-    pub truth: TruthSample,
+    /// Truth of this step's sample (a recorded log may have none).
+    pub truth: Option<TruthSample>,
 }
 
 /// The simulated world of a scenario: truth, sensors, and the unit's table.
@@ -124,8 +126,9 @@ impl Simulation {
         Some(StepInput {
             n,
             fog_frames: sample.frames.map(|f| f.to_bytes()),
+            present: FogSet(0x0F),
             st_bytes: if self.profile.star_tracker { st_bytes } else { Vec::new() },
-            truth: TruthSample { n, q: ts.q, dtheta: ts.dtheta_rad, m_sys, rate: ts.rate_rad_s },
+            truth: Some(TruthSample { n, q: ts.q, dtheta: ts.dtheta_rad, m_sys, rate: ts.rate_rad_s }),
         })
     }
 }
@@ -231,7 +234,7 @@ pub fn step_on_mock_links(
     }
     star_link.tick();
     for (i, (link, f)) in fog_links.iter_mut().zip(input.fog_frames.iter()).enumerate() {
-        if fogs.contains(i) {
+        if fogs.contains(i) && input.present.contains(i) {
             link.send(f);
         }
     }
@@ -268,11 +271,16 @@ impl Evaluator {
 
     /// For the unit of `sim`.
     pub fn new(sim: &Simulation) -> Self {
+        Evaluator::for_unit(&sim.table, &sim.profile, sim.sc.settle_s)
+    }
+
+    /// For a unit flying `table` in `profile`, statistics from `settle_s` on.
+    pub fn for_unit(table: &CalibrationTable, profile: &Profile, settle_s: f64) -> Self {
         Evaluator {
             past: VecDeque::new(),
-            combiner: Combiner::new(&sim.table.axes()),
-            dt_us: u64::from(sim.profile.dt_us),
-            settle_s: sim.sc.settle_s,
+            combiner: Combiner::new(&table.axes()),
+            dt_us: u64::from(profile.dt_us),
+            settle_s,
             att: AxisStats::default(),
             rate: AxisStats::default(),
             converged_at_s: None,
@@ -377,7 +385,9 @@ pub fn run_until(sc: &Scenario, mut stop: impl FnMut() -> bool, mut on_step: imp
             stopped_at_step = Some(input.n - 1);
             break;
         }
-        eval.push_truth(input.truth);
+        if let Some(t) = input.truth {
+            eval.push_truth(t);
+        }
         let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, profile.fogs);
         last = Some(out);
 

@@ -42,3 +42,69 @@ pub fn run_summary(s: &Summary, wall_s: f64) -> Value {
         "fog_random_bias_deg_h": s.fog_random_bias_deg_h,
     })
 }
+
+/// A recorded log's damage, each kind counted with its first places.
+pub fn damage(p: &crate::recorded::Problems) -> Value {
+    let mut m = ssis_common::cli::serde_json::Map::new();
+    for (name, d) in p.kinds() {
+        m.insert(name.into(), json!({"count": d.count, "first": d.first}));
+    }
+    Value::Object(m)
+}
+
+/// The unit's own evidence on a replayed log.
+pub fn evidence(e: &crate::replay::Evidence) -> Value {
+    let c = e.last.map(|f| f.counters);
+    json!({
+        "st_residual_3sigma_arcsec": e.st_residual.three_sigma(),
+        "st_residual_mean_arcsec": e.st_residual.mean(),
+        "st_residual_frames": e.st_residual.count(),
+        "parity_mean_rad": e.parity.mean()[0],
+        "parity_std_rad": e.parity.std()[0],
+        "st_frames_accepted": c.map(|c| c.st_frames_accepted),
+        "st_frames_rejected": c.map(|c| c.st_frames_rejected),
+        "st_updates_gated": c.map(|c| c.st_updates_gated),
+        "fog_samples_missing": c.map(|c| c.fog_samples_missing),
+        "drift_estimate_end_deg_h": e.last.map(|f| f.drift_rad_s().map(|d| d * DEG_H_PER_RAD_S)),
+    })
+}
+
+/// `ssis-sim replay`: the replay, its errors against truth (if any) and the evidence.
+pub fn replay_summary(s: &crate::replay::ReplaySummary) -> Value {
+    json!({
+        "log": s.origin,
+        "duration_s": s.duration_s,
+        "steps": s.steps,
+        "frames_out": s.frames_out,
+        "output_hash": format!("{:016x}", s.hash),
+        "accuracy": accuracy(&s.accuracy),
+        "evidence": evidence(&s.evidence),
+    })
+}
+
+/// `ssis-sim replay --check`: per channel what it carries, its polarity and scale.
+pub fn check_report(r: &crate::check::CheckReport) -> Value {
+    let fogs: Vec<Value> = r
+        .fogs
+        .iter()
+        .map(|f| {
+            json!({
+                "channel": f.channel,
+                "carries_fog": f.carries + 1,
+                "polarity": f.polarity,
+                "scale": f.scale,
+                "scale_se": f.scale_se,
+                "axis_off_arcsec": f.axis_off_arcsec,
+            })
+        })
+        .collect();
+    json!({
+        "windows": r.windows,
+        "excitation_arcsec": r.excitation_arcsec,
+        "parity_rms_rad": r.parity_rms_rad,
+        "parity_best": r.parity_best,
+        "fogs": fogs,
+        "findings": r.findings,
+        "clean": r.findings.is_empty(),
+    })
+}

@@ -15,8 +15,10 @@
 //! - [`json`]: the `--json` form of a run's summary (docs/JSON.md).
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth).
+//! - [`recorded`], [`replay`], [`check`]: recorded logs (`docs/RECORDED-LOG.md`) replayed through the core.
 
 pub mod accel;
+pub mod check;
 pub mod corrupt;
 pub mod fog;
 pub mod gnss;
@@ -24,6 +26,8 @@ pub mod harness;
 pub mod json;
 pub mod launch;
 pub mod lv;
+pub mod recorded;
+pub mod replay;
 pub mod scenario;
 pub mod star;
 pub mod truth;

@@ -22,11 +22,31 @@ use ssis_runner::qemu_lv::{run_qemu_lv, LvOptions, LvScenario};
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::scenario::Scenario;
 
+mod replay;
+
 #[derive(Parser)]
 #[command(name = "ssis-qemu", version, about = "Run a simulated flight on the firmware in QEMU")]
 struct Args {
     /// Scenario file (TOML).
-    scenario: PathBuf,
+    #[arg(required_unless_present = "replay")]
+    scenario: Option<PathBuf>,
+    /// Replay a recorded log instead (docs/RECORDED-LOG.md: a CSV, or raw captures of the
+    /// links): the same bytes `ssis-sim replay` steps the core on, streamed to the
+    /// firmware; the summary against truth where the log has it, and the unit's own
+    /// evidence.
+    #[arg(long, num_args = 1.., conflicts_with = "scenario")]
+    replay: Vec<PathBuf>,
+    /// --replay: the unit's calibration table (.toml, .bin or .img; default nominal).
+    #[arg(long, requires = "replay")]
+    table: Option<PathBuf>,
+    /// --replay: statistics start this long after the log's first sample, s.
+    #[arg(long, default_value_t = 60.0)]
+    settle: f64,
+    /// The UARTs as pseudo-terminals (`-serial pty`) driven through the real serial-port
+    /// path (`serialport`, the ICD's framing), instead of Unix sockets: the
+    /// hardware-in-the-loop path, tested on QEMU.
+    #[arg(long)]
+    pty: bool,
     /// Firmware ELF (default: build the test build and use
     /// target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test, or ssis-fw-lv-test for
     /// a launch-vehicle ascent). A flight build (ssis-fw) ignores control frames: it runs
@@ -74,15 +94,18 @@ fn main() -> ExitCode {
 }
 
 fn real_main(a: Args) -> Result<bool> {
-    cli::report("command", || cli::json!("run"));
-    output::input(&a.scenario);
+    cli::report("command", || cli::json!(if a.replay.is_empty() { "run" } else { "replay" }));
+    for p in a.scenario.iter().chain(&a.replay).chain(&a.table) {
+        output::input(p);
+    }
     if let Some(e) = &a.elf {
         output::input(e);
     }
-    if LvScenario::is_lv_file(&a.scenario) {
-        return run_lv(&a);
+    let Some(scenario) = a.scenario.clone() else { return replay::run(&a) };
+    if LvScenario::is_lv_file(&scenario) {
+        return run_lv(&a, &scenario);
     }
-    let mut sc = Scenario::from_file(&a.scenario)?;
+    let mut sc = Scenario::from_file(&scenario)?;
     if let Some(d) = a.duration {
         sc.duration_s = d;
         sc.settle_s = sc.settle_s.min(d / 2.0);
@@ -92,13 +115,7 @@ fn real_main(a: Args) -> Result<bool> {
     let svg_title = format!("{} on ssis-fw in QEMU", sc.name);
     output::claim(&csv_path, Origin::Default(Own::CsvHeader(CSV_HEADER.join(","))))?;
     output::claim(&svg, Origin::Default(Own::Svg(svg_title.clone())))?;
-    let elf = match a.elf {
-        Some(e) => e,
-        None => {
-            build_firmware()?;
-            default_elf()
-        }
-    };
+    let elf = firmware(&a)?;
     // A flight build ignores control frames: without --lockstep it runs in real time.
     let real_time = a.real_time || !a.lockstep && !is_test_build(&elf)?;
     if real_time && !a.real_time {
@@ -109,33 +126,18 @@ fn real_main(a: Args) -> Result<bool> {
         );
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
-    let mut w = csv::Writer::from_writer(output::create(&csv_path)?);
-    w.write_record(CSV_HEADER)?;
-    let mut points = Vec::new();
-    let mut n = 0u64;
+    let mut rows = Rows::new(&csv_path)?;
     let opts = QemuOptions {
-        elf: elf.clone(),
         lockstep: !real_time,
         paced: !real_time && !a.lockstep,
         icount: a.icount,
         corrupt_every: a.corrupt_every,
         progress: true,
-        stall_at_step: None,
-        table_image: None,
-        fault: None,
-        host_stall: None,
-        key_record: None,
-        commands: Vec::new(),
+        transport: transport(&a),
+        ..QemuOptions::lockstep(elf.clone())
     };
-    let s = run_qemu(&sc, &opts, |r| {
-        n += 1;
-        if n.is_multiple_of(20) {
-            let _ = w.write_record(r.csv_row());
-            points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
-        }
-    })?;
-    w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", csv_path.display(), e.error()))?.commit()?;
-    write_svg(&svg, &svg_title, &points)?;
+    let s = run_qemu(&sc, &opts, |r| rows.take(r))?;
+    rows.finish(&csv_path, &svg, &svg_title)?;
     cli::report("run", || ssis_runner::json::qemu_summary(&s));
     print!("{}", s.report());
     if let Ok((flash, ram)) = elf_sizes(&elf) {
@@ -162,9 +164,65 @@ fn real_main(a: Args) -> Result<bool> {
     Ok(clean)
 }
 
+/// The per-step CSV (every 20th evaluated output) and the plot's points.
+struct Rows {
+    w: csv::Writer<output::AtomicFile>,
+    points: Vec<PlotPoint>,
+    n: u64,
+}
+
+impl Rows {
+    fn new(csv_path: &std::path::Path) -> Result<Rows> {
+        let mut w = csv::Writer::from_writer(output::create(csv_path)?);
+        w.write_record(CSV_HEADER)?;
+        Ok(Rows { w, points: Vec::new(), n: 0 })
+    }
+
+    fn take(&mut self, r: &ssis_sim::harness::Record) {
+        self.n += 1;
+        if self.n.is_multiple_of(20) {
+            let _ = self.w.write_record(r.csv_row());
+            self.points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
+        }
+    }
+
+    /// Commits the CSV and writes the plot (none without points); whether it did.
+    fn finish(self, csv_path: &std::path::Path, svg: &std::path::Path, title: &str) -> Result<bool> {
+        self.w
+            .into_inner()
+            .map_err(|e| anyhow::anyhow!("{}: cannot write: {}", csv_path.display(), e.error()))?
+            .commit()?;
+        if self.points.is_empty() {
+            return Ok(false);
+        }
+        write_svg(svg, title, &self.points)?;
+        Ok(true)
+    }
+}
+
+/// The firmware: `--elf`, or the test build (built if out of date).
+fn firmware(a: &Args) -> Result<PathBuf> {
+    Ok(match &a.elf {
+        Some(e) => e.clone(),
+        None => {
+            build_firmware()?;
+            default_elf()
+        }
+    })
+}
+
+/// The UARTs' transport the options ask for.
+fn transport(a: &Args) -> ssis_runner::transport::Transport {
+    if a.pty {
+        ssis_runner::transport::Transport::Pty
+    } else {
+        ssis_runner::transport::Transport::Sockets
+    }
+}
+
 /// A launch-vehicle ascent on `ssis-fw-lv` (lockstep at 1.25 ms).
-fn run_lv(a: &Args) -> Result<bool> {
-    let mut sc = LvScenario::from_file(&a.scenario)?;
+fn run_lv(a: &Args, scenario: &std::path::Path) -> Result<bool> {
+    let mut sc = LvScenario::from_file(scenario)?;
     if let Some(d) = a.duration {
         sc.duration_s = d;
     }

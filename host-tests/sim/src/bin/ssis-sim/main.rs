@@ -17,6 +17,8 @@ use ssis_common::table;
 use ssis_sim::harness::{run_until, CSV_HEADER};
 use ssis_sim::scenario::Scenario;
 
+mod replay;
+
 #[derive(Parser)]
 #[command(name = "ssis-sim", version, about = "Host simulator and tools for the ssis flight core")]
 struct Cli {
@@ -42,6 +44,35 @@ enum Cmd {
         /// Run a scenario longer than 30 days of simulated time.
         #[arg(long)]
         allow_long: bool,
+    },
+    /// Replay a recorded log (docs/RECORDED-LOG.md: a CSV, or raw captures of the links)
+    /// through the flight core: the summary against truth where the log has it, and the
+    /// unit's own evidence; damage in the log is counted and reported, never fatal unless
+    /// nothing usable remains. Exit status 1 when `--check` finds something.
+    Replay {
+        /// The log: one CSV file, or one or more raw captures (FOG bus, star tracker).
+        #[arg(required = true)]
+        log: Vec<PathBuf>,
+        /// The unit's calibration table (.toml, .bin or .img; default: the nominal table).
+        #[arg(long)]
+        table: Option<PathBuf>,
+        /// Statistics start this long after the log's first sample, s.
+        #[arg(long, default_value_t = 60.0)]
+        settle: f64,
+        /// Write one CSV row per N output frames with truth (as `run --csv`).
+        #[arg(long)]
+        csv: Option<PathBuf>,
+        /// Output frames per CSV row.
+        #[arg(long, default_value_t = 20)]
+        every: u64,
+        /// Write a plot of the attitude error (needs truth in the log).
+        #[arg(long)]
+        plot: Option<PathBuf>,
+        /// The consistency check instead of the replay: each FOG's apparent polarity,
+        /// channel and scale relative to the table, from the star tracker and the parity
+        /// residual.
+        #[arg(long)]
+        check: bool,
     },
     /// Calibration-table tools.
     Table {
@@ -203,6 +234,10 @@ fn main() -> ExitCode {
             let exit = cli::finish(r.map(|e| matches!(e, RunEnd::Complete)));
             code.map_or(exit, ExitCode::from)
         }
+        Cmd::Replay { log, table, settle, csv, every, plot, check } => {
+            let r = replay::run(&replay::Args { log, table, settle, csv, every: every.max(1), plot, check });
+            cli::finish(r)
+        }
         cmd => cli::finish_unit(real_main(cmd)),
     }
 }
@@ -226,6 +261,16 @@ fn files(cmd: &Cmd) -> Result<()> {
         }
         Cmd::Key { cmd: KeyCmd::ToImage { key, out } } => ("key to-image", [Some(key), None], Some(out)),
         Cmd::Gains { .. } => ("gains", [None, None], None),
+        Cmd::Replay { log, table, csv, plot, .. } => {
+            cli::report("command", || json!("replay"));
+            for p in log.iter().chain(table) {
+                output::input(p);
+            }
+            for p in [csv, plot].into_iter().flatten() {
+                output::claim(p, Origin::Named)?;
+            }
+            return Ok(());
+        }
     };
     cli::report("command", || json!(name));
     for p in inputs.into_iter().flatten() {
@@ -242,6 +287,7 @@ fn real_main(cmd: Cmd) -> Result<()> {
         Cmd::Run { scenario, csv, every, allow_long } => {
             run_scenario(&scenario, csv, every.max(1), allow_long).map(|_| ())
         }
+        Cmd::Replay { .. } => Ok(()),
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Key { cmd } => key_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {

@@ -1,0 +1,87 @@
+//! `ssis-sim replay`: a recorded log through the flight core, or its consistency check.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use ssis::calib::CalibrationTable;
+use ssis::flight::Profile;
+use ssis_common::cli::{self, json};
+use ssis_common::output;
+use ssis_common::plot::{write_svg, PlotPoint};
+use ssis_sim::harness::CSV_HEADER;
+use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay};
+use ssis_sim::{check, recorded};
+
+/// The command's arguments.
+pub struct Args {
+    pub log: Vec<PathBuf>,
+    pub table: Option<PathBuf>,
+    pub settle: f64,
+    pub csv: Option<PathBuf>,
+    pub every: u64,
+    pub plot: Option<PathBuf>,
+    pub check: bool,
+}
+
+/// Runs it; `Ok(false)` when the check finds something.
+pub fn run(a: &Args) -> Result<bool> {
+    let table = match &a.table {
+        Some(p) => ssis_common::table::read_any(p)?.0,
+        None => CalibrationTable::DEFAULT,
+    };
+    let dt_us = Profile::SPACECRAFT.dt_us;
+    let rec = recorded::read(&a.log, dt_us)?;
+    if a.check {
+        let r = check::check(&rec, &table, dt_us)?;
+        print!("log: {}\ndamage in the log (counted, skipped):\n{}", rec.origin, rec.problems.report());
+        print!("{}", r.report());
+        cli::report("check", || ssis_sim::json::check_report(&r));
+        cli::report("damage", || ssis_sim::json::damage(&rec.problems));
+        return Ok(r.findings.is_empty());
+    }
+    let mut writer = match &a.csv {
+        Some(p) => {
+            let mut w = csv::Writer::from_writer(output::create(p)?);
+            w.write_record(CSV_HEADER)?;
+            Some(w)
+        }
+        None => None,
+    };
+    let mut points = Vec::new();
+    let mut n = 0u64;
+    let mut csv_err = None;
+    let s = replay(&rec, &table, a.settle, |_, r| {
+        let Some(r) = r else { return };
+        n += 1;
+        if n.is_multiple_of(a.every) {
+            if let Some(w) = writer.as_mut() {
+                if let Err(e) = w.write_record(r.csv_row()) {
+                    csv_err.get_or_insert(e);
+                }
+            }
+            points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
+        }
+    })?;
+    if let Some(e) = csv_err {
+        return Err(e.into());
+    }
+    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), Profile::SPACECRAFT.dt_s());
+    print!("{}", s.report(&rec, Some(limit)));
+    if let (Some(w), Some(p)) = (writer, &a.csv) {
+        w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
+        println!("wrote {}", p.display());
+    }
+    if let Some(p) = &a.plot {
+        anyhow::ensure!(!points.is_empty(), "{}: no truth in the log: nothing to plot", p.display());
+        write_svg(p, &format!("replay of {}", rec.origin), &points)?;
+        println!("wrote {}", p.display());
+    }
+    cli::report("replay", || {
+        let mut v = ssis_sim::json::replay_summary(&s);
+        v["farrenkopf_att_3sigma_arcsec"] = json!(limit.posterior_arcsec.map(|x| 3.0 * x));
+        v["limit_period_mean_att_3sigma_arcsec"] = json!(limit.period_mean_arcsec.map(|x| 3.0 * x));
+        v["damage"] = ssis_sim::json::damage(&rec.problems);
+        v
+    });
+    Ok(true)
+}

@@ -1,0 +1,397 @@
+//! Replay of a recorded log (`crate::recorded`) through `FlightCore::step`, and what the
+//! unit's output says about it: against truth where the log has it, and otherwise the
+//! unit's own evidence (star-tracker residuals, parity residual, gated frames, drift).
+//!
+//! [`Feed`] turns the log into the same per-step bytes the simulator makes
+//! ([`StepInput`]), so the QEMU runner streams exactly what the host replay steps on.
+//! [`Evidence`] reads output frames only, so the host replay and the firmware's output
+//! are judged alike.
+
+use std::collections::VecDeque;
+
+use anyhow::Result;
+use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
+use ssis::calib::{CalibrationTable, ObserverConfig, N_FOG};
+use ssis::combination::FogSet;
+use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::fog::FogFrame;
+use ssis::frames::output::OutputFrame;
+use ssis::frames::star::{self, StarFrame};
+use ssis::math::{nlerp, rotvec_from_quat};
+
+use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
+use crate::recorded::{Recorded, StarSample};
+use ssis_common::mock::{MockLink, MockSink};
+use ssis_common::stats::AxisStats;
+use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
+
+/// The log as the unit's links carry it, step by step.
+pub struct Feed<'a> {
+    rec: &'a Recorded,
+    axes: [Vector3<f64>; N_FOG],
+    dt_us: u32,
+    n: u64,
+    st_counter: u16,
+    prev_truth: Option<Quaternion<f64>>,
+}
+
+impl<'a> Feed<'a> {
+    /// Steps of `rec` for a unit flying `table` at `dt_us`.
+    pub fn new(rec: &'a Recorded, table: &CalibrationTable, dt_us: u32) -> Feed<'a> {
+        Feed { rec, axes: table.axes(), dt_us, n: 0, st_counter: 0, prev_truth: None }
+    }
+
+    /// Steps in the log.
+    pub fn steps(&self) -> u64 {
+        self.rec.steps.len() as u64
+    }
+
+    /// The next step's bytes (FOG frames numbered from counter 1, star frames at their
+    /// re-based tags) and its truth, or `None` at the end.
+    pub fn next_step(&mut self) -> Option<StepInput> {
+        let step = self.rec.steps.get(self.n as usize)?;
+        self.n += 1;
+        let n = self.n;
+        let counter = (n % 65_536) as u16;
+        let mut present = 0u8;
+        let fog_frames: [[u8; FogFrame::LEN]; N_FOG] = std::array::from_fn(|i| match step.fog[i] {
+            Some(s) => {
+                present |= 1 << i;
+                FogFrame::from_physical(i as u8, counter, s.status, s.dtheta_rad, s.t_degc).to_bytes()
+            }
+            None => [0; FogFrame::LEN],
+        });
+        let mut st_bytes = Vec::new();
+        for s in &step.st {
+            self.st_counter = self.st_counter.wrapping_add(1);
+            let flags = if s.valid { star::flags::VALID } else { 0 };
+            st_bytes.extend_from_slice(&StarFrame::from_physical(flags, self.st_counter, s.time_us, s.q).to_bytes());
+        }
+        let dt_s = f64::from(self.dt_us) * 1e-6;
+        let truth = step.truth.map(|t| {
+            // The body increment from consecutive truth attitudes (or the rate); the
+            // FOGs' own systematic error is not in a log: the rate error is then the
+            // drift estimate itself.
+            let dtheta = match self.prev_truth {
+                Some(p) => rotvec_from_quat(&(p.conjugate() * t.q)),
+                None => t.rate_rad_s * dt_s,
+            };
+            let m_sys = Vector4::from_fn(|i, _| self.axes[i].dot(&dtheta));
+            TruthSample { n, q: t.q, dtheta, m_sys, rate: t.rate_rad_s }
+        });
+        self.prev_truth = step.truth.map(|t| t.q);
+        Some(StepInput { n, fog_frames, present: FogSet(present), st_bytes, truth })
+    }
+}
+
+/// The unit's own evidence on a log without truth, from its output frames: star-tracker
+/// residuals against its attitude at each tag, the parity residual, gated frames, the
+/// drift estimate.
+#[derive(Debug, Clone)]
+pub struct Evidence {
+    pending: VecDeque<StarSample>,
+    mount_inv: Quaternion<f64>,
+    history: VecDeque<(u64, Quaternion<f64>)>,
+    settle_us: u64,
+    /// Star-tracker residual rotvec((Λ(t_s))⁻¹ ∘ Λ* ∘ q_bs⁻¹) after settling, arcsec (ICS).
+    pub st_residual: AxisStats,
+    /// Parity residual after settling, rad (first component; a scalar).
+    pub parity: AxisStats,
+    /// The last output frame.
+    pub last: Option<OutputFrame>,
+}
+
+impl Evidence {
+    /// For the star solutions of `rec`, the table's star-tracker mount, statistics from
+    /// `settle_s` of unit time on.
+    pub fn new(rec: &Recorded, table: &CalibrationTable, settle_s: f64) -> Evidence {
+        let pending = rec.steps.iter().flat_map(|s| s.st.iter().copied()).filter(|s| s.valid).collect();
+        Evidence {
+            pending,
+            mount_inv: table.st_mount().conjugate(),
+            history: VecDeque::new(),
+            settle_us: (settle_s * 1e6) as u64,
+            st_residual: AxisStats::default(),
+            parity: AxisStats::default(),
+            last: None,
+        }
+    }
+
+    /// Takes one output frame of the unit.
+    pub fn frame(&mut self, f: &OutputFrame) {
+        let [w, x, y, z] = f.quaternion();
+        let q = Quaternion::new(w, x, y, z);
+        self.history.push_back((f.time_us, q));
+        if self.history.len() > 512 {
+            self.history.pop_front();
+        }
+        if f.time_us >= self.settle_us && f.fog_health.iter().any(|h| h & ssis::flight::health::USED != 0) {
+            let p = f.parity_rad();
+            self.parity.push([p, p, p]);
+        }
+        while let Some(s) = self.pending.front().copied() {
+            if s.time_us > f.time_us {
+                break;
+            }
+            self.pending.pop_front();
+            if s.time_us < self.settle_us {
+                continue;
+            }
+            if let Some(qi) = self.attitude_at(s.time_us) {
+                let [a, b, c, d] = s.q;
+                let q_ics = Quaternion::new(a, b, c, d) * self.mount_inv;
+                let e = rotvec_from_quat(&(qi.conjugate() * q_ics)) * ARCSEC_PER_RAD;
+                self.st_residual.push([e.x, e.y, e.z]);
+            }
+        }
+        self.last = Some(*f);
+    }
+
+    /// The unit's attitude at `t_us`, interpolated between its outputs.
+    fn attitude_at(&self, t_us: u64) -> Option<Quaternion<f64>> {
+        let k = self.history.iter().position(|(t, _)| *t >= t_us)?;
+        let (t1, q1) = self.history[k];
+        if t1 == t_us || k == 0 {
+            return (t1 == t_us).then_some(q1);
+        }
+        let (t0, q0) = self.history[k - 1];
+        Some(nlerp(&q0, &q1, (t_us - t0) as f64 / (t1 - t0) as f64))
+    }
+
+    /// The evidence in words.
+    pub fn report(&self) -> String {
+        let mut s = String::new();
+        let f3 = |v: [f64; 3], p: usize| format!("{:>9.p$} {:>9.p$} {:>9.p$}", v[0], v[1], v[2], p = p);
+        s.push_str("the unit's own evidence after settling:  x         y         z\n");
+        s.push_str(&format!(
+            "  star-tracker residual 3σ, ″        {}  ({} frames; the tracker's noise and the attitude error together)\n",
+            f3(self.st_residual.three_sigma(), 2),
+            self.st_residual.count()
+        ));
+        s.push_str(&format!("  star-tracker residual mean, ″      {}\n", f3(self.st_residual.mean(), 2)));
+        s.push_str(&format!(
+            "  parity residual RMS {:.3e} rad, mean {:.3e} rad\n",
+            (self.parity.std()[0].powi(2) + self.parity.mean()[0].powi(2)).sqrt(),
+            self.parity.mean()[0]
+        ));
+        if let Some(f) = &self.last {
+            let c = &f.counters;
+            s.push_str(&format!(
+                "  star frames accepted {}, rejected {}, gated {}; drift estimate at end, °/h {}\n",
+                c.st_frames_accepted,
+                c.st_frames_rejected,
+                c.st_updates_gated,
+                f3(f.drift_rad_s().map(|d| d * DEG_H_PER_RAD_S), 4)
+            ));
+        }
+        s
+    }
+}
+
+/// The estimation limit of a unit (Farrenkopf 1978): the steady-state per-axis Kalman
+/// filter of attitude and drift on the table's noise figures, star-tracker updates every
+/// `st_period_s`, propagated every `dt_s`; the FOGs' angle random walk per body axis is
+/// scaled by the least-squares combination of the table's axes (diag (SᵀS)⁻¹: 5/6 for
+/// three orthogonal gyros and one equally inclined). Returns the attitude error 1σ per
+/// axis, arcsec: right after an update (Farrenkopf's figure) and averaged over the update
+/// period (as the harness samples it, every step).
+pub fn farrenkopf_1sigma_arcsec(cfg: &ObserverConfig, axes: &[Vector3<f64>; N_FOG], dt_s: f64) -> Limit {
+    let mut sts = Matrix3::zeros();
+    for s in axes {
+        sts += s * s.transpose();
+    }
+    let inv = sts.try_inverse().unwrap_or_else(Matrix3::identity);
+    let deg = std::f64::consts::PI / 180.0;
+    let su2 = (cfg.rrw_deg_h_sqrt_h * deg / 3600.0 / 60.0).powi(2);
+    let r = (cfg.st_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
+    let per_update = (cfg.st_period_s / dt_s).round().max(1.0) as usize;
+    let per_axis = [0, 1, 2].map(|k| {
+        let sv2 = (cfg.arw_deg_sqrt_h * deg / 60.0).powi(2) * inv[(k, k)];
+        // P = [[p11, p12], [p12, p22]] of (attitude, drift); θ̇ = −b + noise. Propagated
+        // over h: F = [[1, −h], [0, 1]], Q = [[σv²h + σu²h³/3, −σu²h²/2], [., σu²h]].
+        let prop = |(p11, p12, p22): (f64, f64, f64), h: f64| {
+            (
+                p11 - 2.0 * h * p12 + h * h * p22 + sv2 * h + su2 * h.powi(3) / 3.0,
+                p12 - h * p22 - su2 * h * h / 2.0,
+                p22 + su2 * h,
+            )
+        };
+        let update = |(p11, p12, p22): (f64, f64, f64)| {
+            let s = p11 + r;
+            (p11 - p11 * p11 / s, p12 - p11 * p12 / s, p22 - p12 * p12 / s)
+        };
+        // The drift's time constant is hours: iterate the update period until steady.
+        let t = per_update as f64 * dt_s;
+        let mut p = update((r, 0.0, su2 * 1e4));
+        for _ in 0..2_000_000 {
+            let next = update(prop(p, t));
+            let done = (next.0 - p.0).abs() <= 1e-15 * p.0 && (next.2 - p.2).abs() <= 1e-12 * p.2;
+            p = next;
+            if done {
+                break;
+            }
+        }
+        let post = p.0;
+        let mut sum = 0.0;
+        for j in 0..per_update {
+            p = prop(p, dt_s);
+            if j + 1 == per_update {
+                p = update(p);
+            }
+            sum += p.0;
+        }
+        let mean = sum / per_update as f64;
+        (post.sqrt() * ARCSEC_PER_RAD, mean.sqrt() * ARCSEC_PER_RAD)
+    });
+    Limit { posterior_arcsec: per_axis.map(|p| p.0), period_mean_arcsec: per_axis.map(|p| p.1) }
+}
+
+/// The estimation limit, attitude 1σ per axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Limit {
+    /// Right after a star-tracker update (Farrenkopf's steady-state figure), arcsec.
+    pub posterior_arcsec: [f64; 3],
+    /// Averaged over the update period, arcsec.
+    pub period_mean_arcsec: [f64; 3],
+}
+
+/// What a host replay found.
+#[derive(Debug, Clone)]
+pub struct ReplaySummary {
+    /// The log.
+    pub origin: String,
+    /// Steps stepped.
+    pub steps: u64,
+    /// Unit time covered, s.
+    pub duration_s: f64,
+    /// Against truth (no steps counted when the log has none).
+    pub accuracy: Accuracy,
+    /// The unit's own evidence.
+    pub evidence: Evidence,
+    /// Output frames decoded.
+    pub frames_out: u64,
+    /// Every output frame's bytes, in order (for comparisons with the firmware's).
+    pub hash: u64,
+}
+
+/// Replays `rec` through `FlightCore::step` with `table` (spacecraft profile), the
+/// statistics from `settle_s`; `on_frame` sees every output frame and its record against
+/// truth (if the log has truth for it).
+pub fn replay(
+    rec: &Recorded,
+    table: &CalibrationTable,
+    settle_s: f64,
+    mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
+) -> Result<ReplaySummary> {
+    let profile = Profile::SPACECRAFT;
+    let mut core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
+    let mut feed = Feed::new(rec, table, profile.dt_us);
+    let mut eval = Evaluator::for_unit(table, &profile, settle_s);
+    let mut evidence = Evidence::new(rec, table, settle_s);
+    let (mut fog, mut star, mut out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
+    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut frames_out = 0u64;
+    let mut hash = Fnv::default();
+    while let Some(input) = feed.next_step() {
+        let mut bytes = Vec::with_capacity(64);
+        for (i, f) in input.fog_frames.iter().enumerate() {
+            if profile.fogs.contains(i) && input.present.contains(i) {
+                bytes.extend_from_slice(f);
+            }
+        }
+        fog.send(&bytes);
+        star.send(&input.st_bytes);
+        if let Some(t) = input.truth {
+            eval.push_truth(t);
+        }
+        let mut links = Links { fog: FogLinks::Bus(&mut fog), star: &mut star, out: &mut out };
+        core.step(&mut links);
+        let produced = std::mem::take(&mut out.bytes);
+        hash.write(&produced);
+        dec.push_slice(&produced, |r| {
+            if let Ok(f) = r {
+                frames_out += 1;
+                evidence.frame(&f);
+                let rec = eval.evaluate(&Observed::from(&f));
+                on_frame(&f, rec.as_ref());
+            }
+        });
+    }
+    let last_drift = evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
+    Ok(ReplaySummary {
+        origin: rec.origin.clone(),
+        steps: feed.steps(),
+        duration_s: feed.steps() as f64 * profile.dt_s(),
+        accuracy: eval.accuracy(last_drift),
+        evidence,
+        frames_out,
+        hash: hash.0,
+    })
+}
+
+/// FNV-1a over bytes: a fingerprint of a run's output.
+#[derive(Debug, Clone, Copy)]
+pub struct Fnv(pub u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    /// Adds bytes.
+    pub fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.0 = (self.0 ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
+impl ReplaySummary {
+    /// A report a person can read.
+    pub fn report(&self, rec: &Recorded, limit: Option<Limit>) -> String {
+        let mut s = format!(
+            "replay  {}  through FlightCore::step ({:.1} s, {} steps, {} output frames)\n",
+            self.origin, self.duration_s, self.steps, self.frames_out
+        );
+        s.push_str(&format!(
+            "log: {} FOG samples (FOGs {}), {} star-tracker solutions, truth {}\n",
+            rec.fog_samples(),
+            fog_names(rec.fogs),
+            rec.st_count(),
+            if rec.has_truth { "yes" } else { "no" }
+        ));
+        s.push_str("damage in the log (counted, skipped):\n");
+        s.push_str(&rec.problems.report());
+        if self.accuracy.att.count() > 0 {
+            s.push_str(&self.accuracy.table());
+            if let Some(l) = limit {
+                let att = self.accuracy.att.three_sigma();
+                let (p, m) = (l.posterior_arcsec.map(|v| 3.0 * v), l.period_mean_arcsec.map(|v| 3.0 * v));
+                s.push_str(&format!(
+                    "  Farrenkopf limit 3σ (after update), ″ {:>7.2} {:>9.2} {:>9.2}\n  ratio to it                        {:>9.3} {:>9.3} {:>9.3}\n  limit 3σ averaged over a period, ″  {:>9.2} {:>9.2} {:>9.2}\n",
+                    p[0],
+                    p[1],
+                    p[2],
+                    att[0] / p[0],
+                    att[1] / p[1],
+                    att[2] / p[2],
+                    m[0],
+                    m[1],
+                    m[2]
+                ));
+            }
+        } else {
+            s.push_str("no truth in the log: no error against truth\n");
+        }
+        s.push_str(&self.evidence.report());
+        s
+    }
+}
+
+/// "FOG1 FOG2 …" for a set (the ICD's names: slot i is FOG i+1).
+pub fn fog_names(set: FogSet) -> String {
+    (0..N_FOG).filter(|&i| set.contains(i)).map(|i| format!("FOG{}", i + 1)).collect::<Vec<_>>().join(" ")
+}
