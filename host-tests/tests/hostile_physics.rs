@@ -698,7 +698,7 @@ fn export_from_a_thermal_session_keeps_the_base_and_flies_within_10_percent() {
     s.succeeds(
         "ssis-lab",
         &["add", "temp_rate", "--model", "m.v1.toml", "--session", "chamber.csv"],
-        &["m.v2.toml", "m.history.svg"],
+        &["m.v2.toml", "m.history.svg", "m.history-fogs.svg", "m.v2.allan.svg"],
     );
     let text = s.succeeds(
         "ssis-lab",

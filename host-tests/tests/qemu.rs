@@ -96,10 +96,10 @@ fn real_time_run_keeps_up_or_says_the_host_did_not() {
 
 #[test]
 fn a_host_that_falls_behind_real_time_is_named() {
-    // The runner itself stalls 300 ms at step 1000 (as a loaded host does): in real time
+    // The runner itself stalls 300 ms at step 400 of 1,000 (as a loaded host does): in real time
     // the samples of those steps go out after their ticks, and the summary says so; in
     // paced lockstep the unit is held and the output is the same as without the stall.
-    let stall = Some((1000, std::time::Duration::from_millis(300)));
+    let stall = Some((400, std::time::Duration::from_millis(300)));
     let rt = run_with(5.0, |o| QemuOptions { lockstep: false, host_stall: stall, ..o });
     assert!(rt.host.late_steps >= 40, "late steps {}", rt.host.late_steps);
     assert!(rt.host.late_max_s >= 0.25, "worst {} s", rt.host.late_max_s);
