@@ -132,6 +132,24 @@ fn magnetic_fit_recovers_simulated_sensitivity() {
     }
 }
 
+/// A reversed FOG in a magnetic session: a horizontal one is seen over the azimuths, the
+/// vertical one (no Earth-rate change on a level table) by its mean, 2 × 11.5 °/h off.
+#[test]
+fn magnetic_refuses_a_reversed_fog() {
+    let sim = magnetic::MagneticSim::kharkov();
+    let (pu, ps) = (tmp("mag-rev-unscreened.csv"), tmp("mag-rev-screened.csv"));
+    sim.write(&pu, &ps, 6).unwrap();
+    let (u, s) = (read_session(&pu, None).unwrap(), read_session(&ps, None).unwrap());
+    assert!(magnetic::analyse(&u, &s).is_ok());
+    for (fog, expect) in [(0, "reads the reference reversed"), (2, "°/h off the reference")] {
+        let mut bad = u.clone();
+        bad.fogs[fog].rate_rad_s.iter_mut().for_each(|v| *v = -*v);
+        let err = magnetic::analyse(&bad, &s).expect_err("reversed FOG accepted").to_string();
+        println!("FOG{fog} reversed: {err}");
+        assert!(err.contains(&format!("FOG{fog} (column `fog{fog}_rad_s`)")) && err.contains(expect), "{err}");
+    }
+}
+
 // ---------------------------------------------------------------- 2. thermal
 
 #[test]
@@ -283,6 +301,66 @@ fn misalignment_first_method_on_turntable_session() {
     let worst0 = e.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     println!("  without axis tilt: {}  worst {worst0:.2}″", fmt8(&e));
     assert!(worst0 < worst);
+}
+
+/// A FOG mounted backwards, two FOG cables swapped, or the session's turn direction written
+/// the wrong way round: the first method would fit angles to them (a reversed FOG gives its
+/// angles with the wrong sign and exit 0); the wiring check refuses each and names it.
+#[test]
+fn misalignment_methods_refuse_miswired_fogs() {
+    let sim = misalign_turns::TableSim::first_method(misalign_turns::example_truth());
+    let (rows, _) = sim.run(3);
+    let col = |name: &str| misalign_turns::TableSim::HEADER.iter().position(|h| *h == name).unwrap();
+    let variant = |name: &str, edit: &dyn Fn(&mut Vec<f64>)| {
+        let mut rows = rows.clone();
+        rows.iter_mut().for_each(|r| edit(r));
+        let p = tmp(name);
+        ssis_methods::write_session_csv(&p, &[], &misalign_turns::TableSim::HEADER, &rows).unwrap();
+        let s = read_session(&p, None).unwrap();
+        misalign_turns::turns_from_session(&s).map(|_| ()).map_err(|e| e.to_string())
+    };
+    assert!(variant("wired.csv", &|_| {}).is_ok(), "the clean session is refused");
+    let (f0, f1, f2, f3) = (col("fog0_rad"), col("fog1_rad"), col("fog2_rad"), col("fog3_rad"));
+    let rate = col("table_rate_rad_s");
+    for (name, edit, expect) in [
+        (
+            "fog1-reversed.csv",
+            Box::new(move |r: &mut Vec<f64>| r[f1] = -r[f1]) as Box<dyn Fn(&mut Vec<f64>)>,
+            vec!["FOG1 (column `fog1_rad`)", "reversed"],
+        ),
+        (
+            "fog2-reversed.csv",
+            Box::new(move |r: &mut Vec<f64>| r[f2] = -r[f2]),
+            vec!["FOG2 (column `fog2_rad`)", "reversed"],
+        ),
+        (
+            "fog3-reversed.csv",
+            Box::new(move |r: &mut Vec<f64>| r[f3] = -r[f3]),
+            vec!["FOG3 (column `fog3_rad`)", "reversed"],
+        ),
+        (
+            "fog0-fog3-swapped.csv",
+            Box::new(move |r: &mut Vec<f64>| r.swap(f0, f3)),
+            vec![
+                "FOG0 (column `fog0_rad`)",
+                "follows the axis of FOG3",
+                "FOG3 (column `fog3_rad`)",
+                "follows the axis of FOG0",
+            ],
+        ),
+        (
+            "turned-the-other-way.csv",
+            Box::new(move |r: &mut Vec<f64>| r[rate] = -r[rate]),
+            vec!["every FOG reads reversed", "turn direction"],
+        ),
+    ] {
+        let err = variant(name, &*edit).expect_err(name);
+        println!("{name}: {err}");
+        for e in expect {
+            assert!(err.contains(e), "{name}: `{e}` not in\n{err}");
+        }
+        assert!(err.contains(name), "{name}: the file is not named");
+    }
 }
 
 fn fmt8(v: &[f64; 8]) -> String {

@@ -24,6 +24,10 @@
 //!   factors from 360° maneuvers under star-tracker reference, and the FOG-to-star-tracker
 //!   misalignment by recursive least squares.
 //!
+//! - [`wiring`]: before the misalignment methods fit angles, each FOG column's polarity and
+//!   channel against the table's rotation (a FOG mounted backwards or two cables swapped
+//!   is refused, named, instead of yielding wrong angles).
+//!
 //! Shared here: writing session CSV files (`docs/SESSION-FORMAT.md`) and simple SVG plots;
 //! [`json`] is the `--json` form of each method's summary.
 
@@ -34,6 +38,7 @@ pub mod misalign_sins;
 pub mod misalign_turns;
 pub mod orbital;
 pub mod thermal_anova;
+pub mod wiring;
 
 use std::fmt::Write as _;
 use std::path::Path;

@@ -284,7 +284,14 @@ pub struct MagneticResult {
 
 /// Eq. (1) on both runs and eq. (2) on their difference, in the paper's azimuth ψ_Π = −ψ.
 /// The runs must visit the same azimuths in the same order.
+///
+/// Refused when a FOG column does not follow the Earth rate over the azimuths as wired
+/// ([`crate::wiring`]: a reversed FOG would turn the Earth-rate leak, and the fits, over).
 pub fn analyse(unscreened: &Session, screened: &Session) -> Result<MagneticResult> {
+    for session in [unscreened, screened] {
+        let reference: Vec<nalgebra::Vector3<f64>> = session.ref_rad_s.iter().map(|w| (*w).into()).collect();
+        crate::wiring::require_as_wired(session, &reference)?;
+    }
     let u = position_means(unscreened)?;
     let s = position_means(screened)?;
     if u.len() != s.len() || u.iter().zip(&s).any(|(a, b)| (a.0 - b.0).abs() > 1e-6) {

@@ -194,7 +194,11 @@ pub fn solve(revs: &[Reversal], start: &Misalignment, gamma_rad: f64) -> Result<
 /// after it in the same installation; the deflections are the `tilt_h1_rad`,
 /// `tilt_h2_rad` of those statics. FOG columns 0–2 are the triad; `scale` are the table's
 /// scale-factor errors applied to them.
+///
+/// Refused when a FOG column does not follow the table's rotation as wired
+/// ([`crate::wiring`]).
 pub fn reversals_from_session(s: &Session, scale: [f64; 3]) -> Result<Vec<Reversal>> {
+    crate::wiring::require_as_wired(s, &misalign_turns::reference_rates(s)?)?;
     let need = |n: &str| s.column(n).ok_or_else(|| anyhow::anyhow!("{}: needs the column `{n}`", s.file));
     let (psi, lat, rate, up) = (need("psi_rad")?, need("lat_rad")?, need("table_rate_rad_s")?, need("up_axis")?);
     let (t1, t2, seg) = (need("tilt_h1_rad")?, need("tilt_h2_rad")?, need("segment")?);

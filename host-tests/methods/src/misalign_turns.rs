@@ -48,6 +48,7 @@ use rand_chacha::ChaCha20Rng;
 use rand_distr::{Distribution, StandardNormal};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
+use crate::wiring;
 use ssis_common::ARCSEC_PER_RAD;
 use ssis_session::{nominal_axes, Session, EARTH_RATE_RAD_S};
 use ssis_sim::fog::{FogModel, FogSpec, TrueErrors};
@@ -182,7 +183,10 @@ fn segments(s: &Session) -> Result<Vec<(usize, usize)>> {
 /// 2 = Z_P) and `segment` (even: static at the start position of the next turn, odd: the
 /// turn). The drift estimate of each turn is the mean FOG output of the static segment
 /// before it minus the Earth rate on the nominal axis.
+///
+/// Refused when a FOG column does not follow the table's rotation as wired ([`wiring`]).
 pub fn turns_from_session(s: &Session) -> Result<(Vec<Turn>, f64)> {
+    wiring::require_as_wired(s, &reference_rates(s)?)?;
     let need = |n: &str| s.column(n).ok_or_else(|| anyhow::anyhow!("{}: needs the column `{n}`", s.file));
     let (psi, lat, rate, up) = (need("psi_rad")?, need("lat_rad")?, need("table_rate_rad_s")?, need("up_axis")?);
     let t = s.t_s();
@@ -227,6 +231,25 @@ pub fn turns_from_session(s: &Session) -> Result<(Vec<Turn>, f64)> {
         bail!("{}: no static segment followed by a turn", s.file);
     }
     Ok((turns, lat[0]))
+}
+
+/// The reference rate of every row of a turntable session (columns `psi_rad`, `lat_rad`,
+/// `table_rate_rad_s`, `up_axis`): Earth rate in the installation plus the table's rate
+/// about the up axis (counter-clockwise from above for a positive rate), ICS, rad/s.
+pub fn reference_rates(s: &Session) -> Result<Vec<Vector3<f64>>> {
+    let need = |n: &str| s.column(n).ok_or_else(|| anyhow::anyhow!("{}: needs the column `{n}`", s.file));
+    let (psi, lat, rate, up) = (need("psi_rad")?, need("lat_rad")?, need("table_rate_rad_s")?, need("up_axis")?);
+    (0..s.len())
+        .map(|r| {
+            let u = up[r].round() as usize;
+            if u > 2 {
+                bail!("{}: line {}: field `up_axis`: {} is not 0, 1 or 2", s.file, r + 2, up[r]);
+            }
+            let mut w = earth_rate_installed(u, psi[r], lat[r]);
+            w[u] += rate[r];
+            Ok(w)
+        })
+        .collect()
 }
 
 /// Earth rate in ICS components with axis `up` vertical and h1 = up+1 at azimuth ψ.
