@@ -90,18 +90,27 @@ pub fn physical_range(role: Role) -> ((f64, f64), &'static str) {
 
 /// A refused session: file, line, column and what is wrong.
 #[derive(Debug, Clone, thiserror::Error)]
-#[error("{file}: line {line}{}: {message}", column_text(.column))]
+#[error("{file}{}{}: {message}", line_text(*.line), column_text(.column))]
 pub struct SessionError {
     /// What went wrong.
     pub kind: SessionErrorKind,
     /// The file as given.
     pub file: String,
-    /// 1-based line number (1 = the header).
+    /// 1-based line number (1 = the header); 0 when the file could not be opened or read
+    /// as a whole (then the message names no line).
     pub line: u64,
     /// 1-based column number and header name, when one column is at fault.
     pub column: Option<(usize, String)>,
     /// Plain words.
     pub message: String,
+}
+
+fn line_text(line: u64) -> String {
+    if line == 0 {
+        String::new()
+    } else {
+        format!(": line {line}")
+    }
 }
 
 fn column_text(c: &Option<(usize, String)>) -> String {

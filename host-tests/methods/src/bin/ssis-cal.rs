@@ -609,7 +609,11 @@ fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<Pat
         None => {
             println!("decision: T not significant at 5 %: no thermal model (the paper: \"inefficient\")");
             if let Some(path) = table {
-                println!("{} left unchanged", path.display());
+                if path.exists() {
+                    println!("{} left unchanged", path.display());
+                } else {
+                    println!("no table written: {} not created", path.display());
+                }
             }
         }
     }
