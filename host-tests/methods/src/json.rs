@@ -175,6 +175,7 @@ pub fn orbital(r: &orbital::OrbitalResult, tau_s: f64) -> Value {
             "eta_norm_arcsec": m.eta_rad.norm() * ARCSEC_PER_RAD,
             "star_frame_pairs": m.samples,
         })),
+        "unexplained_arcsec_per_rad": r.unexplained_rad_per_rad.iter().map(|v| v * ARCSEC_PER_RAD).collect::<Vec<_>>(),
     })
 }
 

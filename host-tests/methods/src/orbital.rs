@@ -534,8 +534,37 @@ pub struct OrbitalResult {
     pub scale: Option<ScaleResult>,
     /// Step 3 (None when there are no maneuvers).
     pub mount: Option<MountResult>,
+    /// Per maneuver, what the scale factors and the mount leave unexplained between the
+    /// gyros' and the tracker's rotation, per radian turned, rad ([`unexplained_coupling`]).
+    pub unexplained_rad_per_rad: Vec<f64>,
     /// The table with the three results applied.
     pub table: CalibrationTable,
+}
+
+/// Largest disagreement per radian turned that the fitted scale factors and mount may leave
+/// ([`unexplained_coupling`]): 30″ (1.5e-4), the paper's accuracy of its first ground method
+/// for the FOG axes. The mount absorbs the skew part of a misalignment the table lacks; the
+/// symmetric part stays here and leaks into the scale factors at about the same size (rad
+/// per rad ≈ relative Δk error). Measured on `ssis-cal simulate orbital` (example unit,
+/// misalignment up to 200″): flown with a nominal table 38–90″ per radian and Δk off by up to
+/// 0.044 % (the paper's goal 0.002 %); with the first method's angles 2.0–4.3″ and Δk within
+/// 0.0018 %. The noise floor (20″ 3σ tracker, ARW 0.005 °/√h, 500-s maneuvers) is about 2″.
+pub const MAX_UNEXPLAINED_RAD_PER_RAD: f64 = 30.0 / ARCSEC_PER_RAD;
+
+/// Per maneuver, |Θ_ST − Θ_c − Θ_c × η| / |Θ_ST|, with Θ_c = (I + D)⁻¹ Θ_FOG the gyros'
+/// rotation corrected by the fitted scale factors and η the fitted mount error (the model
+/// of [`mount_rls`]): the coupling between gyro and tracker rotation that neither explains,
+/// rad per rad. Non-zero by the tracker and gyro noise (a few ″ per radian) and by what the
+/// table flown misses of the FOG axes' misalignment.
+pub fn unexplained_coupling(angles: &[ManeuverAngles], d: &Matrix3<f64>, eta_rad: &Vector3<f64>) -> Result<Vec<f64>> {
+    let corr = (Matrix3::identity() + d).try_inverse().ok_or_else(|| anyhow!("scale matrix singular"))?;
+    Ok(angles
+        .iter()
+        .map(|a| {
+            let c = corr * a.theta_fog_rad;
+            (a.theta_st_rad - c - c.cross(eta_rad)).norm() / a.theta_st_rad.norm()
+        })
+        .collect())
 }
 
 /// Runs the three steps on `t` recorded by a unit flying `table`; returns the new table
@@ -551,7 +580,7 @@ pub fn calibrate(t: &Telemetry, table: &CalibrationTable, s: &Settings) -> Resul
     for (f, db) in new.fog.iter_mut().zip(bias.fog_delta_rad_s) {
         f.bias_rad_s += db * (1.0 + f.scale_factor_error);
     }
-    let (mut scale, mut mount) = (None, None);
+    let (mut scale, mut mount, mut unexplained) = (None, None, Vec::new());
     if !maneuvers.is_empty() {
         let mount_q = table.st_mount();
         let angles = maneuver_angles(t, &maneuvers, &bias.drift_rad_s, &mount_q, s.max_star_gap_s)?;
@@ -563,11 +592,24 @@ pub fn calibrate(t: &Telemetry, table: &CalibrationTable, s: &Settings) -> Resul
         }
         let m = mount_rls(t, &bias.drift_rad_s, &d, &mount_q, s.max_star_gap_s, 1e-3)?;
         new.st_mount_q = corrected_mount(table, &m.eta_rad);
+        unexplained = unexplained_coupling(&sc.maneuvers, &d, &m.eta_rad)?;
+        let worst = unexplained.iter().copied().fold(0.0, f64::max);
+        if worst > MAX_UNEXPLAINED_RAD_PER_RAD {
+            bail!(
+                "the gyros and the star tracker disagree about the maneuvers by up to {:.0}″ per radian turned \
+                 after the scale factors and the mount are fitted (at most {:.0}″; 2-5″ when the table flown carries \
+                 the unit's misalignment from the ground calibration, docs/TUTORIAL-CALIBRATION.md sections 4-5): the \
+                 table flown does not describe this unit's FOG axes (ground misalignment calibration missing, \
+                 or the wrong table given); no field is written",
+                worst * ARCSEC_PER_RAD,
+                MAX_UNEXPLAINED_RAD_PER_RAD * ARCSEC_PER_RAD
+            );
+        }
         scale = Some(sc);
         mount = Some(m);
     }
     new.validate().map_err(|e| anyhow!("the calibrated table is refused: {e}"))?;
-    Ok(OrbitalResult { maneuvers, bias, scale, mount, table: new })
+    Ok(OrbitalResult { maneuvers, bias, scale, mount, unexplained_rad_per_rad: unexplained, table: new })
 }
 
 // ------------------------------------------------------------------ simulated flight

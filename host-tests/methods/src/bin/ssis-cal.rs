@@ -894,6 +894,13 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
                 m.eta_rad.norm() * ARCSEC_PER_RAD,
                 m.samples
             );
+            let u: Vec<String> =
+                r.unexplained_rad_per_rad.iter().map(|v| format!("{:.1}", v * ARCSEC_PER_RAD)).collect();
+            println!(
+                "4. left unexplained by scale factors and mount, per maneuver: {} ″ per radian turned (at most {:.0})",
+                u.join(" "),
+                orbital::MAX_UNEXPLAINED_RAD_PER_RAD * ARCSEC_PER_RAD
+            );
         }
         _ => println!("2., 3.: no maneuvers found: scale factors and mount not estimated"),
     }
