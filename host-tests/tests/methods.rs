@@ -320,6 +320,18 @@ fn misalignment_methods_refuse_miswired_fogs() {
         misalign_turns::turns_from_session(&s).map(|_| ()).map_err(|e| e.to_string())
     };
     assert!(variant("wired.csv", &|_| {}).is_ok(), "the clean session is refused");
+    // A logger that lost one row in a turn: the turn's angle is short by 0.35° on FOG4.
+    let seg = col("segment");
+    let mut gappy = rows.clone();
+    let k = gappy.iter().position(|r| r[seg] == 1.0).unwrap() + 500;
+    gappy.remove(k);
+    let p = tmp("lost-row.csv");
+    ssis_methods::write_session_csv(&p, &[], &misalign_turns::TableSim::HEADER, &gappy).unwrap();
+    let err = misalign_turns::turns_from_session(&read_session(&p, None).unwrap()).map(|_| ()).unwrap_err().to_string();
+    println!("lost-row.csv: {err}");
+    // the file's line of the row after the gap: header 1, rows from 2 (the first row of an
+    // increment session is read and dropped)
+    assert!(err.contains(&format!("line {}:", k + 2)) && err.contains("samples were lost"), "{err}");
     let (f0, f1, f2, f3) = (col("fog0_rad"), col("fog1_rad"), col("fog2_rad"), col("fog3_rad"));
     let rate = col("table_rate_rad_s");
     for (name, edit, expect) in [

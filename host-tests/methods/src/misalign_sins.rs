@@ -228,6 +228,7 @@ pub fn reversals_from_session(s: &Session, scale: [f64; 3]) -> Result<Vec<Revers
         let n = (a1 - a0) as f64;
         let static_mean_rad_s =
             std::array::from_fn(|i| s.fogs[i].rate_rad_s[a0..a1].iter().sum::<f64>() / n / (1.0 + scale[i]));
+        misalign_turns::require_no_gaps(s, b0..b1, "turn")?;
         let increments_rad = (b0..b1)
             .map(|r| {
                 let dt = if r == 0 { s.median_dt_s() } else { t[r] - t[r - 1] };

@@ -200,7 +200,7 @@ pub fn turns_from_session(s: &Session) -> Result<(Vec<Turn>, f64)> {
         }
         let u = up[t0].round() as usize;
         if u > 2 {
-            bail!("{}: line {}: field `up_axis`: {} is not 0, 1 or 2", s.file, t0 + 2, up[t0]);
+            bail!("{}: line {}: field `up_axis`: {} is not 0, 1 or 2", s.file, s.lines[t0], up[t0]);
         }
         // Earth rate on the static position (ψ of the static segment).
         let earth = earth_rate_installed(u, psi[s0], lat[s0]);
@@ -210,6 +210,7 @@ pub fn turns_from_session(s: &Session) -> Result<(Vec<Turn>, f64)> {
             let mean = f.rate_rad_s[s0..s1].iter().sum::<f64>() / n_static;
             drift[i] = mean - axes[i].dot(&earth);
         }
+        require_no_gaps(s, t0..t1, "turn")?;
         let mut theta = [0.0; 4];
         for r in t0..t1 {
             let dt = if r == 0 { s.median_dt_s() } else { t[r] - t[r - 1] };
@@ -233,6 +234,31 @@ pub fn turns_from_session(s: &Session) -> Result<(Vec<Turn>, f64)> {
     Ok((turns, lat[0]))
 }
 
+/// Largest sample interval, in sample intervals, within a turn (half a sample's tolerance for a
+/// logger's jitter).
+pub const MAX_INTERVAL_SAMPLES: f64 = 1.5;
+
+/// Refuses `rows` of a session when a sample interval among them (each row's interval ends at
+/// its time) exceeds [`MAX_INTERVAL_SAMPLES`] sample intervals: samples were lost there, and an
+/// angle summed over the rows would be short by what they carried (one lost 0.1-s row in a
+/// 6 °/s turn is 0.35° on FOG4, 160″ on δ42).
+pub fn require_no_gaps(s: &Session, rows: std::ops::Range<usize>, what: &str) -> Result<()> {
+    let (t, dt) = (s.t_s(), s.median_dt_s());
+    for r in rows.start.max(1)..rows.end {
+        let step = t[r] - t[r - 1];
+        if step > MAX_INTERVAL_SAMPLES * dt {
+            bail!(
+                "{}: line {}: field `t_s`: time jumps by {step:.3} s within a {what} (the sample interval is \
+                 {dt:.3} s): samples were lost there and the {what}'s angle would be short by what they carried; \
+                 record the {what} again or cut it from the session",
+                s.file,
+                s.lines[r]
+            );
+        }
+    }
+    Ok(())
+}
+
 /// The reference rate of every row of a turntable session (columns `psi_rad`, `lat_rad`,
 /// `table_rate_rad_s`, `up_axis`): Earth rate in the installation plus the table's rate
 /// about the up axis (counter-clockwise from above for a positive rate), ICS, rad/s.
@@ -243,7 +269,7 @@ pub fn reference_rates(s: &Session) -> Result<Vec<Vector3<f64>>> {
         .map(|r| {
             let u = up[r].round() as usize;
             if u > 2 {
-                bail!("{}: line {}: field `up_axis`: {} is not 0, 1 or 2", s.file, r + 2, up[r]);
+                bail!("{}: line {}: field `up_axis`: {} is not 0, 1 or 2", s.file, s.lines[r], up[r]);
             }
             let mut w = earth_rate_installed(u, psi[r], lat[r]);
             w[u] += rate[r];

@@ -230,6 +230,9 @@ pub struct Session {
     pub ref_rad_s: Vec<[f64; 3]>,
     /// Magnetic induction, ICS components, nT.
     pub field_nt: Option<Vec<[f64; 3]>>,
+    /// The file line of each sample (header = 1; comment lines and a dropped first row of
+    /// an increment session counted), for messages about a sample.
+    pub lines: Vec<u64>,
 }
 
 impl Session {
@@ -1364,6 +1367,7 @@ struct Builder {
     rates: Vec<Vec<f64>>,
     reference: Vec<[f64; 3]>,
     field: Vec<[f64; 3]>,
+    lines: Vec<u64>,
 }
 
 impl Builder {
@@ -1373,10 +1377,12 @@ impl Builder {
             rates: vec![Vec::new(); h.layout.n_fog],
             reference: Vec::new(),
             field: Vec::new(),
+            lines: Vec::new(),
         }
     }
 
-    fn push(&mut self, s: &SampleRef) {
+    fn push(&mut self, s: &SampleRef, line: u64) {
+        self.lines.push(line);
         for (c, v) in self.cols.iter_mut().zip(s.values) {
             c.push(*v);
         }
@@ -1404,6 +1410,7 @@ impl Builder {
             fogs,
             ref_rad_s: self.reference,
             field_nt: l.field.map(|_| self.field),
+            lines: self.lines,
         }
     }
 }
@@ -1422,7 +1429,7 @@ pub fn read_session(path: &Path, progress: Option<&ProgressBar>) -> Result<Sessi
     let mut rows = 0u64;
     while let Some(row) = rr.next_row()? {
         if conv.convert(row, &mut rec) {
-            b.push(&SampleRef::of_record(&rec, h.layout.n_fog));
+            b.push(&SampleRef::of_record(&rec, h.layout.n_fog), rr.line());
         }
         rows += 1;
         if let Some(pb) = progress.filter(|_| rows.is_multiple_of(8192)) {
@@ -1471,7 +1478,7 @@ pub fn session_from_columns(file: &str, names: Vec<String>, cols: &[Vec<f64>]) -
         }
         last_t = row[h.layout.t];
         if conv.convert(&row, &mut rec) {
-            b.push(&SampleRef::of_record(&rec, h.layout.n_fog));
+            b.push(&SampleRef::of_record(&rec, h.layout.n_fog), line);
         }
     }
     Ok(b.finish(&h))
