@@ -47,7 +47,7 @@ fn on_firmware(
 #[test]
 fn recorded_log_on_the_firmware_over_sockets_and_serial_ports() {
     let table = ssis_common::table::read_toml(&example("table.toml")).expect("the example's table");
-    let rec = recorded::read(&[example("leo-nadir-180s.csv")], Profile::SPACECRAFT.dt_us).expect("reads");
+    let rec = recorded::read(&[example("leo-nadir-280s.csv")], Profile::SPACECRAFT.dt_us).expect("reads");
     let mut host = Vec::new();
     let steps = (DURATION_S / Profile::SPACECRAFT.dt_s()).round() as usize;
     replay(&rec, &table, 30.0, |f: &OutputFrame, _| {

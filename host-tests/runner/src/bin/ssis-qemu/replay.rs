@@ -58,7 +58,8 @@ pub fn run(a: &Args) -> Result<bool> {
         }
     })?;
     let plotted = rows.finish(&csv_path, &svg, &title)?;
-    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), profile.dt_s());
+    let limit =
+        farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), profile.dt_s(), rec.st_latency_s(profile.dt_us));
     let host_like = ReplaySummary {
         origin: rec.origin.clone(),
         steps: s.steps,
@@ -71,8 +72,7 @@ pub fn run(a: &Args) -> Result<bool> {
     cli::report("run", || ssis_runner::json::qemu_summary(&s));
     cli::report("replay", || {
         let mut v = ssis_sim::json::replay_summary(&host_like);
-        v["farrenkopf_att_3sigma_arcsec"] = cli::json!(limit.posterior_arcsec.map(|x| 3.0 * x));
-        v["damage"] = ssis_sim::json::damage(&rec.problems);
+        ssis_sim::json::add_limit_and_damage(&mut v, &limit, &rec.problems);
         v
     });
     print!("{}", s.report());
