@@ -5,7 +5,7 @@ use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin, Own};
-use ssis_runner::qemu::{run_feed, Feed, QemuOptions};
+use ssis_runner::qemu::{run_feed, Feed};
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::recorded;
 use ssis_sim::replay::{farrenkopf_1sigma_arcsec, Evidence, Feed as LogFeed, ReplaySummary};
@@ -42,14 +42,7 @@ pub fn run(a: &Args) -> Result<bool> {
         settle_s: a.settle,
         next: Box::new(move || log_feed.next_step().filter(|i| i.n <= steps)),
     };
-    let opts = QemuOptions {
-        paced: !a.lockstep,
-        icount: a.icount,
-        corrupt_every: a.corrupt_every,
-        progress: true,
-        transport: super::transport(a),
-        ..QemuOptions::lockstep(elf)
-    };
+    let opts = super::options(a, &elf)?;
     let mut evidence = Evidence::new(&rec, &table, a.settle);
     let s = run_feed(feed, &opts, |f, r| {
         evidence.frame(f);
