@@ -107,3 +107,22 @@ fn captures_with_crc_failures_replay_like_the_csv() {
     let h = |r: &recorded::Recorded| replay(r, &table, 5.0, |_, _| {}).expect("replays").hash;
     assert_eq!(h(&csv), h(&cap), "capture and CSV give different outputs");
 }
+
+#[test]
+fn the_latency_limit_adds_the_angle_random_walk_over_the_latency() {
+    let table = ssis_common::table::read_toml(&example("table.toml")).expect("the example's table");
+    let dt = Profile::SPACECRAFT.dt_s();
+    let none = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt, 0.0);
+    assert_eq!(none.latency_mean_arcsec, none.period_mean_arcsec, "no latency: the period average");
+    let late = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt, 0.05);
+    // Over 50 ms the attitude variance grows by the FOGs' angle random walk per body axis
+    // (0.05 °/√h = 3″/√s on one FOG; 5/6 of its variance through the four-FOG least
+    // squares); the drift's share over 50 ms is below 1e-6 of it.
+    let q_arcsec2_s = 9.0 * 5.0 / 6.0;
+    for k in 0..3 {
+        let want = (none.period_mean_arcsec[k].powi(2) + q_arcsec2_s * 0.05).sqrt();
+        let got = late.latency_mean_arcsec[k];
+        println!("axis {k}: {got:.4}″ 1σ with 50 ms, {want:.4}″ from the random walk alone");
+        assert!((got / want - 1.0).abs() < 1e-3, "axis {k}: {got} against {want}");
+    }
+}
