@@ -9,8 +9,7 @@ Two back ends make the truth and the sensors:
   --backend basilisk   Basilisk (AVS Lab, `pip install bsk`): spacecraft, nadir pointing
                        and slews under its own attitude guidance, `starTracker`, and the
                        FOG model below applied to Basilisk's truth (its `imuSensor` has
-                       one error state per axis and no skewed fourth gyro). UNTESTED:
-                       see README.md.
+                       one error state per axis and no skewed fourth gyro).
 
 Conventions written (docs/RECORDED-LOG.md): quaternions scalar first, Λ = the body (ICS)
 frame in the inertial frame (v_I = Λ ∘ v_B ∘ Λ̃, Basilisk's β_BN numerically); FOG i's
@@ -72,8 +71,10 @@ def body_rate(t, orbit_rate, slews):
     return w
 
 
-def numpy_truth(n, orbit_rate, slews):
-    """Λ at every sub-step (n·SUB + 1) and the body rate at each sample's end."""
+def numpy_truth(n, args, rng):
+    """The numpy back end: Λ at each sample end (n + 1), the body rate at each sample's
+    end, and the tracker's solutions (time tag, Λ* with q0 >= 0), from rotation-vector
+    steps of DT/SUB and the tracker's noise as a rotation vector of args.st_sigma per axis."""
     h = DT / SUB
     q = (1.0, 0.0, 0.0, 0.0)
     # The start attitude: LVLH at an arbitrary point of an inclined orbit.
@@ -84,43 +85,155 @@ def numpy_truth(n, orbit_rate, slews):
         t = k * h
         # Midpoint rule; the rate's axis turns slowly, so the rotation-vector step is
         # exact to far below the sensors' noise.
-        w = body_rate(t + h / 2, orbit_rate, slews)
+        w = body_rate(t + h / 2, args.orbit_rate, args.slews)
         q = qmul(q, qexp(w * h))
         nq = math.sqrt(sum(c * c for c in q))
         q = tuple(c / nq for c in q)
         qs.append(q)
         if (k + 1) % SUB == 0:
-            rates[(k + 1) // SUB - 1] = body_rate(t + h, orbit_rate, slews)
-    return qs, rates
+            rates[(k + 1) // SUB - 1] = body_rate(t + h, args.orbit_rate, args.slews)
+    # Star tracker: tags half a sample after a sample's end.
+    sols = []
+    period = int(round(1 / args.st_rate / h))
+    for j in range(SUB // 2, n * SUB - SUB, period):
+        s = qmul(qs[j], qexp(rng.normal(0, args.st_sigma * ARCSEC, 3)))
+        if s[0] < 0:
+            s = tuple(-c for c in s)
+        sols.append((j * h, s))
+    return qs[::SUB], rates, sols
 
 
-def basilisk_truth(n, orbit_rate, slews):  # pragma: no cover - untested, see README.md
-    """The same truth from Basilisk: its rigid spacecraft under MRP feedback to a nadir
-    reference with the slews as reference offsets, sampled every sub-step."""
-    from Basilisk.simulation import spacecraft
-    from Basilisk.utilities import SimulationBaseClass, macros, RigidBodyKinematics as rbk
+def basilisk_truth(n, args, rng):
+    """Truth and star-tracker solutions from Basilisk 2.12.1 (`pip install bsk`).
+
+    A rigid spacecraft (`spacecraft`, 750 kg, inertia diag(900, 800, 600) kg m^2) in a
+    500-km circular orbit (inclination 51.6 deg) about a point-mass Earth; nadir pointing
+    from `hillPoint` (Hill frame: x radial, y along track, z orbit normal), the slews as
+    steps of `attTrackingError`'s reference offset sigma_R0R (MRP-step guidance), and
+    `mrpFeedback` commanding `extForceTorque`; `simpleNav` (no noise) closes the loop.
+    `starTracker` (noise matrix set explicitly: its default is zero; white noise, A = 0)
+    at the tracker's rate on its own task (after the dynamics at the same instant).
+
+    Returns Λ at each sample end (n + 1, β_BN from sigma_BN: numerically our Λ, signs made
+    continuous across the MRP switch), the body rate at each sample's end, and the
+    tracker's solutions (time tag, β_CN with q0 >= 0)."""
+    from Basilisk.architecture import messaging
+    from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback
+    from Basilisk.simulation import extForceTorque, simpleNav, spacecraft, starTracker
+    from Basilisk.utilities import RigidBodyKinematics as rbk
+    from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody
+
+    h = DT / SUB
     sim = SimulationBaseClass.SimBaseClass()
     proc = sim.CreateNewProcess("p")
-    h = DT / SUB
-    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(h)))
+    proc.addTask(sim.CreateNewTask("dyn", macros.sec2nano(h)), 100)
+    proc.addTask(sim.CreateNewTask("st", macros.sec2nano(1.0 / args.st_rate)), 50)
+
     sc = spacecraft.Spacecraft()
+    sc.ModelTag = "ssis-leo"
     sc.hub.mHub = 750.0
-    sc.hub.IHubPntBc_B = [[900.0, 0, 0], [0, 800.0, 0], [0, 0, 600.0]]
-    sc.hub.omega_BN_BInit = [[0.0], [-orbit_rate], [0.0]]
-    sim.AddModelToTask("t", sc)
-    rec = sc.scStateOutMsg.recorder()
-    sim.AddModelToTask("t", rec)
+    inertia = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
+    sc.hub.IHubPntBc_B = [inertia[0:3], inertia[3:6], inertia[6:9]]
+    grav = simIncludeGravBody.gravBodyFactory()
+    earth = grav.createEarth()
+    earth.isCentralBody = True
+    grav.addBodiesTo(sc)
+    oe = orbitalMotion.ClassicElements()
+    oe.a = earth.radEquator + 500e3
+    oe.e = 0.0
+    oe.i = math.radians(51.6)
+    oe.Omega = math.radians(48.2)
+    oe.omega = 0.0
+    oe.f = math.radians(85.3)
+    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
+    sc.hub.r_CN_NInit = r_n
+    sc.hub.v_CN_NInit = v_n
+    # Start on the reference: body = Hill frame, turning at the orbital rate.
+    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
+    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
+    dcm_hn = np.array([r_hat, np.cross(h_hat, r_hat), h_hat])
+    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(dcm_hn)]
+    n_orbit = np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)
+    sc.hub.omega_BN_BInit = [[0.0], [0.0], [n_orbit]]
+    sim.AddModelToTask("dyn", sc)
+
+    nav = simpleNav.SimpleNav()
+    nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    sim.AddModelToTask("dyn", nav)
+    hill = hillPoint.hillPoint()
+    hill.transNavInMsg.subscribeTo(nav.transOutMsg)
+    sim.AddModelToTask("dyn", hill)
+    err = attTrackingError.attTrackingError()
+    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
+    err.attNavInMsg.subscribeTo(nav.attOutMsg)
+    sim.AddModelToTask("dyn", err)
+    vc = messaging.VehicleConfigMsgPayload()
+    vc.ISCPntB_B = inertia
+    vc_msg = messaging.VehicleConfigMsg().write(vc)
+    ctl = mrpFeedback.mrpFeedback()
+    # Natural frequency about 0.1 rad/s on the largest inertia, damping about 0.9.
+    ctl.K = 36.0
+    ctl.P = 160.0
+    ctl.Ki = -1.0
+    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
+    ctl.vehConfigInMsg.subscribeTo(vc_msg)
+    sim.AddModelToTask("dyn", ctl)
+    ext = extForceTorque.ExtForceTorque()
+    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
+    sc.addDynamicEffector(ext)
+    sim.AddModelToTask("dyn", ext)
+
+    st = starTracker.StarTracker()
+    st.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    st.dcm_CB = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    # Measured on 2.12.1 (2,000 solutions): the error per axis has the standard deviation
+    # of the PMatrix diagonal in radians (not 4x it, as an MRP error set would).
+    p = args.st_sigma * ARCSEC
+    st.PMatrix = [[p, 0.0, 0.0], [0.0, p, 0.0], [0.0, 0.0, p]]
+    st.setAMatrix([[0.0] * 3] * 3)
+    st.setWalkBounds([1.0e3] * 3)
+    st.RNGSeed = int(rng.integers(1, 2**31 - 1))
+    sim.AddModelToTask("st", st)
+
+    rec = sc.scStateOutMsg.recorder(macros.sec2nano(DT))
+    sim.AddModelToTask("dyn", rec)
+    st_rec = st.sensorOutMsg.recorder()
+    sim.AddModelToTask("st", st_rec)
+
     sim.InitializeSimulation()
+    # Slews: steps of the reference offset, each composed with the offset before; back
+    # to nadir at the start of every 180 s after the first.
+    events = [(t0, np.asarray(axis, dtype=float) * angle) for t0, _dur, axis, angle in args.slews]
+    events += [(180.0 * p, None) for p in range(1, int(math.ceil(n * DT / 180.0)))]
+    offset = np.zeros(3)
+    for t0, prv in sorted(events, key=lambda e: e[0]):
+        if t0 >= n * DT:
+            break
+        sim.ConfigureStopTime(macros.sec2nano(t0))
+        sim.ExecuteSimulation()
+        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
+        err.sigma_R0R = list(offset)
     sim.ConfigureStopTime(macros.sec2nano(n * DT))
     sim.ExecuteSimulation()
+
     qs = []
-    for sigma in rec.sigma_BN:
+    for sigma in rec.sigma_BN[: n + 1]:
         b = rbk.MRP2EP(sigma)  # β_BN: numerically our Λ; fix the sign flips of the MRP switch
         if qs and np.dot(b, qs[-1]) < 0:
             b = -b
         qs.append(tuple(b))
-    rates = np.array(rec.omega_BN_B)[SUB::SUB][:n]
-    return qs, rates
+    if len(qs) != n + 1:
+        sys.exit(f"error: Basilisk recorded {len(qs)} states, expected {n + 1}")
+    rates = np.array(rec.omega_BN_B)[1 : n + 1]
+    sols = []
+    for t_ns, q in zip(st_rec.timeTag, st_rec.qInrtl2Case):
+        q = np.asarray(q, dtype=float)
+        if q[0] < 0:
+            q = -q
+        t_tag = t_ns * 1e-9
+        if 0 < t_tag < n * DT:
+            sols.append((t_tag, tuple(q)))
+    return qs, rates, sols
 
 
 def main():
@@ -138,33 +251,35 @@ def main():
     ap.add_argument("--st-rate", type=float, default=10.0, help="star tracker rate, Hz")
     ap.add_argument("--st-latency", type=float, default=0.05, help="star tracker latency, s")
     ap.add_argument("--truth-every", type=int, default=10, help="truth on every N-th row")
+    ap.add_argument("--compact", action="store_true", help="6 digits, FOG1's counter alone, no temperatures")
     a = ap.parse_args()
 
     rng = np.random.default_rng(a.seed)
     n = int(round(a.duration / DT))
-    orbit_rate = 2 * math.pi / 5677.0  # 500 km LEO
-    slews = [(40.0, 30.0, (1.0, 0.0, 0.0), math.radians(15)),
-             (110.0, 30.0, (0.0, 0.6, 0.8), math.radians(-20)),
-             (145.0, 25.0, (-1.0, 0.0, 0.0), math.radians(15))]
+    a.orbit_rate = 2 * math.pi / 5677.0  # 500 km LEO
+    # Three rest-to-rest slews in every 180 s (Basilisk: back to nadir at each 180 s).
+    a.slews = []
+    for p in range(int(math.ceil(a.duration / 180.0))):
+        b0 = 180.0 * p
+        a.slews += [(b0 + 40.0, 30.0, (1.0, 0.0, 0.0), math.radians(15)),
+                    (b0 + 110.0, 30.0, (0.0, 0.6, 0.8), math.radians(-20)),
+                    (b0 + 145.0, 25.0, (-1.0, 0.0, 0.0), math.radians(15))]
     truth = numpy_truth if a.backend == "numpy" else basilisk_truth
-    qs, rates = truth(n, orbit_rate, slews)
+    qs, rates, sols = truth(n, a, rng)
 
     deg = math.pi / 180
     sv = a.arw * deg / 60 * math.sqrt(DT)  # rad per sample
     su = a.rrw * deg / 3600 / 60 * math.sqrt(DT)  # rad/s per sample
     bias = rng.normal(0, a.bias * deg / 3600, 4) + np.cumsum(rng.normal(0, su, (n, 4)), axis=0)
-    dtheta = np.array([rotvec(qmul(conj(qs[k * SUB]), qs[(k + 1) * SUB])) for k in range(n)])
+    # Each FOG's increment: the rotation between the truth's attitudes at the sample's
+    # ends, about its sensitive axis, plus its bias and angle random walk.
+    dtheta = np.array([rotvec(qmul(conj(qs[k]), qs[k + 1])) for k in range(n)])
     fog = dtheta @ AXES.T + bias * DT + rng.normal(0, sv, (n, 4))
     temp = 24.0 + 0.5 * np.sin(np.arange(n) * DT / 300.0)
 
-    # Star tracker: tags half a sample after a sample's end, delivered after the latency.
+    # A solution is logged on the row at which it arrives, the latency after its tag.
     st_rows = {}
-    period = int(round(1 / a.st_rate / (DT / SUB)))
-    for j in range(SUB // 2, n * SUB - SUB, period):
-        q = qmul(qs[j], qexp(rng.normal(0, a.st_sigma * ARCSEC, 3)))
-        if q[0] < 0:
-            q = tuple(-c for c in q)
-        t_tag = j * DT / SUB
+    for t_tag, q in sols:
         row = int(math.ceil((t_tag + a.st_latency) / DT - 1e-9)) - 1
         if row < n:
             st_rows[row] = (t_tag, q)
@@ -177,7 +292,10 @@ def main():
         f.write(f"# recorded log: LEO nadir pointing with slews ({a.backend}), seed {a.seed}\n")
         f.write(f"# FOG ARW {a.arw} deg/sqrt(h), bias walk {a.rrw} deg/h/sqrt(h), turn-on bias 1 sigma {a.bias} deg/h;"
                 f" star tracker {a.st_sigma:.4f} arcsec 1 sigma per axis at {a.st_rate} Hz, latency {a.st_latency} s\n")
-        cols = ["t_s"] + [f"fog{i}_{c}" for i in range(4) for c in ("dtheta_rad", "counter", "t_degc")]
+        # Compact: 6 significant digits (the noise per sample is 1e-6 rad), FOG1's counter
+        # alone, no temperatures (the reader takes 25 degC).
+        per_fog = [("dtheta_rad", "counter", "t_degc")] * 4 if not a.compact else [("dtheta_rad", "counter")] + [("dtheta_rad",)] * 3
+        cols = ["t_s"] + [f"fog{i}_{c}" for i in range(4) for c in per_fog[i]]
         cols += ["st_t_s", "st_valid", "st_q0", "st_q1", "st_q2", "st_q3"]
         cols += ["true_q0", "true_q1", "true_q2", "true_q3", "true_wx_rad_s", "true_wy_rad_s", "true_wz_rad_s"]
         f.write(",".join(cols) + "\n")
@@ -186,14 +304,15 @@ def main():
             c = (a.counter0 + k) % 65536
             parts = [f"{t:.3f}"]
             for i in range(4):
-                parts += [f"{fog[k, i]:.7e}", str(c), f"{temp[k]:.1f}"]
+                fields = {"dtheta_rad": f"{fog[k, i]:.{5 if a.compact else 7}e}", "counter": str(c), "t_degc": f"{temp[k]:.1f}"}
+                parts += [fields[name] for name in per_fog[i]]
             if k in st_rows:
                 tt, q = st_rows[k]
                 parts += [f"{a.t0 + tt:.4f}", "1"] + [f"{v:.10f}" for v in q]
             else:
                 parts += [""] * 6
             if (k + 1) % a.truth_every == 0:
-                q = qs[(k + 1) * SUB]
+                q = qs[k + 1]
                 parts += [f"{v:.12f}" for v in q] + [f"{v:.9e}" for v in rates[k]]
             else:
                 parts += [""] * 7

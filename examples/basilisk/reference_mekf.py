@@ -5,7 +5,7 @@ FOG increments and star-tracker solutions the unit gets, scored against the log'
 the way `ssis-sim replay` scores the unit (3 sigma = |mean| + 3 std per axis after
 settling, every row with truth).
 
-    python3 reference_mekf.py leo-nadir-180s.csv --settle 60
+    python3 reference_mekf.py leo-nadir-280s.csv --settle 60
 
 Noise figures default to the example's table (table.toml): FOG ARW 0.05 deg/sqrt(h),
 bias walk 0.01 deg/h/sqrt(h), tracker 20/3 arcsec 1 sigma per axis.

@@ -2,7 +2,7 @@
 //! core's encoder, flies 10 s of a simulated scenario through `FlightCore::step` scored by
 //! the harness's evaluator, and replays a recorded log given as an argument.
 //!
-//! `cargo run --release -- ../basilisk/leo-nadir-180s.csv`
+//! `cargo run --release -- ../basilisk/leo-nadir-280s.csv`
 
 use anyhow::Result;
 use ssis::frames::fog::FogFrame;

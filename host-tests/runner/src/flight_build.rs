@@ -117,7 +117,7 @@ pub fn control_frames_on_flight_build(
         listen(&mut unit, &mut bytes, Duration::from_millis(5));
     }
     listen(&mut unit, &mut bytes, Duration::from_millis(100));
-    let still_running = unit.q.child.try_wait()?.is_none();
+    let still_running = unit.exited()?.is_none();
     let (_, log) = unit.finish(None, None, elf);
     let (head, tail) = bytes.split_at(compared);
     let mut check = compare(head, split, table)?;

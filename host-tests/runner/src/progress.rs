@@ -57,6 +57,11 @@ impl Patience {
         Patience { pid, cpu0_s: process_cpu_s(pid), wall0: Instant::now(), cpu_s }
     }
 
+    /// A wait of `s` of wall time (a board: no process to count).
+    pub fn wall_clock(s: f64) -> Patience {
+        Patience { pid: 0, cpu0_s: None, wall0: Instant::now(), cpu_s: s }
+    }
+
     /// QEMU's processor time since the wait began, s (wall time where not readable).
     pub fn cpu_used_s(&self) -> f64 {
         match (self.cpu0_s, process_cpu_s(self.pid)) {

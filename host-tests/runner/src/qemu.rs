@@ -32,7 +32,7 @@ use ssis::frames::output::OutputFrame;
 use ssis::telemetry::{page, Counter};
 
 use crate::progress::{Patience, ICOUNT_LOCKSTEP, QEMU_CPU_PATIENCE_S};
-use crate::transport::{open_serial, read_pty_names, Port, Transport, BAUD};
+use crate::transport::{open_serial, read_pty_names, BoardPorts, Port, Transport, BAUD};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::stats::AxisStats;
 use ssis_sim::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
@@ -88,6 +88,12 @@ pub struct QemuOptions {
     /// How the UARTs are reached: Unix sockets, or pseudo-terminals through the serial-port
     /// path (the hardware-in-the-loop path).
     pub transport: Transport,
+    /// A unit already running, on serial ports the user names (a board through
+    /// USB–RS-422 adapters, or QEMU started by hand with `-serial pty`): no QEMU is
+    /// started, `transport`, `table_image` and `key_record` are not used (the board's
+    /// flash holds its table: the same as the feed's, or the frames differ), the waits
+    /// are in wall time, and the run ends with END without waiting for an exit.
+    pub board: Option<BoardPorts>,
 }
 
 impl QemuOptions {
@@ -109,6 +115,7 @@ impl QemuOptions {
             key_record: None,
             commands: Vec::new(),
             transport: Transport::Sockets,
+            board: None,
         }
     }
 }
@@ -174,6 +181,9 @@ pub struct QemuSummary {
     /// (time tag µs, page id, value) of every output frame whose counter page is a unit
     /// counter (`ssis::telemetry::PAGED`: the command link's counters, the active table).
     pub unit_pages: Vec<(u64, u8, u16)>,
+    /// The unit was a running board on serial ports ([`QemuOptions::board`]): no exit
+    /// status, no log.
+    pub board: bool,
 }
 
 impl QemuSummary {
@@ -234,7 +244,9 @@ impl QemuSummary {
         for l in &self.log {
             let _ = writeln!(s, "firmware: {l}");
         }
-        if self.flight_build {
+        if self.board {
+            let _ = writeln!(s, "board on serial ports: END sent, left running (no exit status, no log)");
+        } else if self.flight_build {
             let _ = writeln!(s, "QEMU stopped by the runner (a flight build ignores END: no end-of-run report)");
         } else {
             let _ = writeln!(s, "QEMU exit: {:?}", self.exit_code);
@@ -246,7 +258,7 @@ impl QemuSummary {
     /// the in-process core's (lockstep), and a clean exit (a flight build is stopped by
     /// the runner instead).
     pub fn clean(&self) -> bool {
-        let ended = self.exit_code == Some(0) || self.flight_build && self.exit_code.is_none();
+        let ended = self.exit_code == Some(0) || (self.flight_build || self.board) && self.exit_code.is_none();
         ended && self.frames_out_bad == 0 && self.differing_frames == 0 && self.frames_out > 0
     }
 }
@@ -676,7 +688,9 @@ pub fn run_feed(
     opts: &QemuOptions,
     mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
 ) -> Result<QemuSummary> {
-    check_qemu_and_elf(&opts.elf)?;
+    if opts.board.is_none() {
+        check_qemu_and_elf(&opts.elf)?;
+    }
     let flight_build = !is_test_build(&opts.elf)?;
     if flight_build && opts.lockstep {
         bail!(
@@ -706,6 +720,7 @@ pub fn run_feed(
             ..Default::default()
         },
         flight_build,
+        board: opts.board.is_some(),
         ..Default::default()
     };
     let mut outputs = Outputs::new(opts.lockstep);
@@ -736,7 +751,7 @@ pub fn run_feed(
                 if Instant::now() >= due && s.frames_out + MAX_LEAD >= n {
                     break;
                 }
-                if let Some(st) = unit.q.child.try_wait()? {
+                if let Some(st) = unit.exited()? {
                     bail!("QEMU exited early ({st})");
                 }
                 std::thread::sleep(Duration::from_micros(200));
@@ -814,7 +829,8 @@ pub fn run_feed(
 /// collecting the defmt log. The spacecraft runner and the launch-vehicle runner
 /// (`crate::qemu_lv`) drive it alike.
 pub(crate) struct Unit {
-    pub(crate) q: Qemu,
+    /// The QEMU the runner started (`None`: a board already running, on serial ports).
+    pub(crate) q: Option<Qemu>,
     pub(crate) uarts: Vec<Box<dyn Port>>,
     pub(crate) rx: mpsc::Receiver<(usize, Vec<u8>)>,
     /// Until the log is read ([`Unit::log`]).
@@ -845,11 +861,63 @@ impl Unit {
             loaders.push((path, *addr));
         }
         let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders, transport)?;
+        Unit::with_uarts(Some(q), uarts, outputs, Some(log_thread))
+    }
+
+    /// A unit already running, on the serial ports `board` names (UART0, UART1, UART2 in
+    /// order); a thread reads each UART of `outputs`.
+    pub(crate) fn attach(board: &BoardPorts, outputs: &[usize]) -> Result<Unit> {
+        let mut uarts: Vec<Box<dyn Port>> = Vec::with_capacity(board.links.len());
+        for (path, baud) in &board.links {
+            uarts.push(Box::new(open_serial(path, *baud)?));
+        }
+        Unit::with_uarts(None, uarts, outputs, None)
+    }
+
+    fn with_uarts(
+        q: Option<Qemu>,
+        uarts: Vec<Box<dyn Port>>,
+        outputs: &[usize],
+        log_thread: Option<std::thread::JoinHandle<Vec<u8>>>,
+    ) -> Result<Unit> {
         let (tx, rx) = mpsc::channel();
         for &i in outputs {
-            spawn_reader(uarts[i].as_ref(), tx.clone(), move |b| (i, b))?;
+            let uart = uarts.get(i).with_context(|| format!("no UART{i}"))?;
+            spawn_reader(uart.as_ref(), tx.clone(), move |b| (i, b))?;
         }
-        Ok(Unit { q, uarts, rx, log_thread: Some(log_thread) })
+        Ok(Unit { q, uarts, rx, log_thread })
+    }
+
+    /// QEMU's exit status if it has exited (a board never has one).
+    pub(crate) fn exited(&mut self) -> Result<Option<std::process::ExitStatus>> {
+        match self.q.as_mut() {
+            Some(q) => Ok(q.child.try_wait()?),
+            None => Ok(None),
+        }
+    }
+
+    /// A wait allowing `cpu_s` of QEMU's processor time, or of wall time on a board.
+    fn patience(&self, cpu_s: f64) -> Patience {
+        match &self.q {
+            Some(q) => Patience::new(&q.child, cpu_s),
+            None => Patience::wall_clock(cpu_s),
+        }
+    }
+
+    /// Waits for QEMU to exit ([`wait_exit`]); a board: `None` at once.
+    fn wait_exit(&mut self, cpu_s: f64) -> Result<Option<std::process::ExitStatus>> {
+        match self.q.as_mut() {
+            Some(q) => wait_exit(&mut q.child, cpu_s),
+            None => Ok(None),
+        }
+    }
+
+    /// Stops QEMU (a board is left running).
+    fn kill(&mut self) {
+        if let Some(q) = self.q.as_mut() {
+            let _ = q.child.kill();
+            let _ = q.child.wait();
+        }
     }
 
     /// Starts QEMU on the spacecraft firmware with the table's flash region (two copies,
@@ -868,6 +936,9 @@ impl Unit {
         // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount
         // runs one instruction per ns while busy.
         let icount = if opts.lockstep { Some(ICOUNT_LOCKSTEP) } else { opts.icount.then_some("shift=0") };
+        if let Some(board) = &opts.board {
+            return Unit::attach(board, &[0]);
+        }
         Unit::start(&opts.elf, 3, icount, &images, &[0], opts.transport)
     }
 
@@ -886,7 +957,7 @@ impl Unit {
     /// tick meanwhile (frames that carry no sample).
     pub(crate) fn enter_lockstep(&mut self, mut take: impl FnMut(usize, &[u8])) -> Result<()> {
         // First a frame from the firmware's own tick: it has booted and is in its loop.
-        let boot = Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S);
+        let boot = self.patience(QEMU_CPU_PATIENCE_S);
         loop {
             match self.rx.recv_timeout(Duration::from_millis(100)) {
                 Ok((i, b)) => {
@@ -895,7 +966,7 @@ impl Unit {
                 }
                 Err(mpsc::RecvTimeoutError::Disconnected) => bail!("QEMU closed its output UARTs"),
                 Err(mpsc::RecvTimeoutError::Timeout) => {
-                    if let Some(st) = self.q.child.try_wait()? {
+                    if let Some(st) = self.exited()? {
                         bail!("QEMU exited ({st}) before the firmware's first output");
                     }
                     if let Some(why) = boot.exhausted() {
@@ -912,13 +983,13 @@ impl Unit {
         // tick, `sleep=off`) the firmware sends a frame every few microseconds of it, so
         // [`SILENCE_CPU_S`] of it without a byte proves the switch, however slowly the
         // host runs QEMU. Frames of that time carry no sample (time tag 0), set aside.
-        let mut quiet = Patience::new(&self.q.child, SILENCE_CPU_S);
-        let cap = Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S);
+        let mut quiet = self.patience(SILENCE_CPU_S);
+        let cap = self.patience(QEMU_CPU_PATIENCE_S);
         loop {
             match self.rx.recv_timeout(Duration::from_millis(20)) {
                 Ok((i, b)) => {
                     take(i, &b);
-                    quiet = Patience::new(&self.q.child, SILENCE_CPU_S);
+                    quiet = self.patience(SILENCE_CPU_S);
                 }
                 Err(mpsc::RecvTimeoutError::Timeout) => {
                     if quiet.exhausted().is_some() && quiet.wall() >= Duration::from_millis(100) {
@@ -955,18 +1026,17 @@ impl Unit {
                 }
                 Err(mpsc::RecvTimeoutError::Disconnected) => "QEMU closed its output UARTs".to_string(),
                 Err(mpsc::RecvTimeoutError::Timeout) => match (
-                    self.q.child.try_wait()?,
-                    patience.get_or_insert_with(|| Patience::new(&self.q.child, QEMU_CPU_PATIENCE_S)).exhausted(),
+                    self.exited()?,
+                    patience.get_or_insert_with(|| self.patience(QEMU_CPU_PATIENCE_S)).exhausted(),
                 ) {
                     (Some(st), _) => format!("QEMU exited ({st})"),
                     (None, Some(why)) => why,
                     (None, None) => continue,
                 },
             };
-            let status = wait_exit(&mut self.q.child, 2.0)?;
+            let status = self.wait_exit(2.0)?;
             if status.is_none() {
-                let _ = self.q.child.kill();
-                let _ = self.q.child.wait();
+                self.kill();
             }
             let log = self.log(elf);
             bail!(
@@ -983,9 +1053,9 @@ impl Unit {
     fn stall(mut self, mut s: QemuSummary, elf: &Path) -> Result<QemuSummary> {
         self.command(command::STALL)?;
         let t_stall = Instant::now();
-        let status = wait_exit(&mut self.q.child, QEMU_CPU_PATIENCE_S)?;
+        let status = self.wait_exit(QEMU_CPU_PATIENCE_S)?;
         if status.is_none() {
-            let _ = self.q.child.kill();
+            self.kill();
         }
         s.stalled_exit_s = status.map(|_| t_stall.elapsed().as_secs_f64());
         s.exit_code = status.and_then(|st| st.code());
@@ -997,7 +1067,7 @@ impl Unit {
     /// status if it did.
     pub(crate) fn end(&mut self) -> Result<Option<std::process::ExitStatus>> {
         self.command(command::END)?;
-        wait_exit(&mut self.q.child, 10.0)
+        self.wait_exit(10.0)
     }
 
     /// The end of a run: the progress bar closed, QEMU stopped, its exit code and log.
@@ -1010,7 +1080,7 @@ impl Unit {
         if let Some(b) = bar {
             b.finish_and_clear();
         }
-        let _ = self.q.child.kill();
+        self.kill();
         (status.and_then(|st| st.code()), self.log(elf))
     }
 

@@ -330,7 +330,7 @@ pub fn build_firmware() -> Result<PathBuf> {
 }
 
 /// Address of a symbol in an ELF.
-pub(crate) fn symbol(elf: &Path, name: &str) -> Result<u64> {
+pub fn symbol(elf: &Path, name: &str) -> Result<u64> {
     use object::{Object, ObjectSymbol};
     let data = std::fs::read(elf)?;
     let file = object::File::parse(&*data)?;

@@ -4,7 +4,9 @@
 //! - [`Transport::Pty`]: QEMU's UARTs as pseudo-terminals (`-serial pty`), opened through
 //!   the real serial-port path ([`open_serial`], the `serialport` crate), exactly as the
 //!   runner opens the USB–RS-422 adapters wired to the STM32H7 board
-//!   (`boards/stm32h7/README.md`: USART1 output, USART2 FOG bus, USART3 star tracker).
+//!   (`boards/stm32h7/README.md`: USART1 output, USART2 FOG bus, USART3 star tracker);
+//! - [`BoardPorts`]: no QEMU at all: serial ports the user names, to a unit that is
+//!   already running (`ssis-qemu --board OUT,FOG,STAR`).
 //!
 //! Framing on the links (`docs/ICD.md`): [`BAUD`] baud, 8 data bits, no parity, one stop
 //! bit, no flow control.
@@ -75,6 +77,41 @@ impl Port for SerialLink {
     }
 }
 
+/// A unit already running, reached over serial ports the user names: the STM32H7 board
+/// through its USB–RS-422 adapters (`boards/stm32h7/README.md`), or QEMU started by hand
+/// with `-serial pty` standing in for it. Each link at its baud rate, with the ICD's
+/// framing ([`open_serial`]: 8 data bits, no parity, one stop bit, no flow control).
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BoardPorts {
+    /// (path, baud) of UART0 (output frames out, control frames in), UART1 (FOG bus) and
+    /// UART2 (star tracker), in that order.
+    pub links: [(String, u32); 3],
+}
+
+impl BoardPorts {
+    /// From `OUT,FOG,STAR`: three port paths, each optionally `PATH@BAUD` (default
+    /// [`BAUD`], the ICD's).
+    pub fn parse(arg: &str) -> Result<BoardPorts> {
+        let parts: Vec<&str> = arg.split(',').collect();
+        let [out, fog, star] = parts[..] else {
+            anyhow::bail!("--board: `{arg}`: give three ports, OUT,FOG,STAR (each PATH or PATH@BAUD)");
+        };
+        let link = |p: &str| -> Result<(String, u32)> {
+            match p.rsplit_once('@') {
+                Some((path, baud)) => {
+                    let b: u32 =
+                        baud.parse().with_context(|| format!("--board: `{p}`: baud `{baud}` is not a number"))?;
+                    anyhow::ensure!(b > 0 && !path.is_empty(), "--board: `{p}`: a path and a baud above 0");
+                    Ok((path.to_string(), b))
+                }
+                None if !p.is_empty() => Ok((p.to_string(), BAUD)),
+                None => anyhow::bail!("--board: `{arg}`: an empty port"),
+            }
+        };
+        Ok(BoardPorts { links: [link(out)?, link(fog)?, link(star)?] })
+    }
+}
+
 /// Opens a serial port with the ICD's framing at `baud` (raw mode: no echo, no line
 /// discipline).
 pub fn open_serial(path: &str, baud: u32) -> Result<SerialLink> {
@@ -117,4 +154,28 @@ pub fn parse_pty_line(line: &str) -> Option<(&str, &str)> {
     let rest = line.trim().strip_prefix("char device redirected to ")?;
     let (path, label) = rest.split_once(" (label ")?;
     Some((path, label.strip_suffix(')')?))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn board_ports_parse_paths_and_bauds_and_refuse_the_rest() {
+        let b = BoardPorts::parse("/dev/ttyUSB0,/dev/ttyUSB1@460800,/dev/pts/3").expect("parses");
+        assert_eq!(
+            b.links,
+            [("/dev/ttyUSB0".into(), BAUD), ("/dev/ttyUSB1".into(), 460_800), ("/dev/pts/3".into(), BAUD)]
+        );
+        for bad in [
+            "/dev/a,/dev/b",
+            "/dev/a,/dev/b,/dev/c,/dev/d",
+            "/dev/a,,/dev/c",
+            "/dev/a@fast,/dev/b,/dev/c",
+            "/dev/a@0,/dev/b,/dev/c",
+        ] {
+            let e = BoardPorts::parse(bad).expect_err(bad).to_string();
+            assert!(e.starts_with("--board:"), "{bad}: {e}");
+        }
+    }
 }

@@ -69,6 +69,17 @@ pub fn evidence(e: &crate::replay::Evidence) -> Value {
     })
 }
 
+/// The estimation limits of a replay (`ssis_sim::replay::farrenkopf_1sigma_arcsec`) as
+/// `/replay` keys, 3σ, and the log's damage: what `ssis-sim replay` and `ssis-qemu
+/// --replay` add to [`replay_summary`].
+pub fn add_limit_and_damage(v: &mut Value, limit: &crate::replay::Limit, p: &crate::recorded::Problems) {
+    v["farrenkopf_att_3sigma_arcsec"] = json!(limit.posterior_arcsec.map(|x| 3.0 * x));
+    v["limit_period_mean_att_3sigma_arcsec"] = json!(limit.period_mean_arcsec.map(|x| 3.0 * x));
+    v["limit_latency_mean_att_3sigma_arcsec"] = json!(limit.latency_mean_arcsec.map(|x| 3.0 * x));
+    v["st_latency_s"] = json!(limit.latency_s);
+    v["damage"] = damage(p);
+}
+
 /// `ssis-sim replay`: the replay, its errors against truth (if any) and the evidence.
 pub fn replay_summary(s: &crate::replay::ReplaySummary) -> Value {
     json!({

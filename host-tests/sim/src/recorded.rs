@@ -631,6 +631,17 @@ impl Recorded {
         self.steps.iter().map(|s| s.st.len()).sum()
     }
 
+    /// The star tracker's latency as logged, s: the median over its solutions of the end
+    /// of the step a solution arrives in less the instant it holds (0 without solutions).
+    pub fn st_latency_s(&self, dt_us: u32) -> f64 {
+        let mut late_us: Vec<u64> = (1u64..)
+            .zip(&self.steps)
+            .flat_map(|(n, s)| s.st.iter().map(move |st| (n * u64::from(dt_us)).saturating_sub(st.time_us)))
+            .collect();
+        late_us.sort_unstable();
+        late_us.get(late_us.len() / 2).map_or(0.0, |&us| us as f64 * 1e-6)
+    }
+
     /// FOG samples present.
     pub fn fog_samples(&self) -> usize {
         self.steps.iter().map(|s| s.fog.iter().flatten().count()).sum()

@@ -18,7 +18,7 @@ fn example(name: &str) -> PathBuf {
 
 /// The committed log's lines (two comments, the header, the rows).
 fn log_lines() -> Vec<String> {
-    std::fs::read_to_string(example("leo-nadir-180s.csv"))
+    std::fs::read_to_string(example("leo-nadir-280s.csv"))
         .expect("the committed log")
         .lines()
         .map(String::from)
@@ -129,10 +129,11 @@ fn each_kind_of_damage_is_counted_and_reported_and_the_log_kept() {
     damaged("counter", join(&l), &["counter_jumps: 2"]);
     // A star-tracker tag that goes back.
     let mut l = base.clone();
-    let rows: Vec<usize> = (hdr..l.len()).filter(|&i| l[i].split(',').nth(13).is_some_and(|f| !f.is_empty())).collect();
-    let first_tag = l[rows[0]].split(',').nth(13).unwrap().to_string();
+    let st = l[2].split(',').position(|h| h == "st_t_s").expect("st_t_s column");
+    let rows: Vec<usize> = (hdr..l.len()).filter(|&i| l[i].split(',').nth(st).is_some_and(|f| !f.is_empty())).collect();
+    let first_tag = l[rows[0]].split(',').nth(st).unwrap().to_string();
     let mut v: Vec<String> = l[rows[3]].split(',').map(String::from).collect();
-    v[13] = first_tag;
+    v[st] = first_tag;
     l[rows[3]] = v.join(",");
     damaged("st-time", join(&l), &["st_time_tags_repeated_or_backward: 1"]);
     // Nothing usable: refused with a plain message, the log kept.

@@ -45,8 +45,17 @@ struct Args {
     /// The UARTs as pseudo-terminals (`-serial pty`) driven through the real serial-port
     /// path (`serialport`, the ICD's framing), instead of Unix sockets: the
     /// hardware-in-the-loop path, tested on QEMU.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "board")]
     pty: bool,
+    /// Hardware in the loop without QEMU: a unit already running (the STM32H7 board
+    /// through USB–RS-422 adapters, boards/stm32h7/README.md, or QEMU started by hand with
+    /// `-serial pty`) on three serial ports, OUT,FOG,STAR: UART0 (output frames out,
+    /// control frames in), UART1 (FOG bus), UART2 (star tracker); each PATH or PATH@BAUD
+    /// (default 921600), 8N1 without flow control as docs/ICD.md says. Its flash must hold
+    /// the run's table (--table for a replay). --elf names the firmware it runs (a test
+    /// build: lockstep; a flight build: real time).
+    #[arg(long, value_name = "OUT,FOG,STAR")]
+    board: Option<String>,
     /// Firmware ELF (default: build the test build and use
     /// target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test, or ssis-fw-lv-test for
     /// a launch-vehicle ascent). A flight build (ssis-fw) ignores control frames: it runs
@@ -116,26 +125,10 @@ fn real_main(a: Args) -> Result<bool> {
     output::claim(&csv_path, Origin::Default(Own::CsvHeader(CSV_HEADER.join(","))))?;
     output::claim(&svg, Origin::Default(Own::Svg(svg_title.clone())))?;
     let elf = firmware(&a)?;
-    // A flight build ignores control frames: without --lockstep it runs in real time.
-    let real_time = a.real_time || !a.lockstep && !is_test_build(&elf)?;
-    if real_time && !a.real_time {
-        eprintln!(
-            "note: {} is a flight build (no test hooks): it runs in real time (--real-time); the test build \
-             (the default ELF) runs paced lockstep",
-            elf.display()
-        );
-    }
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = Rows::new(&csv_path)?;
-    let opts = QemuOptions {
-        lockstep: !real_time,
-        paced: !real_time && !a.lockstep,
-        icount: a.icount,
-        corrupt_every: a.corrupt_every,
-        progress: true,
-        transport: transport(&a),
-        ..QemuOptions::lockstep(elf.clone())
-    };
+    let opts = options(&a, &elf)?;
+    let real_time = !opts.lockstep;
     let s = run_qemu(&sc, &opts, |r| rows.take(r))?;
     rows.finish(&csv_path, &svg, &svg_title)?;
     cli::report("run", || ssis_runner::json::qemu_summary(&s));
@@ -211,6 +204,31 @@ fn firmware(a: &Args) -> Result<PathBuf> {
     })
 }
 
+/// How to run `elf`: lockstep (paced unless --lockstep), or real time for --real-time and
+/// for a flight build (it ignores control frames); over QEMU's sockets or ptys, or a
+/// running board's serial ports.
+fn options(a: &Args, elf: &std::path::Path) -> Result<QemuOptions> {
+    let real_time = a.real_time || !a.lockstep && !is_test_build(elf)?;
+    if real_time && !a.real_time {
+        eprintln!(
+            "note: {} is a flight build (no test hooks): it runs in real time (--real-time); the test build \
+             (the default ELF) runs paced lockstep",
+            elf.display()
+        );
+    }
+    let board = a.board.as_deref().map(ssis_runner::transport::BoardPorts::parse).transpose()?;
+    Ok(QemuOptions {
+        lockstep: !real_time,
+        paced: !real_time && !a.lockstep,
+        icount: a.icount,
+        corrupt_every: a.corrupt_every,
+        progress: true,
+        transport: transport(a),
+        board,
+        ..QemuOptions::lockstep(elf.to_path_buf())
+    })
+}
+
 /// The UARTs' transport the options ask for.
 fn transport(a: &Args) -> ssis_runner::transport::Transport {
     if a.pty {
@@ -227,6 +245,7 @@ fn run_lv(a: &Args, scenario: &std::path::Path) -> Result<bool> {
         sc.duration_s = d;
     }
     anyhow::ensure!(a.corrupt_every == 0, "--corrupt-every is not supported for a launch-vehicle ascent");
+    anyhow::ensure!(a.board.is_none(), "--board: a launch-vehicle ascent runs on QEMU only");
     let elf = match &a.elf {
         Some(e) => e.clone(),
         None => ssis_runner::qemu_lv::build_firmware()?,

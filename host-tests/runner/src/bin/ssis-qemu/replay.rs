@@ -5,7 +5,7 @@ use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin, Own};
-use ssis_runner::qemu::{run_feed, Feed, QemuOptions};
+use ssis_runner::qemu::{run_feed, Feed};
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::recorded;
 use ssis_sim::replay::{farrenkopf_1sigma_arcsec, Evidence, Feed as LogFeed, ReplaySummary};
@@ -42,14 +42,7 @@ pub fn run(a: &Args) -> Result<bool> {
         settle_s: a.settle,
         next: Box::new(move || log_feed.next_step().filter(|i| i.n <= steps)),
     };
-    let opts = QemuOptions {
-        paced: !a.lockstep,
-        icount: a.icount,
-        corrupt_every: a.corrupt_every,
-        progress: true,
-        transport: super::transport(a),
-        ..QemuOptions::lockstep(elf)
-    };
+    let opts = super::options(a, &elf)?;
     let mut evidence = Evidence::new(&rec, &table, a.settle);
     let s = run_feed(feed, &opts, |f, r| {
         evidence.frame(f);
@@ -58,7 +51,8 @@ pub fn run(a: &Args) -> Result<bool> {
         }
     })?;
     let plotted = rows.finish(&csv_path, &svg, &title)?;
-    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), profile.dt_s());
+    let limit =
+        farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), profile.dt_s(), rec.st_latency_s(profile.dt_us));
     let host_like = ReplaySummary {
         origin: rec.origin.clone(),
         steps: s.steps,
@@ -71,8 +65,7 @@ pub fn run(a: &Args) -> Result<bool> {
     cli::report("run", || ssis_runner::json::qemu_summary(&s));
     cli::report("replay", || {
         let mut v = ssis_sim::json::replay_summary(&host_like);
-        v["farrenkopf_att_3sigma_arcsec"] = cli::json!(limit.posterior_arcsec.map(|x| 3.0 * x));
-        v["damage"] = ssis_sim::json::damage(&rec.problems);
+        ssis_sim::json::add_limit_and_damage(&mut v, &limit, &rec.problems);
         v
     });
     print!("{}", s.report());

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use anyhow::Result;
 use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
-use ssis_common::cli::{self, json};
+use ssis_common::cli;
 use ssis_common::output;
 use ssis_common::plot::{write_svg, PlotPoint};
 use ssis_sim::harness::CSV_HEADER;
@@ -65,7 +65,8 @@ pub fn run(a: &Args) -> Result<bool> {
     if let Some(e) = csv_err {
         return Err(e.into());
     }
-    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), Profile::SPACECRAFT.dt_s());
+    let dt = Profile::SPACECRAFT;
+    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), rec.st_latency_s(dt.dt_us));
     print!("{}", s.report(&rec, Some(limit)));
     if let (Some(w), Some(p)) = (writer, &a.csv) {
         w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
@@ -78,9 +79,7 @@ pub fn run(a: &Args) -> Result<bool> {
     }
     cli::report("replay", || {
         let mut v = ssis_sim::json::replay_summary(&s);
-        v["farrenkopf_att_3sigma_arcsec"] = json!(limit.posterior_arcsec.map(|x| 3.0 * x));
-        v["limit_period_mean_att_3sigma_arcsec"] = json!(limit.period_mean_arcsec.map(|x| 3.0 * x));
-        v["damage"] = ssis_sim::json::damage(&rec.problems);
+        ssis_sim::json::add_limit_and_damage(&mut v, &limit, &rec.problems);
         v
     });
     Ok(true)
