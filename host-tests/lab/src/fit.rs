@@ -468,14 +468,14 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
 /// ([`super::noise`]): the generalised least-squares covariance (XᵀΣ⁻¹X)⁻¹ over every block,
 /// scaled by the whitened residual's variance.
 pub fn coef_sigma(d: &Digest, kinds: &[Kind]) -> LabResult<Vec<Vec<f64>>> {
-    let bins = super::noise::Bins::of(d);
     (0..d.basis.n_fog)
         .map(|fog| {
             let des = design(d, kinds, fog)?;
             let s = Sums::of(d, fog);
             let tr = lstsq_gram(&design_gram(&s.train, &des.cols), s.train.n);
-            let nm = super::noise::NoiseModel::fit(&bins, &kept_residual(d, fog, &des.cols, &tr.coef));
-            let ws = super::noise::whitened(&nm, &bins, &d.kept.z[fog], d.basis.m);
+            let bd = super::noise::Binned::of_digest(d, fog);
+            let nm = super::noise::NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            let ws = super::noise::whitened(&nm, &bd);
             let a = design_gram(&ws.all, &des.cols);
             let ls = lstsq_gram(&a, ws.all.n);
             let keep: Vec<usize> = (0..des.k()).filter(|&c| ls.identified[c]).collect();

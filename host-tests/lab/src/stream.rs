@@ -27,6 +27,7 @@ use indicatif::ProgressBar;
 
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
+use super::noise::Bins;
 use super::session::{
     median_interval_s, nominal_axes, write_record, Converter, Header, RowReader, SampleRef, Session, Shape,
 };
@@ -1306,6 +1307,10 @@ pub struct Digest {
     pub gram: Vec<Vec<Gram>>,
     /// Kept rows.
     pub kept: Kept,
+    /// Bins of every row (consecutive rows of one block; [`super::noise`]).
+    pub bins: Bins,
+    /// Per FOG, the sums of the shifted basis over each bin (bins × m, row-major).
+    pub bin_sum: Vec<Vec<f64>>,
     /// Candidates for the largest |residual| (when the spec tracks terms and not every row
     /// is kept).
     pub extremes: Option<Extremes>,
@@ -1313,6 +1318,38 @@ pub struct Digest {
 
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
+
+/// The per-bin sums of the basis a pass accumulates, a batch at a time.
+struct BinAcc {
+    bins: Bins,
+    sum: Vec<Vec<f64>>,
+    /// The bin of the last row added.
+    at: usize,
+}
+
+impl BinAcc {
+    /// Adds the `rows` rows of a batch (per FOG, m columns [`COL`] apart) whose first row
+    /// is row `j0` of the session.
+    fn add(&mut self, batch: &[Vec<f64>], j0: usize, rows: usize, m: usize) {
+        let mut i = 0;
+        while i < rows {
+            while self.bins.start.get(self.at + 1).is_some_and(|&e| e <= j0 + i) {
+                self.at += 1;
+            }
+            if self.at >= self.bins.len() {
+                return; // rows past the count of the pre-pass (refused after the pass)
+            }
+            let end = self.bins.start.get(self.at + 1).map_or(rows, |&e| (e - j0).min(rows));
+            for (sum, cols) in self.sum.iter_mut().zip(batch) {
+                let out = &mut sum[self.at * m..(self.at + 1) * m];
+                for (a, o) in out.iter_mut().enumerate() {
+                    *o += cols[a * COL + i..a * COL + end].iter().sum::<f64>();
+                }
+            }
+            i = end.max(i + 1);
+        }
+    }
+}
 
 /// The quantities a batch's columns are computed from ([`Basis::fill_batch`]), staged a
 /// row at a time, one array of [`BATCH`] rows per quantity (per FOG where it is one).
@@ -1411,6 +1448,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         ..Kept::default()
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
+    let bins = Bins::every_row(n, nb, shape.dt_s);
+    let mut bin_acc = BinAcc { sum: vec![vec![0.0; bins.len() * m]; n_fog], bins, at: 0 };
     let mut shift: Vec<Vec<f64>> = Vec::new();
     // Per FOG a batch of rows, column-major (m columns of BATCH values, COL apart) for the Gram sums,
     // and a column of zeros after them (what pads the Gram sums' groups of four).
@@ -1440,7 +1479,9 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                  shift: &[Vec<f64>],
                  staged: &Staged,
                  kept_at: &mut Vec<usize>,
-                 kept_z: &mut [Vec<f64>]| {
+                 kept_z: &mut [Vec<f64>],
+                 bin_acc: &mut BinAcc,
+                 j0: usize| {
         if rows == 0 {
             return;
         }
@@ -1458,12 +1499,31 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 b.chunks_exact_mut(COL).for_each(|col| col[rows..BATCH].fill(0.0));
             }
         }
+        bin_acc.add(batch, j0, rows, m);
         let mut grams: Vec<&mut Gram> = gram.iter_mut().map(|g| &mut g[block]).collect();
         accumulate_gram(&mut grams, batch, rows, &order, shared);
         if let Some(t) = tracker {
             t.offer_batch(batch, rows, m);
         }
     };
+    // The batch so far summed; its first row is row `$j0` of the session.
+    macro_rules! flush_batch {
+        ($j0:expr) => {
+            flush(
+                &mut batch,
+                batch_rows,
+                &mut gram,
+                batch_block,
+                tracker.as_mut(),
+                &shift,
+                &staged,
+                &mut kept_at,
+                &mut kept.z,
+                &mut bin_acc,
+                $j0,
+            )
+        };
+    }
     // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
     // changes at the first j with j · nb / n above the current block.
     let (mut block, mut next_block) = (0usize, 0usize);
@@ -1480,17 +1540,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             next_segment += t.out.len_of(t.out.segs.len().max(1));
         }
         if block != batch_block || batch_rows == BATCH || new_segment {
-            flush(
-                &mut batch,
-                batch_rows,
-                &mut gram,
-                batch_block,
-                tracker.as_mut(),
-                &shift,
-                &staged,
-                &mut kept_at,
-                &mut kept.z,
-            );
+            flush_batch!(j - batch_rows);
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -1531,7 +1581,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut(), &shift, &staged, &mut kept_at, &mut kept.z);
+    flush_batch!(seen - batch_rows);
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
@@ -1558,6 +1608,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         shift,
         gram,
         kept,
+        bins: bin_acc.bins,
+        bin_sum: bin_acc.sum,
         extremes: tracker.map(|t| t.out).filter(|e| !e.segs.is_empty()),
     })
 }
