@@ -556,6 +556,31 @@ pub fn add_term<'a>(
     })
 }
 
+/// The residuals before and after each `add` of a history of model versions (sorted by
+/// version): for each version after the first, the previous version's and its own terms
+/// fitted on every row of `d`, at the kept rows. A pair whose terms `d` has no slot for is
+/// left out; so is a version that adds no term.
+pub fn add_steps(versions: &[(u32, Model)], d: &Digest) -> LabResult<Vec<super::report::AddStep>> {
+    let mut out = Vec::new();
+    for pair in versions.windows(2) {
+        let [(v0, m0), (v1, m1)] = pair else { continue };
+        let (k0, k1) = (m0.kinds(), m1.kinds());
+        let added: Vec<String> = k1.iter().filter(|k| !k0.contains(k)).map(|k| format!("+{}", k.label())).collect();
+        if added.is_empty() {
+            continue;
+        }
+        let (Ok(before), Ok(after)) = (fit_digest(m0, d), fit_digest(m1, d)) else { continue };
+        out.push(super::report::AddStep {
+            from: *v0,
+            to: *v1,
+            added: added.join(" "),
+            before_rad_s: before.sample.residual,
+            after_rad_s: after.sample.residual,
+        });
+    }
+    Ok(out)
+}
+
 /// File name of version `v` of a model whose file is `path`: `stem.vN.toml` next to it.
 /// `model.toml` and `model.v3.toml` share the stem `model`.
 pub fn version_path(path: &std::path::Path, v: u32) -> std::path::PathBuf {

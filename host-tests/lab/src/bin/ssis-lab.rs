@@ -681,14 +681,20 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
 fn report_cmd(model: PathBuf, session: PathBuf, out: PathBuf) -> Result<()> {
     let m = load_model(&model)?;
     let opt = Options::default();
-    let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
-        let terms = candidate_terms(&Source::File(&session).header()?);
+    let versions =
+        history_files(&model).iter().map(|(v, p)| load_model(p).map(|m| (*v, m))).collect::<Result<Vec<_>>>()?;
+    let (f, d, steps, kept) = pass(&session, "fitting and diagnosing on", |pb| {
+        let mut terms = candidate_terms(&Source::File(&session).header()?);
+        terms.extend(versions.iter().flat_map(|(_, v)| v.kinds()));
         let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
-        Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?))
+        let kept = report::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
+        let steps = ssis_lab::fit::add_steps(&versions, &dg)?;
+        Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?, steps, kept))
     })?;
     let h: Vec<(u32, f64)> =
         history(&model, &session, ssis_lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
-    ssis_lab::write_atomic(&out, report::render(&session.display().to_string(), &f, &d, &h)?.as_bytes())?;
+    let page = report::render(&session.display().to_string(), &f, &d, &h, &steps, &kept)?;
+    ssis_lab::write_atomic(&out, page.as_bytes())?;
     println!("wrote {}", out.display());
     Ok(())
 }
