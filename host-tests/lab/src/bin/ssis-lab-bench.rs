@@ -110,6 +110,7 @@ fn spec(rows: usize) -> Spec {
         motion: Motion::RateTable { dwell_rows: 6000, peak_deg_s: 10.0 },
         thermal: Thermal::Chamber,
         field_columns: false,
+        field: ssis_lab::session::FieldModel::default(),
         hidden: Hidden::TempRate,
     }
 }

@@ -174,6 +174,10 @@ enum Cmd {
         /// Leave the hidden effect out.
         #[arg(long)]
         no_hidden: bool,
+        /// The Earth field at the site (Kharkov): `wmm` (WMM2025 on 2025-001, the real field)
+        /// or `paper` (the paper's dipole tilt, to reproduce its example).
+        #[arg(long, default_value = "wmm", value_parser = ["wmm", "paper"])]
+        field: String,
     },
 }
 
@@ -402,7 +406,7 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
         Cmd::Import { kind, log, out, psi_rad, lat_rad, table_rate_rad_s } => {
             import_cmd(kind, log, out, psi_rad, lat_rad, table_rate_rad_s)
         }
-        Cmd::Simulate { preset, out, seed, no_hidden } => simulate_cmd(preset, out, seed, no_hidden),
+        Cmd::Simulate { preset, out, seed, no_hidden, field } => simulate_cmd(preset, out, seed, no_hidden, &field),
     }
 }
 
@@ -773,19 +777,30 @@ fn import_cmd(
 }
 
 /// `simulate`: a session of a preset with known effects.
-fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool) -> Result<()> {
-    let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {
+fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool, field: &str) -> Result<()> {
+    let Some(mut spec) = simulate::preset(&preset, seed, !no_hidden) else {
         bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight, replay");
+    };
+    spec.field = if field == "paper" {
+        ssis_lab::session::FieldModel::PaperDipole
+    } else {
+        ssis_lab::session::FieldModel::Wmm2025
     };
     let sim = simulate::generate(&spec);
     sim.write_csv(&out)?;
     println!(
-        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?})",
+        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?}{})",
         out.display(),
         sim.rows.len(),
         spec.dt_s,
         dh(sim.truth.noise_rad_s),
-        spec.hidden
+        spec.hidden,
+        if spec.field_columns {
+            let b = simulate::b0_nwu_nt(spec.field);
+            format!(", {} field ({:.0}, {:.0}, {:.0}) nT north, west, up", spec.field.name(), b[0], b[1], b[2])
+        } else {
+            String::new()
+        }
     );
     Ok(())
 }
