@@ -162,3 +162,44 @@ fn json_diagnose_compare_add() {
     let r = json_of(LAB, &s, &["simulate", "thermal", "s.csv", "--json"], false);
     assert!(at(&r, "/error").as_str().unwrap().contains("s.csv"));
 }
+
+/// `s.csv` with column `name` mapped by `f`, as `out`.
+fn with_column(s: &Scratch, out: &str, name: &str, f: impl Fn(f64) -> f64) {
+    let text = std::fs::read_to_string(s.path("s.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let k = header.split(',').position(|c| c == name).unwrap();
+    let mut o = format!("{header}\n");
+    for l in lines {
+        let mut v: Vec<String> = l.split(',').map(String::from).collect();
+        v[k] = format!("{:e}", f(v[k].parse::<f64>().unwrap()));
+        o.push_str(&v.join(","));
+        o.push('\n');
+    }
+    s.file(out, o);
+}
+
+/// A FOG column with its sign flipped, or in °/h or °/s under a rad/s name, is refused by
+/// every command that reads the session, naming the file, the column and what it looks
+/// like; nothing is written.
+#[test]
+fn a_flipped_or_misunit_fog_column_is_refused() {
+    let s = lab_dir("bad-fog-column");
+    let deg_h = 180.0 / std::f64::consts::PI * 3600.0;
+    with_column(&s, "flipped.csv", "fog0_rad_s", |v| -v);
+    with_column(&s, "deg_h.csv", "fog1_rad_s", |v| v * deg_h);
+    with_column(&s, "deg_s.csv", "fog2_rad_s", |v| v.to_degrees());
+    for (file, column, says) in [
+        ("flipped.csv", "column 2 (`fog0_rad_s`)", "sign looks flipped"),
+        ("deg_h.csv", "column 3 (`fog1_rad_s`)", "another unit"),
+        ("deg_s.csv", "column 4 (`fog2_rad_s`)", "°/s, not rad/s"),
+    ] {
+        let must = [file, column, says];
+        refused(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["report", "--model", "m.v1.toml", "--session", file, "--out", "r.html"], &must);
+    }
+    // The session as written passes.
+    succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+}
