@@ -148,6 +148,8 @@ pub struct Diagnosis {
     pub n_train: usize,
     /// Test samples.
     pub n_test: usize,
+    /// What the figures do not say about the session (gaps in time).
+    pub notes: Vec<String>,
 }
 
 impl Candidate {
@@ -572,6 +574,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
         fdr_level: opt.fdr_level,
         n_train,
         n_test,
+        notes: d.notes(),
     })
 }
 

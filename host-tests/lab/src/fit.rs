@@ -172,6 +172,8 @@ pub struct Fitted {
     pub max_rows_read_again: usize,
     /// Residuals at the kept rows.
     pub sample: ResidualSample,
+    /// What the figures do not say about the session (gaps in time: [`Digest::notes`]).
+    pub notes: Vec<String>,
 }
 
 /// The coefficient vector of `kinds` in a design from a model's terms (0 where absent).
@@ -260,6 +262,7 @@ fn summarize(model: &Model, d: &Digest, fit: bool) -> LabResult<Fitted> {
         max_over_rows: d.kept.rows.len(),
         max_rows_read_again: 0,
         sample: ResidualSample { of_rows: d.n, residual, axes },
+        notes: d.notes(),
     })
 }
 
@@ -513,6 +516,8 @@ pub struct AddOutcome {
     pub residual_after_rad_s: Vec<Vec<f64>>,
     /// Time between kept rows, s.
     pub kept_dt_s: f64,
+    /// What the figures do not say about the session ([`Digest::notes`]).
+    pub notes: Vec<String>,
 }
 
 /// Adds `kind` to `model`, refits on the session and measures the held-out RMS before and
@@ -553,6 +558,7 @@ pub fn add_term<'a>(
         residual_before_rad_s: before_fit.sample.residual,
         residual_after_rad_s: fitted.sample.residual,
         kept_dt_s: d.dt_s * d.kept.stride.max(1) as f64,
+        notes: d.notes(),
     })
 }
 

@@ -64,6 +64,9 @@ pub fn render(
         m.version,
         esc(&m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", "))
     ));
+    for n in &fitted.notes {
+        h.push_str(&format!("<p><b>Note:</b> {}</p>\n", esc(n)));
+    }
     h.push_str("<h2>Fit</h2><table><tr><th>FOG</th><th>error RMS, °/h</th><th>residual RMS, °/h</th>");
     h.push_str("<th>max |residual|, °/h</th><th>explained</th><th>held-out RMS, °/h</th></tr>\n");
     for (i, s) in fitted.summary.iter().enumerate() {

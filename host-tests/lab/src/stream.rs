@@ -1311,9 +1311,25 @@ pub struct Digest {
     pub bins: Bins,
     /// Per FOG, the sums of the shifted basis over each bin (bins × m, row-major).
     pub bin_sum: Vec<Vec<f64>>,
+    /// Gaps in time: steps of more than [`GAP_FACTOR`] sample intervals.
+    pub gaps: Gaps,
     /// Candidates for the largest |residual| (when the spec tracks terms and not every row
     /// is kept).
     pub extremes: Option<Extremes>,
+}
+
+/// A step in time of more than this many sample intervals (the median) is a gap.
+pub const GAP_FACTOR: f64 = 2.5;
+
+/// The gaps in time of a session ([`GAP_FACTOR`]).
+#[derive(Debug, Clone, Default)]
+pub struct Gaps {
+    /// How many.
+    pub count: usize,
+    /// The largest: the time before it, s, and its length, s.
+    pub largest: Option<(f64, f64)>,
+    /// Time missing in all, s (the gaps less one sample interval each).
+    pub missing_s: f64,
 }
 
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
@@ -1529,7 +1545,17 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
     let (mut block, mut next_block) = (0usize, 0usize);
     let mut next_segment = tracker.as_ref().map_or(usize::MAX, |t| t.out.first);
     let mut next_keep = 0usize;
+    let (mut gaps, mut prev_t) = (Gaps::default(), f64::NAN);
     let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
+        let step = s.t_s - prev_t;
+        if step > GAP_FACTOR * shape.dt_s {
+            gaps.count += 1;
+            gaps.missing_s += step - shape.dt_s;
+            if gaps.largest.is_none_or(|(_, l)| step > l) {
+                gaps.largest = Some((prev_t, step));
+            }
+        }
+        prev_t = s.t_s;
         if j >= next_block {
             block = block_of(j, n, nb).min(nb - 1);
             next_block = if block + 1 >= nb { usize::MAX } else { ((block + 1) * n.max(1)).div_ceil(nb) };
@@ -1611,6 +1637,7 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         kept,
         bins: bin_acc.bins,
         bin_sum: bin_acc.sum,
+        gaps,
         extremes: tracker.map(|t| t.out).filter(|e| !e.segs.is_empty()),
     })
 }
@@ -1684,6 +1711,22 @@ fn check_rate_columns(h: &Header, basis: &Basis, shift: &[Vec<f64>], kept: &Kept
 }
 
 impl Digest {
+    /// What the user should know about the session the figures do not say: its gaps in time
+    /// (the lab takes rows as equally spaced: the time blocks, the noise model's bins, τ-means
+    /// and Allan deviations count rows, so a window or bin over a gap joins times apart).
+    pub fn notes(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if let Some((t, len)) = self.gaps.largest {
+            v.push(format!(
+                "{}: {} gap(s) in time, {:.1} s missing in all, the largest {:.1} s after t = {} s (sample interval \
+                 {} s): the lab takes rows as equally spaced (time blocks, the noise model's bins, tau-means and \
+                 Allan deviations count rows), so figures over a gap join times apart",
+                self.file, self.gaps.count, self.gaps.missing_s, len, t, self.dt_s
+            ));
+        }
+        v
+    }
+
     /// A functional of the raw basis as one of the shifted basis: x = ℓ·z = ℓ·z̃ + (ℓ·shift)·1.
     pub fn shifted(&self, fog: usize, l: &[f64]) -> Vec<f64> {
         shifted(l, &self.shift[fog])

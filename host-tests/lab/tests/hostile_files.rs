@@ -203,3 +203,34 @@ fn a_flipped_or_misunit_fog_column_is_refused() {
     // The session as written passes.
     succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
 }
+
+/// A session with a gap in time (200 rows of 5 min missing) is read, but every command
+/// that reads it says so on stderr: the file, the number of gaps, the time missing and
+/// where the largest is; the page of `report` says it too.
+#[test]
+fn a_gap_in_time_is_stated() {
+    let s = lab_dir("gap");
+    let text = std::fs::read_to_string(s.path("s.csv")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let kept: Vec<&str> = lines[..101].iter().chain(&lines[301..]).copied().collect();
+    s.file("gap.csv", kept.join("\n") + "\n");
+    let must = ["gap.csv", "1 gap(s) in time", "60000.0 s missing", "after t = 30000 s"];
+    for args in [
+        &["compare", "--model", "m.v1.toml", "--session", "gap.csv"][..],
+        &["diagnose", "--model", "m.v1.toml", "--session", "gap.csv"][..],
+    ] {
+        let r = succeeds(LAB, &s, args, &[]);
+        println!("{}", r.stderr.trim());
+        for m in must {
+            assert!(r.stderr.contains(m), "{args:?}: stderr lacks `{m}`: {}", r.stderr);
+        }
+    }
+    let r = succeeds(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "gap.csv"], &[]);
+    assert!(r.stderr.contains("1 gap(s) in time"), "add: {}", r.stderr);
+    succeeds(LAB, &s, &["report", "--model", "m.v1.toml", "--session", "gap.csv", "--out", "r.html"], &[]);
+    let page = std::fs::read_to_string(s.path("r.html")).unwrap();
+    assert!(page.contains("1 gap(s) in time"), "the report does not say so");
+    // The session without the gap: no note.
+    let r = succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+    assert!(!r.stderr.contains("gap"), "{}", r.stderr);
+}

@@ -220,6 +220,14 @@ fn pass<T>(path: &Path, what: &str, f: impl FnOnce(&ProgressBar) -> ssis_lab::La
     out.with_context(|| format!("{what} {}", path.display()))
 }
 
+/// Prints what the figures do not say about the session (to stderr: the figures stay on
+/// stdout).
+fn notes(notes: &[String]) {
+    for n in notes {
+        eprintln!("note: {n}");
+    }
+}
+
 fn load_model(path: &Path) -> Result<Model> {
     Model::read(path).context("model refused")
 }
@@ -433,6 +441,7 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
         ssis_lab::json::comparison(&c, &model.display().to_string(), &session.display().to_string(), evaluate)
     });
     let (f, ho) = (&c.fitted, &c.held_out_rad_s);
+    notes(&f.notes);
     println!(
         "{} on {} ({} samples, {}): {}",
         model.display(),
@@ -485,6 +494,7 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
     let d = pass(&session, "diagnosing on", |pb| diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb)))?;
     cli::report("diagnosis", || ssis_lab::json::diagnosis(&d));
+    notes(&d.notes);
     print_diagnosis(&d);
     Ok(())
 }
@@ -520,6 +530,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let m = load_model(&model)?;
     let kind = Kind::parse_arg(&term)?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
+    notes(&out.notes);
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     if a > b && !force {
         bail!(
