@@ -71,7 +71,7 @@ fn magnetic_field_frame_agrees_with_the_session() {
     let at90 = ssis_session::field_ics_nt(b, std::f64::consts::FRAC_PI_2);
     println!("field at psi = 90 deg: {at90:?} nT");
     assert!(at90.iter().zip([-5959.0, 21846.0, -42343.0]).all(|(a, w)| (a - w).abs() < 1e-9), "{at90:?}");
-    let sim = magnetic::MagneticSim::kharkov();
+    let sim = magnetic::MagneticSim::kharkov().unwrap();
     let (pu, ps) = (tmp("frame-unscreened.csv"), tmp("frame-screened.csv"));
     sim.write(&pu, &ps, 9).unwrap();
     let u = read_session(&pu, None).unwrap();
@@ -95,7 +95,7 @@ fn magnetic_field_frame_agrees_with_the_session() {
 
 #[test]
 fn magnetic_fit_recovers_simulated_sensitivity() {
-    let sim = magnetic::MagneticSim::kharkov();
+    let sim = magnetic::MagneticSim::kharkov().unwrap();
     let (pu, ps) = (tmp("mag-unscreened.csv"), tmp("mag-screened.csv"));
     sim.write(&pu, &ps, 5).unwrap();
     let (u, s) = (read_session(&pu, None).unwrap(), read_session(&ps, None).unwrap());

@@ -34,7 +34,7 @@ use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, trains, Design, Sums};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::noise::{held_out_gain, whitened, Bins, Gain, NoiseModel};
+use super::noise::{held_out_gain, whitened, Binned, Bins, Gain, NoiseModel};
 use super::stream::{digest, Digest, Source};
 use super::LabResult;
 
@@ -148,6 +148,8 @@ pub struct Diagnosis {
     pub n_train: usize,
     /// Test samples.
     pub n_test: usize,
+    /// What the figures do not say about the session (gaps in time).
+    pub notes: Vec<String>,
 }
 
 impl Candidate {
@@ -244,13 +246,11 @@ pub fn anova_beside_main(d: &Diagnosis) -> Vec<String> {
     out
 }
 
-/// What the tests of one FOG need: the bins, the kept rows' basis vectors (rows × m) and
-/// the noise model of the base model's residual (where the alternative's fit starts).
+/// What the tests of one FOG need: the binned sums of its rows and the noise model of the
+/// base model's residual (where the alternative's fit starts).
 struct NoiseCtx<'a> {
     base: &'a NoiseModel,
-    bins: &'a Bins,
-    z: &'a [f64],
-    m: usize,
+    bd: &'a Binned<'a>,
 }
 
 impl NoiseCtx<'_> {
@@ -259,9 +259,8 @@ impl NoiseCtx<'_> {
     fn under(&self, s: &Sums, cols: &[Vec<f64>]) -> (NoiseModel, Sums) {
         let fit = lstsq_gram(&design_gram(&s.train, cols), s.train.n);
         let l = residual_functional(cols, &fit.coef);
-        let res: Vec<f64> = self.z.chunks_exact(self.m).map(|z| z.iter().zip(&l).map(|(a, b)| a * b).sum()).collect();
-        let nm = NoiseModel::fit_from(self.bins, &res, Some(self.base));
-        let ws = whitened(&nm, self.bins, self.z, self.m);
+        let nm = NoiseModel::fit_from(self.bd, &l, Some(self.base));
+        let ws = whitened(&nm, self.bd);
         (nm, ws)
     }
 }
@@ -297,7 +296,7 @@ fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], nz: &NoiseCtx) -> Option
     let (after, tr1) = held_out(s, &cols);
     let l0 = residual_functional(&base.cols, &tr0.coef);
     let l1 = residual_functional(&cols, &tr1.coef);
-    let gain = held_out_gain(&nm, nz.bins, nz.z, nz.m, &l0, &l1);
+    let gain = held_out_gain(&nm, nz.bd, &l0, &l1);
     let (g, sd) = gain.per_row();
     let p = if after < before { p_f.max(p_w) } else { 1.0 };
     Some(FogTest { f, df1: q, df2, p, p_f, gain_rad2_s2: (g, sd, gain.p()), before_rad_s: before, after_rad_s: after })
@@ -532,7 +531,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
             match d.basis.functionals(&kind, fog) {
                 Ok(x) => {
                     let x: Vec<Vec<f64>> = x.iter().map(|l| d.shifted(fog, l)).collect();
-                    let t = test_fog(&base.sums[fog], &base.bases[fog], &x, &base.ctx(d, fog));
+                    let t = test_fog(&base.sums[fog], &base.bases[fog], &x, &base.ctx(fog));
                     if let Some(c) = confounding(&base.sums[fog].all, &base.bases[fog], &kinds, &x, &kind, t.is_none())
                     {
                         why.get_or_insert_with(|| c.clone());
@@ -575,39 +574,44 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
         fdr_level: opt.fdr_level,
         n_train,
         n_test,
+        notes: d.notes(),
     })
 }
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
-/// fit's coefficients and its residual on the kept rows; the bins of the kept rows, the
-/// noise model of the test blocks' residual of the training fit.
-struct BaseFit {
+/// fit's coefficients and its residual on the kept rows; the binned sums of every row and
+/// the noise model of the test blocks' residual of the training fit; the bins of the kept
+/// rows (for the spectral line, tested on them).
+struct BaseFit<'a> {
     bases: Vec<Design>,
     sums: Vec<Sums>,
     train_res: Vec<Vec<f64>>,
     train_coef: Vec<Vec<f64>>,
     base_ho: Vec<f64>,
-    bins: Bins,
+    binned: Vec<Binned<'a>>,
+    kept_bins: Bins,
     noise: Vec<NoiseModel>,
 }
 
-impl BaseFit {
-    fn of(d: &Digest, kinds: &[Kind]) -> LabResult<BaseFit> {
-        let bins = Bins::of(d);
+impl<'a> BaseFit<'a> {
+    fn of(d: &'a Digest, kinds: &[Kind]) -> LabResult<BaseFit<'a>> {
         let mut f = BaseFit {
             bases: Vec::new(),
             sums: Vec::new(),
             train_res: Vec::new(),
             train_coef: Vec::new(),
             base_ho: Vec::new(),
-            bins,
+            binned: Vec::new(),
+            kept_bins: Bins::of_kept(d),
             noise: Vec::new(),
         };
         for fog in 0..d.basis.n_fog {
             let des = design(d, kinds, fog)?;
             let s = Sums::of(d, fog);
             let (ho, tr) = held_out(&s, &des.cols);
-            let nm = NoiseModel::fit(&f.bins, &kept_residual(d, fog, &des.cols, &tr.coef));
+            let bd = Binned::of_digest(d, fog);
+            let nm = NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            f.binned.push(bd);
             f.noise.push(nm);
             f.base_ho.push(ho);
             f.train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
@@ -618,9 +622,9 @@ impl BaseFit {
         Ok(f)
     }
 
-    /// The noise context of FOG `fog` on the digest's own basis.
-    fn ctx<'a>(&'a self, d: &'a Digest, fog: usize) -> NoiseCtx<'a> {
-        NoiseCtx { base: &self.noise[fog], bins: &self.bins, z: &d.kept.z[fog], m: d.basis.m }
+    /// The noise context of FOG `fog` on the digest's own basis (every row).
+    fn ctx(&self, fog: usize) -> NoiseCtx<'_> {
+        NoiseCtx { base: &self.noise[fog], bd: &self.binned[fog] }
     }
 }
 
@@ -683,7 +687,8 @@ fn spectral_line(d: &Digest, base: &BaseFit, f: f64) -> (Vec<Option<FogTest>>, S
             let (z, s) = kept_with_sinusoid(d, fog, f);
             let b = &base.bases[fog];
             let design = Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() };
-            let ctx = NoiseCtx { base: &base.noise[fog], bins: &base.bins, z: &z, m: m + 2 };
+            let bd = Binned::of_rows(&base.kept_bins, &z, m + 2, d.n_blocks);
+            let ctx = NoiseCtx { base: &base.noise[fog], bd: &bd };
             test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)
         })
         .collect();

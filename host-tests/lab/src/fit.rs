@@ -172,6 +172,8 @@ pub struct Fitted {
     pub max_rows_read_again: usize,
     /// Residuals at the kept rows.
     pub sample: ResidualSample,
+    /// What the figures do not say about the session (gaps in time: [`Digest::notes`]).
+    pub notes: Vec<String>,
 }
 
 /// The coefficient vector of `kinds` in a design from a model's terms (0 where absent).
@@ -260,6 +262,7 @@ fn summarize(model: &Model, d: &Digest, fit: bool) -> LabResult<Fitted> {
         max_over_rows: d.kept.rows.len(),
         max_rows_read_again: 0,
         sample: ResidualSample { of_rows: d.n, residual, axes },
+        notes: d.notes(),
     })
 }
 
@@ -468,14 +471,14 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
 /// ([`super::noise`]): the generalised least-squares covariance (XᵀΣ⁻¹X)⁻¹ over every block,
 /// scaled by the whitened residual's variance.
 pub fn coef_sigma(d: &Digest, kinds: &[Kind]) -> LabResult<Vec<Vec<f64>>> {
-    let bins = super::noise::Bins::of(d);
     (0..d.basis.n_fog)
         .map(|fog| {
             let des = design(d, kinds, fog)?;
             let s = Sums::of(d, fog);
             let tr = lstsq_gram(&design_gram(&s.train, &des.cols), s.train.n);
-            let nm = super::noise::NoiseModel::fit(&bins, &kept_residual(d, fog, &des.cols, &tr.coef));
-            let ws = super::noise::whitened(&nm, &bins, &d.kept.z[fog], d.basis.m);
+            let bd = super::noise::Binned::of_digest(d, fog);
+            let nm = super::noise::NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            let ws = super::noise::whitened(&nm, &bd);
             let a = design_gram(&ws.all, &des.cols);
             let ls = lstsq_gram(&a, ws.all.n);
             let keep: Vec<usize> = (0..des.k()).filter(|&c| ls.identified[c]).collect();
@@ -513,6 +516,8 @@ pub struct AddOutcome {
     pub residual_after_rad_s: Vec<Vec<f64>>,
     /// Time between kept rows, s.
     pub kept_dt_s: f64,
+    /// What the figures do not say about the session ([`Digest::notes`]).
+    pub notes: Vec<String>,
 }
 
 /// Adds `kind` to `model`, refits on the session and measures the held-out RMS before and
@@ -553,7 +558,33 @@ pub fn add_term<'a>(
         residual_before_rad_s: before_fit.sample.residual,
         residual_after_rad_s: fitted.sample.residual,
         kept_dt_s: d.dt_s * d.kept.stride.max(1) as f64,
+        notes: d.notes(),
     })
+}
+
+/// The residuals before and after each `add` of a history of model versions (sorted by
+/// version): for each version after the first, the previous version's and its own terms
+/// fitted on every row of `d`, at the kept rows. A pair whose terms `d` has no slot for is
+/// left out; so is a version that adds no term.
+pub fn add_steps(versions: &[(u32, Model)], d: &Digest) -> LabResult<Vec<super::report::AddStep>> {
+    let mut out = Vec::new();
+    for pair in versions.windows(2) {
+        let [(v0, m0), (v1, m1)] = pair else { continue };
+        let (k0, k1) = (m0.kinds(), m1.kinds());
+        let added: Vec<String> = k1.iter().filter(|k| !k0.contains(k)).map(|k| format!("+{}", k.label())).collect();
+        if added.is_empty() {
+            continue;
+        }
+        let (Ok(before), Ok(after)) = (fit_digest(m0, d), fit_digest(m1, d)) else { continue };
+        out.push(super::report::AddStep {
+            from: *v0,
+            to: *v1,
+            added: added.join(" "),
+            before_rad_s: before.sample.residual,
+            after_rad_s: after.sample.residual,
+        });
+    }
+    Ok(out)
 }
 
 /// File name of version `v` of a model whose file is `path`: `stem.vN.toml` next to it.

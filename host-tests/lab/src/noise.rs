@@ -9,11 +9,10 @@
 //! e_t = w_t + Σ_j x_j,t        w white (σ_w²),  x_j first-order Gauss–Markov (q_j, τ_j)
 //! ```
 //!
-//! on **bins**: the kept rows of a pass ([`super::stream::Kept`]: every row of a session up to
-//! 40,000 samples) are grouped into at most [`MAX_BINS`] bins of consecutive rows inside one
-//! time block. Within a bin the wander is constant, so the deviations from the bin mean are
-//! white with the row variance σ_w² (estimated from them). The series of bin means ē_b has the
-//! spectrum
+//! on **bins**: the rows of a session are grouped into at most [`MAX_BINS`] bins of
+//! consecutive rows inside one time block. Within a bin the wander is constant, so the
+//! deviations from the bin mean are white with the row variance σ_w² (estimated from them).
+//! The series of bin means ē_b has the spectrum
 //!
 //! ```text
 //! S(ω) = θ₀ + Σ_j θ_j (1 − ρ_j²) / (1 − 2 ρ_j cos ω + ρ_j²),   ρ_j = exp(−1/τ_j),
@@ -25,11 +24,21 @@
 //! lowers the likelihood; Févotte & Idier 2011). The autocovariance of the bin means is then
 //! γ(k) = θ₀ δ_k + Σ θ_j ρ_j^|k|.
 //!
+//! Every row counts: the pass ([`super::stream::digest`]) sums each FOG's basis vectors z
+//! over each bin of **every** row, beside the per-block Gram sums ([`Binned`]). A residual
+//! functional ℓ gives each bin's mean residual ℓ·Σz / n_b, and the within-bin sum of squares
+//! of a block is ℓᵀGℓ − Σ_b (ℓ·Σz)² / n_b; so the fit of the noise model, the whitened sums
+//! and the held-out gain below need no row, and their power grows with the session's length
+//! (a sample of rows would give up all but that sample's share of the white part's
+//! information). Only the spectral line, whose frequency is chosen on the kept rows, is
+//! tested on the kept rows' own bins.
+//!
 //! Under that model:
 //! - [`whitened`]: generalised least squares. In each block the bin means of the basis are
 //!   whitened by the Cholesky factor of the block's covariance (L⁻¹ z̄), the within-bin
-//!   deviations are divided by σ_w; their sums z̃ z̃ᵀ are a Gram matrix like the pass's, so
-//!   every design's GLS fit and nested F-test follows from them exactly as the white ones do.
+//!   scatter (the block's Gram less Σ n_b z̄ z̄ᵀ) is divided by σ_w²; their sum is a Gram
+//!   matrix like the pass's, so every design's GLS fit and nested F-test follows from it
+//!   exactly as the white ones do.
 //!   Blocks are whitened separately (their mutual correlation is ignored).
 //! - [`held_out_gain`]: the held-out improvement D = Σ (r₀² − r₁²) over the test rows of two
 //!   models fitted on the training rows and its standard deviation, 2 √(δᵀ Σ δ) with δ = r₀ − r₁
@@ -37,11 +46,13 @@
 //!   the training fit, D's randomness is the test noise only; its mean is
 //!   Σ δ (2 s − δ) for the systematic part s, negative when the candidate only fitted noise.
 
+use std::borrow::Cow;
+
 use nalgebra::DMatrix;
 
 use super::fit::{trains, Sums};
 use super::lsq::Gram;
-use super::stream::Digest;
+use super::stream::{block_of, Digest};
 
 /// Bins at most (the covariance of a block is a dense matrix of its bins).
 pub const MAX_BINS: usize = 2000;
@@ -49,12 +60,13 @@ pub const MAX_BINS: usize = 2000;
 /// Iterations of the Whittle fit.
 const WHITTLE_ITER: usize = 300;
 
-/// The kept rows of a digest grouped into bins of consecutive rows of one block.
-#[derive(Debug, Clone)]
+/// Rows grouped into bins of consecutive rows of one block (rows of the session, or kept
+/// rows of a pass).
+#[derive(Debug, Clone, Default)]
 pub struct Bins {
-    /// Kept rows per bin (the last bin of a block may have fewer).
+    /// Rows per bin (the last bin of a block may have fewer).
     pub rows: usize,
-    /// First kept row of each bin, and the end (one more entry than bins).
+    /// First row of each bin, and the end (one more entry than bins).
     pub start: Vec<usize>,
     /// Block of each bin.
     pub block: Vec<usize>,
@@ -63,9 +75,34 @@ pub struct Bins {
 }
 
 impl Bins {
-    /// The bins of `d`'s kept rows.
-    pub fn of(d: &Digest) -> Bins {
-        let blocks = &d.kept.block;
+    /// The bins of every row of a session of `n` rows `dt_s` apart in `n_blocks` blocks
+    /// ([`block_of`]): at most [`MAX_BINS`] + `n_blocks`.
+    pub fn every_row(n: usize, n_blocks: usize, dt_s: f64) -> Bins {
+        let nb = n_blocks.max(1);
+        let per = n.div_ceil(MAX_BINS).max(1);
+        let (mut start, mut block) = (Vec::new(), Vec::new());
+        for b in 0..nb {
+            // The rows of block b: j with block_of(j) = b.
+            let (s, e) = ((b * n).div_ceil(nb), if b + 1 == nb { n } else { ((b + 1) * n).div_ceil(nb) });
+            debug_assert!(s >= e || block_of(s, n, nb) == b);
+            let mut k = s;
+            while k < e {
+                start.push(k);
+                block.push(b);
+                k = (k + per).min(e);
+            }
+        }
+        start.push(n);
+        Bins { rows: per, start, block, dt_s: dt_s * per as f64 }
+    }
+
+    /// The bins of `d`'s kept rows (indices into them).
+    pub fn of_kept(d: &Digest) -> Bins {
+        Bins::group(&d.kept.block, d.dt_s * d.kept.stride.max(1) as f64)
+    }
+
+    /// Rows with blocks `blocks`, `dt_s` apart, in bins of at most n / [`MAX_BINS`] rows.
+    fn group(blocks: &[usize], dt_s: f64) -> Bins {
         let n = blocks.len();
         let per = n.div_ceil(MAX_BINS).max(1);
         let (mut start, mut block) = (Vec::new(), Vec::new());
@@ -81,8 +118,7 @@ impl Bins {
             k = e;
         }
         start.push(n);
-        let dt_s = d.dt_s * (d.kept.stride.max(1) * per) as f64;
-        Bins { rows: per, start, block, dt_s }
+        Bins { rows: per, start, block, dt_s: dt_s * per as f64 }
     }
 
     /// Number of bins.
@@ -95,8 +131,9 @@ impl Bins {
         self.block.is_empty()
     }
 
-    fn range(&self, b: usize) -> std::ops::Range<usize> {
-        self.start[b]..self.start[b + 1]
+    /// Rows of bin `b`.
+    pub fn count(&self, b: usize) -> usize {
+        self.start[b + 1] - self.start[b]
     }
 
     /// The bins of each block, in order (bins of one block are consecutive).
@@ -112,31 +149,108 @@ impl Bins {
     }
 }
 
+/// What every test under the noise model needs of one FOG's rows: per bin the sum of the
+/// (shifted) basis vectors, and per block their Gram sums. A residual functional ℓ then
+/// gives each bin's mean residual ℓ·Σz / n_b and, with ℓᵀGℓ, the within-bin sum of squares
+/// of each block: no row is needed, so the tests use every row of a session.
+#[derive(Debug, Clone)]
+pub struct Binned<'a> {
+    /// The bins.
+    pub bins: &'a Bins,
+    /// Basis length.
+    pub m: usize,
+    /// Per bin, Σ z (bins × m).
+    pub sum: Cow<'a, [f64]>,
+    /// Per block (by block number), Σ z zᵀ over the same rows.
+    pub gram: Cow<'a, [Gram]>,
+}
+
+impl<'a> Binned<'a> {
+    /// Every row of FOG `fog` of a pass.
+    pub fn of_digest(d: &'a Digest, fog: usize) -> Binned<'a> {
+        Binned { bins: &d.bins, m: d.basis.m, sum: Cow::Borrowed(&d.bin_sum[fog]), gram: Cow::Borrowed(&d.gram[fog]) }
+    }
+
+    /// Rows `z` (rows × m, row-major) grouped by `bins` (of the same rows) in `n_blocks` blocks.
+    pub fn of_rows(bins: &'a Bins, z: &[f64], m: usize, n_blocks: usize) -> Binned<'a> {
+        let mut sum = vec![0.0; bins.len() * m];
+        let mut gram = vec![Gram::new(m); n_blocks.max(bins.block.iter().max().map_or(0, |b| b + 1))];
+        for b in 0..bins.len() {
+            let g = &mut gram[bins.block[b]];
+            for zk in z[bins.start[b] * m..bins.start[b + 1] * m].chunks_exact(m) {
+                for a in 0..m {
+                    sum[b * m + a] += zk[a];
+                    for c in a..m {
+                        g.upper[a * m + c] += zk[a] * zk[c];
+                    }
+                }
+                g.n += 1;
+            }
+        }
+        Binned { bins, m, sum: Cow::Owned(sum), gram: Cow::Owned(gram) }
+    }
+
+    /// ℓ · Σ z over bin `b`.
+    fn dot(&self, b: usize, l: &[f64]) -> f64 {
+        self.sum[b * self.m..(b + 1) * self.m].iter().zip(l).map(|(a, c)| a * c).sum()
+    }
+
+    /// Σ over the test blocks of aᵀ G c.
+    fn test_quad(&self, a: &[f64], c: &[f64]) -> f64 {
+        self.gram.iter().enumerate().filter(|(blk, _)| !trains(*blk)).map(|(_, g)| quad(g, a, c)).sum()
+    }
+
+    /// Test bins: (index, rows, ℓ · Σ z).
+    fn test_bins(&self, l: &[f64]) -> Vec<(usize, usize, f64)> {
+        (0..self.bins.len())
+            .filter(|&b| !trains(self.bins.block[b]))
+            .map(|b| (b, self.bins.count(b), self.dot(b, l)))
+            .collect()
+    }
+}
+
+/// aᵀ G c of a Gram's symmetric matrix.
+fn quad(g: &Gram, a: &[f64], c: &[f64]) -> f64 {
+    let m = g.m;
+    let mut s = 0.0;
+    for (i, ai) in a.iter().enumerate().take(m) {
+        for (j, cj) in c.iter().enumerate().take(m) {
+            let v = if i <= j { g.upper[i * m + j] } else { g.upper[j * m + i] };
+            s += ai * v * cj;
+        }
+    }
+    s
+}
+
 /// One FOG's noise model (see the module text). Variances in (rad/s)².
 #[derive(Debug, Clone)]
 pub struct NoiseModel {
-    /// Variance of one kept row's white part (within bins); 0 when bins are single rows.
+    /// Variance of one row's white part (within bins); 0 when bins are single rows.
     pub white_row_var: f64,
     /// θ₀: the white variance of a full bin's mean.
     pub white_bin_var: f64,
     /// Gauss–Markov components of the bin means: (variance θ_j, correlation time τ_j in bins).
     pub gm: Vec<(f64, f64)>,
-    /// Kept rows per bin.
+    /// Rows per bin.
     pub bin_rows: usize,
     /// Time between bins, s.
     pub bin_dt_s: f64,
 }
 
 impl NoiseModel {
-    /// The model fitted to a residual `res` at the kept rows, binned by `bins`, on the bins
-    /// of the test blocks (concatenated in time order).
-    pub fn fit(bins: &Bins, res: &[f64]) -> NoiseModel {
-        NoiseModel::fit_from(bins, res, None)
+    /// The model of the residual ℓ·z (`l` a residual functional of the basis) on the bins of
+    /// the test blocks (concatenated in time order).
+    pub fn fit(bd: &Binned, l: &[f64]) -> NoiseModel {
+        NoiseModel::fit_from(bd, l, None)
     }
 
     /// [`NoiseModel::fit`] starting from another fit on the same bins (fewer iterations).
-    pub fn fit_from(bins: &Bins, res: &[f64], start: Option<&NoiseModel>) -> NoiseModel {
-        let (means, within, dof) = bin_means(bins, res, |b| !trains(b));
+    pub fn fit_from(bd: &Binned, l: &[f64], start: Option<&NoiseModel>) -> NoiseModel {
+        let tb = bd.test_bins(l);
+        let means: Vec<f64> = tb.iter().map(|&(_, n, s)| s / n.max(1) as f64).collect();
+        let between: f64 = tb.iter().map(|&(_, n, s)| s * s / n.max(1) as f64).sum();
+        let dof: usize = tb.iter().map(|&(_, n, _)| n.saturating_sub(1)).sum();
+        let within = (bd.test_quad(l, l) - between).max(0.0);
         let white_row_var = if dof > 0 { within / dof as f64 } else { 0.0 };
         let mut taus = Vec::new();
         let mut tau = 1.0;
@@ -156,8 +270,8 @@ impl NoiseModel {
             white_row_var,
             white_bin_var: theta[0],
             gm: theta[1..].iter().zip(&taus).map(|(&q, &t)| (q, t)).collect(),
-            bin_rows: bins.rows,
-            bin_dt_s: bins.dt_s,
+            bin_rows: bd.bins.rows,
+            bin_dt_s: bd.bins.dt_s,
         }
     }
 
@@ -170,7 +284,7 @@ impl NoiseModel {
         c
     }
 
-    /// RMS of one kept row's white noise, rad/s (the sample-level noise floor).
+    /// RMS of one row's white noise, rad/s (the sample-level noise floor).
     pub fn white_floor_rad_s(&self) -> f64 {
         if self.bin_rows > 1 {
             self.white_row_var.sqrt()
@@ -183,20 +297,6 @@ impl NoiseModel {
     pub fn wander_var(&self) -> f64 {
         self.gm.iter().map(|g| g.0).sum()
     }
-}
-
-/// Bin means of `x` at the kept rows in the blocks `pick` chooses, the within-bin sum of
-/// squares and its degrees of freedom.
-fn bin_means(bins: &Bins, x: &[f64], pick: impl Fn(usize) -> bool) -> (Vec<f64>, f64, usize) {
-    let (mut means, mut ss, mut dof) = (Vec::with_capacity(bins.len()), 0.0, 0);
-    for b in (0..bins.len()).filter(|&b| pick(bins.block[b])) {
-        let r = &x[bins.range(b)];
-        let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
-        ss += r.iter().map(|v| (v - m) * (v - m)).sum::<f64>();
-        dof += r.len().saturating_sub(1);
-        means.push(m);
-    }
-    (means, ss, dof)
 }
 
 /// Whittle fit of θ (white first, then one per ρ) to the periodogram of `x`: `iter`
@@ -257,52 +357,43 @@ fn whittle(x: &[f64], rho: &[f64], init: Option<Vec<f64>>, iter: usize) -> Vec<f
     theta
 }
 
-/// GLS sums: the kept rows' basis vectors `z` (rows × m, row-major) whitened under `nm`
-/// (see the module text), summed per training / test blocks. `n` of each is the number of
-/// whitened rows (bins plus within-bin degrees of freedom).
-pub fn whitened(nm: &NoiseModel, bins: &Bins, z: &[f64], m: usize) -> Sums {
+/// GLS sums of `bd`'s rows whitened under `nm` (see the module text), per training / test
+/// blocks. `n` of each is the number of whitened rows (bins plus within-bin degrees of
+/// freedom).
+pub fn whitened(nm: &NoiseModel, bd: &Binned) -> Sums {
+    let (bins, m) = (bd.bins, bd.m);
     let mut s = Sums { all: Gram::new(m), train: Gram::new(m), test: Gram::new(m) };
     let blocks = bins.per_block();
     let longest = blocks.iter().map(|(_, r)| r.len()).max().unwrap_or(0);
     let acov: Vec<f64> = (0..longest).map(|k| nm.cov(k, nm.bin_rows)).collect();
     for (blk, r) in blocks {
         let nb = r.len();
-        let mut zbar = DMatrix::<f64>::zeros(nb, m);
-        let g = if trains(blk) { &mut s.train } else { &mut s.test };
+        let zbar =
+            DMatrix::from_fn(nb, m, |i, a| bd.sum[(r.start + i) * m + a] / bins.count(r.start + i).max(1) as f64);
+        // Within-bin scatter: the block's Gram less the bins' n z̄ z̄ᵀ.
         let mut within = DMatrix::<f64>::zeros(m, m);
         let mut dof = 0;
-        for (i, b) in r.clone().enumerate() {
-            let rows = bins.range(b);
-            let cnt = rows.len() as f64;
-            for k in rows.clone() {
-                let zk = &z[k * m..(k + 1) * m];
-                for a in 0..m {
-                    zbar[(i, a)] += zk[a] / cnt;
-                }
+        if nm.white_row_var > 0.0 {
+            if let Some(g) = bd.gram.get(blk) {
+                within = g.full();
             }
-            if rows.len() > 1 && nm.white_row_var > 0.0 {
-                for k in rows.clone() {
-                    let zk = &z[k * m..(k + 1) * m];
-                    for a in 0..m {
-                        let da = zk[a] - zbar[(i, a)];
-                        for c in a..m {
-                            within[(a, c)] += da * (zk[c] - zbar[(i, c)]);
-                        }
-                    }
-                }
-                dof += rows.len() - 1;
+            for (i, b) in r.clone().enumerate() {
+                let n = bins.count(b) as f64;
+                let row = zbar.row(i);
+                within -= n * row.transpose() * row;
+                dof += bins.count(b).saturating_sub(1);
             }
         }
-        let cov = DMatrix::from_fn(nb, nb, |a, c| {
-            if a == c {
-                nm.cov(0, bins.range(r.start + a).len())
-            } else {
-                acov[a.abs_diff(c)]
-            }
-        });
+        let cov =
+            DMatrix::from_fn(
+                nb,
+                nb,
+                |a, c| if a == c { nm.cov(0, bins.count(r.start + a)) } else { acov[a.abs_diff(c)] },
+            );
         let Some(ch) = nalgebra::Cholesky::new(cov) else { continue };
         let x = ch.l().solve_lower_triangular(&zbar).unwrap_or(zbar);
         let xtx = x.transpose() * &x;
+        let g = if trains(blk) { &mut s.train } else { &mut s.test };
         for a in 0..m {
             for c in a..m {
                 let w = if nm.white_row_var > 0.0 { within[(a, c)] / nm.white_row_var } else { 0.0 };
@@ -361,30 +452,18 @@ pub fn normal_sf(z: f64) -> f64 {
 }
 
 /// The held-out improvement of residual functional `l1` over `l0` (both fitted on the
-/// training blocks) on the kept test rows, with its standard deviation under `nm`.
-pub fn held_out_gain(nm: &NoiseModel, bins: &Bins, z: &[f64], m: usize, l0: &[f64], l1: &[f64]) -> Gain {
-    let dot = |l: &[f64], k: usize| -> f64 { z[k * m..(k + 1) * m].iter().zip(l).map(|(a, b)| a * b).sum() };
-    let (mut d, mut within, mut n) = (0.0, 0.0, 0usize);
-    // Test bins: (global index, rows, Σδ).
-    let mut tb: Vec<(usize, usize, f64)> = Vec::new();
-    for b in (0..bins.len()).filter(|&b| !trains(bins.block[b])) {
-        let rows = bins.range(b);
-        let deltas: Vec<f64> = rows
-            .clone()
-            .map(|k| {
-                let (r0, r1) = (dot(l0, k), dot(l1, k));
-                d += r0 * r0 - r1 * r1;
-                r0 - r1
-            })
-            .collect();
-        let sum: f64 = deltas.iter().sum();
-        let mean = sum / deltas.len().max(1) as f64;
-        within += deltas.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>();
-        n += deltas.len();
-        tb.push((b, deltas.len(), sum));
-    }
+/// training blocks) on the test rows of `bd`, with its standard deviation under `nm`.
+pub fn held_out_gain(nm: &NoiseModel, bd: &Binned, l0: &[f64], l1: &[f64]) -> Gain {
+    let delta: Vec<f64> = l0.iter().zip(l1).map(|(a, b)| a - b).collect();
+    let both: Vec<f64> = l0.iter().zip(l1).map(|(a, b)| a + b).collect();
+    // Σ (r₀² − r₁²) = Σ δ (r₀ + r₁).
+    let d = bd.test_quad(&delta, &both);
+    let tb = bd.test_bins(&delta);
+    let between: f64 = tb.iter().map(|&(_, n, s)| s * s / n.max(1) as f64).sum();
+    let within = (bd.test_quad(&delta, &delta) - between).max(0.0);
+    let n: usize = tb.iter().map(|&(_, n, _)| n).sum();
     let mut var = nm.white_row_var * within;
-    let max_lag = bins.len();
+    let max_lag = bd.bins.len();
     let acov: Vec<f64> = (0..max_lag.max(1)).map(|k| nm.cov(k, nm.bin_rows)).collect();
     for (i, &(a, na, sa)) in tb.iter().enumerate() {
         var += sa * sa * nm.cov(0, na);

@@ -71,6 +71,13 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
             .x_desc("model version")
             .y_desc("held-out residual RMS, deg/h")
             .x_labels(points.len().max(2))
+            .x_label_formatter(&|x| {
+                if (x - x.round()).abs() < 1e-6 {
+                    format!("v{}", x.round())
+                } else {
+                    String::new()
+                }
+            })
             .draw()
             .map_err(perr)?;
         chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0 as f64, p.1)), &RED)).map_err(perr)?;
@@ -182,6 +189,98 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
             .label(format!("white-noise floor {floor_deg_h:.4} deg/h"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.mix(0.4)));
         chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
+/// A duration in the unit that reads best: "0.5 s", "20 s", "12 min", "1.5 h".
+fn duration_text(s: f64) -> String {
+    if s < 120.0 {
+        let v = format!("{s:.3}");
+        format!("{} s", v.trim_end_matches('0').trim_end_matches('.'))
+    } else if s < 7200.0 {
+        format!("{:.0} min", s / 60.0)
+    } else {
+        format!("{:.1} h", s / 3600.0)
+    }
+}
+
+/// Means of `x` over consecutive windows of `w` values (the last, shorter one dropped).
+fn window_means(x: &[f64], w: usize) -> Vec<f64> {
+    x.chunks_exact(w.max(1)).map(|c| c.iter().sum::<f64>() / c.len() as f64).collect()
+}
+
+/// The residuals before and after one `add` overlaid, one panel per FOG: means over
+/// windows of about 1/200 of the session (°/h against hours), the version before in grey,
+/// after in the FOG's colour, and the white-noise floor ±σ₁√(Δt/τ) at that window (dashed),
+/// σ₁ the Allan deviation of the residual after at one kept row. As an SVG string.
+pub fn overlay_svg(step: &super::report::AddStep, kept: &super::report::KeptTimes) -> LabResult<String> {
+    let n_fog = step.before_rad_s.len().min(step.after_rad_s.len());
+    let rows = kept.t_s.len();
+    let w = (rows / 200).max(1);
+    let tau_s = w as f64 * kept.dt_s;
+    let t_h = window_means(&kept.t_s, w).iter().map(|t| t / 3600.0).collect::<Vec<_>>();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (1000, 230 * n_fog.div_ceil(2) as u32 + 40)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        let title = format!(
+            "v{} → v{} ({}): residual, deg/h, means over {}",
+            step.from,
+            step.to,
+            step.added,
+            duration_text(tau_s)
+        );
+        let root = root.titled(&title, ("sans-serif", 18)).map_err(perr)?;
+        let areas = root.split_evenly((n_fog.div_ceil(2), 2));
+        for (fog, area) in areas.iter().enumerate().take(n_fog) {
+            let b: Vec<f64> = window_means(&step.before_rad_s[fog], w).iter().map(|v| v * DEG_H_PER_RAD_S).collect();
+            let a: Vec<f64> = window_means(&step.after_rad_s[fog], w).iter().map(|v| v * DEG_H_PER_RAD_S).collect();
+            let sigma1 = super::noise::allan_deviation(&step.after_rad_s[fog], kept.dt_s).first().map_or(0.0, |p| p.1);
+            let floor = sigma1 * DEG_H_PER_RAD_S * (kept.dt_s / tau_s).sqrt();
+            let lim = b.iter().chain(&a).fold(floor, |m, v| m.max(v.abs())) * 1.15;
+            let (t0, t1) = (t_h.first().copied().unwrap_or(0.0), t_h.last().copied().unwrap_or(1.0));
+            let (t0, t1) = if t1 > t0 { (t0, t1) } else { (t0 - 1.0, t1 + 1.0) };
+            let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
+            let caption = format!(
+                "FOG{fog}: RMS v{} {:.4} (grey) → v{} {:.4} deg/h; floor ±{floor:.4} (dashed)",
+                step.from,
+                rms(&b),
+                step.to,
+                rms(&a)
+            );
+            let mut chart = ChartBuilder::on(area)
+                .margin(8)
+                .x_label_area_size(30)
+                .y_label_area_size(60)
+                .caption(caption, ("sans-serif", 14))
+                .build_cartesian_2d(t0..t1, -lim..lim)
+                .map_err(perr)?;
+            chart
+                .configure_mesh()
+                .x_desc("time, h")
+                .y_desc("deg/h")
+                .x_labels(6)
+                .y_labels(5)
+                .y_label_formatter(&|v| format!("{:.2}", if v.abs() < 0.005 { 0.0 } else { *v }))
+                .draw()
+                .map_err(perr)?;
+            let c = Palette99::pick(fog).to_rgba();
+            chart
+                .draw_series(LineSeries::new(
+                    t_h.iter().copied().zip(b.iter().copied()),
+                    BLACK.mix(0.35).stroke_width(2),
+                ))
+                .map_err(perr)?;
+            chart
+                .draw_series(LineSeries::new(t_h.iter().copied().zip(a.iter().copied()), c.stroke_width(2)))
+                .map_err(perr)?;
+            for sign in [-1.0, 1.0] {
+                let fl = vec![(t0, sign * floor), (t1, sign * floor)];
+                chart.draw_series(DashedLineSeries::new(fl, 6, 4, BLACK.stroke_width(1))).map_err(perr)?;
+            }
+        }
         root.present().map_err(perr)?;
     }
     Ok(svg)

@@ -3,7 +3,7 @@
 
 use super::diagnose::Diagnosis;
 use super::fit::Fitted;
-use super::plot::{history_svg, residual_svg};
+use super::plot::{history_svg, overlay_svg, residual_svg};
 use super::LabResult;
 use ssis_common::DEG_H_PER_RAD_S;
 
@@ -12,8 +12,41 @@ pub fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
 }
 
-/// The page. `history` is (version, pooled held-out RMS, °/h) per model version.
-pub fn render(file: &str, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f64)]) -> LabResult<String> {
+/// One `add` of the history: the residuals of the version before and of the version after
+/// at the kept rows of the session (each version's terms fitted on every row).
+#[derive(Debug, Clone)]
+pub struct AddStep {
+    /// Version before and after.
+    pub from: u32,
+    /// Version after.
+    pub to: u32,
+    /// The terms the step added ("+temp_rate").
+    pub added: String,
+    /// Per FOG, the residual before, rad/s.
+    pub before_rad_s: Vec<Vec<f64>>,
+    /// Per FOG, the residual after, rad/s.
+    pub after_rad_s: Vec<Vec<f64>>,
+}
+
+/// The kept rows' times and spacing, for [`AddStep`]'s residuals.
+#[derive(Debug, Clone)]
+pub struct KeptTimes {
+    /// Time of each kept row, s.
+    pub t_s: Vec<f64>,
+    /// Time between kept rows, s.
+    pub dt_s: f64,
+}
+
+/// The page. `history` is (version, pooled held-out RMS, °/h) per model version; `steps`
+/// the residuals before and after each `add` of the history, at the kept rows `kept`.
+pub fn render(
+    file: &str,
+    fitted: &Fitted,
+    diag: &Diagnosis,
+    history: &[(u32, f64)],
+    steps: &[AddStep],
+    kept: &KeptTimes,
+) -> LabResult<String> {
     let mut h = String::new();
     let m = &fitted.model;
     h.push_str("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">");
@@ -31,6 +64,9 @@ pub fn render(file: &str, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f6
         m.version,
         esc(&m.kinds().iter().map(|k| k.label()).collect::<Vec<_>>().join(", "))
     ));
+    for n in &fitted.notes {
+        h.push_str(&format!("<p><b>Note:</b> {}</p>\n", esc(n)));
+    }
     h.push_str("<h2>Fit</h2><table><tr><th>FOG</th><th>error RMS, °/h</th><th>residual RMS, °/h</th>");
     h.push_str("<th>max |residual|, °/h</th><th>explained</th><th>held-out RMS, °/h</th></tr>\n");
     for (i, s) in fitted.summary.iter().enumerate() {
@@ -51,7 +87,8 @@ pub fn render(file: &str, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f6
         ));
     }
     h.push_str(&format!(
-        "<h2>Diagnosis</h2><p>Held-out F-tests ({} training, {} test samples), Benjamini–Hochberg at {} %.</p>\n",
+        "<h2>Diagnosis</h2><p>Held-out tests under the fitted noise model (GLS F-test and held-out improvement; {} \
+         training, {} test samples), Benjamini–Hochberg at {} %.</p>\n",
         diag.n_train,
         diag.n_test,
         100.0 * diag.fdr_level
@@ -83,12 +120,25 @@ pub fn render(file: &str, fitted: &Fitted, diag: &Diagnosis, history: &[(u32, f6
         ));
     }
     if history.len() > 1 {
-        h.push_str("<h2>History</h2><table><tr><th>version</th><th>held-out RMS, °/h</th></tr>\n");
+        h.push_str("<h2>History</h2><table><tr><th>version</th><th>term added</th><th>held-out RMS, °/h</th></tr>\n");
         for (v, r) in history {
-            h.push_str(&format!("<tr><td>{v}</td><td>{r:.4}</td></tr>\n"));
+            let added = steps.iter().find(|s| s.to == *v).map_or("", |s| s.added.as_str());
+            h.push_str(&format!("<tr><td>{v}</td><td class=\"l\">{}</td><td>{r:.4}</td></tr>\n", esc(added)));
         }
         h.push_str("</table>\n");
         h.push_str(&history_svg("held-out RMS by model version", history)?);
+    }
+    if !steps.is_empty() {
+        h.push_str(
+            "<h2>Residuals before and after each add</h2><p>Per FOG, the residual of the version before (grey) and \
+             after (colour), each version's terms fitted on every row, as means over windows of the time shown; \
+             the dashed lines are the white-noise floor at that averaging time (±σ₁√(Δt/τ), σ₁ from the Allan \
+             deviation of the residual after at one sample). What lies outside the band before and inside it after \
+             is what the term removed.</p>\n",
+        );
+        for st in steps {
+            h.push_str(&format!("<div>{}</div>\n", overlay_svg(st, kept)?));
+        }
     }
     h.push_str("<h2>Residuals</h2>\n");
     let kept = fitted.sample.residual.first().map_or(0, Vec::len);

@@ -23,15 +23,20 @@ use rand_distr::{Distribution, Normal};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
 use super::model::loop_plane;
-use super::session::{earth_rate_ics, field_ics_nt, EARTH_RATE_RAD_S};
+use super::session::{earth_rate_ics, field_ics_nt, FieldModel, EARTH_RATE_RAD_S};
 use super::LabResult;
 use ssis_common::DEG_H_PER_RAD_S;
 
 /// Latitude of the paper's test site (Kharkov, 50.048°), rad.
 pub const KHARKOV_LAT_RAD: f64 = 50.048 * std::f64::consts::PI / 180.0;
-/// The paper's field at the test site, (north, west, up), nT (turned into the session's frame
-/// by `ssis_session::field_ics_nt`).
-pub const B0_NT: [f64; 3] = [21846.0, 5967.0, -42340.0];
+/// The Earth field at the paper's test site (Kharkov) in a field model, (north, west, up), nT
+/// (turned into the session's frame by `ssis_session::field_ics_nt`): WMM2025 on 2025-001
+/// (19 345, −3 141, −47 630) or the paper's dipole tilt (21 846, 5 959, −42 343).
+pub fn b0_nwu_nt(model: FieldModel) -> [f64; 3] {
+    model
+        .nwu_nt(super::session::KHARKOV_SITE, super::session::FIELD_EPOCH)
+        .expect("both field models are given at Kharkov on 2025-001")
+}
 /// Angle random walk of the paper's FOG, °/√h.
 pub const ARW_DEG_SQRT_H: f64 = 0.005;
 
@@ -99,6 +104,8 @@ pub struct Spec {
     pub thermal: Thermal,
     /// Whether the session records the field (`b_x_nt` …).
     pub field_columns: bool,
+    /// The Earth field at the site (the default: WMM2025, the real field).
+    pub field: FieldModel,
     /// The hidden effect.
     pub hidden: Hidden,
 }
@@ -225,6 +232,7 @@ fn generate_rows(spec: &Spec, mut row_out: impl FnMut(&[f64], &[f64; N_FOG])) ->
     let knots = chamber_profile();
     let t_offset: Vec<f64> = (0..N_FOG).map(|_| gauss(0.3, &mut rng)).collect();
     let turntable = matches!(spec.motion, Motion::Turntable { .. });
+    let b0 = b0_nwu_nt(spec.field);
     let header = header(spec);
     let mut humidity = 40.0;
     let mut row = Vec::with_capacity(header.len());
@@ -232,7 +240,7 @@ fn generate_rows(spec: &Spec, mut row_out: impl FnMut(&[f64], &[f64; N_FOG])) ->
         let t_end = (j + 1) as f64 * spec.dt_s;
         let (omega, psi, screened) = motion_at(&spec.motion, j);
         let fscale = if screened { 0.01 } else { 1.0 };
-        let field = field_ics_nt(B0_NT, psi).map(|v| fscale * v);
+        let field = field_ics_nt(b0, psi).map(|v| fscale * v);
         let w = nalgebra::Vector3::from(omega);
         let bvec = nalgebra::Vector3::from(field);
         row.clear();
@@ -342,7 +350,8 @@ fn draw_truth(spec: &Spec, rng: &mut ChaCha8Rng) -> Truth {
     });
     let hh = per_fog(rng, &mut |r| if full { signed(0.5, 1.0, r) * deg_h } else { 0.0 });
     let k_asym = per_fog(rng, &mut |r| if h == Hidden::SfAsymmetry { signed(10e-6, 20e-6, r) } else { 0.0 });
-    let b_h = (B0_NT[0] * B0_NT[0] + B0_NT[1] * B0_NT[1]).sqrt();
+    let b0 = b0_nwu_nt(spec.field);
+    let b_h = (b0[0] * b0[0] + b0[1] * b0[1]).sqrt();
     let magnetic_rad_s_per_nt: Vec<[f64; 2]> = (0..N_FOG)
         .map(|i| {
             if h != Hidden::Magnetic {
@@ -447,6 +456,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::Turntable { dwell_rows: 3, screened: vec![false, true, false, true] },
             thermal: Thermal::Constant(23.0),
             field_columns: true,
+            field: FieldModel::default(),
             hidden: pick(Hidden::Magnetic),
         },
         // 5-min means in a thermal chamber, 48 h, static at ψ = 0.
@@ -457,6 +467,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::Turntable { dwell_rows: 100_000, screened: vec![false] },
             thermal: Thermal::Chamber,
             field_columns: false,
+            field: FieldModel::default(),
             hidden: pick(Hidden::TempRate),
         },
         // 1-min means on a rate table, one per setting, 10 cycles of the 24 settings, 4 h.
@@ -467,6 +478,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::RateTable { dwell_rows: 1, peak_deg_s: 10.0 },
             thermal: Thermal::Constant(23.0),
             field_columns: false,
+            field: FieldModel::default(),
             hidden: pick(Hidden::SfAsymmetry),
         },
         "sin2psi" => Spec {
@@ -476,6 +488,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::Turntable { dwell_rows: 3, screened: vec![false, false] },
             thermal: Thermal::Constant(23.0),
             field_columns: false,
+            field: FieldModel::default(),
             hidden: pick(Hidden::Sin2Psi),
         },
         // Rate table inside the thermal chamber: every onboard term observable.
@@ -486,6 +499,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::RateTable { dwell_rows: 1, peak_deg_s: 10.0 },
             thermal: Thermal::Chamber,
             field_columns: false,
+            field: FieldModel::default(),
             hidden: if hidden { Hidden::FullThermal } else { Hidden::None },
         },
         // The same, sampled at 0.5 s with the table at up to ±3 °/s, 1 min per setting, for
@@ -498,6 +512,7 @@ pub fn preset(name: &str, seed: u64, hidden: bool) -> Option<Spec> {
             motion: Motion::RateTable { dwell_rows: 120, peak_deg_s: 3.0 },
             thermal: Thermal::Chamber,
             field_columns: false,
+            field: FieldModel::default(),
             hidden: if hidden { Hidden::FullThermal } else { Hidden::None },
         },
         _ => return None,

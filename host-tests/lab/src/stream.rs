@@ -27,6 +27,7 @@ use indicatif::ProgressBar;
 
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
+use super::noise::Bins;
 use super::session::{
     median_interval_s, nominal_axes, write_record, Converter, Header, RowReader, SampleRef, Session, Shape,
 };
@@ -1306,13 +1307,65 @@ pub struct Digest {
     pub gram: Vec<Vec<Gram>>,
     /// Kept rows.
     pub kept: Kept,
+    /// Bins of every row (consecutive rows of one block; [`super::noise`]).
+    pub bins: Bins,
+    /// Per FOG, the sums of the shifted basis over each bin (bins × m, row-major).
+    pub bin_sum: Vec<Vec<f64>>,
+    /// Gaps in time: steps of more than [`GAP_FACTOR`] sample intervals.
+    pub gaps: Gaps,
     /// Candidates for the largest |residual| (when the spec tracks terms and not every row
     /// is kept).
     pub extremes: Option<Extremes>,
 }
 
+/// A step in time of more than this many sample intervals (the median) is a gap.
+pub const GAP_FACTOR: f64 = 2.5;
+
+/// The gaps in time of a session ([`GAP_FACTOR`]).
+#[derive(Debug, Clone, Default)]
+pub struct Gaps {
+    /// How many.
+    pub count: usize,
+    /// The largest: the time before it, s, and its length, s.
+    pub largest: Option<(f64, f64)>,
+    /// Time missing in all, s (the gaps less one sample interval each).
+    pub missing_s: f64,
+}
+
 /// Rows summed at a time before they are added to a block's sums (a multiple of 8).
 const BATCH: usize = 256;
+
+/// The per-bin sums of the basis a pass accumulates, a batch at a time.
+struct BinAcc {
+    bins: Bins,
+    sum: Vec<Vec<f64>>,
+    /// The bin of the last row added.
+    at: usize,
+}
+
+impl BinAcc {
+    /// Adds the `rows` rows of a batch (per FOG, m columns [`COL`] apart) whose first row
+    /// is row `j0` of the session.
+    fn add(&mut self, batch: &[Vec<f64>], j0: usize, rows: usize, m: usize) {
+        let mut i = 0;
+        while i < rows {
+            while self.bins.start.get(self.at + 1).is_some_and(|&e| e <= j0 + i) {
+                self.at += 1;
+            }
+            if self.at >= self.bins.len() {
+                return; // rows past the count of the pre-pass (refused after the pass)
+            }
+            let end = self.bins.start.get(self.at + 1).map_or(rows, |&e| (e - j0).min(rows));
+            for (sum, cols) in self.sum.iter_mut().zip(batch) {
+                let out = &mut sum[self.at * m..(self.at + 1) * m];
+                for (a, o) in out.iter_mut().enumerate() {
+                    *o += cols[a * COL + i..a * COL + end].iter().sum::<f64>();
+                }
+            }
+            i = end.max(i + 1);
+        }
+    }
+}
 
 /// The quantities a batch's columns are computed from ([`Basis::fill_batch`]), staged a
 /// row at a time, one array of [`BATCH`] rows per quantity (per FOG where it is one).
@@ -1411,6 +1464,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         ..Kept::default()
     };
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
+    let bins = Bins::every_row(n, nb, shape.dt_s);
+    let mut bin_acc = BinAcc { sum: vec![vec![0.0; bins.len() * m]; n_fog], bins, at: 0 };
     let mut shift: Vec<Vec<f64>> = Vec::new();
     // Per FOG a batch of rows, column-major (m columns of BATCH values, COL apart) for the Gram sums,
     // and a column of zeros after them (what pads the Gram sums' groups of four).
@@ -1440,7 +1495,9 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                  shift: &[Vec<f64>],
                  staged: &Staged,
                  kept_at: &mut Vec<usize>,
-                 kept_z: &mut [Vec<f64>]| {
+                 kept_z: &mut [Vec<f64>],
+                 bin_acc: &mut BinAcc,
+                 j0: usize| {
         if rows == 0 {
             return;
         }
@@ -1458,28 +1515,16 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 b.chunks_exact_mut(COL).for_each(|col| col[rows..BATCH].fill(0.0));
             }
         }
+        bin_acc.add(batch, j0, rows, m);
         let mut grams: Vec<&mut Gram> = gram.iter_mut().map(|g| &mut g[block]).collect();
         accumulate_gram(&mut grams, batch, rows, &order, shared);
         if let Some(t) = tracker {
             t.offer_batch(batch, rows, m);
         }
     };
-    // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
-    // changes at the first j with j · nb / n above the current block.
-    let (mut block, mut next_block) = (0usize, 0usize);
-    let mut next_segment = tracker.as_ref().map_or(usize::MAX, |t| t.out.first);
-    let mut next_keep = 0usize;
-    let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
-        if j >= next_block {
-            block = block_of(j, n, nb).min(nb - 1);
-            next_block = if block + 1 >= nb { usize::MAX } else { ((block + 1) * n.max(1)).div_ceil(nb) };
-        }
-        let new_segment = j == next_segment;
-        if let (true, Some(t)) = (new_segment, tracker.as_ref()) {
-            // The segment starting here is the second when none is out yet.
-            next_segment += t.out.len_of(t.out.segs.len().max(1));
-        }
-        if block != batch_block || batch_rows == BATCH || new_segment {
+    // The batch so far summed; its first row is row `$j0` of the session.
+    macro_rules! flush_batch {
+        ($j0:expr) => {
             flush(
                 &mut batch,
                 batch_rows,
@@ -1490,7 +1535,38 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 &staged,
                 &mut kept_at,
                 &mut kept.z,
-            );
+                &mut bin_acc,
+                $j0,
+            )
+        };
+    }
+    // The block, segment and kept-row tests by counters (j goes 0, 1, 2, ...): the block of j
+    // changes at the first j with j · nb / n above the current block.
+    let (mut block, mut next_block) = (0usize, 0usize);
+    let mut next_segment = tracker.as_ref().map_or(usize::MAX, |t| t.out.first);
+    let mut next_keep = 0usize;
+    let (mut gaps, mut prev_t) = (Gaps::default(), f64::NAN);
+    let seen = for_each_prepared(source, n_fog, g_window_s, progress, |j, s, g| {
+        let step = s.t_s - prev_t;
+        if step > GAP_FACTOR * shape.dt_s {
+            gaps.count += 1;
+            gaps.missing_s += step - shape.dt_s;
+            if gaps.largest.is_none_or(|(_, l)| step > l) {
+                gaps.largest = Some((prev_t, step));
+            }
+        }
+        prev_t = s.t_s;
+        if j >= next_block {
+            block = block_of(j, n, nb).min(nb - 1);
+            next_block = if block + 1 >= nb { usize::MAX } else { ((block + 1) * n.max(1)).div_ceil(nb) };
+        }
+        let new_segment = j == next_segment;
+        if let (true, Some(t)) = (new_segment, tracker.as_ref()) {
+            // The segment starting here is the second when none is out yet.
+            next_segment += t.out.len_of(t.out.segs.len().max(1));
+        }
+        if block != batch_block || batch_rows == BATCH || new_segment {
+            flush_batch!(j - batch_rows);
             (batch_rows, batch_block) = (0, block);
         }
         if let (Some(t), true) = (tracker.as_mut(), new_segment) {
@@ -1531,13 +1607,14 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         batch_rows += 1;
         Ok(())
     })?;
-    flush(&mut batch, batch_rows, &mut gram, batch_block, tracker.as_mut(), &shift, &staged, &mut kept_at, &mut kept.z);
+    flush_batch!(seen - batch_rows);
     if seen != n {
         return Err(LabError::Numeric(format!(
             "{}: {seen} samples read, {n} counted before: did the file change while it was read?",
             h.file
         )));
     }
+    check_rate_columns(h, &basis, &shift, &kept)?;
     let extra_columns = h
         .names
         .iter()
@@ -1558,11 +1635,98 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         shift,
         gram,
         kept,
+        bins: bin_acc.bins,
+        bin_sum: bin_acc.sum,
+        gaps,
         extremes: tracker.map(|t| t.out).filter(|e| !e.segs.is_empty()),
     })
 }
 
+/// Refuses a FOG column whose values are not that FOG's rate in rad/s: at the kept rows, the
+/// FOG's output ω against its reference rate r = s⁰·ω_ref (where r varies or is large:
+/// RMS above 2 °/h, the Earth rate on most axes) has q = Σωr / Σr² near 1 (scale factor,
+/// bias and misalignment move it by far less than 0.5). Near −1 the sign is flipped (a FOG
+/// wired or mounted the other way); near 57.3 or 206,265 the column holds °/s or °/h; any
+/// other q far from 1 is named too. Where r is too small for q (an east axis on a level
+/// turntable), an error ω − r of more than [`MAX_ERROR_DEG_H`] RMS is named instead.
+/// The largest RMS of a FOG's error about its reference rate a session may have, °/h (a
+/// bias of the lab's FOGs is a fraction of a °/h; the table's plausible range ends far below).
+const MAX_ERROR_DEG_H: f64 = 360.0;
+
+fn check_rate_columns(h: &Header, basis: &Basis, shift: &[Vec<f64>], kept: &Kept) -> LabResult<()> {
+    let axes = nominal_axes();
+    for (fog, z) in kept.z.iter().enumerate() {
+        let Some(sh) = shift.get(fog) else { continue };
+        let a = axes[fog.min(3)];
+        let (mut sxr, mut srr, mut syy) = (0.0, 0.0, 0.0);
+        for (zk, w) in z.chunks_exact(basis.m).zip(&kept.omega_rad_s) {
+            let r = a.x * w[0] + a.y * w[1] + a.z * w[2];
+            let y = zk[basis.y] + sh[basis.y];
+            sxr += (y + r) * r;
+            srr += r * r;
+            syy += y * y;
+        }
+        let n = kept.omega_rad_s.len().max(1) as f64;
+        let dh = |x: f64| (x / n).sqrt() * ssis_common::DEG_H_PER_RAD_S;
+        let q = if dh(srr) < 2.0 { 1.0 } else { sxr / srr };
+        let near = |x: f64, tol: f64| (q / x - 1.0).abs() < tol;
+        let what = if (q - 1.0).abs() < 0.5 {
+            // The error ω − r: bias and drift of a few °/h at most.
+            if dh(syy) < MAX_ERROR_DEG_H {
+                continue;
+            }
+            format!(
+                "its error about the reference rate is {:.0} °/h RMS, beyond any FOG's bias and drift ({MAX_ERROR_DEG_H} °/h): \
+                 a column in another unit (°/h or °/s)?",
+                dh(syy)
+            )
+        } else {
+            let why = if (q + 1.0).abs() < 0.5 {
+                "its sign looks flipped (the FOG's output is minus its reference rate)".to_string()
+            } else if near(180.0 / std::f64::consts::PI, 0.2) {
+                "it looks like °/s, not rad/s (57.3 × the reference rate)".to_string()
+            } else if near(ssis_common::DEG_H_PER_RAD_S, 0.2) {
+                "it looks like °/h, not rad/s (206,265 × the reference rate)".to_string()
+            } else {
+                format!("its values are {q:.4} × the reference rate (another unit or another FOG's axis?)")
+            };
+            format!(
+                "{why}: Σωr/Σr² = {q:.4} over {} rows against the reference rate r = s⁰·ω_ref ({:.2} °/h RMS); a \
+                 FOG's rate in rad/s gives about 1",
+                kept.omega_rad_s.len(),
+                dh(srr)
+            )
+        };
+        let name = format!("fog{fog}_rad_s");
+        let column = h.names.iter().position(|c| *c == name).map(|k| (k + 1, name));
+        return Err(LabError::Session(super::session::SessionError {
+            kind: super::session::SessionErrorKind::BadValue,
+            file: h.file.clone(),
+            line: h.line.max(1),
+            column,
+            message: what,
+        }));
+    }
+    Ok(())
+}
+
 impl Digest {
+    /// What the user should know about the session the figures do not say: its gaps in time
+    /// (the lab takes rows as equally spaced: the time blocks, the noise model's bins, τ-means
+    /// and Allan deviations count rows, so a window or bin over a gap joins times apart).
+    pub fn notes(&self) -> Vec<String> {
+        let mut v = Vec::new();
+        if let Some((t, len)) = self.gaps.largest {
+            v.push(format!(
+                "{}: {} gap(s) in time, {:.1} s missing in all, the largest {:.1} s after t = {} s (sample interval \
+                 {} s): the lab takes rows as equally spaced (time blocks, the noise model's bins, tau-means and \
+                 Allan deviations count rows), so figures over a gap join times apart",
+                self.file, self.gaps.count, self.gaps.missing_s, len, t, self.dt_s
+            ));
+        }
+        v
+    }
+
     /// A functional of the raw basis as one of the shifted basis: x = ℓ·z = ℓ·z̃ + (ℓ·shift)·1.
     pub fn shifted(&self, fog: usize, l: &[f64]) -> Vec<f64> {
         shifted(l, &self.shift[fog])

@@ -148,9 +148,15 @@ fn f_report_renders_in_headless_chromium() {
     for bad in ["<script", "src=", "<link", "url(", "@import", "http://", "https://"] {
         assert!(!refs.contains(bad), "the report is not self-contained: it has `{bad}`");
     }
-    // Expected content: fit, diagnosis and history tables; the history plot and one residual
-    // plot per FOG.
-    let (tables, svgs) = (3, 1 + 4);
+    // Expected content: fit, diagnosis and history tables; the history plot, the residuals
+    // before and after the one `add` overlaid (a panel per FOG, with the noise floor) and one
+    // residual plot per FOG.
+    let (tables, svgs) = (3, 1 + 1 + 4);
+    let overlay = page.split("Residuals before and after each add").nth(1).and_then(|r| r.split("</svg>").next());
+    let overlay = overlay.expect("the report has no overlay of the residuals before and after the add");
+    for must in ["v1 → v2 (+temp_rate)", "FOG0", "FOG3", "floor ±", "v1", "v2"] {
+        assert!(overlay.contains(must), "overlay lacks `{must}`");
+    }
     let probe = r#"<script>
 (function () {
   var r = [];
@@ -202,7 +208,7 @@ fn f_report_renders_in_headless_chromium() {
         assert!(w >= 600.0 && h >= 300.0 && elems > 50 && l[5] == "true", "SVG not rendered as SVG: {l:?}");
     }
     let h2 = check.lines().find_map(|l| l.strip_prefix("h2 ")).unwrap_or("");
-    assert_eq!(h2, "Fit|Diagnosis|History|Residuals", "sections");
+    assert_eq!(h2, "Fit|Diagnosis|History|Residuals before and after each add|Residuals", "sections");
 }
 
 /// `add` refuses a term that makes the held-out RMS worse (aging on a session without it),

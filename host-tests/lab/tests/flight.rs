@@ -220,6 +220,7 @@ fn h_output_capture_as_a_session() {
         motion: Motion::Turntable { dwell_rows: 1_000_000, screened: vec![false] },
         thermal: Thermal::Constant(23.0),
         field_columns: false,
+        field: ssis_lab::session::FieldModel::default(),
         hidden: Hidden::None,
     };
     let path = dir.join("static.csv");

@@ -107,7 +107,8 @@ fn closed_pipe_ends_diagnose_compare_quietly() {
 }
 
 /// The model versions beside `m.v1.toml`: each parses, versions 1..=n with no gap, and
-/// nothing else but the session and the history plot.
+/// nothing else but the session and the plots `add` writes after its version (whether it
+/// gets to them before the closed pipe ends it depends on when the reader exits).
 fn versions_consistent(s: &Scratch) -> usize {
     let mut versions = Vec::new();
     for name in s.snapshot().into_keys() {
@@ -117,7 +118,8 @@ fn versions_consistent(s: &Scratch) -> usize {
             assert_eq!(n, format!("m.v{}.toml", m.version), "version {} in {n}", m.version);
             versions.push(m.version);
         } else {
-            assert!(n == "s.csv" || n == "m.history.svg", "unexpected file {n}");
+            let plot = n == "m.history.svg" || n == "m.history-fogs.svg" || n.ends_with(".allan.svg");
+            assert!(n == "s.csv" || plot, "unexpected file {n}");
         }
     }
     versions.sort();
@@ -161,4 +163,76 @@ fn json_diagnose_compare_add() {
     // A refusal in JSON mode: still one object, with the error naming the file.
     let r = json_of(LAB, &s, &["simulate", "thermal", "s.csv", "--json"], false);
     assert!(at(&r, "/error").as_str().unwrap().contains("s.csv"));
+}
+
+/// `s.csv` with column `name` mapped by `f`, as `out`.
+fn with_column(s: &Scratch, out: &str, name: &str, f: impl Fn(f64) -> f64) {
+    let text = std::fs::read_to_string(s.path("s.csv")).unwrap();
+    let mut lines = text.lines();
+    let header = lines.next().unwrap();
+    let k = header.split(',').position(|c| c == name).unwrap();
+    let mut o = format!("{header}\n");
+    for l in lines {
+        let mut v: Vec<String> = l.split(',').map(String::from).collect();
+        v[k] = format!("{:e}", f(v[k].parse::<f64>().unwrap()));
+        o.push_str(&v.join(","));
+        o.push('\n');
+    }
+    s.file(out, o);
+}
+
+/// A FOG column with its sign flipped, or in °/h or °/s under a rad/s name, is refused by
+/// every command that reads the session, naming the file, the column and what it looks
+/// like; nothing is written.
+#[test]
+fn a_flipped_or_misunit_fog_column_is_refused() {
+    let s = lab_dir("bad-fog-column");
+    let deg_h = 180.0 / std::f64::consts::PI * 3600.0;
+    with_column(&s, "flipped.csv", "fog0_rad_s", |v| -v);
+    with_column(&s, "deg_h.csv", "fog1_rad_s", |v| v * deg_h);
+    with_column(&s, "deg_s.csv", "fog2_rad_s", |v| v.to_degrees());
+    for (file, column, says) in [
+        ("flipped.csv", "column 2 (`fog0_rad_s`)", "sign looks flipped"),
+        ("deg_h.csv", "column 3 (`fog1_rad_s`)", "another unit"),
+        ("deg_s.csv", "column 4 (`fog2_rad_s`)", "°/s, not rad/s"),
+    ] {
+        let must = [file, column, says];
+        refused(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["report", "--model", "m.v1.toml", "--session", file, "--out", "r.html"], &must);
+    }
+    // The session as written passes.
+    succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+}
+
+/// A session with a gap in time (200 rows of 5 min missing) is read, but every command
+/// that reads it says so on stderr: the file, the number of gaps, the time missing and
+/// where the largest is; the page of `report` says it too.
+#[test]
+fn a_gap_in_time_is_stated() {
+    let s = lab_dir("gap");
+    let text = std::fs::read_to_string(s.path("s.csv")).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    let kept: Vec<&str> = lines[..101].iter().chain(&lines[301..]).copied().collect();
+    s.file("gap.csv", kept.join("\n") + "\n");
+    let must = ["gap.csv", "1 gap(s) in time", "60000.0 s missing", "after t = 30000 s"];
+    for args in [
+        &["compare", "--model", "m.v1.toml", "--session", "gap.csv"][..],
+        &["diagnose", "--model", "m.v1.toml", "--session", "gap.csv"][..],
+    ] {
+        let r = succeeds(LAB, &s, args, &[]);
+        println!("{}", r.stderr.trim());
+        for m in must {
+            assert!(r.stderr.contains(m), "{args:?}: stderr lacks `{m}`: {}", r.stderr);
+        }
+    }
+    let r = succeeds(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "gap.csv"], &[]);
+    assert!(r.stderr.contains("1 gap(s) in time"), "add: {}", r.stderr);
+    succeeds(LAB, &s, &["report", "--model", "m.v1.toml", "--session", "gap.csv", "--out", "r.html"], &[]);
+    let page = std::fs::read_to_string(s.path("r.html")).unwrap();
+    assert!(page.contains("1 gap(s) in time"), "the report does not say so");
+    // The session without the gap: no note.
+    let r = succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+    assert!(!r.stderr.contains("gap"), "{}", r.stderr);
 }

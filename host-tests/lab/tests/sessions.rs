@@ -174,7 +174,7 @@ fn j_increment_sessions() {
 /// their components along the session's north and west (from its Earth rate) are the site's.
 #[test]
 fn magnetic_preset_field_frame() {
-    use ssis_lab::simulate::B0_NT;
+    let b0_nt = ssis_lab::simulate::b0_nwu_nt(ssis_lab::session::FieldModel::default());
     let dir = common::scratch("field-frame");
     let (_, s) = common::session(&dir, "magnetic", 4, true);
     let psi = s.column("psi_rad").unwrap();
@@ -190,8 +190,8 @@ fn magnetic_preset_field_frame() {
         }
         azimuths.insert(psi[r].to_degrees().round() as i64);
         // The columns carry 5 nT of noise.
-        assert!((bn - B0_NT[0]).abs() < 30.0, "row {r}: north {bn}");
-        assert!((bw - B0_NT[1]).abs() < 30.0, "row {r}: west {bw}");
+        assert!((bn - b0_nt[0]).abs() < 30.0, "row {r}: north {bn}");
+        assert!((bw - b0_nt[1]).abs() < 30.0, "row {r}: west {bw}");
     }
     println!("field frame checked at {} azimuths", azimuths.len());
     assert!(azimuths.len() >= 24);
@@ -218,5 +218,31 @@ fn confounded_magnetic_names_terms_and_experiment() {
     let why = why.expect("FOG0's magnetic term should be reported as confounded without a screened run");
     for must in ["mixed with", "misalignment", "screened turn", "eq. 2"] {
         assert!(why.contains(must), "reason lacks `{must}`: {why}");
+    }
+}
+
+/// `simulate magnetic` writes the real field (WMM2025 at Kharkov on 2025-001) by default and
+/// the paper's dipole tilt with `--field paper`: the field columns of the first row, back to
+/// (north, west, up).
+#[test]
+fn magnetic_preset_field_model() {
+    let dir = common::scratch("field-model");
+    let lab = |args: &[&str]| {
+        let out =
+            std::process::Command::new(env!("CARGO_BIN_EXE_ssis-lab")).current_dir(&dir).args(args).output().unwrap();
+        assert!(out.status.success(), "{args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8_lossy(&out.stdout).to_string()
+    };
+    for (args, want, name) in [
+        (&["simulate", "magnetic", "w.csv"][..], [19345.0, -3141.0, -47630.0], "WMM2025"),
+        (&["simulate", "magnetic", "p.csv", "--field", "paper"][..], [21846.0, 5959.0, -42343.0], "dipole"),
+    ] {
+        let said = lab(args);
+        println!("{}", said.trim());
+        assert!(said.contains(name), "the field model is not stated: {said}");
+        let s = read_session(&dir.join(args[2]), None).unwrap();
+        let b = ssis_lab::session::field_nwu_nt(s.field_nt.as_ref().unwrap()[0], s.column("psi_rad").unwrap()[0]);
+        // The columns carry 5 nT of noise.
+        assert!(b.iter().zip(want).all(|(x, w)| (x - w).abs() < 30.0), "{args:?}: field {b:?}, want {want:?}");
     }
 }

@@ -13,7 +13,10 @@
 //! removes everything the screen does not change: bias, the Earth-rate leak of axis
 //! misalignment (also at frequency ψ), scale factor.
 //!
-//! The Earth field is the paper's "dipole tilt" model (OCS components):
+//! The Earth field of a simulated test ([`MagneticSim::kharkov`]) and of the prediction
+//! with a site and date is the World Magnetic Model (WMM2025, the real field); the paper's
+//! "dipole tilt" model is kept for reproducing its example (`--field paper`,
+//! `--paper-field`), OCS components:
 //!
 //! ```text
 //! B0X = B0 sin ξm sin(u − ηm),  B0Y = B0 cos ξm,  B0Z = −2 B0 sin ξm cos(u − ηm)
@@ -125,29 +128,13 @@ impl DipoleTilt {
 
 const DEG: f64 = std::f64::consts::PI / 180.0;
 
-/// The Earth's main field at a site and date from the World Magnetic Model (WMM2025, the
-/// `world_magnetic_model` crate), as (north, west, up) components, nT — the real field, where
-/// the paper's dipole tilt ([`DipoleTilt`]) is 2.5–9 µT off at Kharkov. `lat_deg`,
-/// `lon_deg`: WGS 84; `height_m` above the ellipsoid; `year` and `day_of_year` (1 …).
+/// The Earth's main field at a site and date from the World Magnetic Model (WMM2025,
+/// `ssis_session::wmm_field_nwu_nt`), as (north, west, up) components, nT — the real field,
+/// where the paper's dipole tilt ([`DipoleTilt`]) is 2.5–9 µT off at Kharkov. `lat_deg`,
+/// `lon_deg` WGS 84, `height_m` above the ellipsoid.
 pub fn wmm_field_nwu_nt(lat_deg: f64, lon_deg: f64, height_m: f64, year: i32, day_of_year: u16) -> Result<[f64; 3]> {
-    use world_magnetic_model::time::Date;
-    use world_magnetic_model::uom::si::angle::degree;
-    use world_magnetic_model::uom::si::f32::{Angle, Length};
-    use world_magnetic_model::uom::si::length::meter;
-    use world_magnetic_model::uom::si::magnetic_flux_density::nanotesla;
-    use world_magnetic_model::GeomagneticField;
-    let date =
-        Date::from_ordinal_date(year, day_of_year).map_err(|e| anyhow::anyhow!("date {year}-{day_of_year}: {e}"))?;
-    let f = GeomagneticField::new(
-        Length::new::<meter>(height_m as f32),
-        Angle::new::<degree>(lat_deg as f32),
-        Angle::new::<degree>(lon_deg as f32),
-        date,
-    )
-    .map_err(|e| anyhow::anyhow!("WMM at {lat_deg}°, {lon_deg}°, {height_m} m, {year}-{day_of_year}: {e}"))?;
-    // WMM gives X north, Y east, Z down.
-    let (x, y, z) = (f.x().get::<nanotesla>() as f64, f.y().get::<nanotesla>() as f64, f.z().get::<nanotesla>() as f64);
-    Ok([x, -y, -z])
+    ssis_session::wmm_field_nwu_nt(ssis_session::Site { lat_deg, lon_deg, height_m }, (year, day_of_year))
+        .map_err(anyhow::Error::msg)
 }
 
 /// The field in the ICS at the session's azimuth ψ (clockwise), from (north, west, up)
@@ -359,14 +346,22 @@ pub struct MagneticSim {
 }
 
 impl MagneticSim {
-    /// Kharkov field, a 0.10 °/h in-plane effect (the paper: 0.05–0.15 °/h), 2 % residual
-    /// in the screen, 0.005 °/√h, the paper's "before" axis errors (300″, −250″), 30-min
-    /// dwells as 10-s means.
-    pub fn kharkov() -> Self {
-        let b0 = DipoleTilt::PAPER.field_ocs_nt(&DipoleTilt::PAPER.kharkov());
+    /// Kharkov in the real field (WMM2025 on 2025-001, [`MagneticSim::kharkov_in`]).
+    pub fn kharkov() -> Result<Self> {
+        MagneticSim::kharkov_in(ssis_session::FieldModel::default())
+    }
+
+    /// Kharkov in the field of `model` (the paper's dipole tilt reproduces its example), a
+    /// 0.10 °/h in-plane effect (the paper: 0.05–0.15 °/h), 2 % residual in the screen,
+    /// 0.005 °/√h, the paper's "before" axis errors (300″, −250″), 30-min dwells as 10-s means.
+    pub fn kharkov_in(model: ssis_session::FieldModel) -> Result<Self> {
+        let b0 = match model {
+            ssis_session::FieldModel::PaperDipole => DipoleTilt::PAPER.field_ocs_nt(&DipoleTilt::PAPER.kharkov()),
+            m => m.nwu_nt(ssis_session::KHARKOV_SITE, ssis_session::FIELD_EPOCH).map_err(anyhow::Error::msg)?,
+        };
         let bh = b0[0].hypot(b0[1]);
         let k = 0.10 / DEG_H_PER_RAD_S / bh;
-        MagneticSim {
+        Ok(MagneticSim {
             b0_nt: b0,
             lat_rad: (50.0 + 3.0 / 60.0) * DEG,
             k_inplane_rad_s_per_nt: [k, 0.8 * k],
@@ -377,7 +372,7 @@ impl MagneticSim {
             arw_deg_sqrt_h: 0.005,
             dwell_s: 1800.0,
             row_s: 10.0,
-        }
+        })
     }
 
     /// The true magnetic error of FOGX, FOGY at ψ with field fraction `f`, rad/s.

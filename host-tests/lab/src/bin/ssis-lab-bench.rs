@@ -110,6 +110,7 @@ fn spec(rows: usize) -> Spec {
         motion: Motion::RateTable { dwell_rows: 6000, peak_deg_s: 10.0 },
         thermal: Thermal::Chamber,
         field_columns: false,
+        field: ssis_lab::session::FieldModel::default(),
         hidden: Hidden::TempRate,
     }
 }
@@ -293,6 +294,15 @@ fn one_pass(model: &Model, path: &Path, hash: bool) -> Result<(f64, f64)> {
         d1.candidates[0].kind.label()
     );
     println!("  largest |residual|: {} rows read again", f.max_rows_read_again);
+    for c in d1.candidates.iter().take(3) {
+        println!(
+            "  candidate {:<28} p {:.2e}, removes {:.4} deg/h{}",
+            c.kind.label(),
+            c.p_value,
+            c.removed_rad_s().0 * DEG_H_PER_RAD_S,
+            if c.significant { ", significant" } else { "" }
+        );
+    }
     if hash {
         let hash = |x: &dyn std::fmt::Debug| -> Result<u64> {
             let mut h = HashWriter(std::collections::hash_map::DefaultHasher::new());

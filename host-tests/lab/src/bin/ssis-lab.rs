@@ -174,6 +174,10 @@ enum Cmd {
         /// Leave the hidden effect out.
         #[arg(long)]
         no_hidden: bool,
+        /// The Earth field at the site (Kharkov): `wmm` (WMM2025 on 2025-001, the real field)
+        /// or `paper` (the paper's dipole tilt, to reproduce its example).
+        #[arg(long, default_value = "wmm", value_parser = ["wmm", "paper"])]
+        field: String,
     },
 }
 
@@ -214,6 +218,14 @@ fn pass<T>(path: &Path, what: &str, f: impl FnOnce(&ProgressBar) -> ssis_lab::La
     let out = f(&pb);
     pb.finish_and_clear();
     out.with_context(|| format!("{what} {}", path.display()))
+}
+
+/// Prints what the figures do not say about the session (to stderr: the figures stay on
+/// stdout).
+fn notes(notes: &[String]) {
+    for n in notes {
+        eprintln!("note: {n}");
+    }
 }
 
 fn load_model(path: &Path) -> Result<Model> {
@@ -402,7 +414,7 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
         Cmd::Import { kind, log, out, psi_rad, lat_rad, table_rate_rad_s } => {
             import_cmd(kind, log, out, psi_rad, lat_rad, table_rate_rad_s)
         }
-        Cmd::Simulate { preset, out, seed, no_hidden } => simulate_cmd(preset, out, seed, no_hidden),
+        Cmd::Simulate { preset, out, seed, no_hidden, field } => simulate_cmd(preset, out, seed, no_hidden, &field),
     }
 }
 
@@ -429,6 +441,7 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
         ssis_lab::json::comparison(&c, &model.display().to_string(), &session.display().to_string(), evaluate)
     });
     let (f, ho) = (&c.fitted, &c.held_out_rad_s);
+    notes(&f.notes);
     println!(
         "{} on {} ({} samples, {}): {}",
         model.display(),
@@ -481,6 +494,7 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
     let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
     let d = pass(&session, "diagnosing on", |pb| diagnose_with_progress(&m, Source::File(&session), &opt, Some(pb)))?;
     cli::report("diagnosis", || ssis_lab::json::diagnosis(&d));
+    notes(&d.notes);
     print_diagnosis(&d);
     Ok(())
 }
@@ -516,6 +530,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let m = load_model(&model)?;
     let kind = Kind::parse_arg(&term)?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
+    notes(&out.notes);
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     if a > b && !force {
         bail!(
@@ -681,14 +696,20 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
 fn report_cmd(model: PathBuf, session: PathBuf, out: PathBuf) -> Result<()> {
     let m = load_model(&model)?;
     let opt = Options::default();
-    let (f, d) = pass(&session, "fitting and diagnosing on", |pb| {
-        let terms = candidate_terms(&Source::File(&session).header()?);
+    let versions =
+        history_files(&model).iter().map(|(v, p)| load_model(p).map(|m| (*v, m))).collect::<Result<Vec<_>>>()?;
+    let (f, d, steps, kept) = pass(&session, "fitting and diagnosing on", |pb| {
+        let mut terms = candidate_terms(&Source::File(&session).header()?);
+        terms.extend(versions.iter().flat_map(|(_, v)| v.kinds()));
         let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
-        Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?))
+        let kept = report::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
+        let steps = ssis_lab::fit::add_steps(&versions, &dg)?;
+        Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?, steps, kept))
     })?;
     let h: Vec<(u32, f64)> =
         history(&model, &session, ssis_lab::fit::DEFAULT_BLOCKS)?.iter().map(|x| (x.0, x.1)).collect();
-    ssis_lab::write_atomic(&out, report::render(&session.display().to_string(), &f, &d, &h)?.as_bytes())?;
+    let page = report::render(&session.display().to_string(), &f, &d, &h, &steps, &kept)?;
+    ssis_lab::write_atomic(&out, page.as_bytes())?;
     println!("wrote {}", out.display());
     Ok(())
 }
@@ -767,19 +788,30 @@ fn import_cmd(
 }
 
 /// `simulate`: a session of a preset with known effects.
-fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool) -> Result<()> {
-    let Some(spec) = simulate::preset(&preset, seed, !no_hidden) else {
+fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool, field: &str) -> Result<()> {
+    let Some(mut spec) = simulate::preset(&preset, seed, !no_hidden) else {
         bail!("unknown preset `{preset}`: magnetic, thermal, asymmetry, sin2psi, flight, replay");
+    };
+    spec.field = if field == "paper" {
+        ssis_lab::session::FieldModel::PaperDipole
+    } else {
+        ssis_lab::session::FieldModel::Wmm2025
     };
     let sim = simulate::generate(&spec);
     sim.write_csv(&out)?;
     println!(
-        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?})",
+        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?}{})",
         out.display(),
         sim.rows.len(),
         spec.dt_s,
         dh(sim.truth.noise_rad_s),
-        spec.hidden
+        spec.hidden,
+        if spec.field_columns {
+            let b = simulate::b0_nwu_nt(spec.field);
+            format!(", {} field ({:.0}, {:.0}, {:.0}) nT north, west, up", spec.field.name(), b[0], b[1], b[2])
+        } else {
+            String::new()
+        }
     );
     Ok(())
 }

@@ -33,6 +33,24 @@ struct Cli {
     new_table: bool,
 }
 
+/// The Earth-field model of a simulated magnetic test.
+#[derive(Clone, Copy, ValueEnum)]
+enum FieldArg {
+    /// WMM2025 (the real field).
+    Wmm,
+    /// The paper's dipole tilt.
+    Paper,
+}
+
+impl FieldArg {
+    fn model(self) -> ssis_session::FieldModel {
+        match self {
+            FieldArg::Wmm => ssis_session::FieldModel::Wmm2025,
+            FieldArg::Paper => ssis_session::FieldModel::PaperDipole,
+        }
+    }
+}
+
 #[derive(Clone, Copy, ValueEnum)]
 enum Batch {
     /// Temperature and gradient effects (the paper's first batch).
@@ -67,6 +85,10 @@ enum Cmd {
         /// Date of the test, `YYYY-DDD` (day of the year), for `--site`.
         #[arg(long, requires = "site")]
         date: Option<String>,
+        /// Predict the phase from the paper's dipole-tilt field at Kharkov (to reproduce its
+        /// worked example) instead of WMM2025 at `--site`/`--date` or the session's columns.
+        #[arg(long, conflicts_with_all = ["site", "date"])]
+        paper_field: bool,
     },
     /// Two-factor ANOVA of Tables 1-2, and the thermal model when it is worth building.
     Thermal {
@@ -165,6 +187,10 @@ enum Sim {
         /// Seed.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// The Earth field at Kharkov: `wmm` (WMM2025 on 2025-001, the real field) or `paper`
+        /// (the paper's dipole tilt, to reproduce its example).
+        #[arg(long, value_enum, default_value_t = FieldArg::Wmm)]
+        field: FieldArg,
     },
     /// Static session (1-s means of FOG0) for the Allan variance.
     Static {
@@ -337,8 +363,8 @@ fn save_table(
 fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Simulate { what } => simulate(what),
-        Cmd::Magnetic { unscreened, screened, plot, site, date } => {
-            magnetic_cmd(unscreened, screened, plot, site, date)
+        Cmd::Magnetic { unscreened, screened, plot, site, date, paper_field } => {
+            magnetic_cmd(unscreened, screened, plot, site, date, paper_field)
         }
         Cmd::Thermal { simulate, session, t_levels_degc, g_levels_degc_min, seed, fog, plot, table } => {
             let levels = thermal_anova::Levels { t_degc: t_levels_degc, g_degc_min: g_levels_degc_min };
@@ -359,7 +385,7 @@ fn run(cli: Cli) -> Result<()> {
 /// `ssis-cal simulate`: one function per simulated session.
 fn simulate(what: Sim) -> Result<()> {
     match what {
-        Sim::Magnetic { unscreened, screened, seed } => simulate_magnetic(unscreened, screened, seed),
+        Sim::Magnetic { unscreened, screened, seed, field } => simulate_magnetic(unscreened, screened, seed, field),
         Sim::Static { out, hours, arw, rrw, seed } => simulate_static(out, hours, arw, rrw, seed),
         Sim::Turns { out, seed } => simulate_turns(out, seed),
         Sim::Sins { out, seed } => simulate_sins(out, seed),
@@ -393,11 +419,18 @@ fn magnetic_cmd(
     plot: PathBuf,
     site: Option<String>,
     date: Option<String>,
+    paper_field: bool,
 ) -> Result<()> {
     let wmm = match (&site, &date) {
         (Some(s), Some(d)) => Some(wmm_at(s, d)?),
+        _ if paper_field => {
+            let d = magnetic::DipoleTilt::PAPER;
+            Some(d.field_ocs_nt(&d.kharkov()))
+        }
         _ => None,
     };
+    let model_name =
+        if paper_field { "the paper's dipole-tilt field at Kharkov" } else { "the WMM2025 field at the site" };
     let (u, s) = (read_session(&unscreened, None)?, read_session(&screened, None)?);
     let r = magnetic::analyse(&u, &s)?;
     println!("eq. (1)/(2) fits, °/h and degrees        δΩ        S      Δφ     σ(Δφ)   rms");
@@ -418,12 +451,15 @@ fn magnetic_cmd(
     // The field from the session (its first row, ψ of that row) back to the OCS.
     if let Some(w) = wmm {
         println!(
-            "WMM2025 field at the site (north, west, up) = ({:.0}, {:.0}, {:.0}) nT: predicted Δφ = {:.2}° (used below)",
+            "{model_name} (north, west, up) = ({:.0}, {:.0}, {:.0}) nT: predicted Δφ = {:.2}° (used below)",
             w[0],
             w[1],
             w[2],
             magnetic::predicted_phase_rad(w).to_degrees()
         );
+        if let Some(note) = field_mismatch(&u, w, model_name) {
+            println!("{note}");
+        }
     }
     let b0 = match &u.field_nt {
         _ if wmm.is_some() => wmm,
@@ -936,15 +972,43 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     Ok(())
 }
 
+/// When the session's field columns (its first row, back to north, west, up) are more than
+/// 500 nT from the field `w` the prediction uses: a note saying so (a session simulated
+/// in one field model and calibrated against another, or a site or date that is not the
+/// session's).
+fn field_mismatch(u: &ssis_session::Session, w: [f64; 3], model_name: &str) -> Option<String> {
+    let f = u.field_nt.as_ref()?.first()?;
+    let b = ssis_session::field_nwu_nt(*f, u.column("psi_rad").map_or(0.0, |p| p[0]));
+    let d = ((b[0] - w[0]).powi(2) + (b[1] - w[1]).powi(2) + (b[2] - w[2]).powi(2)).sqrt();
+    (d > 500.0).then(|| {
+        format!(
+            "WARNING: {}: the session's field (north, west, up) = ({:.0}, {:.0}, {:.0}) nT is {:.1} µT from {model_name}, \
+             which the prediction uses: the session was made in another field model (WMM2025 or the paper's dipole; \
+             see `--paper-field`) or at another site or date (predicted Δφ from the session's own field: {:.2}°)",
+            u.file,
+            b[0],
+            b[1],
+            b[2],
+            d / 1000.0,
+            magnetic::predicted_phase_rad(b).to_degrees()
+        )
+    })
+}
+
 /// Writes the unscreened and screened sessions of the Kharkov magnetic test.
-fn simulate_magnetic(unscreened: PathBuf, screened: PathBuf, seed: u64) -> Result<()> {
-    let sim = magnetic::MagneticSim::kharkov();
+fn simulate_magnetic(unscreened: PathBuf, screened: PathBuf, seed: u64, field: FieldArg) -> Result<()> {
+    let sim = magnetic::MagneticSim::kharkov_in(field.model())?;
     sim.write(&unscreened, &screened, seed)?;
     let t = sim.truth();
     println!(
-        "wrote {} and {} (25 azimuths); truth ΔS_x {:.4} °/h, ΔS_y {:.4} °/h, Δφ {:.2}°",
+        "wrote {} and {} (25 azimuths, {} field ({:.0}, {:.0}, {:.0}) nT north, west, up); truth ΔS_x {:.4} °/h, \
+         ΔS_y {:.4} °/h, Δφ {:.2}°",
         unscreened.display(),
         screened.display(),
+        field.model().name(),
+        sim.b0_nt[0],
+        sim.b0_nt[1],
+        sim.b0_nt[2],
         t[0].0 * DEG_H_PER_RAD_S,
         t[1].0 * DEG_H_PER_RAD_S,
         t[0].1.to_degrees()
