@@ -136,7 +136,7 @@ fn magnetic_fit_recovers_simulated_sensitivity() {
 /// vertical one (no Earth-rate change on a level table) by its mean, 2 × 11.5 °/h off.
 #[test]
 fn magnetic_refuses_a_reversed_fog() {
-    let sim = magnetic::MagneticSim::kharkov();
+    let sim = magnetic::MagneticSim::kharkov().unwrap();
     let (pu, ps) = (tmp("mag-rev-unscreened.csv"), tmp("mag-rev-screened.csv"));
     sim.write(&pu, &ps, 6).unwrap();
     let (u, s) = (read_session(&pu, None).unwrap(), read_session(&ps, None).unwrap());
