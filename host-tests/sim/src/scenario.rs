@@ -250,6 +250,15 @@ impl Scenario {
     }
 }
 
+/// An estimator named on a command line (`--estimator`): `luenberger` or `mekf`.
+pub fn parse_estimator(s: &str) -> std::result::Result<Estimator, String> {
+    match s {
+        "luenberger" => Ok(Estimator::Luenberger),
+        "mekf" => Ok(Estimator::Mekf),
+        other => Err(format!("`{other}` is not an estimator: luenberger or mekf")),
+    }
+}
+
 /// The path and value of the first number in `v` that is not finite (`motion.slews[0].axis[1]`).
 fn first_non_finite(v: &toml::Value, path: String) -> Option<(String, f64)> {
     match v {

@@ -46,7 +46,7 @@ enum Cmd {
         allow_long: bool,
         /// The estimator that flies, replacing the scenario's: `luenberger` (the paper's
         /// eq. 6 observer) or `mekf`.
-        #[arg(long, value_parser = parse_estimator)]
+        #[arg(long, value_parser = ssis_sim::scenario::parse_estimator)]
         estimator: Option<Estimator>,
     },
     /// Replay a recorded log (docs/RECORDED-LOG.md: a CSV, or raw captures of the links)
@@ -491,13 +491,4 @@ fn table_diff(a: &Path, b: &Path) -> Result<bool> {
         println!("{} field(s) differ between {} and {}", changes.len(), a.display(), b.display());
     }
     Ok(same)
-}
-
-/// `--estimator`: `luenberger` or `mekf`.
-fn parse_estimator(s: &str) -> std::result::Result<Estimator, String> {
-    match s {
-        "luenberger" => Ok(Estimator::Luenberger),
-        "mekf" => Ok(Estimator::Mekf),
-        other => Err(format!("`{other}` is not an estimator: luenberger or mekf")),
-    }
 }
