@@ -108,41 +108,16 @@ fn on_the_fig7_case_the_mekf_reaches_the_limit() {
     }
 }
 
-/// A cold start of seed `seed` for `duration_s`: orbital rate, the paper's gyro noise and
-/// pre-calibration random bias (0.3 °/h 3σ per FOG), a 20″ (3σ) tracker at 4 Hz. The
-/// MEKF's table starts from that bias through the combination (0.0913 °/h per axis).
+/// A cold start (scenarios/cold-start.toml: orbital rate, the paper's gyro noise and
+/// pre-calibration random bias, 0.3 °/h 3σ per FOG, a 20″ (3σ) tracker at 4 Hz; the
+/// MEKF's table starts from that bias through the combination, 0.0913 °/h per axis) of
+/// seed `seed` for `duration_s`.
 fn cold_start(seed: u64, duration_s: f64, estimator: Estimator) -> Scenario {
-    let settle_s = steady_from_s(duration_s);
-    let text = format!(
-        r#"
-        name = "cold-start"
-        profile = "spacecraft"
-        duration_s = {duration_s}
-        seed = {seed}
-        settle_s = {settle_s}
-        [motion]
-        base_rate_deg_s = [0.0, -0.0638, 0.0]
-        [fog]
-        arw_deg_sqrt_h = 0.005
-        rrw_deg_h_sqrt_h = 0.01
-        random_bias_3sigma_deg_h = 0.3
-        random_scale_3sigma = 2e-5
-        random_axis_3sigma_arcsec = 20
-        [star_tracker]
-        rate_hz = 4
-        sigma_3sigma_arcsec = 20
-        latency_ms = 50
-        [table]
-        source = "nominal"
-        [table.observer]
-        arw_deg_sqrt_h = 0.005
-        rrw_deg_h_sqrt_h = 0.01
-        st_sigma_arcsec = 6.666666666666667
-        st_period_s = 0.25
-        initial_drift_sigma_deg_h = 0.0913
-    "#
-    );
-    let mut sc: Scenario = toml::from_str(&text).expect("scenario");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/cold-start.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.seed = seed;
+    sc.duration_s = duration_s;
+    sc.settle_s = steady_from_s(duration_s);
     sc.table.estimator = Some(estimator);
     sc
 }

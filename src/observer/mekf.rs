@@ -168,6 +168,7 @@ pub fn normalised(e: &Vector3<f64>, s_inv: &Matrix3<f64>) -> f64 {
 
 /// One Newton step x ← (x + p/x)/2 from the last root when p moved by less than 12.5 %
 /// (relative error ε²/2), a full square root otherwise; `x` is updated and returned.
+#[inline(always)]
 pub fn root(x: &mut f64, p: f64) -> f64 {
     let near = *x > 0.0 && (*x * *x - p).abs() <= 0.125 * p;
     *x = if near { 0.5 * (*x + p / *x) } else { math::sqrt(p.max(0.0)) };

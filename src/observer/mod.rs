@@ -431,6 +431,7 @@ impl<const H: usize> Observer<H> {
     }
 
     /// Seconds from the last update's time tag to `time_us` (0 before any).
+    #[inline(always)]
     fn since_update_s(&self, time_us: u64) -> f64 {
         let gap_us = self.last_update_tag_us.map_or(0, |t| time_us.saturating_sub(t));
         f64::from(u32::try_from(gap_us).unwrap_or(u32::MAX)) * 1e-6
@@ -453,22 +454,30 @@ impl<const H: usize> Observer<H> {
             return ([f64::INFINITY; 3], [f64::INFINITY; 3]);
         }
         if self.estimator == Estimator::Mekf {
-            let st = &self.steady;
-            let tau = self.since_update_s(time_us);
-            let (pa, pb) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
-            let mut out = [0.0; 6];
-            for ((o, x), p) in out.iter_mut().zip(self.mekf_roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
-                *o = mekf::root(x, p);
-            }
-            let [a0, a1, a2, d0, d1, d2] = out;
-            return ([a0, a1, a2], [d0, d1, d2]);
+            return self.mekf_sigmas(time_us);
         }
         let [p11, _, p22] = self.propagated(time_us);
         let [a, d] = &mut self.sigma_roots;
-        mekf::root(a, p11);
-        mekf::root(d, p22);
+        for (x, p) in [(a, p11), (d, p22)] {
+            mekf::root(x, p);
+        }
         let [a, d] = self.sigma_roots;
         ([a; 3], [d; 3])
+    }
+
+    /// [`Observer::sigmas`] of the MEKF (out of line: the observer's step stays as short
+    /// as it was).
+    #[inline(never)]
+    fn mekf_sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
+        let st = &self.steady;
+        let tau = self.since_update_s(time_us);
+        let (pa, pb) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let mut out = [0.0; 6];
+        for ((o, x), p) in out.iter_mut().zip(self.mekf_roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
+            *o = mekf::root(x, p);
+        }
+        let [a0, a1, a2, d0, d1, d2] = out;
+        ([a0, a1, a2], [d0, d1, d2])
     }
 
     /// Expected variance of a mismatch per axis, rad², for a frame with time tag
