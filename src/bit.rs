@@ -15,7 +15,7 @@ use core::convert::Infallible;
 
 use nalgebra::Vector3;
 
-use crate::calib::{binary, CalibrationTable, FogCal, N_FOG};
+use crate::calib::{binary, CalibrationTable, Estimator, FogCal, N_FOG};
 use crate::compensation::compensate_rate;
 use crate::flight::{FlightCore, FogLinks, Links, Profile};
 use crate::frames::decoder::StreamDecoder;
@@ -33,7 +33,8 @@ pub enum BitError {
     TableCrc,
     /// An f64 operation or maths-library result differs from its known bits.
     Arithmetic,
-    /// The default table does not survive its binary encoding.
+    /// The default table, or the default with the MEKF selected, does not survive its
+    /// binary encoding.
     TableRoundTrip,
     /// The decoder accepted a damaged frame or lost the good one after it.
     Decoder,
@@ -53,7 +54,9 @@ pub fn power_on() -> Result<(), BitError> {
     }
     arithmetic()?;
     let t = CalibrationTable::DEFAULT;
-    if binary::decode(&binary::encode(&t)) != Ok(t) {
+    let mut mekf = t;
+    mekf.observer.estimator = Estimator::Mekf;
+    if [t, mekf].iter().any(|t| binary::decode(&binary::encode(t)) != Ok(*t)) {
         return Err(BitError::TableRoundTrip);
     }
     decoder()?;

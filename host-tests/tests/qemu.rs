@@ -1,7 +1,7 @@
 //! The firmware in QEMU (mps2-an500), fed over the emulated UARTs. Needs
 //! `qemu-system-arm` (the README's test command installs it); builds the firmware.
 //! - lockstep: every output frame bit-identical to the in-process core's (host/QEMU
-//!   equivalence), also with damaged links;
+//!   equivalence), also with damaged links and with the MEKF selected in the table;
 //! - real time: the firmware's own 5 ms tick, no overruns, attitude within bounds;
 //! - fault injection: a stalled main loop is caught by the watchdog;
 //! - the on-target test binary (`ssis-selftest`): built-in test and a replay digest equal
@@ -16,6 +16,7 @@
 
 use std::path::Path;
 
+use ssis::calib::Estimator;
 use ssis_runner::qemu::{build_firmware, run_qemu, QemuOptions, QemuSummary};
 use ssis_sim::scenario::Scenario;
 
@@ -38,9 +39,19 @@ fn flight(duration_s: f64) -> Scenario {
 /// The first `duration_s` of qemu-flight on the firmware with the options `opts` makes of
 /// plain lockstep.
 fn run_with(duration_s: f64, opts: impl FnOnce(QemuOptions) -> QemuOptions) -> QemuSummary {
+    run_with_table(duration_s, |_| {}, opts)
+}
+
+/// [`run_with`] on the scenario as `table` changes it (the unit's table).
+fn run_with_table(
+    duration_s: f64,
+    table: impl FnOnce(&mut Scenario),
+    opts: impl FnOnce(QemuOptions) -> QemuOptions,
+) -> QemuSummary {
     let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
     let elf = build_firmware().expect("firmware builds");
-    let sc = flight(duration_s);
+    let mut sc = flight(duration_s);
+    table(&mut sc);
     let s = run_qemu(&sc, &opts(QemuOptions::lockstep(elf)), |_| {}).expect("QEMU run");
     println!("{}", s.report());
     s
@@ -55,6 +66,32 @@ fn host_and_qemu_give_identical_output_frames() {
     assert_eq!(s.differing_frames, 0);
     assert!(s.log.iter().any(|l| l == "watchdog_warnings 0"), "the fed watchdog never warned: {:?}", s.log);
     assert!(s.log.iter().any(|l| l == "log_dropped 0"), "no log message dropped: {:?}", s.log);
+}
+
+#[test]
+fn with_the_mekf_host_and_qemu_give_identical_output_frames() {
+    // The MEKF flies: its reported attitude 1σ differs from the observer's on the host.
+    let sigmas = |e: Estimator| {
+        let mut sc = flight(10.0);
+        sc.table.estimator = Some(e);
+        let mut v = Vec::new();
+        ssis_sim::harness::run(&sc, |r| v.push(r.out.att_sigma_rad)).expect("host run");
+        v
+    };
+    let (lu, mk) = (sigmas(Estimator::Luenberger), sigmas(Estimator::Mekf));
+    assert_eq!(lu.len(), mk.len());
+    let differ = lu.iter().zip(&mk).filter(|(a, b)| a != b).count();
+    assert!(
+        differ * 2 > lu.len(),
+        "the MEKF's 1σ equals the observer's in {} of {} steps",
+        lu.len() - differ,
+        lu.len()
+    );
+    let s = run_with_table(10.0, |sc| sc.table.estimator = Some(Estimator::Mekf), |o| o);
+    assert_eq!(s.exit_code, Some(0), "firmware did not end cleanly");
+    assert_eq!(s.frames_out, s.steps);
+    assert_eq!(s.equal_frames, s.steps, "{} frames differ", s.differing_frames);
+    assert_eq!(s.differing_frames, 0);
 }
 
 #[test]

@@ -3,7 +3,7 @@
 
 use proptest::prelude::*;
 use ssis::calib::binary::{decode, encode, TABLE_LEN};
-use ssis::calib::{CalibrationTable, Field, FieldError, FogTerm, ObserverGains, TableError};
+use ssis::calib::{CalibrationTable, Estimator, Field, FieldError, FogTerm, ObserverGains, TableError};
 use ssis_common::table;
 
 fn sample_table() -> CalibrationTable {
@@ -18,6 +18,8 @@ fn sample_table() -> CalibrationTable {
     t.misalignment.d13_rad = -3e-5;
     t.st_mount_q = [0.5f64.sqrt(), 0.0, 0.5f64.sqrt(), 0.0];
     t.observer.gains_override = Some(ObserverGains::critically_damped(60.0, 0.25));
+    t.observer.estimator = Estimator::Mekf;
+    t.observer.initial_drift_sigma_deg_h = 0.5;
     t
 }
 
@@ -28,6 +30,32 @@ fn binary_round_trip() {
     assert_eq!(b.len(), TABLE_LEN);
     assert_eq!(decode(&b), Ok(t));
     assert_eq!(decode(&encode(&CalibrationTable::DEFAULT)), Ok(CalibrationTable::DEFAULT));
+}
+
+#[test]
+fn an_estimator_code_this_format_does_not_define_is_refused() {
+    let mut b = encode(&sample_table());
+    assert_eq!(b[469], Estimator::Mekf.code());
+    for code in [2u8, 0x80, 0xFF] {
+        b[469] = code;
+        let crc = ssis::calib::binary::CRC32.checksum(&b[..TABLE_LEN - 4]);
+        b[TABLE_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(decode(&b), Err(TableError::BadFlags), "estimator code {code}");
+    }
+}
+
+#[test]
+fn a_toml_table_without_the_estimator_fields_flies_the_observer() {
+    let text = table::to_toml(&CalibrationTable::DEFAULT).expect("toml");
+    let old: String = text
+        .lines()
+        .filter(|l| !l.starts_with("estimator") && !l.starts_with("initial_drift_sigma_deg_h"))
+        .map(|l| format!("{l}\n"))
+        .collect();
+    assert_ne!(old, text, "the TOML names the new fields");
+    let t = table::parse_toml(&old, "mem").expect("parse");
+    assert_eq!(t.observer.estimator, Estimator::Luenberger);
+    assert_eq!(t.observer.initial_drift_sigma_deg_h, 0.1);
 }
 
 #[test]

@@ -8,22 +8,23 @@
 //! | 4 | 2 | format version (u16) = [`FORMAT_VERSION`] |
 //! | 6 | 2 | payload length (u16) = [`PAYLOAD_LEN`] |
 //! | 8 | 4 | table revision (u32) |
-//! | 12 | 448 | 56 × f64, in the order of [`fields`] |
-//! | 460 | 1 | flags: bit0 observer gains override present; other bits 0 |
-//! | 461 | 3 | zero |
-//! | 464 | 4 | CRC-32/ISO-HDLC over bytes 0..464 (u32) |
+//! | 12 | 456 | 57 × f64, in the order of [`fields`] |
+//! | 468 | 1 | flags: bit0 observer gains override present; other bits 0 |
+//! | 469 | 1 | estimator: 0 Luenberger observer (eq. 6), 1 MEKF ([`super::Estimator`]) |
+//! | 470 | 2 | zero |
+//! | 472 | 4 | CRC-32/ISO-HDLC over bytes 0..472 (u32) |
 //!
 //! Decoding checks, in order: length, magic, version, declared length, CRC, then
 //! [`CalibrationTable::validate`]. A table that fails any check is refused whole.
 
-use super::{CalibrationTable, FogCal, Misalignment, ObserverConfig, ObserverGains, TableError, N_FOG};
+use super::{CalibrationTable, Estimator, FogCal, Misalignment, ObserverConfig, ObserverGains, TableError, N_FOG};
 
 /// Magic bytes at the start of a stored table.
 pub const MAGIC: [u8; 4] = *b"SSCT";
 /// Format version written and read by this code.
-pub const FORMAT_VERSION: u16 = 1;
+pub const FORMAT_VERSION: u16 = 2;
 /// Number of f64 fields.
-pub const N_F64: usize = 56;
+pub const N_F64: usize = 57;
 /// Bytes after the 8-byte header up to the CRC.
 pub const PAYLOAD_LEN: usize = 4 + 8 * N_F64 + 4;
 /// Total length of the binary table.
@@ -33,7 +34,8 @@ pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
 /// The f64 fields of `t` in storage order: per FOG (bias, scale, T_ref, a1, a2, a3, g, h),
 /// then δ12 δ13 δ21 δ23 δ31 δ32 δ42 δ43, γ, the mount quaternion (w x y z), the G-filter
-/// time constant, ARW, RRW, star-tracker σ, star-tracker period, K_B (3), K_U (3).
+/// time constant, ARW, RRW, star-tracker σ, star-tracker period, K_B (3), K_U (3), the
+/// initial drift 1σ.
 pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
     let mut out = [0.0; N_F64];
     let gains = t.observer.gains_override.unwrap_or(ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] });
@@ -54,7 +56,13 @@ pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
         ]
     });
     let rest = [t.t_rate_filter_s, o.arw_deg_sqrt_h, o.rrw_deg_h_sqrt_h, o.st_sigma_arcsec, o.st_period_s];
-    let all = fogs.chain(tail).chain(t.st_mount_q).chain(rest).chain(gains.k_b).chain(gains.k_u_per_s);
+    let all = fogs
+        .chain(tail)
+        .chain(t.st_mount_q)
+        .chain(rest)
+        .chain(gains.k_b)
+        .chain(gains.k_u_per_s)
+        .chain([o.initial_drift_sigma_deg_h]);
     for (slot, v) in out.iter_mut().zip(all) {
         *slot = v;
     }
@@ -74,7 +82,7 @@ pub fn encode_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableE
         w.put(&v.to_le_bytes())?;
     }
     let flags: u8 = u8::from(t.observer.gains_override.is_some());
-    w.put(&[flags, 0, 0, 0])?;
+    w.put(&[flags, t.observer.estimator.code(), 0, 0])?;
     let pos = w.pos;
     let crc = CRC32.checksum(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
     w.put(&crc.to_le_bytes())?;
@@ -114,11 +122,13 @@ pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
     for slot in v.iter_mut() {
         *slot = f64::from_le_bytes(r.take::<8>()?);
     }
-    let [flags, p0, p1, p2] = r.take::<4>()?;
-    if flags & !1 != 0 || p0 != 0 || p1 != 0 || p2 != 0 {
+    let [flags, code, p1, p2] = r.take::<4>()?;
+    let estimator = Estimator::from_code(code).ok_or(TableError::BadFlags)?;
+    if flags & !1 != 0 || p1 != 0 || p2 != 0 {
         return Err(TableError::BadFlags);
     }
-    let t = from_fields(revision, &v, flags & 1 == 1);
+    let mut t = from_fields(revision, &v, flags & 1 == 1);
+    t.observer.estimator = estimator;
     t.validate()?;
     Ok(t)
 }
@@ -165,6 +175,8 @@ fn from_fields(revision: u32, v: &[f64; N_F64], gains_present: bool) -> Calibrat
             st_sigma_arcsec: sig,
             st_period_s: per,
             gains_override: if gains_present { Some(gains) } else { None },
+            estimator: Estimator::Luenberger,
+            initial_drift_sigma_deg_h: next(),
         },
     }
 }

@@ -30,7 +30,9 @@
 //! - RRW: 0.0001…0.1 °/h/√h (the paper's assumption 0.01; 0.1 would walk the bias by
 //!   0.1 °/h in an hour, twice the post-calibration ±0.05 °/h; 53,954 °/h/√h is refused);
 //! - star-tracker noise 0.1…100″ (1σ; the paper's tracker 6.7″), period 5 ms…10 s;
-//! - gain override: K_B in 10⁻⁹…0.999, K_U in 0…0.999 1/s (a stable first-order loop).
+//! - gain override: K_B in 10⁻⁹…0.999, K_U in 0…0.999 1/s (a stable first-order loop);
+//! - initial drift 1σ: 0.001…100 °/h (the paper's pre-calibration random zero signal is
+//!   0.1 °/h 1σ; 100 °/h is the bias bound).
 
 use core::fmt;
 
@@ -133,6 +135,8 @@ pub enum Field {
     GainKb(u8),
     /// `observer.gains_override.k_u_per_s[k]`.
     GainKu(u8),
+    /// `observer.initial_drift_sigma_deg_h`.
+    InitialDriftSigma,
 }
 
 /// Units and plausible range of a field.
@@ -199,6 +203,7 @@ impl Field {
             17 => Field::StPeriod,
             j @ 18..=20 => Field::GainKb((j - 18) as u8),
             j @ 21..=23 => Field::GainKu((j - 21) as u8),
+            24 => Field::InitialDriftSigma,
             _ => return None,
         })
     }
@@ -242,6 +247,7 @@ impl Field {
             Field::StPeriod => Spec::new("s", "s", 1.0, 0.005, 10.0),
             Field::GainKb(_) => Spec::new("", "", 1.0, 1e-9, 0.999),
             Field::GainKu(_) => Spec::new("1/s", "1/s", 1.0, 0.0, 0.999),
+            Field::InitialDriftSigma => Spec::new("°/h", "°/h", 1.0, 0.001, 100.0),
         }
     }
 
@@ -288,6 +294,7 @@ impl Field {
             Field::StPeriod => o.st_period_s,
             Field::GainKb(k) => gain(k, true),
             Field::GainKu(k) => gain(k, false),
+            Field::InitialDriftSigma => o.initial_drift_sigma_deg_h,
         }
     }
 
@@ -321,6 +328,7 @@ impl Field {
             Field::StPeriod => Some(&mut t.observer.st_period_s),
             Field::GainKb(k) => t.observer.gains_override.as_mut().and_then(|g| g.k_b.get_mut(usize::from(k))),
             Field::GainKu(k) => t.observer.gains_override.as_mut().and_then(|g| g.k_u_per_s.get_mut(usize::from(k))),
+            Field::InitialDriftSigma => Some(&mut t.observer.initial_drift_sigma_deg_h),
         };
         if let Some(s) = slot {
             *s = v;
@@ -351,6 +359,7 @@ impl fmt::Display for Field {
             Field::Rrw => "observer.rrw_deg_h_sqrt_h",
             Field::StSigma => "observer.st_sigma_arcsec",
             Field::StPeriod => "observer.st_period_s",
+            Field::InitialDriftSigma => "observer.initial_drift_sigma_deg_h",
         };
         f.write_str(plain)
     }

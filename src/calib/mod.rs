@@ -176,8 +176,56 @@ pub struct ObserverConfig {
     pub st_sigma_arcsec: f64,
     /// Nominal star-tracker update period, s (the gains are computed for it).
     pub st_period_s: f64,
-    /// Gains that replace the computed ones when present.
+    /// Gains that replace the computed ones when present (the Luenberger observer's).
     pub gains_override: Option<ObserverGains>,
+    /// The estimator that flies (default: the paper's eq. (6) observer).
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub estimator: Estimator,
+    /// Drift (gyro bias) 1σ per axis at alignment, °/h: the MEKF's initial bias covariance
+    /// (the paper: random zero signal ±0.3 °/h, 3σ, before calibration, so 0.1).
+    #[cfg_attr(feature = "serde", serde(default = "paper_initial_drift_sigma_deg_h"))]
+    pub initial_drift_sigma_deg_h: f64,
+}
+
+/// The paper's pre-calibration random zero signal, ±0.3 °/h (3σ), as 1σ.
+pub const PAPER_INITIAL_DRIFT_SIGMA_DEG_H: f64 = 0.1;
+
+#[cfg(feature = "serde")]
+fn paper_initial_drift_sigma_deg_h() -> f64 {
+    PAPER_INITIAL_DRIFT_SIGMA_DEG_H
+}
+
+/// Which estimator corrects the attitude and drift at star-tracker frames.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum Estimator {
+    /// The paper's eq. (6) Luenberger observer with fixed (steady-state Kalman) gains.
+    #[default]
+    Luenberger,
+    /// A multiplicative extended Kalman filter: attitude error and gyro bias, 6 states,
+    /// its own running covariance gives the gains, the gate and the 1σ.
+    Mekf,
+}
+
+impl Estimator {
+    /// Its code in the binary table (byte 461).
+    pub const fn code(self) -> u8 {
+        match self {
+            Estimator::Luenberger => 0,
+            Estimator::Mekf => 1,
+        }
+    }
+
+    /// The estimator of binary code `c`, `None` for a code this format does not define.
+    pub const fn from_code(c: u8) -> Option<Estimator> {
+        match c {
+            0 => Some(Estimator::Luenberger),
+            1 => Some(Estimator::Mekf),
+            _ => None,
+        }
+    }
 }
 
 impl ObserverConfig {
@@ -189,6 +237,8 @@ impl ObserverConfig {
         st_sigma_arcsec: 20.0 / 3.0,
         st_period_s: 0.25,
         gains_override: None,
+        estimator: Estimator::Luenberger,
+        initial_drift_sigma_deg_h: PAPER_INITIAL_DRIFT_SIGMA_DEG_H,
     };
 }
 

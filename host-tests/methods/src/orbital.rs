@@ -705,7 +705,7 @@ pub fn calibration_flight(fog: FogSpec, star: StarSpec, hold_s: f64, turn_s: f64
         motion: MotionSpec { slews, ..Default::default() },
         fog,
         star_tracker: star,
-        table: TableSpec { source: TableSource::Nominal, file: None, observer: None },
+        table: TableSpec { source: TableSource::Nominal, file: None, observer: None, estimator: None },
         links: Default::default(),
         base_dir: Default::default(),
     }

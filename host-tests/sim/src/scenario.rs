@@ -27,7 +27,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
 use serde::{Deserialize, Serialize};
-use ssis::calib::{CalibrationTable, ObserverConfig};
+use ssis::calib::{CalibrationTable, Estimator, ObserverConfig};
 use ssis::flight::Profile;
 
 use crate::fog::FogSpec;
@@ -76,6 +76,9 @@ pub struct TableSpec {
     pub file: Option<PathBuf>,
     /// Observer settings (noise figures, gain override) replacing the table's.
     pub observer: Option<ObserverConfig>,
+    /// The estimator that flies (`"luenberger"`, `"mekf"`), replacing the table's (and
+    /// `observer`'s) choice.
+    pub estimator: Option<Estimator>,
 }
 
 /// Link impairments.
@@ -239,8 +242,20 @@ impl Scenario {
         if let Some(o) = self.table.observer {
             t.observer = o;
         }
+        if let Some(e) = self.table.estimator {
+            t.observer.estimator = e;
+        }
         t.validate().map_err(|e| anyhow::anyhow!("unit table invalid: {e}"))?;
         Ok(t)
+    }
+}
+
+/// An estimator named on a command line (`--estimator`): `luenberger` or `mekf`.
+pub fn parse_estimator(s: &str) -> std::result::Result<Estimator, String> {
+    match s {
+        "luenberger" => Ok(Estimator::Luenberger),
+        "mekf" => Ok(Estimator::Mekf),
+        other => Err(format!("`{other}` is not an estimator: luenberger or mekf")),
     }
 }
 

@@ -93,6 +93,10 @@ struct Args {
     /// Shorten the scenario to this many seconds.
     #[arg(long)]
     duration: Option<f64>,
+    /// The estimator that flies, replacing the scenario's: `luenberger` (the paper's
+    /// eq. 6 observer) or `mekf` (spacecraft scenarios).
+    #[arg(long, value_parser = ssis_sim::scenario::parse_estimator)]
+    estimator: Option<ssis::calib::Estimator>,
     #[command(flatten)]
     flags: cli::Flags,
 }
@@ -118,6 +122,9 @@ fn real_main(a: Args) -> Result<bool> {
     if let Some(d) = a.duration {
         sc.duration_s = d;
         sc.settle_s = sc.settle_s.min(d / 2.0);
+    }
+    if a.estimator.is_some() {
+        sc.table.estimator = a.estimator;
     }
     let csv_path = a.out.join(format!("{}-qemu.csv", sc.name));
     let svg = a.out.join(format!("{}-qemu.svg", sc.name));

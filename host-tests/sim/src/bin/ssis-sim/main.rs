@@ -9,7 +9,7 @@ use std::time::Instant;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use ssis::calib::{store, CalibrationTable, ObserverConfig};
+use ssis::calib::{store, CalibrationTable, Estimator, ObserverConfig};
 use ssis::observer::steady_state_gains;
 use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin};
@@ -44,6 +44,10 @@ enum Cmd {
         /// Run a scenario longer than 30 days of simulated time.
         #[arg(long)]
         allow_long: bool,
+        /// The estimator that flies, replacing the scenario's: `luenberger` (the paper's
+        /// eq. 6 observer) or `mekf`.
+        #[arg(long, value_parser = ssis_sim::scenario::parse_estimator)]
+        estimator: Option<Estimator>,
     },
     /// Replay a recorded log (docs/RECORDED-LOG.md: a CSV, or raw captures of the links)
     /// through the flight core: the summary against truth where the log has it, and the
@@ -223,9 +227,9 @@ fn main() -> ExitCode {
             let _ = cli::finish(r.map(|_| true));
             ExitCode::from(code)
         }
-        Cmd::Run { scenario, csv, every, allow_long } => {
+        Cmd::Run { scenario, csv, every, allow_long, estimator } => {
             stop_on_ctrl_c();
-            let r = run_scenario(&scenario, csv, every.max(1), allow_long);
+            let r = run_scenario(&scenario, csv, every.max(1), allow_long, estimator);
             let code = match &r {
                 Ok(RunEnd::SilentSource) => Some(EXIT_SILENT_SOURCE),
                 Ok(RunEnd::Interrupted) => Some(EXIT_INTERRUPTED),
@@ -284,8 +288,8 @@ fn files(cmd: &Cmd) -> Result<()> {
 
 fn real_main(cmd: Cmd) -> Result<()> {
     match cmd {
-        Cmd::Run { scenario, csv, every, allow_long } => {
-            run_scenario(&scenario, csv, every.max(1), allow_long).map(|_| ())
+        Cmd::Run { scenario, csv, every, allow_long, estimator } => {
+            run_scenario(&scenario, csv, every.max(1), allow_long, estimator).map(|_| ())
         }
         Cmd::Replay { .. } => Ok(()),
         Cmd::Table { cmd } => table_cmd(cmd),
@@ -296,7 +300,7 @@ fn real_main(cmd: Cmd) -> Result<()> {
                 rrw_deg_h_sqrt_h: rrw,
                 st_sigma_arcsec: st_sigma,
                 st_period_s: st_period,
-                gains_override: None,
+                ..ObserverConfig::PAPER
             };
             let g = steady_state_gains(&cfg).map_err(|e| anyhow::anyhow!("no gains: {e:?}"))?;
             cli::report("gains", || json!({"k_b": g.k_b[0], "k_u_per_s": g.k_u_per_s[0], "st_period_s": st_period}));
@@ -308,8 +312,17 @@ fn real_main(cmd: Cmd) -> Result<()> {
 
 /// Runs a scenario: the summary, a CSV with `--csv`; how it ended (a source that
 /// delivered nothing, Ctrl-C: the partial summary, no CSV and no `.partial` file left).
-fn run_scenario(path: &Path, csv: Option<PathBuf>, every: u64, allow_long: bool) -> Result<RunEnd> {
-    let sc = Scenario::from_file_with(path, allow_long)?;
+fn run_scenario(
+    path: &Path,
+    csv: Option<PathBuf>,
+    every: u64,
+    allow_long: bool,
+    estimator: Option<Estimator>,
+) -> Result<RunEnd> {
+    let mut sc = Scenario::from_file_with(path, allow_long)?;
+    if estimator.is_some() {
+        sc.table.estimator = estimator;
+    }
     let dt = sc.profile.profile().dt_s();
     let steps = (sc.duration_s / dt).round() as u64;
     let bar = ProgressBar::new(steps);

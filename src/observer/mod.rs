@@ -25,13 +25,20 @@
 //! the steady-state Kalman gains of the per-axis model (attitude error, drift) for stated
 //! noise figures (Farrenkopf 1978); a fixed-gain observer with these gains matches the
 //! Kalman filter in steady state (4 Hz → K = [0.0224, 1.24e-5 /s]).
+//!
+//! The table may select instead a multiplicative extended Kalman filter
+//! ([`Estimator::Mekf`], [`mekf`]): the same history, alignment of the time tag, lazy fix
+//! and re-acquisition, with the gains, the gate and the 1σ from its own 6-state covariance.
+
+pub mod mekf;
 
 use heapless::Deque;
 use nalgebra::{Quaternion, Vector3};
 
 use crate::attitude::Attitude;
-use crate::calib::{ObserverConfig, ObserverGains};
+use crate::calib::{Estimator, ObserverConfig, ObserverGains};
 use crate::math;
+use mekf::MekfCov;
 
 const ARCSEC_RAD: f64 = core::f64::consts::PI / 180.0 / 3600.0;
 const DEG_RAD: f64 = core::f64::consts::PI / 180.0;
@@ -214,6 +221,16 @@ pub struct Observer<const H: usize> {
     /// ([`Observer::sigmas`]): the start of the next step's Newton step; 0 none yet.
     sigma_roots: [f64; 2],
     streak: Streak,
+    /// The estimator that flies.
+    estimator: Estimator,
+    /// The MEKF's covariance after its last update (used only with [`Estimator::Mekf`]).
+    mekf: MekfCov,
+    /// The MEKF's last 1σ roots (attitude x y z, drift x y z), as `sigma_roots`.
+    mekf_roots: [f64; 6],
+    /// Drift variance at alignment, (rad/s)² per axis (the MEKF's initial P_bb).
+    initial_drift_var_rad2_s2: f64,
+    /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
+    last_q: Quaternion<f64>,
 }
 
 /// Consecutive gated frames and their running sums (re-acquisition).
@@ -244,6 +261,11 @@ impl<const H: usize> Observer<H> {
             cov: [0.0; 3],
             sigma_roots: [0.0; 2],
             streak: Streak::default(),
+            estimator: Estimator::Luenberger,
+            mekf: MekfCov::aligned(0.0, 0.0),
+            mekf_roots: [0.0; 6],
+            initial_drift_var_rad2_s2: 0.0,
+            last_q: Quaternion::identity(),
         }
     }
 
@@ -251,7 +273,10 @@ impl<const H: usize> Observer<H> {
     pub fn from_config(cfg: &ObserverConfig) -> Result<Self, GainError> {
         let steady = steady_state(cfg)?;
         let gains = cfg.gains_override.unwrap_or(steady.gains);
-        Ok(Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady))
+        let mut o = Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady);
+        o.estimator = cfg.estimator;
+        o.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
+        Ok(o)
     }
 
     /// A new table's figures (a table switch): its gains, star-tracker noise and gate
@@ -262,7 +287,29 @@ impl<const H: usize> Observer<H> {
         self.gains = cfg.gains_override.unwrap_or(steady.gains);
         self.sigma_st_rad = cfg.st_sigma_arcsec * ARCSEC_RAD;
         self.steady = steady;
+        self.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
+        if cfg.estimator != self.estimator {
+            // The covariance carries over: per axis into the MEKF's blocks, or the MEKF's
+            // mean per axis into the observer's running one (both as of the last update).
+            let i = nalgebra::Matrix3::identity();
+            match cfg.estimator {
+                Estimator::Mekf => {
+                    let [p11, p12, p22] = self.cov;
+                    self.mekf = MekfCov { paa: i * p11, pab: i * p12, pbb: i * p22 };
+                }
+                Estimator::Luenberger => {
+                    let m = &self.mekf;
+                    self.cov = [m.paa.trace() / 3.0, m.pab.trace() / 3.0, m.pbb.trace() / 3.0];
+                }
+            }
+            self.estimator = cfg.estimator;
+        }
         Ok(())
+    }
+
+    /// The estimator that flies.
+    pub fn estimator(&self) -> Estimator {
+        self.estimator
     }
 
     /// Gains in use.
@@ -374,14 +421,20 @@ impl<const H: usize> Observer<H> {
     fn propagated(&self, time_us: u64) -> [f64; 3] {
         let st = &self.steady;
         let [p11, p12, p22] = self.cov;
-        let gap_us = self.last_update_tag_us.map_or(0, |t| time_us.saturating_sub(t));
-        let tau = f64::from(u32::try_from(gap_us).unwrap_or(u32::MAX)) * 1e-6;
+        let tau = self.since_update_s(time_us);
         let (sv2, su2) = (st.arw_var_rad2_s, st.rrw_var_rad2_s3);
         [
             p11 - 2.0 * tau * p12 + tau * tau * p22 + sv2 * tau + su2 * tau * tau * tau / 3.0,
             p12 - tau * p22 - su2 * tau * tau / 2.0,
             p22 + su2 * tau,
         ]
+    }
+
+    /// Seconds from the last update's time tag to `time_us` (0 before any).
+    #[inline(always)]
+    fn since_update_s(&self, time_us: u64) -> f64 {
+        let gap_us = self.last_update_tag_us.map_or(0, |t| time_us.saturating_sub(t));
+        f64::from(u32::try_from(gap_us).unwrap_or(u32::MAX)) * 1e-6
     }
 
     /// The 1σ of the attitude error (rad) and of the drift error (rad/s) per axis at
@@ -392,19 +445,39 @@ impl<const H: usize> Observer<H> {
     /// Each root is one Newton step x ← (x + P/x)/2 from the last step's (relative error
     /// ε²/2 for a start off by ε: below 2e-3 whenever P moved by less than 12.5 %, as it
     /// does from step to step and at an update), and a full square root otherwise.
+    ///
+    /// With the MEKF: the diagonals of its P_aa and P_bb, per axis ([`MekfCov::diagonals`]).
     pub fn sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
         if !self.aligned {
             self.sigma_roots = [0.0; 2];
+            self.mekf_roots = [0.0; 6];
             return ([f64::INFINITY; 3], [f64::INFINITY; 3]);
+        }
+        if self.estimator == Estimator::Mekf {
+            return self.mekf_sigmas(time_us);
         }
         let [p11, _, p22] = self.propagated(time_us);
         let [a, d] = &mut self.sigma_roots;
         for (x, p) in [(a, p11), (d, p22)] {
-            let near = *x > 0.0 && (*x * *x - p).abs() <= 0.125 * p;
-            *x = if near { 0.5 * (*x + p / *x) } else { math::sqrt(p.max(0.0)) };
+            mekf::root(x, p);
         }
         let [a, d] = self.sigma_roots;
         ([a; 3], [d; 3])
+    }
+
+    /// [`Observer::sigmas`] of the MEKF (out of line: the observer's step stays as short
+    /// as it was).
+    #[inline(never)]
+    fn mekf_sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
+        let st = &self.steady;
+        let tau = self.since_update_s(time_us);
+        let (pa, pb) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let mut out = [0.0; 6];
+        for ((o, x), p) in out.iter_mut().zip(self.mekf_roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
+            *o = mekf::root(x, p);
+        }
+        let [a0, a1, a2, d0, d1, d2] = out;
+        ([a0, a1, a2], [d0, d1, d2])
     }
 
     /// Expected variance of a mismatch per axis, rad², for a frame with time tag
@@ -412,7 +485,15 @@ impl<const H: usize> Observer<H> {
     /// fixed gains in the Joseph form at each update, the gyros' random walks between),
     /// so an outage widens the gate as the attitude uncertainty grows and the return
     /// narrows it again only as fast as the observer really converges.
+    ///
+    /// With the MEKF: the mean per axis of its P_aa propagated to `time_us`, plus R.
     pub fn mismatch_var_rad2(&self, time_us: u64) -> f64 {
+        if self.estimator == Estimator::Mekf {
+            let st = &self.steady;
+            let tau = self.since_update_s(time_us);
+            let (pa, _) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+            return pa.iter().sum::<f64>() / 3.0 + st.r_rad2;
+        }
         self.propagated(time_us)[0] + self.steady.r_rad2
     }
 
@@ -497,32 +578,26 @@ impl<const H: usize> Observer<H> {
             self.apply(att, now_us, time_us, &c, &Vector3::zeros());
             self.aligned = true;
             self.last_update_tag_us = Some(time_us);
-            // Aligned to one frame; the drift is known to ten times its steady state.
+            // Aligned to one frame; the drift is known to ten times its steady state
+            // (the observer), or to the table's initial drift 1σ (the MEKF).
             self.cov = [self.steady.r_rad2, 0.0, 100.0 * self.steady.drift_var_rad2_s2];
+            self.mekf = MekfCov::aligned(self.steady.r_rad2, self.initial_drift_var_rad2_s2);
+            self.last_q = c * q_at;
             self.stats.updates = self.stats.updates.saturating_add(1);
             return Ok(Vector3::zeros());
         }
         let e = math::rotvec_from_quat(&(q_at.conjugate() * q_meas));
+        if self.estimator == Estimator::Mekf {
+            return self.update_mekf(att, now_us, time_us, &q_at, &e);
+        }
         let e2 = e.norm_squared();
         if self.converged() {
             let var = self.mismatch_var_rad2(time_us);
             if e2 > CHI2_GATE * var {
-                let s = &mut self.streak;
-                s.n = s.n.saturating_add(1);
-                s.e += e;
-                s.ee += e2;
-                // Spread of the streak's mismatches about their mean, per frame.
-                let n = f64::from(s.n);
-                let spread = (s.ee - s.e.norm_squared() / n) / n;
-                if s.n < REACQUIRE_FRAMES || spread > CHI2_GATE * var {
-                    self.stats.gated = self.stats.gated.saturating_add(1);
-                    return Err(UpdateError::Gated);
-                }
+                let Some(mean2) = self.streak_reacquires(&e, var) else { return Err(UpdateError::Gated) };
                 // Re-acquire: the frames agree with each other, the attitude is off by
                 // about their mean. The covariance is reset to that (per axis, twice the
                 // mean square), so the gate stays open while the observer closes the gap.
-                self.stats.reacquired = self.stats.reacquired.saturating_add(1);
-                let mean2 = s.e.norm_squared() / (n * n);
                 let [_, _, p22] = self.propagated(time_us);
                 self.cov = [2.0 * mean2 / 3.0, 0.0, p22];
                 self.last_update_tag_us = Some(time_us);
@@ -537,13 +612,84 @@ impl<const H: usize> Observer<H> {
         let c = q_at * math::quat_from_rotvec(&corr) * q_at.conjugate();
         self.apply(att, now_us, time_us, &c, &d_drift);
         self.drift_rad_s += d_drift;
+        self.last_q = c * q_at;
+        self.note_innovation(e2);
+        self.update_cov(time_us);
+        self.last_update_tag_us = Some(time_us);
+        Ok(e)
+    }
+
+    /// The running mean square mismatch per axis (of |e|² = `e2`) and the update count.
+    fn note_innovation(&mut self, e2: f64) {
         let e2 = e2 / 3.0;
         self.innov_ms_rad2 =
             if self.stats.updates <= 1 { e2 } else { self.innov_ms_rad2 + 0.05 * (e2 - self.innov_ms_rad2) };
         self.stats.updates = self.stats.updates.saturating_add(1);
-        self.update_cov(time_us);
+    }
+
+    /// A gated frame into the re-acquisition streak: `Some(mean²)` of the streak's
+    /// mismatch when [`REACQUIRE_FRAMES`] in a row agree with each other within the gate
+    /// (per-axis variance `var`), else `None` (the frame stays refused and is counted).
+    fn streak_reacquires(&mut self, e: &Vector3<f64>, var: f64) -> Option<f64> {
+        let s = &mut self.streak;
+        s.n = s.n.saturating_add(1);
+        s.e += e;
+        s.ee += e.norm_squared();
+        // Spread of the streak's mismatches about their mean, per frame.
+        let n = f64::from(s.n);
+        let spread = (s.ee - s.e.norm_squared() / n) / n;
+        if s.n < REACQUIRE_FRAMES || spread > CHI2_GATE * var {
+            self.stats.gated = self.stats.gated.saturating_add(1);
+            return None;
+        }
+        self.stats.reacquired = self.stats.reacquired.saturating_add(1);
+        Some(s.e.norm_squared() / (n * n))
+    }
+
+    /// The MEKF's update with mismatch `e` at Λ(t_s) = `q_at` ([`mekf`]): the covariance
+    /// propagated over the body's turn since the last update, the χ²₃ gate eᵀ S⁻¹ e from
+    /// it (always once aligned: the covariance, not a convergence test, says how large a
+    /// mismatch may be), the Joseph update, and the corrections K_a e (attitude, body at
+    /// t_s) and K_b e (drift), carried to the present and the history as the observer's.
+    fn update_mekf(
+        &mut self,
+        att: &mut Attitude,
+        now_us: u64,
+        time_us: u64,
+        q_at: &Quaternion<f64>,
+        e: &Vector3<f64>,
+    ) -> Result<Vector3<f64>, UpdateError> {
+        let st = self.steady;
+        let tau = self.since_update_s(time_us);
+        let q_rel = self.last_q.conjugate() * q_at;
+        let mut prior = self.mekf.propagated(&q_rel, tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let mut s_inv = prior.innovation_inverse(st.r_rad2);
+        let d2 = s_inv.map_or(f64::INFINITY, |s| mekf::normalised(e, &s));
+        if d2 > CHI2_GATE {
+            let var = prior.mean_attitude_var_rad2() + st.r_rad2;
+            let Some(mean2) = self.streak_reacquires(e, var) else { return Err(UpdateError::Gated) };
+            // Re-acquire: the attitude is off by about the streak's mean (per axis, twice
+            // its mean square), uncorrelated with the drift.
+            prior.paa = nalgebra::Matrix3::identity() * (2.0 * mean2 / 3.0);
+            prior.pab = nalgebra::Matrix3::zeros();
+            s_inv = prior.innovation_inverse(st.r_rad2);
+        }
+        let Some(s_inv) = s_inv else {
+            self.stats.gated = self.stats.gated.saturating_add(1);
+            return Err(UpdateError::Gated);
+        };
+        self.streak = Streak::default();
+        let gain = prior.update(&s_inv, st.r_rad2);
+        let corr = gain.ka * e;
+        let d_drift = gain.kb * e;
+        let c = q_at * math::quat_from_rotvec(&corr) * q_at.conjugate();
+        self.apply(att, now_us, time_us, &c, &d_drift);
+        self.drift_rad_s += d_drift;
+        self.note_innovation(e.norm_squared());
+        self.mekf = prior;
+        self.last_q = c * q_at;
         self.last_update_tag_us = Some(time_us);
-        Ok(e)
+        Ok(*e)
     }
 
     /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on
@@ -577,4 +723,10 @@ impl<const H: usize> Observer<H> {
         let _ = self.fixes.push_back(fix);
         att.set_quaternion(fix.apply(&att.quaternion(), now_us));
     }
+}
+
+/// The drift variance at alignment of the table's initial drift 1σ, (rad/s)².
+fn initial_drift_var_rad2_s2(cfg: &ObserverConfig) -> f64 {
+    let s = cfg.initial_drift_sigma_deg_h * DEG_RAD / 3600.0;
+    s * s
 }

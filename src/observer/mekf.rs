@@ -1,0 +1,176 @@
+//! The covariance of the multiplicative extended Kalman filter (MEKF), the optional
+//! estimator beside the paper's eq. (6) observer ([`crate::calib::Estimator::Mekf`]).
+//!
+//! States, body frame (ICS) at the time of the last update:
+//!
+//! ```text
+//! x = (δθ, δb),   Λ = Λ̂ ∘ q(δθ),   Δω = Δω̂ + δb
+//! δθ̇ = −[ω̂×] δθ − δb − n_v,   δḃ = n_u
+//! ```
+//!
+//! with Λ the attitude of eq. (6), Δω the gyro drift, n_v the angle random walk (σ_v²,
+//! rad²/s) and n_u the rate random walk (σ_u², rad²/s³). The measurement is the
+//! mismatch of eq. (6), e = 2 vect(Λ̂⁻¹ ∘ Λ*) = δθ + v, v ~ N(0, R I): H = [I 0].
+//!
+//! The attitude itself is propagated every step on the gyros, as for the observer; the
+//! covariance is propagated only to each frame's time tag t_s, over the whole interval
+//! τ since the last update at once:
+//!
+//! ```text
+//! Φ = [[A, −B], [0, I]],   A = C(Λ̂(t_l)⁻¹ ∘ Λ̂(t_s))ᵀ,   B = τ (A + I) / 2
+//! Q = [[(σ_v² τ + σ_u² τ³/3) I, −σ_u² τ²/2 I], [−σ_u² τ²/2 I, σ_u² τ I]]
+//! ```
+//!
+//! (A maps an error in the body at t_l to the body at t_s; B is the trapezoid of
+//! ∫A(t) dt, exact for a constant rate to O((ωτ)²), below 1e-5 relative for 1 °/s over
+//! 0.25 s). The update is the Joseph form with the full 3 × 3 innovation covariance
+//! S = P_aa + R I, and the χ² gate is eᵀ S⁻¹ e. Stored as three 3 × 3 blocks
+//! P_aa, P_ab, P_bb (P_ba = P_abᵀ), 216 bytes.
+
+use nalgebra::{Matrix3, Quaternion, Vector3};
+
+use crate::math;
+
+/// The MEKF's covariance (blocks of the 6 × 6 P) after its last update.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MekfCov {
+    /// Attitude error, rad².
+    pub paa: Matrix3<f64>,
+    /// Attitude error × bias error, rad²/s.
+    pub pab: Matrix3<f64>,
+    /// Bias error, rad²/s².
+    pub pbb: Matrix3<f64>,
+}
+
+/// The gain of one update: K = [K_a; K_b] (attitude, rad/rad; bias, 1/s).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MekfGain {
+    /// Attitude rows.
+    pub ka: Matrix3<f64>,
+    /// Bias rows, 1/s.
+    pub kb: Matrix3<f64>,
+}
+
+/// The rotation matrix C(q) of a unit quaternion: v_ref = C v_body (q ∘ v ∘ q̃).
+pub fn dcm(q: &Quaternion<f64>) -> Matrix3<f64> {
+    let (w, x, y, z) = (q.w, q.i, q.j, q.k);
+    Matrix3::new(
+        1.0 - 2.0 * (y * y + z * z),
+        2.0 * (x * y - w * z),
+        2.0 * (x * z + w * y),
+        2.0 * (x * y + w * z),
+        1.0 - 2.0 * (x * x + z * z),
+        2.0 * (y * z - w * x),
+        2.0 * (x * z - w * y),
+        2.0 * (y * z + w * x),
+        1.0 - 2.0 * (x * x + y * y),
+    )
+}
+
+/// Symmetric part of `m` (removes the rounding asymmetry of the products).
+fn sym(m: &Matrix3<f64>) -> Matrix3<f64> {
+    (m + m.transpose()) * 0.5
+}
+
+/// Inverse of a symmetric positive definite 3 × 3 matrix by cofactors; `None` if it is
+/// singular or not finite.
+fn inverse_spd(s: &Matrix3<f64>) -> Option<Matrix3<f64>> {
+    let c11 = s.m22 * s.m33 - s.m23 * s.m32;
+    let c12 = s.m23 * s.m31 - s.m21 * s.m33;
+    let c13 = s.m21 * s.m32 - s.m22 * s.m31;
+    let det = s.m11 * c11 + s.m12 * c12 + s.m13 * c13;
+    if !(det.is_finite() && det > 0.0) {
+        return None;
+    }
+    let c22 = s.m11 * s.m33 - s.m13 * s.m31;
+    let c23 = s.m12 * s.m31 - s.m11 * s.m32;
+    let c33 = s.m11 * s.m22 - s.m12 * s.m21;
+    let inv = 1.0 / det;
+    Some(Matrix3::new(c11, c12, c13, c12, c22, c23, c13, c23, c33) * inv)
+}
+
+impl MekfCov {
+    /// At alignment on one frame: the attitude known to the star tracker's noise `r_rad2`,
+    /// the drift to `drift_var_rad2_s2` per axis, uncorrelated.
+    pub fn aligned(r_rad2: f64, drift_var_rad2_s2: f64) -> Self {
+        MekfCov {
+            paa: Matrix3::identity() * r_rad2,
+            pab: Matrix3::zeros(),
+            pbb: Matrix3::identity() * drift_var_rad2_s2,
+        }
+    }
+
+    /// The covariance at `tau_s` after the last update, the body having turned by
+    /// `q_rel` (Λ̂(t_l)⁻¹ ∘ Λ̂(t_s)) meanwhile (module doc: Φ P Φᵀ + Q).
+    pub fn propagated(&self, q_rel: &Quaternion<f64>, tau_s: f64, arw_var_rad2_s: f64, rrw_var_rad2_s3: f64) -> Self {
+        let a = dcm(q_rel).transpose();
+        let b = (a + Matrix3::identity()) * (0.5 * tau_s);
+        let (sv2, su2, t) = (arw_var_rad2_s, rrw_var_rad2_s3, tau_s);
+        let i = Matrix3::identity();
+        let apab = a * self.pab;
+        let bpbb = b * self.pbb;
+        let cross = apab * b.transpose();
+        let paa = a * self.paa * a.transpose() - cross - cross.transpose()
+            + bpbb * b.transpose()
+            + i * (sv2 * t + su2 * t * t * t / 3.0);
+        MekfCov { paa: sym(&paa), pab: apab - bpbb - i * (su2 * t * t / 2.0), pbb: self.pbb + i * (su2 * t) }
+    }
+
+    /// The diagonal of P_aa and P_bb at `tau_s` after the last update, the body's turn
+    /// meanwhile left out (what the output's 1σ needs every step, at the cost of a few
+    /// products per axis; exact for an isotropic P, as the star tracker's equal noise on
+    /// every axis makes it in steady state).
+    pub fn diagonals(&self, tau_s: f64, arw_var_rad2_s: f64, rrw_var_rad2_s3: f64) -> ([f64; 3], [f64; 3]) {
+        let (sv2, su2, t) = (arw_var_rad2_s, rrw_var_rad2_s3, tau_s);
+        let q11 = sv2 * t + su2 * t * t * t / 3.0;
+        let (a, ab, b) = (&self.paa, &self.pab, &self.pbb);
+        let att = |paa: f64, pab: f64, pbb: f64| paa - 2.0 * t * pab + t * t * pbb + q11;
+        (
+            [att(a.m11, ab.m11, b.m11), att(a.m22, ab.m22, b.m22), att(a.m33, ab.m33, b.m33)],
+            [b.m11 + su2 * t, b.m22 + su2 * t, b.m33 + su2 * t],
+        )
+    }
+
+    /// The inverse innovation covariance S⁻¹ = (P_aa + R I)⁻¹ of a frame, `None` if S is
+    /// not positive definite (a covariance gone wrong: the frame is not used).
+    pub fn innovation_inverse(&self, r_rad2: f64) -> Option<Matrix3<f64>> {
+        inverse_spd(&(self.paa + Matrix3::identity() * r_rad2))
+    }
+
+    /// The Kalman gain for S⁻¹ = `s_inv`, and the covariance after the update (Joseph
+    /// form: (I − KH) P (I − KH)ᵀ + K R Kᵀ, by blocks with M = I − K_a).
+    pub fn update(&mut self, s_inv: &Matrix3<f64>, r_rad2: f64) -> MekfGain {
+        let pba = self.pab.transpose();
+        let ka = self.paa * s_inv;
+        let kb = pba * s_inv;
+        let m = Matrix3::identity() - ka;
+        let kbt = kb.transpose();
+        let paa = m * self.paa * m.transpose() + ka * ka.transpose() * r_rad2;
+        let pab = m * (self.pab - self.paa * kbt) + ka * kbt * r_rad2;
+        let kb_paa_pba = kb * self.paa - pba;
+        let pbb = kb_paa_pba * kbt - kb * self.pab + self.pbb + kb * kbt * r_rad2;
+        self.paa = sym(&paa);
+        self.pab = pab;
+        self.pbb = sym(&pbb);
+        MekfGain { ka, kb }
+    }
+
+    /// The mean variance per axis of P_aa, rad² (a scalar for the fault logic).
+    pub fn mean_attitude_var_rad2(&self) -> f64 {
+        self.paa.trace() / 3.0
+    }
+}
+
+/// eᵀ S⁻¹ e: the normalised mismatch squared (χ²₃ for a consistent filter).
+pub fn normalised(e: &Vector3<f64>, s_inv: &Matrix3<f64>) -> f64 {
+    e.dot(&(s_inv * e))
+}
+
+/// One Newton step x ← (x + p/x)/2 from the last root when p moved by less than 12.5 %
+/// (relative error ε²/2), a full square root otherwise; `x` is updated and returned.
+#[inline(always)]
+pub fn root(x: &mut f64, p: f64) -> f64 {
+    let near = *x > 0.0 && (*x * *x - p).abs() <= 0.125 * p;
+    *x = if near { 0.5 * (*x + p / *x) } else { math::sqrt(p.max(0.0)) };
+    *x
+}
