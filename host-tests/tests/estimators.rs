@@ -40,7 +40,7 @@ fn steady_3sigma(path: &str, estimator: Estimator, seed: Option<u64>) -> [f64; 3
 fn limit_3sigma(path: &str) -> ([f64; 3], [f64; 3]) {
     let sc = Scenario::from_file(&Path::new(env!("CARGO_MANIFEST_DIR")).join(path)).expect("scenario");
     let t = sc.unit_table(&CalibrationTable::DEFAULT).expect("table");
-    let l = farrenkopf_1sigma_arcsec(&t.observer, &t.axes(), Profile::SPACECRAFT.dt_s());
+    let l = farrenkopf_1sigma_arcsec(&t.observer, &t.axes(), Profile::SPACECRAFT.dt_s(), 0.0);
     (l.posterior_arcsec.map(|x| 3.0 * x), l.period_mean_arcsec.map(|x| 3.0 * x))
 }
 
