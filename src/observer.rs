@@ -546,6 +546,19 @@ impl<const H: usize> Observer<H> {
         Ok(e)
     }
 
+    /// Starts again from an unaligned state (a FOG found mounted wrong before the unit
+    /// reported aligned): the next frame aligns, the drift estimate and the covariance
+    /// start from zero. The attitude history and its pending fixes stay, so that frame
+    /// reads the attitude as it was propagated.
+    pub fn restart(&mut self) {
+        let mut fresh = Self::new(self.gains, self.sigma_st_rad, self.steady);
+        fresh.history = self.history;
+        fresh.head = self.head;
+        fresh.len = self.len;
+        fresh.fixes = self.fixes.clone();
+        *self = fresh;
+    }
+
     /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on
     /// (an isolated gyro's fault): Λ(t) ← Λ(t) ∘ q(−drift · (t − since)) for the present
     /// attitude and, lazily, the history.

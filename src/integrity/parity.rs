@@ -388,6 +388,16 @@ impl ParityMonitor {
         false
     }
 
+    /// Isolates gyro `i` on other evidence (the mounting check found it reversed), in
+    /// any state but an isolation. Returns whether it did.
+    pub fn isolate_mounted_wrong(&mut self, i: usize) -> bool {
+        if self.isolated().is_none() && i < N_FOG {
+            self.isolate(i);
+            return true;
+        }
+        false
+    }
+
     fn isolate(&mut self, i: usize) {
         self.state = FdiState::Isolated(i);
         self.counters.isolations = self.counters.isolations.saturating_add(1);
