@@ -25,8 +25,11 @@ use ssis::math;
 
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::ARCSEC_PER_RAD;
+use ssis_sim::fog::Mounting;
 use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation, StepInput};
 use ssis_sim::scenario::Scenario;
+
+pub mod mounting;
 
 /// What goes wrong.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,6 +62,10 @@ pub enum FaultKind {
     StFrozen,
     /// Every bit on every link flips with this probability.
     BitErrors(f64),
+    /// From power-on, the FOG is mounted backwards (start and duration are ignored).
+    FogFlipped(usize),
+    /// From power-on, the two FOGs are in each other's mounts.
+    FogSwapped(usize, usize),
 }
 
 /// A fault and when it acts.
@@ -127,6 +134,8 @@ pub struct FaultRun {
     pub steps: u64,
     /// The core's counters at the end of the run.
     pub counters: Counters,
+    /// The table axis each FOG channel flew on at the end ([`FlightCore::fog_map`]).
+    pub fog_map: [usize; N_FOG],
 }
 
 /// One step of a fault run, as [`run_observed`] hands it out.
@@ -168,6 +177,11 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
 /// frame: health bits, flags, the attitude error's course).
 pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&FaultStep)) -> Result<FaultRun> {
     let mut sim = Simulation::new(sc)?;
+    match fault.kind {
+        FaultKind::FogFlipped(i) => sim.mount_fogs(Mounting::Flipped(i)),
+        FaultKind::FogSwapped(i, j) => sim.mount_fogs(Mounting::Swapped(i, j)),
+        _ => {}
+    }
     let mut eval = Evaluator::new(&sim);
     let profile = sim.profile;
     let mut core = FlightCore::new(profile, &sim.table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
@@ -242,6 +256,7 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     }
     let c = core.counters();
     r.counters = c;
+    r.fog_map = core.fog_map();
     let fdi = core.fdi().map(|m| m.counters()).unwrap_or_default();
     r.alarms = fdi.alarms;
     r.isolations = fdi.isolations;
@@ -270,6 +285,9 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &Counters) -> bool {
         FaultKind::StOutliers(..) => c.st_updates_gated > 0,
         FaultKind::StFrozen => c.st_frozen > 0,
         FaultKind::BitErrors(_) => c.fog_frames_rejected > 0 || c.st_frames_rejected > 0,
+        FaultKind::FogFlipped(_) | FaultKind::FogSwapped(..) => {
+            any_fdi || out.flags & flags::FOGS_REMAPPED != 0 || out.flags & flags::DEGRADED != 0
+        }
     }
 }
 
@@ -330,7 +348,7 @@ impl Injector {
             return false;
         }
         match fault.kind {
-            FaultKind::None | FaultKind::FogDropout(_) => {}
+            FaultKind::None | FaultKind::FogDropout(_) | FaultKind::FogFlipped(_) | FaultKind::FogSwapped(..) => {}
             FaultKind::StOutage => input.st_bytes.clear(),
             FaultKind::FogStuck(i) => {
                 let v = self.stuck.map_or(0, |s| s[i]);
