@@ -177,11 +177,7 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
 /// frame: health bits, flags, the attitude error's course).
 pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&FaultStep)) -> Result<FaultRun> {
     let mut sim = Simulation::new(sc)?;
-    match fault.kind {
-        FaultKind::FogFlipped(i) => sim.mount_fogs(Mounting::Flipped(i)),
-        FaultKind::FogSwapped(i, j) => sim.mount_fogs(Mounting::Swapped(i, j)),
-        _ => {}
-    }
+    mount_for(&mut sim, fault);
     let mut eval = Evaluator::new(&sim);
     let profile = sim.profile;
     let mut core = FlightCore::new(profile, &sim.table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
@@ -265,6 +261,16 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     r.st_accepted = c.st_frames_accepted;
     r.st_frozen = c.st_frozen;
     Ok(r)
+}
+
+/// Mounts the FOGs of `sim` as `fault` says (an integration fault acts from power-on,
+/// on the simulated sensors rather than on their frames); other faults leave them.
+pub fn mount_for(sim: &mut Simulation, fault: &Fault) {
+    match fault.kind {
+        FaultKind::FogFlipped(i) => sim.mount_fogs(Mounting::Flipped(i)),
+        FaultKind::FogSwapped(i, j) => sim.mount_fogs(Mounting::Swapped(i, j)),
+        _ => {}
+    }
 }
 
 /// Whether the output shows `kind`.
