@@ -1,7 +1,7 @@
 //! Integration faults from power-on: a FOG mounted backwards, two FOGs in each other's
 //! mounts (`ssis::integrity::mounting`), through `ssis_faults::mounting` on the
 //! in-process flight core. Two-minute runs and a few seeds per case; the full Monte
-//! Carlo is the campaign's (`ssis-mounting`, docs/FAULT-CAMPAIGN.md).
+//! Carlo is the campaign's (`mounting_campaign` below, docs/FAULT-CAMPAIGN.md).
 //!
 //! Each fault is flown against the same seed with the FOGs mounted as the table says:
 //! its 3σ (three times the largest axis's RMS from 60 s on) sets the band the error must
@@ -116,5 +116,54 @@ fn a_motionless_power_on_raises_nothing_and_verifies_nothing() {
             let a = m.aligned_at_s.expect("reported aligned");
             assert!(a <= REPORT_SPAN_US as f64 * 1e-6 + 0.5, "aligned reported at {a} s");
         }
+    }
+}
+
+/// The campaign: every flip and swap under orbital rate about (1, 2, 3), and the
+/// nominal power-on of every motion, over `SSIS_MOUNTING_SEEDS` seeds (default 25).
+/// `cd host-tests && cargo test --release --test mounting -- --ignored --nocapture`
+#[test]
+#[ignore]
+fn mounting_campaign() {
+    let seeds: u64 = std::env::var("SSIS_MOUNTING_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(25);
+    let mut kinds: Vec<FaultKind> = (0..4).map(FaultKind::FogFlipped).collect();
+    for (i, j) in [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)] {
+        kinds.push(FaultKind::FogSwapped(i, j));
+    }
+    println!("| fault | runs | right verdict | before ALIGNED | verdict, s (median / max) | ALIGNED, s (max) | back within 2× nominal 3σ, s (median / max) | error max after verdict, ″ |");
+    println!("|---|---|---|---|---|---|---|---|");
+    let nominals: Vec<MountRun> = (1..=seeds).map(|s| fly(100 + s, PowerOnMotion::Skewed, FaultKind::None)).collect();
+    for kind in kinds {
+        let (mut right, mut before, mut v, mut a, mut back, mut worst) = (0, 0, vec![], 0.0f64, vec![], 0.0f64);
+        for (s, nominal) in (1..=seeds).zip(&nominals) {
+            let m = fly(100 + s, PowerOnMotion::Skewed, kind);
+            right += u32::from(mounting::right_verdict(kind, &m));
+            let vt = m.verdict_at_s.unwrap_or(f64::INFINITY);
+            before += u32::from(m.aligned_at_s.is_some_and(|t| t >= vt));
+            v.push(vt);
+            a = a.max(m.aligned_at_s.unwrap_or(f64::INFINITY));
+            back.push(m.back_within_s(2.0 * nominal.three_sigma_arcsec()).unwrap_or(f64::INFINITY));
+            let first = (vt.ceil() as usize).min(m.err_per_s_arcsec.len());
+            worst = m.err_per_s_arcsec[first..].iter().fold(worst, |w, e| w.max(*e));
+        }
+        let med = |x: &mut Vec<f64>| {
+            x.sort_by(f64::total_cmp);
+            (x[x.len() / 2], x[x.len() - 1])
+        };
+        let (vm, vx) = med(&mut v);
+        let (bm, bx) = med(&mut back);
+        println!("| {kind:?} | {seeds} | {right}/{seeds} | {before}/{seeds} | {vm:.2} / {vx:.2} | {a:.2} | {bm:.1} / {bx:.1} | {worst:.1} |");
+    }
+    for motion in PowerOnMotion::ALL {
+        let (mut raised, mut a, mut unverified) = (0, 0.0f64, 0);
+        for s in 1..=seeds {
+            let m = fly(200 + s, motion, FaultKind::None);
+            raised += u32::from(
+                m.verdict_at_s.is_some() || m.run.alarms > 0 || m.run.counters.get(Counter::MountUndecided) > 0,
+            );
+            a = a.max(m.aligned_at_s.unwrap_or(f64::INFINITY));
+            unverified += m.run.counters.get(Counter::MountUnverified);
+        }
+        println!("nominal power-on, {}: {seeds} runs of {RUN_S} s, {raised} raised anything, ALIGNED reported by {a:.2} s at the latest, {unverified} FOGs unverified in all", motion.name());
     }
 }
