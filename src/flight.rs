@@ -580,6 +580,7 @@ impl FlightCore {
     /// there and none is isolated).
     fn check_parity(&mut self, sample: &mut Sample, time_us: u64) -> f64 {
         let Some(fdi) = self.fdi.as_mut() else { return 0.0 };
+        let was_isolated = fdi.isolated().is_some();
         let mut parity_rad = 0.0;
         let drop = match fdi.isolated() {
             Some(i) => Some(i),
@@ -606,6 +607,10 @@ impl FlightCore {
                 }
             }
         };
+        if let (false, Some(i)) = (was_isolated, fdi.isolated()) {
+            // Isolated in this sample: its share leaves the drift estimate too.
+            self.observer.remove_drift_share(time_us, &fdi.drift_share_rad_s(i));
+        }
         if let Some(i) = drop {
             sample.used = sample.used.without(i);
             if let Some(h) = sample.health.get_mut(i) {
@@ -677,6 +682,7 @@ impl FlightCore {
                     self.star_intake.used(now_us);
                     if let Some(iso) = fdi.on_mismatch(&m.e_rad, m.var_rad2) {
                         self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
+                        self.observer.remove_drift_share(now_us, &fdi.drift_share_rad_s(iso.fog));
                     }
                     st_status::LISTENED
                 }

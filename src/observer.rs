@@ -214,6 +214,8 @@ pub struct Observer<const H: usize> {
     /// ([`Observer::sigmas`]): the start of the next step's Newton step; 0 none yet.
     sigma_roots: [f64; 2],
     streak: Streak,
+    /// Unit time of the alignment, µs.
+    aligned_us: Option<u64>,
 }
 
 /// Consecutive gated frames and their running sums (re-acquisition).
@@ -244,6 +246,7 @@ impl<const H: usize> Observer<H> {
             cov: [0.0; 3],
             sigma_roots: [0.0; 2],
             streak: Streak::default(),
+            aligned_us: None,
         }
     }
 
@@ -496,6 +499,7 @@ impl<const H: usize> Observer<H> {
             let c = q_meas * q_at.conjugate();
             self.apply(att, now_us, time_us, &c, &Vector3::zeros());
             self.aligned = true;
+            self.aligned_us = Some(time_us);
             self.last_update_tag_us = Some(time_us);
             // Aligned to one frame; the drift is known to ten times its steady state.
             self.cov = [self.steady.r_rad2, 0.0, 100.0 * self.steady.drift_var_rad2_s2];
@@ -557,6 +561,25 @@ impl<const H: usize> Observer<H> {
         fresh.len = self.len;
         fresh.fixes = self.fixes.clone();
         *self = fresh;
+    }
+
+    /// Takes out of the drift estimate what it has learned of a constant drift
+    /// `share_rad_s` (ICS) present since alignment (an isolated gyro's share), at unit
+    /// time `now_us`. The fixed-gain loop learns a constant drift with its slow pole,
+    /// K_U / K_B per second (about 30 min at 4 Hz): 1 − exp(−t K_U / K_B) of it after t.
+    pub fn remove_drift_share(&mut self, now_us: u64, share_rad_s: &Vector3<f64>) {
+        let Some(t0) = self.aligned_us else { return };
+        let t_s = f64::from(u32::try_from(now_us.saturating_sub(t0) / 1000).unwrap_or(u32::MAX)) * 1e-3;
+        for ((d, s), (k_u, k_b)) in self
+            .drift_rad_s
+            .iter_mut()
+            .zip(share_rad_s.iter())
+            .zip(self.gains.k_u_per_s.iter().zip(self.gains.k_b.iter()))
+        {
+            if *k_b > 0.0 {
+                *d -= s * (1.0 - libm::exp(-t_s * k_u / k_b));
+            }
+        }
     }
 
     /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on

@@ -643,3 +643,45 @@ fn ten_minute_outage_ends_at_the_gyro_coasting_prediction() {
         assert!(*s >= r, "reported {s:.2}″ below the measured {r:.2}″");
     }
 }
+
+/// A constant offset on FOG1 from power-on (3 °/h: the parity baseline takes it for
+/// calibration residue, the observer's drift estimate learns its share u₁ p̄, about
+/// 1.5 °/h by 1800 s), then a 20σ bias step at 1800 s that isolates FOG1 at once: the
+/// isolation takes what the estimate learned of FOG1's share out of it, so the drift
+/// estimate is back at the calibration residue at once and the attitude returns to the
+/// nominal band (it was off by the observer's lag behind the offset before the step).
+#[test]
+fn an_isolation_takes_the_fogs_share_out_of_the_drift_estimate() {
+    let k = scale();
+    let offset_rad_s = 3.0 / ssis_common::DEG_H_PER_RAD_S;
+    let f = Fault {
+        kind: FaultKind::FogOffsetThenStep(0, offset_rad_s, k.bias_for_sigma_rad_s(0, 20.0)),
+        start_s: 1800.0,
+        duration_s: 90.0,
+    };
+    let sd = seed(1, 0);
+    let (mut before, mut after, mut late_err) = (0.0f64, 0.0f64, 0.0f64);
+    let r = run_observed(sd, &f, |s| {
+        let d = s.out.drift_rad_s.amax() * ssis_common::DEG_H_PER_RAD_S;
+        if s.t_s > 1799.0 && s.t_s <= 1800.0 {
+            before = before.max(d);
+        }
+        if s.t_s > 1801.0 && s.t_s <= 1802.0 {
+            after = after.max(d);
+        }
+        if s.t_s > 1860.0 {
+            late_err = late_err.max(max_abs(&s.att_err_arcsec));
+        }
+    });
+    let nom = nominal(sd, &f);
+    println!(
+        "offset 3 °/h on FOG1, step at 1800 s: isolated {:?}; drift estimate (largest axis) {before:.3} °/h before, \
+         {after:.3} °/h after; error from 60 s after the isolation {late_err:.2}″, nominal band {:.2}″",
+        r.isolated,
+        band(&nom)
+    );
+    assert!(r.isolated.is_some_and(|(i, t)| i == 0 && t < 1.0), "isolated {:?}", r.isolated);
+    assert!(before > 1.0, "the drift estimate had not learned FOG1's share: {before:.3} °/h");
+    assert!(after < 0.1, "FOG1's share left in the drift estimate: {after:.3} °/h");
+    assert!(late_err <= band(&nom) + 1.0, "error {late_err:.2}″ a minute after the isolation, band {:.2}″", band(&nom));
+}

@@ -63,6 +63,10 @@ pub enum FaultKind {
     StFrozen,
     /// Every bit on every link flips with this probability.
     BitErrors(f64),
+    /// The FOG carries a constant bias, rad/s, from power-on (the parity baseline takes it
+    /// for calibration residue), and its bias steps by a further amount, rad/s, from the
+    /// fault's start.
+    FogOffsetThenStep(usize, f64, f64),
     /// From power-on, the FOG is mounted backwards (start and duration are ignored).
     FogFlipped(usize),
     /// From power-on, the two FOGs are in each other's mounts.
@@ -307,9 +311,10 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &Counters) -> bool {
         FaultKind::FogNanAsZero(i) => any_fdi || fog_bits(i, health::EXCLUDED | health::STUCK),
         FaultKind::FogDropout(i) => fog_bits(i, health::MISSING),
         FaultKind::FogTempSensor(i) => out.fdi & (1 << i) != 0,
-        FaultKind::FogBiasStep(i, _) | FaultKind::FogDriftRamp(i, _) | FaultKind::FogSpikes(i, _, _) => {
-            any_fdi || fog_bits(i, health::EXCLUDED)
-        }
+        FaultKind::FogBiasStep(i, _)
+        | FaultKind::FogDriftRamp(i, _)
+        | FaultKind::FogSpikes(i, _, _)
+        | FaultKind::FogOffsetThenStep(i, _, _) => any_fdi || fog_bits(i, health::EXCLUDED),
         FaultKind::StOutage => out.st_status & st_status::OUTAGE != 0,
         FaultKind::StOutliers(..) => c.st_updates_gated > 0,
         FaultKind::StFrozen => c.st_frozen > 0,
@@ -362,6 +367,11 @@ impl Injector {
         };
         let lsb = FogFrame::DTHETA_LSB_RAD;
         let dt_s = 0.005;
+        if let FaultKind::FogOffsetThenStep(i, b, step) = fault.kind {
+            let b = if active { b + step } else { b };
+            fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32));
+            return false;
+        }
         if !active {
             if let FaultKind::FogStuck(i) = fault.kind {
                 // Remember the last value before the fault.
@@ -377,7 +387,11 @@ impl Injector {
             return false;
         }
         match fault.kind {
-            FaultKind::None | FaultKind::FogDropout(_) | FaultKind::FogFlipped(_) | FaultKind::FogSwapped(..) => {}
+            FaultKind::None
+            | FaultKind::FogDropout(_)
+            | FaultKind::FogFlipped(_)
+            | FaultKind::FogSwapped(..)
+            | FaultKind::FogOffsetThenStep(..) => {}
             FaultKind::StOutage => input.st_bytes.clear(),
             FaultKind::FogStuck(i) => {
                 let v = self.stuck.map_or(0, |s| s[i]);
