@@ -554,13 +554,17 @@ impl<const H: usize> Observer<H> {
     /// reported aligned): the next frame aligns, the drift estimate and the covariance
     /// start from zero. The attitude history and its pending fixes stay, so that frame
     /// reads the attitude as it was propagated.
+    /// Everything else (gains, figures, the estimator's choice) stays.
     pub fn restart(&mut self) {
-        let mut fresh = Self::new(self.gains, self.sigma_st_rad, self.steady);
-        fresh.history = self.history;
-        fresh.head = self.head;
-        fresh.len = self.len;
-        fresh.fixes = self.fixes.clone();
-        *self = fresh;
+        self.aligned = false;
+        self.aligned_us = None;
+        self.drift_rad_s = Vector3::zeros();
+        self.stats = ObserverStats::default();
+        self.innov_ms_rad2 = 0.0;
+        self.last_update_tag_us = None;
+        self.cov = [0.0; 3];
+        self.sigma_roots = [0.0; 2];
+        self.streak = Streak::default();
     }
 
     /// Takes out of the drift estimate what it has learned of a constant drift
