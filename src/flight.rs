@@ -29,6 +29,7 @@ use crate::frames::fog::{status, FogFrame};
 use crate::frames::star::StarFrame;
 use crate::intake::{FogIntake, Pending, StarIntake};
 use crate::integrity::channel::ChannelMonitor;
+use crate::integrity::mounting::{MountCheck, MountState, MountVerdict};
 use crate::integrity::parity::{FdiState, ParityMonitor, SampleVerdict};
 use crate::link::{RxLink, TxLink};
 use crate::observer::{GainError, Observer, UpdateError};
@@ -169,18 +170,30 @@ pub struct FlightCore {
     /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
     /// step, so after the hot state).
     table_crc: u32,
+    /// The mounting check from power-on (`None` without four FOGs, a star tracker and
+    /// the parity logic).
+    mounting: Option<MountCheck>,
+    /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
+    /// mounting check found two FOGs swapped).
+    fog_map: [usize; N_FOG],
 }
 
 impl FlightCore {
     /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
     /// was invalid and `table` is the default; flagged in every output frame).
     pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
-        let combiner = checked_combiner(profile, table)?;
+        let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
         let observer = Observer::from_config(&table.observer)?;
         let dt = profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
         let fdi = parity_monitor(profile, &combiner, noise_rad, dt);
+        let mounting = (profile.star_tracker && fdi.is_some()).then(|| {
+            let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
+            MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
+        });
         Ok(FlightCore {
+            mounting,
+            fog_map: IDENTITY_MAP,
             profile,
             table: *table,
             table_crc: table_crc(table),
@@ -206,7 +219,7 @@ impl FlightCore {
     /// Whether the core would fly on `table` ([`FlightCore::switch_table`] would take it):
     /// its fitted FOGs span 3-D space and the observer's gains can be computed.
     pub fn check_table(profile: Profile, table: &CalibrationTable) -> Result<(), CoreError> {
-        checked_combiner(profile, table)?;
+        checked_combiner(profile, table, &IDENTITY_MAP)?;
         crate::observer::steady_state(&table.observer)?;
         Ok(())
     }
@@ -224,26 +237,33 @@ impl FlightCore {
     /// So the attitude changes only by what the new values imply. Refused (nothing
     /// changed) if [`FlightCore::check_table`] refuses `table`.
     pub fn switch_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
-        let combiner = checked_combiner(self.profile, table)?;
+        let combiner = checked_combiner(self.profile, table, &self.fog_map)?;
         self.observer.retune(&table.observer)?;
         let dt = self.profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
-        let mut fdi = parity_monitor(self.profile, &combiner, noise_rad, dt);
-        if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
-            new.carry_from(old);
-        }
+        self.install_geometry(combiner, noise_rad);
         for m in self.channel_monitors.iter_mut() {
             m.set_noise(noise_rad);
         }
         for t in self.thermal.iter_mut() {
             t.set_time_constant(dt, table.t_rate_filter_s);
         }
-        self.fdi = fdi;
-        self.combiner = combiner;
         self.mount = table.st_mount();
         self.table = *table;
         self.table_crc = table_crc(table);
         Ok(())
+    }
+
+    /// Flies on `combiner` from the next sample: the parity logic on its geometry, taking
+    /// over an isolated FOG and the counters from the one before.
+    fn install_geometry(&mut self, combiner: Combiner, noise_rad: f64) {
+        let dt = self.profile.dt_s();
+        let mut fdi = parity_monitor(self.profile, &combiner, noise_rad, dt);
+        if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
+            new.carry_from(old);
+        }
+        self.fdi = fdi;
+        self.combiner = combiner;
     }
 
     /// CRC-32 of the table in use (the last four bytes of its binary form).
@@ -327,6 +347,18 @@ impl FlightCore {
     /// parity allows). Never in flight: the per-channel checks stay on.
     pub fn disable_parity_fdi(&mut self) {
         self.fdi = None;
+        self.mounting = None;
+    }
+
+    /// The mounting check from power-on (`None` when the unit has none).
+    pub fn mounting(&self) -> Option<&MountCheck> {
+        self.mounting.as_ref()
+    }
+
+    /// The table axis each FOG channel flies on (identity unless two FOGs were found
+    /// swapped).
+    pub fn fog_map(&self) -> [usize; N_FOG] {
+        self.fog_map
     }
 
     /// The parity fault logic (`None` without four FOGs).
@@ -402,6 +434,11 @@ impl FlightCore {
             // Intake, channel checks, compensation.
             let mut sample = self.take_sample(target, dt_s);
             let time_us = self.fog_intake.time_us(self.profile.dt_us);
+            // Integrity: the mounting check (from power-on) sees every sample of the four.
+            let isolated = self.fdi.as_ref().is_some_and(|m| m.isolated().is_some());
+            if let Some(m) = self.mounting.as_mut().filter(|m| m.checking() && !isolated) {
+                m.on_sample(&sample.dtheta, sample.used == FogSet::ALL, time_us);
+            }
             // Integrity: the parity check may drop a spike or an isolated FOG.
             parity_rad = self.check_parity(&mut sample, time_us);
             degraded |= self.fdi.as_ref().is_some_and(|m| m.alarm());
@@ -465,6 +502,9 @@ impl FlightCore {
         }
         if self.telemetry.output_dropped_last() {
             status_flags |= flags::OUTPUT_DROPPED;
+        }
+        if self.fog_map != IDENTITY_MAP {
+            status_flags |= flags::FOGS_REMAPPED;
         }
         let (att_sigma_rad, drift_sigma_rad_s) = self.observer.sigmas(now_us);
         let out = StepOutput {
@@ -540,6 +580,7 @@ impl FlightCore {
     /// there and none is isolated).
     fn check_parity(&mut self, sample: &mut Sample, time_us: u64) -> f64 {
         let Some(fdi) = self.fdi.as_mut() else { return 0.0 };
+        let was_isolated = fdi.isolated().is_some();
         let mut parity_rad = 0.0;
         let drop = match fdi.isolated() {
             Some(i) => Some(i),
@@ -566,6 +607,10 @@ impl FlightCore {
                 }
             }
         };
+        if let (false, Some(i)) = (was_isolated, fdi.isolated()) {
+            // Isolated in this sample: its share leaves the drift estimate too.
+            self.observer.remove_drift_share(time_us, &fdi.drift_share_rad_s(i));
+        }
         if let Some(i) = drop {
             sample.used = sample.used.without(i);
             if let Some(h) = sample.health.get_mut(i) {
@@ -589,7 +634,7 @@ impl FlightCore {
             }
         }
         let aligned = self.observer.aligned();
-        if aligned {
+        if aligned && self.mounting.as_ref().is_none_or(MountCheck::clear_to_report) {
             status |= st_status::ALIGNED;
         }
         status | self.star_intake.outage(now_us, aligned, &mut self.telemetry.counters)
@@ -609,6 +654,27 @@ impl FlightCore {
         }
         let [w, x, y, z] = f.quaternion();
         let q = Quaternion::new(w, x, y, z);
+        let isolated = self.fdi.as_ref().is_some_and(|m| m.isolated().is_some());
+        if let Some(m) = self.mounting.as_mut().filter(|m| m.checking() && !isolated) {
+            let before = m.state();
+            // Eq. (5): Λ* taken to the ICS.
+            let verdict = m.on_frame(f.time_us, &(q * self.mount.conjugate()));
+            match (before, m.state()) {
+                (MountState::Checking, MountState::Watching { unverified }) => {
+                    self.telemetry.counters.add(Counter::MountUnverified, unverified.count_ones());
+                }
+                (_, MountState::Undecided { .. }) => self.telemetry.counters.bump(Counter::MountUndecided),
+                _ => {}
+            }
+            if let Some(v) = verdict {
+                self.act_on_mounting(v);
+                // The attitude at this frame's tag was propagated on the wrong gyro up to
+                // the present: the observer aligns on the next frame instead.
+                self.star_intake.used(now_us);
+                return st_status::LISTENED;
+            }
+        }
+        let counters = &mut self.telemetry.counters;
         if let Some(fdi) = self.fdi.as_mut().filter(|m| m.listening()) {
             // A FOG is faulty: the observer listens, the fault logic uses the mismatch.
             return match self.observer.listen(f.time_us, &q, &self.mount) {
@@ -616,6 +682,7 @@ impl FlightCore {
                     self.star_intake.used(now_us);
                     if let Some(iso) = fdi.on_mismatch(&m.e_rad, m.var_rad2) {
                         self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
+                        self.observer.remove_drift_share(now_us, &fdi.drift_share_rad_s(iso.fog));
                     }
                     st_status::LISTENED
                 }
@@ -648,6 +715,52 @@ impl FlightCore {
     }
 }
 
+impl FlightCore {
+    /// Acts on the mounting check's verdict: a reversed FOG (or one alone at odds with
+    /// the tracker) is isolated, a swapped pair flown on the corrected assignment; the
+    /// observer starts again, so nothing of the wrong gyro stays in the attitude or the
+    /// drift estimate (the unit has not reported aligned yet).
+    fn act_on_mounting(&mut self, v: MountVerdict) {
+        match v {
+            MountVerdict::Flipped(i) | MountVerdict::Unexplained(i) => {
+                if self.fdi.as_mut().is_some_and(|m| m.isolate_mounted_wrong(i)) {
+                    self.telemetry.counters.bump(Counter::MountIsolated);
+                }
+            }
+            MountVerdict::Swapped(i, j) => {
+                let mut map = self.fog_map;
+                if let (Some(&a), Some(&b)) = (map.get(i), map.get(j)) {
+                    map = map.map(|k| {
+                        if k == a {
+                            b
+                        } else if k == b {
+                            a
+                        } else {
+                            k
+                        }
+                    });
+                }
+                if let Ok(combiner) = checked_combiner(self.profile, &self.table, &map) {
+                    self.fog_map = map;
+                    let noise_rad = sample_noise_rad(&self.table, self.profile.dt_s());
+                    self.install_geometry(combiner, noise_rad);
+                    self.telemetry.counters.bump(Counter::MountSwapped);
+                }
+            }
+        }
+        self.observer.restart();
+    }
+}
+
+/// FOG channel k on the table's axis k: the mounting the table describes.
+const IDENTITY_MAP: [usize; N_FOG] = [0, 1, 2, 3];
+
+/// The table's axes in the order the FOG channels fly on them (`map[k]` for channel k).
+fn mounted_axes(table: &CalibrationTable, map: &[usize; N_FOG]) -> [Vector3<f64>; N_FOG] {
+    let axes = table.axes();
+    map.map(|k| axes.get(k).copied().unwrap_or_else(Vector3::zeros))
+}
+
 /// The counter of a star-tracker frame the observer could not use (not gated): older
 /// than the attitude history is a late frame and newer than it an early one (the unit's
 /// clock, not the frame, is off); only a bad quaternion is a bad frame.
@@ -660,8 +773,8 @@ fn star_refusal(e: UpdateError) -> Counter {
 }
 
 /// The combiner of `table`'s geometry, if the profile's FOGs span 3-D space with it.
-fn checked_combiner(profile: Profile, table: &CalibrationTable) -> Result<Combiner, CoreError> {
-    let combiner = Combiner::new(&table.axes());
+fn checked_combiner(profile: Profile, table: &CalibrationTable, map: &[usize; N_FOG]) -> Result<Combiner, CoreError> {
+    let combiner = Combiner::new(&mounted_axes(table, map));
     match combiner.solution(profile.fogs) {
         Ok(_) => Ok(combiner),
         Err(_) => Err(CoreError::Geometry),

@@ -380,6 +380,45 @@ fn bias_step_on_fog2_in_qemu_is_isolated_as_on_the_host() {
     assert!(err_after_isolation < 30.0, "attitude {err_after_isolation:.1}″ after isolation");
 }
 
+/// A FOG mounted backwards from power-on (FOG4, under orbital rate about (1, 2, 3)): the
+/// firmware's mounting check isolates it before reporting aligned, frame for frame as
+/// the host core does.
+#[test]
+fn flipped_fog4_from_power_on_in_qemu_is_isolated_as_on_the_host() {
+    use ssis::flight::st_status;
+    use ssis_faults::mounting::{self, PowerOnMotion};
+    use ssis_faults::{Fault, FaultKind};
+    let _one = SERIAL.lock().unwrap_or_else(|e| e.into_inner());
+    let elf = build_firmware().expect("firmware builds");
+    let mut sc = mounting::scenario(3, 20.0, PowerOnMotion::Skewed).expect("scenario");
+    sc.settle_s = 10.0;
+    let fault = Fault { kind: FaultKind::FogFlipped(3), start_s: 0.0, duration_s: f64::INFINITY };
+    let opts = QemuOptions { fault: Some(fault), ..QemuOptions::lockstep(elf) };
+    let (mut aligned_at_s, mut isolated_at_s) = (None, None);
+    let mut other_isolated = 0u32;
+    let s = run_qemu(&sc, &opts, |r| {
+        if r.out.st_status & st_status::ALIGNED != 0 {
+            aligned_at_s.get_or_insert(r.t_s);
+        }
+        if r.out.fdi & 0x80 != 0 {
+            isolated_at_s.get_or_insert(r.t_s);
+        }
+        if r.out.fdi & 0x70 != 0 {
+            other_isolated += 1;
+        }
+    })
+    .expect("QEMU run");
+    println!("{}", s.report());
+    println!("FOG4 isolated at {isolated_at_s:?} s, reported aligned at {aligned_at_s:?} s");
+    assert_eq!(s.exit_code, Some(0), "firmware did not end cleanly");
+    assert_eq!(s.frames_out, s.steps);
+    assert_eq!(s.equal_frames, s.steps, "{} frames differ from the host core's", s.differing_frames);
+    let iso = isolated_at_s.expect("FOG4 not isolated");
+    assert!(iso <= 60.0, "FOG4 isolated at {iso} s");
+    assert!(aligned_at_s.is_some_and(|a| a >= iso), "reported aligned at {aligned_at_s:?} s, before the isolation");
+    assert_eq!(other_isolated, 0, "a healthy FOG was isolated");
+}
+
 /// The flight build given every control frame the runner uses (LOCKSTEP, STEP, END,
 /// STALL): it must count and ignore them, keep stepping on its own timer (no lockstep, no
 /// exit, no stall into a watchdog reset), and every output frame before and after them

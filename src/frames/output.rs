@@ -67,6 +67,9 @@ pub mod flags {
     pub const BIT_FAILED: u8 = 1 << 5;
     /// Parity alarm: a FOG is faulty and not yet isolated (the output is degraded).
     pub const FDI_ALARM: u8 = 1 << 6;
+    /// Two FOGs were found swapped in their mounts at power-on: the unit flies on the
+    /// corrected assignment.
+    pub const FOGS_REMAPPED: u8 = 1 << 7;
 }
 
 /// The counters at the end of the output frame, in frame order (saturating u16 each).

@@ -388,6 +388,24 @@ impl ParityMonitor {
         false
     }
 
+    /// Isolates gyro `i` on other evidence (the mounting check found it reversed), in
+    /// any state but an isolation. Returns whether it did.
+    pub fn isolate_mounted_wrong(&mut self, i: usize) -> bool {
+        if self.isolated().is_none() && i < N_FOG {
+            self.isolate(i);
+            return true;
+        }
+        false
+    }
+
+    /// Gyro `i`'s share of the drift the four-gyro combination shows, ICS, rad/s: the
+    /// combination is the triad without i plus u_i p (module doc), so the baseline p̄
+    /// (what calibration left of the gyros' disagreement, or a constant fault taken for
+    /// it) reaches a drift estimate as u_i p̄ / Δt. On isolating i the estimate loses it.
+    pub fn drift_share_rad_s(&self, i: usize) -> Vector3<f64> {
+        self.u.get(i).map_or_else(Vector3::zeros, |u| u * (self.baseline_rad / self.dt_s))
+    }
+
     fn isolate(&mut self, i: usize) {
         self.state = FdiState::Isolated(i);
         self.counters.isolations = self.counters.isolations.saturating_add(1);

@@ -231,6 +231,8 @@ pub struct Observer<const H: usize> {
     initial_drift_var_rad2_s2: f64,
     /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
     last_q: Quaternion<f64>,
+    /// Unit time of the alignment, µs.
+    aligned_us: Option<u64>,
 }
 
 /// Consecutive gated frames and their running sums (re-acquisition).
@@ -266,6 +268,7 @@ impl<const H: usize> Observer<H> {
             mekf_roots: [0.0; 6],
             initial_drift_var_rad2_s2: 0.0,
             last_q: Quaternion::identity(),
+            aligned_us: None,
         }
     }
 
@@ -577,6 +580,7 @@ impl<const H: usize> Observer<H> {
             let c = q_meas * q_at.conjugate();
             self.apply(att, now_us, time_us, &c, &Vector3::zeros());
             self.aligned = true;
+            self.aligned_us = Some(time_us);
             self.last_update_tag_us = Some(time_us);
             // Aligned to one frame; the drift is known to ten times its steady state
             // (the observer), or to the table's initial drift 1σ (the MEKF).
@@ -690,6 +694,43 @@ impl<const H: usize> Observer<H> {
         self.last_q = c * q_at;
         self.last_update_tag_us = Some(time_us);
         Ok(*e)
+    }
+
+    /// Starts again from an unaligned state (a FOG found mounted wrong before the unit
+    /// reported aligned): the next frame aligns, the drift estimate and the covariance
+    /// start from zero. The attitude history and its pending fixes stay, so that frame
+    /// reads the attitude as it was propagated.
+    /// Everything else (gains, figures, the estimator's choice) stays.
+    pub fn restart(&mut self) {
+        self.aligned = false;
+        self.aligned_us = None;
+        self.drift_rad_s = Vector3::zeros();
+        self.stats = ObserverStats::default();
+        self.innov_ms_rad2 = 0.0;
+        self.last_update_tag_us = None;
+        self.cov = [0.0; 3];
+        self.sigma_roots = [0.0; 2];
+        self.mekf_roots = [0.0; 6];
+        self.streak = Streak::default();
+    }
+
+    /// Takes out of the drift estimate what it has learned of a constant drift
+    /// `share_rad_s` (ICS) present since alignment (an isolated gyro's share), at unit
+    /// time `now_us`. The fixed-gain loop learns a constant drift with its slow pole,
+    /// K_U / K_B per second (about 30 min at 4 Hz): 1 − exp(−t K_U / K_B) of it after t.
+    pub fn remove_drift_share(&mut self, now_us: u64, share_rad_s: &Vector3<f64>) {
+        let Some(t0) = self.aligned_us else { return };
+        let t_s = f64::from(u32::try_from(now_us.saturating_sub(t0) / 1000).unwrap_or(u32::MAX)) * 1e-3;
+        for ((d, s), (k_u, k_b)) in self
+            .drift_rad_s
+            .iter_mut()
+            .zip(share_rad_s.iter())
+            .zip(self.gains.k_u_per_s.iter().zip(self.gains.k_b.iter()))
+        {
+            if *k_b > 0.0 {
+                *d -= s * (1.0 - libm::exp(-t_s * k_u / k_b));
+            }
+        }
     }
 
     /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on

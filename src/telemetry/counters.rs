@@ -133,6 +133,10 @@ declare_counters! {
         TableRevision table_revision "the active calibration table's revision (saturating)",
         TableCrcLow table_crc_low "the active calibration table's CRC-32, low 16 bits",
         TableCrcHigh table_crc_high "the active calibration table's CRC-32, high 16 bits",
+        MountIsolated mount_isolated "FOGs isolated by the mounting check: reversed polarity against the star tracker's rotation, or alone at odds with it",
+        MountSwapped mount_swapped "pairs of FOGs found swapped in their mounts by the mounting check (flown on the corrected assignment)",
+        MountUnverified mount_unverified "FOGs the mounting check could not verify in its first 10 s (no turn about their axes; watched on)",
+        MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
     }
     paged [
         FdiAlarms,
@@ -157,6 +161,10 @@ declare_counters! {
         TableRevision,
         TableCrcLow,
         TableCrcHigh,
+        MountIsolated,
+        MountSwapped,
+        MountUnverified,
+        MountUndecided,
     ]
 }
 

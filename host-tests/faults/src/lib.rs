@@ -22,11 +22,15 @@ use ssis::frames::fog::{status, FogFrame};
 use ssis::frames::star::StarFrame;
 use ssis::frames::Frame;
 use ssis::math;
+use ssis::observer::SteadyState;
 
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::ARCSEC_PER_RAD;
+use ssis_sim::fog::Mounting;
 use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation, StepInput};
 use ssis_sim::scenario::Scenario;
+
+pub mod mounting;
 
 /// What goes wrong.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -59,6 +63,14 @@ pub enum FaultKind {
     StFrozen,
     /// Every bit on every link flips with this probability.
     BitErrors(f64),
+    /// The FOG carries a constant bias, rad/s, from power-on (the parity baseline takes it
+    /// for calibration residue), and its bias steps by a further amount, rad/s, from the
+    /// fault's start.
+    FogOffsetThenStep(usize, f64, f64),
+    /// From power-on, the FOG is mounted backwards (start and duration are ignored).
+    FogFlipped(usize),
+    /// From power-on, the two FOGs are in each other's mounts.
+    FogSwapped(usize, usize),
 }
 
 /// A fault and when it acts.
@@ -127,6 +139,12 @@ pub struct FaultRun {
     pub steps: u64,
     /// The core's counters at the end of the run.
     pub counters: Counters,
+    /// The table axis each FOG channel flew on at the end ([`FlightCore::fog_map`]).
+    pub fog_map: [usize; N_FOG],
+    /// Attitude error per axis at the fault's last step, arcsec.
+    pub end_err_arcsec: Option<[f64; 3]>,
+    /// The unit's reported attitude 1σ per axis at the fault's last step, arcsec.
+    pub end_sigma_arcsec: Option<[f64; 3]>,
 }
 
 /// One step of a fault run, as [`run_observed`] hands it out.
@@ -168,6 +186,7 @@ pub fn run(sc: &Scenario, fault: &Fault) -> Result<FaultRun> {
 /// frame: health bits, flags, the attitude error's course).
 pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&FaultStep)) -> Result<FaultRun> {
     let mut sim = Simulation::new(sc)?;
+    mount_for(&mut sim, fault);
     let mut eval = Evaluator::new(&sim);
     let profile = sim.profile;
     let mut core = FlightCore::new(profile, &sim.table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
@@ -225,6 +244,10 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
             }
         }
         last_err = Some(rec.att_err_arcsec);
+        if active {
+            r.end_err_arcsec = Some(rec.att_err_arcsec);
+            r.end_sigma_arcsec = Some(out.att_sigma_rad.map(|s| s * ARCSEC_PER_RAD));
+        }
         if t > fault.start_s {
             if r.detected_after_s.is_none() && shows(&fault.kind, &out, &c) {
                 r.detected_after_s = Some(t - fault.start_s);
@@ -242,6 +265,7 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     }
     let c = core.counters();
     r.counters = c;
+    r.fog_map = core.fog_map();
     let fdi = core.fdi().map(|m| m.counters()).unwrap_or_default();
     r.alarms = fdi.alarms;
     r.isolations = fdi.isolations;
@@ -250,6 +274,30 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     r.st_accepted = c.st_frames_accepted;
     r.st_frozen = c.st_frozen;
     Ok(r)
+}
+
+/// Mounts the FOGs of `sim` as `fault` says (an integration fault acts from power-on,
+/// on the simulated sensors rather than on their frames); other faults leave them.
+pub fn mount_for(sim: &mut Simulation, fault: &Fault) {
+    match fault.kind {
+        FaultKind::FogFlipped(i) => sim.mount_fogs(Mounting::Flipped(i)),
+        FaultKind::FogSwapped(i, j) => sim.mount_fogs(Mounting::Swapped(i, j)),
+        _ => {}
+    }
+}
+
+/// The attitude 1σ per axis after `tau_s` of gyro-only coasting from the steady state
+/// `ss` of the per-axis Kalman filter (Farrenkopf 1978), rad: the posterior at an update,
+/// P₁₁ = (1 − K_B) M₁₁ and P₁₂ = (1 − K_B) M₁₂ with M₁₂ = −K_U (M₁₁ + R), propagated as
+/// P₁₁ − 2τP₁₂ + τ²P₂₂ + σ_v²τ + σ_u²τ³/3.
+pub fn coasting_sigma_rad(ss: &SteadyState, tau_s: f64) -> f64 {
+    let (k_b, k_u) = (ss.gains.k_b[0], ss.gains.k_u_per_s[0]);
+    let m11 = ss.prior_var_rad2;
+    let p11 = (1.0 - k_b) * m11;
+    let p12 = -(1.0 - k_b) * k_u * (m11 + ss.r_rad2);
+    let t = tau_s;
+    (p11 - 2.0 * t * p12 + t * t * ss.drift_var_rad2_s2 + ss.arw_var_rad2_s * t + ss.rrw_var_rad2_s3 * t * t * t / 3.0)
+        .sqrt()
 }
 
 /// Whether the output shows `kind`.
@@ -263,13 +311,17 @@ fn shows(kind: &FaultKind, out: &StepOutput, c: &Counters) -> bool {
         FaultKind::FogNanAsZero(i) => any_fdi || fog_bits(i, health::EXCLUDED | health::STUCK),
         FaultKind::FogDropout(i) => fog_bits(i, health::MISSING),
         FaultKind::FogTempSensor(i) => out.fdi & (1 << i) != 0,
-        FaultKind::FogBiasStep(i, _) | FaultKind::FogDriftRamp(i, _) | FaultKind::FogSpikes(i, _, _) => {
-            any_fdi || fog_bits(i, health::EXCLUDED)
-        }
+        FaultKind::FogBiasStep(i, _)
+        | FaultKind::FogDriftRamp(i, _)
+        | FaultKind::FogSpikes(i, _, _)
+        | FaultKind::FogOffsetThenStep(i, _, _) => any_fdi || fog_bits(i, health::EXCLUDED),
         FaultKind::StOutage => out.st_status & st_status::OUTAGE != 0,
         FaultKind::StOutliers(..) => c.st_updates_gated > 0,
         FaultKind::StFrozen => c.st_frozen > 0,
         FaultKind::BitErrors(_) => c.fog_frames_rejected > 0 || c.st_frames_rejected > 0,
+        FaultKind::FogFlipped(_) | FaultKind::FogSwapped(..) => {
+            any_fdi || out.flags & flags::FOGS_REMAPPED != 0 || out.flags & flags::DEGRADED != 0
+        }
     }
 }
 
@@ -315,6 +367,11 @@ impl Injector {
         };
         let lsb = FogFrame::DTHETA_LSB_RAD;
         let dt_s = 0.005;
+        if let FaultKind::FogOffsetThenStep(i, b, step) = fault.kind {
+            let b = if active { b + step } else { b };
+            fog(input, i, &mut |f| f.dtheta_counts = f.dtheta_counts.saturating_add((b * dt_s / lsb).round() as i32));
+            return false;
+        }
         if !active {
             if let FaultKind::FogStuck(i) = fault.kind {
                 // Remember the last value before the fault.
@@ -330,7 +387,11 @@ impl Injector {
             return false;
         }
         match fault.kind {
-            FaultKind::None | FaultKind::FogDropout(_) => {}
+            FaultKind::None
+            | FaultKind::FogDropout(_)
+            | FaultKind::FogFlipped(_)
+            | FaultKind::FogSwapped(..)
+            | FaultKind::FogOffsetThenStep(..) => {}
             FaultKind::StOutage => input.st_bytes.clear(),
             FaultKind::FogStuck(i) => {
                 let v = self.stuck.map_or(0, |s| s[i]);
@@ -433,6 +494,8 @@ pub struct FaultScale {
     pub v: [f64; N_FOG],
     /// Step, s.
     pub dt_s: f64,
+    /// The observer's steady state (the outage's coasting prediction).
+    pub steady: SteadyState,
 }
 
 impl FaultScale {
@@ -442,7 +505,8 @@ impl FaultScale {
         let core = FlightCore::new(sim.profile, &sim.table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
         let m = core.fdi().ok_or_else(|| anyhow::anyhow!("no parity fault logic for this unit"))?;
         let v = core.combiner().parity_vector();
-        Ok(FaultScale { sigma1_rad: m.sigma1_rad(), v: [v[0], v[1], v[2], v[3]], dt_s: sim.profile.dt_s() })
+        let steady = ssis::observer::steady_state(&sim.table.observer).map_err(|e| anyhow::anyhow!("gains: {e:?}"))?;
+        Ok(FaultScale { sigma1_rad: m.sigma1_rad(), v: [v[0], v[1], v[2], v[3]], dt_s: sim.profile.dt_s(), steady })
     }
 
     /// The bias step on FOG `i` that moves the parity residual by `k` σ₁, rad/s.
@@ -493,7 +557,7 @@ pub fn report(
         family_line(&mut s, name, runs);
     }
     let _ = writeln!(s);
-    outage_lines(&mut s, rows);
+    outage_lines(&mut s, k, rows);
     frame_lines(&mut s, rows, nominal, nominal_hours);
     let _ = writeln!(
         s,
@@ -564,9 +628,30 @@ fn family_line(s: &mut String, name: &str, runs: &[(usize, FaultRun)]) {
 }
 
 /// The star-tracker outage families' attitude errors, a line each.
-fn outage_lines(s: &mut String, rows: &[CampaignRow]) {
+fn outage_lines(s: &mut String, k: &FaultScale, rows: &[CampaignRow]) {
     use std::fmt::Write;
-    for CampaignRow { name, runs, .. } in rows.iter().filter(|r| r.name.starts_with("star tracker outage")) {
+    for CampaignRow { name, runs, fault_s } in rows.iter().filter(|r| r.name.starts_with("star tracker outage")) {
+        let predicted = coasting_sigma_rad(&k.steady, *fault_s) * ARCSEC_PER_RAD;
+        let (rms, sigma) = end_of_outage(runs);
+        let _ = writeln!(
+            s,
+            "- {name}: at the outage's end, per-axis RMS error over the {} runs {:.2} / {:.2} / {:.2} ″ against the \
+             gyro-coasting prediction {predicted:.2} ″ 1σ (ratio {:.2} / {:.2} / {:.2}); the unit's reported 1σ \
+             {:.2} / {:.2} / {:.2} ″ (reported / measured {:.2} / {:.2} / {:.2}).",
+            runs.len(),
+            rms[0],
+            rms[1],
+            rms[2],
+            rms[0] / predicted,
+            rms[1] / predicted,
+            rms[2] / predicted,
+            sigma[0],
+            sigma[1],
+            sigma[2],
+            sigma[0] / rms[0],
+            sigma[1] / rms[1],
+            sigma[2] / rms[2],
+        );
         let errs: Vec<f64> = runs.iter().map(|(_, r)| r.att_during_arcsec.max(r.att_after_arcsec)).collect();
         let within = errs.iter().filter(|&&e| e <= 15.0).count();
         let _ = writeln!(
@@ -580,15 +665,41 @@ fn outage_lines(s: &mut String, rows: &[CampaignRow]) {
     }
 }
 
+/// Per-axis RMS of the attitude error at the fault's last step over `runs`, and the mean
+/// of the unit's reported 1σ there, arcsec.
+pub fn end_of_outage(runs: &[(usize, FaultRun)]) -> ([f64; 3], [f64; 3]) {
+    let (mut ss, mut sig, mut n) = ([0.0f64; 3], [0.0f64; 3], 0.0);
+    for (_, r) in runs {
+        if let (Some(e), Some(s)) = (r.end_err_arcsec, r.end_sigma_arcsec) {
+            for k in 0..3 {
+                ss[k] += e[k] * e[k];
+                sig[k] += s[k];
+            }
+            n += 1.0;
+        }
+    }
+    let n = f64::max(n, 1.0);
+    (ss.map(|x| (x / n).sqrt()), sig.map(|x| x / n))
+}
+
 /// The star-tracker outliers rejected, the nominal frames refused, the corrupted frames
 /// accepted over all runs, and the long nominal flight's figures.
 fn frame_lines(s: &mut String, rows: &[CampaignRow], nominal: Option<&FaultRun>, nominal_hours: f64) {
     use std::fmt::Write;
-    let (mut sent, mut acc, mut nom, mut refused, mut cs, mut ca) = (0u64, 0u64, 0u64, 0u64, 0u64, 0u64);
+    let (mut nom, mut refused, mut cs, mut ca) = (0u64, 0u64, 0u64, 0u64);
+    let pct = |a: u64, b: u64| if b == 0 { 0.0 } else { 100.0 * a as f64 / b as f64 };
+    for CampaignRow { name, runs, .. } in rows.iter().filter(|r| r.name.starts_with("star tracker outliers")) {
+        let sent: u64 = runs.iter().map(|(_, r)| u64::from(r.outliers_sent)).sum();
+        let acc: u64 = runs.iter().map(|(_, r)| u64::from(r.outliers_accepted)).sum();
+        let _ = writeln!(
+            s,
+            "- {name} (rotations about random axes): {} of {sent} rejected ({:.3} %), {acc} taken.",
+            sent - acc,
+            pct(sent - acc, sent)
+        );
+    }
     for CampaignRow { name, runs, .. } in rows {
         for (_, r) in runs {
-            sent += u64::from(r.outliers_sent);
-            acc += u64::from(r.outliers_accepted);
             cs += r.corrupted_sent;
             ca += r.corrupted_accepted;
             if name.starts_with("none") {
@@ -601,14 +712,6 @@ fn frame_lines(s: &mut String, rows: &[CampaignRow], nominal: Option<&FaultRun>,
         nom += u64::from(r.nominal_frames);
         refused += u64::from(r.nominal_refused);
     }
-    let pct = |a: u64, b: u64| if b == 0 { 0.0 } else { 100.0 * a as f64 / b as f64 };
-    let _ = writeln!(
-        s,
-        "- Star-tracker outliers (6σ rotations about random axes): {} of {} rejected ({:.2} %).",
-        sent - acc,
-        sent,
-        pct(sent - acc, sent)
-    );
     let _ = writeln!(
         s,
         "- Star-tracker frames refused once converged on nominal data (the \"none\" runs and the nominal flight): \

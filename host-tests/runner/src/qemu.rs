@@ -654,6 +654,9 @@ pub struct Feed<'a> {
 /// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
 pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Record)) -> Result<QemuSummary> {
     let mut sim = Simulation::new(sc)?;
+    if let Some(f) = &opts.fault {
+        ssis_faults::mount_for(&mut sim, f);
+    }
     let dt_s = sim.profile.dt_s();
     let sigma_st_rad = sc.star_tracker.sigma_3sigma_arcsec / 3.0 / ssis_common::ARCSEC_PER_RAD;
     let mut injector = opts.fault.map(|f| (f, ssis_faults::Injector::new(f, sigma_st_rad, sc.seed)));

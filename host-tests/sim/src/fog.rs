@@ -167,6 +167,18 @@ pub struct FogSample {
     pub g_degc_s: f64,
 }
 
+/// How the FOGs are really mounted, against the table's axes (integration errors).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mounting {
+    /// As the table says.
+    AsTable,
+    /// FOG i mounted backwards: it reads −s_i · ω (its own errors unchanged).
+    Flipped(usize),
+    /// FOGs i and j in each other's mounts: each reads the other's axis with its own
+    /// errors (its frames still carry its own id and temperature).
+    Swapped(usize, usize),
+}
+
 /// The four FOGs of a run.
 pub struct FogModel {
     /// The true deterministic errors as a table (what perfect calibration would store).
@@ -229,6 +241,24 @@ impl FogModel {
             sent_counts: [0; N_FOG],
             counter: 0,
             carry: spec.carry_quantisation,
+        }
+    }
+
+    /// Mounts the FOGs as `m` says from now on (an integration error from power-on when
+    /// called before the first sample).
+    pub fn mount(&mut self, m: Mounting) {
+        match m {
+            Mounting::AsTable => self.axes = self.truth.axes(),
+            Mounting::Flipped(i) => {
+                if let Some(a) = self.axes.get_mut(i) {
+                    *a = -*a;
+                }
+            }
+            Mounting::Swapped(i, j) => {
+                if i < N_FOG && j < N_FOG {
+                    self.axes.swap(i, j);
+                }
+            }
         }
     }
 

@@ -102,6 +102,12 @@ impl Simulation {
         !self.profile.star_tracker || !self.sc.star_tracker.enabled
     }
 
+    /// Mounts the FOGs as `m` says (an integration error; from power-on when called
+    /// before the first step).
+    pub fn mount_fogs(&mut self, m: crate::fog::Mounting) {
+        self.fogs.mount(m);
+    }
+
     /// Turn-on FOG biases drawn, rad/s.
     pub fn fog_random_bias_rad_s(&self) -> [f64; N_FOG] {
         self.fogs.random_bias_rad_s()

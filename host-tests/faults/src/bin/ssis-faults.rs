@@ -140,6 +140,7 @@ fn campaign(args: &Args) -> Result<()> {
         Plan::new("FOG temperature sensor open", &fogs, 30.0, FaultKind::FogTempSensor),
         Plan::new("star tracker outage 10 min", &one, 600.0, |_| FaultKind::StOutage),
         Plan::new("star tracker outliers 6σ (every 4th frame)", &one, 300.0, |_| FaultKind::StOutliers(6.0, 4)),
+        Plan::new("star tracker outliers 10σ (every 4th frame)", &one, 1200.0, |_| FaultKind::StOutliers(10.0, 4)),
         Plan::new("star tracker frozen 60 s", &one, 60.0, |_| FaultKind::StFrozen),
         Plan::new("bit errors 1e-4 on every link, 60 s", &one, 60.0, |_| FaultKind::BitErrors(1e-4)),
         Plan::new("none (nominal, same runs)", &one, 30.0, |_| FaultKind::None),
