@@ -313,7 +313,7 @@ fn misalignment_methods_refuse_miswired_fogs() {
     let col = |name: &str| misalign_turns::TableSim::HEADER.iter().position(|h| *h == name).unwrap();
     let variant = |name: &str, edit: &dyn Fn(&mut Vec<f64>)| {
         let mut rows = rows.clone();
-        rows.iter_mut().for_each(|r| edit(r));
+        rows.iter_mut().for_each(edit);
         let p = tmp(name);
         ssis_methods::write_session_csv(&p, &[], &misalign_turns::TableSim::HEADER, &rows).unwrap();
         let s = read_session(&p, None).unwrap();
