@@ -503,9 +503,6 @@ impl FlightCore {
         if self.telemetry.output_dropped_last() {
             status_flags |= flags::OUTPUT_DROPPED;
         }
-        if self.fog_map != IDENTITY_MAP {
-            status_flags |= flags::FOGS_REMAPPED;
-        }
         let (att_sigma_rad, drift_sigma_rad_s) = self.observer.sigmas(now_us);
         let out = StepOutput {
             time_us: now_us,
@@ -742,6 +739,13 @@ impl FlightCore {
                 }
                 if let Ok(combiner) = checked_combiner(self.profile, &self.table, &map) {
                     self.fog_map = map;
+                    // Flagged in every frame from now on; kept with the fixed flags so
+                    // the step does not compare the maps (a 16-byte memcmp, ~120
+                    // instructions a step).
+                    self.fixed_flags &= !flags::FOGS_REMAPPED;
+                    if map != IDENTITY_MAP {
+                        self.fixed_flags |= flags::FOGS_REMAPPED;
+                    }
                     let noise_rad = sample_noise_rad(&self.table, self.profile.dt_s());
                     self.install_geometry(combiner, noise_rad);
                     self.telemetry.counters.bump(Counter::MountSwapped);
