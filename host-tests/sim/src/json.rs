@@ -66,6 +66,14 @@ pub fn evidence(e: &crate::replay::Evidence) -> Value {
         "st_updates_gated": c.map(|c| c.st_updates_gated),
         "fog_samples_missing": c.map(|c| c.fog_samples_missing),
         "drift_estimate_end_deg_h": e.last.map(|f| f.drift_rad_s().map(|d| d * DEG_H_PER_RAD_S)),
+        "fogs": e.fogs.iter().map(|u| json!({
+            "used": u.used,
+            "missing": u.missing,
+            "refused": u.refused,
+            "excluded": u.excluded,
+            "isolated_at_s": u.isolated_at_us.map(|t| t as f64 * 1e-6),
+        })).collect::<Vec<_>>(),
+        "fogs_remapped_at_s": e.remapped_at_us.map(|t| t as f64 * 1e-6),
     })
 }
 
@@ -116,6 +124,41 @@ pub fn check_report(r: &crate::check::CheckReport) -> Value {
         "parity_best": r.parity_best,
         "fogs": fogs,
         "findings": r.findings,
+        "clean": r.findings.is_empty(),
+    })
+}
+
+/// The conventions check (`docs/JSON.md`, replay: `conventions`).
+pub fn conventions(r: &crate::conventions::ConventionReport) -> Value {
+    let forms: Vec<Value> = r
+        .forms
+        .iter()
+        .map(|f| {
+            json!({
+                "form": f.form.name(),
+                "rms_arcsec": f.rms_arcsec,
+                "fog_scale": f.scale,
+                "fog_scale_se": f.scale_se,
+            })
+        })
+        .collect();
+    let tags = r.tags.map(|t| {
+        json!({
+            "offset_s": t.offset_s,
+            "offset_se_s": t.offset_se_s,
+            "windows": t.windows,
+            "rms_at_zero_arcsec": t.rms_at_zero_arcsec,
+            "rms_fitted_arcsec": t.rms_fitted_arcsec,
+        })
+    });
+    json!({
+        "pairs": r.pairs,
+        "motion_rms_arcsec": r.motion_rms_arcsec,
+        "forms": forms,
+        "best_form": r.best.name(),
+        "time_tags": tags,
+        "findings": r.findings,
+        "unchecked": r.unchecked,
         "clean": r.findings.is_empty(),
     })
 }

@@ -16,9 +16,11 @@
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth).
 //! - [`recorded`], [`replay`], [`check`]: recorded logs (`docs/RECORDED-LOG.md`) replayed through the core.
+//! - [`conventions`]: a log's quaternion form, FOG units and time tags checked against its data.
 
 pub mod accel;
 pub mod check;
+pub mod conventions;
 pub mod corrupt;
 pub mod fog;
 pub mod gnss;

@@ -100,6 +100,26 @@ pub struct Evidence {
     pub parity: AxisStats,
     /// The last output frame.
     pub last: Option<OutputFrame>,
+    /// What became of each FOG's samples over the whole log (from power-on).
+    pub fogs: [FogUse; N_FOG],
+    /// When the unit first flagged two FOGs found swapped and flew them remapped, µs.
+    pub remapped_at_us: Option<u64>,
+}
+
+/// What became of one FOG's samples, from the output frames' health bits and fault-logic
+/// bits.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct FogUse {
+    /// Samples combined.
+    pub used: u64,
+    /// Steps without its sample.
+    pub missing: u64,
+    /// Samples refused by the channel checks: device fault, out of range, stuck.
+    pub refused: u64,
+    /// Steps excluded (isolated, a parity spike, not fitted).
+    pub excluded: u64,
+    /// When the fault logic first isolated it, µs of unit time.
+    pub isolated_at_us: Option<u64>,
 }
 
 impl Evidence {
@@ -115,6 +135,8 @@ impl Evidence {
             st_residual: AxisStats::default(),
             parity: AxisStats::default(),
             last: None,
+            fogs: [FogUse::default(); N_FOG],
+            remapped_at_us: None,
         }
     }
 
@@ -123,6 +145,7 @@ impl Evidence {
         let [w, x, y, z] = f.quaternion();
         let q = Quaternion::new(w, x, y, z);
         self.history.push_back((f.time_us, q));
+        self.count_fogs(f);
         if self.history.len() > 512 {
             self.history.pop_front();
         }
@@ -146,6 +169,28 @@ impl Evidence {
             }
         }
         self.last = Some(*f);
+    }
+
+    /// Counts what became of each FOG's sample in frame `f`.
+    fn count_fogs(&mut self, f: &OutputFrame) {
+        use ssis::flight::health;
+        for (i, (u, h)) in self.fogs.iter_mut().zip(f.fog_health).enumerate() {
+            if h & health::USED != 0 {
+                u.used += 1;
+            } else if h & (health::DEVICE_FAULT | health::OUT_OF_RANGE | health::STUCK) != 0 {
+                u.refused += 1;
+            } else if h & health::MISSING != 0 {
+                u.missing += 1;
+            } else if h & health::EXCLUDED != 0 {
+                u.excluded += 1;
+            }
+            if f.fdi & (0x10 << i) != 0 && u.isolated_at_us.is_none() {
+                u.isolated_at_us = Some(f.time_us);
+            }
+        }
+        if f.flags & ssis::frames::output::flags::FOGS_REMAPPED != 0 && self.remapped_at_us.is_none() {
+            self.remapped_at_us = Some(f.time_us);
+        }
     }
 
     /// The unit's attitude at `t_us`, interpolated between its outputs.
@@ -175,6 +220,47 @@ impl Evidence {
             (self.parity.std()[0].powi(2) + self.parity.mean()[0].powi(2)).sqrt(),
             self.parity.mean()[0]
         ));
+        let fitted: Vec<usize> =
+            (0..N_FOG).filter(|&i| self.fogs[i].used + self.fogs[i].refused + self.fogs[i].missing > 0).collect();
+        if !fitted.is_empty() {
+            s.push_str("  FOG samples (whole log)    used   missing   refused  excluded\n");
+            for &i in &fitted {
+                let u = &self.fogs[i];
+                s.push_str(&format!(
+                    "    FOG{}              {:>10} {:>9} {:>9} {:>9}\n",
+                    i + 1,
+                    u.used,
+                    u.missing,
+                    u.refused,
+                    u.excluded
+                ));
+            }
+            for &i in &fitted {
+                let u = &self.fogs[i];
+                let all = u.used + u.missing + u.refused + u.excluded;
+                if u.refused * 100 > all {
+                    s.push_str(&format!(
+                        "  FOG{} refused {:.1} % of its samples (device fault, out of range or stuck): check its \
+                         column's unit and sign (conventions, below)\n",
+                        i + 1,
+                        100.0 * u.refused as f64 / all.max(1) as f64
+                    ));
+                }
+                if let Some(t) = u.isolated_at_us {
+                    s.push_str(&format!(
+                        "  FOG{} isolated by the fault logic at {:.2} s (`ssis-sim replay --check` names the cause)\n",
+                        i + 1,
+                        t as f64 * 1e-6
+                    ));
+                }
+            }
+        }
+        if let Some(t) = self.remapped_at_us {
+            s.push_str(&format!(
+                "  two FOGs found swapped in their mounts at {:.2} s: the unit flies them remapped\n",
+                t as f64 * 1e-6
+            ));
+        }
         if let Some(f) = &self.last {
             let c = &f.counters;
             s.push_str(&format!(

@@ -7,8 +7,8 @@ use ssis_common::cli;
 use ssis_common::output::{self, Origin, Own};
 use ssis_runner::qemu::{run_feed, Feed};
 use ssis_sim::harness::CSV_HEADER;
-use ssis_sim::recorded;
 use ssis_sim::replay::{farrenkopf_1sigma_arcsec, Evidence, Feed as LogFeed, ReplaySummary};
+use ssis_sim::{conventions, recorded};
 
 use super::Args;
 
@@ -20,6 +20,8 @@ pub fn run(a: &Args) -> Result<bool> {
     };
     let profile = Profile::SPACECRAFT;
     let rec = recorded::read(&a.replay, profile.dt_us)?;
+    let conv = conventions::check_conventions(&rec, &table, profile.dt_us)?;
+    cli::report("conventions", || ssis_sim::json::conventions(&conv));
     let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
     let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
     let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
@@ -70,6 +72,10 @@ pub fn run(a: &Args) -> Result<bool> {
     });
     print!("{}", s.report());
     print!("{}", host_like.report(&rec, Some(limit)));
+    print!("{}", conv.report());
     println!("wrote {}{}", csv_path.display(), if plotted { format!(" and {}", svg.display()) } else { String::new() });
-    Ok(s.clean())
+    if let Some(w) = conv.warning() {
+        println!("{w}");
+    }
+    Ok(s.clean() && conv.findings.is_empty())
 }

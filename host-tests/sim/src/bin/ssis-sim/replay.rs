@@ -10,7 +10,7 @@ use ssis_common::output;
 use ssis_common::plot::{write_svg, PlotPoint};
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay};
-use ssis_sim::{check, recorded};
+use ssis_sim::{check, conventions, recorded};
 
 /// The command's arguments.
 pub struct Args {
@@ -23,7 +23,7 @@ pub struct Args {
     pub check: bool,
 }
 
-/// Runs it; `Ok(false)` when the check finds something.
+/// Runs it; `Ok(false)` when the conventions check or `--check` finds something.
 pub fn run(a: &Args) -> Result<bool> {
     let table = match &a.table {
         Some(p) => ssis_common::table::read_any(p)?.0,
@@ -31,9 +31,19 @@ pub fn run(a: &Args) -> Result<bool> {
     };
     let dt_us = Profile::SPACECRAFT.dt_us;
     let rec = recorded::read(&a.log, dt_us)?;
+    let conv = conventions::check_conventions(&rec, &table, dt_us)?;
+    cli::report("conventions", || ssis_sim::json::conventions(&conv));
     if a.check {
-        let r = check::check(&rec, &table, dt_us)?;
         print!("log: {}\ndamage in the log (counted, skipped):\n{}", rec.origin, rec.problems.report());
+        print!("{}", conv.report());
+        if !conv.findings.is_empty() {
+            println!(
+                "FOG check not run: it reads the FOGs against the star tracker, whose log breaks a convention (above)"
+            );
+            cli::report("damage", || ssis_sim::json::damage(&rec.problems));
+            return Ok(false);
+        }
+        let r = check::check(&rec, &table, dt_us)?;
         print!("{}", r.report());
         cli::report("check", || ssis_sim::json::check_report(&r));
         cli::report("damage", || ssis_sim::json::damage(&rec.problems));
@@ -68,6 +78,7 @@ pub fn run(a: &Args) -> Result<bool> {
     let dt = Profile::SPACECRAFT;
     let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), rec.st_latency_s(dt.dt_us));
     print!("{}", s.report(&rec, Some(limit)));
+    print!("{}", conv.report());
     if let (Some(w), Some(p)) = (writer, &a.csv) {
         w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
         println!("wrote {}", p.display());
@@ -82,5 +93,8 @@ pub fn run(a: &Args) -> Result<bool> {
         ssis_sim::json::add_limit_and_damage(&mut v, &limit, &rec.problems);
         v
     });
-    Ok(true)
+    if let Some(w) = conv.warning() {
+        println!("{w}");
+    }
+    Ok(conv.findings.is_empty())
 }
