@@ -48,6 +48,8 @@ pub const SCALE_TOL: f64 = 0.01;
 pub const TAG_TOL_S: f64 = 0.005;
 /// Pairs needed for any verdict.
 pub const MIN_PAIRS: usize = 20;
+/// Truth quaternions are checked at this spacing, s.
+pub const TRUTH_EVERY_S: f64 = 0.25;
 
 /// How the four star-tracker quaternion columns are read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -83,7 +85,7 @@ impl QuatForm {
     pub fn describe(self) -> &'static str {
         match self {
             QuatForm::AsLogged => "as logged (scalar first, the body in the inertial frame)",
-            QuatForm::Conjugate => "conjugated (the inertial frame in the body: Λ* written as its inverse)",
+            QuatForm::Conjugate => "conjugated (the inertial frame in the body: the quaternion written as its inverse)",
             QuatForm::ScalarLast => "scalar last ((x, y, z, w) in st_q0 … st_q3)",
             QuatForm::ScalarLastConjugate => "scalar last and conjugated",
         }
@@ -137,6 +139,12 @@ pub struct ConventionReport {
     /// The FOGs whose body rotation was used (all the log's, or the triad that fits the
     /// tracker when one FOG spoils it).
     pub fogs: FogSet,
+    /// Whether the star tracker's quaternions, tags and the FOG units were found right
+    /// (or could not be judged): the FOG check (`--check`) reads the FOGs against them.
+    pub tracker_ok: bool,
+    /// The truth quaternions' fits, every reading, the log format's first (empty: no
+    /// truth, or too little of it).
+    pub truth: Vec<FormFit>,
     /// The body rotation between solutions, RMS, arcsec (how much the log moves).
     pub motion_rms_arcsec: f64,
     /// Every form's fit, the log format's first.
@@ -259,46 +267,7 @@ struct Fits {
 impl Fits {
     fn new(rec: &Recorded, table: &CalibrationTable, fogs: FogSet, st: &[(f64, [f64; 4])], dt_s: f64) -> Fits {
         let gyro = Gyro::new(rec, table, fogs, dt_s);
-        let mount_inv = table.st_mount().conjugate();
-        let pairs: Vec<(usize, usize, Vector3<f64>)> = st
-            .windows(2)
-            .enumerate()
-            .filter_map(|(k, w)| {
-                let ((ta, _), (tb, _)) = (w[0], w[1]);
-                if tb <= ta || tb - ta > MAX_PAIR_S || !gyro.complete(ta, tb) {
-                    return None;
-                }
-                Some((k, k + 1, gyro.sum_at(tb)? - gyro.sum_at(ta)?))
-            })
-            .collect();
-        let delta = |form: QuatForm, a: usize, b: usize| {
-            let body = |k: usize| form.read(st[k].1) * mount_inv;
-            rotvec_from_quat(&(body(a).conjugate() * body(b)))
-        };
-        let forms = if pairs.len() < MIN_PAIRS {
-            Vec::new()
-        } else {
-            QuatForm::ALL
-                .iter()
-                .map(|&form| {
-                    let (mut sgg, mut sgs) = (0.0, 0.0);
-                    for &(a, b, g) in &pairs {
-                        sgg += g.norm_squared();
-                        sgs += g.dot(&delta(form, a, b));
-                    }
-                    let scale = if sgg > 0.0 { sgs / sgg } else { 0.0 };
-                    let ss: f64 = pairs.iter().map(|&(a, b, g)| (delta(form, a, b) - g * scale).norm_squared()).sum();
-                    let n = pairs.len() as f64;
-                    let var = ss / (3.0 * n - 1.0).max(1.0);
-                    FormFit {
-                        form,
-                        scale,
-                        scale_se: if sgg > 0.0 { (var / sgg).sqrt() } else { f64::INFINITY },
-                        rms_arcsec: (ss / n).sqrt() * ARCSEC_PER_RAD,
-                    }
-                })
-                .collect()
-        };
+        let (pairs, forms) = fit_forms(&gyro, st, table.st_mount().conjugate());
         Fits { fogs, gyro, pairs, forms }
     }
 
@@ -306,6 +275,69 @@ impl Fits {
     fn best(&self) -> Option<FormFit> {
         self.forms.iter().copied().min_by(|a, b| a.rms_arcsec.total_cmp(&b.rms_arcsec))
     }
+}
+
+/// Every reading's fit of the quaternion series `qs` ((time s, four columns), the body in
+/// the inertial frame after `mount_inv`) to the FOGs over consecutive pairs at most
+/// [`MAX_PAIR_S`] apart: the pairs (indices, S_g) and the fits (none below [`MIN_PAIRS`]).
+#[allow(clippy::type_complexity)]
+fn fit_forms(
+    gyro: &Gyro,
+    qs: &[(f64, [f64; 4])],
+    mount_inv: Quaternion<f64>,
+) -> (Vec<(usize, usize, Vector3<f64>)>, Vec<FormFit>) {
+    let pairs: Vec<(usize, usize, Vector3<f64>)> = qs
+        .windows(2)
+        .enumerate()
+        .filter_map(|(k, w)| {
+            let ((ta, _), (tb, _)) = (w[0], w[1]);
+            if tb <= ta || tb - ta > MAX_PAIR_S || !gyro.complete(ta, tb) {
+                return None;
+            }
+            Some((k, k + 1, gyro.sum_at(tb)? - gyro.sum_at(ta)?))
+        })
+        .collect();
+    if pairs.len() < MIN_PAIRS {
+        return (pairs, Vec::new());
+    }
+    let delta = |form: QuatForm, a: usize, b: usize| {
+        let body = |k: usize| form.read(qs[k].1) * mount_inv;
+        rotvec_from_quat(&(body(a).conjugate() * body(b)))
+    };
+    let forms = QuatForm::ALL
+        .iter()
+        .map(|&form| {
+            let (mut sgg, mut sgs) = (0.0, 0.0);
+            for &(a, b, g) in &pairs {
+                sgg += g.norm_squared();
+                sgs += g.dot(&delta(form, a, b));
+            }
+            let scale = if sgg > 0.0 { sgs / sgg } else { 0.0 };
+            let ss: f64 = pairs.iter().map(|&(a, b, g)| (delta(form, a, b) - g * scale).norm_squared()).sum();
+            let n = pairs.len() as f64;
+            let var = ss / (3.0 * n - 1.0).max(1.0);
+            FormFit {
+                form,
+                scale,
+                scale_se: if sgg > 0.0 { (var / sgg).sqrt() } else { f64::INFINITY },
+                rms_arcsec: (ss / n).sqrt() * ARCSEC_PER_RAD,
+            }
+        })
+        .collect();
+    (pairs, forms)
+}
+
+/// Truth sampled every [`TRUTH_EVERY_S`] (time of the step's end, Λ scalar first).
+fn truth_series(rec: &Recorded, dt_s: f64) -> Vec<(f64, [f64; 4])> {
+    let mut out: Vec<(f64, [f64; 4])> = Vec::new();
+    for (k, s) in rec.steps.iter().enumerate() {
+        let Some(t) = s.truth else { continue };
+        let t_s = (k + 1) as f64 * dt_s;
+        if out.last().is_none_or(|l| t_s - l.0 >= TRUTH_EVERY_S - 0.5 * dt_s) {
+            out.push((t_s, [t.q.w, t.q.i, t.q.j, t.q.k]));
+        }
+    }
+    out
 }
 
 /// Checks `rec`'s conventions against `table` (its FOG axes and star-tracker mount).
@@ -341,9 +373,12 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
             "star-tracker conventions: {} pairs of solutions with FOG data between them (need {MIN_PAIRS})",
             fits.pairs.len()
         ));
+        let truth = check_truth(rec, &fits.gyro, dt_s, &mut findings, &mut unchecked);
         return Ok(ConventionReport {
             pairs: fits.pairs.len(),
             fogs: fits.fogs,
+            tracker_ok: true,
+            truth,
             motion_rms_arcsec: 0.0,
             forms: Vec::new(),
             best: QuatForm::AsLogged,
@@ -434,9 +469,13 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
         }
         None => {}
     }
+    let tracker_ok = findings.is_empty();
+    let truth = check_truth(rec, &fits.gyro, dt_s, &mut findings, &mut unchecked);
     Ok(ConventionReport {
         pairs: fits.pairs.len(),
         fogs: fits.fogs,
+        tracker_ok,
+        truth,
         motion_rms_arcsec,
         forms: fits.forms,
         best: best.form,
@@ -444,6 +483,37 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
         findings,
         unchecked,
     })
+}
+
+/// The truth quaternions' reading against the FOGs, as for the star tracker: a log whose
+/// truth is conjugated or scalar last would score the unit against the wrong attitude.
+fn check_truth(
+    rec: &Recorded,
+    gyro: &Gyro,
+    dt_s: f64,
+    findings: &mut Vec<String>,
+    unchecked: &mut Vec<String>,
+) -> Vec<FormFit> {
+    if !rec.has_truth {
+        return Vec::new();
+    }
+    let (_, forms) = fit_forms(gyro, &truth_series(rec, dt_s), Quaternion::identity());
+    let (Some(best), Some(&logged)) =
+        (forms.iter().copied().min_by(|a, b| a.rms_arcsec.total_cmp(&b.rms_arcsec)), forms.first())
+    else {
+        unchecked.push(format!("truth quaternions: fewer than {MIN_PAIRS} pairs with FOG data between them"));
+        return forms;
+    };
+    if best.form != QuatForm::AsLogged && best.rms_arcsec < FORM_RATIO * logged.rms_arcsec {
+        findings.push(format!(
+            "the truth quaternions read {}: the FOGs follow them with a residual of {:.1}″ per {TRUTH_EVERY_S} s, \
+             against {:.1}″ as logged: the errors against truth would be the convention's, not the unit's",
+            best.form.describe(),
+            best.rms_arcsec,
+            logged.rms_arcsec
+        ));
+    }
+    forms
 }
 
 /// Gauss–Newton fit of the tag offset δ: Δ_s(a, b) ≈ rotvec(q_g(t_a + δ)⁻¹ ∘ q_g(t_b + δ))
@@ -526,6 +596,16 @@ impl ConventionReport {
                 f.scale,
                 f.scale_se,
                 if f.form == self.best { "  <- fits" } else { "" }
+            ));
+        }
+        if let (Some(l), Some(b)) =
+            (self.truth.first(), self.truth.iter().min_by(|a, b| a.rms_arcsec.total_cmp(&b.rms_arcsec)))
+        {
+            s.push_str(&format!(
+                "  truth quaternions: residual {:.1}″ as logged, best reading {} ({:.1}″)\n",
+                l.rms_arcsec,
+                b.form.name(),
+                b.rms_arcsec
             ));
         }
         if let Some(t) = &self.tags {

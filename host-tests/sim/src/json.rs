@@ -156,6 +156,7 @@ pub fn conventions(r: &crate::conventions::ConventionReport) -> Value {
         "motion_rms_arcsec": r.motion_rms_arcsec,
         "forms": forms,
         "best_form": r.best.name(),
+        "truth_forms": r.truth.iter().map(|f| json!({"form": f.form.name(), "rms_arcsec": f.rms_arcsec})).collect::<Vec<_>>(),
         "time_tags": tags,
         "findings": r.findings,
         "unchecked": r.unchecked,

@@ -131,6 +131,23 @@ fn each_wrong_convention_is_named_and_the_clean_log_passes() {
         }
         assert!(out.contains("FOG check not run"), "{name}: {out}");
     }
+    // Truth conjugated: named, and the FOG check still runs on the tracker (clean).
+    let log = s.file(
+        "truth-conjugate.csv",
+        variant(&|v, col| {
+            for c in ["true_q1", "true_q2", "true_q3"].map(col) {
+                if !v[c].is_empty() {
+                    v[c] = format!("{:e}", -num(&v[c]));
+                }
+            }
+        }),
+    );
+    let (code, out) = replay(&s, &log, true);
+    assert_eq!(code, Some(1), "{out}");
+    let f = found(&out);
+    assert_eq!(f.len(), 1, "{out}");
+    assert!(f[0].contains("truth quaternions read conjugated"), "{out}");
+    assert!(out.contains("clean: every FOG"), "the FOG check runs on the tracker: {out}");
     // A tag written on arrival is found at the log's latency (50 ms), within 3σ.
     let log = s.path("tag-on-arrival.csv");
     let (_, out) = replay(&s, &log, true);

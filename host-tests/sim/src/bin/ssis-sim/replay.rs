@@ -36,7 +36,7 @@ pub fn run(a: &Args) -> Result<bool> {
     if a.check {
         print!("log: {}\ndamage in the log (counted, skipped):\n{}", rec.origin, rec.problems.report());
         print!("{}", conv.report());
-        if !conv.findings.is_empty() {
+        if !conv.tracker_ok {
             println!(
                 "FOG check not run: it reads the FOGs against the star tracker, whose log breaks a convention (above)"
             );
@@ -47,7 +47,7 @@ pub fn run(a: &Args) -> Result<bool> {
         print!("{}", r.report());
         cli::report("check", || ssis_sim::json::check_report(&r));
         cli::report("damage", || ssis_sim::json::damage(&rec.problems));
-        return Ok(r.findings.is_empty());
+        return Ok(r.findings.is_empty() && conv.findings.is_empty());
     }
     let mut writer = match &a.csv {
         Some(p) => {
