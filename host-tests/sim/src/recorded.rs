@@ -614,7 +614,10 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
         let q = Quaternion::new(q[0]?, q[1]?, q[2]?, q[3]?);
         let r_e_m = vec3(&c.init_r, xyz_names("init_", "_m"))?;
         let v_e_m_s = vec3(&c.init_v, xyz_names("init_v", "_m_s"))?;
-        Some(NavState { q_eb: q / q.norm(), v_e_m_s, r_e_m })
+        // Kept as written when it is a unit quaternion to the last bits (a pad block
+        // written out exactly replays to the same output); else normalised.
+        let q = if (q.norm() - 1.0).abs() > 1e-12 { q / q.norm() } else { q };
+        Some(NavState { q_eb: q, v_e_m_s, r_e_m })
     })();
     let pos_vel =
         (|| Some((vec3(&c.true_r, xyz_names("true_", "_m"))?, vec3(&c.true_v, xyz_names("true_v", "_m_s"))?)))();
