@@ -8,7 +8,7 @@ mod hostile_common;
 
 use std::path::{Path, PathBuf};
 
-use hostile_common::{damage_time, refused, succeeds, Scratch};
+use hostile_common::{damage_time, has_documented_keys, json_of, refused, succeeds, Scratch};
 use ssis::frames::accel::AccelFrame;
 use ssis::frames::fog::FogFrame;
 use ssis_sim::lv_replay::{pad_for, LvFeed};
@@ -129,13 +129,15 @@ fn launch_vehicle_captures_count_crc_failures_and_need_a_pad_block() {
     // --check is the spacecraft unit's; a pad file that is not one is named.
     s.file("log.csv", std::fs::read(example()).expect("log"));
     refused(EXE, &s, &["replay", "--check", "log.csv"], &["log.csv", "launch-vehicle log"]);
+    has_documented_keys(&json_of(EXE, &s, &["replay", "log.csv", "--json"], true), "ssis-sim replay LV-LOG");
     refused(EXE, &s, &["replay", "links.bin", "--pad", "log.csv"], &["log.csv", "not a pad initialisation block"]);
 }
 
 #[test]
 fn record_writes_a_full_log_and_refuses_what_it_cannot_write() {
     let d = Scratch::new("replay-lv-record");
-    succeeds(EXE, &d, &["record", &scenario(), "ascent.csv", "--duration", "0.5"], &["ascent.csv"]);
+    let v = json_of(EXE, &d, &["record", &scenario(), "ascent.csv", "--duration", "0.5", "--json"], true);
+    has_documented_keys(&v, "ssis-sim record");
     let text = std::fs::read_to_string(d.path("ascent.csv")).expect("written");
     assert!(text.lines().nth(2).is_some_and(|h| h.contains("acc2_t_degc") && h.contains("init_vz_m_s")), "full header");
     assert_eq!(text.lines().count(), 3 + 400);
