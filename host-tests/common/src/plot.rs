@@ -18,15 +18,31 @@ pub struct PlotPoint {
 
 /// Writes a two-panel SVG of `points` to `path` (through [`crate::output`]).
 pub fn write_svg(path: &Path, title: &str, points: &[PlotPoint]) -> Result<()> {
+    let series: Vec<Series> = points.iter().map(|p| (p.t_s, p.att_arcsec, p.rate_deg_h)).collect();
+    write_svg_panels(
+        path,
+        title,
+        ["attitude error, arcsec (x red, y green, z blue)", "rate (drift estimate) error, deg/h"],
+        &series,
+    )
+}
+
+/// One plotted sample of [`write_svg_panels`]: time, s; the top panel's three values; the
+/// bottom panel's.
+pub type Series = (f64, [f64; 3], [f64; 3]);
+
+/// Writes a two-panel SVG of three curves per panel (x red, y green, z blue) over time,
+/// each panel under its caption, to `path` (through [`crate::output`]).
+pub fn write_svg_panels(path: &Path, title: &str, captions: [&str; 2], points: &[Series]) -> Result<()> {
     let mut svg = String::new();
     {
         let root = SVGBackend::with_string(&mut svg, (1100, 800)).into_drawing_area();
         root.fill(&WHITE)?;
         let root = root.titled(title, ("sans-serif", 22))?;
         let (top, bottom) = root.split_vertically(400);
-        let t_max = points.last().map_or(1.0, |p| p.t_s.max(1.0));
-        panel(&top, "attitude error, arcsec (x red, y green, z blue)", t_max, points, |p| p.att_arcsec)?;
-        panel(&bottom, "rate (drift estimate) error, deg/h", t_max, points, |p| p.rate_deg_h)?;
+        let t_max = points.last().map_or(1.0, |p| p.0.max(1.0));
+        panel(&top, captions[0], t_max, points, |p| p.1)?;
+        panel(&bottom, captions[1], t_max, points, |p| p.2)?;
         root.present()?;
     }
     crate::output::write(path, svg.as_bytes())
@@ -36,8 +52,8 @@ fn panel<DB: DrawingBackend>(
     area: &DrawingArea<DB, plotters::coord::Shift>,
     caption: &str,
     t_max: f64,
-    points: &[PlotPoint],
-    pick: impl Fn(&PlotPoint) -> [f64; 3],
+    points: &[Series],
+    pick: impl Fn(&Series) -> [f64; 3],
 ) -> Result<()>
 where
     DB::ErrorType: 'static,
@@ -53,7 +69,7 @@ where
     chart.configure_mesh().x_desc("time, s").draw().map_err(|e| anyhow::anyhow!("{e}"))?;
     for (k, color) in [RED, GREEN, BLUE].iter().enumerate() {
         chart
-            .draw_series(LineSeries::new(points.iter().map(|p| (p.t_s, pick(p)[k])), color))
+            .draw_series(LineSeries::new(points.iter().map(|p| (p.0, pick(p)[k])), color))
             .map_err(|e| anyhow::anyhow!("{e}"))?;
     }
     Ok(())

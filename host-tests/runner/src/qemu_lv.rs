@@ -1,8 +1,9 @@
 //! The QEMU runner for the launch-vehicle firmware (`ssis-fw-lv`, its test build `ssis-fw-lv-test`): the ascent
-//! simulator ([`ssis_sim::launch`], FOG, accelerometer and GNSS models) feeds the
-//! firmware over five emulated UARTs at its 1.25 ms step, in lockstep, and the runner
-//! replays the same bytes through the same `FlightCore` + `NavUnit` in-process: every
-//! flight output frame and every navigation output frame must be bit-identical.
+//! simulator ([`ssis_sim::launch`], FOG, accelerometer and GNSS models) or a recorded
+//! log ([`ssis_sim::lv_replay::LvFeed`]) feeds the firmware over five emulated UARTs at
+//! its 1.25 ms step, in lockstep, and the runner replays the same bytes through the same
+//! `FlightCore` + `NavUnit` in-process ([`LvCore`]): every flight output frame and every
+//! navigation output frame must be bit-identical.
 //!
 //! UARTs (the UART map in `src/bin/ssis-fw-lv/main.rs`): 0 control in / flight output out, 1 FOG bus,
 //! 2 navigation output out, 3 accelerometer bus, 4 GNSS receiver. The FOG table (two
@@ -35,83 +36,28 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, Result};
-use rand::SeedableRng;
-use rand_chacha::ChaCha20Rng;
-use serde::{Deserialize, Serialize};
 use ssis::calib::accel::AccelTable;
 use ssis::calib::{store, CalibrationTable};
-use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::flight::Profile;
+use ssis::frames::accel::AccelFrame;
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
-use ssis::frames::gnss::{status, GnssFrame};
+use ssis::frames::fog::FogFrame;
+use ssis::frames::gnss::GnssFrame;
 use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::Frame;
 use ssis::nav::init::PadInit;
-use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
+use ssis::nav::unit::FilterWork;
 
 use crate::qemu::{check_qemu_and_elf, masked, progress_bar, Unit, INSTR_PER_TICK};
-use ssis_common::mock::{MockLink, MockSink};
-use ssis_sim::accel::{AccelModel, AccelSpec};
-use ssis_sim::fog::{FogModel, FogSpec};
-use ssis_sim::gnss::GnssSpec;
-use ssis_sim::launch::{LaunchProfile, LaunchTruth};
-use ssis_sim::lv::{angle_between, filter_config};
+use ssis_sim::lv::angle_between;
+use ssis_sim::lv_replay::{pad_init, AscentSensors, LvCore, LvStepBytes};
 
-/// The `kind` of a launch-vehicle ascent scenario file.
-pub const KIND: &str = "lv-ascent";
+pub use ssis_sim::lv_replay::{LvScenario, KIND};
+
 /// Offset of the pad initialisation block in the LVDATA region (`board::INIT_OFFSET`).
 pub const INIT_OFFSET: usize = 0x100;
-
-/// A launch-vehicle ascent scenario.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LvScenario {
-    /// Always [`KIND`].
-    pub kind: String,
-    /// Short name.
-    pub name: String,
-    /// What it shows.
-    #[serde(default)]
-    pub description: String,
-    /// Simulated time from lift-off, s.
-    pub duration_s: f64,
-    /// Seed of every random draw.
-    #[serde(default)]
-    pub seed: u64,
-    /// The ascent.
-    #[serde(default)]
-    pub launch: LaunchProfile,
-    /// FOG errors (FOG1..FOG3, the orthogonal triad, are fitted).
-    #[serde(default)]
-    pub fog: FogSpec,
-    /// Accelerometer errors.
-    #[serde(default)]
-    pub accel: AccelSpec,
-    /// GNSS receiver (none if absent).
-    #[serde(default)]
-    pub gnss: Option<GnssSpec>,
-}
-
-impl LvScenario {
-    /// Reads and checks a scenario file.
-    pub fn from_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path).with_context(|| format!("cannot read scenario {}", path.display()))?;
-        let sc: LvScenario = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {}", path.display(), e))?;
-        anyhow::ensure!(sc.kind == KIND, "{}: kind must be \"{KIND}\"", path.display());
-        anyhow::ensure!(sc.duration_s > 0.0 && sc.duration_s.is_finite(), "duration_s must be > 0");
-        Ok(sc)
-    }
-
-    /// Whether the scenario file at `path` is a launch-vehicle ascent (its `kind`).
-    pub fn is_lv_file(path: &Path) -> bool {
-        std::fs::read_to_string(path)
-            .ok()
-            .and_then(|t| toml::from_str::<toml::Table>(&t).ok())
-            .and_then(|t| t.get("kind").and_then(|k| k.as_str().map(|k| k == KIND)))
-            .unwrap_or(false)
-    }
-}
 
 /// How to run.
 #[derive(Debug, Clone)]
@@ -340,138 +286,55 @@ pub fn symbol(elf: &Path, name: &str) -> Result<u64> {
         .with_context(|| format!("{} has no symbol {name}", elf.display()))
 }
 
-/// The sensor side of a run: truth, FOG, accelerometer and GNSS models, frame bytes.
-struct Sensors {
-    truth: LaunchTruth,
-    fogs: FogModel,
-    accels: AccelModel,
-    gnss: Option<GnssSpec>,
-    rng: ChaCha20Rng,
-    gnss_rng: ChaCha20Rng,
-    gnss_counter: u16,
-    dt_s: f64,
-}
-
-/// One step's bytes per link and the truth at its end.
-struct StepBytes {
-    fog: Vec<u8>,
-    accel: Vec<u8>,
-    gnss: Vec<u8>,
-    truth: ssis::nav::NavState,
-}
-
-impl Sensors {
-    fn new(sc: &LvScenario, dt_s: f64) -> Self {
-        let mut rng = ChaCha20Rng::seed_from_u64(sc.seed);
-        let fogs = FogModel::new(&sc.fog, &mut rng);
-        let accels = AccelModel::new(&sc.accel, &mut rng);
-        Sensors {
-            truth: LaunchTruth::new(sc.launch.clone(), dt_s),
-            fogs,
-            accels,
-            gnss: sc.gnss.clone(),
-            rng,
-            gnss_rng: ChaCha20Rng::seed_from_u64(sc.seed.wrapping_add(1_000_003)),
-            gnss_counter: 0,
-            dt_s,
-        }
-    }
-
-    fn initial(&self) -> ssis::nav::NavState {
-        let (q_eb, v_e_m_s, r_e_m) = self.truth.state_now();
-        ssis::nav::NavState { q_eb, v_e_m_s, r_e_m }
-    }
-
-    /// Step `k` (1-based).
-    fn step(&mut self, k: u64) -> StepBytes {
-        let s = self.truth.advance();
-        let t_end = s.t_s;
-        let fs = self.fogs.sample(&s.dtheta_rad, t_end, self.dt_s, &mut self.rng);
-        let mut fog = Vec::with_capacity(48);
-        for (i, f) in fs.frames.iter().enumerate() {
-            if Profile::LAUNCH_VEHICLE.fogs.contains(i) {
-                fog.extend_from_slice(&f.to_bytes());
-            }
-        }
-        let mut accel = Vec::with_capacity(48);
-        for f in self.accels.sample(&s.dv_m_s, t_end, self.dt_s, &mut self.rng) {
-            accel.extend_from_slice(&f.to_bytes());
-        }
-        let truth = ssis::nav::NavState { q_eb: s.q_eb, v_e_m_s: s.v_e_m_s, r_e_m: s.r_e_m };
-        let mut gnss = Vec::new();
-        if let Some(spec) = &self.gnss {
-            if let Some(fix) = spec.fix(k, self.dt_s, &truth, &mut self.gnss_rng) {
-                let t_us = k * u64::from(Profile::LAUNCH_VEHICLE.dt_us);
-                let g = GnssFrame::from_physical(status::FIX_VALID | status::FIX_3D, self.gnss_counter, 10, t_us, &fix);
-                self.gnss_counter = self.gnss_counter.wrapping_add(1);
-                gnss.extend_from_slice(&g.to_bytes());
-            }
-        }
-        StepBytes { fog, accel, gnss, truth }
-    }
-}
-
-/// The in-process replay: the same flight core and navigation stage on the same bytes.
-struct Replay {
-    core: FlightCore,
-    nav: NavUnit,
-    links: Links<MockLink, MockLink, MockSink>,
-    nav_links: NavLinks<MockLink, MockLink, MockSink>,
-}
-
-impl Replay {
-    fn new(table: &CalibrationTable, init: &PadInit) -> Result<Self> {
-        let profile = Profile::LAUNCH_VEHICLE;
-        let mut core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
-        core.align(init.state.q_eb);
-        let comp = AccelTable::IDEAL.compensator().map_err(|e| anyhow::anyhow!("accel table: {e:?}"))?;
-        let nav = NavUnit::new(init.state, profile.dt_s(), comp, init.gnss).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-        Ok(Replay {
-            core,
-            nav,
-            links: Links { fog: FogLinks::Bus(MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() },
-            nav_links: NavLinks { accel: MockLink::ideal(), gnss: MockLink::ideal(), out: MockSink::default() },
-        })
-    }
-
-    /// One period on `b`'s bytes: (flight output bytes, navigation output bytes, filter work).
-    fn period(&mut self, b: &StepBytes) -> (Vec<u8>, Vec<u8>, FilterWork) {
-        if let FogLinks::Bus(l) = &mut self.links.fog {
-            l.send(&b.fog);
-        }
-        self.nav_links.accel.send(&b.accel);
-        self.nav_links.gnss.send(&b.gnss);
-        let (nav, nav_links) = (&mut self.nav, &mut self.nav_links);
-        self.core.step_with(&mut self.links, |t_us, body| {
-            nav.step(body, t_us, nav_links);
-        });
-        let work = self.nav.filter_work();
-        (std::mem::take(&mut self.links.out.bytes), std::mem::take(&mut self.nav_links.out.bytes), work)
-    }
+/// What the runner streams to `ssis-fw-lv`: its FOG table and pad block, and its steps'
+/// bytes one after the other (the ascent simulator, or a recorded log:
+/// `ssis_sim::lv_replay::LvFeed`).
+pub struct LvRun<'a> {
+    /// Name in the report.
+    pub name: String,
+    /// Steps to be sent.
+    pub steps: u64,
+    /// The FOG table (loaded into the firmware's flash; the in-process core's too).
+    pub table: CalibrationTable,
+    /// The pad initialisation block (likewise).
+    pub init: PadInit,
+    /// Step `n`'s bytes (1-based), or `None` at the end.
+    pub next: Box<dyn FnMut(u64) -> Option<LvStepBytes> + 'a>,
 }
 
 /// Runs `sc` on the launch-vehicle firmware in QEMU, in lockstep.
 pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
+    let mut sensors = AscentSensors::new(sc);
+    let init = pad_init(sensors.initial());
+    let steps = (sc.duration_s / Profile::LAUNCH_VEHICLE.dt_s()).round() as u64;
+    let run = LvRun {
+        name: sc.name.clone(),
+        steps,
+        table: CalibrationTable::DEFAULT,
+        init,
+        next: Box::new(move |n| Some(sensors.step(n))),
+    };
+    run_lv(run, opts, |_| {})
+}
+
+/// Runs `run` on the launch-vehicle firmware in QEMU, in lockstep, every output frame
+/// compared with the in-process [`LvCore`]'s; `on_nav` sees every navigation output frame
+/// of the firmware.
+pub fn run_lv(mut run: LvRun<'_>, opts: &LvOptions, mut on_nav: impl FnMut(&NavOutputFrame)) -> Result<LvSummary> {
     check_qemu_and_elf(&opts.elf)?;
     let profile = Profile::LAUNCH_VEHICLE;
-    let dt_s = profile.dt_s();
-    let mut sensors = Sensors::new(sc, dt_s);
-    let table = CalibrationTable::DEFAULT;
-    let init = PadInit {
-        revision: 1,
-        state: sensors.initial(),
-        gnss: filter_config(&FogSpec::paper_post_calibration(), &AccelSpec::typical_pendulous()),
-    };
+    let table = run.table;
+    let init = run.init;
     init.validate().map_err(|e| anyhow::anyhow!("pad block: {e:?}"))?;
-    let mut replay = Replay::new(&table, &init)?;
+    let mut replay = LvCore::new(&table, &init)?;
     let mut unit = boot(opts, &table, &init)?;
 
     let started = Instant::now();
-    let steps = (sc.duration_s / dt_s).round() as u64;
+    let steps = run.steps;
     let mut s = LvSummary {
-        name: sc.name.clone(),
+        name: run.name.clone(),
         steps,
-        duration_s: sc.duration_s,
+        duration_s: steps as f64 * profile.dt_s(),
         icount: true,
         period_ticks_budget: 25 * profile.dt_us,
         ..Default::default()
@@ -483,25 +346,29 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
     anyhow::ensure!(out.nav.is_empty(), "navigation frames before the first sample");
     out.flight.clear();
 
-    let bar = progress_bar(opts.progress, steps, &sc.name);
+    let bar = progress_bar(opts.progress, steps, &run.name);
     let mut sender = LvSender::default();
     let mut prev_work: Option<usize> = None;
     for n in 1..=steps {
-        let b = sensors.step(n);
+        let Some(b) = (run.next)(n) else {
+            s.steps = n - 1;
+            break;
+        };
         let step = sender.send(&mut unit, &b, &mut s)?;
-        let (ref_flight, ref_nav, work) = replay.period(&b);
+        let period = replay.period(&b);
         unit.control(&step)?;
-        let want_nav = ref_nav.len() / NavOutputFrame::LEN;
+        let want_nav = period.nav.len() / NavOutputFrame::LEN;
         let done = |o: &LvOutputs| !o.flight.is_empty() && o.nav.len() >= want_nav;
         unit.await_output(n, &opts.elf, &mut out, |o, i, b| o.take(i, b), done)?;
-        out.check(&mut s, &ref_flight, &ref_nav, &b.truth, prev_work);
-        prev_work = Some(work_kind(work));
+        out.check(&mut s, &period.flight, &period.nav, b.truth.as_ref(), prev_work, &mut on_nav);
+        prev_work = Some(work_kind(period.work));
         if let Some(bar) = &bar {
             if n.is_multiple_of(800) {
                 bar.set_position(n);
             }
         }
     }
+    s.duration_s = s.steps as f64 * profile.dt_s();
     s.bad_bytes = out.bad;
     let status = unit.end()?;
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
@@ -539,9 +406,9 @@ struct LvSender {
 
 impl LvSender {
     /// Sends one step's bytes, counting its frames into `s`; the STEP that names them.
-    fn send(&mut self, unit: &mut Unit, b: &StepBytes, s: &mut LvSummary) -> Result<ControlFrame> {
-        s.frames_in[0] += (b.fog.len() / 16) as u64;
-        s.frames_in[1] += (b.accel.len() / 16) as u64;
+    fn send(&mut self, unit: &mut Unit, b: &LvStepBytes, s: &mut LvSummary) -> Result<ControlFrame> {
+        s.frames_in[0] += (b.fog.len() / FogFrame::LEN) as u64;
+        s.frames_in[1] += (b.accel.len() / AccelFrame::LEN) as u64;
         s.frames_in[2] += (b.gnss.len() / GnssFrame::LEN) as u64;
         unit.uarts[1].write_all(&b.fog)?;
         unit.uarts[3].write_all(&b.accel)?;
@@ -596,8 +463,9 @@ impl LvOutputs {
         s: &mut LvSummary,
         ref_flight: &[u8],
         ref_nav: &[u8],
-        truth: &ssis::nav::NavState,
+        truth: Option<&ssis::nav::NavState>,
         prev_work: Option<usize>,
+        on_nav: &mut impl FnMut(&NavOutputFrame),
     ) {
         if let Some(f) = self.flight.pop_front() {
             s.flight_frames += 1;
@@ -620,6 +488,8 @@ impl LvOutputs {
             } else {
                 s.nav_differing += 1;
             }
+            on_nav(&f);
+            let Some(truth) = truth else { continue };
             let st = f.state();
             let err = (
                 (st.r_e_m - truth.r_e_m).norm(),

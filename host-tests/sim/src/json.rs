@@ -163,3 +163,40 @@ pub fn conventions(r: &crate::conventions::ConventionReport) -> Value {
         "clean": r.findings.is_empty(),
     })
 }
+
+/// `ssis-sim replay` and `ssis-qemu --replay` on a launch-vehicle log: the errors
+/// against truth (if any) and the unit's own evidence, from its navigation output frames.
+pub fn lv_replay_summary(s: &crate::lv_replay::LvReplaySummary<'_>, rec: &crate::recorded::Recorded) -> Value {
+    let e = &s.evidence;
+    let err = |x: &crate::lv_replay::NavErrorAt| json!({"t_s": x.t_s, "position_m": x.pos_m, "velocity_m_s": x.vel_m_s, "attitude_arcsec": x.att_arcsec});
+    let last = e.last;
+    json!({
+        "log": rec.origin,
+        "unit": rec.unit.name(),
+        "duration_s": s.duration_s,
+        "steps": s.steps,
+        "flight_frames_out": s.flight_frames,
+        "nav_frames_out": e.frames,
+        "output_hash": format!("{:016x}", s.hash),
+        "truth": {
+            "frames_scored": e.scored,
+            "at_times": e.at_times.iter().map(err).collect::<Vec<_>>(),
+            "end": e.end.as_ref().map(err),
+            "max": e.end.as_ref().map(|_| err(&e.max)),
+        },
+        "evidence": {
+            "gnss_innovations": e.innov_pos_m.count(),
+            "gnss_innovation_position_max_m": e.innov_pos_m.max_abs(),
+            "gnss_innovation_position_std_m": e.innov_pos_m.std(),
+            "gnss_innovation_velocity_max_m_s": e.innov_vel_m_s.max_abs(),
+            "gnss_innovation_velocity_std_m_s": e.innov_vel_m_s.std(),
+            "fixes_used": last.map(|f| f.fixes_used),
+            "fixes_refused": last.map(|f| f.fixes_refused),
+            "frames_after_update": e.updated_frames,
+            "frames_in_gnss_outage": e.outage_steps,
+            "frames_accel_missing_or_faulty": e.accel_fault_steps,
+            "frames_nav_step_refused": e.nav_fault_steps,
+        },
+        "damage": damage(&rec.problems),
+    })
+}

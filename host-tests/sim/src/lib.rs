@@ -15,6 +15,8 @@
 //! - [`json`]: the `--json` form of a run's summary (docs/JSON.md).
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
 //! - [`lv`]: launch-vehicle navigation studies (free-inertial error growth).
+//! - [`lv_replay`]: the launch-vehicle unit's host side (ascent sensors as link bytes, a
+//!   recorded log as the same bytes, the firmware's period, judging its navigation output).
 //! - [`recorded`], [`replay`], [`check`]: recorded logs (`docs/RECORDED-LOG.md`) replayed through the core.
 //! - [`conventions`]: a log's quaternion form, FOG units and time tags checked against its data.
 
@@ -28,6 +30,7 @@ pub mod harness;
 pub mod json;
 pub mod launch;
 pub mod lv;
+pub mod lv_replay;
 pub mod recorded;
 pub mod replay;
 pub mod scenario;

@@ -22,11 +22,16 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context, Result};
 use nalgebra::{Quaternion, Vector3};
+use ssis::calib::accel::N_ACCEL;
 use ssis::calib::N_FOG;
 use ssis::combination::FogSet;
+use ssis::flight::Profile;
+use ssis::frames::accel::AccelFrame;
 use ssis::frames::fog::FogFrame;
+use ssis::frames::gnss::{self, GnssFrame};
 use ssis::frames::star::StarFrame;
 use ssis::frames::{DecodeError, Frame};
+use ssis::nav::NavState;
 
 /// One FOG's sample in a row.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -50,13 +55,45 @@ pub struct StarSample {
     pub q: [f64; 4],
 }
 
+/// One accelerometer's sample in a row (launch-vehicle unit).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct AccelSample {
+    /// Velocity increment along the sensitive axis over the sample interval, m/s.
+    pub dv_m_s: f64,
+    /// Temperature, °C.
+    pub t_degc: f64,
+    /// Status bits (`docs/ICD.md`, accelerometer sample frame).
+    pub status: u8,
+}
+
+/// One GNSS fix (launch-vehicle unit), what the GNSS frame (kind 0x21) carries.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssSample {
+    /// The instant the fix holds, µs of unit time (re-based).
+    pub time_us: u64,
+    /// Status bits (`ssis::frames::gnss::status`: valid, 3-D, receiver fault).
+    pub status: u8,
+    /// Satellites in the solution.
+    pub satellites: u8,
+    /// ECEF position, m.
+    pub r_e_m: Vector3<f64>,
+    /// ECEF velocity (relative to the Earth), m/s.
+    pub v_e_m_s: Vector3<f64>,
+    /// Position 1σ per axis, m.
+    pub sigma_pos_m: f64,
+    /// Velocity 1σ per axis, m/s.
+    pub sigma_vel_m_s: f64,
+}
+
 /// Truth at the end of a sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TruthRow {
-    /// Λ of the ICS in the 2ECS.
+    /// Λ of the ICS in the 2ECS (spacecraft); q_eb, the body in ECEF (launch vehicle).
     pub q: Quaternion<f64>,
     /// Body rate in ICS components, rad/s (zero when the log has none).
     pub rate_rad_s: Vector3<f64>,
+    /// Launch vehicle: ECEF position, m, and velocity relative to the Earth, m/s.
+    pub pos_vel: Option<(Vector3<f64>, Vector3<f64>)>,
 }
 
 /// One step of the unit: the samples that arrive for it.
@@ -64,10 +101,42 @@ pub struct TruthRow {
 pub struct LogStep {
     /// Per FOG slot, its sample (`None`: not in the log for this step).
     pub fog: [Option<FogSample>; N_FOG],
+    /// Per accelerometer (X, Y, Z), its sample (launch vehicle; `None`: not in the log).
+    pub accel: [Option<AccelSample>; N_ACCEL],
     /// Star-tracker solutions delivered in this step.
     pub st: Vec<StarSample>,
+    /// GNSS fixes delivered in this step (launch vehicle).
+    pub gnss: Vec<GnssSample>,
     /// Truth at the step's end, if the log has it.
     pub truth: Option<TruthRow>,
+}
+
+/// The unit a log is for, told from its columns (or frames) and checked against its
+/// sample interval.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LogUnit {
+    /// Four FOGs and a star tracker, 5 ms.
+    Spacecraft,
+    /// Three FOGs, three accelerometers and a GNSS receiver, 1.25 ms.
+    LaunchVehicle,
+}
+
+impl LogUnit {
+    /// The unit's profile (its sample interval and FOGs).
+    pub fn profile(self) -> Profile {
+        match self {
+            LogUnit::Spacecraft => Profile::SPACECRAFT,
+            LogUnit::LaunchVehicle => Profile::LAUNCH_VEHICLE,
+        }
+    }
+
+    /// Its name in messages.
+    pub fn name(self) -> &'static str {
+        match self {
+            LogUnit::Spacecraft => "spacecraft",
+            LogUnit::LaunchVehicle => "launch-vehicle",
+        }
+    }
 }
 
 /// A log read into steps of the unit.
@@ -85,6 +154,12 @@ pub struct Recorded {
     pub problems: Problems,
     /// Whether the log carries truth.
     pub has_truth: bool,
+    /// The unit it is for.
+    pub unit: LogUnit,
+    /// Launch vehicle: the navigation's initial state at unit time 0 (the pad
+    /// initialisation block's q_eb, v_e, r_e), from the `init_*` columns; `None` in a
+    /// capture (give it apart).
+    pub init: Option<NavState>,
 }
 
 /// One kind of damage: how often, and where first.
@@ -135,11 +210,13 @@ pub struct Problems {
     pub field_errors: Damage,
     /// Capture: bytes between frames (hunting for sync, rejected frames, a cut frame).
     pub bytes_skipped: Damage,
+    /// GNSS fix time tags that repeat or go back: dropped.
+    pub gnss_time_backward: Damage,
 }
 
 impl Problems {
     /// Each kind with its name, in the order of a report.
-    pub fn kinds(&self) -> [(&'static str, &Damage); 11] {
+    pub fn kinds(&self) -> [(&'static str, &Damage); 12] {
         [
             ("truncated_lines", &self.truncated_lines),
             ("bad_values", &self.bad_values),
@@ -152,6 +229,7 @@ impl Problems {
             ("frames_failing_crc", &self.crc_failures),
             ("frames_with_bad_fields", &self.field_errors),
             ("bytes_skipped", &self.bytes_skipped),
+            ("gnss_time_tags_repeated_or_backward", &self.gnss_time_backward),
         ]
     }
 
@@ -179,22 +257,49 @@ impl Problems {
     }
 }
 
-/// Reads a log: one CSV file, or one or more capture files (any other name than `.csv`).
+/// Reads a log: one CSV file, or one or more capture files (any other name than `.csv`),
+/// for the unit whose sample interval is `dt_us`: a log for the other unit is refused.
 pub fn read(paths: &[PathBuf], dt_us: u32) -> Result<Recorded> {
+    let rec = read_log(paths)?;
+    let want = if dt_us == Profile::LAUNCH_VEHICLE.dt_us { LogUnit::LaunchVehicle } else { LogUnit::Spacecraft };
+    if rec.unit != want {
+        bail!(
+            "{}: a {} log ({}); this replays the {} unit only",
+            rec.origin,
+            rec.unit.name(),
+            match rec.unit {
+                LogUnit::LaunchVehicle => "accelerometer columns or frames",
+                LogUnit::Spacecraft => "no accelerometer columns or frames",
+            },
+            want.name()
+        );
+    }
+    Ok(rec)
+}
+
+/// Reads a log for whichever unit it is for (the launch vehicle's when it has
+/// accelerometer, GNSS, position-truth or initial-state columns, or accelerometer or GNSS
+/// frames; else the spacecraft's); its sample interval must be that unit's.
+pub fn read_log(paths: &[PathBuf]) -> Result<Recorded> {
     match paths {
         [] => bail!("no log given"),
-        [p] if is_csv(p) => read_csv(p, dt_us),
+        [p] if is_csv(p) => read_csv(p),
         ps => {
             if let Some(p) = ps.iter().find(|p| is_csv(p)) {
                 bail!("{}: a CSV log is replayed alone (captures may be given together)", p.display());
             }
-            read_captures(ps, dt_us)
+            read_captures(ps)
         }
     }
 }
 
 fn is_csv(p: &Path) -> bool {
     p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv"))
+}
+
+/// Column names of an x, y, z triple: `{prefix}x{suffix}` ….
+pub fn xyz_names(prefix: &str, suffix: &str) -> [String; 3] {
+    ["x", "y", "z"].map(|a| format!("{prefix}{a}{suffix}"))
 }
 
 /// Columns of a CSV log, by index.
@@ -205,66 +310,181 @@ struct Columns {
     fog_counter: [Option<usize>; N_FOG],
     fog_t: [Option<usize>; N_FOG],
     fog_status: [Option<usize>; N_FOG],
+    acc_dv: [Option<usize>; N_ACCEL],
+    acc_counter: [Option<usize>; N_ACCEL],
+    acc_t: [Option<usize>; N_ACCEL],
+    acc_status: [Option<usize>; N_ACCEL],
     st_t: Option<usize>,
     st_valid: Option<usize>,
     st_q: [Option<usize>; 4],
+    gnss_t: Option<usize>,
+    gnss_valid: Option<usize>,
+    gnss_status: Option<usize>,
+    gnss_sats: Option<usize>,
+    gnss_r: [Option<usize>; 3],
+    gnss_v: [Option<usize>; 3],
+    gnss_sigma_pos: Option<usize>,
+    gnss_sigma_vel: Option<usize>,
     true_q: [Option<usize>; 4],
     true_w: [Option<usize>; 3],
+    true_r: [Option<usize>; 3],
+    true_v: [Option<usize>; 3],
+    init_q: [Option<usize>; 4],
+    init_r: [Option<usize>; 3],
+    init_v: [Option<usize>; 3],
+    unit: Option<LogUnit>,
+}
+
+/// Whether some but not all of `cols` are present.
+fn partial(cols: &[Option<usize>]) -> bool {
+    cols.iter().any(Option::is_some) && cols.iter().any(Option::is_none)
 }
 
 impl Columns {
-    fn parse(header: &str, origin: &str) -> Result<Columns> {
+    fn parse(header: &str, origin: &str, ln: usize) -> Result<Columns> {
         let mut c = Columns::default();
         for (k, name) in header.split(',').map(str::trim).enumerate() {
             let slot = |prefix: &str, suffix: &str, n: usize| -> Option<usize> {
                 let mid = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
                 mid.parse::<usize>().ok().filter(|&i| i < n)
             };
+            let axis = |prefix: &str, suffix: &str| xyz_names(prefix, suffix).iter().position(|n| n == name);
             let set = |col: &mut Option<usize>| *col = Some(k);
             match name {
                 "t_s" => set(&mut c.t),
                 "st_t_s" => set(&mut c.st_t),
                 "st_valid" => set(&mut c.st_valid),
+                "gnss_t_s" => set(&mut c.gnss_t),
+                "gnss_valid" => set(&mut c.gnss_valid),
+                "gnss_status" => set(&mut c.gnss_status),
+                "gnss_satellites" => set(&mut c.gnss_sats),
+                "gnss_sigma_pos_m" => set(&mut c.gnss_sigma_pos),
+                "gnss_sigma_vel_m_s" => set(&mut c.gnss_sigma_vel),
                 _ => {
-                    if let Some(i) = slot("fog", "_dtheta_rad", N_FOG) {
-                        c.fog_dtheta[i] = Some(k);
+                    let found: Option<&mut Option<usize>> = if let Some(i) = slot("fog", "_dtheta_rad", N_FOG) {
+                        Some(&mut c.fog_dtheta[i])
                     } else if let Some(i) = slot("fog", "_counter", N_FOG) {
-                        c.fog_counter[i] = Some(k);
+                        Some(&mut c.fog_counter[i])
                     } else if let Some(i) = slot("fog", "_t_degc", N_FOG) {
-                        c.fog_t[i] = Some(k);
+                        Some(&mut c.fog_t[i])
                     } else if let Some(i) = slot("fog", "_status", N_FOG) {
-                        c.fog_status[i] = Some(k);
+                        Some(&mut c.fog_status[i])
+                    } else if let Some(i) = slot("acc", "_dv_m_s", N_ACCEL) {
+                        Some(&mut c.acc_dv[i])
+                    } else if let Some(i) = slot("acc", "_counter", N_ACCEL) {
+                        Some(&mut c.acc_counter[i])
+                    } else if let Some(i) = slot("acc", "_t_degc", N_ACCEL) {
+                        Some(&mut c.acc_t[i])
+                    } else if let Some(i) = slot("acc", "_status", N_ACCEL) {
+                        Some(&mut c.acc_status[i])
                     } else if let Some(i) = slot("st_q", "", 4) {
-                        c.st_q[i] = Some(k);
+                        Some(&mut c.st_q[i])
                     } else if let Some(i) = slot("true_q", "", 4) {
-                        c.true_q[i] = Some(k);
-                    } else if let Some(i) =
-                        ["true_wx_rad_s", "true_wy_rad_s", "true_wz_rad_s"].iter().position(|n| *n == name)
+                        Some(&mut c.true_q[i])
+                    } else if let Some(i) = slot("init_q", "", 4) {
+                        Some(&mut c.init_q[i])
+                    } else if let Some(i) = axis("true_w", "_rad_s") {
+                        Some(&mut c.true_w[i])
+                    } else if let Some(i) = axis("gnss_", "_m") {
+                        Some(&mut c.gnss_r[i])
+                    } else if let Some(i) = axis("gnss_v", "_m_s") {
+                        Some(&mut c.gnss_v[i])
+                    } else if let Some(i) = axis("true_", "_m") {
+                        Some(&mut c.true_r[i])
+                    } else if let Some(i) = axis("true_v", "_m_s") {
+                        Some(&mut c.true_v[i])
+                    } else if let Some(i) = axis("init_", "_m") {
+                        Some(&mut c.init_r[i])
+                    } else if let Some(i) = axis("init_v", "_m_s") {
+                        Some(&mut c.init_v[i])
+                    } else if (name.starts_with("fog") || name.starts_with("acc"))
+                        && (name.ends_with("_deg") || name.ends_with("_arcsec") || name.ends_with("_g"))
                     {
-                        c.true_w[i] = Some(k);
-                    } else if name.starts_with("fog") && (name.ends_with("_deg") || name.ends_with("_arcsec")) {
                         bail!(
-                            "{origin}: line 1, column {} ({name}): angle increments are in rad (`fogN_dtheta_rad`)",
+                            "{origin}: line {ln}, column {} ({name}): increments are in rad and m/s \
+                             (`fogN_dtheta_rad`, `accN_dv_m_s`)",
                             k + 1
                         );
+                    } else {
+                        // Anything else (the user's own columns) is ignored.
+                        None
+                    };
+                    if let Some(col) = found {
+                        set(col);
                     }
-                    // Anything else (accelerometer, GNSS, the user's own columns) is kept
-                    // out of the attitude replay.
                 }
             }
         }
+        let at = format!("{origin}: line {ln}");
         if c.fog_dtheta.iter().all(Option::is_none) {
-            bail!("{origin}: line 1: no FOG column (`fog0_dtheta_rad` … `fog3_dtheta_rad`)");
+            bail!("{at}: no FOG column (`fog0_dtheta_rad` … `fog3_dtheta_rad`)");
         }
         if c.t.is_none() && c.fog_counter.iter().all(Option::is_none) {
-            bail!("{origin}: line 1: neither `t_s` nor a FOG counter (`fogN_counter`): no time for the samples");
+            bail!("{at}: neither `t_s` nor a FOG counter (`fogN_counter`): no time for the samples");
         }
-        let st_any = c.st_t.is_some() || c.st_q.iter().any(Option::is_some);
-        if st_any && (c.st_t.is_none() || c.st_q.iter().any(Option::is_none)) {
-            bail!("{origin}: line 1: a star tracker needs `st_t_s` and `st_q0` … `st_q3`");
-        }
-        if c.true_q.iter().any(Option::is_some) && c.true_q.iter().any(Option::is_none) {
-            bail!("{origin}: line 1: truth needs all of `true_q0` … `true_q3`");
+        let gnss_cols = [c.gnss_t, c.gnss_r[0], c.gnss_r[1], c.gnss_r[2], c.gnss_v[0], c.gnss_v[1], c.gnss_v[2]];
+        let gnss_all = [&gnss_cols[..], &[c.gnss_sigma_pos, c.gnss_sigma_vel]].concat();
+        let lv_named = [
+            &c.acc_dv[..],
+            &c.acc_counter,
+            &c.acc_t,
+            &c.acc_status,
+            &gnss_all,
+            &[c.gnss_valid, c.gnss_status, c.gnss_sats],
+            &c.true_r,
+            &c.true_v,
+            &c.init_q,
+            &c.init_r,
+            &c.init_v,
+        ]
+        .concat();
+        let lv = lv_named.iter().any(Option::is_some);
+        if lv {
+            if c.acc_dv.iter().all(Option::is_none) {
+                bail!(
+                    "{at}: launch-vehicle columns (GNSS, position truth or initial state) but no accelerometer \
+                     column (`acc0_dv_m_s` … `acc2_dv_m_s`): a launch-vehicle log needs its accelerometers"
+                );
+            }
+            if c.fog_dtheta[3].is_some() {
+                bail!(
+                    "{at}: `fog3_dtheta_rad` in a launch-vehicle log (accelerometer columns): that unit has three \
+                     FOGs, `fog0` … `fog2` (X, Y, Z)"
+                );
+            }
+            if c.st_t.is_some() || c.st_q.iter().any(Option::is_some) {
+                bail!("{at}: star-tracker columns in a launch-vehicle log: that unit has no star tracker");
+            }
+            if partial(&gnss_all) {
+                bail!(
+                    "{at}: a GNSS receiver needs `gnss_t_s`, `gnss_x_m` … `gnss_z_m`, `gnss_vx_m_s` … `gnss_vz_m_s`, \
+                     `gnss_sigma_pos_m` and `gnss_sigma_vel_m_s`"
+                );
+            }
+            let truth = [&c.true_q[..], &c.true_r, &c.true_v].concat();
+            if partial(&truth) {
+                bail!(
+                    "{at}: launch-vehicle truth needs all of `true_q0` … `true_q3` (q_eb), `true_x_m` … `true_z_m` \
+                     and `true_vx_m_s` … `true_vz_m_s`"
+                );
+            }
+            let init = [&c.init_q[..], &c.init_r, &c.init_v].concat();
+            if partial(&init) {
+                bail!(
+                    "{at}: the initial state needs all of `init_q0` … `init_q3`, `init_x_m` … `init_z_m` and \
+                     `init_vx_m_s` … `init_vz_m_s`"
+                );
+            }
+            c.unit = Some(LogUnit::LaunchVehicle);
+        } else {
+            let st_any = c.st_t.is_some() || c.st_q.iter().any(Option::is_some);
+            if st_any && (c.st_t.is_none() || c.st_q.iter().any(Option::is_none)) {
+                bail!("{at}: a star tracker needs `st_t_s` and `st_q0` … `st_q3`");
+            }
+            if partial(&c.true_q) {
+                bail!("{at}: truth needs all of `true_q0` … `true_q3`");
+            }
+            c.unit = Some(LogUnit::Spacecraft);
         }
         Ok(c)
     }
@@ -276,12 +496,17 @@ struct RawRow {
     t_s: Option<f64>,
     counter: [Option<u16>; N_FOG],
     fog: [Option<FogSample>; N_FOG],
+    acc_counter: [Option<u16>; N_ACCEL],
+    accel: [Option<AccelSample>; N_ACCEL],
     st: Option<(f64, bool, [f64; 4])>,
+    /// A GNSS fix with its tag, s of log time (`time_us` not yet set).
+    gnss: Option<(f64, GnssSample)>,
     truth: Option<TruthRow>,
+    init: Option<NavState>,
 }
 
 /// Reads a CSV log (`docs/RECORDED-LOG.md`).
-pub fn read_csv(path: &Path, dt_us: u32) -> Result<Recorded> {
+pub fn read_csv(path: &Path) -> Result<Recorded> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
     let origin = path.display().to_string();
     let text = String::from_utf8_lossy(bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes)).into_owned();
@@ -293,7 +518,7 @@ pub fn read_csv(path: &Path, dt_us: u32) -> Result<Recorded> {
         if l.trim().is_empty() || l.starts_with('#') {
             continue;
         }
-        break (Columns::parse(l, &origin)?, (ln, l.split(',').count()));
+        break (Columns::parse(l, &origin, ln)?, (ln, l.split(',').count()));
     };
     let mut rows = Vec::new();
     for (ln, raw) in lines {
@@ -315,12 +540,14 @@ pub fn read_csv(path: &Path, dt_us: u32) -> Result<Recorded> {
         rows.push(parse_row(&fields, &cols, ln, &origin, &mut p));
     }
     let has_truth = cols.true_q[0].is_some();
-    place_rows(rows, dt_us, origin, p, has_truth)
+    let unit = cols.unit.unwrap_or(LogUnit::Spacecraft);
+    place_rows(rows, unit, origin, p, has_truth)
 }
 
 /// One row's fields; a value that is not a finite number is counted and left out.
 fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Problems) -> RawRow {
-    let mut num = |col: Option<usize>, name: &str| -> Option<f64> {
+    let p = std::cell::RefCell::new(p);
+    let num = |col: Option<usize>, name: &str| -> Option<f64> {
         let f = *fields.get(col?)?;
         if f.is_empty() {
             return None;
@@ -328,7 +555,9 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
         match f.parse::<f64>() {
             Ok(v) if v.is_finite() => Some(v),
             _ => {
-                p.bad_values.add(1, || format!("{origin}:{ln}: field {name} = {f:?} is not a finite number"));
+                p.borrow_mut()
+                    .bad_values
+                    .add(1, || format!("{origin}:{ln}: field {name} = {f:?} is not a finite number"));
                 None
             }
         }
@@ -336,37 +565,110 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
     let t_s = num(c.t, "t_s");
     let mut counter = [None; N_FOG];
     let mut fog = [None; N_FOG];
+    let u16_of = |v: f64| v.rem_euclid(65536.0) as u16;
+    let u8_of = |v: f64| v.clamp(0.0, 255.0) as u8;
     for i in 0..N_FOG {
-        counter[i] = num(c.fog_counter[i], &format!("fog{i}_counter")).map(|v| v.rem_euclid(65536.0) as u16);
+        counter[i] = num(c.fog_counter[i], &format!("fog{i}_counter")).map(u16_of);
         let t = num(c.fog_t[i], &format!("fog{i}_t_degc")).unwrap_or(25.0);
         let status = num(c.fog_status[i], &format!("fog{i}_status")).unwrap_or(0.0);
         fog[i] = num(c.fog_dtheta[i], &format!("fog{i}_dtheta_rad")).map(|d| FogSample {
             dtheta_rad: d,
             t_degc: t,
-            status: status.clamp(0.0, 255.0) as u8,
+            status: u8_of(status),
         });
     }
+    let mut acc_counter = [None; N_ACCEL];
+    let mut accel = [None; N_ACCEL];
+    for i in 0..N_ACCEL {
+        acc_counter[i] = num(c.acc_counter[i], &format!("acc{i}_counter")).map(u16_of);
+        let t = num(c.acc_t[i], &format!("acc{i}_t_degc")).unwrap_or(25.0);
+        let status = num(c.acc_status[i], &format!("acc{i}_status")).unwrap_or(0.0);
+        accel[i] = num(c.acc_dv[i], &format!("acc{i}_dv_m_s")).map(|d| AccelSample {
+            dv_m_s: d,
+            t_degc: t,
+            status: u8_of(status),
+        });
+    }
+    let vec3 = |cols: &[Option<usize>; 3], names: [String; 3]| -> Option<Vector3<f64>> {
+        let v = [0, 1, 2].map(|k| num(cols[k], &names[k]));
+        Some(Vector3::new(v[0]?, v[1]?, v[2]?))
+    };
+    let gnss = (|| {
+        let t = num(c.gnss_t, "gnss_t_s")?;
+        let r = vec3(&c.gnss_r, xyz_names("gnss_", "_m"))?;
+        let v = vec3(&c.gnss_v, xyz_names("gnss_v", "_m_s"))?;
+        let mut status =
+            num(c.gnss_status, "gnss_status").map_or(gnss::status::FIX_VALID | gnss::status::FIX_3D, u8_of);
+        match num(c.gnss_valid, "gnss_valid") {
+            Some(0.0) => status &= !gnss::status::FIX_VALID,
+            Some(_) => status |= gnss::status::FIX_VALID,
+            None => {}
+        }
+        let satellites = num(c.gnss_sats, "gnss_satellites").map_or(0, u8_of);
+        let sigma_pos_m = num(c.gnss_sigma_pos, "gnss_sigma_pos_m")?;
+        let sigma_vel_m_s = num(c.gnss_sigma_vel, "gnss_sigma_vel_m_s")?;
+        Some((t, GnssSample { time_us: 0, status, satellites, r_e_m: r, v_e_m_s: v, sigma_pos_m, sigma_vel_m_s }))
+    })();
+    let init = (|| {
+        let q = [0, 1, 2, 3].map(|k| num(c.init_q[k], &format!("init_q{k}")));
+        let q = Quaternion::new(q[0]?, q[1]?, q[2]?, q[3]?);
+        let r_e_m = vec3(&c.init_r, xyz_names("init_", "_m"))?;
+        let v_e_m_s = vec3(&c.init_v, xyz_names("init_v", "_m_s"))?;
+        // Kept as written when it is a unit quaternion to the last bits (a pad block
+        // written out exactly replays to the same output); else normalised.
+        let q = if (q.norm() - 1.0).abs() > 1e-12 { q / q.norm() } else { q };
+        Some(NavState { q_eb: q, v_e_m_s, r_e_m })
+    })();
+    let pos_vel =
+        (|| Some((vec3(&c.true_r, xyz_names("true_", "_m"))?, vec3(&c.true_v, xyz_names("true_v", "_m_s"))?)))();
     let st = num(c.st_t, "st_t_s").and_then(|t| {
         let valid = num(c.st_valid, "st_valid").is_none_or(|v| v != 0.0);
         let q = [0, 1, 2, 3].map(|k| num(c.st_q[k], &format!("st_q{k}")));
         Some((t, valid, [q[0]?, q[1]?, q[2]?, q[3]?]))
     });
+    let lv = c.unit == Some(LogUnit::LaunchVehicle);
     let truth = (|| {
         let q = [0, 1, 2, 3].map(|k| num(c.true_q[k], &format!("true_q{k}")));
-        let w = [0, 1, 2].map(|k| num(c.true_w[k], ["true_wx_rad_s", "true_wy_rad_s", "true_wz_rad_s"][k]));
+        let names = xyz_names("true_w", "_rad_s");
+        let w = [0, 1, 2].map(|k| num(c.true_w[k], &names[k]));
         let q = Quaternion::new(q[0]?, q[1]?, q[2]?, q[3]?);
+        if lv && pos_vel.is_none() {
+            return None;
+        }
         Some(TruthRow {
             q: q / q.norm(),
             rate_rad_s: Vector3::new(w[0].unwrap_or(0.0), w[1].unwrap_or(0.0), w[2].unwrap_or(0.0)),
+            pos_vel,
         })
     })();
-    RawRow { line: ln, t_s, counter, fog, st, truth }
+    RawRow { line: ln, t_s, counter, fog, acc_counter, accel, st, gnss, truth, init }
+}
+
+/// Counts a sample counter that does not advance with the time (`name` in messages).
+fn check_counters<const N: usize>(
+    counters: &[Option<u16>; N],
+    last: &mut [Option<(u64, u16)>; N],
+    n: u64,
+    name: &str,
+    jumps: &mut Damage,
+    at: &dyn Fn() -> String,
+) {
+    for (i, c) in counters.iter().enumerate() {
+        if let (Some(c), Some((ln, lc))) = (c, last[i]) {
+            if c.wrapping_sub(lc) as u64 != n - ln {
+                jumps.add(1, || format!("{}: {name}{i}_counter {c} after {lc}", at()));
+            }
+        }
+        if let Some(c) = c {
+            last[i] = Some((n, *c));
+        }
+    }
 }
 
 /// Places rows on the unit's clock: sample k of the log is step k + 1 after re-basing;
 /// repeated and backward samples dropped, gaps left empty, each counted.
-fn place_rows(rows: Vec<RawRow>, dt_us: u32, origin: String, mut p: Problems, has_truth: bool) -> Result<Recorded> {
-    let dt_s = f64::from(dt_us) * 1e-6;
+fn place_rows(rows: Vec<RawRow>, unit: LogUnit, origin: String, mut p: Problems, has_truth: bool) -> Result<Recorded> {
+    let dt_s = unit.profile().dt_s();
     // Time of a row: t_s, or the first FOG counter unwrapped (sample interval dt).
     let mut unwrap = Unwrap::default();
     let mut timed: Vec<(f64, RawRow)> = Vec::with_capacity(rows.len());
@@ -382,13 +684,20 @@ fn place_rows(rows: Vec<RawRow>, dt_us: u32, origin: String, mut p: Problems, ha
     let Some(first) = timed.first().map(|(t, _)| *t) else {
         bail!("{origin}: nothing usable: no row with a time and a FOG sample\n{}", p.report());
     };
-    check_interval(&timed, dt_s, &origin)?;
+    check_interval(&timed, unit, &origin)?;
     let t0_s = first - dt_s;
+    let init = timed.iter().find_map(|(_, r)| r.init);
+    if unit == LogUnit::LaunchVehicle && timed.iter().any(|(_, r)| r.init.is_some()) && init.is_none() {
+        bail!("{origin}: the initial state (`init_*`) is not usable");
+    }
     let mut steps: Vec<LogStep> = Vec::with_capacity(timed.len());
     let mut fogs = 0u8;
+    let mut accels = 0u8;
     let mut last_n = 0u64;
     let mut last_counter: [Option<(u64, u16)>; N_FOG] = [None; N_FOG];
+    let mut last_acc_counter: [Option<(u64, u16)>; N_ACCEL] = [None; N_ACCEL];
     let mut last_st_us: Option<u64> = None;
+    let mut last_gnss_us: Option<u64> = None;
     for (t, r) in timed {
         let n = ((t - t0_s) / dt_s).round();
         let at = || format!("{origin}:{}", r.line);
@@ -402,22 +711,20 @@ fn place_rows(rows: Vec<RawRow>, dt_us: u32, origin: String, mut p: Problems, ha
             let lost = n - last_n - 1;
             p.gaps.add(lost, || format!("{}: {lost} samples missing before t = {t} s", at()));
         }
-        for (i, c) in r.counter.iter().enumerate() {
-            if let (Some(c), Some((ln, lc))) = (c, last_counter[i]) {
-                if c.wrapping_sub(lc) as u64 != n - ln {
-                    p.counter_jumps.add(1, || format!("{}: fog{i}_counter {c} after {lc}", at()));
-                }
-            }
-            if let Some(c) = c {
-                last_counter[i] = Some((n, *c));
-            }
-        }
+        check_counters(&r.counter, &mut last_counter, n, "fog", &mut p.counter_jumps, &at);
+        check_counters(&r.acc_counter, &mut last_acc_counter, n, "acc", &mut p.counter_jumps, &at);
         steps.resize_with(n as usize, LogStep::default);
         let step = &mut steps[n as usize - 1];
         step.fog = r.fog;
+        step.accel = r.accel;
         for (i, f) in r.fog.iter().enumerate() {
             if f.is_some() {
                 fogs |= 1 << i;
+            }
+        }
+        for (i, a) in r.accel.iter().enumerate() {
+            if a.is_some() {
+                accels |= 1 << i;
             }
         }
         step.truth = r.truth;
@@ -433,32 +740,60 @@ fn place_rows(rows: Vec<RawRow>, dt_us: u32, origin: String, mut p: Problems, ha
                 step.st.push(StarSample { time_us: us as u64, valid, q: q.map(|v| v / norm) });
             }
         }
+        if let Some((t_g, mut g)) = r.gnss {
+            let us = ((t_g - t0_s) * 1e6).round();
+            if us < 0.0 || last_gnss_us.is_some_and(|l| us as u64 <= l) {
+                p.gnss_time_backward
+                    .add(1, || format!("{}: gnss_t_s = {t_g} s not after the previous fix's tag", at()));
+            } else {
+                last_gnss_us = Some(us as u64);
+                g.time_us = us as u64;
+                step.gnss.push(g);
+            }
+        }
         last_n = n;
     }
     if fogs == 0 {
         bail!("{origin}: nothing usable: no FOG sample\n{}", p.report());
     }
-    Ok(Recorded { origin, steps, fogs: FogSet(fogs), t0_s, problems: p, has_truth })
+    if unit == LogUnit::LaunchVehicle && accels == 0 {
+        bail!("{origin}: nothing usable: no accelerometer sample\n{}", p.report());
+    }
+    Ok(Recorded { origin, steps, fogs: FogSet(fogs), t0_s, problems: p, has_truth, unit, init })
 }
 
-/// The log's sample interval must be the unit's: the median of the first intervals
+/// The log's sample interval must be its unit's: the median of the first intervals
 /// within 1 %.
-fn check_interval(timed: &[(f64, RawRow)], dt_s: f64, origin: &str) -> Result<()> {
+fn check_interval(timed: &[(f64, RawRow)], unit: LogUnit, origin: &str) -> Result<()> {
     let mut d: Vec<f64> = timed.windows(2).take(1000).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).collect();
     if d.is_empty() {
         return Ok(());
     }
     d.sort_by(f64::total_cmp);
     let med = d[d.len() / 2];
-    if (med - dt_s).abs() > 0.01 * dt_s {
-        bail!(
-            "{origin}: the samples are {:.4} ms apart (median of the first intervals); the unit integrates one FOG sample \
-             every {:.4} ms: resample the log to that interval",
-            med * 1e3,
-            dt_s * 1e3
-        );
+    let dt_s = unit.profile().dt_s();
+    let near = |dt: f64| (med - dt).abs() <= 0.01 * dt;
+    if near(dt_s) {
+        return Ok(());
     }
-    Ok(())
+    let why = match unit {
+        LogUnit::Spacecraft if near(Profile::LAUNCH_VEHICLE.dt_s()) => {
+            "that is the launch-vehicle unit's interval, but the log has no accelerometer columns (`acc0_dv_m_s` … \
+             `acc2_dv_m_s`): a launch-vehicle log needs them (docs/RECORDED-LOG.md); a spacecraft log must be \
+             resampled to"
+        }
+        LogUnit::LaunchVehicle if near(Profile::SPACECRAFT.dt_s()) => {
+            "that is the spacecraft unit's interval, but the log has accelerometer (launch-vehicle) columns; \
+             the launch-vehicle unit integrates one sample of each sensor every"
+        }
+        _ => "resample the log to the unit's interval,",
+    };
+    bail!(
+        "{origin}: the samples are {:.4} ms apart (median of the first intervals): {why} {:.4} ms ({} unit)",
+        med * 1e3,
+        dt_s * 1e3,
+        unit.name()
+    );
 }
 
 /// A 16-bit counter unwrapped into a sample count.
@@ -485,54 +820,57 @@ impl Unwrap {
     }
 }
 
-/// Reads raw captures of the links (FOG bus, star tracker; one file or several, frames
-/// whole or not): FOG frames grouped by their counter, star frames by their time tag.
-pub fn read_captures(paths: &[PathBuf], dt_us: u32) -> Result<Recorded> {
+/// Frames found in captures, each with its byte offset; star and GNSS frames also with
+/// the number of FOG frames decoded before them in the same file (a logger that merges
+/// the links records when each arrived).
+#[derive(Default)]
+struct Scanned {
+    fog: Vec<(usize, FogFrame)>,
+    acc: Vec<(usize, AccelFrame)>,
+    st: Vec<(usize, StarFrame, Option<usize>)>,
+    gnss: Vec<(usize, GnssFrame, Option<usize>)>,
+}
+
+/// Reads raw captures of the links (FOG bus, star tracker, accelerometer bus, GNSS
+/// receiver; one file or several, frames whole or not): FOG frames grouped by their
+/// counter, accelerometer frames by theirs (the first accelerometer sample with the first
+/// FOG sample), star and GNSS frames by their time tags. Accelerometer or GNSS frames
+/// make it a launch-vehicle capture (which carries no initial state: `init` is `None`).
+pub fn read_captures(paths: &[PathBuf]) -> Result<Recorded> {
     let mut p = Problems::default();
-    let mut fog_frames: Vec<(usize, FogFrame)> = Vec::new();
-    // Star frames with the number of FOG frames decoded before them in the same file
-    // (a logger that merges the links records when each arrived).
-    let mut st_frames: Vec<(usize, StarFrame, Option<usize>)> = Vec::new();
+    let mut sc = Scanned::default();
     for path in paths {
         let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
         let name = path.display().to_string();
-        scan_capture(&bytes, &name, &mut p, &mut fog_frames, &mut st_frames);
+        scan_capture(&bytes, &name, &mut p, &mut sc);
     }
     let origin = paths.iter().map(|p| p.display().to_string()).collect::<Vec<_>>().join(" + ");
-    if fog_frames.is_empty() {
+    if sc.fog.is_empty() {
         bail!("{origin}: nothing usable: no FOG frame decoded\n{}", p.report());
     }
-    // Samples by unwrapped counter, in capture order.
-    let mut unwrap = Unwrap::default();
-    let mut by_sample: BTreeMap<u64, [Option<FogSample>; N_FOG]> = BTreeMap::new();
-    let mut last: Option<u64> = None;
-    let mut fogs = 0u8;
-    let mut sample_of = Vec::with_capacity(fog_frames.len());
-    for (off, f) in &fog_frames {
-        let k = unwrap.next(f.counter);
-        sample_of.push(k);
-        let slot = by_sample.entry(k).or_default();
-        let i = usize::from(f.fog_id);
-        if slot[i].is_some() {
-            p.repeated_samples.add(1, || format!("byte {off}: FOG{i} counter {} again", f.counter));
-            continue;
-        }
-        if last.is_some_and(|l| k + 1 < l) {
-            p.backward_samples.add(1, || format!("byte {off}: FOG{i} counter {} after a later one", f.counter));
-            continue;
-        }
-        last = Some(last.map_or(k, |l| l.max(k)));
-        slot[i] = Some(FogSample { dtheta_rad: f.dtheta_rad(), t_degc: f.temperature_degc(), status: f.status });
-        fogs |= 1 << i;
+    let unit = if sc.acc.is_empty() && sc.gnss.is_empty() { LogUnit::Spacecraft } else { LogUnit::LaunchVehicle };
+    if unit == LogUnit::LaunchVehicle && sc.acc.is_empty() {
+        bail!("{origin}: GNSS frames but no accelerometer frame (kind 0x11): a launch-vehicle capture needs them");
     }
-    let first = *by_sample.keys().next().unwrap_or(&0);
+    let dt_us = unit.profile().dt_us;
+    // Samples by unwrapped counter, in capture order.
+    let fog = group_by_counter(&sc.fog, |f| (f.counter, usize::from(f.fog_id), "FOG"), &mut p);
+    let mut fogs = 0u8;
+    for s in fog.by_sample.values() {
+        for (i, f) in s.iter().enumerate() {
+            if f.is_some() {
+                fogs |= 1 << i;
+            }
+        }
+    }
+    let first = *fog.by_sample.keys().next().unwrap_or(&0);
     let dt = u64::from(dt_us);
     // Unit time of the capture's first sample was first·dt; re-based to 1·dt.
     let shift_us = first.saturating_sub(1) * dt;
-    let n_last = by_sample.keys().next_back().map_or(0, |k| k - first + 1);
+    let n_last = fog.by_sample.keys().next_back().map_or(0, |k| k - first + 1);
     let mut steps = vec![LogStep::default(); n_last as usize];
     let mut prev: Option<u64> = None;
-    for (k, fog) in by_sample {
+    for (k, s) in &fog.by_sample {
         let n = k - first + 1;
         if let Some(pn) = prev {
             if n > pn + 1 {
@@ -541,43 +879,116 @@ pub fn read_captures(paths: &[PathBuf], dt_us: u32) -> Result<Recorded> {
             }
         }
         prev = Some(n);
-        steps[n as usize - 1].fog = fog;
+        steps[n as usize - 1].fog = s.map(|f| {
+            f.map(|f| FogSample { dtheta_rad: f.dtheta_rad(), t_degc: f.temperature_degc(), status: f.status })
+        });
     }
-    let mut last_st: Option<u64> = None;
-    for (off, f, after) in st_frames {
-        let Some(us) = f.time_us.checked_sub(shift_us) else {
-            p.st_time_backward
-                .add(1, || format!("byte {off}: star time tag {} µs before the first FOG sample", f.time_us));
-            continue;
-        };
-        if last_st.is_some_and(|l| us <= l) {
-            p.st_time_backward.add(1, || format!("byte {off}: star time tag {} µs not after the previous", f.time_us));
-            continue;
+    let acc = group_by_counter(&sc.acc, |f| (f.counter, usize::from(f.accel_id), "accelerometer"), &mut p);
+    let acc_first = *acc.by_sample.keys().next().unwrap_or(&0);
+    for (k, s) in &acc.by_sample {
+        if let Some(step) = steps.get_mut((k - acc_first) as usize) {
+            step.accel = std::array::from_fn(|i| {
+                s[i].map(|f| AccelSample { dv_m_s: f.dv_m_s(), t_degc: f.temperature_degc(), status: f.status })
+            });
         }
-        last_st = Some(us);
-        // Delivered with the FOG sample logged before it, or (a capture of its own) in the
-        // step whose end is at or after its tag.
-        let n = match after.and_then(|k| k.checked_sub(1)).and_then(|k| sample_of.get(k)) {
+    }
+    // Delivered with the FOG sample logged before it, or (a capture of its own) in the
+    // step whose end is at or after its tag.
+    let step_of =
+        |after: Option<usize>, us: u64| match after.and_then(|k| k.checked_sub(1)).and_then(|k| fog.sample_of.get(k)) {
             Some(&k) => (k.saturating_sub(first) + 1) as usize,
             None => us.div_ceil(dt).max(1) as usize,
         };
-        if let Some(s) = steps.get_mut(n - 1) {
+    let rebase = |tag_us: u64, last: &mut Option<u64>, d: &mut Damage, off: usize, what: &str| {
+        let Some(us) = tag_us.checked_sub(shift_us) else {
+            d.add(1, || format!("byte {off}: {what} time tag {tag_us} µs before the first FOG sample"));
+            return None;
+        };
+        if last.is_some_and(|l| us <= l) {
+            d.add(1, || format!("byte {off}: {what} time tag {tag_us} µs not after the previous"));
+            return None;
+        }
+        *last = Some(us);
+        Some(us)
+    };
+    let mut last_st: Option<u64> = None;
+    for (off, f, after) in sc.st {
+        let Some(us) = rebase(f.time_us, &mut last_st, &mut p.st_time_backward, off, "star") else { continue };
+        if let Some(s) = steps.get_mut(step_of(after, us) - 1) {
             s.st.push(StarSample { time_us: us, valid: f.valid(), q: f.quaternion() });
         }
     }
-    Ok(Recorded { origin, steps, fogs: FogSet(fogs), t0_s: shift_us as f64 * 1e-6, problems: p, has_truth: false })
+    let mut last_gnss: Option<u64> = None;
+    for (off, f, after) in sc.gnss {
+        let Some(us) = rebase(f.time_tag_us, &mut last_gnss, &mut p.gnss_time_backward, off, "GNSS") else {
+            continue;
+        };
+        if let Some(s) = steps.get_mut(step_of(after, us) - 1) {
+            s.gnss.push(GnssSample {
+                time_us: us,
+                status: f.status,
+                satellites: f.satellites,
+                r_e_m: Vector3::from(f.r_counts.map(|c| f64::from(c) * gnss::POS_LSB_M)),
+                v_e_m_s: Vector3::from(f.v_counts.map(|c| f64::from(c) * gnss::VEL_LSB_M_S)),
+                sigma_pos_m: f64::from(f.sigma_pos_counts) * gnss::SIGMA_POS_LSB_M,
+                sigma_vel_m_s: f64::from(f.sigma_vel_counts) * gnss::SIGMA_VEL_LSB_M_S,
+            });
+        }
+    }
+    Ok(Recorded {
+        origin,
+        steps,
+        fogs: FogSet(fogs),
+        t0_s: shift_us as f64 * 1e-6,
+        problems: p,
+        has_truth: false,
+        unit,
+        init: None,
+    })
 }
 
-/// Scans one capture for frames of the kinds the unit reads; every byte not in a good
-/// frame is counted, and a rejected frame is resynchronised inside (as the unit does).
-fn scan_capture(
-    bytes: &[u8],
-    name: &str,
+/// Frames of one bus grouped into samples by their unwrapped counter (any start).
+struct Grouped<F> {
+    /// Per sample, the frame of each slot.
+    by_sample: BTreeMap<u64, [Option<F>; 4]>,
+    /// The sample of each frame, in capture order.
+    sample_of: Vec<u64>,
+}
+
+/// Groups the frames of one bus (`key`: counter, slot, the sensor's name) by counter;
+/// a slot's repeated sample and a sample before the newest but one are counted and
+/// dropped.
+fn group_by_counter<F: Copy>(
+    frames: &[(usize, F)],
+    key: impl Fn(&F) -> (u16, usize, &'static str),
     p: &mut Problems,
-    fog: &mut Vec<(usize, FogFrame)>,
-    st: &mut Vec<(usize, StarFrame, Option<usize>)>,
-) {
-    let fog_before = fog.len();
+) -> Grouped<F> {
+    let mut unwrap = Unwrap::default();
+    let mut g = Grouped { by_sample: BTreeMap::new(), sample_of: Vec::with_capacity(frames.len()) };
+    let mut last: Option<u64> = None;
+    for (off, f) in frames {
+        let (counter, i, what) = key(f);
+        let k = unwrap.next(counter);
+        g.sample_of.push(k);
+        let slot = g.by_sample.entry(k).or_insert([None; 4]);
+        if slot[i].is_some() {
+            p.repeated_samples.add(1, || format!("byte {off}: {what}{i} counter {counter} again"));
+            continue;
+        }
+        if last.is_some_and(|l| k + 1 < l) {
+            p.backward_samples.add(1, || format!("byte {off}: {what}{i} counter {counter} after a later one"));
+            continue;
+        }
+        last = Some(last.map_or(k, |l| l.max(k)));
+        slot[i] = Some(*f);
+    }
+    g
+}
+
+/// Scans one capture for frames of the kinds the units read; every byte not in a good
+/// frame is counted, and a rejected frame is resynchronised inside (as the unit does).
+fn scan_capture(bytes: &[u8], name: &str, p: &mut Problems, sc: &mut Scanned) {
+    let fog_before = sc.fog.len();
     let mut i = 0usize;
     let mut skipped_from: Option<usize> = None;
     let skip = |p: &mut Problems, from: &mut Option<usize>, at: usize| {
@@ -591,6 +1002,8 @@ fn scan_capture(
         let len = match kind {
             Some(k) if is_sync && k == FogFrame::KIND => FogFrame::LEN,
             Some(k) if is_sync && k == StarFrame::KIND => StarFrame::LEN,
+            Some(k) if is_sync && k == AccelFrame::KIND => AccelFrame::LEN,
+            Some(k) if is_sync && k == GnssFrame::KIND => GnssFrame::LEN,
             _ => 0,
         };
         let Some(cand) = (len > 0).then(|| bytes.get(i..i + len)).flatten() else {
@@ -598,11 +1011,13 @@ fn scan_capture(
             i += 1;
             continue;
         };
-        let r = if len == FogFrame::LEN && kind == Some(FogFrame::KIND) {
-            FogFrame::decode(cand).map(|f| fog.push((i, f)))
-        } else {
-            let seen = fog.len();
-            StarFrame::decode(cand).map(|f| st.push((i, f, (seen > fog_before).then_some(seen))))
+        let seen = sc.fog.len();
+        let after = (seen > fog_before).then_some(seen);
+        let r = match kind {
+            Some(FogFrame::KIND) => FogFrame::decode(cand).map(|f| sc.fog.push((i, f))),
+            Some(AccelFrame::KIND) => AccelFrame::decode(cand).map(|f| sc.acc.push((i, f))),
+            Some(GnssFrame::KIND) => GnssFrame::decode(cand).map(|f| sc.gnss.push((i, f, after))),
+            _ => StarFrame::decode(cand).map(|f| sc.st.push((i, f, after))),
         };
         match r {
             Ok(()) => {

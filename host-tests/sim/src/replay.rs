@@ -9,6 +9,8 @@
 
 use std::collections::VecDeque;
 
+use std::path::{Path, PathBuf};
+
 use anyhow::Result;
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
 use ssis::calib::{CalibrationTable, ObserverConfig, N_FOG};
@@ -23,6 +25,7 @@ use ssis::math::{nlerp, rotvec_from_quat};
 use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
 use crate::recorded::{Recorded, StarSample};
 use ssis_common::mock::{MockLink, MockSink};
+use ssis_common::output;
 use ssis_common::stats::AxisStats;
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 
@@ -507,4 +510,55 @@ impl ReplaySummary {
 /// "FOG1 FOG2 …" for a set (the ICD's names: slot i is FOG i+1).
 pub fn fog_names(set: FogSet) -> String {
     (0..N_FOG).filter(|&i| set.contains(i)).map(|i| format!("FOG{}", i + 1)).collect::<Vec<_>>().join(" ")
+}
+
+/// A replay's CSV (`--csv`, one row per `every` records against truth) and its plot's
+/// points (the same records).
+pub struct Rows<P> {
+    out: Option<(csv::Writer<output::AtomicFile>, PathBuf)>,
+    every: u64,
+    n: u64,
+    err: Option<csv::Error>,
+    points: Vec<P>,
+}
+
+impl<P> Rows<P> {
+    /// Rows into `path` (none without) under `header`, every `every`-th record.
+    pub fn new(path: Option<&Path>, header: &[&str], every: u64) -> Result<Rows<P>> {
+        let out = match path {
+            Some(p) => {
+                let mut w = csv::Writer::from_writer(output::create(p)?);
+                w.write_record(header)?;
+                Some((w, p.to_path_buf()))
+            }
+            None => None,
+        };
+        Ok(Rows { out, every: every.max(1), n: 0, err: None, points: Vec::new() })
+    }
+
+    /// One record against truth: its CSV row and plot point, every `every`-th.
+    pub fn take<R: IntoIterator<Item = T>, T: AsRef<[u8]>>(&mut self, row: impl FnOnce() -> R, point: P) {
+        self.n += 1;
+        if !self.n.is_multiple_of(self.every) {
+            return;
+        }
+        if let Some((w, _)) = self.out.as_mut() {
+            if let Err(e) = w.write_record(row()) {
+                self.err.get_or_insert(e);
+            }
+        }
+        self.points.push(point);
+    }
+
+    /// Commits the CSV; the plot's points.
+    pub fn finish(self) -> Result<Vec<P>> {
+        if let Some(e) = self.err {
+            return Err(e.into());
+        }
+        if let Some((w, p)) = self.out {
+            w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
+            println!("wrote {}", p.display());
+        }
+        Ok(self.points)
+    }
 }

@@ -8,7 +8,7 @@ mod hostile_common;
 
 use std::path::{Path, PathBuf};
 
-use hostile_common::{refused, run, succeeds, Scratch};
+use hostile_common::{damage_time, refused, run, succeeds, Scratch};
 
 const EXE: &str = env!("CARGO_BIN_EXE_ssis-sim");
 
@@ -116,9 +116,7 @@ fn each_kind_of_damage_is_counted_and_reported_and_the_log_kept() {
     damaged("bad-value", join(&l), &["bad_values: 1", "damaged.csv:14: field fog0_counter"]);
     // A repeated row, a row out of order (one sample goes backward), a gap of 10 samples.
     let mut l = base.clone();
-    l.insert(hdr + 50, l[hdr + 50].clone());
-    l.swap(hdr + 300, hdr + 301);
-    l.drain(hdr + 700..hdr + 710);
+    damage_time(&mut l, hdr);
     damaged("time", join(&l), &["repeated_samples: 1", "backward_samples: 1", "gap_samples_missing: 11"]);
     // A counter that repeats while the time advances.
     let mut l = base.clone();

@@ -199,3 +199,12 @@ pub fn has_documented_keys(v: &Value, name: &str) {
         assert!(v.pointer(&key).is_some(), "`{name}`: documented key {key} missing from {v}");
     }
 }
+
+/// Time damage in a CSV log's `lines` (data from index `first`): row 50 repeated, rows 300
+/// and 301 swapped (one sample goes backward), rows 700..710 cut out; a replay counts 1
+/// repeated, 1 backward and 11 missing samples.
+pub fn damage_time(lines: &mut Vec<String>, first: usize) {
+    lines.insert(first + 50, lines[first + 50].clone());
+    lines.swap(first + 300, first + 301);
+    lines.drain(first + 700..first + 710);
+}

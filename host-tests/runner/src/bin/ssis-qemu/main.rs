@@ -39,6 +39,10 @@ struct Args {
     /// --replay: the unit's calibration table (.toml, .bin or .img; default nominal).
     #[arg(long, requires = "replay")]
     table: Option<PathBuf>,
+    /// --replay of a launch-vehicle log: the pad initialisation block (`SSPI`) to start
+    /// from, in place of the log's `init_*` columns (a capture has none).
+    #[arg(long, requires = "replay")]
+    pad: Option<PathBuf>,
     /// --replay: statistics start this long after the log's first sample, s.
     #[arg(long, default_value_t = 60.0)]
     settle: f64,
@@ -108,7 +112,7 @@ fn main() -> ExitCode {
 
 fn real_main(a: Args) -> Result<bool> {
     cli::report("command", || cli::json!(if a.replay.is_empty() { "run" } else { "replay" }));
-    for p in a.scenario.iter().chain(&a.replay).chain(&a.table) {
+    for p in a.scenario.iter().chain(&a.replay).chain(&a.table).chain(&a.pad) {
         output::input(p);
     }
     if let Some(e) = &a.elf {

@@ -1,4 +1,5 @@
-//! `ssis-qemu --replay LOG`: a recorded log streamed to the firmware in QEMU.
+//! `ssis-qemu --replay LOG`: a recorded log streamed to the firmware in QEMU (`ssis-fw`
+//! for a spacecraft log, `ssis-fw-lv` for a launch-vehicle log).
 
 use anyhow::{Context, Result};
 use ssis::calib::CalibrationTable;
@@ -6,9 +7,12 @@ use ssis::flight::Profile;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin, Own};
 use ssis_runner::qemu::{run_feed, Feed};
+use ssis_runner::qemu_lv::{run_lv, LvOptions, LvRun};
+use ssis_sim::conventions;
 use ssis_sim::harness::CSV_HEADER;
-use ssis_sim::replay::{farrenkopf_1sigma_arcsec, Evidence, Feed as LogFeed, ReplaySummary};
-use ssis_sim::{conventions, recorded};
+use ssis_sim::lv_replay::{pad_for, LvFeed, LvReplaySummary, NavEvidence, LV_CSV_HEADER};
+use ssis_sim::recorded::{self, LogUnit, Recorded};
+use ssis_sim::replay::{farrenkopf_1sigma_arcsec, Evidence, Feed as LogFeed, ReplaySummary, Rows};
 
 use super::Args;
 
@@ -19,7 +23,11 @@ pub fn run(a: &Args) -> Result<bool> {
         None => CalibrationTable::DEFAULT,
     };
     let profile = Profile::SPACECRAFT;
-    let rec = recorded::read(&a.replay, profile.dt_us)?;
+    let rec = recorded::read_log(&a.replay)?;
+    if rec.unit == LogUnit::LaunchVehicle {
+        return run_lv_replay(a, &rec, &table);
+    }
+    anyhow::ensure!(a.pad.is_none(), "--pad: {} is a spacecraft log (no navigation to start)", rec.origin);
     let conv = conventions::check_conventions(&rec, &table, profile.dt_us)?;
     cli::report("conventions", || ssis_sim::json::conventions(&conv));
     let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
@@ -78,4 +86,57 @@ pub fn run(a: &Args) -> Result<bool> {
         println!("{w}");
     }
     Ok(s.clean() && conv.findings.is_empty())
+}
+
+/// A launch-vehicle log on `ssis-fw-lv` in QEMU (lockstep at 1.25 ms), every output frame
+/// compared with the host's `LvCore`; the report of `ssis-sim replay` on the firmware's
+/// navigation frames.
+fn run_lv_replay(a: &Args, rec: &Recorded, table: &ssis::calib::CalibrationTable) -> Result<bool> {
+    anyhow::ensure!(a.board.is_none() && !a.pty, "--board, --pty: a launch-vehicle log replays on QEMU's sockets only");
+    anyhow::ensure!(!a.real_time, "a launch-vehicle log replays in lockstep only (no --real-time)");
+    anyhow::ensure!(a.corrupt_every == 0, "--corrupt-every is not supported for a launch-vehicle log");
+    let init = pad_for(rec, a.pad.as_deref())?;
+    let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
+    let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
+    let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
+    let title = format!("replay of {} on ssis-fw-lv in QEMU", rec.origin);
+    output::claim(&csv_path, Origin::Default(Own::CsvHeader(LV_CSV_HEADER.join(","))))?;
+    output::claim(&svg, Origin::Default(Own::Svg(title.clone())))?;
+    let elf = match &a.elf {
+        Some(e) => e.clone(),
+        None => ssis_runner::qemu_lv::build_firmware()?,
+    };
+    std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut feed = LvFeed::new(rec);
+    let mut steps = feed.steps();
+    if let Some(d) = a.duration {
+        steps = steps.min((d / Profile::LAUNCH_VEHICLE.dt_s()).round() as u64);
+    }
+    let run = LvRun {
+        name: stem,
+        steps,
+        table: *table,
+        init,
+        next: Box::new(move |n| feed.next_step().filter(|_| n <= steps)),
+    };
+    let mut evidence = NavEvidence::new(rec);
+    let mut rows = Rows::new(Some(&csv_path), &LV_CSV_HEADER, 20)?;
+    let s = run_lv(run, &LvOptions { elf, progress: true }, |f| {
+        if let Some(r) = evidence.frame(f) {
+            rows.take(|| r.csv_row(), (r.t_s, r.att_err_arcsec.into(), r.pos_err_m.into()));
+        }
+    })?;
+    let points = rows.finish()?;
+    if !points.is_empty() {
+        let captions = ["attitude error, arcsec, body axes (x red, y green, z blue)", "position error, m, ECEF"];
+        ssis_common::plot::write_svg_panels(&svg, &title, captions, &points)?;
+        println!("wrote {}", svg.display());
+    }
+    let host_like =
+        LvReplaySummary { steps: s.steps, duration_s: s.duration_s, flight_frames: s.flight_frames, evidence, hash: 0 };
+    cli::report("run", || ssis_runner::json::lv_summary(&s));
+    cli::report("replay", || ssis_sim::json::lv_replay_summary(&host_like, rec));
+    print!("{}", s.report());
+    print!("{}", host_like.report(rec));
+    Ok(s.clean())
 }

@@ -74,9 +74,32 @@ enum Cmd {
         plot: Option<PathBuf>,
         /// The consistency check instead of the replay: each FOG's apparent polarity,
         /// channel and scale relative to the table, from the star tracker and the parity
-        /// residual.
+        /// residual (spacecraft logs).
         #[arg(long)]
         check: bool,
+        /// Launch-vehicle log: the pad initialisation block (`SSPI`, docs/LAUNCH-VEHICLE.md)
+        /// to start from, in place of the log's `init_*` columns (a capture has none).
+        #[arg(long)]
+        pad: Option<PathBuf>,
+    },
+    /// Write a recorded log (docs/RECORDED-LOG.md) of a launch-vehicle ascent scenario
+    /// (`kind = "lv-ascent"`): the frames its sensors send, as numbers that give the same
+    /// frames back, the GNSS fixes, truth and the initial state.
+    Record {
+        /// Scenario file (TOML), e.g. scenarios/lv-ascent.toml
+        scenario: PathBuf,
+        /// Output CSV; refused if it exists (unless --force).
+        out: PathBuf,
+        /// Seconds from lift-off (default: the scenario's duration).
+        #[arg(long)]
+        duration: Option<f64>,
+        /// Truth on every N-th row (the last row always has it).
+        #[arg(long, default_value_t = 1)]
+        truth_every: u64,
+        /// Only the time and the increments per sensor (no counters, temperatures or
+        /// status: a smaller file).
+        #[arg(long)]
+        compact: bool,
     },
     /// Calibration-table tools.
     Table {
@@ -238,8 +261,8 @@ fn main() -> ExitCode {
             let exit = cli::finish(r.map(|e| matches!(e, RunEnd::Complete)));
             code.map_or(exit, ExitCode::from)
         }
-        Cmd::Replay { log, table, settle, csv, every, plot, check } => {
-            let r = replay::run(&replay::Args { log, table, settle, csv, every: every.max(1), plot, check });
+        Cmd::Replay { log, table, settle, csv, every, plot, check, pad } => {
+            let r = replay::run(&replay::Args { log, table, settle, csv, every: every.max(1), plot, check, pad });
             cli::finish(r)
         }
         cmd => cli::finish_unit(real_main(cmd)),
@@ -265,9 +288,10 @@ fn files(cmd: &Cmd) -> Result<()> {
         }
         Cmd::Key { cmd: KeyCmd::ToImage { key, out } } => ("key to-image", [Some(key), None], Some(out)),
         Cmd::Gains { .. } => ("gains", [None, None], None),
-        Cmd::Replay { log, table, csv, plot, .. } => {
+        Cmd::Record { scenario, out, .. } => ("record", [Some(scenario), None], Some(out)),
+        Cmd::Replay { log, table, csv, plot, pad, .. } => {
             cli::report("command", || json!("replay"));
-            for p in log.iter().chain(table) {
+            for p in log.iter().chain(table).chain(pad) {
                 output::input(p);
             }
             for p in [csv, plot].into_iter().flatten() {
@@ -292,6 +316,9 @@ fn real_main(cmd: Cmd) -> Result<()> {
             run_scenario(&scenario, csv, every.max(1), allow_long, estimator).map(|_| ())
         }
         Cmd::Replay { .. } => Ok(()),
+        Cmd::Record { scenario, out, duration, truth_every, compact } => {
+            replay::record(&scenario, &out, duration, truth_every, compact)
+        }
         Cmd::Table { cmd } => table_cmd(cmd),
         Cmd::Key { cmd } => key_cmd(cmd),
         Cmd::Gains { arw, rrw, st_sigma, st_period } => {

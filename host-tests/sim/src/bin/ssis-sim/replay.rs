@@ -1,15 +1,19 @@
-//! `ssis-sim replay`: a recorded log through the flight core, or its consistency check.
+//! `ssis-sim replay`: a recorded log through the flight core (the spacecraft unit's, or
+//! the launch vehicle's flight core and navigation), or its consistency check; `ssis-sim
+//! record`: a launch-vehicle log written from an ascent scenario.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
 use ssis_common::cli;
 use ssis_common::output;
-use ssis_common::plot::{write_svg, PlotPoint};
+use ssis_common::plot::{write_svg, write_svg_panels, PlotPoint};
 use ssis_sim::harness::CSV_HEADER;
-use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay};
+use ssis_sim::lv_replay::{replay_lv, LogOptions, LvScenario, LV_CSV_HEADER};
+use ssis_sim::recorded::{LogUnit, Recorded};
+use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay, Rows};
 use ssis_sim::{check, conventions, recorded};
 
 /// The command's arguments.
@@ -21,6 +25,7 @@ pub struct Args {
     pub every: u64,
     pub plot: Option<PathBuf>,
     pub check: bool,
+    pub pad: Option<PathBuf>,
 }
 
 /// Runs it; `Ok(false)` when the conventions check or `--check` finds something.
@@ -30,7 +35,16 @@ pub fn run(a: &Args) -> Result<bool> {
         None => CalibrationTable::DEFAULT,
     };
     let dt_us = Profile::SPACECRAFT.dt_us;
-    let rec = recorded::read(&a.log, dt_us)?;
+    let rec = recorded::read_log(&a.log)?;
+    if rec.unit == LogUnit::LaunchVehicle {
+        anyhow::ensure!(
+            !a.check,
+            "{}: --check needs the spacecraft unit's four FOGs and star tracker; this is a launch-vehicle log",
+            rec.origin
+        );
+        return run_lv(a, &rec, &table);
+    }
+    anyhow::ensure!(a.pad.is_none(), "--pad: {} is a spacecraft log (no navigation to start)", rec.origin);
     let conv = conventions::check_conventions(&rec, &table, dt_us)?;
     cli::report("conventions", || ssis_sim::json::conventions(&conv));
     if a.check {
@@ -49,40 +63,20 @@ pub fn run(a: &Args) -> Result<bool> {
         cli::report("damage", || ssis_sim::json::damage(&rec.problems));
         return Ok(r.findings.is_empty() && conv.findings.is_empty());
     }
-    let mut writer = match &a.csv {
-        Some(p) => {
-            let mut w = csv::Writer::from_writer(output::create(p)?);
-            w.write_record(CSV_HEADER)?;
-            Some(w)
-        }
-        None => None,
-    };
-    let mut points = Vec::new();
-    let mut n = 0u64;
-    let mut csv_err = None;
+    let mut rows = Rows::new(a.csv.as_deref(), &CSV_HEADER, a.every)?;
     let s = replay(&rec, &table, a.settle, |_, r| {
-        let Some(r) = r else { return };
-        n += 1;
-        if n.is_multiple_of(a.every) {
-            if let Some(w) = writer.as_mut() {
-                if let Err(e) = w.write_record(r.csv_row()) {
-                    csv_err.get_or_insert(e);
-                }
-            }
-            points.push(PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h });
+        if let Some(r) = r {
+            rows.take(
+                || r.csv_row(),
+                PlotPoint { t_s: r.t_s, att_arcsec: r.att_err_arcsec, rate_deg_h: r.rate_err_deg_h },
+            );
         }
     })?;
-    if let Some(e) = csv_err {
-        return Err(e.into());
-    }
     let dt = Profile::SPACECRAFT;
     let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), rec.st_latency_s(dt.dt_us));
     print!("{}", s.report(&rec, Some(limit)));
     print!("{}", conv.report());
-    if let (Some(w), Some(p)) = (writer, &a.csv) {
-        w.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", p.display(), e.error()))?.commit()?;
-        println!("wrote {}", p.display());
-    }
+    let points = rows.finish()?;
     if let Some(p) = &a.plot {
         anyhow::ensure!(!points.is_empty(), "{}: no truth in the log: nothing to plot", p.display());
         write_svg(p, &format!("replay of {}", rec.origin), &points)?;
@@ -97,4 +91,46 @@ pub fn run(a: &Args) -> Result<bool> {
         println!("{w}");
     }
     Ok(conv.findings.is_empty())
+}
+
+/// A launch-vehicle log through `FlightCore::step_with()` + `NavUnit`.
+fn run_lv(a: &Args, rec: &Recorded, table: &CalibrationTable) -> Result<bool> {
+    let init = ssis_sim::lv_replay::pad_for(rec, a.pad.as_deref())?;
+    let mut rows = Rows::new(a.csv.as_deref(), &LV_CSV_HEADER, a.every)?;
+    let s = replay_lv(rec, table, &init, |_, r| {
+        if let Some(r) = r {
+            rows.take(|| r.csv_row(), (r.t_s, r.att_err_arcsec.into(), r.pos_err_m.into()));
+        }
+    })?;
+    print!("{}", s.report(rec));
+    let points = rows.finish()?;
+    if let Some(p) = &a.plot {
+        anyhow::ensure!(!points.is_empty(), "{}: no truth in the log: nothing to plot", p.display());
+        let captions = ["attitude error, arcsec, body axes (x red, y green, z blue)", "position error, m, ECEF"];
+        write_svg_panels(p, &format!("replay of {}", rec.origin), captions, &points)?;
+        println!("wrote {}", p.display());
+    }
+    cli::report("replay", || ssis_sim::json::lv_replay_summary(&s, rec));
+    Ok(true)
+}
+
+/// `ssis-sim record`: a launch-vehicle log of an ascent scenario.
+pub fn record(scenario: &Path, out: &Path, duration: Option<f64>, truth_every: u64, compact: bool) -> Result<()> {
+    anyhow::ensure!(
+        LvScenario::is_lv_file(scenario),
+        "{}: `record` writes launch-vehicle logs: the scenario must be `kind = \"{}\"` (spacecraft logs come from \
+         a peer simulator, examples/basilisk/)",
+        scenario.display(),
+        ssis_sim::lv_replay::KIND
+    );
+    let sc = LvScenario::from_file(scenario)?;
+    let duration_s = duration.unwrap_or(sc.duration_s);
+    anyhow::ensure!(duration_s > 0.0 && duration_s.is_finite(), "--duration must be > 0");
+    let steps = (duration_s / Profile::LAUNCH_VEHICLE.dt_s()).round() as u64;
+    let mut f = std::io::BufWriter::new(output::create(out)?);
+    ssis_sim::lv_replay::write_log(&sc, LogOptions { steps, truth_every: truth_every.max(1), full: !compact }, &mut f)?;
+    f.into_inner().map_err(|e| anyhow::anyhow!("{}: cannot write: {}", out.display(), e.error()))?.commit()?;
+    cli::report("record", || cli::json!({"scenario": sc.name, "steps": steps, "out": out.display().to_string()}));
+    println!("wrote {} ({steps} steps of 1.25 ms)", out.display());
+    Ok(())
 }
