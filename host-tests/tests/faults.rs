@@ -662,11 +662,13 @@ fn ten_minute_outage_ends_at_the_prediction_and_the_unit_reports_its_error() {
 }
 
 /// A constant offset on FOG1 from power-on (3 °/h: the parity baseline takes it for
-/// calibration residue, the observer's drift estimate learns its share u₁ p̄, about
-/// 1.5 °/h by 1800 s), then a 20σ bias step at 1800 s that isolates FOG1 at once: the
-/// isolation takes what the estimate learned of FOG1's share out of it, so the drift
-/// estimate is back at the calibration residue at once and the attitude returns to the
-/// nominal band (it was off by the observer's lag behind the offset before the step).
+/// calibration residue, the drift estimate learns its share u₁ p̄, about 1.5 °/h by
+/// 1800 s), then a 20σ bias step at 1800 s that isolates FOG1 at once: the isolation
+/// takes what the estimate learned of FOG1's share out of it (each estimator by its own
+/// gains: the observer's slow pole, the MEKF's P_bb P_bb(0)⁻¹), so the drift estimate is
+/// back at the calibration residue at once, without a jump of FOG1's size, and the
+/// attitude returns to the nominal band (it was off by the estimator's lag behind the
+/// offset before the step). For both estimators.
 #[test]
 fn an_isolation_takes_the_fogs_share_out_of_the_drift_estimate() {
     let k = scale();
@@ -677,28 +679,47 @@ fn an_isolation_takes_the_fogs_share_out_of_the_drift_estimate() {
         duration_s: 90.0,
     };
     let sd = seed(1, 0);
-    let (mut before, mut after, mut late_err) = (0.0f64, 0.0f64, 0.0f64);
-    let r = run_observed(sd, &f, |s| {
-        let d = s.out.drift_rad_s.amax() * ssis_common::DEG_H_PER_RAD_S;
-        if s.t_s > 1799.0 && s.t_s <= 1800.0 {
-            before = before.max(d);
-        }
-        if s.t_s > 1801.0 && s.t_s <= 1802.0 {
-            after = after.max(d);
-        }
-        if s.t_s > 1860.0 {
-            late_err = late_err.max(max_abs(&s.att_err_arcsec));
-        }
+    let one = |est: Estimator| {
+        let (mut before, mut after, mut late_err) = (0.0f64, 0.0f64, 0.0f64);
+        let r = run_with(sd, &f, est, |s| {
+            let d = s.out.drift_rad_s.amax() * ssis_common::DEG_H_PER_RAD_S;
+            if s.t_s > 1799.0 && s.t_s <= 1800.0 {
+                before = before.max(d);
+            }
+            if s.t_s > 1801.0 && s.t_s <= 1802.0 {
+                after = after.max(d);
+            }
+            if s.t_s > 1860.0 {
+                late_err = late_err.max(max_abs(&s.att_err_arcsec));
+            }
+        });
+        let nom = run_with(sd, &Fault { kind: FaultKind::None, ..f }, est, |_| {});
+        (r, nom, before, after, late_err)
+    };
+    let results: Vec<_> = std::thread::scope(|sc| {
+        let hs: Vec<_> =
+            [Estimator::Luenberger, Estimator::Mekf].into_iter().map(|e| (e, sc.spawn(move || one(e)))).collect();
+        hs.into_iter().map(|(e, h)| (e, h.join().expect("thread"))).collect()
     });
-    let nom = nominal(sd, &f);
-    println!(
-        "offset 3 °/h on FOG1, step at 1800 s: isolated {:?}; drift estimate (largest axis) {before:.3} °/h before, \
-         {after:.3} °/h after; error from 60 s after the isolation {late_err:.2}″, nominal band {:.2}″",
-        r.isolated,
-        band(&nom)
-    );
-    assert!(r.isolated.is_some_and(|(i, t)| i == 0 && t < 1.0), "isolated {:?}", r.isolated);
-    assert!(before > 1.0, "the drift estimate had not learned FOG1's share: {before:.3} °/h");
-    assert!(after < 0.1, "FOG1's share left in the drift estimate: {after:.3} °/h");
-    assert!(late_err <= band(&nom) + 1.0, "error {late_err:.2}″ a minute after the isolation, band {:.2}″", band(&nom));
+    for (est, (r, nom, before, after, late_err)) in &results {
+        println!(
+            "{est:?}: offset 3 °/h on FOG1, step at 1800 s: isolated {:?}; drift estimate (largest axis) {before:.3} °/h \
+             before, {after:.3} °/h after; error from 60 s after the isolation {late_err:.2}″, nominal band {:.2}″",
+            r.isolated,
+            band(nom)
+        );
+        assert!(r.isolated.is_some_and(|(i, t)| i == 0 && t < 1.0), "{est:?}: isolated {:?}", r.isolated);
+        assert!(*before > 1.0, "{est:?}: the drift estimate had not learned FOG1's share: {before:.3} °/h");
+        // The observer's slow pole is known exactly; the MEKF's unlearned fraction F is
+        // an upper bound (it forgets its prior faster with the rate random walk), counted
+        // as a 1σ error of its own size, so its gains relearn the rest within seconds:
+        // what stays a second on is under a fifth of what it had learned of FOG1's share.
+        let limit = if *est == Estimator::Mekf { 0.2 * before } else { 0.1 };
+        assert!(*after < limit, "{est:?}: FOG1's share left in the drift estimate: {after:.3} °/h");
+        assert!(
+            *late_err <= band(nom) + 1.0,
+            "{est:?}: error {late_err:.2}″ a minute after the isolation, band {:.2}″",
+            band(nom)
+        );
+    }
 }
