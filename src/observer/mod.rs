@@ -227,6 +227,8 @@ pub struct Observer<const H: usize> {
     /// N = (SᵀS)⁻¹ of the FOG combination flying ([`mekf::noise_of`]): one FOG's noise
     /// variance becomes σ² N on the body axes.
     noise: Matrix3<f64>,
+    /// N_kk per axis (equal on every axis when they differ only by rounding).
+    noise_axis: [f64; 3],
     /// ARW variance rate per axis, σ_v² N_kk, rad²/s.
     arw_axis_rad2_s: [f64; 3],
     /// Rate random walk variance rate per axis, σ_u² N_kk, rad²/s³.
@@ -278,6 +280,7 @@ impl<const H: usize> Observer<H> {
             isotropic: true,
             sigma_roots: [0.0; 6],
             noise: Matrix3::identity(),
+            noise_axis: [1.0; 3],
             arw_axis_rad2_s: [steady.arw_var_rad2_s; 3],
             rrw_axis_rad2_s3: [steady.rrw_var_rad2_s3; 3],
             mekf_pbb0: Matrix3::zeros(),
@@ -341,8 +344,18 @@ impl<const H: usize> Observer<H> {
     pub fn set_noise(&mut self, noise: &Matrix3<f64>) {
         self.noise = *noise;
         let st = &self.steady;
-        for (k, (v, u)) in self.arw_axis_rad2_s.iter_mut().zip(self.rrw_axis_rad2_s3.iter_mut()).enumerate() {
-            let n = noise.get((k, k)).copied().unwrap_or(1.0);
+        // Diagonals equal but for rounding (the nominal four FOGs: 5/6 each) are made
+        // equal, so one axis stands for all ([`Observer::refresh_isotropic`]).
+        let d = [noise.m11, noise.m22, noise.m33];
+        let mean = (d[0] + d[1] + d[2]) / 3.0;
+        let equal = d.iter().all(|x| (x - mean).abs() <= 1e-9 * mean.abs());
+        for ((n, na), (v, u)) in d
+            .iter()
+            .zip(self.noise_axis.iter_mut())
+            .zip(self.arw_axis_rad2_s.iter_mut().zip(self.rrw_axis_rad2_s3.iter_mut()))
+        {
+            let n = if equal { mean } else { *n };
+            *na = n;
             *v = st.arw_var_rad2_s * n;
             *u = st.rrw_var_rad2_s3 * n;
         }
@@ -472,6 +485,10 @@ impl<const H: usize> Observer<H> {
     fn propagated(&self, time_us: u64) -> [[f64; 3]; 3] {
         let tau = self.since_update_s(time_us);
         let mut out = self.cov;
+        if self.isotropic {
+            let ([c0, ..], [sv2, ..], [su2, ..]) = (self.cov, self.arw_axis_rad2_s, self.rrw_axis_rad2_s3);
+            return [propagate(&c0, tau, sv2, su2); 3];
+        }
         for ((c, sv2), su2) in out.iter_mut().zip(self.arw_axis_rad2_s).zip(self.rrw_axis_rad2_s3) {
             *c = propagate(c, tau, sv2, su2);
         }
@@ -574,8 +591,11 @@ impl<const H: usize> Observer<H> {
     fn update_cov(&mut self, time_us: u64) {
         let r = self.steady.r_rad2;
         let prior = self.propagated(time_us);
+        let gains_equal = |[a, b, c]: [f64; 3]| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits();
+        let axes =
+            if self.isotropic && gains_equal(self.gains.k_b) && gains_equal(self.gains.k_u_per_s) { 1 } else { 3 };
         for (((c, [p11, p12, p22]), k1), k_u) in
-            self.cov.iter_mut().zip(prior).zip(self.gains.k_b).zip(self.gains.k_u_per_s)
+            self.cov.iter_mut().zip(prior).zip(self.gains.k_b).zip(self.gains.k_u_per_s).take(axes)
         {
             let k2 = -k_u;
             *c = [
@@ -584,7 +604,12 @@ impl<const H: usize> Observer<H> {
                 p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
             ];
         }
-        self.refresh_isotropic();
+        if axes == 1 {
+            let [c0, ..] = self.cov;
+            self.cov = [c0; 3];
+        } else {
+            self.refresh_isotropic();
+        }
     }
 
     /// Eq. (5) and the mismatch e = 2 vect(Λ(t_s)⁻¹ ∘ Λ*) for a frame, without using it.
@@ -659,8 +684,8 @@ impl<const H: usize> Observer<H> {
             // (the table's initial drift 1σ, σ_b), on the body axes σ_b² N: what the
             // error of either estimator really is at alignment, the drift estimate being 0.
             let (r, sb2) = (self.steady.r_rad2, self.initial_drift_var_rad2_s2);
-            for (k, c) in self.cov.iter_mut().enumerate() {
-                *c = [r, 0.0, sb2 * self.noise.get((k, k)).copied().unwrap_or(1.0)];
+            for (c, n) in self.cov.iter_mut().zip(self.noise_axis) {
+                *c = [r, 0.0, sb2 * n];
             }
             self.refresh_isotropic();
             self.mekf = MekfCov::aligned(r, sb2, &self.noise);
