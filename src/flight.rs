@@ -183,7 +183,8 @@ impl FlightCore {
     /// was invalid and `table` is the default; flagged in every output frame).
     pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
         let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
-        let observer = Observer::from_config(&table.observer)?;
+        let mut observer = Observer::from_config(&table.observer)?;
+        observer.set_noise(&flying_noise(&combiner, profile.fogs));
         let dt = profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
         let fdi = parity_monitor(profile, &combiner, noise_rad, dt);
@@ -264,6 +265,26 @@ impl FlightCore {
         }
         self.fdi = fdi;
         self.combiner = combiner;
+        self.observer.set_noise(&flying_noise(&self.combiner, self.flying()));
+    }
+
+    /// The FOGs the combination flies on: the fitted ones less an isolated one.
+    fn flying(&self) -> FogSet {
+        match self.fdi.as_ref().and_then(ParityMonitor::isolated) {
+            Some(i) => self.profile.fogs.without(i),
+            None => self.profile.fogs,
+        }
+    }
+
+    /// FOG `i` has just been isolated at unit time `now_us`: its share leaves the drift
+    /// estimate ([`Observer::remove_drift_share`]), and the estimators' noise follows
+    /// the triad that flies from now on.
+    fn on_isolation(&mut self, i: usize, now_us: u64) {
+        if let Some(fdi) = self.fdi.as_ref() {
+            let (share, cov) = (fdi.drift_share_rad_s(i), fdi.drift_share_cov_rad2_s2(i));
+            self.observer.remove_drift_share(now_us, &share, &cov);
+        }
+        self.observer.set_noise(&flying_noise(&self.combiner, self.flying()));
     }
 
     /// CRC-32 of the table in use (the last four bytes of its binary form).
@@ -604,9 +625,10 @@ impl FlightCore {
                 }
             }
         };
-        if let (false, Some(i)) = (was_isolated, fdi.isolated()) {
+        let newly = if was_isolated { None } else { fdi.isolated() };
+        if let Some(i) = newly {
             // Isolated in this sample: its share leaves the drift estimate too.
-            self.observer.remove_drift_share(time_us, &fdi.drift_share_rad_s(i));
+            self.on_isolation(i, time_us);
         }
         if let Some(i) = drop {
             sample.used = sample.used.without(i);
@@ -679,7 +701,7 @@ impl FlightCore {
                     self.star_intake.used(now_us);
                     if let Some(iso) = fdi.on_mismatch(&m.e_rad, m.var_rad2) {
                         self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
-                        self.observer.remove_drift_share(now_us, &fdi.drift_share_rad_s(iso.fog));
+                        self.on_isolation(iso.fog, now_us);
                     }
                     st_status::LISTENED
                 }
@@ -753,7 +775,14 @@ impl FlightCore {
             }
         }
         self.observer.restart();
+        self.observer.set_noise(&flying_noise(&self.combiner, self.flying()));
     }
+}
+
+/// N = (SᵀS)⁻¹ of the combination of `set` on `combiner` ([`crate::observer::mekf::noise_of`]);
+/// the identity if `set` cannot be combined (the estimators keep one FOG's figures).
+fn flying_noise(combiner: &Combiner, set: FogSet) -> nalgebra::Matrix3<f64> {
+    combiner.solution(set).map_or_else(|_| nalgebra::Matrix3::identity(), crate::observer::mekf::noise_of)
 }
 
 /// FOG channel k on the table's axis k: the mounting the table describes.

@@ -8,7 +8,7 @@
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use ssis::calib::N_FOG;
+use ssis::calib::{Estimator, N_FOG};
 use ssis::flight::{flags, health, st_status, MAX_WAIT_STEPS, ST_OUTAGE_US};
 use ssis::integrity::channel::STUCK_SAMPLES;
 use ssis::integrity::parity::K_SPIKE;
@@ -37,7 +37,12 @@ fn run(seed: u64, f: &Fault) -> FaultRun {
 }
 
 fn run_observed(seed: u64, f: &Fault, on_step: impl FnMut(&FaultStep)) -> FaultRun {
-    let sc = faults::scenario(seed, f.start_s + f.duration_s + AFTER_S).expect("scenario");
+    run_with(seed, f, Estimator::Luenberger, on_step)
+}
+
+/// [`run_observed`] with `estimator` flying.
+fn run_with(seed: u64, f: &Fault, estimator: Estimator, on_step: impl FnMut(&FaultStep)) -> FaultRun {
+    let sc = faults::scenario_with(seed, f.start_s + f.duration_s + AFTER_S, estimator).expect("scenario");
     faults::run_observed(&sc, f, on_step).expect("run")
 }
 
@@ -608,48 +613,62 @@ fn star_tracker_outliers_of_10_sigma_are_all_gated() {
     assert_eq!(taken, 0, "10σ outliers taken");
 }
 
-/// At the end of a 10-min outage from steady state (1800 s), the error per axis over
-/// the runs is what gyro-only coasting from the steady state predicts (Farrenkopf:
-/// 8.7″ 1σ with the paper's sensors), and the unit's reported 1σ is never below it.
+/// At the end of a 10-min outage from steady state (1800 s), for each estimator: the
+/// error per axis over the runs is what gyro-only coasting from the steady state predicts
+/// (Farrenkopf: 8.7″ 1σ with the paper's sensors; within 1.2×), and the unit's own
+/// reported 1σ is within 20 % of the measured RMS. 24 seeds × 3 axes = 72 samples pooled
+/// (the RMS known to about 8 % 1σ, so ± 20 % is a 2.4σ band: a covariance off by 2×, or
+/// by the √(6/5) of one FOG's noise against the four-FOG combination's, fails it).
 #[test]
-fn ten_minute_outage_ends_at_the_gyro_coasting_prediction() {
+fn ten_minute_outage_ends_at_the_prediction_and_the_unit_reports_its_error() {
+    const SEEDS: u64 = 24;
     let k = scale();
     let predicted = faults::coasting_sigma_rad(&k.steady, 600.0) * ARCSEC_PER_RAD;
-    let runs: Vec<(usize, FaultRun)> = (1..=6)
-        .map(|s| (0, run(seed(s, 0), &Fault { kind: FaultKind::StOutage, start_s: 1800.0, duration_s: 600.0 })))
-        .collect();
-    let (rms, sigma) = faults::end_of_outage(&runs);
-    let pooled = (rms.iter().map(|x| x * x).sum::<f64>() / 3.0).sqrt();
-    println!(
-        "10-min outage end over {} runs: RMS {:.2} / {:.2} / {:.2}″ (pooled {pooled:.2}″), predicted {predicted:.2}″ \
-         (ratio {:.2}); reported 1σ {:.2} / {:.2} / {:.2}″ (reported / pooled {:.2})",
-        runs.len(),
-        rms[0],
-        rms[1],
-        rms[2],
-        pooled / predicted,
-        sigma[0],
-        sigma[1],
-        sigma[2],
-        sigma[0] / pooled
-    );
-    // The prediction is the same on every axis; 6 runs give 18 samples of it (the RMS
-    // known to about 17 %), so the three axes are pooled here; the campaign gives each.
-    assert!(pooled <= 1.2 * predicted, "pooled RMS {pooled:.2}″ against {predicted:.2}″");
-    assert!(pooled >= predicted / 1.2, "pooled RMS {pooled:.2}″ against {predicted:.2}″: the outage did not coast");
-    // The unit's own 1σ: not optimistic. (Within 20 % of the RMS is the goal; at 1800 s
-    // its drift covariance still carries the alignment prior, docs/FAULT-CAMPAIGN.md.)
-    for (s, r) in sigma.iter().zip(rms) {
-        assert!(*s >= r, "reported {s:.2}″ below the measured {r:.2}″");
+    let f = Fault { kind: FaultKind::StOutage, start_s: 1800.0, duration_s: 600.0 };
+    let one = |est: Estimator| -> Vec<(usize, FaultRun)> {
+        (1..=SEEDS).map(|s| (0, run_with(seed(s, 0), &f, est, |_| {}))).collect()
+    };
+    let results: Vec<(Estimator, Vec<(usize, FaultRun)>)> = std::thread::scope(|sc| {
+        let hs: Vec<_> =
+            [Estimator::Luenberger, Estimator::Mekf].into_iter().map(|e| (e, sc.spawn(move || one(e)))).collect();
+        hs.into_iter().map(|(e, h)| (e, h.join().expect("thread"))).collect()
+    });
+    for (est, runs) in &results {
+        let (rms, sigma) = faults::end_of_outage(runs);
+        let pooled = (rms.iter().map(|x| x * x).sum::<f64>() / 3.0).sqrt();
+        let reported = sigma.iter().sum::<f64>() / 3.0;
+        println!(
+            "{est:?}, 10-min outage end over {} runs: RMS {:.2} / {:.2} / {:.2}″ (pooled {pooled:.2}″), predicted \
+             {predicted:.2}″ (ratio {:.2}); reported 1σ {:.2} / {:.2} / {:.2}″ (reported / pooled {:.2})",
+            runs.len(),
+            rms[0],
+            rms[1],
+            rms[2],
+            pooled / predicted,
+            sigma[0],
+            sigma[1],
+            sigma[2],
+            reported / pooled
+        );
+        // The prediction is the same on every axis; the three axes are pooled here, the
+        // campaign gives each.
+        assert!(pooled <= 1.2 * predicted, "{est:?}: pooled RMS {pooled:.2}″ against {predicted:.2}″");
+        assert!(pooled >= predicted / 1.2, "{est:?}: pooled RMS {pooled:.2}″ against {predicted:.2}″: no coast");
+        assert!(
+            (reported / pooled - 1.0).abs() <= 0.2,
+            "{est:?}: reported 1σ {reported:.2}″ against the measured {pooled:.2}″"
+        );
     }
 }
 
 /// A constant offset on FOG1 from power-on (3 °/h: the parity baseline takes it for
-/// calibration residue, the observer's drift estimate learns its share u₁ p̄, about
-/// 1.5 °/h by 1800 s), then a 20σ bias step at 1800 s that isolates FOG1 at once: the
-/// isolation takes what the estimate learned of FOG1's share out of it, so the drift
-/// estimate is back at the calibration residue at once and the attitude returns to the
-/// nominal band (it was off by the observer's lag behind the offset before the step).
+/// calibration residue, the drift estimate learns its share u₁ p̄, about 1.5 °/h by
+/// 1800 s), then a 20σ bias step at 1800 s that isolates FOG1 at once: the isolation
+/// takes what the estimate learned of FOG1's share out of it (each estimator by its own
+/// gains: the observer's slow pole, the MEKF's P_bb P_bb(0)⁻¹), so the drift estimate is
+/// back at the calibration residue at once, without a jump of FOG1's size, and the
+/// attitude returns to the nominal band (it was off by the estimator's lag behind the
+/// offset before the step). For both estimators.
 #[test]
 fn an_isolation_takes_the_fogs_share_out_of_the_drift_estimate() {
     let k = scale();
@@ -660,28 +679,47 @@ fn an_isolation_takes_the_fogs_share_out_of_the_drift_estimate() {
         duration_s: 90.0,
     };
     let sd = seed(1, 0);
-    let (mut before, mut after, mut late_err) = (0.0f64, 0.0f64, 0.0f64);
-    let r = run_observed(sd, &f, |s| {
-        let d = s.out.drift_rad_s.amax() * ssis_common::DEG_H_PER_RAD_S;
-        if s.t_s > 1799.0 && s.t_s <= 1800.0 {
-            before = before.max(d);
-        }
-        if s.t_s > 1801.0 && s.t_s <= 1802.0 {
-            after = after.max(d);
-        }
-        if s.t_s > 1860.0 {
-            late_err = late_err.max(max_abs(&s.att_err_arcsec));
-        }
+    let one = |est: Estimator| {
+        let (mut before, mut after, mut late_err) = (0.0f64, 0.0f64, 0.0f64);
+        let r = run_with(sd, &f, est, |s| {
+            let d = s.out.drift_rad_s.amax() * ssis_common::DEG_H_PER_RAD_S;
+            if s.t_s > 1799.0 && s.t_s <= 1800.0 {
+                before = before.max(d);
+            }
+            if s.t_s > 1801.0 && s.t_s <= 1802.0 {
+                after = after.max(d);
+            }
+            if s.t_s > 1860.0 {
+                late_err = late_err.max(max_abs(&s.att_err_arcsec));
+            }
+        });
+        let nom = run_with(sd, &Fault { kind: FaultKind::None, ..f }, est, |_| {});
+        (r, nom, before, after, late_err)
+    };
+    let results: Vec<_> = std::thread::scope(|sc| {
+        let hs: Vec<_> =
+            [Estimator::Luenberger, Estimator::Mekf].into_iter().map(|e| (e, sc.spawn(move || one(e)))).collect();
+        hs.into_iter().map(|(e, h)| (e, h.join().expect("thread"))).collect()
     });
-    let nom = nominal(sd, &f);
-    println!(
-        "offset 3 °/h on FOG1, step at 1800 s: isolated {:?}; drift estimate (largest axis) {before:.3} °/h before, \
-         {after:.3} °/h after; error from 60 s after the isolation {late_err:.2}″, nominal band {:.2}″",
-        r.isolated,
-        band(&nom)
-    );
-    assert!(r.isolated.is_some_and(|(i, t)| i == 0 && t < 1.0), "isolated {:?}", r.isolated);
-    assert!(before > 1.0, "the drift estimate had not learned FOG1's share: {before:.3} °/h");
-    assert!(after < 0.1, "FOG1's share left in the drift estimate: {after:.3} °/h");
-    assert!(late_err <= band(&nom) + 1.0, "error {late_err:.2}″ a minute after the isolation, band {:.2}″", band(&nom));
+    for (est, (r, nom, before, after, late_err)) in &results {
+        println!(
+            "{est:?}: offset 3 °/h on FOG1, step at 1800 s: isolated {:?}; drift estimate (largest axis) {before:.3} °/h \
+             before, {after:.3} °/h after; error from 60 s after the isolation {late_err:.2}″, nominal band {:.2}″",
+            r.isolated,
+            band(nom)
+        );
+        assert!(r.isolated.is_some_and(|(i, t)| i == 0 && t < 1.0), "{est:?}: isolated {:?}", r.isolated);
+        assert!(*before > 1.0, "{est:?}: the drift estimate had not learned FOG1's share: {before:.3} °/h");
+        // The observer's slow pole is known exactly; the MEKF's unlearned fraction F is
+        // an upper bound (it forgets its prior faster with the rate random walk), counted
+        // as a 1σ error of its own size, so its gains relearn the rest within seconds:
+        // what stays a second on is under a fifth of what it had learned of FOG1's share.
+        let limit = if *est == Estimator::Mekf { 0.2 * before } else { 0.1 };
+        assert!(*after < limit, "{est:?}: FOG1's share left in the drift estimate: {after:.3} °/h");
+        assert!(
+            *late_err <= band(nom) + 1.0,
+            "{est:?}: error {late_err:.2}″ a minute after the isolation, band {:.2}″",
+            band(nom)
+        );
+    }
 }

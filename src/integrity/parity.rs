@@ -36,7 +36,7 @@
 //!
 //! Every sum is a running sum: O(1) per sample and per star-tracker frame, no buffers.
 
-use nalgebra::{Matrix3x4, RowVector4, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix3x4, RowVector4, Vector3, Vector4};
 
 use crate::calib::N_FOG;
 
@@ -404,6 +404,18 @@ impl ParityMonitor {
     /// it) reaches a drift estimate as u_i p̄ / Δt. On isolating i the estimate loses it.
     pub fn drift_share_rad_s(&self, i: usize) -> Vector3<f64> {
         self.u.get(i).map_or_else(Vector3::zeros, |u| u * (self.baseline_rad / self.dt_s))
+    }
+
+    /// The covariance of [`ParityMonitor::drift_share_rad_s`], (rad/s)²: u_i u_iᵀ σ²_p̄ / Δt²
+    /// with σ²_p̄ the baseline's noise variance, σ₁²/n while it is a plain mean of n
+    /// samples and σ₁² α/(2 − α) as the slow mean of weight α = Δt / [`BASELINE_S`]
+    /// (0.027 °/h for the paper's ARW, before u_i).
+    pub fn drift_share_cov_rad2_s2(&self, i: usize) -> Matrix3<f64> {
+        let plain = 1.0 / f64::from(self.seen.max(1));
+        let a = self.alpha_slow;
+        let weight = if plain > a { plain } else { a / (2.0 - a) };
+        let var_p = self.sigma1_rad * self.sigma1_rad * weight / (self.dt_s * self.dt_s);
+        self.u.get(i).map_or_else(Matrix3::zeros, |u| u * u.transpose() * var_p)
     }
 
     fn isolate(&mut self, i: usize) {

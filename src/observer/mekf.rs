@@ -18,8 +18,16 @@
 //!
 //! ```text
 //! Φ = [[A, −B], [0, I]],   A = C(Λ̂(t_l)⁻¹ ∘ Λ̂(t_s))ᵀ,   B = τ (A + I) / 2
-//! Q = [[(σ_v² τ + σ_u² τ³/3) I, −σ_u² τ²/2 I], [−σ_u² τ²/2 I, σ_u² τ I]]
+//! Q = [[(σ_v² τ + σ_u² τ³/3) N, −σ_u² τ²/2 N], [−σ_u² τ²/2 N, σ_u² τ N]]
 //! ```
+//!
+//! σ_v, σ_u are one FOG's (the table's figures); the body increment is the least-squares
+//! combination Δθ = S⁺ m of the FOGs flying ([`crate::combination`]), so independent
+//! noise of σ² on each FOG is σ² N on the body axes with N = S⁺ S⁺ᵀ = (SᵀS)⁻¹: 5/6 on
+//! each axis (−1/6 between axes) for the four nominal FOGs, I for the orthogonal triad,
+//! diag(5, 1, 1) for the triad without FOG1 ([`noise_of`]). Likewise each FOG's turn-on
+//! bias: P_bb = σ_b² N at alignment. (Q takes N unrotated over τ: exact for the isotropic
+//! part, and the anisotropic part turns by at most ωτ, 0.017 rad in a 4 Hz interval.)
 //!
 //! (A maps an error in the body at t_l to the body at t_s; B is the trapezoid of
 //! ∫A(t) dt, exact for a constant rate to O((ωτ)²), below 1e-5 relative for 1 °/s over
@@ -91,43 +99,51 @@ fn inverse_spd(s: &Matrix3<f64>) -> Option<Matrix3<f64>> {
 
 impl MekfCov {
     /// At alignment on one frame: the attitude known to the star tracker's noise `r_rad2`,
-    /// the drift to `drift_var_rad2_s2` per axis, uncorrelated.
-    pub fn aligned(r_rad2: f64, drift_var_rad2_s2: f64) -> Self {
-        MekfCov {
-            paa: Matrix3::identity() * r_rad2,
-            pab: Matrix3::zeros(),
-            pbb: Matrix3::identity() * drift_var_rad2_s2,
-        }
+    /// each FOG's turn-on bias to `drift_var_rad2_s2`, so the body drift to
+    /// `drift_var_rad2_s2` N (`noise`: N of the combination flying), uncorrelated.
+    pub fn aligned(r_rad2: f64, drift_var_rad2_s2: f64, noise: &Matrix3<f64>) -> Self {
+        MekfCov { paa: Matrix3::identity() * r_rad2, pab: Matrix3::zeros(), pbb: noise * drift_var_rad2_s2 }
     }
 
     /// The covariance at `tau_s` after the last update, the body having turned by
-    /// `q_rel` (Λ̂(t_l)⁻¹ ∘ Λ̂(t_s)) meanwhile (module doc: Φ P Φᵀ + Q).
-    pub fn propagated(&self, q_rel: &Quaternion<f64>, tau_s: f64, arw_var_rad2_s: f64, rrw_var_rad2_s3: f64) -> Self {
+    /// `q_rel` (Λ̂(t_l)⁻¹ ∘ Λ̂(t_s)) meanwhile (module doc: Φ P Φᵀ + Q), one FOG's noise
+    /// figures σ_v², σ_u² reaching the body axes as σ² N (`noise`, [`noise_of`]).
+    pub fn propagated(
+        &self,
+        q_rel: &Quaternion<f64>,
+        tau_s: f64,
+        arw_var_rad2_s: f64,
+        rrw_var_rad2_s3: f64,
+        noise: &Matrix3<f64>,
+    ) -> Self {
         let a = dcm(q_rel).transpose();
         let b = (a + Matrix3::identity()) * (0.5 * tau_s);
         let (sv2, su2, t) = (arw_var_rad2_s, rrw_var_rad2_s3, tau_s);
-        let i = Matrix3::identity();
         let apab = a * self.pab;
         let bpbb = b * self.pbb;
         let cross = apab * b.transpose();
         let paa = a * self.paa * a.transpose() - cross - cross.transpose()
             + bpbb * b.transpose()
-            + i * (sv2 * t + su2 * t * t * t / 3.0);
-        MekfCov { paa: sym(&paa), pab: apab - bpbb - i * (su2 * t * t / 2.0), pbb: self.pbb + i * (su2 * t) }
+            + noise * (sv2 * t + su2 * t * t * t / 3.0);
+        MekfCov { paa: sym(&paa), pab: apab - bpbb - noise * (su2 * t * t / 2.0), pbb: self.pbb + noise * (su2 * t) }
     }
 
     /// The diagonal of P_aa and P_bb at `tau_s` after the last update, the body's turn
     /// meanwhile left out (what the output's 1σ needs every step, at the cost of a few
     /// products per axis; exact for an isotropic P, as the star tracker's equal noise on
-    /// every axis makes it in steady state).
-    pub fn diagonals(&self, tau_s: f64, arw_var_rad2_s: f64, rrw_var_rad2_s3: f64) -> ([f64; 3], [f64; 3]) {
-        let (sv2, su2, t) = (arw_var_rad2_s, rrw_var_rad2_s3, tau_s);
-        let q11 = sv2 * t + su2 * t * t * t / 3.0;
+    /// every axis makes it in steady state). `arw_var_rad2_s` and `rrw_var_rad2_s3` per
+    /// axis: σ_v² N_kk and σ_u² N_kk.
+    pub fn diagonals(&self, tau_s: f64, arw_var_rad2_s: &[f64; 3], rrw_var_rad2_s3: &[f64; 3]) -> ([f64; 3], [f64; 3]) {
+        let t = tau_s;
+        let t3 = t * t * t / 3.0;
         let (a, ab, b) = (&self.paa, &self.pab, &self.pbb);
-        let att = |paa: f64, pab: f64, pbb: f64| paa - 2.0 * t * pab + t * t * pbb + q11;
+        let [v0, v1, v2] = *arw_var_rad2_s;
+        let [u0, u1, u2] = *rrw_var_rad2_s3;
+        let att =
+            |paa: f64, pab: f64, pbb: f64, sv2: f64, su2: f64| paa - 2.0 * t * pab + t * t * pbb + sv2 * t + su2 * t3;
         (
-            [att(a.m11, ab.m11, b.m11), att(a.m22, ab.m22, b.m22), att(a.m33, ab.m33, b.m33)],
-            [b.m11 + su2 * t, b.m22 + su2 * t, b.m33 + su2 * t],
+            [att(a.m11, ab.m11, b.m11, v0, u0), att(a.m22, ab.m22, b.m22, v1, u1), att(a.m33, ab.m33, b.m33, v2, u2)],
+            [b.m11 + u0 * t, b.m22 + u1 * t, b.m33 + u2 * t],
         )
     }
 
@@ -155,10 +171,55 @@ impl MekfCov {
         MekfGain { ka, kb }
     }
 
+    /// Takes an isolated FOG's share out of the bias state: returns what to subtract from
+    /// the drift estimate b̂ and widens P_bb by what is no longer known.
+    ///
+    /// The bias state is the drift of the combination flying. With FOG i isolated the
+    /// four-FOG solution S₄⁺ = S₃⁺ + u_i v (v the parity vector, u_i = S₄⁺_{:,i} / v_i) gives
+    /// way to the triad's S₃⁺, so the true drift moves by −s = −u_i (v β) (β the FOGs'
+    /// biases), estimated as ŝ = `share_rad_s` = u_i p̄ / Δt from the parity baseline p̄
+    /// with covariance Σ_s = `share_cov_rad2_s2` = u_i u_iᵀ σ²_p̄ / Δt² (the baseline's noise
+    /// is independent of the body noise: S₄⁺ vᵀ = 0).
+    ///
+    /// The filter had learned only part of s. For a constant drift present since
+    /// alignment the mean of the bias error m_b obeys m_b ← (I − K_b H) Φ … as P_bb does
+    /// without process noise, so m_b(t) = P_bb(t) P_bb(0)⁻¹ d: the unlearned fraction is
+    /// F = P_bb P_bb(0)⁻¹ (exact without the rate random walk; with it F overstates what is
+    /// unlearned, by 0.19 against 0.11 of s after 30 min with the paper's post-calibration
+    /// bias, and less from a pre-calibration prior). So
+    ///
+    /// ```text
+    /// b̂ ← b̂ − (I − F) ŝ,     P_bb ← P_bb + (F ŝ)(F ŝ)ᵀ + Σ_s,     F = P_bb P_bb(0)⁻¹
+    /// ```
+    ///
+    /// the unlearned part counted as a 1σ error of its own size in its direction: the
+    /// filter relearns it with its own gains. P_aa and P_ab stay (Σ_s is independent of
+    /// the attitude error; the unlearned part is what the bias error already held).
+    /// `pbb0` is P_bb(0), the bias covariance at alignment; a singular one (no prior)
+    /// counts everything as unlearned.
+    pub fn remove_share(
+        &mut self,
+        share_rad_s: &Vector3<f64>,
+        share_cov_rad2_s2: &Matrix3<f64>,
+        pbb0: &Matrix3<f64>,
+    ) -> Vector3<f64> {
+        let f = inverse_spd(pbb0).map_or_else(Matrix3::identity, |inv| self.pbb * inv);
+        let unlearned = f * share_rad_s;
+        self.pbb = sym(&(self.pbb + unlearned * unlearned.transpose() + share_cov_rad2_s2));
+        share_rad_s - unlearned
+    }
+
     /// The mean variance per axis of P_aa, rad² (a scalar for the fault logic).
     pub fn mean_attitude_var_rad2(&self) -> f64 {
         self.paa.trace() / 3.0
     }
+}
+
+/// N = S⁺ S⁺ᵀ for the least-squares solution S⁺ = (SᵀS)⁻¹ Sᵀ (3 × 4, the columns of FOGs
+/// not flying zero): what independent noise of unit variance on each FOG becomes on the
+/// body axes (S⁺ S = I, so S⁺ S⁺ᵀ = (SᵀS)⁻¹).
+pub fn noise_of(solution: &nalgebra::Matrix3x4<f64>) -> Matrix3<f64> {
+    sym(&(solution * solution.transpose()))
 }
 
 /// eᵀ S⁻¹ e: the normalised mismatch squared (χ²₃ for a consistent filter).

@@ -33,7 +33,7 @@
 pub mod mekf;
 
 use heapless::Deque;
-use nalgebra::{Quaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, Vector3};
 
 use crate::attitude::Attitude;
 use crate::calib::{Estimator, ObserverConfig, ObserverGains};
@@ -214,12 +214,27 @@ pub struct Observer<const H: usize> {
     steady: SteadyState,
     /// Time tag of the last frame that updated the observer, µs.
     last_update_tag_us: Option<u64>,
-    /// Covariance of (attitude error, drift error) per axis after the last update:
+    /// Covariance of (attitude error, drift error) of each axis after the last update:
     /// P11 rad², P12 rad²/s, P22 rad²/s² (the gate's expected mismatch variance).
-    cov: [f64; 3],
-    /// The last 1σ of the attitude error (rad) and of the drift error (rad/s) reported
-    /// ([`Observer::sigmas`]): the start of the next step's Newton step; 0 none yet.
-    sigma_roots: [f64; 2],
+    cov: [[f64; 3]; 3],
+    /// Whether the three axes' covariances and noise figures are equal (then one axis is
+    /// propagated for all: the nominal four FOGs, and the orthogonal triad).
+    isotropic: bool,
+    /// The last 1σ of the attitude error (rad, x y z) and of the drift error (rad/s, x y
+    /// z) reported ([`Observer::sigmas`]): the start of the next step's Newton step; 0
+    /// none yet.
+    sigma_roots: [f64; 6],
+    /// N = (SᵀS)⁻¹ of the FOG combination flying ([`mekf::noise_of`]): one FOG's noise
+    /// variance becomes σ² N on the body axes.
+    noise: Matrix3<f64>,
+    /// N_kk per axis (equal on every axis when they differ only by rounding).
+    noise_axis: [f64; 3],
+    /// ARW variance rate per axis, σ_v² N_kk, rad²/s.
+    arw_axis_rad2_s: [f64; 3],
+    /// Rate random walk variance rate per axis, σ_u² N_kk, rad²/s³.
+    rrw_axis_rad2_s3: [f64; 3],
+    /// The MEKF's P_bb at alignment, (rad/s)² ([`MekfCov::remove_share`]).
+    mekf_pbb0: Matrix3<f64>,
     streak: Streak,
     /// The estimator that flies.
     estimator: Estimator,
@@ -227,7 +242,8 @@ pub struct Observer<const H: usize> {
     mekf: MekfCov,
     /// The MEKF's last 1σ roots (attitude x y z, drift x y z), as `sigma_roots`.
     mekf_roots: [f64; 6],
-    /// Drift variance at alignment, (rad/s)² per axis (the MEKF's initial P_bb).
+    /// Each FOG's drift variance at alignment, (rad/s)² (the table's initial drift 1σ
+    /// squared; σ_b² N on the body axes).
     initial_drift_var_rad2_s2: f64,
     /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
     last_q: Quaternion<f64>,
@@ -260,11 +276,17 @@ impl<const H: usize> Observer<H> {
             sigma_st_rad,
             steady,
             last_update_tag_us: None,
-            cov: [0.0; 3],
-            sigma_roots: [0.0; 2],
+            cov: [[0.0; 3]; 3],
+            isotropic: true,
+            sigma_roots: [0.0; 6],
+            noise: Matrix3::identity(),
+            noise_axis: [1.0; 3],
+            arw_axis_rad2_s: [steady.arw_var_rad2_s; 3],
+            rrw_axis_rad2_s3: [steady.rrw_var_rad2_s3; 3],
+            mekf_pbb0: Matrix3::zeros(),
             streak: Streak::default(),
             estimator: Estimator::Luenberger,
-            mekf: MekfCov::aligned(0.0, 0.0),
+            mekf: MekfCov::aligned(0.0, 0.0, &Matrix3::zeros()),
             mekf_roots: [0.0; 6],
             initial_drift_var_rad2_s2: 0.0,
             last_q: Quaternion::identity(),
@@ -292,22 +314,62 @@ impl<const H: usize> Observer<H> {
         self.steady = steady;
         self.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
         if cfg.estimator != self.estimator {
-            // The covariance carries over: per axis into the MEKF's blocks, or the MEKF's
-            // mean per axis into the observer's running one (both as of the last update).
-            let i = nalgebra::Matrix3::identity();
+            // The covariance carries over: per axis into the diagonals of the MEKF's
+            // blocks, or the diagonals of the MEKF's into the observer's running one (both
+            // as of the last update).
             match cfg.estimator {
                 Estimator::Mekf => {
-                    let [p11, p12, p22] = self.cov;
-                    self.mekf = MekfCov { paa: i * p11, pab: i * p12, pbb: i * p22 };
+                    let [[a0, b0, c0], [a1, b1, c1], [a2, b2, c2]] = self.cov;
+                    let d = |x: f64, y: f64, z: f64| Matrix3::from_diagonal(&Vector3::new(x, y, z));
+                    self.mekf = MekfCov { paa: d(a0, a1, a2), pab: d(b0, b1, b2), pbb: d(c0, c1, c2) };
                 }
                 Estimator::Luenberger => {
                     let m = &self.mekf;
-                    self.cov = [m.paa.trace() / 3.0, m.pab.trace() / 3.0, m.pbb.trace() / 3.0];
+                    for (k, c) in self.cov.iter_mut().enumerate() {
+                        let at = |x: &Matrix3<f64>| x.get((k, k)).copied().unwrap_or(0.0);
+                        *c = [at(&m.paa), at(&m.pab), at(&m.pbb)];
+                    }
                 }
             }
             self.estimator = cfg.estimator;
         }
+        self.set_noise(&self.noise.clone_owned());
         Ok(())
+    }
+
+    /// Flies on a FOG combination whose N = (SᵀS)⁻¹ is `noise` ([`mekf::noise_of`]) from
+    /// now on: the gyros' noise figures per body axis, σ² N_kk for the observer's running
+    /// covariance and σ² N for the MEKF's (the four nominal FOGs: 5/6 on each axis; after
+    /// an isolation the triad's). What was propagated until now stays.
+    pub fn set_noise(&mut self, noise: &Matrix3<f64>) {
+        self.noise = *noise;
+        let st = &self.steady;
+        // Diagonals equal but for rounding (the nominal four FOGs: 5/6 each) are made
+        // equal, so one axis stands for all ([`Observer::refresh_isotropic`]).
+        let d = [noise.m11, noise.m22, noise.m33];
+        let mean = (d[0] + d[1] + d[2]) / 3.0;
+        let equal = d.iter().all(|x| (x - mean).abs() <= 1e-9 * mean.abs());
+        for ((n, na), (v, u)) in d
+            .iter()
+            .zip(self.noise_axis.iter_mut())
+            .zip(self.arw_axis_rad2_s.iter_mut().zip(self.rrw_axis_rad2_s3.iter_mut()))
+        {
+            let n = if equal { mean } else { *n };
+            *na = n;
+            *v = st.arw_var_rad2_s * n;
+            *u = st.rrw_var_rad2_s3 * n;
+        }
+        self.refresh_isotropic();
+    }
+
+    /// Whether one axis stands for all three ([`Observer::sigmas`]): the same covariance
+    /// and noise figures, bit for bit, on every axis.
+    fn refresh_isotropic(&mut self) {
+        let same = |[a, b, c]: &[f64; 3]| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits();
+        let [c0, c1, c2] = &self.cov;
+        let cov_same =
+            c0.iter().zip(c1).zip(c2).all(|((a, b), c)| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits());
+        self.isotropic = cov_same && same(&self.arw_axis_rad2_s) && same(&self.rrw_axis_rad2_s3);
     }
 
     /// The estimator that flies.
@@ -419,18 +481,18 @@ impl<const H: usize> Observer<H> {
         Err(UpdateError::Stale)
     }
 
-    /// The covariance propagated from the last update to `time_us` (F = [[1, −τ], [0, 1]],
-    /// the gyros' random walks as process noise).
-    fn propagated(&self, time_us: u64) -> [f64; 3] {
-        let st = &self.steady;
-        let [p11, p12, p22] = self.cov;
+    /// Each axis's covariance propagated from the last update to `time_us` ([`propagate`]).
+    fn propagated(&self, time_us: u64) -> [[f64; 3]; 3] {
         let tau = self.since_update_s(time_us);
-        let (sv2, su2) = (st.arw_var_rad2_s, st.rrw_var_rad2_s3);
-        [
-            p11 - 2.0 * tau * p12 + tau * tau * p22 + sv2 * tau + su2 * tau * tau * tau / 3.0,
-            p12 - tau * p22 - su2 * tau * tau / 2.0,
-            p22 + su2 * tau,
-        ]
+        let mut out = self.cov;
+        if self.isotropic {
+            let ([c0, ..], [sv2, ..], [su2, ..]) = (self.cov, self.arw_axis_rad2_s, self.rrw_axis_rad2_s3);
+            return [propagate(&c0, tau, sv2, su2); 3];
+        }
+        for ((c, sv2), su2) in out.iter_mut().zip(self.arw_axis_rad2_s).zip(self.rrw_axis_rad2_s3) {
+            *c = propagate(c, tau, sv2, su2);
+        }
+        out
     }
 
     /// Seconds from the last update's time tag to `time_us` (0 before any).
@@ -443,7 +505,9 @@ impl<const H: usize> Observer<H> {
     /// The 1σ of the attitude error (rad) and of the drift error (rad/s) per axis at
     /// `time_us`: the square roots of P11 and P22 of the running covariance propagated to
     /// that time (the fixed gains in the Joseph form at each update, the gyros' random
-    /// walks between; the same on every axis). Infinite before alignment: unknown.
+    /// walks through the combination flying between: [`Observer::set_noise`]). One axis
+    /// for all while they are equal ([`Observer::refresh_isotropic`]). Infinite before
+    /// alignment: unknown.
     ///
     /// Each root is one Newton step x ← (x + P/x)/2 from the last step's (relative error
     /// ε²/2 for a start off by ε: below 2e-3 whenever P moved by less than 12.5 %, as it
@@ -452,29 +516,48 @@ impl<const H: usize> Observer<H> {
     /// With the MEKF: the diagonals of its P_aa and P_bb, per axis ([`MekfCov::diagonals`]).
     pub fn sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
         if !self.aligned {
-            self.sigma_roots = [0.0; 2];
+            self.sigma_roots = [0.0; 6];
             self.mekf_roots = [0.0; 6];
             return ([f64::INFINITY; 3], [f64::INFINITY; 3]);
         }
         if self.estimator == Estimator::Mekf {
             return self.mekf_sigmas(time_us);
         }
-        let [p11, _, p22] = self.propagated(time_us);
-        let [a, d] = &mut self.sigma_roots;
+        if !self.isotropic {
+            return self.axis_sigmas(time_us);
+        }
+        let tau = self.since_update_s(time_us);
+        let [c, ..] = &self.cov;
+        let ([sv2, ..], [su2, ..]) = (self.arw_axis_rad2_s, self.rrw_axis_rad2_s3);
+        let [p11, _, p22] = propagate(c, tau, sv2, su2);
+        let [a, _, _, d, _, _] = &mut self.sigma_roots;
         for (x, p) in [(a, p11), (d, p22)] {
             mekf::root(x, p);
         }
-        let [a, d] = self.sigma_roots;
+        let [a, _, _, d, _, _] = self.sigma_roots;
         ([a; 3], [d; 3])
+    }
+
+    /// [`Observer::sigmas`] of the observer axis by axis (out of line: after an isolation
+    /// the combination's noise differs between axes).
+    #[inline(never)]
+    fn axis_sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
+        let [c0, c1, c2] = self.propagated(time_us);
+        let p = [c0[0], c1[0], c2[0], c0[2], c1[2], c2[2]];
+        let mut out = [0.0; 6];
+        for ((o, x), p) in out.iter_mut().zip(self.sigma_roots.iter_mut()).zip(p) {
+            *o = mekf::root(x, p);
+        }
+        let [a0, a1, a2, d0, d1, d2] = out;
+        ([a0, a1, a2], [d0, d1, d2])
     }
 
     /// [`Observer::sigmas`] of the MEKF (out of line: the observer's step stays as short
     /// as it was).
     #[inline(never)]
     fn mekf_sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
-        let st = &self.steady;
         let tau = self.since_update_s(time_us);
-        let (pa, pb) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let (pa, pb) = self.mekf.diagonals(tau, &self.arw_axis_rad2_s, &self.rrw_axis_rad2_s3);
         let mut out = [0.0; 6];
         for ((o, x), p) in out.iter_mut().zip(self.mekf_roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
             *o = mekf::root(x, p);
@@ -489,29 +572,44 @@ impl<const H: usize> Observer<H> {
     /// so an outage widens the gate as the attitude uncertainty grows and the return
     /// narrows it again only as fast as the observer really converges.
     ///
-    /// With the MEKF: the mean per axis of its P_aa propagated to `time_us`, plus R.
+    /// With the MEKF: the mean per axis of its P_aa propagated to `time_us`, plus R; with
+    /// the observer the mean of its axes' P11 when they differ.
     pub fn mismatch_var_rad2(&self, time_us: u64) -> f64 {
         if self.estimator == Estimator::Mekf {
-            let st = &self.steady;
             let tau = self.since_update_s(time_us);
-            let (pa, _) = self.mekf.diagonals(tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
-            return pa.iter().sum::<f64>() / 3.0 + st.r_rad2;
+            let (pa, _) = self.mekf.diagonals(tau, &self.arw_axis_rad2_s, &self.rrw_axis_rad2_s3);
+            return pa.iter().sum::<f64>() / 3.0 + self.steady.r_rad2;
         }
-        self.propagated(time_us)[0] + self.steady.r_rad2
+        let [c0, c1, c2] = self.propagated(time_us);
+        let p11 = if self.isotropic { c0[0] } else { (c0[0] + c1[0] + c2[0]) / 3.0 };
+        p11 + self.steady.r_rad2
     }
 
-    /// The covariance after an update at `time_us` with the gains in use (per axis,
-    /// the first axis's gains: the gains are equal on every axis unless overridden).
+    /// The covariance after an update at `time_us` with the gains in use, axis by axis
+    /// (Joseph form of x⁺ = (I − K H) x⁻ + K v with K = (K_B, −K_U) and H = (1, 0): exact
+    /// for the fixed-gain loop, whatever the gains).
     fn update_cov(&mut self, time_us: u64) {
-        let [p11, p12, p22] = self.propagated(time_us);
         let r = self.steady.r_rad2;
-        let k1 = self.gains.k_b[0];
-        let k2 = -self.gains.k_u_per_s[0];
-        self.cov = [
-            (1.0 - k1) * (1.0 - k1) * p11 + k1 * k1 * r,
-            (1.0 - k1) * (p12 - k2 * p11) + k1 * k2 * r,
-            p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
-        ];
+        let prior = self.propagated(time_us);
+        let gains_equal = |[a, b, c]: [f64; 3]| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits();
+        let axes =
+            if self.isotropic && gains_equal(self.gains.k_b) && gains_equal(self.gains.k_u_per_s) { 1 } else { 3 };
+        for (((c, [p11, p12, p22]), k1), k_u) in
+            self.cov.iter_mut().zip(prior).zip(self.gains.k_b).zip(self.gains.k_u_per_s).take(axes)
+        {
+            let k2 = -k_u;
+            *c = [
+                (1.0 - k1) * (1.0 - k1) * p11 + k1 * k1 * r,
+                (1.0 - k1) * (p12 - k2 * p11) + k1 * k2 * r,
+                p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
+            ];
+        }
+        if axes == 1 {
+            let [c0, ..] = self.cov;
+            self.cov = [c0; 3];
+        } else {
+            self.refresh_isotropic();
+        }
     }
 
     /// Eq. (5) and the mismatch e = 2 vect(Λ(t_s)⁻¹ ∘ Λ*) for a frame, without using it.
@@ -582,10 +680,16 @@ impl<const H: usize> Observer<H> {
             self.aligned = true;
             self.aligned_us = Some(time_us);
             self.last_update_tag_us = Some(time_us);
-            // Aligned to one frame; the drift is known to ten times its steady state
-            // (the observer), or to the table's initial drift 1σ (the MEKF).
-            self.cov = [self.steady.r_rad2, 0.0, 100.0 * self.steady.drift_var_rad2_s2];
-            self.mekf = MekfCov::aligned(self.steady.r_rad2, self.initial_drift_var_rad2_s2);
+            // Aligned to one frame; the drift is what is left of each FOG's turn-on bias
+            // (the table's initial drift 1σ, σ_b), on the body axes σ_b² N: what the
+            // error of either estimator really is at alignment, the drift estimate being 0.
+            let (r, sb2) = (self.steady.r_rad2, self.initial_drift_var_rad2_s2);
+            for (c, n) in self.cov.iter_mut().zip(self.noise_axis) {
+                *c = [r, 0.0, sb2 * n];
+            }
+            self.refresh_isotropic();
+            self.mekf = MekfCov::aligned(r, sb2, &self.noise);
+            self.mekf_pbb0 = self.mekf.pbb;
             self.last_q = c * q_at;
             self.stats.updates = self.stats.updates.saturating_add(1);
             return Ok(Vector3::zeros());
@@ -602,8 +706,10 @@ impl<const H: usize> Observer<H> {
                 // Re-acquire: the frames agree with each other, the attitude is off by
                 // about their mean. The covariance is reset to that (per axis, twice the
                 // mean square), so the gate stays open while the observer closes the gap.
-                let [_, _, p22] = self.propagated(time_us);
-                self.cov = [2.0 * mean2 / 3.0, 0.0, p22];
+                let prior = self.propagated(time_us);
+                for (c, [_, _, p22]) in self.cov.iter_mut().zip(prior) {
+                    *c = [2.0 * mean2 / 3.0, 0.0, p22];
+                }
                 self.last_update_tag_us = Some(time_us);
             }
         }
@@ -666,7 +772,7 @@ impl<const H: usize> Observer<H> {
         let st = self.steady;
         let tau = self.since_update_s(time_us);
         let q_rel = self.last_q.conjugate() * q_at;
-        let mut prior = self.mekf.propagated(&q_rel, tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let mut prior = self.mekf.propagated(&q_rel, tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3, &self.noise);
         let mut s_inv = prior.innovation_inverse(st.r_rad2);
         let d2 = s_inv.map_or(f64::INFINITY, |s| mekf::normalised(e, &s));
         if d2 > CHI2_GATE {
@@ -708,18 +814,30 @@ impl<const H: usize> Observer<H> {
         self.stats = ObserverStats::default();
         self.innov_ms_rad2 = 0.0;
         self.last_update_tag_us = None;
-        self.cov = [0.0; 3];
-        self.sigma_roots = [0.0; 2];
+        self.cov = [[0.0; 3]; 3];
+        self.refresh_isotropic();
+        self.sigma_roots = [0.0; 6];
         self.mekf_roots = [0.0; 6];
         self.streak = Streak::default();
     }
 
     /// Takes out of the drift estimate what it has learned of a constant drift
-    /// `share_rad_s` (ICS) present since alignment (an isolated gyro's share), at unit
-    /// time `now_us`. The fixed-gain loop learns a constant drift with its slow pole,
-    /// K_U / K_B per second (about 30 min at 4 Hz): 1 − exp(−t K_U / K_B) of it after t.
-    pub fn remove_drift_share(&mut self, now_us: u64, share_rad_s: &Vector3<f64>) {
+    /// `share_rad_s` (ICS) present since alignment (an isolated gyro's share, as the
+    /// parity baseline estimates it, with covariance `share_cov_rad2_s2`), at unit time
+    /// `now_us`; each estimator by what its own gains have learned of it.
+    ///
+    /// - The fixed-gain loop learns a constant drift with its slow pole, K_U / K_B per
+    ///   second (about 30 min at 4 Hz): 1 − exp(−t K_U / K_B) of it after t. Its running
+    ///   covariance takes the share's uncertainty: P22_k ← P22_k + (Σ_s)_kk.
+    /// - The MEKF: b̂ ← b̂ − (I − F) ŝ with F = P_bb P_bb(0)⁻¹ the fraction its own gains
+    ///   have not learned, and P_bb widened by what is no longer known
+    ///   ([`MekfCov::remove_share`], the derivation), so it relearns at its own rate.
+    pub fn remove_drift_share(&mut self, now_us: u64, share_rad_s: &Vector3<f64>, share_cov_rad2_s2: &Matrix3<f64>) {
         let Some(t0) = self.aligned_us else { return };
+        if self.estimator == Estimator::Mekf {
+            self.drift_rad_s -= self.mekf.remove_share(share_rad_s, share_cov_rad2_s2, &self.mekf_pbb0);
+            return;
+        }
         let t_s = f64::from(u32::try_from(now_us.saturating_sub(t0) / 1000).unwrap_or(u32::MAX)) * 1e-3;
         for ((d, s), (k_u, k_b)) in self
             .drift_rad_s
@@ -731,6 +849,12 @@ impl<const H: usize> Observer<H> {
                 *d -= s * (1.0 - libm::exp(-t_s * k_u / k_b));
             }
         }
+        for (k, c) in self.cov.iter_mut().enumerate() {
+            if let Some(p22) = c.get_mut(2) {
+                *p22 += share_cov_rad2_s2.get((k, k)).copied().unwrap_or(0.0);
+            }
+        }
+        self.refresh_isotropic();
     }
 
     /// Removes a drift `drift_rad_s` (ICS) that entered the attitude from `since_us` on
@@ -766,7 +890,21 @@ impl<const H: usize> Observer<H> {
     }
 }
 
-/// The drift variance at alignment of the table's initial drift 1σ, (rad/s)².
+/// One axis's covariance (P11, P12, P22) propagated over `tau_s` without an update:
+/// F = [[1, −τ], [0, 1]], the gyros' random walks (`sv2`, `su2`: this axis's σ_v² N_kk and
+/// σ_u² N_kk) as process noise.
+#[inline(always)]
+fn propagate(c: &[f64; 3], tau_s: f64, sv2: f64, su2: f64) -> [f64; 3] {
+    let [p11, p12, p22] = *c;
+    let tau = tau_s;
+    [
+        p11 - 2.0 * tau * p12 + tau * tau * p22 + sv2 * tau + su2 * tau * tau * tau / 3.0,
+        p12 - tau * p22 - su2 * tau * tau / 2.0,
+        p22 + su2 * tau,
+    ]
+}
+
+/// Each FOG's drift variance at alignment of the table's initial drift 1σ, (rad/s)².
 fn initial_drift_var_rad2_s2(cfg: &ObserverConfig) -> f64 {
     let s = cfg.initial_drift_sigma_deg_h * DEG_RAD / 3600.0;
     s * s

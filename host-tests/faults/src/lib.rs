@@ -16,7 +16,7 @@ use anyhow::{Context, Result};
 use nalgebra::{Quaternion, Vector3};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use ssis::calib::N_FOG;
+use ssis::calib::{CalibrationTable, Estimator, N_FOG};
 use ssis::flight::{flags, health, st_status, Counters, FlightCore, StepOutput};
 use ssis::frames::fog::{status, FogFrame};
 use ssis::frames::star::StarFrame;
@@ -174,6 +174,22 @@ pub fn scenario(seed: u64, duration_s: f64) -> Result<Scenario> {
     sc.seed = seed;
     sc.duration_s = duration_s;
     sc.settle_s = 40.0;
+    // The unit's table states what calibration left of each FOG's bias, the scenario's
+    // turn-on bias (3σ → 1σ): the estimators' drift covariance at alignment
+    // (`ObserverConfig::initial_drift_sigma_deg_h`; the default is the paper's
+    // pre-calibration figure).
+    if sc.fog.random_bias_3sigma_deg_h > 0.0 {
+        let mut o = sc.table.observer.unwrap_or(CalibrationTable::DEFAULT.observer);
+        o.initial_drift_sigma_deg_h = sc.fog.random_bias_3sigma_deg_h / 3.0;
+        sc.table.observer = Some(o);
+    }
+    Ok(sc)
+}
+
+/// [`scenario`] with `estimator` flying.
+pub fn scenario_with(seed: u64, duration_s: f64, estimator: Estimator) -> Result<Scenario> {
+    let mut sc = scenario(seed, duration_s)?;
+    sc.table.estimator = Some(estimator);
     Ok(sc)
 }
 
