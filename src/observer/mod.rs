@@ -253,17 +253,19 @@ pub struct Observer<const H: usize> {
 struct Acquisition {
     /// K_B, K_U of the acquisition (the table's `gains_override`).
     gains: ObserverGains,
-    /// Its length t_acq after alignment, µs.
-    for_us: u64,
+    /// Its length t_acq after alignment, ms (u32: one conversion instruction from f64 on
+    /// the M7, where u64 is a library call; 7200 s fit 600 times over).
+    for_ms: u32,
 }
 
 impl Acquisition {
     /// The stage a table asks for: an override and t_acq > 0.
+    #[inline(never)]
     fn of(cfg: &ObserverConfig) -> Option<Self> {
         let gains = cfg.gains_override?;
         // `validate` bounds t_acq to 0…7200 s; `as` saturates whatever else comes.
-        let for_us = (cfg.acquisition_s * 1e6) as u64;
-        (for_us > 0).then_some(Acquisition { gains, for_us })
+        let for_ms = (cfg.acquisition_s * 1e3) as u32;
+        (for_ms > 0).then_some(Acquisition { gains, for_ms })
     }
 }
 
@@ -358,9 +360,11 @@ impl<const H: usize> Observer<H> {
     /// The gains of eq. (6) for an update with time tag `time_us`: with two stages the
     /// acquisition's until t_acq after alignment, the steady-state Kalman gains from then
     /// on (a restart aligns again, and acquires again).
+    #[inline(never)]
     fn shift_gears(&mut self, time_us: u64) {
         if let (Some(acq), Some(t0)) = (self.acquisition, self.aligned_us) {
-            self.gains = if time_us.saturating_sub(t0) < acq.for_us { acq.gains } else { self.steady.gains };
+            let acquiring = time_us.saturating_sub(t0) < u64::from(acq.for_ms) * 1000;
+            self.gains = if acquiring { acq.gains } else { self.steady.gains };
         }
     }
 
