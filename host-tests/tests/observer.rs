@@ -253,3 +253,39 @@ fn gate_figures(sigma_rad: f64, period_s: f64) -> SteadyState {
     };
     steady_state(&cfg).unwrap()
 }
+
+// ------------------------------------------------------------------ two-stage gains
+
+#[test]
+fn a_two_stage_table_flies_its_override_for_the_acquisition_then_the_steady_state_gains() {
+    let acquire = ObserverGains::critically_damped(60.0, 0.25);
+    let cfg = ObserverConfig { gains_override: Some(acquire), acquisition_s: 720.0, ..ObserverConfig::PAPER };
+    let steady = steady_state_gains(&cfg).expect("gains");
+    let mut obs: Observer<{ ssis::flight::HISTORY }> = Observer::from_config(&cfg).expect("observer");
+    let mut att = Attitude::new(Quaternion::identity(), Coning::ThreeSample);
+    let mount = Quaternion::identity();
+    // Frames every 0.25 s from t0 = 10 s (alignment) on; the gains flown by each update.
+    let mut at = |obs: &mut Observer<{ ssis::flight::HISTORY }>, t_s: f64| {
+        let t_us = (t_s * 1e6) as u64;
+        obs.record(t_us, att.quaternion());
+        obs.update(&mut att, t_us, t_us, &Quaternion::identity(), &mount).expect("update");
+        *obs.gains()
+    };
+    let mut t = 10.0;
+    at(&mut obs, t);
+    while t < 729.5 {
+        t += 0.25;
+        assert_eq!(at(&mut obs, t), acquire, "{t} s: {} s after alignment", t - 10.0);
+    }
+    assert_eq!(at(&mut obs, 730.0), steady, "720 s after alignment");
+    // A restart (a FOG found mounted wrong) aligns again and acquires again.
+    obs.restart();
+    at(&mut obs, 730.25);
+    assert_eq!(at(&mut obs, 730.5), acquire);
+    assert_eq!(at(&mut obs, 1450.25), steady);
+    // Without an acquisition time the override flies throughout (tables before format 3).
+    let one = ObserverConfig { acquisition_s: 0.0, ..cfg };
+    let mut obs: Observer<{ ssis::flight::HISTORY }> = Observer::from_config(&one).expect("observer");
+    at(&mut obs, 10.0);
+    assert_eq!(at(&mut obs, 5000.0), acquire);
+}

@@ -20,6 +20,7 @@ fn sample_table() -> CalibrationTable {
     t.observer.gains_override = Some(ObserverGains::critically_damped(60.0, 0.25));
     t.observer.estimator = Estimator::Mekf;
     t.observer.initial_drift_sigma_deg_h = 0.5;
+    t.observer.acquisition_s = 720.0;
     t
 }
 
@@ -35,9 +36,9 @@ fn binary_round_trip() {
 #[test]
 fn an_estimator_code_this_format_does_not_define_is_refused() {
     let mut b = encode(&sample_table());
-    assert_eq!(b[469], Estimator::Mekf.code());
+    assert_eq!(b[477], Estimator::Mekf.code());
     for code in [2u8, 0x80, 0xFF] {
-        b[469] = code;
+        b[477] = code;
         let crc = ssis::calib::binary::CRC32.checksum(&b[..TABLE_LEN - 4]);
         b[TABLE_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
         assert_eq!(decode(&b), Err(TableError::BadFlags), "estimator code {code}");
@@ -56,6 +57,26 @@ fn a_toml_table_without_the_estimator_fields_flies_the_observer() {
     let t = table::parse_toml(&old, "mem").expect("parse");
     assert_eq!(t.observer.estimator, Estimator::Luenberger);
     assert_eq!(t.observer.initial_drift_sigma_deg_h, 0.1);
+}
+
+#[test]
+fn a_toml_table_without_the_acquisition_time_flies_its_override_throughout() {
+    let mut t = CalibrationTable::DEFAULT;
+    t.observer.gains_override = Some(ObserverGains::critically_damped(60.0, 0.25));
+    let text = table::to_toml(&t).expect("toml");
+    let old: String = text.lines().filter(|l| !l.starts_with("acquisition_s")).map(|l| format!("{l}\n")).collect();
+    assert_ne!(old, text, "the TOML names the acquisition time");
+    assert_eq!(table::parse_toml(&old, "mem").expect("parse"), t);
+    assert_eq!(t.observer.acquisition_s, 0.0);
+}
+
+#[test]
+fn an_acquisition_time_outside_0_to_7200_s_is_refused() {
+    for v in [-1.0, 7200.5, f64::NAN, f64::INFINITY] {
+        let mut t = sample_table();
+        t.observer.acquisition_s = v;
+        assert_eq!(t.validate(), Err(TableError::Field(FieldError::new(Field::Acquisition, v))), "acquisition_s = {v}");
+    }
 }
 
 #[test]

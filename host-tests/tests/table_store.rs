@@ -68,7 +68,7 @@ fn every_double_flip(good: &[u8], check: impl Fn(&[u8]) -> bool + Sync) -> u64 {
 fn record_round_trip_and_image() {
     let t = sample_table();
     let r = encode_record(&t, 7);
-    assert_eq!(RECORD_LEN, 492);
+    assert_eq!(RECORD_LEN, 500);
     assert_eq!(decode_record(&r), Ok((t, 7)));
     let img = store::image(&t);
     assert_eq!(img.len(), REGION_LEN);

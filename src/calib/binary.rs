@@ -8,11 +8,11 @@
 //! | 4 | 2 | format version (u16) = [`FORMAT_VERSION`] |
 //! | 6 | 2 | payload length (u16) = [`PAYLOAD_LEN`] |
 //! | 8 | 4 | table revision (u32) |
-//! | 12 | 456 | 57 × f64, in the order of [`fields`] |
-//! | 468 | 1 | flags: bit0 observer gains override present; other bits 0 |
-//! | 469 | 1 | estimator: 0 Luenberger observer (eq. 6), 1 MEKF ([`super::Estimator`]) |
-//! | 470 | 2 | zero |
-//! | 472 | 4 | CRC-32/ISO-HDLC over bytes 0..472 (u32) |
+//! | 12 | 464 | 58 × f64, in the order of [`fields`] |
+//! | 476 | 1 | flags: bit0 observer gains override present; other bits 0 |
+//! | 477 | 1 | estimator: 0 Luenberger observer (eq. 6), 1 MEKF ([`super::Estimator`]) |
+//! | 478 | 2 | zero |
+//! | 480 | 4 | CRC-32/ISO-HDLC over bytes 0..480 (u32) |
 //!
 //! Decoding checks, in order: length, magic, version, declared length, CRC, then
 //! [`CalibrationTable::validate`]. A table that fails any check is refused whole.
@@ -22,9 +22,9 @@ use super::{CalibrationTable, Estimator, FogCal, Misalignment, ObserverConfig, O
 /// Magic bytes at the start of a stored table.
 pub const MAGIC: [u8; 4] = *b"SSCT";
 /// Format version written and read by this code.
-pub const FORMAT_VERSION: u16 = 2;
+pub const FORMAT_VERSION: u16 = 3;
 /// Number of f64 fields.
-pub const N_F64: usize = 57;
+pub const N_F64: usize = 58;
 /// Bytes after the 8-byte header up to the CRC.
 pub const PAYLOAD_LEN: usize = 4 + 8 * N_F64 + 4;
 /// Total length of the binary table.
@@ -35,7 +35,7 @@ pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 /// The f64 fields of `t` in storage order: per FOG (bias, scale, T_ref, a1, a2, a3, g, h),
 /// then δ12 δ13 δ21 δ23 δ31 δ32 δ42 δ43, γ, the mount quaternion (w x y z), the G-filter
 /// time constant, ARW, RRW, star-tracker σ, star-tracker period, K_B (3), K_U (3), the
-/// initial drift 1σ.
+/// initial drift 1σ, the acquisition time (format 3).
 pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
     let mut out = [0.0; N_F64];
     let gains = t.observer.gains_override.unwrap_or(ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] });
@@ -62,7 +62,7 @@ pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
         .chain(rest)
         .chain(gains.k_b)
         .chain(gains.k_u_per_s)
-        .chain([o.initial_drift_sigma_deg_h]);
+        .chain([o.initial_drift_sigma_deg_h, o.acquisition_s]);
     for (slot, v) in out.iter_mut().zip(all) {
         *slot = v;
     }
@@ -177,6 +177,7 @@ fn from_fields(revision: u32, v: &[f64; N_F64], gains_present: bool) -> Calibrat
             gains_override: if gains_present { Some(gains) } else { None },
             estimator: Estimator::Luenberger,
             initial_drift_sigma_deg_h: next(),
+            acquisition_s: next(),
         },
     }
 }

@@ -32,7 +32,10 @@
 //! - star-tracker noise 0.1…100″ (1σ; the paper's tracker 6.7″), period 5 ms…10 s;
 //! - gain override: K_B in 10⁻⁹…0.999, K_U in 0…0.999 1/s (a stable first-order loop);
 //! - initial drift 1σ: 0.001…100 °/h (the paper's pre-calibration random zero signal is
-//!   0.1 °/h 1σ; 100 °/h is the bias bound).
+//!   0.1 °/h 1σ; 100 °/h is the bias bound);
+//! - acquisition time: 0…7200 s (0: the override flies throughout; the steady-state
+//!   gains' own slowest pole is about 30 min at 4 Hz, so an acquisition of more than
+//!   four of them would outlast the bias it is meant to find faster).
 
 use core::fmt;
 
@@ -137,6 +140,8 @@ pub enum Field {
     GainKu(u8),
     /// `observer.initial_drift_sigma_deg_h`.
     InitialDriftSigma,
+    /// `observer.acquisition_s`.
+    Acquisition,
 }
 
 /// Units and plausible range of a field.
@@ -204,6 +209,7 @@ impl Field {
             j @ 18..=20 => Field::GainKb((j - 18) as u8),
             j @ 21..=23 => Field::GainKu((j - 21) as u8),
             24 => Field::InitialDriftSigma,
+            25 => Field::Acquisition,
             _ => return None,
         })
     }
@@ -248,6 +254,7 @@ impl Field {
             Field::GainKb(_) => Spec::new("", "", 1.0, 1e-9, 0.999),
             Field::GainKu(_) => Spec::new("1/s", "1/s", 1.0, 0.0, 0.999),
             Field::InitialDriftSigma => Spec::new("°/h", "°/h", 1.0, 0.001, 100.0),
+            Field::Acquisition => Spec::new("s", "s", 1.0, 0.0, 7200.0),
         }
     }
 
@@ -295,6 +302,7 @@ impl Field {
             Field::GainKb(k) => gain(k, true),
             Field::GainKu(k) => gain(k, false),
             Field::InitialDriftSigma => o.initial_drift_sigma_deg_h,
+            Field::Acquisition => o.acquisition_s,
         }
     }
 
@@ -329,6 +337,7 @@ impl Field {
             Field::GainKb(k) => t.observer.gains_override.as_mut().and_then(|g| g.k_b.get_mut(usize::from(k))),
             Field::GainKu(k) => t.observer.gains_override.as_mut().and_then(|g| g.k_u_per_s.get_mut(usize::from(k))),
             Field::InitialDriftSigma => Some(&mut t.observer.initial_drift_sigma_deg_h),
+            Field::Acquisition => Some(&mut t.observer.acquisition_s),
         };
         if let Some(s) = slot {
             *s = v;
@@ -360,6 +369,7 @@ impl fmt::Display for Field {
             Field::StSigma => "observer.st_sigma_arcsec",
             Field::StPeriod => "observer.st_period_s",
             Field::InitialDriftSigma => "observer.initial_drift_sigma_deg_h",
+            Field::Acquisition => "observer.acquisition_s",
         };
         f.write_str(plain)
     }

@@ -7,7 +7,7 @@
 //! - the eight misalignment angles δ12, δ13, δ21, δ23, δ31, δ32, δ42, δ43 of the paper's
 //!   first ground-calibration method and the nominal FOG4 angle γ = 125°15'52",
 //! - the star-tracker mounting (FOG/ICS to star-tracker instrument frame, δΨ_Λ of eq. 5),
-//! - the observer's noise figures and an optional gain override,
+//! - the observer's noise figures, an optional gain override and how long it flies,
 //! - a versioned binary form with CRC-32 ([`binary`]), stored as two generation-numbered
 //!   copies with their own CRC-32 ([`store`]: fallback and atomic update), and, with feature `serde`, the
 //!   readable TOML form used on the host. `docs/CALIBRATION.md` documents both.
@@ -185,6 +185,19 @@ pub struct ObserverConfig {
     /// (the paper: random zero signal ±0.3 °/h, 3σ, before calibration, so 0.1).
     #[cfg_attr(feature = "serde", serde(default = "paper_initial_drift_sigma_deg_h"))]
     pub initial_drift_sigma_deg_h: f64,
+    /// Acquisition time t_acq after alignment, s, of a two-stage ("gear shift") observer:
+    /// `gains_override` flies for t_acq, then the steady-state Kalman gains
+    /// ([`crate::observer::steady_state_gains`]); each stage is eq. (6) with fixed gains.
+    /// 0 (the default, and what a table without the field means): `gains_override`, when
+    /// present, flies throughout. No effect without an override, nor on the MEKF.
+    ///
+    /// For override gains of a critically damped loop with time constant τ the drift
+    /// error left of an initial δb₀ after t is δb₀ (1 + t/τ) e^(−t/τ): choose t_acq = n τ
+    /// with (1 + n) e^(−n) ≤ σ_b / (3 σ_b0), σ_b the steady-state drift 1σ and σ_b0 the
+    /// initial one (`initial_drift_sigma_deg_h`); the Fig. 7 table: 30 °/h, 0.0071 °/h,
+    /// τ = 60 s → n = 12, 720 s.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub acquisition_s: f64,
 }
 
 /// The paper's pre-calibration random zero signal, ±0.3 °/h (3σ), as 1σ.
@@ -239,6 +252,7 @@ impl ObserverConfig {
         gains_override: None,
         estimator: Estimator::Luenberger,
         initial_drift_sigma_deg_h: PAPER_INITIAL_DRIFT_SIGMA_DEG_H,
+        acquisition_s: 0.0,
     };
 }
 

@@ -9,8 +9,8 @@
 //! | 4 | 2 | record format version (u16) = [`RECORD_VERSION`] |
 //! | 6 | 2 | length of the table that follows (u16) = [`TABLE_LEN`] |
 //! | 8 | 4 | generation (u32, ≥ 1): which copy is newer |
-//! | 12 | 476 | the binary table ([`super::binary`], with its own magic, version and CRC-32) |
-//! | 480 | 4 | CRC-32/ISO-HDLC over bytes 0..480 (u32) |
+//! | 12 | 484 | the binary table ([`super::binary`], with its own magic, version and CRC-32) |
+//! | 496 | 4 | CRC-32/ISO-HDLC over bytes 0..496 (u32) |
 //!
 //! Bytes of a slot after the record are not read (erased flash, `FF`).
 //!

@@ -26,6 +26,15 @@
 //! noise figures (Farrenkopf 1978); a fixed-gain observer with these gains matches the
 //! Kalman filter in steady state (4 Hz → K = [0.0224, 1.24e-5 /s]).
 //!
+//! A table may override them, and may make the override a first stage only
+//! ([`ObserverConfig::acquisition_s`], "gear shift"): the paper's gains "selected from a
+//! given performance" (critically damped, τ = 60 s: K_B = 2T/τ, K_U = T/τ²) find an
+//! uncalibrated bias of tens of °/h in minutes, where the steady-state gains' slow pole
+//! (K_U/K_B ≈ 1/(30 min)) takes hours; but in steady state they hold the attitude error
+//! 21 % above the Kalman limit (per-axis fixed-gain covariance, 4 Hz, the paper's
+//! sensors), so after t_acq the steady-state gains take over. Both stages are eq. (6)
+//! with fixed gains; the switch changes gains only, not the state.
+//!
 //! The table may select instead a multiplicative extended Kalman filter
 //! ([`Estimator::Mekf`], [`mekf`]): the same history, alignment of the time tag, lazy fix
 //! and re-acquisition, with the gains, the gate and the 1σ from its own 6-state covariance.
@@ -249,6 +258,31 @@ pub struct Observer<const H: usize> {
     last_q: Quaternion<f64>,
     /// Unit time of the alignment, µs.
     aligned_us: Option<u64>,
+    /// The first stage of a two-stage observer ([`ObserverConfig::acquisition_s`]);
+    /// `None`: one stage, `gains` throughout.
+    acquisition: Option<Acquisition>,
+}
+
+/// The acquisition stage of a two-stage observer ("gear shift"): eq. (6) with the table's
+/// override gains for `for_us` after alignment, then with the steady-state Kalman gains.
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct Acquisition {
+    /// K_B, K_U of the acquisition (the table's `gains_override`).
+    gains: ObserverGains,
+    /// Its length t_acq after alignment, ms (u32: one conversion instruction from f64 on
+    /// the M7, where u64 is a library call; 7200 s fit 600 times over).
+    for_ms: u32,
+}
+
+impl Acquisition {
+    /// The stage a table asks for: an override and t_acq > 0.
+    #[inline(never)]
+    fn of(cfg: &ObserverConfig) -> Option<Self> {
+        let gains = cfg.gains_override?;
+        // `validate` bounds t_acq to 0…7200 s; `as` saturates whatever else comes.
+        let for_ms = (cfg.acquisition_s * 1e3) as u32;
+        (for_ms > 0).then_some(Acquisition { gains, for_ms })
+    }
 }
 
 /// Consecutive gated frames and their running sums (re-acquisition).
@@ -291,6 +325,7 @@ impl<const H: usize> Observer<H> {
             initial_drift_var_rad2_s2: 0.0,
             last_q: Quaternion::identity(),
             aligned_us: None,
+            acquisition: None,
         }
     }
 
@@ -301,6 +336,7 @@ impl<const H: usize> Observer<H> {
         let mut o = Self::new(gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady);
         o.estimator = cfg.estimator;
         o.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
+        o.acquisition = Acquisition::of(cfg);
         Ok(o)
     }
 
@@ -310,6 +346,7 @@ impl<const H: usize> Observer<H> {
     pub fn retune(&mut self, cfg: &ObserverConfig) -> Result<(), GainError> {
         let steady = steady_state(cfg)?;
         self.gains = cfg.gains_override.unwrap_or(steady.gains);
+        self.acquisition = Acquisition::of(cfg);
         self.sigma_st_rad = cfg.st_sigma_arcsec * ARCSEC_RAD;
         self.steady = steady;
         self.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
@@ -377,9 +414,20 @@ impl<const H: usize> Observer<H> {
         self.estimator
     }
 
-    /// Gains in use.
+    /// Gains in use (of the stage the last update flew, with two stages).
     pub fn gains(&self) -> &ObserverGains {
         &self.gains
+    }
+
+    /// The gains of eq. (6) for an update with time tag `time_us`: with two stages the
+    /// acquisition's until t_acq after alignment, the steady-state Kalman gains from then
+    /// on (a restart aligns again, and acquires again).
+    #[inline(never)]
+    fn shift_gears(&mut self, time_us: u64) {
+        if let (Some(acq), Some(t0)) = (self.acquisition, self.aligned_us) {
+            let acquiring = time_us.saturating_sub(t0) < u64::from(acq.for_ms) * 1000;
+            self.gains = if acquiring { acq.gains } else { self.steady.gains };
+        }
     }
 
     /// Drift estimate Δω (ICS), rad/s.
@@ -714,6 +762,7 @@ impl<const H: usize> Observer<H> {
             }
         }
         self.streak = Streak::default();
+        self.shift_gears(time_us);
         let k_b = Vector3::from(self.gains.k_b);
         let k_u = Vector3::from(self.gains.k_u_per_s);
         let corr = math::mul_elem(&k_b, &e);

@@ -1,7 +1,7 @@
 //! The in-flight table update: chunks into a staging buffer, the whole table checked and
 //! staged in the inactive slot of the two-copy store, armed, then activated.
 //!
-//! 1. **TABLE_CHUNK** ×[`CHUNKS`]: chunk i carries table bytes 64·i … (the last one 20
+//! 1. **TABLE_CHUNK** ×[`CHUNKS`]: chunk i carries table bytes 64·i … (the last one 36
 //!    bytes, the rest of its data zero), all naming the table's CRC-32. A chunk naming
 //!    another CRC starts a new upload (the old one is dropped); chunks may come in any
 //!    order; one received again must be the same bytes. When the last one is in, the

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Result;
 use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
-use ssis::calib::{CalibrationTable, ObserverConfig, N_FOG};
+use ssis::calib::{CalibrationTable, ObserverConfig, ObserverGains, N_FOG};
 use ssis::combination::FogSet;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::decoder::StreamDecoder;
@@ -293,6 +293,23 @@ pub fn farrenkopf_1sigma_arcsec(
     dt_s: f64,
     latency_s: f64,
 ) -> Limit {
+    loop_1sigma_arcsec(cfg, axes, dt_s, latency_s, None)
+}
+
+/// The steady-state attitude error 1σ per axis, arcsec, of the per-axis loop of
+/// [`farrenkopf_1sigma_arcsec`] (the same figures: after an update, period mean, period
+/// mean with latency) with fixed `gains` (K_B, K_U of eq. (6), first axis's) instead of
+/// the Kalman gains: the update is the Joseph form
+/// P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ, K = [K_B, −K_U]ᵀ, H = [1 0], which is the
+/// covariance of a fixed-gain observer for any gains (and the Kalman filter's for its own).
+/// `None`: the Kalman gains, the limit itself.
+pub fn loop_1sigma_arcsec(
+    cfg: &ObserverConfig,
+    axes: &[Vector3<f64>; N_FOG],
+    dt_s: f64,
+    latency_s: f64,
+    gains: Option<ObserverGains>,
+) -> Limit {
     let mut sts = Matrix3::zeros();
     for s in axes {
         sts += s * s.transpose();
@@ -313,9 +330,19 @@ pub fn farrenkopf_1sigma_arcsec(
                 p22 + su2 * h,
             )
         };
-        let update = |(p11, p12, p22): (f64, f64, f64)| {
-            let s = p11 + r;
-            (p11 - p11 * p11 / s, p12 - p11 * p12 / s, p22 - p12 * p12 / s)
+        let update = |(p11, p12, p22): (f64, f64, f64)| match gains {
+            None => {
+                let s = p11 + r;
+                (p11 - p11 * p11 / s, p12 - p11 * p12 / s, p22 - p12 * p12 / s)
+            }
+            Some(g) => {
+                let (k1, k2) = (g.k_b[0], -g.k_u_per_s[0]);
+                (
+                    (1.0 - k1) * (1.0 - k1) * p11 + k1 * k1 * r,
+                    (1.0 - k1) * (p12 - k2 * p11) + k1 * k2 * r,
+                    p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
+                )
+            }
         };
         // The drift's time constant is hours: iterate the update period until steady.
         let t = per_update as f64 * dt_s;
