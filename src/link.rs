@@ -22,6 +22,57 @@ impl<T: embedded_io::Read + embedded_io::ReadReady> RxLink for T {}
 pub trait TxLink: embedded_io::Write + embedded_io::WriteReady {}
 impl<T: embedded_io::Write + embedded_io::WriteReady> TxLink for T {}
 
+/// The star-tracker port of the flight step: a receive link, or [`NotFitted`] on a unit
+/// that has no star tracker (the launch vehicle). With `NotFitted` the star-tracker stage
+/// is known absent at compile time, so its code (frame intake, the observer's update, the
+/// MEKF's update, the mounting check's frames) is not in that unit's firmware.
+pub trait StarPort {
+    /// The link behind the port.
+    type Link: RxLink;
+    /// The link, or `None` when no star tracker is fitted.
+    fn link(&mut self) -> Option<&mut Self::Link>;
+}
+
+impl<T: RxLink> StarPort for T {
+    type Link = T;
+    #[inline(always)]
+    fn link(&mut self) -> Option<&mut T> {
+        Some(self)
+    }
+}
+
+/// No star tracker fitted ([`StarPort`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct NotFitted;
+
+/// The link type of [`NotFitted`]: uninhabited, never read.
+#[derive(Debug)]
+pub enum NoLink {}
+
+impl embedded_io::ErrorType for NoLink {
+    type Error = Infallible;
+}
+
+impl embedded_io::Read for NoLink {
+    fn read(&mut self, _buf: &mut [u8]) -> Result<usize, Infallible> {
+        match *self {}
+    }
+}
+
+impl embedded_io::ReadReady for NoLink {
+    fn read_ready(&mut self) -> Result<bool, Infallible> {
+        match *self {}
+    }
+}
+
+impl StarPort for NotFitted {
+    type Link = NoLink;
+    #[inline(always)]
+    fn link(&mut self) -> Option<&mut NoLink> {
+        None
+    }
+}
+
 /// What one drain of a receive link did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct DrainReport {

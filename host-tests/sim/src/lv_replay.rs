@@ -27,6 +27,7 @@ use ssis::frames::gnss::{self, status, GnssFrame};
 use ssis::frames::navout::{flags, NavOutputFrame};
 use ssis::frames::output::OutputFrame;
 use ssis::frames::Frame;
+use ssis::link::NotFitted;
 use ssis::math::rotvec_from_quat;
 use ssis::nav::gnss::GnssFix;
 use ssis::nav::init::PadInit;
@@ -274,7 +275,7 @@ pub struct LvPeriod {
 pub struct LvCore {
     core: FlightCore,
     nav: NavUnit,
-    links: Links<MockLink, MockLink, MockSink>,
+    links: Links<MockLink, NotFitted, MockSink>,
     nav_links: NavLinks<MockLink, MockLink, MockSink>,
 }
 
@@ -291,7 +292,7 @@ impl LvCore {
         Ok(LvCore {
             core,
             nav,
-            links: Links { fog: FogLinks::Bus(MockLink::ideal()), star: MockLink::ideal(), out: MockSink::default() },
+            links: Links { fog: FogLinks::Bus(MockLink::ideal()), star: NotFitted, out: MockSink::default() },
             nav_links: NavLinks { accel: MockLink::ideal(), gnss: MockLink::ideal(), out: MockSink::default() },
         })
     }

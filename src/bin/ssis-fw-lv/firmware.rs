@@ -52,7 +52,7 @@ use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LE
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
-use ssis::link::{RxRing, TxRing};
+use ssis::link::{NotFitted, RxRing, TxRing};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 
@@ -73,9 +73,6 @@ static FOG_RX: RxRing<512> = RxRing::new();
 static ACCEL_RX: RxRing<512> = RxRing::new();
 /// GNSS receive buffer (45-byte frames, 1 Hz).
 static GNSS_RX: RxRing<256> = RxRing::new();
-/// The star-tracker link of the flight core: the launch vehicle has none, so nothing
-/// ever fills it.
-static NO_STAR_RX: RxRing<4> = RxRing::new();
 /// Control receive buffer.
 static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
 /// Flight output transmit buffer (output frames, `docs/ICD.md`).
@@ -180,8 +177,8 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
 
     let mut links = Links {
         fog: FogLinks::Bus(FOG_RX.reader()),
-        // No star tracker on the launch vehicle: an empty link, never filled.
-        star: NO_STAR_RX.reader(),
+        // No star tracker on the launch vehicle: the stage is compiled out.
+        star: NotFitted,
         out: OUT_TX.frame_writer(OutputFrame::LEN),
     };
     let mut nav_links =
