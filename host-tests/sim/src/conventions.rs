@@ -29,7 +29,9 @@ use anyhow::Result;
 use nalgebra::{Matrix3, Quaternion, Vector3};
 use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::combination::FogSet;
+use ssis::frames::navout::NavState;
 use ssis::math::{nlerp, quat_from_rotvec, rotvec_from_quat};
+use ssis::nav::{Corrections, Strapdown};
 use ssis_common::ARCSEC_PER_RAD;
 
 use crate::recorded::Recorded;
@@ -171,6 +173,33 @@ fn unit_candidates(dt_s: f64) -> [(f64, &'static str); 6] {
         (dt_s * deg / 3600.0, "rates in °/h, not increments in rad"),
         (-1.0, "every FOG reversed (or the star tracker's direction)"),
     ]
+}
+
+/// The unit of [`unit_candidates`] within 3 % of the slope `s`, if any.
+fn named_unit(s: f64, dt_s: f64) -> Option<(f64, &'static str)> {
+    unit_candidates(dt_s)
+        .into_iter()
+        .filter(|(u, _)| ((s - u) / u).abs() < 0.03)
+        .min_by(|a, b| ((s - a.0) / a.0).abs().total_cmp(&((s - b.0) / b.0).abs()))
+}
+
+/// The closing line of a replay of a log with `findings`.
+fn warning(findings: &[String]) -> Option<&'static str> {
+    (!findings.is_empty())
+        .then_some("the log breaks a convention (FOUND above): its replay is not the unit's behaviour on the real data")
+}
+
+/// A report's last lines: what was not checked, and the findings.
+fn footer(s: &mut String, unchecked: &[String], findings: &[String]) {
+    for u in unchecked {
+        s.push_str(&format!("  not checked: {u}\n"));
+    }
+    if findings.is_empty() {
+        s.push_str("  no convention found wrong\n");
+    }
+    for f in findings {
+        s.push_str(&format!("FOUND: {f}\n"));
+    }
 }
 
 /// The body increments the log's FOGs give per step (least squares on the table's axes,
@@ -426,11 +455,7 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
     // FOG units: the slope under the form that fits, where the fit tells the forms apart.
     let s = best.scale;
     if decisive && (s - 1.0).abs() > SCALE_TOL.max(5.0 * best.scale_se) {
-        let named = unit_candidates(dt_s)
-            .into_iter()
-            .filter(|(u, _)| ((s - u) / u).abs() < 0.03)
-            .min_by(|a, b| ((s - a.0) / a.0).abs().total_cmp(&((s - b.0) / b.0).abs()));
-        findings.push(match named {
+        findings.push(match named_unit(s, dt_s) {
             Some((u, what)) => format!(
                 "the FOG columns look like {what}: the star tracker turns {s:.6} rad per radian the FOGs give \
                  (± {:.6}; that unit gives {u:.6})",
@@ -575,9 +600,7 @@ fn fit_tag_offset(st: &[(f64, [f64; 4])], gyro: &Gyro, form: QuatForm, mount_inv
 impl ConventionReport {
     /// The closing line of a replay of a log that breaks a convention.
     pub fn warning(&self) -> Option<&'static str> {
-        (!self.findings.is_empty()).then_some(
-            "the log breaks a convention (FOUND above): its replay is not the unit's behaviour on the real data",
-        )
+        warning(&self.findings)
     }
 
     /// The report a person reads.
@@ -618,15 +641,274 @@ impl ConventionReport {
                 t.rms_fitted_arcsec
             ));
         }
-        for u in &self.unchecked {
-            s.push_str(&format!("  not checked: {u}\n"));
+        footer(&mut s, &self.unchecked, &self.findings);
+        s
+    }
+}
+
+/// Earth's surface to 2,000 km up, ECEF radius, m: where a launch vehicle's position is.
+pub const LV_RADIUS_M: (f64, f64) = (6.2e6, 8.5e6);
+/// The longest span of a launch-vehicle log the free-inertial check integrates, s (the
+/// calibrated sensors' own error stays metres there; docs/LAUNCH-VEHICLE.md).
+pub const LV_CHECK_SPAN_S: f64 = 60.0;
+
+/// One unit hypothesis of a launch-vehicle log's increments: the free-inertial
+/// navigation's miss of the reference positions.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LvUnitFit {
+    /// The units in words (as logged first).
+    pub what: String,
+    /// RMS position miss against the reference over the span, m.
+    pub rms_m: f64,
+}
+
+/// The conventions of a launch-vehicle log checked against its own data.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LvConventionReport {
+    /// The reference positions (`gnss` fixes or `truth`) and how many.
+    pub reference: (&'static str, usize),
+    /// Span integrated, s.
+    pub span_s: f64,
+    /// Each hypothesis (the accelerometers' units, then the FOGs' when the navigation
+    /// judges them), as logged first.
+    pub fits: Vec<LvUnitFit>,
+    /// The FOGs' scale against truth's attitude and its 1σ (`None`: no truth attitude).
+    pub fog_truth_scale: Option<(f64, f64)>,
+    /// What was found wrong.
+    pub findings: Vec<String>,
+    /// What could not be checked.
+    pub unchecked: Vec<String>,
+}
+
+/// Checks a launch-vehicle log's conventions: every position (GNSS fixes, the initial
+/// state, truth) is an ECEF radius in metres between the Earth's surface and 2,000 km up
+/// ([`LV_RADIUS_M`]: kilometres are named); and the FOG and accelerometer increments,
+/// integrated free-inertial from the initial state `init` over the first
+/// [`LV_CHECK_SPAN_S`], follow the GNSS fixes (or truth): each reading of the units the
+/// spacecraft check knows (degrees, rates; for the accelerometers g, rates in m/s² or g)
+/// is tried, and one that follows the reference with a quarter of the logged reading's
+/// miss is named. A log whose every reading misses by more than 20 receiver σ is named as
+/// such (axes, signs or the initial state).
+pub fn check_lv(rec: &Recorded, table: &CalibrationTable, init: &NavState) -> LvConventionReport {
+    let dt_s = f64::from(rec.unit.profile().dt_us) * 1e-6;
+    let mut findings = Vec::new();
+    let mut unchecked = Vec::new();
+    // Positions: an ECEF radius in metres.
+    let (lo, hi) = LV_RADIUS_M;
+    let mut radius = |what: &str, r: Vector3<f64>| {
+        let n = r.norm();
+        if (lo..=hi).contains(&n) || findings.iter().any(|f: &String| f.starts_with(what)) {
+            return;
         }
-        if self.findings.is_empty() {
-            s.push_str("  no convention found wrong\n");
+        findings.push(if (lo..=hi).contains(&(n * 1e3)) {
+            format!("{what} look like kilometres, not metres (|r| = {n:.1}: an ECEF radius is {lo:.1e} … {hi:.1e} m)")
+        } else {
+            format!("{what} are not an ECEF position in metres (|r| = {n:.4e}; {lo:.1e} … {hi:.1e} m expected)")
+        });
+    };
+    radius("the initial position (init_x_m …)", init.r_e_m);
+    let fixes: Vec<(f64, Vector3<f64>, f64)> = rec
+        .steps
+        .iter()
+        .flat_map(|s| s.gnss.iter())
+        .map(|g| (g.time_us as f64 * 1e-6, g.r_e_m, g.sigma_pos_m))
+        .collect();
+    for f in &fixes {
+        radius("the GNSS positions (gnss_x_m …)", f.1);
+    }
+    let truth: Vec<(f64, Vector3<f64>)> = rec
+        .steps
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.truth.and_then(|t| t.pos_vel).map(|(r, _)| ((k + 1) as f64 * dt_s, r)))
+        .collect();
+    for t in &truth {
+        radius("the truth positions (true_x_m …)", t.1);
+    }
+    // The reference the increments are judged against: the fixes, else truth.
+    let positions_ok = findings.is_empty();
+    let (name, refs, sigma_m): (&'static str, Vec<(f64, Vector3<f64>)>, f64) = if fixes.len() >= 3 {
+        let mut s: Vec<f64> = fixes.iter().map(|f| f.2).filter(|s| s.is_finite() && *s > 0.0).collect();
+        s.sort_by(f64::total_cmp);
+        ("GNSS fixes", fixes.iter().map(|f| (f.0, f.1)).collect(), s.get(s.len() / 2).copied().unwrap_or(5.0))
+    } else {
+        ("truth", truth.clone(), 1.0)
+    };
+    let span_s = (rec.steps.len() as f64 * dt_s).min(LV_CHECK_SPAN_S);
+    let refs: Vec<(f64, Vector3<f64>)> = refs.into_iter().filter(|r| r.0 <= span_s).collect();
+    if !positions_ok || refs.len() < 3 {
+        if positions_ok {
+            unchecked.push(format!("increment units: {} reference positions in the first {span_s:.0} s", refs.len()));
         }
-        for f in &self.findings {
-            s.push_str(&format!("FOUND: {f}\n"));
+        return LvConventionReport {
+            reference: (name, refs.len()),
+            span_s,
+            fits: Vec::new(),
+            fog_truth_scale: None,
+            findings,
+            unchecked,
+        };
+    }
+    let deg = core::f64::consts::PI / 180.0;
+    let g = 9.806_65;
+    let acc_units: [(f64, &str); 4] =
+        [(1.0, "m/s (as logged)"), (g, "g·s (g, not m/s)"), (dt_s, "m/s² rates"), (g * dt_s, "g rates")];
+    let fog_units: [(f64, &str); 3] = [(1.0, "rad (as logged)"), (deg, "degrees"), (dt_s, "rad/s rates")];
+    let mut fits = Vec::new();
+    let miss = |kf: f64, ka: f64| free_inertial_miss(rec, init, dt_s, kf, ka, span_s, &refs);
+    // The accelerometers' unit, the FOGs as logged.
+    let mut acc_fits = Vec::new();
+    for (ka, wa) in acc_units {
+        if let Some(rms_m) = miss(1.0, ka) {
+            acc_fits.push((ka, LvUnitFit { what: format!("accelerometers in {wa}"), rms_m }));
         }
+    }
+    let Some((_, logged)) = acc_fits.first().cloned() else {
+        unchecked.push("increment units: the free-inertial navigation could not run on the log".into());
+        return LvConventionReport {
+            reference: (name, refs.len()),
+            span_s,
+            fits,
+            fog_truth_scale: None,
+            findings,
+            unchecked,
+        };
+    };
+    let (ka, best) =
+        acc_fits.iter().min_by(|a, b| a.1.rms_m.total_cmp(&b.1.rms_m)).cloned().unwrap_or((1.0, logged.clone()));
+    let bound_m = 20.0 * sigma_m;
+    let ka = if ka != 1.0 && best.rms_m < 0.25 * logged.rms_m && best.rms_m <= bound_m {
+        findings.push(format!(
+            "the {} look like {}: the free-inertial navigation follows the {name} with {:.1} m RMS over \
+             {span_s:.0} s read so, against {:.1} m as logged",
+            "accelerometer columns",
+            &best.what["accelerometers in ".len()..],
+            best.rms_m,
+            logged.rms_m
+        ));
+        ka
+    } else {
+        1.0
+    };
+    fits.extend(acc_fits.into_iter().map(|(_, f)| f));
+    // The FOGs' unit: against truth's attitude where the log has it (as the spacecraft
+    // check reads the tracker), else by the navigation, if their readings differ.
+    let truth_q = truth_series(rec, dt_s);
+    let gyro = Gyro::new(rec, table, rec.fogs, dt_s);
+    let (_, tforms) = fit_forms(&gyro, &truth_q, Quaternion::identity());
+    if let Some(t) = tforms.first() {
+        let s = t.scale;
+        if (s - 1.0).abs() > SCALE_TOL.max(5.0 * t.scale_se) {
+            findings.push(match named_unit(s, dt_s) {
+                Some((_, what)) => format!(
+                    "the FOG columns look like {what}: truth turns {s:.6} rad per radian the FOGs give (± {:.6})",
+                    t.scale_se
+                ),
+                None => format!("the FOGs' scale against truth is {s:.5} ± {:.5} (1 expected)", t.scale_se),
+            });
+        }
+    } else {
+        let fog_fits: Vec<LvUnitFit> = fog_units
+            .iter()
+            .filter_map(|&(kf, wf)| miss(kf, ka).map(|rms_m| LvUnitFit { what: format!("FOGs in {wf}"), rms_m }))
+            .collect();
+        let lo = fog_fits.iter().map(|f| f.rms_m).fold(f64::INFINITY, f64::min);
+        let hi = fog_fits.iter().map(|f| f.rms_m).fold(0.0, f64::max);
+        match (fog_fits.first(), fog_fits.iter().min_by(|a, b| a.rms_m.total_cmp(&b.rms_m))) {
+            (Some(l), Some(b)) if hi >= 4.0 * lo => {
+                if b.what != l.what && b.rms_m < 0.25 * l.rms_m {
+                    findings.push(format!(
+                        "the FOG columns look like {}: the navigation follows the {name} with {:.1} m RMS read so, \
+                         against {:.1} m as logged",
+                        &b.what["FOGs in ".len()..],
+                        b.rms_m,
+                        l.rms_m
+                    ));
+                }
+            }
+            _ => unchecked.push(format!(
+                "FOG units: the first {span_s:.0} s do not turn the thrust enough to tell them apart by the \
+                 navigation ({lo:.1} … {hi:.1} m), and the log has no truth attitude"
+            )),
+        }
+        fits.extend(fog_fits);
+    }
+    // With the units found, the navigation must still follow the reference.
+    let as_read = miss(1.0, ka).unwrap_or(f64::INFINITY);
+    if findings.is_empty() && as_read > bound_m {
+        findings.push(format!(
+            "the free-inertial navigation from the log's increments misses the {name} by {as_read:.1} m RMS over the \
+             first {span_s:.0} s (20 × their {sigma_m:.1} m is the bound), and no unit of the increments explains \
+             it: check the axes and signs of the FOG and accelerometer columns and the initial state against \
+             docs/RECORDED-LOG.md"
+        ));
+    }
+    let fog_truth_scale = tforms.first().map(|t| (t.scale, t.scale_se));
+    LvConventionReport { reference: (name, refs.len()), span_s, fits, fog_truth_scale, findings, unchecked }
+}
+
+/// The RMS miss of a free-inertial navigation over the first `span_s` of `rec` from
+/// `init`, with the FOG increments × `kf` and the accelerometer increments × `ka`,
+/// against `refs` (time s, ECEF position).
+fn free_inertial_miss(
+    rec: &Recorded,
+    init: &NavState,
+    dt_s: f64,
+    kf: f64,
+    ka: f64,
+    span_s: f64,
+    refs: &[(f64, Vector3<f64>)],
+) -> Option<f64> {
+    let mut nav = Strapdown::new(*init, dt_s, Corrections::ALL).ok()?;
+    let mut next = 0;
+    let mut ss = 0.0;
+    let mut n = 0usize;
+    let (mut a_last, mut v_last) = (Vector3::zeros(), Vector3::zeros());
+    for (k, s) in rec.steps.iter().enumerate() {
+        let t_s = (k + 1) as f64 * dt_s;
+        if t_s > span_s + 0.5 * dt_s {
+            break;
+        }
+        let a = Vector3::from_fn(|i, _| s.fog.get(i).copied().flatten().map(|f| f.dtheta_rad * kf));
+        let v = Vector3::from_fn(|i, _| s.accel.get(i).copied().flatten().map(|f| f.dv_m_s * ka));
+        // A missing sample repeats the last (the unit bridges the same way).
+        let a = Vector3::from_fn(|i, _| a[i].unwrap_or(a_last[i]));
+        let v = Vector3::from_fn(|i, _| v[i].unwrap_or(v_last[i]));
+        (a_last, v_last) = (a, v);
+        nav.step(&a, &v).ok()?;
+        while let Some(&(tr, r)) = refs.get(next) {
+            if tr > t_s + 0.5 * dt_s {
+                break;
+            }
+            if (tr - t_s).abs() <= 0.5 * dt_s {
+                ss += (nav.state().r_e_m - r).norm_squared();
+                n += 1;
+            }
+            next += 1;
+        }
+    }
+    (n > 0).then(|| (ss / n as f64).sqrt()).filter(|x| x.is_finite())
+}
+
+impl LvConventionReport {
+    /// The closing line of a replay of a log that breaks a convention.
+    pub fn warning(&self) -> Option<&'static str> {
+        warning(&self.findings)
+    }
+
+    /// The report a person reads.
+    pub fn report(&self) -> String {
+        let mut s = format!(
+            "conventions: free-inertial navigation over the first {:.0} s against {} {} \n",
+            self.span_s, self.reference.1, self.reference.0
+        );
+        for f in &self.fits {
+            s.push_str(&format!("  {:<40} miss {:>14.1} m RMS\n", f.what, f.rms_m));
+        }
+        if let Some((k, se)) = self.fog_truth_scale {
+            s.push_str(&format!("  FOGs against truth's attitude: scale {k:.6} ± {se:.6} (1 for radians)\n"));
+        }
+        footer(&mut s, &self.unchecked, &self.findings);
         s
     }
 }

@@ -200,3 +200,18 @@ pub fn lv_replay_summary(s: &crate::lv_replay::LvReplaySummary<'_>, rec: &crate:
         "damage": damage(&rec.problems),
     })
 }
+
+/// The conventions check of a launch-vehicle log (`docs/JSON.md`, replay: `conventions`).
+pub fn lv_conventions(r: &crate::conventions::LvConventionReport) -> Value {
+    json!({
+        "reference": r.reference.0,
+        "reference_positions": r.reference.1,
+        "span_s": r.span_s,
+        "units": r.fits.iter().map(|f| json!({"units": f.what, "rms_m": f.rms_m})).collect::<Vec<_>>(),
+        "fog_truth_scale": r.fog_truth_scale.map(|(k, _)| k),
+        "fog_truth_scale_se": r.fog_truth_scale.map(|(_, se)| se),
+        "findings": r.findings,
+        "unchecked": r.unchecked,
+        "clean": r.findings.is_empty(),
+    })
+}

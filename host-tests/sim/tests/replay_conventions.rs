@@ -1,16 +1,19 @@
 //! A recorded log written in the wrong convention is named before it is replayed
 //! (`ssis_sim::conventions`, docs/RECORDED-LOG.md "Conventions"): star-tracker
 //! quaternions conjugated or scalar last, FOG columns in degrees or as rates, star-tracker
-//! tags written on arrival. Each variant of the committed Basilisk log is made the way a
-//! careless converter would make it; `ssis-sim replay --check` and `replay` exit 1 and
-//! name the convention, the clean log passes, and the logs are byte-identical afterwards.
+//! tags written on arrival; for the launch vehicle, accelerometers in g or as rates, FOGs
+//! in degrees, GNSS positions in km, two axes swapped. Each variant of the committed
+//! Basilisk and launch-vehicle logs is made the way a careless converter would make it;
+//! `ssis-sim replay` (and `--check`) exit 1 and name the convention, the clean logs pass,
+//! and the logs are byte-identical afterwards.
 
 #[path = "../../tests/hostile_common/mod.rs"]
 mod hostile_common;
 
+use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
 
-use hostile_common::{run, Scratch};
+use hostile_common::{has_documented_keys, json_of, run, Scratch};
 
 const EXE: &str = env!("CARGO_BIN_EXE_ssis-sim");
 
@@ -160,6 +163,15 @@ fn each_wrong_convention_is_named_and_the_clean_log_passes() {
 }
 
 #[test]
+fn the_replay_json_has_every_documented_key() {
+    let s = Scratch::new("conventions-json");
+    let log = example("leo-nadir-280s.csv");
+    let table = example("table.toml");
+    let args = ["replay", log.to_str().unwrap(), "--table", table.to_str().unwrap(), "--json"];
+    has_documented_keys(&json_of(EXE, &s, &args, true), "ssis-sim replay");
+}
+
+#[test]
 fn a_replay_of_a_log_in_the_wrong_convention_exits_1_and_says_so() {
     let s = Scratch::new("conventions-replay");
     let log = s.file("scalar-last.csv", star_variant(|[w, x, y, z]| [x, y, z, w]));
@@ -193,4 +205,68 @@ fn a_fog_flipped_from_power_on_leaves_the_conventions_checkable_and_the_replay_n
     let line = out.lines().find(|l| l.contains("FOG4 isolated by the fault logic at")).expect("isolation named");
     let t_s = num(line.split(" at ").nth(1).and_then(|r| r.split_whitespace().next()).expect("time"));
     assert!(t_s < 5.0, "FOG4 isolated at {t_s} s: {out}");
+}
+
+/// The committed launch-vehicle log with `f` applied to every data row (by column name).
+fn lv_variant(f: &dyn Fn(&mut Vec<String>, &Column)) -> String {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/lv-ascent/ascent-20s.csv");
+    let text = std::fs::read_to_string(path).expect("the committed launch-vehicle log");
+    let lines: Vec<&str> = text.lines().collect();
+    let at = lines.iter().position(|l| !l.starts_with('#')).expect("header");
+    let header: Vec<&str> = lines[at].split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).expect("column");
+    let mut out: String = lines[..=at].iter().map(|l| format!("{l}\n")).collect();
+    for l in &lines[at + 1..] {
+        let mut v: Vec<String> = l.split(',').map(String::from).collect();
+        f(&mut v, &col);
+        out.push_str(&v.join(","));
+        out.push('\n');
+    }
+    out
+}
+
+/// Columns `names` multiplied by `k` where they hold a value.
+fn scaled(v: &mut [String], col: &Column, names: &[&str], k: f64) {
+    for c in names.iter().map(|n| col(n)) {
+        if !v[c].is_empty() {
+            v[c] = format!("{:e}", num(&v[c]) * k);
+        }
+    }
+}
+
+#[test]
+fn a_launch_vehicle_log_in_the_wrong_units_is_named() {
+    let s = Scratch::new("conventions-lv");
+    let clean = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../examples/lv-ascent/ascent-20s.csv");
+    let (code, out) = replay(&s, &clean, false);
+    assert_eq!(code, Some(0), "{out}");
+    assert!(out.contains("no convention found wrong"), "{out}");
+    const ACC: [&str; 3] = ["acc0_dv_m_s", "acc1_dv_m_s", "acc2_dv_m_s"];
+    let cases: Vec<(&str, String, &str)> = vec![
+        ("acc-in-g", lv_variant(&|v, c| scaled(v, c, &ACC, 1.0 / 9.806_65)), "accelerometer columns look like g·s"),
+        ("acc-rates", lv_variant(&|v, c| scaled(v, c, &ACC, 800.0)), "accelerometer columns look like m/s² rates"),
+        (
+            "fog-degrees",
+            lv_variant(&|v, c| scaled(v, c, &["fog0_dtheta_rad", "fog1_dtheta_rad", "fog2_dtheta_rad"], 180.0 / PI)),
+            "FOG columns look like degrees",
+        ),
+        (
+            "gnss-km",
+            lv_variant(&|v, c| scaled(v, c, &["gnss_x_m", "gnss_y_m", "gnss_z_m"], 1e-3)),
+            "GNSS positions (gnss_x_m …) look like kilometres",
+        ),
+        (
+            "acc-x-y-swapped",
+            lv_variant(&|v, c| v.swap(c("acc0_dv_m_s"), c("acc1_dv_m_s"))),
+            "no unit of the increments explains it",
+        ),
+    ];
+    for (name, text, must) in &cases {
+        let log = s.file(&format!("{name}.csv"), text);
+        let (code, out) = replay(&s, &log, false);
+        assert_eq!(code, Some(1), "{name}: {out}");
+        let f = found(&out);
+        assert_eq!(f.len(), 1, "{name}: one finding expected:\n{out}");
+        assert!(f[0].contains(must), "{name}: the finding lacks `{must}`:\n{out}");
+    }
 }

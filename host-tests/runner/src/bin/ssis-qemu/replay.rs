@@ -96,6 +96,8 @@ fn run_lv_replay(a: &Args, rec: &Recorded, table: &ssis::calib::CalibrationTable
     anyhow::ensure!(!a.real_time, "a launch-vehicle log replays in lockstep only (no --real-time)");
     anyhow::ensure!(a.corrupt_every == 0, "--corrupt-every is not supported for a launch-vehicle log");
     let init = pad_for(rec, a.pad.as_deref())?;
+    let conv = conventions::check_lv(rec, table, &init.state);
+    cli::report("conventions", || ssis_sim::json::lv_conventions(&conv));
     let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
     let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
     let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
@@ -138,5 +140,9 @@ fn run_lv_replay(a: &Args, rec: &Recorded, table: &ssis::calib::CalibrationTable
     cli::report("replay", || ssis_sim::json::lv_replay_summary(&host_like, rec));
     print!("{}", s.report());
     print!("{}", host_like.report(rec));
-    Ok(s.clean())
+    print!("{}", conv.report());
+    if let Some(w) = conv.warning() {
+        println!("{w}");
+    }
+    Ok(s.clean() && conv.findings.is_empty())
 }

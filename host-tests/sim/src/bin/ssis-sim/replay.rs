@@ -96,6 +96,8 @@ pub fn run(a: &Args) -> Result<bool> {
 /// A launch-vehicle log through `FlightCore::step_with()` + `NavUnit`.
 fn run_lv(a: &Args, rec: &Recorded, table: &CalibrationTable) -> Result<bool> {
     let init = ssis_sim::lv_replay::pad_for(rec, a.pad.as_deref())?;
+    let conv = conventions::check_lv(rec, table, &init.state);
+    cli::report("conventions", || ssis_sim::json::lv_conventions(&conv));
     let mut rows = Rows::new(a.csv.as_deref(), &LV_CSV_HEADER, a.every)?;
     let s = replay_lv(rec, table, &init, |_, r| {
         if let Some(r) = r {
@@ -103,6 +105,7 @@ fn run_lv(a: &Args, rec: &Recorded, table: &CalibrationTable) -> Result<bool> {
         }
     })?;
     print!("{}", s.report(rec));
+    print!("{}", conv.report());
     let points = rows.finish()?;
     if let Some(p) = &a.plot {
         anyhow::ensure!(!points.is_empty(), "{}: no truth in the log: nothing to plot", p.display());
@@ -111,7 +114,10 @@ fn run_lv(a: &Args, rec: &Recorded, table: &CalibrationTable) -> Result<bool> {
         println!("wrote {}", p.display());
     }
     cli::report("replay", || ssis_sim::json::lv_replay_summary(&s, rec));
-    Ok(true)
+    if let Some(w) = conv.warning() {
+        println!("{w}");
+    }
+    Ok(conv.findings.is_empty())
 }
 
 /// `ssis-sim record`: a launch-vehicle log of an ascent scenario.
