@@ -31,7 +31,7 @@ use crate::intake::{FogIntake, Pending, StarIntake};
 use crate::integrity::channel::ChannelMonitor;
 use crate::integrity::mounting::{MountCheck, MountState, MountVerdict};
 use crate::integrity::parity::{FdiState, ParityMonitor, SampleVerdict};
-use crate::link::{RxLink, StarPort, TxLink};
+use crate::link::{OutPort, RxLink, RxPort, StarPort};
 use crate::observer::{GainError, Observer, UpdateError};
 use crate::telemetry::{page, Telemetry, WordAligned};
 
@@ -415,7 +415,7 @@ impl FlightCore {
     /// decides which sample is due and how long an owed one is waited for). With no FOG
     /// data at all for longer, the interval is bridged with the last body increment so
     /// time and attitude keep moving.
-    pub fn step<F: RxLink, S: StarPort, O: TxLink>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
+    pub fn step<F: RxPort, S: StarPort, O: OutPort>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
         self.step_with(links, |_, _| {})
     }
 
@@ -424,7 +424,7 @@ impl FlightCore {
     /// (µs): once per sample, none when no sample came, more than one when the step
     /// catches up. The launch-vehicle navigation runs on them ([`crate::nav::unit`]); a
     /// caller with no use for them calls `step`, where the empty hook compiles away.
-    pub fn step_with<F: RxLink, S: StarPort, O: TxLink>(
+    pub fn step_with<F: RxPort, S: StarPort, O: OutPort>(
         &mut self,
         links: &mut Links<F, S, O>,
         mut on_increment: impl FnMut(u64, &Vector3<f64>),

@@ -112,17 +112,23 @@ fn isr_rings_carry_bytes_and_count_overflow() {
 #[test]
 fn a_link_behind_drops_whole_output_frames_never_a_fragment() {
     // The firmware's output ring (256 bytes) with a UART that sends nothing for a while:
-    // the core writes through a frame writer, so a step that finds less than one frame
-    // of room drops its frame whole (counted), and what the UART sends decodes cleanly.
-    use ssis::frames::decoder::StreamDecoder;
+    // the core writes through a frame writer, or the frame port the firmware uses (the
+    // frame encoded in the ring), so a step that finds less than one frame of room drops
+    // its frame whole (counted), and what the UART sends decodes cleanly.
     use ssis::frames::output::OutputFrame;
     let tx: TxRing<256> = TxRing::new();
+    behind(&tx, tx.frame_writer(OutputFrame::LEN));
+    let tx: TxRing<256> = TxRing::new();
+    behind(&tx, tx.frame_port());
+}
+
+/// 40 steps into `out` (a handle of `tx`) with a UART that falls behind.
+fn behind<O: ssis::link::OutPort>(tx: &TxRing<256>, out: O) {
+    use ssis::frames::decoder::StreamDecoder;
+    use ssis::frames::output::OutputFrame;
     let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
-    let mut links = Links {
-        fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())),
-        star: MockLink::ideal(),
-        out: tx.frame_writer(OutputFrame::LEN),
-    };
+    let mut links =
+        Links { fog: FogLinks::PerFog([0, 1, 2, 3].map(|_| MockLink::ideal())), star: MockLink::ideal(), out };
     let mut sent = Vec::new();
     for k in 0..40 {
         core.step(&mut links);
@@ -146,14 +152,18 @@ fn a_link_behind_drops_whole_output_frames_never_a_fragment() {
 proptest::proptest! {
     /// The rings copy whole runs in and out across the wrap; any mix of single bytes and
     /// runs must behave as a plain FIFO of capacity 7 that drops (RX) or refuses (TX)
-    /// what does not fit.
+    /// what does not fit; the receive port hands out the bytes where they lie (in one or
+    /// two runs), and the frame port takes a frame whole or not at all, encoded in the
+    /// ring or, where the free space wraps, beside it.
     #[test]
-    fn isr_rings_behave_as_bounded_fifos(ops in proptest::collection::vec((0u8..4, 0usize..12), 1..200)) {
+    fn isr_rings_behave_as_bounded_fifos(ops in proptest::collection::vec((0u8..6, 0usize..12), 1..200)) {
         use embedded_io::{Read, Write};
+        use ssis::link::{OutPort, RxPort};
         use std::collections::VecDeque;
         let rx: RxRing<7> = RxRing::new();
         let tx: TxRing<7> = TxRing::new();
         let (mut r, mut w) = (rx.reader(), tx.writer());
+        let (mut rp, mut fp) = (rx.port(), tx.frame_port());
         let (mut mrx, mut mtx) = (VecDeque::new(), VecDeque::new());
         let (mut dropped, mut next) = (0u32, 0u8);
         for (op, n) in ops {
@@ -175,9 +185,27 @@ proptest::proptest! {
                     proptest::prop_assert_eq!(put, n.min(7 - mtx.len()));
                     mtx.extend(&data[..put]);
                 }
-                _ => for _ in 0..n {
+                3 => for _ in 0..n {
                     proptest::prop_assert_eq!(tx.pop(), mtx.pop_front());
                 },
+                4 => {
+                    let mut got = Vec::new();
+                    let rep = rp.drain_into(n, &mut [], |run| got.extend_from_slice(run));
+                    let want: Vec<u8> = (0..n.min(mrx.len())).filter_map(|_| mrx.pop_front()).collect();
+                    proptest::prop_assert_eq!(rep.bytes, want.len());
+                    proptest::prop_assert_eq!(got, want);
+                }
+                _ => {
+                    let mut scratch = [0u8; 12];
+                    let ok = fp.send_frame(&mut scratch, n, |buf| {
+                        buf.copy_from_slice(&data);
+                        true
+                    });
+                    proptest::prop_assert_eq!(ok, n <= 7 - mtx.len());
+                    if ok {
+                        mtx.extend(&data);
+                    }
+                }
             }
             proptest::prop_assert_eq!(rx.overflows(), dropped);
             proptest::prop_assert_eq!(tx.len(), mtx.len());

@@ -13,7 +13,7 @@ use crate::calib::N_FOG;
 use crate::combination::FogSet;
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::FogFrame;
-use crate::link::{drain, RxLink};
+use crate::link::RxPort;
 use crate::telemetry::{health, Counter, Counters, FogCounter};
 
 /// Receive bytes read per link per step at most (four FOG frames' worth).
@@ -174,7 +174,7 @@ impl FogIntake {
     }
 
     /// Drains the FOG links (or the bus) into the per-FOG sample queues.
-    pub fn receive<F: RxLink>(&mut self, fog_links: &mut FogLinks<F>, scratch: &mut [u8], counters: &mut Counters) {
+    pub fn receive<F: RxPort>(&mut self, fog_links: &mut FogLinks<F>, scratch: &mut [u8], counters: &mut Counters) {
         let fitted = self.fitted;
         match fog_links {
             FogLinks::PerFog(links) => {
@@ -183,7 +183,7 @@ impl FogIntake {
                         continue;
                     }
                     let FogChannel { decoder, queue, rejected_seen, rejected_new } = ch;
-                    let rep = drain(link, MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
+                    let rep = link.drain_into(MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
                         decoder.push_slice(bytes, |r| {
                             if let Ok(f) = r {
                                 if usize::from(f.fog_id) == i {
@@ -203,7 +203,7 @@ impl FogIntake {
             FogLinks::Bus(link) => {
                 let decoder = &mut self.bus_decoder;
                 let channels = &mut self.channels;
-                let rep = drain(link, N_FOG * MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
+                let rep = link.drain_into(N_FOG * MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
                     decoder.push_slice(bytes, |r| {
                         if let Ok(f) = r {
                             let i = usize::from(f.fog_id);

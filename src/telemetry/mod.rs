@@ -9,7 +9,7 @@ use crate::calib::N_FOG;
 use crate::combination::FogSet;
 use crate::frames::output::OutputFrame;
 use crate::frames::Frame;
-use crate::link::{write_frame, TxLink};
+use crate::link::OutPort;
 
 /// Output-frame flag bits (defined with the frame, `docs/ICD.md`).
 pub use crate::frames::output::flags;
@@ -153,7 +153,7 @@ impl Telemetry {
 
     /// Encodes `o` with counter page `page_id` carrying `page_value` and writes it; a
     /// link that cannot take it is counted.
-    pub fn emit<O: TxLink>(&mut self, out: &mut O, o: &StepOutput, page_id: u8, page_value: u32) {
+    pub fn emit<O: OutPort>(&mut self, out: &mut O, o: &StepOutput, page_id: u8, page_value: u32) {
         let c = &self.counters;
         let sat = |v: u32| u16::try_from(v).unwrap_or(u16::MAX);
         let mut frame = OutputFrame::from_physical(
@@ -181,7 +181,7 @@ impl Telemetry {
         frame.page_id = page_id;
         frame.page_value = sat(page_value);
         self.out_counter = self.out_counter.wrapping_add(1);
-        let ok = frame.encode_into(&mut self.out_buf.0).is_ok() && write_frame(out, &self.out_buf.0);
+        let ok = out.send_frame(&mut self.out_buf.0, OutputFrame::LEN, |buf| frame.encode_into(buf).is_ok());
         self.output_dropped_last = !ok;
         if !ok {
             self.counters.bump(Counter::OutputDropped);

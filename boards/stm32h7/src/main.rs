@@ -47,7 +47,6 @@ use core::convert::Infallible;
 use ssis::bsp::boot::{self, BootReport};
 use ssis::bsp::{cortex_m7, Board};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
-use ssis::frames::output::OutputFrame;
 
 // `panic: never`: the release build links only if the optimiser has proved every panic
 // unreachable (README "No panics, stack overflow"); debug builds and the `allow-panic`
@@ -98,9 +97,9 @@ fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, prof
     );
 
     let mut links = Links {
-        fog: FogLinks::Bus(board::FOG_RX.reader()),
+        fog: FogLinks::Bus(board::FOG_RX.port()),
         star: board::ST_RX.reader(),
-        out: board::OUT_TX.frame_writer(OutputFrame::LEN),
+        out: board::OUT_TX.frame_port(),
     };
     let mut window = Window::default();
     let mut steps: u32 = 0;

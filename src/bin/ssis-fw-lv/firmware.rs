@@ -51,7 +51,6 @@ use ssis::bsp::Board;
 use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::navout::NavOutputFrame;
-use ssis::frames::output::OutputFrame;
 use ssis::link::{NotFitted, RxRing, TxRing};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
@@ -176,10 +175,10 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
 
     let mut links = Links {
-        fog: FogLinks::Bus(FOG_RX.reader()),
+        fog: FogLinks::Bus(FOG_RX.port()),
         // No star tracker on the launch vehicle: the stage is compiled out.
         star: NotFitted,
-        out: OUT_TX.frame_writer(OutputFrame::LEN),
+        out: OUT_TX.frame_port(),
     };
     let mut nav_links =
         NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };

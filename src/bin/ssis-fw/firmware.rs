@@ -31,7 +31,6 @@ use ssis::bsp::boot::{self, BootReport};
 use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis::bsp::Board;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
-use ssis::frames::output::OutputFrame;
 use ssis::frames::telecommand::{CommandReport, Telecommand};
 use ssis::link::{write_frame, RxRing, TxRing};
 use ssis::telecommand::{CommandLink, Outcome};
@@ -95,8 +94,7 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     // Ten steps without a pass of the loop give the warning, twenty the reset.
     mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
 
-    let mut links =
-        Links { fog: FogLinks::Bus(FOG_RX.reader()), star: ST_RX.reader(), out: OUT_TX.frame_writer(OutputFrame::LEN) };
+    let mut links = Links { fog: FogLinks::Bus(FOG_RX.port()), star: ST_RX.reader(), out: OUT_TX.frame_port() };
     let mut reports = OUT_TX.frame_writer(CommandReport::LEN);
     let mut link = CommandLink::new(mps2::key_area());
     defmt::info!("command link: key id {}", link.key_id());
