@@ -732,7 +732,7 @@ pub fn check_lv(rec: &Recorded, table: &CalibrationTable, init: &NavState) -> Lv
         s.sort_by(f64::total_cmp);
         ("GNSS fixes", fixes.iter().map(|f| (f.0, f.1)).collect(), s.get(s.len() / 2).copied().unwrap_or(5.0))
     } else {
-        ("truth", truth.clone(), 1.0)
+        ("truth", truth, 1.0)
     };
     let span_s = (rec.steps.len() as f64 * dt_s).min(LV_CHECK_SPAN_S);
     let refs: Vec<(f64, Vector3<f64>)> = refs.into_iter().filter(|r| r.0 <= span_s).collect();

@@ -30,12 +30,7 @@ pub fn run(a: &Args) -> Result<bool> {
     anyhow::ensure!(a.pad.is_none(), "--pad: {} is a spacecraft log (no navigation to start)", rec.origin);
     let conv = conventions::check_conventions(&rec, &table, profile.dt_us)?;
     cli::report("conventions", || ssis_sim::json::conventions(&conv));
-    let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
-    let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
-    let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
-    let title = format!("replay of {} on ssis-fw in QEMU", rec.origin);
-    output::claim(&csv_path, Origin::Default(Own::CsvHeader(CSV_HEADER.join(","))))?;
-    output::claim(&svg, Origin::Default(Own::Svg(title.clone())))?;
+    let Outputs { stem, csv_path, svg, title } = outputs(a, &rec, "ssis-fw", &CSV_HEADER)?;
     let elf = super::firmware(a)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = super::Rows::new(&csv_path)?;
@@ -98,12 +93,7 @@ fn run_lv_replay(a: &Args, rec: &Recorded, table: &ssis::calib::CalibrationTable
     let init = pad_for(rec, a.pad.as_deref())?;
     let conv = conventions::check_lv(rec, table, &init.state);
     cli::report("conventions", || ssis_sim::json::lv_conventions(&conv));
-    let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
-    let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
-    let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
-    let title = format!("replay of {} on ssis-fw-lv in QEMU", rec.origin);
-    output::claim(&csv_path, Origin::Default(Own::CsvHeader(LV_CSV_HEADER.join(","))))?;
-    output::claim(&svg, Origin::Default(Own::Svg(title.clone())))?;
+    let Outputs { stem, csv_path, svg, title } = outputs(a, rec, "ssis-fw-lv", &LV_CSV_HEADER)?;
     let elf = match &a.elf {
         Some(e) => e.clone(),
         None => ssis_runner::qemu_lv::build_firmware()?,
@@ -145,4 +135,23 @@ fn run_lv_replay(a: &Args, rec: &Recorded, table: &ssis::calib::CalibrationTable
         println!("{w}");
     }
     Ok(s.clean() && conv.findings.is_empty())
+}
+
+/// A replay's CSV and plot, claimed before anything runs (`ssis_common::output`).
+struct Outputs {
+    stem: String,
+    csv_path: std::path::PathBuf,
+    svg: std::path::PathBuf,
+    title: String,
+}
+
+/// Names and claims the outputs of a replay of `rec` on `firmware`, whose CSV has `header`.
+fn outputs(a: &Args, rec: &Recorded, firmware: &str, header: &[&str]) -> Result<Outputs> {
+    let stem = a.replay[0].file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_else(|| "log".into());
+    let csv_path = a.out.join(format!("{stem}-replay-qemu.csv"));
+    let svg = a.out.join(format!("{stem}-replay-qemu.svg"));
+    let title = format!("replay of {} on {firmware} in QEMU", rec.origin);
+    output::claim(&csv_path, Origin::Default(Own::CsvHeader(header.join(","))))?;
+    output::claim(&svg, Origin::Default(Own::Svg(title.clone())))?;
+    Ok(Outputs { stem, csv_path, svg, title })
 }
