@@ -25,9 +25,12 @@
 //! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
 //! [`telecommand`] is the command link: authenticated telecommands, the in-flight table
 //! update.
-//! [`bsp`] is the board seam: the boot policy every board shares (host and target) and,
-//! for the target only, the Cortex-M7 and QEMU `mps2-an500` board code.
-#![no_std]
+//! [`bsp`] is the board seam: the [`bsp::Board`] trait and the boot policy every board
+//! shares. The board code itself (Cortex-M7, QEMU `mps2-an500`, STM32H7) and the
+//! firmware binaries are crates of their own (`firmware/`, `boards/`): this crate is
+//! portable, safe code, and `cargo test` at the root runs its unit tests on the host.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;

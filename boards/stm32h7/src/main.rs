@@ -45,13 +45,14 @@
 use core::convert::Infallible;
 
 use ssis::bsp::boot::{self, BootReport};
-use ssis::bsp::{cortex_m7, Board};
+use ssis::bsp::Board;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis_firmware::cortex_m7;
 
 // `panic: never`: the release build links only if the optimiser has proved every panic
 // unreachable (README "No panics, stack overflow"); debug builds and the `allow-panic`
 // feature (for `scripts/panic-paths`) log `panic` and park until the watchdog resets.
-ssis::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: never);
+ssis_firmware::cortex_m7_runtime!(sink: board::rtt_write, stop: board::halt, panic: never);
 
 /// Steps between two status logs (10 s of 5 ms steps).
 const LOG_EVERY_STEPS: u32 = 2_000;
@@ -790,7 +791,7 @@ mod board {
         },
     };
 
-    /// The log's output (the logger of `ssis::cortex_m7_runtime!`): `bytes` into the RTT
+    /// The log's output (the logger of `ssis_firmware::cortex_m7_runtime!`): `bytes` into the RTT
     /// up channel, as much as fits; never waits and never panics.
     pub fn rtt_write(bytes: &[u8]) {
         let ch = &_SEGGER_RTT.up;
