@@ -21,7 +21,10 @@
 //! The calibration table ([`calib`]) parameterises compensation, combination and the
 //! observer; it is the one definition shared with the simulator and the model lab.
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
-//! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
+//! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest). It
+//! stays in the core, portable: the same code gives the digest on the host and on the
+//! target (`ssis-selftest` in `firmware/`), so equal digests compare the core, not two
+//! copies of a test.
 //! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
 //! [`telecommand`] is the command link: authenticated telecommands, the in-flight table
 //! update.
