@@ -150,3 +150,93 @@ fn parity_vector(h: &Matrix4x3<f64>) -> RowVector4<f64> {
         RowVector4::zeros()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The paper's geometry: three orthogonal axes and one equally inclined.
+    fn paper_axes() -> [Vector3<f64>; N_FOG] {
+        let k = 1.0 / libm::sqrt(3.0);
+        [Vector3::x(), Vector3::y(), Vector3::z(), Vector3::new(k, k, k)]
+    }
+
+    /// The measurements of the axes `s` for the body increment `w`: m_i = s_i · w.
+    fn measure(s: &[Vector3<f64>; N_FOG], w: &Vector3<f64>) -> Vector4<f64> {
+        Vector4::from_fn(|i, _| s[i].dot(w))
+    }
+
+    #[test]
+    fn every_set_of_three_or_four_recovers_the_increment() {
+        // A skewed, non-orthogonal geometry, so that least squares is not a copy.
+        let s = [
+            Vector3::new(1.0, 0.01, -0.02).normalize(),
+            Vector3::new(0.015, 1.0, 0.01).normalize(),
+            Vector3::new(-0.01, 0.02, 1.0).normalize(),
+            Vector3::new(0.6, 0.55, 0.58).normalize(),
+        ];
+        let c = Combiner::new(&s);
+        let w = Vector3::new(1.2e-5, -3.4e-6, 7.0e-7);
+        let m = measure(&s, &w);
+        for set in [FogSet::ALL, FogSet(0b1110), FogSet(0b1101), FogSet(0b1011), FogSet(0b0111)] {
+            let got = c.combine(&m, set).unwrap();
+            assert!((got - w).norm() < 1e-18, "{set:?}: {got} vs {w}");
+        }
+        // A triad ignores the FOG it leaves out, however wrong.
+        let mut bad = m;
+        bad[3] += 1.0;
+        assert!((c.combine(&bad, FogSet::TRIAD).unwrap() - w).norm() < 1e-18);
+    }
+
+    /// v H = 0 with |v| = 1: consistent measurements give p = 0, and a fault e on FOG i
+    /// gives p = v_i e.
+    #[test]
+    fn the_parity_residual_sees_a_single_fault() {
+        let s = paper_axes();
+        let c = Combiner::new(&s);
+        let v = c.parity_vector();
+        assert!((v.norm() - 1.0).abs() < 1e-15);
+        for axis in [Vector3::x(), Vector3::y(), Vector3::z()] {
+            let vh: f64 = v.iter().zip(&s).map(|(vi, si)| vi * si.dot(&axis)).sum();
+            assert!(vh.abs() < 1e-15, "v H = {vh} along {axis}");
+        }
+        let w = Vector3::new(3e-6, -2e-6, 1e-6);
+        let m = measure(&s, &w);
+        assert!(c.parity(&m).abs() < 1e-20);
+        for i in 0..N_FOG {
+            let mut f = m;
+            f[i] += 1e-6;
+            let p = c.parity(&f);
+            assert!((p - v[i] * 1e-6).abs() < 1e-20, "FOG {i}: p {p}");
+            assert!(p.abs() > 4e-7, "FOG {i} is seen: p {p}");
+        }
+    }
+
+    #[test]
+    fn too_few_fogs_or_a_flat_geometry_is_refused() {
+        let c = Combiner::new(&paper_axes());
+        let m = Vector4::zeros();
+        assert_eq!(c.combine(&m, FogSet(0b0011)), Err(CombineError::TooFewFogs));
+        assert_eq!(c.combine(&m, FogSet(0)), Err(CombineError::TooFewFogs));
+        assert!(c.triads().is_some());
+        // Four axes in the x-y plane span no 3-D space.
+        let flat = [
+            Vector3::x(),
+            Vector3::y(),
+            Vector3::new(1.0, 1.0, 0.0).normalize(),
+            Vector3::new(1.0, -1.0, 0.0).normalize(),
+        ];
+        let c = Combiner::new(&flat);
+        assert_eq!(c.combine(&m, FogSet::ALL), Err(CombineError::Singular));
+        assert!(c.triads().is_none());
+    }
+
+    #[test]
+    fn a_set_counts_and_drops_its_members() {
+        assert_eq!(FogSet::ALL.count(), 4);
+        assert_eq!(FogSet::ALL.without(1), FogSet(0b1101));
+        assert_eq!(FogSet::ALL.without(N_FOG), FogSet::ALL);
+        assert!(FogSet::TRIAD.contains(2) && !FogSet::TRIAD.contains(3));
+        assert!(!FogSet::ALL.contains(N_FOG));
+    }
+}

@@ -134,3 +134,95 @@ impl TempRateEstimator {
         Thermal { t_degc: self.t_degc, g_degc_s: self.g_degc_s }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The step of the spacecraft unit, s.
+    const DT_S: f64 = 0.005;
+    /// The frame's temperature LSB, °C.
+    const LSB_DEGC: f64 = 1.0 / 256.0;
+
+    #[test]
+    fn the_first_sample_sets_t_with_no_rate() {
+        let mut e = TempRateEstimator::new(DT_S, 30.0);
+        assert_eq!(e.predicted(DT_S), None);
+        let th = e.update(21.5, DT_S);
+        assert_eq!(th, Thermal { t_degc: 21.5, g_degc_s: 0.0 });
+        assert_eq!(e.predicted(DT_S), Some(21.5));
+    }
+
+    /// Critically damped α-β loop: no lag to a constant G once settled, and the 1/256 °C
+    /// quantisation of the frame leaves G noise below 1e-4 °C/s at τ = 30 s (the
+    /// estimator's doc comment).
+    #[test]
+    fn tracks_a_quantised_ramp_without_lag() {
+        let g_true_degc_s = 0.01;
+        let mut e = TempRateEstimator::new(DT_S, 30.0);
+        let quantised = |k: u32| (20.0 + g_true_degc_s * f64::from(k) * DT_S) / LSB_DEGC;
+        let reading = |k: u32| libm::round(quantised(k)) * LSB_DEGC;
+        // Ten time constants to settle, then one more to judge.
+        let settle = (10.0 * 30.0 / DT_S) as u32;
+        let judge = (30.0 / DT_S) as u32;
+        let mut worst_g = 0.0f64;
+        let mut worst_t = 0.0f64;
+        for k in 0..settle + judge {
+            let th = e.update(reading(k), DT_S);
+            if k >= settle {
+                worst_g = worst_g.max((th.g_degc_s - g_true_degc_s).abs());
+                worst_t = worst_t.max((th.t_degc - quantised(k) * LSB_DEGC).abs());
+            }
+        }
+        assert!(worst_g < 1e-4, "G error {worst_g} °C/s");
+        assert!(worst_t < LSB_DEGC, "T error {worst_t} °C");
+    }
+
+    #[test]
+    fn an_untrusted_reading_holds_t_with_g_zero() {
+        // τ = 1 s: settled after the 10 s of ramp.
+        let mut tr = ThermalTracker::new(DT_S, 1.0);
+        for k in 0..2_000 {
+            tr.update(Some(20.0 + 0.05 * f64::from(k) * DT_S), DT_S);
+        }
+        let before = tr.update(Some(20.0 + 0.05 * 2_000.0 * DT_S), DT_S);
+        assert!((before.g_degc_s - 0.05).abs() < 1e-3, "the tracker follows the ramp: {before:?}");
+        let held = tr.update(None, DT_S);
+        assert_eq!(held, Thermal { t_degc: before.t_degc, g_degc_s: 0.0 });
+    }
+
+    #[test]
+    fn a_new_time_constant_keeps_the_tracked_state() {
+        let mut tr = ThermalTracker::new(DT_S, 30.0);
+        for k in 0..1_000 {
+            tr.update(Some(20.0 + 0.02 * f64::from(k) * DT_S), DT_S);
+        }
+        let p = tr.predicted_degc(DT_S);
+        tr.set_time_constant(DT_S, 5.0);
+        assert_eq!(tr.predicted_degc(DT_S), p);
+        assert_eq!(tr.estimator.alpha, 2.0 * DT_S / 5.0);
+    }
+
+    /// Compensation inverts the error model: a raw increment made from a true one by
+    /// the table's drift and scale factor gives the true one back.
+    #[test]
+    fn compensation_inverts_the_error_model() {
+        let cal = FogCal {
+            bias_rad_s: 3e-7,
+            scale_factor_error: 2e-4,
+            t_ref_degc: 20.0,
+            thermal_t_rad_s: [1e-8, -2e-9, 3e-10],
+            thermal_g_rad_s_per_degc_s: 5e-7,
+            thermal_tg_rad_s_per_degc2_s: -1e-8,
+        };
+        let (t_degc, g_degc_s) = (27.5, 0.02);
+        for true_rad in [0.0, 1e-5, -3e-4] {
+            let drift = cal.drift_rad_s(t_degc, g_degc_s);
+            let raw = true_rad * (1.0 + cal.scale_factor_error) + drift * DT_S;
+            let back = compensate_increment(&cal, raw, DT_S, t_degc, g_degc_s);
+            assert!((back - true_rad).abs() < 1e-18, "{true_rad} -> {back}");
+            let rate = compensate_rate(&cal, raw / DT_S, t_degc, g_degc_s);
+            assert!((rate - true_rad / DT_S).abs() < 1e-15, "{true_rad} -> {rate}");
+        }
+    }
+}

@@ -21,13 +21,19 @@
 //! The calibration table ([`calib`]) parameterises compensation, combination and the
 //! observer; it is the one definition shared with the simulator and the model lab.
 //! Conventions (frames, quaternion product, units) are in `docs/CONVENTIONS.md`.
-//! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest).
+//! [`bit`] is the unit's built-in test (known answers at power-on, a replay digest). It
+//! stays in the core, portable: the same code gives the digest on the host and on the
+//! target (`ssis-selftest` in `firmware/`), so equal digests compare the core, not two
+//! copies of a test.
 //! [`nav`] is the launch-vehicle unit's strapdown navigation (ECEF, WGS-84 with J2).
 //! [`telecommand`] is the command link: authenticated telecommands, the in-flight table
 //! update.
-//! [`bsp`] is the board seam: the boot policy every board shares (host and target) and,
-//! for the target only, the Cortex-M7 and QEMU `mps2-an500` board code.
-#![no_std]
+//! [`bsp`] is the board seam: the [`bsp::Board`] trait and the boot policy every board
+//! shares. The board code itself (Cortex-M7, QEMU `mps2-an500`, STM32H7) and the
+//! firmware binaries are crates of their own (`firmware/`, `boards/`): this crate is
+//! portable, safe code, and `cargo test` at the root runs its unit tests on the host.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;

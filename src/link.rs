@@ -537,3 +537,113 @@ impl<const N: usize> embedded_io::Write for TxRingWriter<'_, N> {
         Ok(())
     }
 }
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use std::vec::Vec;
+
+    use super::*;
+
+    /// Everything the port hands over, in order.
+    fn drain_all<const N: usize>(ring: &RxRing<N>, max_bytes: usize) -> Vec<u8> {
+        let mut got = Vec::new();
+        ring.port().drain_into(max_bytes, &mut [], |s| got.extend_from_slice(s));
+        got
+    }
+
+    /// The receive ring keeps order across its wrap and counts what a full ring drops.
+    #[test]
+    fn the_receive_ring_wraps_in_order_and_counts_overflows() {
+        let ring = RxRing::<8>::new();
+        for b in 0..6u8 {
+            ring.push(b);
+        }
+        assert_eq!(drain_all(&ring, 4), [0, 1, 2, 3]);
+        // Head at 4: these wrap round the end.
+        for b in 6..12u8 {
+            ring.push(b);
+        }
+        assert_eq!(drain_all(&ring, 100), [4, 5, 6, 7, 8, 9, 10, 11]);
+        for b in 0..10u8 {
+            ring.push(b);
+        }
+        assert_eq!(ring.overflows(), 2);
+        assert_eq!(ring.received(), 22);
+        assert_eq!(drain_all(&ring, 100), [0, 1, 2, 3, 4, 5, 6, 7]);
+        assert!(drain_all(&ring, 100).is_empty());
+    }
+
+    /// The reader (embedded-io) and `drain` give the bytes in order, bounded by the
+    /// caller's limit and scratch.
+    #[test]
+    fn drain_reads_what_arrived_up_to_its_bound() {
+        let ring = RxRing::<16>::new();
+        for b in 0..12u8 {
+            ring.push(b);
+        }
+        let mut reader = ring.reader();
+        let mut scratch = [0u8; 5];
+        let mut got = Vec::new();
+        let r = drain(&mut reader, 9, &mut scratch, |s| {
+            assert!(s.len() <= 5);
+            got.extend_from_slice(s);
+        });
+        assert_eq!(r, DrainReport { bytes: 9, io_errors: 0 });
+        assert_eq!(got, (0..9).collect::<Vec<u8>>());
+        let r = drain(&mut reader, 100, &mut [], |_| panic!("an empty scratch reads nothing"));
+        assert_eq!(r.bytes, 0);
+        let r = drain(&mut reader, 100, &mut scratch, |s| got.extend_from_slice(s));
+        assert_eq!(r.bytes, 3);
+        assert_eq!(got, (0..12).collect::<Vec<u8>>());
+    }
+
+    /// The frame port takes a frame whole or not at all, in place or, when the free
+    /// space wraps, through the scratch buffer.
+    #[test]
+    fn the_frame_port_takes_frames_whole_or_not_at_all() {
+        let ring = TxRing::<10>::new();
+        let mut port = ring.frame_port();
+        let mut scratch = [0u8; 16];
+        let frame = |first: u8| {
+            move |buf: &mut [u8]| {
+                for (i, b) in buf.iter_mut().enumerate() {
+                    *b = first + i as u8;
+                }
+                true
+            }
+        };
+        assert!(port.send_frame(&mut scratch, 4, frame(10)));
+        assert!(port.send_frame(&mut scratch, 4, frame(20)));
+        // 2 bytes free: refused whole.
+        assert!(!port.send_frame(&mut scratch, 4, frame(30)));
+        assert_eq!(ring.len(), 8);
+        for want in [10, 11, 12, 13, 20, 21] {
+            assert_eq!(ring.pop(), Some(want));
+        }
+        // 8 free, but from index 8 only 2 are contiguous: encoded aside and copied.
+        assert!(port.send_frame(&mut scratch, 6, frame(40)));
+        let rest: Vec<u8> = core::iter::from_fn(|| ring.pop()).collect();
+        assert_eq!(rest, [22, 23, 40, 41, 42, 43, 44, 45]);
+        // An encoder that declines sends nothing.
+        assert!(!port.send_frame(&mut scratch, 4, |_| false));
+        assert!(ring.is_empty());
+    }
+
+    /// A frame writer is ready only while a whole frame fits; `write_frame` never
+    /// blocks and reports a frame it could not send.
+    #[test]
+    fn a_frame_writer_sends_whole_frames_only() {
+        let ring = TxRing::<10>::new();
+        let mut w = ring.frame_writer(4);
+        assert!(write_frame(&mut w, &[1, 2, 3, 4]));
+        assert!(write_frame(&mut w, &[5, 6, 7, 8]));
+        assert_eq!(w.free(), 2);
+        assert!(!write_frame(&mut w, &[9, 10, 11, 12]));
+        assert_eq!(ring.len(), 8);
+        // A byte writer takes what fits: the frame is cut, and write_frame says so.
+        let mut b = ring.writer();
+        assert!(!write_frame(&mut b, &[9, 10, 11, 12]));
+        assert_eq!(ring.len(), 10);
+    }
+}

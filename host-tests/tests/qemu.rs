@@ -465,7 +465,7 @@ fn a_flight_firmware_with_test_hooks_does_not_link() {
     let out = std::process::Command::new("cargo")
         .args(["build", "--release", "--quiet", "--bin", "ssis-fw", "--features", "test-hooks", "--target-dir"])
         .arg(root.join("target/test-hooks"))
-        .current_dir(&root)
+        .current_dir(ssis_runner::qemu::firmware_dir())
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("CARGO_BUILD_TARGET")
         .output()

@@ -208,3 +208,121 @@ impl Reader<'_> {
         s.try_into().map_err(|_| TableError::Truncated)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A table unlike the default in every group of fields, within the plausible ranges.
+    fn sample() -> CalibrationTable {
+        let mut t = CalibrationTable::DEFAULT;
+        t.revision = 0x0102_0304;
+        for (i, f) in t.fog.iter_mut().enumerate() {
+            let k = i as f64 + 1.0;
+            f.bias_rad_s = 1e-7 * k;
+            f.scale_factor_error = -2e-5 * k;
+            f.t_ref_degc = 20.0 + k;
+            f.thermal_t_rad_s = [1e-9 * k, -1e-10 * k, 1e-12 * k];
+            f.thermal_g_rad_s_per_degc_s = 3e-8 * k;
+            f.thermal_tg_rad_s_per_degc2_s = -1e-9 * k;
+        }
+        t.misalignment.d12_rad = 1e-4;
+        t.misalignment.d43_rad = -2e-4;
+        t.gamma_rad += 1e-4;
+        t.st_mount_q = [0.0, 1.0, 0.0, 0.0];
+        t.t_rate_filter_s = 45.0;
+        t.observer.gains_override = Some(ObserverGains { k_b: [0.1, 0.2, 0.3], k_u_per_s: [1e-3, 2e-3, 3e-3] });
+        t.observer.estimator = Estimator::Mekf;
+        t.observer.acquisition_s = 600.0;
+        t
+    }
+
+    /// Rewrites the CRC after `bytes` were changed, so a later check sees the change.
+    fn reseal(bytes: &mut [u8; TABLE_LEN]) {
+        let crc = CRC32.checksum(&bytes[..TABLE_LEN - 4]);
+        bytes[TABLE_LEN - 4..].copy_from_slice(&crc.to_le_bytes());
+    }
+
+    #[test]
+    fn a_table_round_trips_bit_for_bit() {
+        let t = sample();
+        assert_eq!(t.validate(), Ok(()));
+        let bytes = encode(&t);
+        assert_eq!(decode(&bytes), Ok(t));
+        // The documented layout: header, fields at 12 + 8 i, flags, estimator, CRC.
+        assert_eq!(bytes[..4], MAGIC);
+        assert_eq!(bytes[4..6], FORMAT_VERSION.to_le_bytes());
+        assert_eq!(bytes[6..8], (PAYLOAD_LEN as u16).to_le_bytes());
+        assert_eq!(bytes[8..12], t.revision.to_le_bytes());
+        for (i, v) in fields(&t).iter().enumerate() {
+            assert_eq!(bytes[12 + 8 * i..20 + 8 * i], v.to_le_bytes(), "field {i}");
+        }
+        assert_eq!(bytes[476..480], [1, Estimator::Mekf.code(), 0, 0]);
+        assert_eq!(bytes[480..], CRC32.checksum(&bytes[..480]).to_le_bytes());
+        assert_eq!(TABLE_LEN, 484);
+    }
+
+    #[test]
+    fn without_a_gains_override_the_gains_are_not_stored() {
+        let mut t = sample();
+        t.observer.gains_override = None;
+        let bytes = encode(&t);
+        assert_eq!(bytes[476], 0);
+        assert_eq!(decode(&bytes), Ok(t));
+    }
+
+    #[test]
+    fn each_check_refuses_its_damage() {
+        let good = encode(&sample());
+        assert_eq!(decode(&good[..TABLE_LEN - 1]), Err(TableError::Truncated));
+
+        let mut b = good;
+        b[0] ^= 0x20;
+        assert_eq!(decode(&b), Err(TableError::BadMagic));
+
+        let mut b = good;
+        b[4..6].copy_from_slice(&(FORMAT_VERSION - 1).to_le_bytes());
+        assert_eq!(decode(&b), Err(TableError::UnsupportedVersion));
+
+        let mut b = good;
+        b[6..8].copy_from_slice(&(PAYLOAD_LEN as u16 + 8).to_le_bytes());
+        assert_eq!(decode(&b), Err(TableError::BadLength));
+
+        for at in [8, 100, 477, TABLE_LEN - 1] {
+            let mut b = good;
+            b[at] ^= 0x01;
+            assert_eq!(decode(&b), Err(TableError::BadCrc), "byte {at}");
+        }
+
+        for (at, v) in [(476, 0b10), (477, 2), (478, 1), (479, 0x80)] {
+            let mut b = good;
+            b[at] = v;
+            reseal(&mut b);
+            assert_eq!(decode(&b), Err(TableError::BadFlags), "byte {at} = {v}");
+        }
+    }
+
+    /// A copy whose CRC is right but whose numbers are not is refused by the table's own
+    /// checks, naming the field.
+    #[test]
+    fn a_sealed_copy_with_a_bad_number_is_refused() {
+        let mut b = encode(&sample());
+        b[12..20].copy_from_slice(&f64::NAN.to_le_bytes());
+        reseal(&mut b);
+        match decode(&b) {
+            Err(TableError::Field(e)) => assert!(e.value().is_nan()),
+            other => panic!("not refused for the NaN bias: {other:?}"),
+        }
+        let mut b = encode(&sample());
+        // The mount quaternion's w (field 41) doubled: not of unit length.
+        b[12 + 8 * 41..20 + 8 * 41].copy_from_slice(&2.0f64.to_le_bytes());
+        reseal(&mut b);
+        assert!(decode(&b).is_err());
+    }
+
+    #[test]
+    fn a_short_buffer_is_refused() {
+        let mut out = [0u8; TABLE_LEN - 1];
+        assert_eq!(encode_into(&sample(), &mut out), Err(TableError::BufferTooSmall));
+    }
+}

@@ -1,7 +1,7 @@
 //! Control frame (kind 0x40, 18 bytes): test equipment → unit, on the output link's
 //! receive line. It lets a runner step the unit in lockstep with a simulator and end a
 //! run; only a test build (`test-hooks`) acts on it, a flight build counts and ignores it
-//! (`bsp::mps2::Pacer`).
+//! (`ssis_firmware::mps2::Pacer`).
 //!
 //! | off | size | field | type | meaning |
 //! |---|---|---|---|---|

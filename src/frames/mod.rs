@@ -410,3 +410,103 @@ fn round_half_away(x: f64) -> f64 {
         x - 0.5
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The reflected CRC-32C register after `bytes`, from `r`, one bit at a time: the
+    /// definition the tables must agree with.
+    fn bitwise(mut r: u32, bytes: &[u8]) -> u32 {
+        for &b in bytes {
+            r ^= u32::from(b);
+            for _ in 0..8 {
+                r = if r & 1 != 0 { (r >> 1) ^ POLY_REFLECTED } else { r >> 1 };
+            }
+        }
+        r
+    }
+
+    /// Tₖ[x] is the register after byte x and k zero bytes, from 0.
+    #[test]
+    fn each_table_is_a_byte_followed_by_zero_bytes() {
+        for (k, t) in CRC_TABLES.iter().enumerate() {
+            for (x, &entry) in t.iter().enumerate() {
+                let mut bytes = [0u8; 4];
+                bytes[0] = x as u8;
+                assert_eq!(entry, bitwise(0, &bytes[..=k]), "T{k}[{x:#04x}]");
+            }
+        }
+        assert_eq!(POLY_REFLECTED, 0x1EDC_6F41u32.reverse_bits());
+    }
+
+    /// The sliced CRC equals the catalogue CRC-32C over the whole frame for every body
+    /// length (whole words and each remainder) and every kind's header.
+    #[test]
+    fn the_sliced_crc_is_the_catalogue_crc() {
+        assert_eq!(CRC32C.checksum(b"123456789"), 0xE306_9283);
+        let mut frame = [0u8; 3 + 40];
+        let mut x: u32 = 0x1234_5678;
+        for b in frame.iter_mut().skip(3) {
+            x = x.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            *b = (x >> 24) as u8;
+        }
+        for k in [kind::FOG, kind::STAR, kind::OUTPUT, kind::TELECOMMAND] {
+            frame[..3].copy_from_slice(&[SYNC[0], SYNC[1], k]);
+            for len in 0..=40 {
+                let whole = &frame[..3 + len];
+                assert_eq!(body_crc(header_crc(k), &whole[3..]), CRC32C.checksum(whole), "kind {k:#04x}, {len} bytes");
+            }
+        }
+    }
+
+    #[test]
+    fn the_envelope_checks_come_in_order() {
+        let mut f = [0u8; 12];
+        f[..3].copy_from_slice(&[0xEB, 0x90, kind::CONTROL]);
+        let crc = CRC32C.checksum(&f[..8]);
+        f[8..].copy_from_slice(&crc.to_le_bytes());
+        assert_eq!(check_envelope(&f, kind::CONTROL, 12), Ok(&f[3..8]));
+        assert_eq!(check_envelope(&f[..11], kind::CONTROL, 12), Err(DecodeError::BadLength));
+        assert_eq!(check_envelope(&f, kind::FOG, 12), Err(DecodeError::BadKind));
+        let mut g = f;
+        g[0] = 0xEA;
+        assert_eq!(check_envelope(&g, kind::CONTROL, 12), Err(DecodeError::BadSync));
+        let mut g = f;
+        g[5] ^= 0x40;
+        assert_eq!(check_envelope(&g, kind::CONTROL, 12), Err(DecodeError::BadCrc));
+    }
+
+    #[test]
+    fn counts_round_half_away_and_saturate() {
+        assert_eq!(counts_i32(2.5, 1.0), 3);
+        assert_eq!(counts_i32(-2.5, 1.0), -3);
+        assert_eq!(counts_i32(2.4999, 1.0), 2);
+        assert_eq!(counts_i32(f64::NAN, 1.0), 0);
+        assert_eq!(counts_i32(1e12, 1.0), i32::MAX);
+        assert_eq!(counts_i16(-1e9, 1.0), i16::MIN);
+        assert_eq!(counts_u16(-3.0, 1.0), 0);
+        assert_eq!(counts_u16(0.75, 0.5), 2);
+        assert_eq!(counts_u16(1e9, 1.0), u16::MAX);
+    }
+
+    #[test]
+    fn field_readers_and_writers_are_little_endian_and_bounded() {
+        let mut buf = [0u8; 7];
+        let mut w = FieldWriter::new(&mut buf);
+        w.u16(0x0102);
+        w.i32(-2);
+        assert!(!w.is_complete());
+        w.u8(9);
+        assert!(w.is_complete());
+        w.u8(1);
+        assert!(!w.is_complete(), "an overflow is remembered");
+        assert_eq!(buf, [0x02, 0x01, 0xFE, 0xFF, 0xFF, 0xFF, 9]);
+        let mut r = FieldReader::new(&buf);
+        assert_eq!(r.u16(), Ok(0x0102));
+        assert_eq!(r.i32(), Ok(-2));
+        assert_eq!(r.remaining(), 1);
+        assert_eq!(r.u16(), Err(DecodeError::BadLength));
+        assert_eq!(r.u8(), Ok(9));
+    }
+}

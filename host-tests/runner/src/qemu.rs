@@ -343,13 +343,13 @@ pub fn default_elf() -> PathBuf {
     repo_root().join("target/test-hooks/thumbv7em-none-eabihf/release/ssis-fw-test")
 }
 
-/// The flight build of the spacecraft firmware (`cargo build --release` at the root):
+/// The flight build of the spacecraft firmware (`cargo build --release` in `firmware/`):
 /// it ignores control frames, so it runs only in real time.
 pub fn flight_elf() -> PathBuf {
     repo_root().join("target/thumbv7em-none-eabihf/release/ssis-fw")
 }
 
-/// Whether `elf` is a test build (it defines the symbol of `ssis::mps2_test_hooks!`, so
+/// Whether `elf` is a test build (it defines the symbol of `ssis_firmware::mps2_test_hooks!`, so
 /// it honours LOCKSTEP, STEP, END and STALL); a flight build ignores them.
 pub fn is_test_build(elf: &Path) -> Result<bool> {
     use object::{Object, ObjectSymbol};
@@ -363,19 +363,25 @@ pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
 }
 
+/// The firmware crate (`firmware/`: board support and firmware binaries), where the
+/// firmware is built from.
+pub fn firmware_dir() -> PathBuf {
+    repo_root().join("firmware")
+}
+
 /// Builds the test build of the firmware (`ssis-fw-test`: release, thumb target, test
 /// hooks) if it is out of date; what the runner and the QEMU tests run.
 pub fn build_firmware() -> Result<PathBuf> {
     build_test_hooks_bin("ssis-fw-test")
 }
 
-/// Builds the flight firmware (`ssis-fw`, `cargo build --release` at the root) if it is
-/// out of date.
+/// Builds the flight firmware (`ssis-fw`, `cargo build --release` in `firmware/`) if it
+/// is out of date.
 pub fn build_flight_firmware() -> Result<PathBuf> {
     build_target_bin("ssis-fw")
 }
 
-/// Builds a target binary of the root crate (release) and returns its ELF path.
+/// Builds a target binary of the firmware crate (release) and returns its ELF path.
 pub fn build_target_bin(name: &str) -> Result<PathBuf> {
     let status = cargo_build(&["--bin".as_ref(), name.as_ref()])?;
     if !status.success() {
@@ -384,13 +390,14 @@ pub fn build_target_bin(name: &str) -> Result<PathBuf> {
     Ok(repo_root().join("target/thumbv7em-none-eabihf/release").join(name))
 }
 
-/// `cargo build --release --quiet` with `args` at the repository root, with the
-/// environment's target directory and target unset (the root's `.cargo` config decides).
+/// `cargo build --release --quiet` with `args` in `firmware/`, with the environment's
+/// target directory and target unset (the `.cargo` configs there decide: the thumb
+/// target, the root's `target/`).
 fn cargo_build(args: &[&std::ffi::OsStr]) -> Result<std::process::ExitStatus> {
     Command::new("cargo")
         .args(["build", "--release", "--quiet"])
         .args(args)
-        .current_dir(repo_root())
+        .current_dir(firmware_dir())
         .env_remove("CARGO_TARGET_DIR")
         .env_remove("CARGO_BUILD_TARGET")
         .status()
@@ -448,7 +455,7 @@ pub fn build_firmware_with_test_hooks() -> Result<PathBuf> {
     build_firmware()
 }
 
-/// Builds a target binary of the root crate with the `test-hooks` feature (release) into
+/// Builds a target binary of the firmware crate with the `test-hooks` feature (release) into
 /// `target/test-hooks`, so the flight build is left alone; returns its ELF path.
 pub fn build_test_hooks_bin(name: &str) -> Result<PathBuf> {
     let dir = repo_root().join("target/test-hooks");
@@ -630,7 +637,7 @@ pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
     if Command::new("qemu-system-arm").arg("--version").stdout(Stdio::null()).status().is_err() {
         bail!("qemu-system-arm not found: install it (Debian: apt-get install qemu-system-arm), or run `bash .ci/run` once");
     }
-    anyhow::ensure!(elf.exists(), "firmware ELF {} missing: run `cargo build --release` at the root", elf.display());
+    anyhow::ensure!(elf.exists(), "firmware ELF {} missing: run `cargo build --release` in firmware/", elf.display());
     Ok(())
 }
 
@@ -698,7 +705,7 @@ pub fn run_feed(
     if flight_build && opts.lockstep {
         bail!(
             "{} is a flight build: it ignores LOCKSTEP, STEP and END. Lockstep needs the test build \
-             (ssis-fw-test, `cargo build --release --bin ssis-fw-test --features test-hooks --target-dir target/test-hooks`)",
+             (ssis-fw-test, in firmware/: `cargo build --release --bin ssis-fw-test --features test-hooks --target-dir ../target/test-hooks`)",
             opts.elf.display()
         );
     }

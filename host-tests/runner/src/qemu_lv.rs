@@ -5,11 +5,12 @@
 //! `FlightCore` + `NavUnit` in-process ([`LvCore`]): every flight output frame and every
 //! navigation output frame must be bit-identical.
 //!
-//! UARTs (the UART map in `src/bin/ssis-fw-lv/main.rs`): 0 control in / flight output out, 1 FOG bus,
-//! 2 navigation output out, 3 accelerometer bus, 4 GNSS receiver. The FOG table (two
-//! copies), the accelerometer section and the pad initialisation block are loaded into
-//! their flash regions with `-device loader` at the addresses the ELF's symbols
-//! `_calib_start` and `_lvdata_start` name (`link/memory-lv.x`).
+//! UARTs (the UART map in `firmware/src/bin/ssis-fw-lv/firmware.rs`): 0 control in /
+//! flight output out, 1 FOG bus, 2 navigation output out, 3 accelerometer bus, 4 GNSS
+//! receiver. The FOG table (two copies), the accelerometer section and the pad
+//! initialisation block are loaded into their flash regions with `-device loader` at the
+//! addresses the ELF's symbols `_calib_start` and `_lvdata_start` name
+//! (`firmware/link/memory-lv.x`).
 //!
 //! Step times: with `-icount shift=0` a SysTick tick is 40 instructions. The firmware puts
 //! each period's step + filter work (ticks) into the next flight output frame; the runner

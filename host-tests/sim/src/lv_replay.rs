@@ -271,7 +271,7 @@ pub struct LvPeriod {
 }
 
 /// The launch-vehicle unit on the host: the flight core and the navigation stage the
-/// firmware runs (`src/bin/ssis-fw-lv`), one 1.25 ms period at a time.
+/// firmware runs (`firmware/src/bin/ssis-fw-lv`), one 1.25 ms period at a time.
 pub struct LvCore {
     core: FlightCore,
     nav: NavUnit,

@@ -4,14 +4,14 @@
 //!
 //! It logs (defmt) the result of [`ssis::bit::power_on`] and the [`ssis::bit::replay_digest`]
 //! of a 2,000-step flight, then passes only if the built-in test passed (the harness,
-//! `ssis::bsp::harness`: semihosting exit code). The host test (`host-tests/tests/qemu.rs`)
+//! `ssis_firmware::harness`: semihosting exit code). The host test (`host-tests/tests/qemu.rs`)
 //! compares the digest with its own run of the same code: equal digests mean the target
 //! computes the host's outputs bit for bit.
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic)]
 
-ssis::mps2_test!();
+ssis_firmware::mps2_test!();
 
 /// Steps of the replay.
 const REPLAY_STEPS: u32 = 2_000;
@@ -34,5 +34,5 @@ fn main() -> ! {
         y,
         z
     );
-    ssis::bsp::harness::finish("selftest", bit.is_ok())
+    ssis_firmware::harness::finish("selftest", bit.is_ok())
 }

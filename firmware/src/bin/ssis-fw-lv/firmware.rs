@@ -37,7 +37,7 @@
 //! | 3 | accelerometer bus: X, Y, Z, told apart by `accel_id` | — |
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
-//! Board: `ssis::bsp::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
+//! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
 //! (128 KiB flash, 64 KiB RAM: 60 KiB of stack at the bottom, 4 KiB of statics above;
 //! FOG table, accelerometer section and pad initialisation block in their own regions,
 //! loaded separately).
@@ -46,7 +46,6 @@ use core::convert::Infallible;
 
 use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
-use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis::bsp::Board;
 use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
@@ -54,6 +53,7 @@ use ssis::frames::navout::NavOutputFrame;
 use ssis::link::{NotFitted, RxRing, TxRing};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
+use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 
 /// Watchdog period in steps (warning after one period, reset after two): 40 steps,
 /// 50 ms, the spacecraft unit's watchdog time (10 of its 5 ms steps). Ten 1.25 ms steps
@@ -88,7 +88,7 @@ static UARTS: UartMap = [
     Uart { rx: Some(&GNSS_RX), tx: None },
 ];
 
-ssis::mps2_firmware!(UARTS);
+ssis_firmware::mps2_firmware!(UARTS);
 
 /// Step-time statistics: per kind of filter work (none, propagation, GNSS update or
 /// refusal), the step alone and the whole period (step + filter work).

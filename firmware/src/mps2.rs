@@ -37,11 +37,12 @@ use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{NVIC, SYST};
 use heapless::Deque;
 
-use super::{cortex_m7, Board};
-use crate::flight::FlightCore;
-use crate::frames::control::{command, ControlFrame};
-use crate::frames::decoder::StreamDecoder;
-use crate::link::{drain, RxRing, RxRingReader, TxRing};
+use crate::cortex_m7;
+use ssis::bsp::Board;
+use ssis::flight::FlightCore;
+use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::link::{drain, RxRing, RxRingReader, TxRing};
 
 /// SysTick clock of the board, Hz (QEMU mps2: SYSCLK 25 MHz).
 pub const SYSCLK_HZ: u32 = 25_000_000;
@@ -356,7 +357,7 @@ extern "C" {
 pub fn calib_area() -> &'static [u8] {
     // SAFETY: the CALIB region of the layout, 4 KiB, always mapped. Written only by
     // `CalibRegion` from the main loop, which holds no slice of it across a write.
-    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), crate::calib::store::REGION_LEN) }
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_calib_start), ssis::calib::store::REGION_LEN) }
 }
 
 /// The command key's record in the protected KEY region (`memory.x`, at `_key_start`;
@@ -364,7 +365,7 @@ pub fn calib_area() -> &'static [u8] {
 pub fn key_area() -> &'static [u8] {
     // SAFETY: the KEY region of the spacecraft layout, at least this long, always
     // mapped, never written by the firmware.
-    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_key_start), crate::telecommand::auth::KEY_RECORD_LEN) }
+    unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_key_start), ssis::telecommand::auth::KEY_RECORD_LEN) }
 }
 
 /// The calibration region as flash the command link writes (`calib::store::stage` and
@@ -384,18 +385,18 @@ impl CalibRegion {
     }
 }
 
-impl crate::calib::store::CalibFlash for CalibRegion {
+impl ssis::calib::store::CalibFlash for CalibRegion {
     fn region(&self) -> &[u8] {
         calib_area()
     }
 
-    fn erase(&mut self, slot: crate::calib::store::Slot) -> Result<(), crate::calib::store::FlashError> {
-        Self::write(slot.offset(), core::iter::repeat_n(0xFF, crate::calib::store::SLOT_STRIDE));
+    fn erase(&mut self, slot: ssis::calib::store::Slot) -> Result<(), ssis::calib::store::FlashError> {
+        Self::write(slot.offset(), core::iter::repeat_n(0xFF, ssis::calib::store::SLOT_STRIDE));
         Ok(())
     }
 
-    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), crate::calib::store::FlashError> {
-        use crate::calib::store::FlashError;
+    fn program(&mut self, offset: usize, bytes: &[u8]) -> Result<(), ssis::calib::store::FlashError> {
+        use ssis::calib::store::FlashError;
         let end = offset.checked_add(bytes.len()).ok_or(FlashError::OutOfRange)?;
         let at = calib_area().get(offset..end).ok_or(FlashError::OutOfRange)?;
         if at.iter().any(|&b| b != 0xFF) {
@@ -660,26 +661,26 @@ pub fn report(core: &FlightCore, rx_overflows: u32) {
 macro_rules! mps2_firmware {
     ($uarts:path) => {
         $crate::cortex_m7_runtime!(
-            sink: $crate::bsp::mps2::semihosting_sink,
-            stop: $crate::bsp::mps2::exit,
+            sink: $crate::mps2::semihosting_sink,
+            stop: $crate::mps2::exit,
             panic: never
         );
 
         #[cortex_m_rt::exception]
         fn SysTick() {
-            $crate::bsp::mps2::on_systick();
+            $crate::mps2::on_systick();
         }
 
         /// External interrupts arrive here (no device crate): the UARTs' RX.
         #[cortex_m_rt::exception]
         unsafe fn DefaultHandler(irqn: i16) {
-            $crate::bsp::mps2::on_irq(&$uarts, irqn);
+            $crate::mps2::on_irq(&$uarts, irqn);
         }
 
         /// First watchdog timeout.
         #[cortex_m_rt::exception]
         unsafe fn NonMaskableInt() {
-            $crate::bsp::mps2::on_watchdog_warning();
+            $crate::mps2::on_watchdog_warning();
         }
     };
 }

@@ -1,16 +1,16 @@
 //! On-target test of the stack-overflow protection in the memory layout `memory.x` (the
 //! spacecraft firmware's: 28 KiB of stack at the bottom of RAM): the flight firmwares' board code
-//! (`ssis::bsp::mps2`: MPU guard, HardFault report, logger) under the test harness's
-//! recursion (`ssis::bsp::harness::overflow_the_stack`), which must end in a fault
+//! (`ssis_firmware::mps2`: MPU guard, HardFault report, logger) under the test harness's
+//! recursion (`ssis_firmware::harness::overflow_the_stack`), which must end in a fault
 //! reported below the stack with the statics intact. Run by `host-tests/tests/qemu.rs`;
 //! built only with `test-hooks`.
 #![no_std]
 #![no_main]
 #![deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic)]
 
-ssis::mps2_test!();
+ssis_firmware::mps2_test!();
 
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    ssis::bsp::harness::overflow_the_stack()
+    ssis_firmware::harness::overflow_the_stack()
 }

@@ -7,7 +7,7 @@
 //! SysTick runs free from the core clock (reload 2^24 − 1, no interrupt); the time of
 //! each measured call is the counter difference (it counts down, modulo 2^24). Under
 //! QEMU with `-icount shift=0` one tick is 40 instructions (BENCHMARKS.md).
-//! It logs (defmt) the totals and passes (`ssis::bsp::harness`) when every step was
+//! It logs (defmt) the totals and passes (`ssis_firmware::harness`) when every step was
 //! accepted.
 #![no_std]
 #![no_main]
@@ -27,10 +27,10 @@ const FIX_EVERY: u32 = 800;
 const DT_S: f64 = 1.25e-3;
 const MASK: u32 = 0x00FF_FFFF;
 
-ssis::mps2_test!();
+ssis_firmware::mps2_test!();
 
 fn finish(ok: bool) -> ! {
-    ssis::bsp::harness::finish("navbench", ok)
+    ssis_firmware::harness::finish("navbench", ok)
 }
 
 fn ticks_since(start: u32) -> u32 {

@@ -39,7 +39,7 @@ fn main() {
 /// into a directory of OUT_DIR and returns it.
 fn lv_link_script(manifest_dir: &Path) -> Result<PathBuf, String> {
     let out = PathBuf::from(std::env::var_os("OUT_DIR").ok_or("OUT_DIR is not set")?);
-    // OUT_DIR is <target>/build/ssis-<hash>/out; cortex-m-rt's is a sibling build dir.
+    // OUT_DIR is <target>/build/ssis-firmware-<hash>/out; cortex-m-rt's is a sibling build dir.
     let build = out.parent().and_then(Path::parent).ok_or("OUT_DIR has no build directory")?;
     let newest = std::fs::read_dir(build)
         .map_err(|e| format!("{}: {e}", build.display()))?

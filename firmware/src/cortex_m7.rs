@@ -309,19 +309,19 @@ macro_rules! cortex_m7_runtime {
         #[allow(unsafe_code)]
         unsafe impl defmt::Logger for Logger {
             fn acquire() {
-                $crate::bsp::cortex_m7::LOG.acquire($sink)
+                $crate::cortex_m7::LOG.acquire($sink)
             }
 
             unsafe fn flush() {}
 
             unsafe fn release() {
                 // SAFETY: as the trait's.
-                unsafe { $crate::bsp::cortex_m7::LOG.release($sink) }
+                unsafe { $crate::cortex_m7::LOG.release($sink) }
             }
 
             unsafe fn write(bytes: &[u8]) {
                 // SAFETY: as the trait's.
-                unsafe { $crate::bsp::cortex_m7::LOG.write(bytes, $sink) }
+                unsafe { $crate::cortex_m7::LOG.write(bytes, $sink) }
             }
         }
 
@@ -346,7 +346,7 @@ macro_rules! cortex_m7_runtime {
 
         /// Logs the fault and stops with failure (the HardFault entry above).
         extern "C" fn __ssis_fault_report(msp: u32, psp: u32, exc_return: u32) -> ! {
-            $crate::bsp::cortex_m7::log_fault(msp, psp, exc_return, $sink);
+            $crate::cortex_m7::log_fault(msp, psp, exc_return, $sink);
             $stop(false)
         }
     };

@@ -1,5 +1,5 @@
 //! `ssis-fw`: the flight core on a Cortex-M7, here the QEMU `mps2-an500` board
-//! (`ssis::bsp::mps2`), spacecraft profile: four FOGs on one bus, a star tracker, 5 ms.
+//! (`ssis_firmware::mps2`), spacecraft profile: four FOGs on one bus, a star tracker, 5 ms.
 //!
 //! Every SysTick the main loop runs one [`FlightCore::step`] on what the UART interrupts
 //! have put into the receive rings, measures how long the step took (SysTick ticks, into
@@ -28,12 +28,12 @@ use core::convert::Infallible;
 
 use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
-use ssis::bsp::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis::bsp::Board;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::telecommand::{CommandReport, Telecommand};
 use ssis::link::{write_frame, RxRing, TxRing};
 use ssis::telecommand::{CommandLink, Outcome};
+use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 
 /// Watchdog period in steps (warning after one period, reset after two).
 const WATCHDOG_STEPS: u32 = 10;
@@ -56,7 +56,7 @@ static UARTS: UartMap = [
     Uart::OFF,
 ];
 
-ssis::mps2_firmware!(UARTS);
+ssis_firmware::mps2_firmware!(UARTS);
 
 /// Step times: all steps, and those with a star-tracker update; and the command link's
 /// time for the bytes that completed a telecommand (decode, CRC-32C, HMAC, action).

@@ -5,7 +5,7 @@
 //! verdict is the semihosting exit code, which `host-tests` (`qemu::run_bare`) reads with
 //! the decoded defmt log.
 
-use super::mps2;
+use crate::mps2;
 
 /// Ends the test run: logs the verdict line `<name>: pass` or `<name>: fail` and exits
 /// QEMU with success or failure.
@@ -29,7 +29,7 @@ pub fn finish(name: &str, ok: bool) -> ! {
 pub fn overflow_the_stack() -> ! {
     use core::sync::atomic::{AtomicU32, Ordering};
 
-    use super::cortex_m7;
+    use crate::cortex_m7;
 
     /// Known, non-zero contents in .data (atomics: writable, so in RAM, not in flash),
     /// so the statics are not all zeros.
@@ -93,8 +93,8 @@ pub fn overflow_the_stack() -> ! {
 macro_rules! mps2_test {
     () => {
         $crate::cortex_m7_runtime!(
-            sink: $crate::bsp::mps2::semihosting_sink,
-            stop: $crate::bsp::mps2::exit,
+            sink: $crate::mps2::semihosting_sink,
+            stop: $crate::mps2::exit,
             panic: log
         );
     };
