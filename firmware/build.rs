@@ -1,5 +1,5 @@
-//! Link scripts for the firmware binaries only (cortex-m-rt's link.x with memory.x from
-//! this directory, and defmt's), so nested board packages keep their own.
+//! Link scripts for the firmware binaries only (cortex-m-rt's link.x with the repository's
+//! top-level memory.x, and defmt's), so nested board packages keep their own.
 //!
 //! The launch-vehicle firmware (`ssis-fw-lv`, and the binaries tested in its layout:
 //! `ssis-fw-lv-test`, `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
@@ -12,8 +12,11 @@ use std::path::{Path, PathBuf};
 
 fn main() {
     let dir = std::env::var("CARGO_MANIFEST_DIR").unwrap_or_default();
-    println!("cargo:rustc-link-search={dir}");
-    println!("cargo:rerun-if-changed=memory.x");
+    // memory.x (the spacecraft unit's layout, shared by the QEMU firmwares) stays at the
+    // repository's top level, beside the workspace's Cargo.toml.
+    let top = Path::new(&dir).parent().map(|p| p.display().to_string()).unwrap_or_default();
+    println!("cargo:rustc-link-search={top}");
+    println!("cargo:rerun-if-changed=../memory.x");
     println!("cargo:rerun-if-changed=link/memory-lv.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
