@@ -168,6 +168,7 @@ impl Luenberger {
     /// K_B ⊙ e, −K_U ⊙ e, and the covariance after it.
     pub fn update(&mut self, fig: &Figures, at: &UpdateAt, streak: &mut Streak) -> Result<Correction, UpdateError> {
         let (e, time_us, aligned_us, mut tau_s) = (at.e_rad, at.time_us, at.aligned_us, at.tau_s);
+        let mut reacquired = false;
         if at.converged {
             let var = self.mismatch_var_rad2(fig, tau_s);
             if gate::outside(e.norm_squared(), var) {
@@ -179,29 +180,21 @@ impl Luenberger {
                 for (c, [_, _, p22]) in self.cov.iter_mut().zip(prior) {
                     *c = [2.0 * mean2 / 3.0, 0.0, p22];
                 }
+                // The covariance now holds at t_s.
                 tau_s = 0.0;
-                streak.end();
-                self.shift_gears(time_us, aligned_us, &fig.steady.gains);
-                self.update_cov(fig, tau_s);
-                return Ok(self.correction(e, true));
+                reacquired = true;
             }
         }
         streak.end();
         self.shift_gears(time_us, aligned_us, &fig.steady.gains);
         self.update_cov(fig, tau_s);
-        Ok(self.correction(e, false))
-    }
-
-    /// The correction of eq. (6) for mismatch `e` with the gains in use.
-    #[inline(always)]
-    fn correction(&self, e: &Vector3<f64>, reacquired: bool) -> Correction {
         let k_b = Vector3::from(self.gains.k_b);
         let k_u = Vector3::from(self.gains.k_u_per_s);
-        Correction {
+        Ok(Correction {
             body_rad: crate::math::mul_elem(&k_b, e),
             d_drift_rad_s: -crate::math::mul_elem(&k_u, e),
             reacquired,
-        }
+        })
     }
 
     /// The covariance after an update `tau_s` after the last with the gains in use, axis
