@@ -442,6 +442,7 @@ impl<const H: usize> Observer<H> {
     /// `mount` q_bs. The first aligns; later ones go through the estimator's gate
     /// ([`gate`]) and correct `att` (whose present time is `now_us`), the history and the
     /// drift estimate.
+    #[inline(never)]
     pub fn update(
         &mut self,
         att: &mut Attitude,
