@@ -7,7 +7,7 @@
 //!
 //! An update corrects Λ(t_s) and the drift Δω of eq. (6); the attitudes propagated after
 //! t_s carry both corrections. The present attitude is corrected at once; the history
-//! entries after t_s lazily: the correction is kept as a pending [`Fix`] and applied to
+//! entries after t_s lazily: the correction is kept as a pending fix and applied to
 //! the (at most two) entries a later update reads, with the same arithmetic in the same
 //! order as applying it to every entry at once, so the result is bit-identical. A later
 //! frame's time tag usually lies after the present step of the previous update (4 Hz,
@@ -148,7 +148,7 @@ impl<const H: usize> History<H> {
 
     /// Left-multiplies by `c` every attitude at or after `t_s` (and the present one, `att`
     /// at `now_us`), and removes the drift change `d_drift` integrated from t_s to each of
-    /// them: the present attitude now, the history through a pending [`Fix`].
+    /// them: the present attitude now, the history through a pending fix.
     pub fn fix(&mut self, att: &mut Attitude, now_us: u64, t_s: u64, c: &Quaternion<f64>, d_drift: &Vector3<f64>) {
         let fix = Fix { from_us: t_s, to_us: now_us, c: *c, d_drift: *d_drift };
         // Fixes whose span has left the history cover nothing any more.
