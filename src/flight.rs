@@ -319,24 +319,23 @@ impl FlightCore {
         self.fixed_flags |= flags::BIT_FAILED;
     }
 
-    /// Counters so far (the fault logic's and the observer's included).
+    /// Counters so far (the fault logic's included).
     pub fn counters(&self) -> Counters {
         let mut c = self.telemetry.counters;
-        for &k in [Counter::FdiAlarms, Counter::FdiTransients, Counter::FdiIsolations, Counter::StReacquired].iter() {
+        for &k in [Counter::FdiAlarms, Counter::FdiTransients, Counter::FdiIsolations].iter() {
             c.add(k, self.counter(k));
         }
         c
     }
 
-    /// Counter `c` so far. The parity fault logic and the observer keep their own counts;
-    /// the others are the telemetry stage's.
+    /// Counter `c` so far. The parity fault logic keeps its own counts; the others are
+    /// the telemetry stage's.
     pub fn counter(&self, c: Counter) -> u32 {
         let fdi = || self.fdi.as_ref().map(|m| m.counters()).unwrap_or_default();
         match c {
             Counter::FdiAlarms => fdi().alarms,
             Counter::FdiTransients => fdi().transients,
             Counter::FdiIsolations => fdi().isolations,
-            Counter::StReacquired => self.observer.stats().reacquired,
             Counter::TableRevision => self.table.revision,
             Counter::TableCrcLow => self.table_crc & 0xFFFF,
             Counter::TableCrcHigh => self.table_crc >> 16,
@@ -353,7 +352,7 @@ impl FlightCore {
         }
     }
 
-    /// The observer (gains, statistics).
+    /// The observer (the estimator flying, its gains).
     pub fn observer(&self) -> &Observer<HISTORY> {
         &self.observer
     }
@@ -714,12 +713,12 @@ impl FlightCore {
                 }
             };
         }
-        let reacquired = self.observer.stats().reacquired;
         match self.observer.update(&mut self.attitude, now_us, f.time_us, &q, &self.mount) {
-            Ok(_) => {
+            Ok(u) => {
                 self.star_intake.used(now_us);
                 counters.bump(Counter::StFramesAccepted);
-                if self.observer.stats().reacquired != reacquired {
+                if u.reacquired {
+                    counters.bump(Counter::StReacquired);
                     st_status::UPDATED | st_status::REACQUIRED
                 } else {
                     st_status::UPDATED

@@ -269,7 +269,7 @@ fn a_two_stage_table_flies_its_override_for_the_acquisition_then_the_steady_stat
         let t_us = (t_s * 1e6) as u64;
         obs.record(t_us, att.quaternion());
         obs.update(&mut att, t_us, t_us, &Quaternion::identity(), &mount).expect("update");
-        *obs.gains()
+        *obs.gains().expect("eq. (6) flies")
     };
     let mut t = 10.0;
     at(&mut obs, t);

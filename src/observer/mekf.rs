@@ -1,5 +1,7 @@
-//! The covariance of the multiplicative extended Kalman filter (MEKF), the optional
-//! estimator beside the paper's eq. (6) observer ([`crate::calib::Estimator::Mekf`]).
+//! The multiplicative extended Kalman filter (MEKF), the optional estimator beside the
+//! paper's eq. (6) observer ([`crate::calib::Estimator::Mekf`]): the same attitude
+//! history, alignment of the time tag, lazy fix and re-acquisition ([`super`]), with the
+//! gains, the gate and the 1σ from its own 6-state covariance ([`Mekf`]).
 //!
 //! States, body frame (ICS) at the time of the last update:
 //!
@@ -37,7 +39,125 @@
 
 use nalgebra::{Matrix3, Quaternion, Vector3};
 
+use super::gains::Figures;
+use super::gate::{Streak, CHI2_GATE};
+use super::{Correction, UpdateAt, UpdateError};
 use crate::math;
+
+/// The MEKF: its covariance after the last update and its last 1σ roots.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mekf {
+    cov: MekfCov,
+    /// The last 1σ roots (attitude x y z, drift x y z): the start of the next Newton
+    /// step ([`root`]); 0 none.
+    roots: [f64; 6],
+}
+
+impl Mekf {
+    /// Before alignment (the covariance is set by [`Mekf::align`]).
+    pub fn new() -> Self {
+        Mekf { cov: MekfCov::aligned(0.0, 0.0, &Matrix3::zeros()), roots: [0.0; 6] }
+    }
+
+    /// Taking over from the fixed-gain observer: its per-axis (P11, P12, P22) as of its
+    /// last update into the diagonals of the blocks.
+    pub fn with_axes(cov: [[f64; 3]; 3]) -> Self {
+        let [[a0, b0, c0], [a1, b1, c1], [a2, b2, c2]] = cov;
+        let d = |x: f64, y: f64, z: f64| Matrix3::from_diagonal(&Vector3::new(x, y, z));
+        Mekf { cov: MekfCov { paa: d(a0, a1, a2), pab: d(b0, b1, b2), pbb: d(c0, c1, c2) }, roots: [0.0; 6] }
+    }
+
+    /// The diagonals of the blocks as per-axis (P11, P12, P22), as of the last update.
+    pub fn axes(&self) -> [[f64; 3]; 3] {
+        let m = &self.cov;
+        let at = |x: &Matrix3<f64>, k: usize| x.get((k, k)).copied().unwrap_or(0.0);
+        [0, 1, 2].map(|k| [at(&m.paa, k), at(&m.pab, k), at(&m.pbb, k)])
+    }
+
+    /// The covariance after the last update.
+    pub fn cov(&self) -> &MekfCov {
+        &self.cov
+    }
+
+    /// At alignment on one frame ([`MekfCov::aligned`]; `sb2` each FOG's turn-on bias
+    /// variance).
+    pub fn align(&mut self, fig: &Figures, sb2: f64) {
+        self.cov = MekfCov::aligned(fig.steady.r_rad2, sb2, &fig.noise);
+    }
+
+    /// Forgets the last 1σ roots (unaligned, or a restart).
+    #[inline]
+    pub fn forget_roots(&mut self) {
+        self.roots = [0.0; 6];
+    }
+
+    /// The update for a frame `at` with mismatch e (module doc): the covariance
+    /// propagated over the body's turn since the last update, the χ²₃ gate eᵀ S⁻¹ e
+    /// (always once aligned: the covariance, not a convergence test, says how large a
+    /// mismatch may be; re-acquisition through `streak`), the Joseph update, and the
+    /// corrections K_a e (attitude, body at t_s) and K_b e (drift).
+    pub fn update(&mut self, fig: &Figures, at: &UpdateAt, streak: &mut Streak) -> Result<Correction, UpdateError> {
+        let (st, e) = (&fig.steady, at.e_rad);
+        let q_rel = at.last_q.conjugate() * at.q_at;
+        let mut prior = self.cov.propagated(&q_rel, at.tau_s, st.arw_var_rad2_s, st.rrw_var_rad2_s3, &fig.noise);
+        let mut s_inv = prior.innovation_inverse(st.r_rad2);
+        let d2 = s_inv.map_or(f64::INFINITY, |s| normalised(e, &s));
+        let mut reacquired = false;
+        if d2 > CHI2_GATE {
+            let var = prior.mean_attitude_var_rad2() + st.r_rad2;
+            let Some(mean2) = streak.reacquires(e, var) else { return Err(UpdateError::Gated) };
+            // Re-acquire: the attitude is off by about the streak's mean (per axis, twice
+            // its mean square), uncorrelated with the drift.
+            prior.paa = Matrix3::identity() * (2.0 * mean2 / 3.0);
+            prior.pab = Matrix3::zeros();
+            s_inv = prior.innovation_inverse(st.r_rad2);
+            reacquired = true;
+        }
+        let Some(s_inv) = s_inv else { return Err(UpdateError::Gated) };
+        streak.end();
+        let gain = prior.update(&s_inv, st.r_rad2);
+        self.cov = prior;
+        Ok(Correction { body_rad: gain.ka * e, d_drift_rad_s: gain.kb * e, reacquired })
+    }
+
+    /// Expected variance of a mismatch per axis `tau_s` after the last update, rad²: the
+    /// mean per axis of P_aa propagated there, plus R.
+    pub fn mismatch_var_rad2(&self, fig: &Figures, tau_s: f64) -> f64 {
+        let (pa, _) = self.cov.diagonals(tau_s, &fig.arw_axis_rad2_s, &fig.rrw_axis_rad2_s3);
+        pa.iter().sum::<f64>() / 3.0 + fig.steady.r_rad2
+    }
+
+    /// The 1σ of the attitude error (rad) and of the drift error (rad/s) per axis `tau_s`
+    /// after the last update: the roots of the diagonals of P_aa and P_bb
+    /// ([`MekfCov::diagonals`]). Out of line: the observer's step stays as short as it was.
+    #[inline(never)]
+    pub fn sigmas(&mut self, fig: &Figures, tau_s: f64) -> ([f64; 3], [f64; 3]) {
+        let (pa, pb) = self.cov.diagonals(tau_s, &fig.arw_axis_rad2_s, &fig.rrw_axis_rad2_s3);
+        let mut out = [0.0; 6];
+        for ((o, x), p) in out.iter_mut().zip(self.roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
+            *o = root(x, p);
+        }
+        let [a0, a1, a2, d0, d1, d2] = out;
+        ([a0, a1, a2], [d0, d1, d2])
+    }
+
+    /// Takes an isolated FOG's share out of `drift_rad_s` ([`MekfCov::remove_share`];
+    /// `pbb0` the bias covariance at alignment).
+    pub fn remove_share(
+        &mut self,
+        drift_rad_s: &mut Vector3<f64>,
+        (share_rad_s, share_cov_rad2_s2): (&Vector3<f64>, &Matrix3<f64>),
+        pbb0: &Matrix3<f64>,
+    ) {
+        *drift_rad_s -= self.cov.remove_share(share_rad_s, share_cov_rad2_s2, pbb0);
+    }
+}
+
+impl Default for Mekf {
+    fn default() -> Self {
+        Self::new()
+    }
+}
 
 /// The MEKF's covariance (blocks of the 6 × 6 P) after its last update.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -234,4 +354,63 @@ pub fn root(x: &mut f64, p: f64) -> f64 {
     let near = *x > 0.0 && (*x * *x - p).abs() <= 0.125 * p;
     *x = if near { 0.5 * (*x + p / *x) } else { math::sqrt(p.max(0.0)) };
     *x
+}
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Matrix6;
+
+    use super::*;
+    use crate::calib::ObserverConfig;
+    use crate::observer::gains::steady_state;
+
+    /// The full 6 × 6 P from its blocks.
+    fn full(c: &MekfCov) -> Matrix6<f64> {
+        let mut p = Matrix6::zeros();
+        p.fixed_view_mut::<3, 3>(0, 0).copy_from(&c.paa);
+        p.fixed_view_mut::<3, 3>(0, 3).copy_from(&c.pab);
+        p.fixed_view_mut::<3, 3>(3, 0).copy_from(&c.pab.transpose());
+        p.fixed_view_mut::<3, 3>(3, 3).copy_from(&c.pbb);
+        p
+    }
+
+    #[test]
+    fn the_covariance_stays_symmetric_positive_definite_over_updates() {
+        let st = steady_state(&ObserverConfig::PAPER).unwrap();
+        // The four nominal FOGs' N: 5/6 on each axis, −1/6 between.
+        let noise = Matrix3::from_fn(|i, j| if i == j { 5.0 / 6.0 } else { -1.0 / 6.0 });
+        let sb = 0.3 * core::f64::consts::PI / 180.0 / 3600.0;
+        let mut cov = MekfCov::aligned(st.r_rad2, sb * sb, &noise);
+        let tau = 0.25;
+        for k in 0..4000u32 {
+            // The body turns at up to 1 °/s about an axis that wanders.
+            let a = f64::from(k) * 0.01;
+            let w = Vector3::new(libm::sin(a), libm::cos(1.3 * a), 0.5) * (0.0175 * tau);
+            let prior = cov.propagated(&math::quat_from_rotvec(&w), tau, st.arw_var_rad2_s, st.rrw_var_rad2_s3, &noise);
+            let s_inv = prior.innovation_inverse(st.r_rad2).expect("S positive definite");
+            let mut post = prior;
+            let _ = post.update(&s_inv, st.r_rad2);
+            for (name, c) in [("prior", &prior), ("posterior", &post)] {
+                let p = full(c);
+                assert_eq!(p, p.transpose(), "{name} {k} not symmetric");
+                assert!(p.cholesky().is_some(), "{name} {k} not positive definite: {p}");
+            }
+            // An update never increases the attitude uncertainty.
+            assert!(post.paa.trace() <= prior.paa.trace(), "update {k}");
+            cov = post;
+        }
+        // And it settles near the per-axis steady state (the Farrenkopf posterior
+        // (1 − K_B) M11 per axis, within the FOG combination's 5/6 and the turning).
+        let per_axis = cov.paa.trace() / 3.0;
+        let ss = (1.0 - st.gains.k_b[0]) * st.prior_var_rad2;
+        assert!(per_axis > 0.5 * ss && per_axis < 1.5 * ss, "{per_axis:e} against {ss:e}");
+    }
+
+    #[test]
+    fn the_inverse_of_an_spd_matrix_is_its_inverse() {
+        let s = Matrix3::new(4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0);
+        let inv = inverse_spd(&s).unwrap();
+        assert!((s * inv - Matrix3::identity()).amax() < 1e-15);
+        assert_eq!(inverse_spd(&Matrix3::zeros()), None);
+    }
 }
