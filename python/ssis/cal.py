@@ -18,7 +18,7 @@ __all__ = ["Allan", "allan", "allan_session", "turns", "sins"]
 @dataclass
 class Allan:
     """An overlapping Allan deviation and its noise terms (values with their 95 % intervals:
-    ``{"value", "low", "high"}``, or ``{"upper_bound_95"}`` when the session does not
+    ``{"value", "ci95_low", "ci95_high"}``, or ``{"upper_bound_95"}`` when the session does not
     resolve the term)."""
 
     tau_s: np.ndarray
