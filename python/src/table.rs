@@ -96,6 +96,11 @@ impl PyTable {
         Ok(())
     }
 
+    /// The four FOGs' calibrated sensitive axes in the instrument frame (rows), exact.
+    fn axes(&self) -> Vec<[f64; 3]> {
+        self.doc.table.axes().iter().map(|a| [a.x, a.y, a.z]).collect()
+    }
+
     /// The table's revision.
     #[getter]
     fn revision(&self) -> u32 {
