@@ -10,6 +10,7 @@ navigation message comes from:
 
   truth   `simpleNav` without noise (the vehicle's own motion);
   unit    ssis.basilisk.UnitNav: the unit's attitude and rate, from its FOGs and star tracker
+          (--backend in-process: the flight core; qemu: the firmware in QEMU in lockstep)
           (examples/basilisk/table.toml's figures: ARW 0.05 °/√h, bias walk 0.01 °/h/√h,
           tracker 20/3″ 1σ per axis every 0.1 s, 50 ms latency);
   outage  the unit, with no star-tracker solution between --outage T0,T1;
@@ -52,6 +53,8 @@ from ssis.basilisk import UnitNav
 DT = 0.005
 ARCSEC_PER_RAD = 180 / math.pi * 3600
 HERE = Path(__file__).resolve().parent
+# the lines of the QEMU runner's report worth printing beside each flight
+KEEP = ("host/QEMU equivalence", "step time, instructions", "unit counters", "QEMU exit")
 INERTIA = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
 
 
@@ -106,6 +109,7 @@ def fly(kind: str, a: argparse.Namespace) -> dict:
             st_outage=tuple(a.outage) if kind == "outage" else None,
             fog_failure=(a.fog_at, a.fog_index, a.fog_mode) if kind == "fog" else None,
             seed=a.seed,
+            backend=a.backend,
         )
         unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
         sim.AddModelToTask("t", unit, 80)
@@ -157,6 +161,7 @@ def fly(kind: str, a: argparse.Namespace) -> dict:
     nav_err = np.array([rbk.subMRP(n, s) for n, s in zip(nav_rec.sigma_BN, st_rec.sigma_BN)]) * 4 * ARCSEC_PER_RAD
     out = {"kind": kind, "t_s": t, "pointing_arcsec": point, "nav_err_arcsec": nav_err, "wall_s": wall}
     if unit is not None:
+        out["backend_report"] = unit.close()
         out["steps_before_aligned"] = unit.steps_before_aligned
         out["counters"] = {k: v for k, v in unit.backend.counters().items() if v}
     return out
@@ -177,6 +182,8 @@ def main() -> int:
     ap.add_argument("--fog-at", type=float, default=20.0, help="s")
     ap.add_argument("--fog-mode", default="dead", help="dead, or a bias step in deg/h")
     ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--backend", choices=["in-process", "qemu"], default="in-process",
+                    help="the unit: the flight core in-process, or the firmware in QEMU in lockstep")
     ap.add_argument("--json", type=Path, help="write the figures here (refused if it exists)")
     ap.add_argument("--max-added-3sigma-arcsec", type=float,
                     help="exit 1 when the pointing error the unit adds (nominal flight, 3σ) exceeds this")
@@ -186,8 +193,8 @@ def main() -> int:
     if a.json is not None and a.json.exists():
         print(f"error: {a.json}: exists: refused", file=sys.stderr)
         return 2
-    report = {"duration_s": a.duration, "settle_s": a.settle, "flights": {}}
-    print(f"closed loop, {a.duration:.0f} s (Basilisk {DT * 1e3:.0f}-ms task), after settling at {a.settle:.0f} s; arcsec, x y z")
+    report = {"duration_s": a.duration, "settle_s": a.settle, "backend": a.backend, "flights": {}}
+    print(f"closed loop, unit: {a.backend}, {a.duration:.0f} s (Basilisk {DT * 1e3:.0f}-ms task), after settling at {a.settle:.0f} s; arcsec, x y z")
     print(f"{'flight':<7} {'pointing error RMS':>26} {'added by the unit, RMS':>26} {'added, 3σ':>26} {'added, max':>26} {'unit attitude error 3σ':>26}  wall s")
     fmt = lambda v: " ".join(f"{x:8.2f}" for x in v)  # noqa: E731
     truth = None
@@ -219,6 +226,10 @@ def main() -> int:
             entry["steps_before_aligned"] = f["steps_before_aligned"]
             entry["counters"] = f["counters"]
             print(f"        unit: aligned by the star tracker after {f['steps_before_aligned']} steps; counters {f['counters']}")
+            if f["backend_report"]:
+                keep = [ln for ln in f["backend_report"].splitlines() if ln.split(":")[0] in KEEP]
+                entry["backend_report"] = f["backend_report"]
+                print("\n".join("        " + ln for ln in keep))
         report["flights"][kind] = entry
     if a.json is not None:
         with open(a.json, "x") as fh:

@@ -7,25 +7,81 @@ use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use ssis::calib::{CalibrationTable, N_FOG};
+use ssis::combination::FogSet;
 use ssis::flight::{Counter, Counters, FlightCore, FogLinks, Links, Profile, StepOutput};
 use ssis::frames::fog::FogFrame;
 use ssis::frames::star::{self, StarFrame};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::ARCSEC_PER_RAD;
+use ssis_sim::harness::StepInput;
 
 use crate::table::PyTable;
 use crate::{err, SsisError};
+
+/// One step's frames from physical values: FOG frames numbered from counter 1 (NaN: the
+/// frame is not sent), a star-tracker frame at its tag; what the simulator's and the
+/// replay's `StepInput` carry. Shared by the in-process core and the QEMU unit.
+pub(crate) struct Encoder {
+    table: CalibrationTable,
+    n: u64,
+    st_counter: u16,
+}
+
+/// A step's arguments as Python passes them: increments, `(tag_t_s, q)`, temperatures.
+pub(crate) type StepArgs<'a, 'py> =
+    (&'a PyReadonlyArray1<'py, f64>, Option<(f64, PyReadonlyArray1<'py, f64>)>, Option<PyReadonlyArray1<'py, f64>>);
+
+impl Encoder {
+    pub(crate) fn new(table: CalibrationTable) -> Self {
+        Encoder { table, n: 0, st_counter: 0 }
+    }
+
+    /// Steps encoded.
+    pub(crate) fn steps(&self) -> u64 {
+        self.n
+    }
+
+    /// The next step's input (no truth).
+    pub(crate) fn encode(&mut self, (dtheta, star, temps): StepArgs<'_, '_>, star_valid: bool) -> PyResult<StepInput> {
+        let dtheta = slice::<N_FOG>(dtheta, "fog_dtheta_rad")?;
+        let temps = match &temps {
+            Some(t) => slice::<N_FOG>(t, "temperature_degc")?,
+            None => std::array::from_fn(|i| self.table.fog[i].t_ref_degc),
+        };
+        let mut st_bytes = Vec::new();
+        if let Some((tag_s, q)) = star {
+            let q = slice::<4>(&q, "star q")?;
+            if !(tag_s.is_finite() && tag_s >= 0.0) {
+                return Err(SsisError::new_err(format!("star: tag_t_s {tag_s} is not a time of the unit (s ≥ 0)")));
+            }
+            self.st_counter = self.st_counter.wrapping_add(1);
+            let flags = if star_valid { star::flags::VALID } else { 0 };
+            let f = StarFrame::from_physical(flags, self.st_counter, (tag_s * 1e6).round() as u64, q);
+            st_bytes.extend_from_slice(&f.to_bytes());
+        }
+        self.n += 1;
+        let counter = (self.n % 65_536) as u16;
+        let mut present = 0u8;
+        let fog_frames = std::array::from_fn(|i| {
+            if dtheta[i].is_finite() {
+                present |= 1 << i;
+                FogFrame::from_physical(i as u8, counter, 0, dtheta[i], temps[i]).to_bytes()
+            } else {
+                [0; FogFrame::LEN]
+            }
+        });
+        Ok(StepInput { n: self.n, fog_frames, present: FogSet(present), st_bytes, truth: None })
+    }
+}
 
 /// The spacecraft unit's flight core, in-process.
 #[pyclass(module = "ssis._ssis", name = "FlightCore")]
 pub struct PyFlightCore {
     core: FlightCore,
-    table: CalibrationTable,
+    enc: Encoder,
     fog: MockLink,
     star: MockLink,
     out: MockSink,
-    n: u64,
-    st_counter: u16,
     last: Counters,
 }
 
@@ -34,7 +90,7 @@ fn counter_list(c: &Counters) -> Vec<(String, u32)> {
     Counter::ALL.iter().map(|&k| (format!("{k:?}"), c.get(k))).collect()
 }
 
-fn slice<const N: usize>(a: &PyReadonlyArray1<'_, f64>, what: &str) -> PyResult<[f64; N]> {
+pub(crate) fn slice<const N: usize>(a: &PyReadonlyArray1<'_, f64>, what: &str) -> PyResult<[f64; N]> {
     let s = a.as_slice().map_err(|e| SsisError::new_err(format!("{what}: {e}")))?;
     <[f64; N]>::try_from(s).map_err(|_| SsisError::new_err(format!("{what}: {} values, expected {N}", s.len())))
 }
@@ -68,12 +124,10 @@ impl PyFlightCore {
         Ok(PyFlightCore {
             last: core.counters(),
             core,
-            table: t,
+            enc: Encoder::new(t),
             fog: MockLink::ideal(),
             star: MockLink::ideal(),
             out: MockSink::default(),
-            n: 0,
-            st_counter: 0,
         })
     }
 
@@ -86,7 +140,7 @@ impl PyFlightCore {
     /// Steps taken.
     #[getter]
     fn steps(&self) -> u64 {
-        self.n
+        self.enc.steps()
     }
 
     /// Aligns the attitude to `q` (Λ, scalar first), as a pad alignment does.
@@ -109,30 +163,15 @@ impl PyFlightCore {
         temperature_degc: Option<PyReadonlyArray1<'py, f64>>,
         star_valid: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let dtheta = slice::<N_FOG>(&fog_dtheta_rad, "fog_dtheta_rad")?;
-        let temps = match &temperature_degc {
-            Some(t) => slice::<N_FOG>(t, "temperature_degc")?,
-            None => std::array::from_fn(|i| self.table.fog[i].t_ref_degc),
-        };
-        self.n += 1;
-        let counter = (self.n % 65_536) as u16;
+        let input = self.enc.encode((&fog_dtheta_rad, star, temperature_degc), star_valid)?;
         let mut bytes = Vec::with_capacity(N_FOG * FogFrame::LEN);
-        for i in 0..N_FOG {
-            if dtheta[i].is_finite() {
-                bytes.extend_from_slice(&FogFrame::from_physical(i as u8, counter, 0, dtheta[i], temps[i]).to_bytes());
+        for (i, f) in input.fog_frames.iter().enumerate() {
+            if input.present.contains(i) {
+                bytes.extend_from_slice(f);
             }
         }
         self.fog.send(&bytes);
-        if let Some((tag_s, q)) = star {
-            let q = slice::<4>(&q, "star q")?;
-            if !(tag_s.is_finite() && tag_s >= 0.0) {
-                return Err(SsisError::new_err(format!("star: tag_t_s {tag_s} is not a time of the unit (s ≥ 0)")));
-            }
-            self.st_counter = self.st_counter.wrapping_add(1);
-            let flags = if star_valid { star::flags::VALID } else { 0 };
-            let f = StarFrame::from_physical(flags, self.st_counter, (tag_s * 1e6).round() as u64, q);
-            self.star.send(&f.to_bytes());
-        }
+        self.star.send(&input.st_bytes);
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         let o = self.core.step(&mut links);
         self.out.bytes.clear();

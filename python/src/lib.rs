@@ -21,6 +21,7 @@ use pyo3::prelude::*;
 mod cal;
 mod core;
 mod lab;
+mod qemu;
 mod replay;
 mod table;
 
@@ -76,5 +77,6 @@ fn _ssis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     replay::register(m)?;
     cal::register(m)?;
     lab::register(m)?;
+    qemu::register(m)?;
     Ok(())
 }

@@ -28,7 +28,7 @@ import numpy as np
 from . import _ssis
 from ._ssis import SsisError, Table
 
-__all__ = ["SsisError", "Table", "FlightCore", "Step", "Replay", "replay", "cal", "lab"]
+__all__ = ["SsisError", "Table", "FlightCore", "QemuUnit", "Step", "Replay", "replay", "cal", "lab"]
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -61,28 +61,10 @@ class Step:
     lands in the flight core; until then it reads the counters."""
 
 
-class FlightCore:
-    """The spacecraft unit's flight core (four FOGs, star tracker, 5-ms steps), in-process.
+class _Unit:
+    """What both units share: the step."""
 
-    Each :meth:`step` encodes the FOG increments and the star-tracker solution into their
-    frames on mock links and runs ``FlightCore::step``, as the simulator and the replay do.
-    """
-
-    def __init__(self, table: Optional[Table] = None) -> None:
-        self._core = _ssis.FlightCore(table)
-
-    @property
-    def dt_s(self) -> float:
-        """Step period, s (0.005)."""
-        return self._core.dt_s
-
-    @property
-    def steps(self) -> int:
-        return self._core.steps
-
-    def align(self, q: Sequence[float]) -> None:
-        """Sets the attitude to ``q`` (Λ, scalar first) and marks it aligned."""
-        self._core.align(np.asarray(q, dtype=np.float64))
+    _native: Any
 
     def step(
         self,
@@ -95,16 +77,61 @@ class FlightCore:
         not arrive); ``star`` = ``(tag_t_s, q)``, a star-tracker solution arriving in this
         step (q the tracker's frame in the inertial frame, scalar first; ``tag_t_s`` the
         instant it holds, in unit time: step n ends at n × 5 ms)."""
-        st = None
-        if star is not None:
-            st = (float(star[0]), np.asarray(star[1], dtype=np.float64))
+        st = None if star is None else (float(star[0]), np.asarray(star[1], dtype=np.float64))
         temps = None if temperature_degc is None else np.asarray(temperature_degc, dtype=np.float64)
-        d = self._core.step(np.asarray(fog_dtheta_rad, dtype=np.float64), st, temps, star_valid)
-        return Step(**d)
+        return Step(**self._native.step(np.asarray(fog_dtheta_rad, dtype=np.float64), st, temps, star_valid))
+
+
+class FlightCore(_Unit):
+    """The spacecraft unit's flight core (four FOGs, star tracker, 5-ms steps), in-process.
+
+    Each :meth:`step` encodes the FOG increments and the star-tracker solution into their
+    frames on mock links and runs ``FlightCore::step``, as the simulator and the replay do.
+    """
+
+    def __init__(self, table: Optional[Table] = None) -> None:
+        self._native = _ssis.FlightCore(table)
+
+    @property
+    def dt_s(self) -> float:
+        """Step period, s (0.005)."""
+        return self._native.dt_s
+
+    @property
+    def steps(self) -> int:
+        return self._native.steps
+
+    def align(self, q: Sequence[float]) -> None:
+        """Sets the attitude to ``q`` (Λ, scalar first) and marks it aligned."""
+        self._native.align(np.asarray(q, dtype=np.float64))
 
     def counters(self) -> dict:
         """The unit's counters by name."""
-        return dict(self._core.counters())
+        return dict(self._native.counters())
+
+
+class QemuUnit(_Unit):
+    """The spacecraft firmware (``ssis-fw-test``) in QEMU, in lockstep, stepped like
+    :class:`FlightCore` (the runner's driver, ``ssis-qemu``'s: each step's frames on the
+    emulated UARTs, a STEP control frame, the output frame back). The runner compares every
+    output frame with the same core run in-process; :meth:`close` returns its report.
+    Needs ``qemu-system-arm`` and the thumb toolchain (the firmware is built if out of
+    date). ``events`` is always empty here."""
+
+    def __init__(self, table: Optional[Table] = None, elf: Optional[PathLike] = None, steps: int = 0) -> None:
+        self._native = _ssis.QemuUnit(table, None if elf is None else os.fspath(elf), steps)
+
+    dt_s = 0.005
+
+    def close(self) -> str:
+        """Ends the run (END, QEMU exits) and returns the runner's report."""
+        return self._native.close()
+
+    def __enter__(self) -> "QemuUnit":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
 
 
 @dataclass

@@ -11,7 +11,9 @@ rate as Basilisk's navigation message (``attOutMsg``, ``NavAttMsg``) for the fli
 software to control on.
 
 Backends (``backend=``): ``"in-process"``, the flight core in this process
-(:class:`ssis.FlightCore`). The firmware in QEMU in lockstep is not wired in yet.
+(:class:`ssis.FlightCore`); ``"qemu"``, the firmware in QEMU in lockstep, processor in the
+loop (:class:`ssis.QemuUnit`: the runner's lockstep driver; every output frame is also
+compared with the in-process core, and :meth:`UnitNav.close` returns that report).
 
 Conventions (shared/NOTES.md, measured on 2.12.1): Basilisk's β_BN is numerically the
 unit's Λ (the instrument frame is the body frame B here; the table's star-tracker mount
@@ -40,7 +42,7 @@ import numpy as np
 
 from Basilisk.architecture import messaging, sysModel  # type: ignore
 
-from . import FlightCore, Table
+from . import FlightCore, QemuUnit, Table
 
 __all__ = ["UnitNav", "ST_ALIGNED"]
 
@@ -109,6 +111,26 @@ class InProcess:
         return self.core.counters()
 
 
+class InQemu:
+    """The firmware in QEMU, lockstep."""
+
+    name = "firmware in QEMU (lockstep)"
+
+    def __init__(self, table: Table) -> None:
+        self.unit = QemuUnit(table)
+        self.report = ""
+
+    def step(self, dtheta: np.ndarray, star: Optional[Tuple[float, np.ndarray]]) -> Any:
+        return self.unit.step(dtheta, star)
+
+    def counters(self) -> dict:
+        return {}
+
+    def close(self) -> str:
+        self.report = self.report or self.unit.close()
+        return self.report
+
+
 class UnitNav(sysModel.SysModel):
     """The unit as a Basilisk navigation source (module docstring)."""
 
@@ -134,8 +156,10 @@ class UnitNav(sysModel.SysModel):
         self.table = table if table is not None else Table.default()
         if backend == "in-process":
             backend = InProcess(self.table)
+        elif backend == "qemu":
+            backend = InQemu(self.table)
         elif isinstance(backend, str):
-            raise ValueError(f"backend {backend!r}: 'in-process' (the QEMU lockstep backend is not wired in yet)")
+            raise ValueError(f"backend {backend!r}: 'in-process' or 'qemu'")
         self.backend = backend
         t = self.table
         self.arw = t.get("observer.arw_deg_sqrt_h") if arw_deg_sqrt_h is None else arw_deg_sqrt_h
@@ -211,6 +235,11 @@ class UnitNav(sysModel.SysModel):
             self._publish(CurrentSimNanos, q, w)
             return
         self._publish(CurrentSimNanos, np.asarray(out.q), np.asarray(out.rate_rad_s))
+
+    def close(self) -> str:
+        """Ends the backend's run; the QEMU backend's report (empty in-process)."""
+        close = getattr(self.backend, "close", None)
+        return close() if close is not None else ""
 
     def _publish(self, nanos: int, q: np.ndarray, w: np.ndarray) -> None:
         p = messaging.NavAttMsgPayload()
