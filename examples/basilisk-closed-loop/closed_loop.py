@@ -177,7 +177,7 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=100.0, help="s")
     ap.add_argument("--settle", type=float, default=10.0, help="s before the statistics start")
     ap.add_argument("--scenarios", default="truth,unit,outage,fog")
-    ap.add_argument("--outage", type=lambda s: [float(x) for x in s.split(",")], default=[60.0, 120.0], help="T0,T1 s")
+    ap.add_argument("--outage", type=lambda s: [float(x) for x in s.split(",")], default=[30.0, 90.0], help="T0,T1 s")
     ap.add_argument("--fog-index", type=int, default=1)
     ap.add_argument("--fog-at", type=float, default=20.0, help="s")
     ap.add_argument("--fog-mode", default="dead", help="dead, or a bias step in deg/h")
