@@ -1,12 +1,12 @@
 //! The calibration methods of `ssis-cal`, on arrays or on a session: the overlapping
-//! Allan deviation and its noise terms, the misalignment turns (first method) and the
-//! SINS reversals (second method). Each returns the JSON value `ssis-cal … --json` prints
+//! Allan deviation and its noise terms, the misalignment turns (first method), the SINS
+//! reversals (second method), the thermal ANOVA and the magnetic sensitivity. Each returns the JSON value `ssis-cal … --json` prints
 //! under the method's key (ssis_methods::json).
 
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use ssis::calib::{CalibrationTable, GAMMA_NOMINAL_RAD};
-use ssis_methods::{allan, json, misalign_sins, misalign_turns};
+use ssis_methods::{allan, json, magnetic, misalign_sins, misalign_turns, thermal_anova};
 
 use crate::lab::session_of;
 use crate::table::PyTable;
@@ -66,7 +66,40 @@ fn sins_json(session: &Bound<'_, PyAny>, table: Option<&PyTable>) -> PyResult<St
     Ok(json::sins(&m0, from, &r).to_string())
 }
 
+/// `ssis-cal thermal --session S --fog FOG`: the two-factor ANOVA (Tables 1–2) of a chamber
+/// session sorted into Table 1's T × G levels, and the thermal model when it is worth
+/// building.
+#[pyfunction]
+#[pyo3(signature = (session, fog = 0))]
+fn thermal_json(session: &Bound<'_, PyAny>, fog: usize) -> PyResult<String> {
+    let s = session_of(session)?;
+    let levels = thermal_anova::Levels::default();
+    let window_s = (2.0 * s.median_dt_s()).max(60.0);
+    let c = thermal_anova::chamber_cells(&s, fog, &levels, window_s).map_err(err)?;
+    let t_lo = levels.t_degc.iter().copied().fold(f64::INFINITY, f64::min);
+    let t_hi = levels.t_degc.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let shape = (levels.t_degc.len(), levels.g_degc_min.len());
+    let (a, model) =
+        thermal_anova::analyse_and_fit_levels(&c.cells, &c.samples, shape, (t_lo + t_hi) / 2.0).map_err(err)?;
+    Ok(json::thermal(&a, model.as_ref()).to_string())
+}
+
+/// `ssis-cal magnetic --unscreened U --screened S`: the eq. (1)/(2) fits and the magnetic
+/// sensitivity, the field from the sessions' field columns.
+#[pyfunction]
+fn magnetic_json(unscreened: &Bound<'_, PyAny>, screened: &Bound<'_, PyAny>) -> PyResult<String> {
+    let (u, s) = (session_of(unscreened)?, session_of(screened)?);
+    let r = magnetic::analyse(&u, &s).map_err(err)?;
+    let b0 = u.field_nt.as_ref().map(|f| {
+        let psi = u.column("psi_rad").map_or(0.0, |p| p[0]);
+        ssis_session::field_nwu_nt(f[0], psi)
+    });
+    Ok(json::magnetic(&r, b0).to_string())
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(thermal_json, m)?)?;
+    m.add_function(wrap_pyfunction!(magnetic_json, m)?)?;
     m.add_function(wrap_pyfunction!(allan_json, m)?)?;
     m.add_function(wrap_pyfunction!(allan_session_json, m)?)?;
     m.add_function(wrap_pyfunction!(turns_json, m)?)?;

@@ -12,7 +12,7 @@ import numpy as np
 from . import _ssis
 from ._ssis import Table
 
-__all__ = ["Allan", "allan", "allan_session", "turns", "sins"]
+__all__ = ["Allan", "allan", "allan_session", "turns", "sins", "thermal", "magnetic"]
 
 
 @dataclass
@@ -68,6 +68,18 @@ def turns(session: Any, table: Optional[Table] = None) -> dict:
 def sins(session: Any, table: Optional[Table] = None) -> dict:
     """``ssis-cal sins``: the triad's angles from SINS reversals (started from ``table``)."""
     return json.loads(_ssis.sins_json(_s(session), table))
+
+
+def thermal(session: Any, fog: int = 0) -> dict:
+    """``ssis-cal thermal --session S --fog N``: the T × G ANOVA of a chamber session (Table
+    1's levels) and the thermal model when it is worth building."""
+    return json.loads(_ssis.thermal_json(_s(session), fog))
+
+
+def magnetic(unscreened: Any, screened: Any) -> dict:
+    """``ssis-cal magnetic``: eqs. (1)-(3) from an unscreened and a screened session (the
+    field from the sessions' columns)."""
+    return json.loads(_ssis.magnetic_json(_s(unscreened), _s(screened)))
 
 
 def _s(session: Any) -> Union[str, Any]:

@@ -13,6 +13,8 @@ def sessions(cli, tmp_path_factory):
     cli.run("ssis-cal", "simulate", "static", d / "static.csv", "--hours", "3")
     cli.run("ssis-cal", "simulate", "turns", d / "turns.csv")
     cli.run("ssis-cal", "simulate", "sins", d / "sins.csv")
+    cli.run("ssis-cal", "simulate", "magnetic", d / "unscreened.csv", d / "screened.csv")
+    cli.run("ssis-lab", "simulate", "thermal", d / "chamber.csv")
     return d
 
 
@@ -37,6 +39,15 @@ def test_turns_and_sins_are_the_command_lines(cli, sessions):
         v = cli.json("ssis-cal", method, "--session", p, "--plot", sessions / f"{method}.svg")[method]
         assert getattr(ssis.cal, method)(p) == v
         assert getattr(ssis.cal, method)(lab.Session.read(p)) == v
+
+
+def test_thermal_and_magnetic_are_the_command_lines(cli, sessions):
+    p = sessions / "chamber.csv"
+    v = cli.json("ssis-cal", "thermal", "--session", p, "--fog", "0", "--plot", sessions / "thermal.svg")["thermal"]
+    assert ssis.cal.thermal(p, fog=0) == v
+    u, s = sessions / "unscreened.csv", sessions / "screened.csv"
+    v = cli.json("ssis-cal", "magnetic", "--unscreened", u, "--screened", s, "--plot", sessions / "mag.svg")["magnetic"]
+    assert ssis.cal.magnetic(u, lab.Session.read(s)) == v
 
 
 def test_allan_refuses_bad_input():
