@@ -43,23 +43,35 @@ def test_qemu_unit_outputs_what_the_core_does(short_log, root):
     assert f"host/QEMU equivalence: {n} output frames identical, 0 different" in report
 
 
-def test_unit_nav_publishes_the_units_attitude(root):
+def _fly_unit_nav(root, basilisk_star_tracker):
     pytest.importorskip("Basilisk")
     from Basilisk.architecture import messaging
+    from Basilisk.simulation import starTracker
     from Basilisk.utilities import SimulationBaseClass, macros
 
     from ssis.basilisk import ST_ALIGNED, UnitNav, _ep2mrp, _mrp2ep
 
     sim = SimulationBaseClass.SimBaseClass()
     proc = sim.CreateNewProcess("p")
-    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(0.005)))
+    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(0.005)), 100)
     # a vehicle turning at a constant rate, written as Basilisk's own state message
     w = np.array([0.001, -0.002, 0.0015])
     state = messaging.SCStatesMsg()
     table = ssis.Table.read(root / "examples/basilisk/table.toml")
     unit = UnitNav(table, seed=3)
     unit.scStateInMsg.subscribeTo(state)
-    sim.AddModelToTask("t", unit)
+    if basilisk_star_tracker:
+        st = starTracker.StarTracker()
+        st.scStateInMsg.subscribeTo(state)
+        st.dcm_CB = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+        sig = table.get("observer.st_sigma_arcsec") * math.pi / 180 / 3600
+        st.PMatrix = [[sig, 0.0, 0.0], [0.0, sig, 0.0], [0.0, 0.0, sig]]
+        st.setAMatrix([[0.0] * 3] * 3)
+        st.setWalkBounds([1.0e3] * 3)
+        proc.addTask(sim.CreateNewTask("st", macros.sec2nano(table.get("observer.st_period_s"))), 50)
+        sim.AddModelToTask("st", st)
+        unit.stInMsg.subscribeTo(st.sensorOutMsg)
+    sim.AddModelToTask("t", unit, 5)
     rec = unit.attOutMsg.recorder()
     sim.AddModelToTask("t", rec)
     q0 = np.array([0.9, 0.1, -0.3, 0.2])
@@ -87,3 +99,14 @@ def test_unit_nav_publishes_the_units_attitude(root):
     err = 2 * np.abs(_mrp2ep(rec.sigma_BN[-1]) @ truth(6.0))
     err_arcsec = 2 * math.acos(min(1.0, err / 2)) * 180 / math.pi * 3600
     assert err_arcsec < 3 * np.linalg.norm(unit.last.att_sigma_arcsec)
+    return unit
+
+
+def test_unit_nav_publishes_the_units_attitude(root):
+    unit = _fly_unit_nav(root, basilisk_star_tracker=False)
+    assert unit.backend.counters()["StFramesAccepted"] > 50
+
+
+def test_unit_nav_on_basilisks_star_tracker(root):
+    unit = _fly_unit_nav(root, basilisk_star_tracker=True)
+    assert unit.backend.counters()["StFramesAccepted"] > 50
