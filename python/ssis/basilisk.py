@@ -4,7 +4,10 @@
 (a ``sysModel.SysModel`` with message readers and writers). Every 5 ms it takes the
 vehicle's motion (``scStateInMsg``, Basilisk's ``SCStatesMsg``), makes the unit's four FOG
 increments from it (each FOG's sensitive axis from the unit's table, with turn-on bias,
-bias random walk and angle random walk), and the star tracker's solutions (its own model
+bias random walk and angle random walk; or, with ``imuInMsg`` linked, from Basilisk's
+``imuSensor``: its increments on the table's axes, with its own errors, so the skewed
+fourth FOG is the other three's projection and the parity check sees no fault of theirs),
+and the star tracker's solutions (its own model
 at the table's period with a latency, or Basilisk's ``starTracker`` through
 ``stInMsg``), feeds them to the unit as frames, and publishes the unit's attitude and
 rate as Basilisk's navigation message (``attOutMsg``, ``NavAttMsg``) for the flight
@@ -152,6 +155,7 @@ class UnitNav(sysModel.SysModel):
         self.ModelTag = "ssisUnitNav"
         self.scStateInMsg = messaging.SCStatesMsgReader()
         self.stInMsg = messaging.STSensorMsgReader()
+        self.imuInMsg = messaging.IMUSensorMsgReader()
         self.attOutMsg = messaging.NavAttMsg()
         self.table = table if table is not None else Table.default()
         if backend == "in-process":
@@ -222,9 +226,14 @@ class UnitNav(sysModel.SysModel):
             return
         body = _rotvec(_qmul(_conj(self._q_prev), q))
         self._q_prev = q
-        sv = self.arw * math.pi / 180 / 60 * math.sqrt(DT_S)
-        self.bias_rad_s = self.bias_rad_s + self.rng.normal(0, self.rrw * DEG_H / 60 * math.sqrt(DT_S), 4)
-        d = self.axes @ body + self.bias_rad_s * DT_S + self.rng.normal(0, sv, 4)
+        if self.imuInMsg.isLinked():
+            # Basilisk's IMU: its increment over (t - Δt, t] in its platform frame (taken as
+            # the body frame), with its own errors; the fourth FOG is its projection.
+            d = self.axes @ np.asarray(self.imuInMsg().DRFramePlatform, dtype=float)
+        else:
+            sv = self.arw * math.pi / 180 / 60 * math.sqrt(DT_S)
+            self.bias_rad_s = self.bias_rad_s + self.rng.normal(0, self.rrw * DEG_H / 60 * math.sqrt(DT_S), 4)
+            d = self.axes @ body + self.bias_rad_s * DT_S + self.rng.normal(0, sv, 4)
         if self.fog_failure is not None and t_s >= self.fog_failure[0]:
             _, i, mode = self.fog_failure
             d[i] = math.nan if mode == "dead" else d[i] + float(mode) * DEG_H * DT_S

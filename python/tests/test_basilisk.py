@@ -43,10 +43,10 @@ def test_qemu_unit_outputs_what_the_core_does(short_log, root):
     assert f"host/QEMU equivalence: {n} output frames identical, 0 different" in report
 
 
-def _fly_unit_nav(root, basilisk_star_tracker):
+def _fly_unit_nav(root, basilisk_star_tracker, basilisk_imu=False):
     pytest.importorskip("Basilisk")
     from Basilisk.architecture import messaging
-    from Basilisk.simulation import starTracker
+    from Basilisk.simulation import imuSensor, starTracker
     from Basilisk.utilities import SimulationBaseClass, macros
 
     from ssis.basilisk import ST_ALIGNED, UnitNav, _ep2mrp, _mrp2ep
@@ -71,6 +71,17 @@ def _fly_unit_nav(root, basilisk_star_tracker):
         proc.addTask(sim.CreateNewTask("st", macros.sec2nano(table.get("observer.st_period_s"))), 50)
         sim.AddModelToTask("st", st)
         unit.stInMsg.subscribeTo(st.sensorOutMsg)
+    if basilisk_imu:
+        imu = imuSensor.ImuSensor()
+        imu.scStateInMsg.subscribeTo(state)
+        # white rate noise of the table's ARW (a noise-free IMU at a constant rate repeats
+        # its increment, and the unit refuses a repeated output as stuck)
+        w_sigma = table.get("observer.arw_deg_sqrt_h") * math.pi / 180 / 60 / math.sqrt(0.005)
+        imu.PMatrixGyro = [[w_sigma, 0.0, 0.0], [0.0, w_sigma, 0.0], [0.0, 0.0, w_sigma]]
+        imu.setAMatrixGyro([[0.0] * 3] * 3)
+        imu.setWalkBoundsGyro([1.0e3] * 3)
+        sim.AddModelToTask("t", imu, 10)
+        unit.imuInMsg.subscribeTo(imu.sensorOutMsg)
     sim.AddModelToTask("t", unit, 5)
     rec = unit.attOutMsg.recorder()
     sim.AddModelToTask("t", rec)
@@ -109,4 +120,9 @@ def test_unit_nav_publishes_the_units_attitude(root):
 
 def test_unit_nav_on_basilisks_star_tracker(root):
     unit = _fly_unit_nav(root, basilisk_star_tracker=True)
+    assert unit.backend.counters()["StFramesAccepted"] > 50
+
+
+def test_unit_nav_on_basilisks_imu(root):
+    unit = _fly_unit_nav(root, basilisk_star_tracker=False, basilisk_imu=True)
     assert unit.backend.counters()["StFramesAccepted"] > 50
