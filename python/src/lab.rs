@@ -184,22 +184,56 @@ impl PyModel {
     }
 }
 
+/// A bar over the session file's bytes on standard error (the command line's; drawn only
+/// on a terminal), when `progress`.
+fn bar(progress: bool, what: &str, src: &Src) -> Option<indicatif::ProgressBar> {
+    progress.then(|| {
+        let pb = indicatif::ProgressBar::new(0);
+        if let Ok(style) =
+            indicatif::ProgressStyle::with_template("{prefix} {msg} {bar:30} {bytes}/{total_bytes} {bytes_per_sec}")
+        {
+            pb.set_style(style);
+        }
+        pb.set_prefix(what.to_string());
+        pb.set_message(src.name());
+        pb
+    })
+}
+
 /// `ssis-lab compare`: the model fitted (or evaluated) on the session.
 #[pyfunction]
-#[pyo3(signature = (model, session, evaluate = false, blocks = DEFAULT_BLOCKS))]
-fn compare_json(model: &PyModel, session: &Bound<'_, PyAny>, evaluate: bool, blocks: usize) -> PyResult<String> {
+#[pyo3(signature = (model, session, evaluate = false, blocks = DEFAULT_BLOCKS, progress = false))]
+fn compare_json(
+    model: &PyModel,
+    session: &Bound<'_, PyAny>,
+    evaluate: bool,
+    blocks: usize,
+    progress: bool,
+) -> PyResult<String> {
     let src = Src::of(session)?;
-    let c = ssis_lab::fit::compare(&model.m, src.source(), evaluate, blocks, None).map_err(lab_err)?;
+    let pb = bar(progress, "comparing on", &src);
+    let c = ssis_lab::fit::compare(&model.m, src.source(), evaluate, blocks, pb.as_ref()).map_err(lab_err);
+    pb.inspect(|b| b.finish_and_clear());
+    let c = c?;
     Ok(json::comparison(&c, "", &src.name(), evaluate).to_string())
 }
 
 /// `ssis-lab diagnose`: the candidate missing effects ranked by their held-out F-test.
 #[pyfunction]
-#[pyo3(signature = (model, session, level = 0.01, blocks = DEFAULT_BLOCKS))]
-fn diagnose_json(model: &PyModel, session: &Bound<'_, PyAny>, level: f64, blocks: usize) -> PyResult<String> {
+#[pyo3(signature = (model, session, level = 0.01, blocks = DEFAULT_BLOCKS, progress = false))]
+fn diagnose_json(
+    model: &PyModel,
+    session: &Bound<'_, PyAny>,
+    level: f64,
+    blocks: usize,
+    progress: bool,
+) -> PyResult<String> {
     let src = Src::of(session)?;
     let opt = Options { n_blocks: blocks, fdr_level: level, ..Options::default() };
-    let d = diagnose_with_progress(&model.m, src.source(), &opt, None).map_err(lab_err)?;
+    let pb = bar(progress, "diagnosing on", &src);
+    let d = diagnose_with_progress(&model.m, src.source(), &opt, pb.as_ref()).map_err(lab_err);
+    pb.inspect(|b| b.finish_and_clear());
+    let d = d?;
     Ok(json::diagnosis(&d).to_string())
 }
 

@@ -120,14 +120,15 @@ def _src(session: Any) -> Any:
     return session._s if isinstance(session, Session) else os.fspath(session)
 
 
-def compare(model: Model, session: Any, evaluate: bool = False, blocks: int = 10) -> dict:
-    """``ssis-lab compare``: the model fitted (or evaluated) on the session, per FOG."""
-    return json.loads(_ssis.compare_json(model._m, _src(session), evaluate, blocks))
+def compare(model: Model, session: Any, evaluate: bool = False, blocks: int = 10, progress: bool = False) -> dict:
+    """``ssis-lab compare``: the model fitted (or evaluated) on the session, per FOG.
+    ``progress``: the command line's bar over the file's bytes on standard error."""
+    return json.loads(_ssis.compare_json(model._m, _src(session), evaluate, blocks, progress))
 
 
-def diagnose(model: Model, session: Any, level: float = 0.01, blocks: int = 10) -> Diagnosis:
+def diagnose(model: Model, session: Any, level: float = 0.01, blocks: int = 10, progress: bool = False) -> Diagnosis:
     """``ssis-lab diagnose``: candidate terms ranked by their held-out F-test."""
-    v = json.loads(_ssis.diagnose_json(model._m, _src(session), level, blocks))
+    v = json.loads(_ssis.diagnose_json(model._m, _src(session), level, blocks, progress))
     c = [Candidate(x["candidate"], x["p_value"], x["removed_deg_h"], x["significant"]) for x in v["candidates"]]
     return Diagnosis(c, v["most_significant"], v)
 

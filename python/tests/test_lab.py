@@ -26,7 +26,7 @@ def test_the_loop_gives_the_command_lines_numbers(cli, work):
     assert m.to_toml() == (work / "m.v1.toml").read_text()
     assert lab.Model.read("m.v1.toml").to_toml() == m.to_toml()
     c = cli.json("ssis-lab", "compare", "--model", "m.v1.toml", "--session", "th.csv")["fit"]
-    assert _drop(lab.compare(m, "th.csv"), "model") == _drop(c, "model")
+    assert _drop(lab.compare(m, "th.csv", progress=True), "model") == _drop(c, "model")
     s = lab.Session.read("th.csv")
     assert _drop(lab.compare(m, s), "model") == _drop(c, "model")
 
