@@ -1,0 +1,248 @@
+#!/usr/bin/env python3
+"""A LEO spacecraft flown in Basilisk on the unit's attitude, beside the same flight on truth.
+
+The vehicle (Basilisk 2.12.1: `spacecraft`, 750 kg, inertia diag(900, 800, 600) kg m², a
+500-km circular orbit at 51.6°, point-mass Earth) holds nadir (`hillPoint`) with slews as
+steps of `attTrackingError`'s reference offset (15° about X at 40 s, −20° about (0, 0.6,
+0.8) at 110 s, 15° about −X at 145 s, back to nadir at 180 s; repeated every 180 s), under
+`mrpFeedback` (K = 36, P = 160) commanding `extForceTorque`. The flight software's
+navigation message comes from:
+
+  truth   `simpleNav` without noise (the vehicle's own motion);
+  unit    ssis.basilisk.UnitNav: the unit's attitude and rate, from its FOGs and star tracker
+          (--backend in-process: the flight core; qemu: the firmware in QEMU in lockstep)
+          (examples/basilisk/table.toml's figures: ARW 0.05 °/√h, bias walk 0.01 °/h/√h,
+          tracker 20/3″ 1σ per axis every 0.1 s, 50 ms latency);
+  outage  the unit, with no star-tracker solution between --outage T0,T1;
+  fog     the unit, with FOG --fog-index failed at --fog-at (--fog-mode: dead, or a bias
+          step in °/h).
+
+The pointing error is the vehicle's true attitude against the reference (a second
+`attTrackingError` fed with truth), per axis, arcsec. The flights are deterministic, so
+the truth flight's pointing error is the controller's own (slew transients); what a unit
+flight adds to it, sample by sample, is what the unit's errors, latency and faults do to
+pointing. The script prints, after --settle, the pointing error's RMS, the part the unit
+adds (RMS, 3σ = |mean| + 3 std, max) and the unit's own attitude error (its message
+against truth, 3σ).
+
+    python3 closed_loop.py --duration 100 [--scenarios truth,unit,outage,fog] [--json out.json]
+
+(truth must come first for the comparison.)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from Basilisk.architecture import messaging
+from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback
+from Basilisk.simulation import extForceTorque, simpleNav, spacecraft
+from Basilisk.utilities import RigidBodyKinematics as rbk
+from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody
+
+import ssis
+from ssis.basilisk import UnitNav
+
+DT = 0.005
+ARCSEC_PER_RAD = 180 / math.pi * 3600
+HERE = Path(__file__).resolve().parent
+# the lines of the QEMU runner's report worth printing beside each flight
+KEEP = ("host/QEMU equivalence", "step time, instructions", "unit counters", "QEMU exit")
+INERTIA = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
+
+
+def slew_events(duration_s: float) -> list:
+    """(t_s, principal rotation vector or None = back to nadir) in time order."""
+    ev = []
+    for p in range(int(math.ceil(duration_s / 180.0))):
+        b = 180.0 * p
+        if p > 0:
+            ev.append((b, None))
+        ev += [(b + 40.0, np.array([1.0, 0, 0]) * math.radians(15)),
+               (b + 110.0, np.array([0, 0.6, 0.8]) * math.radians(-20)),
+               (b + 145.0, np.array([-1.0, 0, 0]) * math.radians(15))]
+    return [e for e in ev if e[0] < duration_s]
+
+
+def fly(kind: str, a: argparse.Namespace) -> dict:
+    """One flight; returns its pointing-error series and what the unit did."""
+    sim = SimulationBaseClass.SimBaseClass()
+    proc = sim.CreateNewProcess("p")
+    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(DT)))
+    sc = spacecraft.Spacecraft()
+    sc.ModelTag = "leo"
+    sc.hub.mHub = 750.0
+    sc.hub.IHubPntBc_B = [INERTIA[0:3], INERTIA[3:6], INERTIA[6:9]]
+    grav = simIncludeGravBody.gravBodyFactory()
+    earth = grav.createEarth()
+    earth.isCentralBody = True
+    grav.addBodiesTo(sc)
+    oe = orbitalMotion.ClassicElements()
+    oe.a, oe.e, oe.i = earth.radEquator + 500e3, 0.0, math.radians(51.6)
+    oe.Omega, oe.omega, oe.f = math.radians(48.2), 0.0, math.radians(85.3)
+    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
+    sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = r_n, v_n
+    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
+    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
+    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(np.array([r_hat, np.cross(h_hat, r_hat), h_hat]))]
+    sc.hub.omega_BN_BInit = [[0.0], [0.0], [np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)]]
+    # Within the task, higher priority runs first: dynamics, then the sensors, then the
+    # flight software on what they published at this instant.
+    sim.AddModelToTask("t", sc, 100)
+    truth_nav = simpleNav.SimpleNav()
+    truth_nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    sim.AddModelToTask("t", truth_nav, 90)
+    unit = None
+    if kind == "truth":
+        att_msg = truth_nav.attOutMsg
+    else:
+        table = ssis.Table.read(HERE.parent / "basilisk" / "table.toml")
+        unit = UnitNav(
+            table,
+            st_outage=tuple(a.outage) if kind == "outage" else None,
+            fog_failure=(a.fog_at, a.fog_index, a.fog_mode) if kind == "fog" else None,
+            seed=a.seed,
+            backend=a.backend,
+        )
+        unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+        sim.AddModelToTask("t", unit, 80)
+        att_msg = unit.attOutMsg
+    hill = hillPoint.hillPoint()
+    hill.transNavInMsg.subscribeTo(truth_nav.transOutMsg)
+    sim.AddModelToTask("t", hill, 70)
+    err = attTrackingError.attTrackingError()
+    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
+    err.attNavInMsg.subscribeTo(att_msg)
+    sim.AddModelToTask("t", err, 60)
+    meas = attTrackingError.attTrackingError()  # the true pointing error, for the score only
+    meas.attRefInMsg.subscribeTo(hill.attRefOutMsg)
+    meas.attNavInMsg.subscribeTo(truth_nav.attOutMsg)
+    sim.AddModelToTask("t", meas, 60)
+    vc = messaging.VehicleConfigMsgPayload()
+    vc.ISCPntB_B = INERTIA
+    vc_msg = messaging.VehicleConfigMsg().write(vc)
+    ctl = mrpFeedback.mrpFeedback()
+    ctl.K, ctl.P, ctl.Ki = 36.0, 160.0, -1.0
+    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
+    ctl.vehConfigInMsg.subscribeTo(vc_msg)
+    sim.AddModelToTask("t", ctl, 50)
+    ext = extForceTorque.ExtForceTorque()
+    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
+    sc.addDynamicEffector(ext)
+    sim.AddModelToTask("t", ext, 40)
+    rec = meas.attGuidOutMsg.recorder()
+    sim.AddModelToTask("t", rec)
+    st_rec = truth_nav.attOutMsg.recorder()
+    nav_rec = att_msg.recorder()
+    sim.AddModelToTask("t", st_rec)
+    sim.AddModelToTask("t", nav_rec)
+    sim.InitializeSimulation()
+    offset = np.zeros(3)
+    wall = time.perf_counter()
+    for t0, prv in slew_events(a.duration):
+        sim.ConfigureStopTime(macros.sec2nano(t0))
+        sim.ExecuteSimulation()
+        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
+        err.sigma_R0R = list(offset)
+        meas.sigma_R0R = list(offset)
+    sim.ConfigureStopTime(macros.sec2nano(a.duration))
+    sim.ExecuteSimulation()
+    wall = time.perf_counter() - wall
+    t = np.asarray(rec.times()) * 1e-9
+    point = 4 * np.arctan(np.asarray(rec.sigma_BR)) * ARCSEC_PER_RAD  # small-angle per axis
+    # the unit's own attitude error: its message against truth, per axis
+    nav_err = np.array([rbk.subMRP(n, s) for n, s in zip(nav_rec.sigma_BN, st_rec.sigma_BN)]) * 4 * ARCSEC_PER_RAD
+    out = {"kind": kind, "t_s": t, "pointing_arcsec": point, "nav_err_arcsec": nav_err, "wall_s": wall}
+    if unit is not None:
+        out["backend_report"] = unit.close()
+        out["steps_before_aligned"] = unit.steps_before_aligned
+        out["counters"] = {k: v for k, v in unit.backend.counters().items() if v}
+    return out
+
+
+def stats(x: np.ndarray) -> dict:
+    return {"rms": np.sqrt(np.mean(x**2, axis=0)).tolist(), "3sigma": (np.abs(x.mean(axis=0)) + 3 * x.std(axis=0)).tolist(),
+            "max": np.max(np.abs(x), axis=0).tolist()}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--duration", type=float, default=100.0, help="s")
+    ap.add_argument("--settle", type=float, default=10.0, help="s before the statistics start")
+    ap.add_argument("--scenarios", default="truth,unit,outage,fog")
+    ap.add_argument("--outage", type=lambda s: [float(x) for x in s.split(",")], default=[30.0, 90.0], help="T0,T1 s")
+    ap.add_argument("--fog-index", type=int, default=1)
+    ap.add_argument("--fog-at", type=float, default=20.0, help="s")
+    ap.add_argument("--fog-mode", default="dead", help="dead, or a bias step in deg/h")
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--backend", choices=["in-process", "qemu"], default="in-process",
+                    help="the unit: the flight core in-process, or the firmware in QEMU in lockstep")
+    ap.add_argument("--json", type=Path, help="write the figures here (refused if it exists)")
+    ap.add_argument("--max-added-3sigma-arcsec", type=float,
+                    help="exit 1 when the pointing error the unit adds (nominal flight, 3σ) exceeds this")
+    a = ap.parse_args()
+    if a.fog_mode != "dead":
+        a.fog_mode = float(a.fog_mode)
+    if a.json is not None and a.json.exists():
+        print(f"error: {a.json}: exists: refused", file=sys.stderr)
+        return 2
+    report = {"duration_s": a.duration, "settle_s": a.settle, "backend": a.backend, "flights": {}}
+    print(f"closed loop, unit: {a.backend}, {a.duration:.0f} s (Basilisk {DT * 1e3:.0f}-ms task), after settling at {a.settle:.0f} s; arcsec, x y z")
+    print(f"{'flight':<7} {'pointing error RMS':>26} {'added by the unit, RMS':>26} {'added, 3σ':>26} {'added, max':>26} {'unit attitude error 3σ':>26}  wall s")
+    fmt = lambda v: " ".join(f"{x:8.2f}" for x in v)  # noqa: E731
+    truth = None
+    for kind in a.scenarios.split(","):
+        f = fly(kind, a)
+        after = f["t_s"] >= a.settle
+        if not after.any():
+            print(f"error: --duration {a.duration} ends before --settle {a.settle}", file=sys.stderr)
+            return 2
+        p = stats(f["pointing_arcsec"][after])
+        entry = {"pointing": p, "wall_s": f["wall_s"], "samples": int(after.sum())}
+        cols = [fmt(p["rms"])]
+        if kind == "truth":
+            truth = f
+        if truth is not None and kind != "truth":
+            added = stats((f["pointing_arcsec"] - truth["pointing_arcsec"])[after])
+            entry["added_by_unit"] = added
+            cols += [fmt(added["rms"]), fmt(added["3sigma"]), fmt(added["max"])]
+        else:
+            cols += ["-", "-", "-"]
+        if kind != "truth":
+            n = stats(f["nav_err_arcsec"][after])
+            entry["nav_error"] = n
+            cols.append(fmt(n["3sigma"]))
+        else:
+            cols.append("-")
+        print(f"{kind:<7} " + " ".join(f"{c:>26}" for c in cols) + f"  {f['wall_s']:.1f}")
+        if "counters" in f:
+            entry["steps_before_aligned"] = f["steps_before_aligned"]
+            entry["counters"] = f["counters"]
+            print(f"        unit: aligned by the star tracker after {f['steps_before_aligned']} steps; counters {f['counters']}")
+            if f["backend_report"]:
+                keep = [ln for ln in f["backend_report"].splitlines() if ln.split(":")[0] in KEEP]
+                entry["backend_report"] = f["backend_report"]
+                print("\n".join("        " + ln for ln in keep))
+        report["flights"][kind] = entry
+    if a.json is not None:
+        with open(a.json, "x") as fh:
+            json.dump(report, fh, indent=1)
+    lim = a.max_added_3sigma_arcsec
+    if lim is not None:
+        worst = max(report["flights"].get("unit", {}).get("added_by_unit", {}).get("3sigma", [math.inf]))
+        if worst > lim:
+            print(f"FAIL: the pointing error the unit adds, 3σ {worst:.2f}″, exceeds {lim}″ (or no unit flight beside truth)",
+                  file=sys.stderr)
+            return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

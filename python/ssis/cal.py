@@ -1,0 +1,90 @@
+"""The calibration methods of ``ssis-cal`` on arrays or sessions (the numbers of
+``ssis-cal … --json``)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from typing import Any, Optional, Union
+
+import numpy as np
+
+from . import _ssis
+from ._ssis import Table
+
+__all__ = ["Allan", "allan", "allan_session", "turns", "sins", "thermal", "magnetic"]
+
+
+@dataclass
+class Allan:
+    """An overlapping Allan deviation and its noise terms (values with their 95 % intervals:
+    ``{"value", "ci95_low", "ci95_high"}``, or ``{"upper_bound_95"}`` when the session does not
+    resolve the term)."""
+
+    tau_s: np.ndarray
+    adev_deg_h: np.ndarray
+    ci95_low_deg_h: np.ndarray
+    ci95_high_deg_h: np.ndarray
+    arw_deg_sqrt_h: dict
+    bias_instability_deg_h: dict
+    bias_instability_tau_s: float
+    rrw_deg_h_sqrt_h: dict
+    json: dict
+    """The whole value ``ssis-cal allan --json`` prints under ``allan``."""
+
+
+def _allan(text: str) -> Allan:
+    v = json.loads(text)
+    col = lambda k: np.array([p[k] for p in v["points"]], dtype=np.float64)  # noqa: E731
+    return Allan(
+        tau_s=col("tau_s"),
+        adev_deg_h=col("adev_deg_h"),
+        ci95_low_deg_h=col("ci95_low_deg_h"),
+        ci95_high_deg_h=col("ci95_high_deg_h"),
+        arw_deg_sqrt_h=v["arw_deg_sqrt_h"],
+        bias_instability_deg_h=v["bias_instability_deg_h"],
+        bias_instability_tau_s=v["bias_instability_tau_s"],
+        rrw_deg_h_sqrt_h=v["rrw_deg_h_sqrt_h"],
+        json=v,
+    )
+
+
+def allan(rate_rad_s: Any, dt_s: float) -> Allan:
+    """Overlapping Allan deviation (8 τ per decade) of a rate series sampled every ``dt_s``."""
+    return _allan(_ssis.allan_json(np.ascontiguousarray(rate_rad_s, dtype=np.float64), float(dt_s)))
+
+
+def allan_session(session: Any, fog: int = 0) -> Allan:
+    """``ssis-cal allan --session S --fog N``: a static session's FOG (a path or a
+    :class:`ssis.lab.Session`)."""
+    return _allan(_ssis.allan_session_json(_s(session), fog))
+
+
+def turns(session: Any, table: Optional[Table] = None) -> dict:
+    """``ssis-cal turns``: misalignment from three calibration turns (γ from ``table``)."""
+    return json.loads(_ssis.turns_json(_s(session), table))
+
+
+def sins(session: Any, table: Optional[Table] = None) -> dict:
+    """``ssis-cal sins``: the triad's angles from SINS reversals (started from ``table``)."""
+    return json.loads(_ssis.sins_json(_s(session), table))
+
+
+def thermal(session: Any, fog: int = 0) -> dict:
+    """``ssis-cal thermal --session S --fog N``: the T × G ANOVA of a chamber session (Table
+    1's levels) and the thermal model when it is worth building."""
+    return json.loads(_ssis.thermal_json(_s(session), fog))
+
+
+def magnetic(unscreened: Any, screened: Any) -> dict:
+    """``ssis-cal magnetic``: eqs. (1)-(3) from an unscreened and a screened session (the
+    field from the sessions' columns)."""
+    return json.loads(_ssis.magnetic_json(_s(unscreened), _s(screened)))
+
+
+def _s(session: Any) -> Union[str, Any]:
+    from .lab import Session
+
+    if isinstance(session, Session):
+        return session._s
+    return str(session)
