@@ -134,7 +134,7 @@ fn with_engineering_comments(text: &str, t: &CalibrationTable) -> String {
         if let Some(f) = name.as_deref().and_then(field_named) {
             let s = f.spec();
             if s.eng_per_unit != 1.0 && !s.eng_unit.is_empty() {
-                out.push_str(&format!("  # {} {}", super::update::significant(f.get(t) * s.eng_per_unit), s.eng_unit));
+                out.push_str(&format!("  # {} {}", significant(f.get(t) * s.eng_per_unit), s.eng_unit));
             }
         }
         out.push('\n');
@@ -214,4 +214,23 @@ pub fn read_image(path: &Path) -> Result<(CalibrationTable, store::Loaded)> {
         bail!("{}: no copy passed (A: {:?}, B: {:?})", path.display(), loaded.slot_errors[0], loaded.slot_errors[1]);
     }
     Ok((loaded.table, loaded))
+}
+
+/// `v` with about six significant digits (no exponent between 1e-4 and 1e7).
+pub fn significant(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let mag = v.abs().log10().floor() as i32;
+    if (-4..7).contains(&mag) {
+        let decimals = (5 - mag).max(0) as usize;
+        let s = format!("{v:.decimals$}");
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    } else {
+        format!("{v:.5e}")
+    }
 }

@@ -358,6 +358,17 @@ pub fn is_test_build(elf: &Path) -> Result<bool> {
     Ok(file.symbols().any(|s| s.name().is_ok_and(|n| n.starts_with("ERROR(ssis): test hooks"))))
 }
 
+/// Address of a symbol in an ELF.
+pub fn symbol(elf: &Path, name: &str) -> Result<u64> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf)?;
+    let file = object::File::parse(&*data)?;
+    file.symbols()
+        .find(|s| s.name() == Ok(name))
+        .map(|s| s.address())
+        .with_context(|| format!("{} has no symbol {name}", elf.display()))
+}
+
 /// The repository root (`host-tests/runner/../..`).
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
@@ -931,9 +942,9 @@ impl Unit {
             Some(img) => img.clone(),
             None => store::image(table).to_vec(),
         };
-        let mut images = vec![("table.img", &image[..], crate::qemu_lv::symbol(&opts.elf, "_calib_start")?)];
+        let mut images = vec![("table.img", &image[..], symbol(&opts.elf, "_calib_start")?)];
         if let Some(key) = &opts.key_record {
-            images.push(("key.img", &key[..], crate::qemu_lv::symbol(&opts.elf, "_key_start")?));
+            images.push(("key.img", &key[..], symbol(&opts.elf, "_key_start")?));
         }
         // Lockstep always counts instructions with virtual time bound to them
         // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount

@@ -702,7 +702,7 @@ fn report_cmd(model: PathBuf, session: PathBuf, out: PathBuf) -> Result<()> {
         let mut terms = candidate_terms(&Source::File(&session).header()?);
         terms.extend(versions.iter().flat_map(|(_, v)| v.kinds()));
         let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
-        let kept = report::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
+        let kept = ssis_lab::fit::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
         let steps = ssis_lab::fit::add_steps(&versions, &dg)?;
         Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?, steps, kept))
     })?;
