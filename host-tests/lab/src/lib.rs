@@ -10,6 +10,7 @@
 //!   bounded look-ahead, a systematic sample of rows kept for plots.
 //! - [`framelog`]: the firmware's own logs as sessions: a raw capture of the output link
 //!   (output frames, bad frames counted) and the per-step CSV of `ssis-qemu`.
+//! - [`import`]: a logger's own CSV (its column names and units) mapped onto a session.
 //! - [`model`]: the error model as data, a versioned TOML file (`ssis-error-model/1`) with a
 //!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
 //!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's
@@ -34,6 +35,7 @@ pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod framelog;
+pub mod import;
 pub mod json;
 pub mod lsq;
 pub mod model;
@@ -59,6 +61,9 @@ pub enum LabError {
     /// names it.
     #[error("{0}")]
     Write(String),
+    /// An argument the lab cannot use (an import mapping, a reference given twice).
+    #[error("{0}")]
+    Usage(String),
     /// Anything the numerics refuse (too few samples, nothing to fit).
     #[error("{0}")]
     Numeric(String),
