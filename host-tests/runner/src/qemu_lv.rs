@@ -32,10 +32,10 @@
 
 use std::collections::VecDeque;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use ssis::calib::accel::AccelTable;
 use ssis::calib::{store, CalibrationTable};
 use ssis::flight::Profile;
