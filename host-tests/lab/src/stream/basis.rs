@@ -6,7 +6,7 @@ use super::*;
 
 /// Where an expression variable comes from.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(super) enum Var {
+enum Var {
     /// A session column (file order).
     Column(usize),
     /// r_i = s_i⁰·ω_ref.
@@ -23,7 +23,7 @@ pub(super) enum Var {
 
 /// An expression (or user column) of the basis.
 #[derive(Debug, Clone)]
-pub(super) struct ExprSlot {
+struct ExprSlot {
     text: String,
     /// The compiled expression; `None` for a bare column name.
     ex: Option<exmex::FlatEx<f64>>,
@@ -103,14 +103,14 @@ pub struct Basis {
 /// The fixed part of the table of per-row quantities a fill builds for one FOG: 1, ω_x, ω_y,
 /// ω_z, |r|, r², age, ΔT, ΔT², ΔT³, G, ΔT·G, B_x, B_y, B_z, y; the bare columns follow, up to
 /// [`TABLE_MAX`] entries in all.
-pub(super) const TABLE_FIXED: usize = 16;
+const TABLE_FIXED: usize = 16;
 
 /// Entries of the table at most.
-pub(super) const TABLE_MAX: usize = 32;
+const TABLE_MAX: usize = 32;
 
 /// The table index of every slot, and the bare columns the table carries; `None` when a
 /// slot is not in the table.
-pub(super) fn table_of(slots: &[Q], exprs: &[ExprSlot]) -> Option<(Vec<u8>, Vec<usize>)> {
+fn table_of(slots: &[Q], exprs: &[ExprSlot]) -> Option<(Vec<u8>, Vec<usize>)> {
     let mut cols: Vec<usize> = Vec::new();
     let mut idx = Vec::with_capacity(slots.len());
     for q in slots {
@@ -151,7 +151,7 @@ pub(super) fn table_of(slots: &[Q], exprs: &[ExprSlot]) -> Option<(Vec<u8>, Vec<
 pub const ONE: usize = 0;
 
 /// The quantities a term uses.
-pub(super) fn quantities(kind: &Kind, sinusoids: &[f64], exprs: &[ExprSlot]) -> Vec<Q> {
+fn quantities(kind: &Kind, sinusoids: &[f64], exprs: &[ExprSlot]) -> Vec<Q> {
     match kind {
         Kind::Catalog(c) => match c {
             Catalog::Bias => vec![Q::One],
@@ -492,7 +492,7 @@ impl Basis {
 }
 
 /// Compiles an expression over the session's columns and the per-FOG variables.
-pub(super) fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
+fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
     let column = |name: &str| header.names.iter().position(|n| n == name);
     if let Some(c) = column(e) {
         return Ok(ExprSlot { text: e.into(), ex: None, vars: vec![Var::Column(c)], needs_temp: false });

@@ -104,7 +104,7 @@ pub struct Digest {
     pub gram: Vec<Vec<Gram>>,
     /// Kept rows.
     pub kept: Kept,
-    /// Bins of every row (consecutive rows of one block; [`super::noise`]).
+    /// Bins of every row (consecutive rows of one block; [`crate::noise`]).
     pub bins: Bins,
     /// Per FOG, the sums of the shifted basis over each bin (bins × m, row-major).
     pub bin_sum: Vec<Vec<f64>>,
@@ -133,7 +133,7 @@ pub struct Gaps {
 pub(super) const BATCH: usize = 256;
 
 /// The per-bin sums of the basis a pass accumulates, a batch at a time.
-pub(super) struct BinAcc {
+struct BinAcc {
     bins: Bins,
     sum: Vec<Vec<f64>>,
     /// The bin of the last row added.

@@ -53,7 +53,7 @@ pub(super) fn accumulate_gram(
 /// The dot products of column a with columns `bs` (a multiple of four of them) of a batch
 /// (columns of [`BATCH`] values, [`COL`] apart), into `out`.
 #[inline]
-pub(super) fn gram_entries(cols: &[f64], a: usize, bs: &[usize], out: &mut [f64]) {
+fn gram_entries(cols: &[f64], a: usize, bs: &[usize], out: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2 (checked above).
@@ -70,7 +70,7 @@ pub(super) fn gram_entries(cols: &[f64], a: usize, bs: &[usize], out: &mut [f64]
 /// depend on the vector width the compiler uses (and no fused multiply-add changes the
 /// rounding).
 #[inline(always)]
-pub(super) fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
+fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
     let (ca, cb) = (&cols[a * COL..a * COL + BATCH], &cols[b * COL..b * COL + BATCH]);
     let mut acc = [0.0f64; 8];
     for (x, y) in ca.chunks_exact(8).zip(cb.chunks_exact(8)) {
@@ -83,7 +83,7 @@ pub(super) fn gram_entry(cols: &[f64], a: usize, b: usize) -> f64 {
 
 /// The eight partial sums of a Gram entry added in their fixed order.
 #[inline(always)]
-pub(super) fn combine8(acc: &[f64; 8]) -> f64 {
+fn combine8(acc: &[f64; 8]) -> f64 {
     ((acc[0] + acc[1]) + (acc[2] + acc[3])) + ((acc[4] + acc[5]) + (acc[6] + acc[7]))
 }
 

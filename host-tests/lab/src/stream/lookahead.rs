@@ -9,7 +9,7 @@ use super::*;
 /// through each sample's own vectors), with the times and temperatures in flat arrays beside
 /// them (the window sums read those); the arrays drop what no later window can use, in
 /// chunks.
-pub(super) struct Lookahead {
+struct Lookahead {
     half_s: f64,
     n_fog: usize,
     /// Held samples of global index `base ..`, one record each ([`Lookahead::push`]).

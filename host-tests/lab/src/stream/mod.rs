@@ -20,9 +20,9 @@
 //! rows (every row when the session is that short) is kept with its basis vectors for what
 //! needs rows: plots, the spectral search, the T × G analysis of variance.
 //!
-//! One file per job: [`basis`] (the basis and its functionals), [`lookahead`] (G over a
-//! stream), [`gram`] (the inner sums), [`digest`] (the pass), [`extremes`] (the provable
-//! largest residual), [`units`] (the unit check), [`blocks`] (blocks, sums and bins).
+//! One file per job: `basis.rs` (the basis and its functionals), `lookahead.rs` (G over a
+//! stream), `gram.rs` (the inner sums), `digest.rs` (the pass), `extremes.rs` (the provable
+//! largest residual), `units.rs` (the unit check), `blocks.rs` (blocks, sums and bins).
 
 mod basis;
 mod blocks;

@@ -4,7 +4,7 @@ use super::*;
 
 /// The smallest RMS swing of a FOG's reference rate about its mean, °/h, for which the slope
 /// of its output on the reference is judged.
-pub(super) const MIN_REFERENCE_SWING_DEG_H: f64 = 2.0;
+const MIN_REFERENCE_SWING_DEG_H: f64 = 2.0;
 
 /// Refuses a FOG column whose values are not that FOG's rate in rad/s, judging only what the
 /// session can tell: how the FOG's output ω follows its reference rate r = s⁰·ω_ref where r
