@@ -19,7 +19,7 @@ use super::lsq::{design_gram, lstsq_gram, residual_functional, sse_gram, LsFit};
 use super::model::{FitRecord, Kind, Model};
 use super::session::Session;
 use super::stream::{digest, for_each_prepared, Digest, DigestSpec, Source, Sums, DEFAULT_KEEP};
-use super::{LabError, LabResult};
+use super::{LabError, LabResult, ModelErrorKind};
 use ssis_common::DEG_H_PER_RAD_S;
 
 /// Default number of time blocks.
@@ -73,7 +73,7 @@ pub fn design(d: &Digest, kinds: &[Kind], fog: usize) -> LabResult<Design> {
     let mut cols = Vec::new();
     let mut owner = Vec::new();
     for (t, k) in kinds.iter().enumerate() {
-        let f = d.basis.functionals(k, fog).map_err(LabError::Model)?;
+        let f = d.basis.functionals(k, fog).map_err(unfed)?;
         for (m, l) in f.iter().enumerate() {
             cols.push(d.shifted(fog, l));
             owner.push((t, m));
@@ -277,7 +277,7 @@ pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model, rows: usize)
     for fog in 0..b.n_fog {
         let mut l = b.y_functional();
         for (t, k) in kinds.iter().enumerate() {
-            for (m, x) in b.functionals(k, fog).map_err(LabError::Model)?.iter().enumerate() {
+            for (m, x) in b.functionals(k, fog).map_err(unfed)?.iter().enumerate() {
                 let c = model.terms[t].coef.get(fog).and_then(|c| c.get(m)).copied().unwrap_or(0.0);
                 for (a, v) in l.iter_mut().zip(x) {
                     *a -= c * v;
@@ -456,7 +456,7 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
             b.fill(fog, s, g, &mut z)?;
             let mut r = z[b.y];
             for (t, k) in kinds.iter().enumerate() {
-                for (m, x) in b.functionals(k, fog).map_err(LabError::Model)?.iter().enumerate() {
+                for (m, x) in b.functionals(k, fog).map_err(unfed)?.iter().enumerate() {
                     let c = model.terms[t].coef.get(fog).and_then(|c| c.get(m)).copied().unwrap_or(0.0);
                     r -= c * x.iter().zip(&z).map(|(a, b)| a * b).sum::<f64>();
                 }
@@ -532,7 +532,7 @@ pub fn add_term<'a>(
 ) -> LabResult<AddOutcome> {
     let kinds = model.kinds();
     if kinds.contains(kind) {
-        return Err(LabError::Model(format!("the model already has `{}`", kind.label())));
+        return Err(LabError::model(ModelErrorKind::Term, format!("the model already has `{}`", kind.label())));
     }
     let mut next = model.clone();
     next.version = model.version + 1;
@@ -649,4 +649,9 @@ pub fn held_out_many<'a>(
         }
     }
     Ok(out.into_iter().map(|v| v.unwrap_or_default()).collect())
+}
+
+/// A term the session cannot feed, as [`super::stream::Basis::functionals`] says why.
+fn unfed(why: String) -> LabError {
+    LabError::model(ModelErrorKind::Unfed, why)
 }

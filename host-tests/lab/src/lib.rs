@@ -54,9 +54,9 @@ pub enum LabError {
     /// A session file that cannot be read or is malformed.
     #[error(transparent)]
     Session(#[from] session::SessionError),
-    /// A model file that is malformed, or a term the session cannot feed.
-    #[error("{0}")]
-    Model(String),
+    /// A model file that is malformed, or a term the session cannot feed ([`ModelError`]).
+    #[error(transparent)]
+    Model(ModelError),
     /// A file that cannot be written, or may not be (`ssis_common::output`); the message
     /// names it.
     #[error("{0}")]
@@ -67,6 +67,41 @@ pub enum LabError {
     /// Anything the numerics refuse (too few samples, nothing to fit).
     #[error("{0}")]
     Numeric(String),
+}
+
+/// What is wrong with a model file or one of its terms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelErrorKind {
+    /// The model file cannot be read.
+    Io,
+    /// Not the model's TOML form: its syntax, a key, the `format` line.
+    Syntax,
+    /// A term the lab does not know, or one listed twice or already in the model.
+    Term,
+    /// An expression that does not parse, or does not evaluate on a row.
+    Expression,
+    /// A term the session cannot feed (a column it lacks).
+    Unfed,
+    /// A value out of its range (the G window, the version, a coefficient), or a model the
+    /// calibration table cannot take.
+    Value,
+}
+
+/// A refused model or term: its kind, and the words (naming the file where there is one).
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{message}")]
+pub struct ModelError {
+    /// What is wrong.
+    pub kind: ModelErrorKind,
+    /// Plain words.
+    pub message: String,
+}
+
+impl LabError {
+    /// A [`LabError::Model`] of `kind`.
+    pub fn model(kind: ModelErrorKind, message: impl Into<String>) -> LabError {
+        LabError::Model(ModelError { kind, message: message.into() })
+    }
 }
 
 /// Result of the lab library.

@@ -403,14 +403,17 @@ impl Basis {
                 Var::Fog => fog as f64,
             })
             .collect();
-        let e = ex
-            .eval(&v)
-            .map_err(|e| LabError::Model(format!("expression `{}` at t = {} s ({}): {e}", x.text, s.t_s, self.file)))?;
+        let e = ex.eval(&v).map_err(|e| {
+            LabError::model(
+                ModelErrorKind::Expression,
+                format!("expression `{}` at t = {} s ({}): {e}", x.text, s.t_s, self.file),
+            )
+        })?;
         if !e.is_finite() {
-            return Err(LabError::Model(format!(
-                "expression `{}` is not finite at t = {} s ({})",
-                x.text, s.t_s, self.file
-            )));
+            return Err(LabError::model(
+                ModelErrorKind::Expression,
+                format!("expression `{}` is not finite at t = {} s ({})", x.text, s.t_s, self.file),
+            ));
         }
         Ok(e)
     }
@@ -497,7 +500,8 @@ fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
     if let Some(c) = column(e) {
         return Ok(ExprSlot { text: e.into(), ex: None, vars: vec![Var::Column(c)], needs_temp: false });
     }
-    let ex = exmex::parse::<f64>(e).map_err(|err| LabError::Model(format!("expression `{e}`: {err}")))?;
+    let ex = exmex::parse::<f64>(e)
+        .map_err(|err| LabError::model(ModelErrorKind::Expression, format!("expression `{e}`: {err}")))?;
     let mut vars = Vec::new();
     for v in ex.var_names() {
         vars.push(match v.as_str() {
@@ -507,12 +511,15 @@ fn compile(e: &str, header: &Header) -> LabResult<ExprSlot> {
             "g_degc_s" => Var::TRate,
             "fog" => Var::Fog,
             name => Var::Column(column(name).ok_or_else(|| {
-                LabError::Model(format!(
-                    "expression `{e}`: `{v}` is not a column of {} (columns: {}; per FOG: rate_rad_s, t_degc, \
+                LabError::model(
+                    ModelErrorKind::Unfed,
+                    format!(
+                        "expression `{e}`: `{v}` is not a column of {} (columns: {}; per FOG: rate_rad_s, t_degc, \
                      dt_degc, g_degc_s, fog)",
-                    header.file,
-                    header.names.join(", ")
-                ))
+                        header.file,
+                        header.names.join(", ")
+                    ),
+                )
             })?),
         });
     }

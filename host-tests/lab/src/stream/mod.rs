@@ -50,7 +50,7 @@ use super::model::{loop_plane, misalignment_partials, Catalog, Kind};
 use super::session::{
     median_interval_s, nominal_axes, write_record, Converter, Header, RowReader, SampleRef, Session, Shape,
 };
-use super::{LabError, LabResult};
+use super::{LabError, LabResult, ModelErrorKind};
 
 /// Rows kept by default for plots, the spectral search and the ANOVA.
 pub const DEFAULT_KEEP: usize = 40_000;
