@@ -695,6 +695,51 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     })
 }
 
+/// The summary of a run of `feed` before its first step.
+fn new_summary(feed: &Feed<'_>, opts: &QemuOptions, flight_build: bool) -> QemuSummary {
+    QemuSummary {
+        name: feed.name.clone(),
+        steps: feed.steps,
+        duration_s: feed.steps as f64 * feed.profile.dt_s(),
+        accuracy: Accuracy { settle_s: feed.settle_s, ..Default::default() },
+        icount: opts.icount || opts.lockstep,
+        paged: vec![0; usize::from(page::COUNT)],
+        host: HostPace {
+            mode: match (opts.lockstep, opts.paced) {
+                (true, false) => Pacing::Lockstep,
+                (true, true) => Pacing::Paced,
+                (false, _) => Pacing::RealTime,
+            },
+            ..Default::default()
+        },
+        flight_build,
+        board: opts.board.is_some(),
+        ..Default::default()
+    }
+}
+
+/// Holds step `n` as the run's pacing asks (a host stall injected at it; a paced run not
+/// before its `tick`) and counts it late: in real time any send after the tick, paced only
+/// a delay beyond a step (`dt_s`); plain lockstep keeps no pace.
+fn pace_step(opts: &QemuOptions, n: u64, tick: Instant, dt_s: f64, host: &mut HostPace) {
+    if let Some((_, d)) = opts.host_stall.filter(|(at, _)| *at == n) {
+        std::thread::sleep(d);
+    }
+    if opts.lockstep && opts.paced {
+        // Paced: not before its time; a late step is held, not dropped.
+        let now = Instant::now();
+        if now < tick {
+            std::thread::sleep(tick - now);
+        }
+    }
+    let late_s = Instant::now().saturating_duration_since(tick).as_secs_f64();
+    let late = if opts.lockstep { opts.paced && late_s > dt_s } else { late_s > 0.0 };
+    if late {
+        host.late_steps += 1;
+        host.late_max_s = host.late_max_s.max(late_s);
+    }
+}
+
 /// Runs `feed` on the firmware in QEMU; `on_frame` sees every output frame with its record
 /// against truth (when the feed has truth for it).
 pub fn run_feed(
@@ -718,25 +763,7 @@ pub fn run_feed(
     let mut unit = Unit::boot(&feed.table, opts)?;
     let started = Instant::now();
     let bar = progress_bar(opts.progress, feed.steps, &feed.name);
-    let mut s = QemuSummary {
-        name: feed.name.clone(),
-        steps: feed.steps,
-        duration_s: feed.steps as f64 * feed.profile.dt_s(),
-        accuracy: Accuracy { settle_s: feed.settle_s, ..Default::default() },
-        icount: opts.icount || opts.lockstep,
-        paged: vec![0; usize::from(page::COUNT)],
-        host: HostPace {
-            mode: match (opts.lockstep, opts.paced) {
-                (true, false) => Pacing::Lockstep,
-                (true, true) => Pacing::Paced,
-                (false, _) => Pacing::RealTime,
-            },
-            ..Default::default()
-        },
-        flight_build,
-        board: opts.board.is_some(),
-        ..Default::default()
-    };
+    let mut s = new_summary(&feed, opts, flight_build);
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
         unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
@@ -771,24 +798,7 @@ pub fn run_feed(
                 std::thread::sleep(Duration::from_micros(200));
             }
         }
-        if let Some((_, d)) = opts.host_stall.filter(|(at, _)| *at == n) {
-            std::thread::sleep(d);
-        }
-        if opts.lockstep && opts.paced {
-            // Paced: not before its time; a late step is held, not dropped.
-            let now = Instant::now();
-            if now < tick(n) {
-                std::thread::sleep(tick(n) - now);
-            }
-        }
-        let late_s = Instant::now().saturating_duration_since(tick(n)).as_secs_f64();
-        // Real time: any send after the tick is late; paced runs sleep until the tick, so
-        // only a delay beyond a step counts; plain lockstep keeps no pace.
-        let late = if opts.lockstep { opts.paced && late_s > dt_s } else { late_s > 0.0 };
-        if late {
-            s.host.late_steps += 1;
-            s.host.late_max_s = s.host.late_max_s.max(late_s);
-        }
+        pace_step(opts, n, tick(n), dt_s, &mut s.host);
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &feed.profile, &mut s)?;
         if let Some(t) = input.truth {
             eval.push_truth(t);
