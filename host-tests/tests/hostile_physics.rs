@@ -757,3 +757,140 @@ fn export_from_a_thermal_session_keeps_the_base_and_flies_within_10_percent() {
     assert!((e_new / e_base - 1.0).abs() <= 0.1, "exported {e_new:.2}″ against the base's {e_base:.2}″");
     assert!(e_zeroed > 2.0 * e_base, "the zeroed table flies too well for this test to see the difference");
 }
+
+// ------------------------------------------------------------------ real recordings (ssis-lab, ssis-cal)
+
+/// Biases of a MEMS gyro triad at rest, °/h: the first that of a real recording (1,446 °/h,
+/// about 150 times the Earth rate on its axis).
+const MEMS_BIAS_DEG_H: [f64; 3] = [1446.0, -812.0, 377.0];
+
+/// A static session of a MEMS triad at 100 Hz, `rows` rows, at ψ = 0 and latitude 50°:
+/// the Earth rate along each axis, [`MEMS_BIAS_DEG_H`], and white noise of 300 °/h per sample
+/// (an angle random walk of 0.5 °/√h).
+fn mems_static_session(rows: usize) -> String {
+    let mut g = Gauss(0x9E37_79B9_7F4A_7C15);
+    let lat = 50f64.to_radians();
+    let we = 15.041068;
+    let earth = [we * lat.cos(), 0.0, we * lat.sin()];
+    let rad_s = |deg_h: f64| deg_h.to_radians() / 3600.0;
+    let mut s = String::from("t_s,fog0_rad_s,fog1_rad_s,fog2_rad_s,psi_rad,lat_rad\n");
+    for k in 1..=rows {
+        let w: Vec<String> =
+            (0..3).map(|i| format!("{:.9e}", rad_s(MEMS_BIAS_DEG_H[i] + earth[i] + 300.0 * g.next()))).collect();
+        s.push_str(&format!("{},{},0,{lat}\n", k as f64 * 0.01, w.join(",")));
+    }
+    s
+}
+
+/// A static recording whose gyro bias is many times the Earth rate is no unit error: a
+/// constant reference cannot tell one from the other, so `ssis-lab compare` and `diagnose`
+/// take it (and compare's bias is the recording's), and `ssis-cal allan` finds its ARW.
+#[test]
+fn a_static_mems_recording_passes_compare_diagnose_and_allan() {
+    let s = Scratch::new("mems-static");
+    s.write("mems.csv", mems_static_session(60_000));
+    s.succeeds("ssis-lab", &["init", "m.v1.toml", "--terms", "bias"], &["m.v1.toml"]);
+    let text = s.succeeds("ssis-lab", &["compare", "--model", "m.v1.toml", "--session", "mems.csv"], &[]);
+    let fog0 = text.lines().find_map(|l| l.split("FOG0: b = ").nth(1)).expect("compare prints FOG0's bias");
+    let b_rad_s: f64 = fog0.split_whitespace().next().and_then(|v| v.parse().ok()).expect("a number");
+    // The model's bias is the error about the reference: the gyro's own, ±1.2 °/h (1σ).
+    let b_deg_h = b_rad_s.to_degrees() * 3600.0;
+    assert!((b_deg_h - MEMS_BIAS_DEG_H[0]).abs() < 5.0, "bias {b_deg_h} °/h against {}", MEMS_BIAS_DEG_H[0]);
+    s.succeeds("ssis-lab", &["diagnose", "--model", "m.v1.toml", "--session", "mems.csv"], &[]);
+    let text = s.succeeds("ssis-cal", &["allan", "--session", "mems.csv", "--plot", "a.svg"], &["a.svg"]);
+    let arw = text.lines().find_map(|l| l.strip_prefix("ARW")).expect("allan prints the ARW");
+    let arw: f64 = arw.split_whitespace().next().and_then(|v| v.parse().ok()).expect("a number");
+    assert!((arw / 0.5 - 1.0).abs() < 0.05, "ARW {arw} °/√h against 0.5");
+}
+
+/// `a` as the argument slice a command takes.
+fn run(a: &[String]) -> Vec<&str> {
+    a.iter().map(String::as_str).collect()
+}
+
+/// A logger's CSV: `;`-separated, quoted names, a comment, time in ms, X in counts of
+/// 0.00875 °/s, Y in °/s, Z in rad/s, a temperature in K and a text column.
+fn logger_csv(rows: usize) -> String {
+    let mut g = Gauss(0x2545_F491_4F6C_DD1D);
+    let mut s = String::from("# logger v3\n\"time_ms\";\"gx_raw\";\"gy\";\"gz\";\"board_temp\";\"status\"\n");
+    for k in 1..=rows {
+        let gx = (1446.0 / 3600.0 / 0.00875 + 3.0 * g.next()).round();
+        let gy = (-812.0 + 300.0 * g.next()) / 3600.0;
+        let gz = (377.0 + 300.0 * g.next()).to_radians() / 3600.0;
+        s.push_str(&format!("{};{gx};{gy:.6};{gz:.6e};{:.4};OK\n", k * 10, 295.15 + k as f64 * 1e-4));
+    }
+    s
+}
+
+const LOGGER_MAP: [&str; 10] = [
+    "--map",
+    "t_s=time_ms:ms",
+    "--map",
+    "fog0_rad_s=gx_raw:0.00875*deg/s",
+    "--map",
+    "fog1_rad_s=gy:deg/s",
+    "--map",
+    "fog2_rad_s=gz:rad/s",
+    "--map",
+    "fog0_t_degc=board_temp:k",
+];
+
+/// `ssis-lab import csv` maps a logger's columns and units onto a session, names what it
+/// mapped and what not, and the session goes through the lab; what it cannot map is refused
+/// with the file, the line and the logger's column, and nothing is written.
+#[test]
+fn import_csv_maps_a_loggers_columns_and_units() {
+    let s = Scratch::new("import-csv");
+    s.write("log.csv", logger_csv(2000));
+    let static_ref = ["--psi-rad", "0", "--lat-rad", "0.8735"];
+    let args = |out: &str, maps: &[&str]| -> Vec<String> {
+        ["import", "csv", "log.csv", "--out", out]
+            .iter()
+            .chain(maps)
+            .chain(&static_ref)
+            .map(|a| a.to_string())
+            .collect()
+    };
+    let text = s.succeeds("ssis-lab", &run(&args("s.csv", &LOGGER_MAP)), &["s.csv"]);
+    for m in [
+        "log.csv: 2000 data lines, 2000 samples",
+        "t_s <- column 1 `time_ms` in ms",
+        "fog0_rad_s <- column 2 `gx_raw` in 0.00875*deg/s",
+        "fog0_t_degc <- column 5 `board_temp` in k, -273.15",
+        "lat_rad = 0.8735 (--lat-rad)",
+        "not mapped: column 6 `status`",
+    ] {
+        assert!(text.contains(m), "the report lacks `{m}`: {text}");
+    }
+    let session = ssis_session::read_session(&s.path("s.csv"), None).expect("a session");
+    let log = logger_csv(2000);
+    let first: Vec<&str> = log.lines().nth(2).unwrap().split(';').collect();
+    assert_eq!(session.t_s()[0], 0.01);
+    let gx: f64 = first[1].parse().unwrap();
+    assert_eq!(session.column("fog0_rad_s").unwrap()[0], gx * (0.00875 * std::f64::consts::PI / 180.0));
+    assert_eq!(session.column("fog0_t_degc").unwrap()[0], first[4].parse::<f64>().unwrap() - 273.15);
+    s.succeeds("ssis-lab", &["init", "m.v1.toml", "--terms", "bias"], &["m.v1.toml"]);
+    s.succeeds("ssis-lab", &["compare", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+
+    // What it cannot map.
+    let mut bad = LOGGER_MAP.to_vec();
+    bad[5] = "fog1_rad_s=status:deg/s";
+    s.refused("ssis-lab", &run(&args("t.csv", &bad)), 1, &["log.csv", "line 3", "column 6 (`status`)", "`OK`"]);
+    bad[5] = "fog1_rad_s=gyro_y:deg/s";
+    s.refused("ssis-lab", &run(&args("t.csv", &bad)), 1, &["log.csv", "line 2", "no column `gyro_y`"]);
+    bad[5] = "fog1_rad_s=gy:deg";
+    s.refused("ssis-lab", &run(&args("t.csv", &bad)), 1, &["fog1_rad_s=gy:deg", "rate unit"]);
+    bad[5] = "fog1_rad_s=gy:furlong/s";
+    s.refused("ssis-lab", &run(&args("t.csv", &bad)), 1, &["unknown unit `furlong/s`"]);
+    // A value the session refuses names the logger's line and column.
+    let mut wrong = log.clone();
+    wrong = wrong.replacen("\n30;", "\n5;", 1);
+    s.write("back.csv", &wrong);
+    let a: Vec<String> = args("t.csv", &LOGGER_MAP).into_iter().map(|x| x.replace("log.csv", "back.csv")).collect();
+    s.refused("ssis-lab", &run(&a), 1, &["back.csv", "line 5", "column 1 (`time_ms`)", "time does not increase"]);
+    s.write("cut.csv", &log[..log.len() - 1]);
+    let a: Vec<String> = args("t.csv", &LOGGER_MAP).into_iter().map(|x| x.replace("log.csv", "cut.csv")).collect();
+    s.refused("ssis-lab", &run(&a), 1, &["cut.csv", "line 2002", "no line end"]);
+    // Never over its input.
+    s.refused("ssis-lab", &run(&args("log.csv", &LOGGER_MAP)), 1, &["log.csv", "input"]);
+}

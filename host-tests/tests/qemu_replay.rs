@@ -65,7 +65,7 @@ impl StandIn {
         std::fs::create_dir_all(&dir).expect("scratch dir");
         let img = dir.join("table.img");
         std::fs::write(&img, ssis::calib::store::image(table)).expect("table image");
-        let calib = ssis_runner::qemu_lv::symbol(elf, "_calib_start").expect("_calib_start");
+        let calib = ssis_runner::qemu::symbol(elf, "_calib_start").expect("_calib_start");
         let mut child = Command::new("qemu-system-arm")
             .args(["-machine", "mps2-an500", "-cpu", "cortex-m7", "-display", "none", "-monitor", "none"])
             .args(["-semihosting-config", "enable=on,target=native", "-icount", ICOUNT_LOCKSTEP])

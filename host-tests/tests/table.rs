@@ -167,6 +167,47 @@ fn a_refused_table_never_overwrites_good_data() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// A caller can tell the kinds of refusal apart without reading the message: the file that
+/// is not there, the format of another version, a field out of range (which field), a
+/// refused write; each message still names the file.
+#[test]
+fn table_file_errors_say_their_kind() {
+    use ssis_common::table::TableFileError;
+    let dir = std::env::temp_dir().join(format!("ssis-table-kinds-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    match table::read_toml(&dir.join("none.toml")) {
+        Err(TableFileError::Io { path, source }) => {
+            assert!(path.ends_with("none.toml"), "{path}");
+            assert_eq!(source.kind(), std::io::ErrorKind::NotFound);
+        }
+        other => panic!("{other:?}"),
+    }
+    let text = table::to_toml(&sample_table()).expect("toml");
+    let wrong_format = text.replacen("ssis-calibration-table/1", "ssis-calibration-table/9", 1);
+    match table::parse_toml(&wrong_format, "cal.toml") {
+        Err(TableFileError::Format { origin, found }) => {
+            assert_eq!((origin.as_str(), found.as_str()), ("cal.toml", "ssis-calibration-table/9"));
+        }
+        other => panic!("{other:?}"),
+    }
+    let mut bad = sample_table();
+    bad.fog[2].bias_rad_s = f64::NAN;
+    let path = dir.join("bad.toml");
+    std::fs::write(&path, table::to_toml(&bad).expect("toml")).expect("written");
+    match table::read_toml(&path) {
+        Err(e @ TableFileError::Refused { reason: TableError::Field(f), .. }) => {
+            assert_eq!(f.field, Field::Fog(2, FogTerm::Bias), "{e}");
+            assert!(e.to_string().contains("bad.toml"), "{e}");
+        }
+        other => panic!("{other:?}"),
+    }
+    assert!(matches!(
+        table::write_binary(&dir.join("b.bin"), &bad),
+        Err(TableFileError::Refused { origin: None, reason: TableError::Field(_) })
+    ));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 proptest! {
     #[test]
     fn random_bytes_never_decode_as_a_table(bytes in proptest::collection::vec(any::<u8>(), 0..600)) {

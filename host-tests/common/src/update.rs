@@ -11,7 +11,7 @@
 use anyhow::{anyhow, Result};
 use ssis::calib::{CalibrationTable, Field};
 
-use crate::table::{Provenance, TableDoc};
+use crate::table::{significant, Provenance, TableDoc};
 
 /// Where an update's values come from.
 #[derive(Debug, Clone, PartialEq)]
@@ -86,25 +86,6 @@ pub fn diff(a: &CalibrationTable, b: &CalibrationTable) -> Vec<Change> {
         .map(|field| Change { field, old: field.get(a), new: field.get(b) })
         .filter(|c| c.changed() || (gains_differ && c.field.is_gain()))
         .collect()
-}
-
-/// `v` with about six significant digits (no exponent between 1e-4 and 1e7).
-pub fn significant(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let mag = v.abs().log10().floor() as i32;
-    if (-4..7).contains(&mag) {
-        let decimals = (5 - mag).max(0) as usize;
-        let s = format!("{v:.decimals$}");
-        if s.contains('.') {
-            s.trim_end_matches('0').trim_end_matches('.').to_string()
-        } else {
-            s
-        }
-    } else {
-        format!("{v:.5e}")
-    }
 }
 
 /// One line per change: the field, old → new and the difference, engineering units;

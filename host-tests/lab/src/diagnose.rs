@@ -31,11 +31,11 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::fit::{design, held_out, kept_residual, pooled, spec_for, trains, Design, Sums};
+use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::noise::{held_out_gain, whitened, Binned, Bins, Gain, NoiseModel};
-use super::stream::{digest, Digest, Source};
+use super::noise::{held_out_gain, whitened, Binned, Gain, NoiseModel};
+use super::stream::{digest, trains, Bins, Digest, Source, Sums};
 use super::LabResult;
 
 /// Options of a diagnosis.

@@ -26,7 +26,7 @@ use ssis::calib::{CalibrationTable, Field, FogTerm, N_FOG};
 
 use super::model::{axis_with, misalignment_partials, partials_at, regressor_id, Catalog, Kind, Model};
 use super::session::nominal_axes;
-use super::{LabError, LabResult};
+use super::{LabError, LabResult, ModelErrorKind};
 
 /// A table made from a model, and what it leaves out.
 #[derive(Debug, Clone)]
@@ -87,7 +87,10 @@ pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
     let kinds = model.kinds();
     let n_fog = model.terms.iter().map(|t| t.coef.len()).max().unwrap_or(0);
     if n_fog > N_FOG {
-        return Err(LabError::Model(format!("the table holds {N_FOG} FOGs, the model has {n_fog}")));
+        return Err(LabError::model(
+            ModelErrorKind::Value,
+            format!("the table holds {N_FOG} FOGs, the model has {n_fog}"),
+        ));
     }
     let not_identified = model.fit.as_ref().map_or(&[][..], |f| &f.not_identified[..]);
     let position = |c: Catalog| kinds.iter().position(|k| *k == Kind::Catalog(c));
@@ -141,7 +144,9 @@ pub fn to_table(model: &Model, base: &CalibrationTable) -> LabResult<Export> {
         }
     }
     set.sort_by_key(|f| Field::all().position(|g| g == *f));
-    table.validate().map_err(|e| LabError::Model(format!("the exported table is refused: {e}")))?;
+    table
+        .validate()
+        .map_err(|e| LabError::model(ModelErrorKind::Value, format!("the exported table is refused: {e}")))?;
     let mut applied = Vec::new();
     let mut not_applied = Vec::new();
     for k in &kinds {

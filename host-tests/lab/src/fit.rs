@@ -15,11 +15,11 @@
 
 use indicatif::ProgressBar;
 
-use super::lsq::{design_gram, lstsq_gram, residual_functional, sse_gram, Gram, LsFit};
+use super::lsq::{design_gram, lstsq_gram, residual_functional, sse_gram, LsFit};
 use super::model::{FitRecord, Kind, Model};
 use super::session::Session;
-use super::stream::{digest, for_each_prepared, Digest, DigestSpec, Source, DEFAULT_KEEP};
-use super::{LabError, LabResult};
+use super::stream::{digest, for_each_prepared, Digest, DigestSpec, Source, Sums, DEFAULT_KEEP};
+use super::{LabError, LabResult, ModelErrorKind};
 use ssis_common::DEG_H_PER_RAD_S;
 
 /// Default number of time blocks.
@@ -73,7 +73,7 @@ pub fn design(d: &Digest, kinds: &[Kind], fog: usize) -> LabResult<Design> {
     let mut cols = Vec::new();
     let mut owner = Vec::new();
     for (t, k) in kinds.iter().enumerate() {
-        let f = d.basis.functionals(k, fog).map_err(LabError::Model)?;
+        let f = d.basis.functionals(k, fog).map_err(unfed)?;
         for (m, l) in f.iter().enumerate() {
             cols.push(d.shifted(fog, l));
             owner.push((t, m));
@@ -83,27 +83,29 @@ pub fn design(d: &Digest, kinds: &[Kind], fog: usize) -> LabResult<Design> {
     Ok(Design { cols, owner })
 }
 
-/// Whether block `b` trains (even) or tests (odd).
-pub fn trains(b: usize) -> bool {
-    b.is_multiple_of(2)
-}
-
-/// Sums of one FOG: all blocks, training blocks, test blocks.
+/// One `add` of the history: the residuals of the version before and of the version after
+/// at the kept rows of the session (each version's terms fitted on every row).
 #[derive(Debug, Clone)]
-pub struct Sums {
-    /// Every block.
-    pub all: Gram,
-    /// Even blocks.
-    pub train: Gram,
-    /// Odd blocks.
-    pub test: Gram,
+pub struct AddStep {
+    /// Version before and after.
+    pub from: u32,
+    /// Version after.
+    pub to: u32,
+    /// The terms the step added ("+temp_rate").
+    pub added: String,
+    /// Per FOG, the residual before, rad/s.
+    pub before_rad_s: Vec<Vec<f64>>,
+    /// Per FOG, the residual after, rad/s.
+    pub after_rad_s: Vec<Vec<f64>>,
 }
 
-impl Sums {
-    /// The sums of FOG `fog` of `d`.
-    pub fn of(d: &Digest, fog: usize) -> Sums {
-        Sums { all: d.gram_of(fog, |_| true), train: d.gram_of(fog, trains), test: d.gram_of(fog, |b| !trains(b)) }
-    }
+/// The kept rows' times and spacing, for [`AddStep`]'s residuals.
+#[derive(Debug, Clone)]
+pub struct KeptTimes {
+    /// Time of each kept row, s.
+    pub t_s: Vec<f64>,
+    /// Time between kept rows, s.
+    pub dt_s: f64,
 }
 
 /// Residual RMS on the test blocks of `cols` (y last) fitted on the training blocks, and
@@ -275,7 +277,7 @@ pub fn max_abs_residuals(source: Source, d: &Digest, model: &Model, rows: usize)
     for fog in 0..b.n_fog {
         let mut l = b.y_functional();
         for (t, k) in kinds.iter().enumerate() {
-            for (m, x) in b.functionals(k, fog).map_err(LabError::Model)?.iter().enumerate() {
+            for (m, x) in b.functionals(k, fog).map_err(unfed)?.iter().enumerate() {
                 let c = model.terms[t].coef.get(fog).and_then(|c| c.get(m)).copied().unwrap_or(0.0);
                 for (a, v) in l.iter_mut().zip(x) {
                     *a -= c * v;
@@ -454,7 +456,7 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
             b.fill(fog, s, g, &mut z)?;
             let mut r = z[b.y];
             for (t, k) in kinds.iter().enumerate() {
-                for (m, x) in b.functionals(k, fog).map_err(LabError::Model)?.iter().enumerate() {
+                for (m, x) in b.functionals(k, fog).map_err(unfed)?.iter().enumerate() {
                     let c = model.terms[t].coef.get(fog).and_then(|c| c.get(m)).copied().unwrap_or(0.0);
                     r -= c * x.iter().zip(&z).map(|(a, b)| a * b).sum::<f64>();
                 }
@@ -530,7 +532,7 @@ pub fn add_term<'a>(
 ) -> LabResult<AddOutcome> {
     let kinds = model.kinds();
     if kinds.contains(kind) {
-        return Err(LabError::Model(format!("the model already has `{}`", kind.label())));
+        return Err(LabError::model(ModelErrorKind::Term, format!("the model already has `{}`", kind.label())));
     }
     let mut next = model.clone();
     next.version = model.version + 1;
@@ -566,7 +568,7 @@ pub fn add_term<'a>(
 /// version): for each version after the first, the previous version's and its own terms
 /// fitted on every row of `d`, at the kept rows. A pair whose terms `d` has no slot for is
 /// left out; so is a version that adds no term.
-pub fn add_steps(versions: &[(u32, Model)], d: &Digest) -> LabResult<Vec<super::report::AddStep>> {
+pub fn add_steps(versions: &[(u32, Model)], d: &Digest) -> LabResult<Vec<AddStep>> {
     let mut out = Vec::new();
     for pair in versions.windows(2) {
         let [(v0, m0), (v1, m1)] = pair else { continue };
@@ -576,7 +578,7 @@ pub fn add_steps(versions: &[(u32, Model)], d: &Digest) -> LabResult<Vec<super::
             continue;
         }
         let (Ok(before), Ok(after)) = (fit_digest(m0, d), fit_digest(m1, d)) else { continue };
-        out.push(super::report::AddStep {
+        out.push(AddStep {
             from: *v0,
             to: *v1,
             added: added.join(" "),
@@ -647,4 +649,9 @@ pub fn held_out_many<'a>(
         }
     }
     Ok(out.into_iter().map(|v| v.unwrap_or_default()).collect())
+}
+
+/// A term the session cannot feed, as [`super::stream::Basis::functionals`] says why.
+fn unfed(why: String) -> LabError {
+    LabError::model(ModelErrorKind::Unfed, why)
 }

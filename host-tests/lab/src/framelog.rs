@@ -35,7 +35,7 @@ use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
 use ssis::math::{quat_from_rotvec, rotvec_from_quat};
 
-use super::session::{session_from_columns, Header, RowReader, Session};
+use super::session::{session_from_columns, Header, RowReader, Session, SessionError, SessionErrorKind};
 use super::{LabError, LabResult};
 use ssis_common::ARCSEC_PER_RAD;
 
@@ -92,7 +92,8 @@ impl std::fmt::Display for LogReport {
 /// A raw capture of the output link as a session (see the module text).
 pub fn read_output_capture(path: &Path, table: &Turntable) -> LabResult<(Session, LogReport)> {
     let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|e| LabError::Model(format!("{file}: cannot read: {e}")))?;
+    let bytes =
+        std::fs::read(path).map_err(|e| refusal(&file, SessionErrorKind::Io, 0, format!("cannot read: {e}")))?;
     let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let names = [
         "t_s",
@@ -143,7 +144,14 @@ pub fn read_output_capture(path: &Path, table: &Turntable) -> LabResult<(Session
     rep.bad_frames = u64::from(st.rejected());
     rep.bytes_skipped = u64::from(st.bytes_skipped) + dec.buffered() as u64;
     if cols[0].len() < 2 {
-        return Err(LabError::Model(format!("{rep}: fewer than 2 output frames, no session")));
+        let read = rep.to_string();
+        let what = read.strip_prefix(&format!("{file}: ")).unwrap_or(&read);
+        return Err(refusal(
+            &file,
+            SessionErrorKind::NoRows,
+            0,
+            format!("{what}: fewer than 2 output frames, no session"),
+        ));
     }
     let s = session_from_columns(&file, names.iter().map(|n| n.to_string()).collect(), &cols)?;
     rep.samples = s.len();
@@ -179,10 +187,8 @@ pub fn read_qemu_csv(path: &Path) -> LabResult<(Session, LogReport)> {
         let q = Quaternion::new(row[q_col[0]], row[q_col[1]], row[q_col[2]], row[q_col[3]]);
         let qn = q.norm();
         if !(qn > 0.5 && qn < 1.5) {
-            return Err(LabError::Model(format!(
-                "{file}: line {}: the quaternion q0..q3 has norm {qn:.3}, not 1",
-                rr.line()
-            )));
+            let why = format!("the quaternion q0..q3 has norm {qn:.3}, not 1");
+            return Err(refusal(&file, SessionErrorKind::BadValue, rr.line(), why));
         }
         let q = q / qn;
         let e = Vector3::new(row[e_col[0]], row[e_col[1]], row[e_col[2]]) / ARCSEC_PER_RAD;
@@ -204,4 +210,9 @@ pub fn read_qemu_csv(path: &Path) -> LabResult<(Session, LogReport)> {
     let s = session_from_columns(&file, names, &cols)?;
     rep.samples = s.len();
     Ok((s, rep))
+}
+
+/// A log refused: its file, the kind, the line (0: none) and the words.
+fn refusal(file: &str, kind: SessionErrorKind, line: u64, message: String) -> LabError {
+    LabError::Session(SessionError { kind, file: file.to_string(), line, column: None, message })
 }

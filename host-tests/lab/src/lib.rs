@@ -10,6 +10,7 @@
 //!   bounded look-ahead, a systematic sample of rows kept for plots.
 //! - [`framelog`]: the firmware's own logs as sessions: a raw capture of the output link
 //!   (output frames, bad frames counted) and the per-step CSV of `ssis-qemu`.
+//! - [`import`]: a logger's own CSV (its column names and units) mapped onto a session.
 //! - [`model`]: the error model as data, a versioned TOML file (`ssis-error-model/1`) with a
 //!   list of effect terms (the catalog: bias, scale factor, asymmetry, nonlinearity,
 //!   misalignment, thermal polynomial, temperature rate G, ΔT·G, magnetic (the paper's
@@ -34,6 +35,7 @@ pub mod diagnose;
 pub mod export;
 pub mod fit;
 pub mod framelog;
+pub mod import;
 pub mod json;
 pub mod lsq;
 pub mod model;
@@ -52,16 +54,54 @@ pub enum LabError {
     /// A session file that cannot be read or is malformed.
     #[error(transparent)]
     Session(#[from] session::SessionError),
-    /// A model file that is malformed, or a term the session cannot feed.
-    #[error("{0}")]
-    Model(String),
+    /// A model file that is malformed, or a term the session cannot feed ([`ModelError`]).
+    #[error(transparent)]
+    Model(ModelError),
     /// A file that cannot be written, or may not be (`ssis_common::output`); the message
     /// names it.
     #[error("{0}")]
     Write(String),
+    /// An argument the lab cannot use (an import mapping, a reference given twice).
+    #[error("{0}")]
+    Usage(String),
     /// Anything the numerics refuse (too few samples, nothing to fit).
     #[error("{0}")]
     Numeric(String),
+}
+
+/// What is wrong with a model file or one of its terms.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModelErrorKind {
+    /// The model file cannot be read.
+    Io,
+    /// Not the model's TOML form: its syntax, a key, the `format` line.
+    Syntax,
+    /// A term the lab does not know, or one listed twice or already in the model.
+    Term,
+    /// An expression that does not parse, or does not evaluate on a row.
+    Expression,
+    /// A term the session cannot feed (a column it lacks).
+    Unfed,
+    /// A value out of its range (the G window, the version, a coefficient), or a model the
+    /// calibration table cannot take.
+    Value,
+}
+
+/// A refused model or term: its kind, and the words (naming the file where there is one).
+#[derive(Debug, Clone, thiserror::Error)]
+#[error("{message}")]
+pub struct ModelError {
+    /// What is wrong.
+    pub kind: ModelErrorKind,
+    /// Plain words.
+    pub message: String,
+}
+
+impl LabError {
+    /// A [`LabError::Model`] of `kind`.
+    pub fn model(kind: ModelErrorKind, message: impl Into<String>) -> LabError {
+        LabError::Model(ModelError { kind, message: message.into() })
+    }
 }
 
 /// Result of the lab library.

@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 use ssis::calib::{Misalignment, GAMMA_NOMINAL_RAD};
 
 use super::session::nominal_axes;
-use super::{LabError, LabResult};
+use super::{LabError, LabResult, ModelErrorKind};
 
 /// Format tag of a model file.
 pub const MODEL_FORMAT: &str = "ssis-error-model/1";
@@ -195,12 +195,17 @@ impl Kind {
             return Ok(Kind::Catalog(c));
         }
         if let Some(f) = arg.strip_prefix("sinusoid:") {
-            let f: f64 =
-                f.trim().parse().map_err(|_| LabError::Model(format!("`{arg}`: frequency is not a number")))?;
+            let f: f64 = f
+                .trim()
+                .parse()
+                .map_err(|_| LabError::model(ModelErrorKind::Term, format!("`{arg}`: frequency is not a number")))?;
             return Ok(Kind::Sinusoid(f));
         }
         exmex::parse::<f64>(arg).map_err(|e| {
-            LabError::Model(format!("`{arg}` is neither a catalog term ({}) nor an expression: {e}", catalog_names()))
+            LabError::model(
+                ModelErrorKind::Term,
+                format!("`{arg}` is neither a catalog term ({}) nor an expression: {e}", catalog_names()),
+            )
         })?;
         Ok(Kind::Expr(arg.to_string()))
     }
@@ -209,18 +214,23 @@ impl Kind {
     pub fn of_spec(t: &TermSpec) -> LabResult<Kind> {
         match t.term.as_str() {
             "expr" => {
-                let e = t.expr.clone().ok_or_else(|| LabError::Model("term `expr` needs `expr = \"...\"`".into()))?;
-                exmex::parse::<f64>(&e).map_err(|err| LabError::Model(format!("expression `{e}`: {err}")))?;
+                let e = t
+                    .expr
+                    .clone()
+                    .ok_or_else(|| LabError::model(ModelErrorKind::Term, "term `expr` needs `expr = \"...\"`"))?;
+                exmex::parse::<f64>(&e)
+                    .map_err(|err| LabError::model(ModelErrorKind::Expression, format!("expression `{e}`: {err}")))?;
                 Ok(Kind::Expr(e))
             }
-            "sinusoid" => {
-                t.freq_hz.map(Kind::Sinusoid).ok_or_else(|| LabError::Model("term `sinusoid` needs `freq_hz`".into()))
-            }
+            "sinusoid" => t
+                .freq_hz
+                .map(Kind::Sinusoid)
+                .ok_or_else(|| LabError::model(ModelErrorKind::Term, "term `sinusoid` needs `freq_hz`")),
             name => Catalog::from_name(name).map(Kind::Catalog).ok_or_else(|| {
-                LabError::Model(format!(
-                    "unknown term `{name}`: the catalog is {}, or `sinusoid`, `expr`",
-                    catalog_names()
-                ))
+                LabError::model(
+                    ModelErrorKind::Term,
+                    format!("unknown term `{name}`: the catalog is {}, or `sinusoid`, `expr`", catalog_names()),
+                )
             }),
         }
     }
@@ -335,28 +345,35 @@ impl Model {
 
     /// Parses and checks a model file's text; `origin` names it in errors.
     pub fn parse(text: &str, origin: &str) -> LabResult<Model> {
-        let m: Model = toml::from_str(text).map_err(|e| LabError::Model(format!("{origin}: {e}")))?;
+        let m: Model =
+            toml::from_str(text).map_err(|e| LabError::model(ModelErrorKind::Syntax, format!("{origin}: {e}")))?;
         if m.format != MODEL_FORMAT {
-            return Err(LabError::Model(format!(
-                "{origin}: field `format`: expected \"{MODEL_FORMAT}\", found \"{}\"",
-                m.format
-            )));
+            return Err(LabError::model(
+                ModelErrorKind::Syntax,
+                format!("{origin}: field `format`: expected \"{MODEL_FORMAT}\", found \"{}\"", m.format),
+            ));
         }
         let mut seen = Vec::new();
         for t in &m.terms {
-            let k = Kind::of_spec(t).map_err(|e| LabError::Model(format!("{origin}: {e}")))?;
+            let k = Kind::of_spec(t).map_err(|e| within(origin, e))?;
             if seen.contains(&k) {
-                return Err(LabError::Model(format!("{origin}: term `{}` is listed twice", k.label())));
+                return Err(LabError::model(
+                    ModelErrorKind::Term,
+                    format!("{origin}: term `{}` is listed twice", k.label()),
+                ));
             }
             seen.push(k);
         }
         if !m.g_window_s.is_finite() || m.g_window_s < 0.0 {
-            return Err(LabError::Model(format!(
-                "{origin}: field `g_window_s` = {}: must be 0 (automatic) or a positive number of seconds",
-                m.g_window_s
-            )));
+            return Err(LabError::model(
+                ModelErrorKind::Value,
+                format!(
+                    "{origin}: field `g_window_s` = {}: must be 0 (automatic) or a positive number of seconds",
+                    m.g_window_s
+                ),
+            ));
         }
-        m.check_numbers().map_err(|e| LabError::Model(format!("{origin}: {e}")))?;
+        m.check_numbers().map_err(|e| LabError::model(ModelErrorKind::Value, format!("{origin}: {e}")))?;
         Ok(m)
     }
 
@@ -420,7 +437,7 @@ impl Model {
     /// Reads a model file.
     pub fn read(path: &std::path::Path) -> LabResult<Model> {
         let text = std::fs::read_to_string(path)
-            .map_err(|e| LabError::Model(format!("{}: cannot read: {e}", path.display())))?;
+            .map_err(|e| LabError::model(ModelErrorKind::Io, format!("{}: cannot read: {e}", path.display())))?;
         Model::parse(&text, &path.display().to_string())
     }
 
@@ -486,5 +503,13 @@ pub fn loop_plane(fog: usize) -> [nalgebra::Vector3<f64>; 2] {
             let u = Vector3::new(1.0, -1.0, 0.0).normalize();
             [u, nominal_axes()[3].cross(&u)]
         }
+    }
+}
+
+/// `e` with the model file `origin` named in front, its kind kept.
+fn within(origin: &str, e: LabError) -> LabError {
+    match e {
+        LabError::Model(m) => LabError::model(m.kind, format!("{origin}: {}", m.message)),
+        other => LabError::model(ModelErrorKind::Term, format!("{origin}: {other}")),
     }
 }

@@ -9,7 +9,7 @@
 //! e_t = w_t + Σ_j x_j,t        w white (σ_w²),  x_j first-order Gauss–Markov (q_j, τ_j)
 //! ```
 //!
-//! on **bins**: the rows of a session are grouped into at most [`MAX_BINS`] bins of
+//! on **bins**: the rows of a session are grouped into at most [`MAX_BINS`](super::stream::MAX_BINS) bins of
 //! consecutive rows inside one time block. Within a bin the wander is constant, so the
 //! deviations from the bin mean are white with the row variance σ_w² (estimated from them).
 //! The series of bin means ē_b has the spectrum
@@ -50,104 +50,11 @@ use std::borrow::Cow;
 
 use nalgebra::DMatrix;
 
-use super::fit::{trains, Sums};
 use super::lsq::Gram;
-use super::stream::{block_of, Digest};
-
-/// Bins at most (the covariance of a block is a dense matrix of its bins).
-pub const MAX_BINS: usize = 2000;
+use super::stream::{trains, Bins, Digest, Sums};
 
 /// Iterations of the Whittle fit.
 const WHITTLE_ITER: usize = 300;
-
-/// Rows grouped into bins of consecutive rows of one block (rows of the session, or kept
-/// rows of a pass).
-#[derive(Debug, Clone, Default)]
-pub struct Bins {
-    /// Rows per bin (the last bin of a block may have fewer).
-    pub rows: usize,
-    /// First row of each bin, and the end (one more entry than bins).
-    pub start: Vec<usize>,
-    /// Block of each bin.
-    pub block: Vec<usize>,
-    /// Time between bins, s.
-    pub dt_s: f64,
-}
-
-impl Bins {
-    /// The bins of every row of a session of `n` rows `dt_s` apart in `n_blocks` blocks
-    /// ([`block_of`]): at most [`MAX_BINS`] + `n_blocks`.
-    pub fn every_row(n: usize, n_blocks: usize, dt_s: f64) -> Bins {
-        let nb = n_blocks.max(1);
-        let per = n.div_ceil(MAX_BINS).max(1);
-        let (mut start, mut block) = (Vec::new(), Vec::new());
-        for b in 0..nb {
-            // The rows of block b: j with block_of(j) = b.
-            let (s, e) = ((b * n).div_ceil(nb), if b + 1 == nb { n } else { ((b + 1) * n).div_ceil(nb) });
-            debug_assert!(s >= e || block_of(s, n, nb) == b);
-            let mut k = s;
-            while k < e {
-                start.push(k);
-                block.push(b);
-                k = (k + per).min(e);
-            }
-        }
-        start.push(n);
-        Bins { rows: per, start, block, dt_s: dt_s * per as f64 }
-    }
-
-    /// The bins of `d`'s kept rows (indices into them).
-    pub fn of_kept(d: &Digest) -> Bins {
-        Bins::group(&d.kept.block, d.dt_s * d.kept.stride.max(1) as f64)
-    }
-
-    /// Rows with blocks `blocks`, `dt_s` apart, in bins of at most n / [`MAX_BINS`] rows.
-    fn group(blocks: &[usize], dt_s: f64) -> Bins {
-        let n = blocks.len();
-        let per = n.div_ceil(MAX_BINS).max(1);
-        let (mut start, mut block) = (Vec::new(), Vec::new());
-        let mut k = 0;
-        while k < n {
-            let b = blocks[k];
-            start.push(k);
-            block.push(b);
-            let mut e = k + 1;
-            while e < n && e - k < per && blocks[e] == b {
-                e += 1;
-            }
-            k = e;
-        }
-        start.push(n);
-        Bins { rows: per, start, block, dt_s: dt_s * per as f64 }
-    }
-
-    /// Number of bins.
-    pub fn len(&self) -> usize {
-        self.block.len()
-    }
-
-    /// Whether there are no bins.
-    pub fn is_empty(&self) -> bool {
-        self.block.is_empty()
-    }
-
-    /// Rows of bin `b`.
-    pub fn count(&self, b: usize) -> usize {
-        self.start[b + 1] - self.start[b]
-    }
-
-    /// The bins of each block, in order (bins of one block are consecutive).
-    fn per_block(&self) -> Vec<(usize, std::ops::Range<usize>)> {
-        let mut v: Vec<(usize, std::ops::Range<usize>)> = Vec::new();
-        for (b, &blk) in self.block.iter().enumerate() {
-            match v.last_mut() {
-                Some((x, r)) if *x == blk => r.end = b + 1,
-                _ => v.push((blk, b..b + 1)),
-            }
-        }
-        v
-    }
-}
 
 /// What every test under the noise model needs of one FOG's rows: per bin the sum of the
 /// (shifted) basis vectors, and per block their Gram sums. A residual functional ℓ then

@@ -215,7 +215,7 @@ fn window_means(x: &[f64], w: usize) -> Vec<f64> {
 /// windows of about 1/200 of the session (°/h against hours), the version before in grey,
 /// after in the FOG's colour, and the white-noise floor ±σ₁√(Δt/τ) at that window (dashed),
 /// σ₁ the Allan deviation of the residual after at one kept row. As an SVG string.
-pub fn overlay_svg(step: &super::report::AddStep, kept: &super::report::KeptTimes) -> LabResult<String> {
+pub fn overlay_svg(step: &super::fit::AddStep, kept: &super::fit::KeptTimes) -> LabResult<String> {
     let n_fog = step.before_rad_s.len().min(step.after_rad_s.len());
     let rows = kept.t_s.len();
     let w = (rows / 200).max(1);

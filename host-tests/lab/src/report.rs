@@ -2,7 +2,7 @@
 //! of model versions, with the SVG plots inline (no scripts, no external resources).
 
 use super::diagnose::Diagnosis;
-use super::fit::Fitted;
+use super::fit::{AddStep, Fitted, KeptTimes};
 use super::plot::{history_svg, overlay_svg, residual_svg};
 use super::LabResult;
 use ssis_common::DEG_H_PER_RAD_S;
@@ -10,31 +10,6 @@ use ssis_common::DEG_H_PER_RAD_S;
 /// Escapes text for HTML.
 pub fn esc(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
-}
-
-/// One `add` of the history: the residuals of the version before and of the version after
-/// at the kept rows of the session (each version's terms fitted on every row).
-#[derive(Debug, Clone)]
-pub struct AddStep {
-    /// Version before and after.
-    pub from: u32,
-    /// Version after.
-    pub to: u32,
-    /// The terms the step added ("+temp_rate").
-    pub added: String,
-    /// Per FOG, the residual before, rad/s.
-    pub before_rad_s: Vec<Vec<f64>>,
-    /// Per FOG, the residual after, rad/s.
-    pub after_rad_s: Vec<Vec<f64>>,
-}
-
-/// The kept rows' times and spacing, for [`AddStep`]'s residuals.
-#[derive(Debug, Clone)]
-pub struct KeptTimes {
-    /// Time of each kept row, s.
-    pub t_s: Vec<f64>,
-    /// Time between kept rows, s.
-    pub dt_s: f64,
 }
 
 /// The page. `history` is (version, pooled held-out RMS, °/h) per model version; `steps`

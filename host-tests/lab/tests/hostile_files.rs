@@ -165,9 +165,9 @@ fn json_diagnose_compare_add() {
     assert!(at(&r, "/error").as_str().unwrap().contains("s.csv"));
 }
 
-/// `s.csv` with column `name` mapped by `f`, as `out`.
-fn with_column(s: &Scratch, out: &str, name: &str, f: impl Fn(f64) -> f64) {
-    let text = std::fs::read_to_string(s.path("s.csv")).unwrap();
+/// The session `from` with column `name` mapped by `f`, as `out`.
+fn with_column(s: &Scratch, from: &str, out: &str, name: &str, f: impl Fn(f64) -> f64) {
+    let text = std::fs::read_to_string(s.path(from)).unwrap();
     let mut lines = text.lines();
     let header = lines.next().unwrap();
     let k = header.split(',').position(|c| c == name).unwrap();
@@ -182,28 +182,36 @@ fn with_column(s: &Scratch, out: &str, name: &str, f: impl Fn(f64) -> f64) {
 }
 
 /// A FOG column with its sign flipped, or in °/h or °/s under a rad/s name, is refused by
-/// every command that reads the session, naming the file, the column and what it looks
-/// like; nothing is written.
+/// every command that reads a turntable session (the reference of FOG0 and FOG1 changes with
+/// the azimuth), naming the file, the column and what it looks like; nothing is written.
+/// A column in °/h is beyond the FOG's measuring range there. A static session cannot tell
+/// a unit from a bias: the same column in °/s there passes.
 #[test]
 fn a_flipped_or_misunit_fog_column_is_refused() {
     let s = lab_dir("bad-fog-column");
+    succeeds(LAB, &s, &["simulate", "sin2psi", "turns.csv", "--seed", "3"], &[]);
+    succeeds(LAB, &s, &["init", "b.v1.toml", "--terms", "bias"], &[]);
     let deg_h = 180.0 / std::f64::consts::PI * 3600.0;
-    with_column(&s, "flipped.csv", "fog0_rad_s", |v| -v);
-    with_column(&s, "deg_h.csv", "fog1_rad_s", |v| v * deg_h);
-    with_column(&s, "deg_s.csv", "fog2_rad_s", |v| v.to_degrees());
+    with_column(&s, "turns.csv", "flipped.csv", "fog0_rad_s", |v| -v);
+    with_column(&s, "turns.csv", "deg_h.csv", "fog0_rad_s", |v| v * deg_h);
+    with_column(&s, "turns.csv", "deg_s.csv", "fog1_rad_s", |v| v.to_degrees());
     for (file, column, says) in [
         ("flipped.csv", "column 2 (`fog0_rad_s`)", "sign looks flipped"),
-        ("deg_h.csv", "column 3 (`fog1_rad_s`)", "another unit"),
-        ("deg_s.csv", "column 4 (`fog2_rad_s`)", "°/s, not rad/s"),
+        ("deg_h.csv", "column 2 (`fog0_rad_s`)", "measuring range"),
+        ("deg_s.csv", "column 3 (`fog1_rad_s`)", "°/s, not rad/s"),
     ] {
         let must = [file, column, says];
-        refused(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", file], &must);
-        refused(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", file], &must);
-        refused(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", file], &must);
-        refused(LAB, &s, &["report", "--model", "m.v1.toml", "--session", file, "--out", "r.html"], &must);
+        refused(LAB, &s, &["compare", "--model", "b.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["diagnose", "--model", "b.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["add", "scale_factor", "--model", "b.v1.toml", "--session", file], &must);
+        refused(LAB, &s, &["report", "--model", "b.v1.toml", "--session", file, "--out", "r.html"], &must);
     }
-    // The session as written passes.
+    // The sessions as written pass, and so does the static one with FOG2 (up: its reference
+    // is the constant vertical Earth rate) in °/s: a bias of some 660 °/h.
+    succeeds(LAB, &s, &["diagnose", "--model", "b.v1.toml", "--session", "turns.csv"], &[]);
     succeeds(LAB, &s, &["diagnose", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
+    with_column(&s, "s.csv", "static_deg_s.csv", "fog2_rad_s", |v| v.to_degrees());
+    succeeds(LAB, &s, &["compare", "--model", "m.v1.toml", "--session", "static_deg_s.csv"], &[]);
 }
 
 /// A session with a gap in time (200 rows of 5 min missing) is read, but every command

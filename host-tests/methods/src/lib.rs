@@ -64,7 +64,7 @@ pub fn write_session_csv(path: &Path, comment: &[String], header: &[&str], rows:
         }
         s.push('\n');
     }
-    ssis_common::table::write_atomic(path, s.as_bytes())
+    Ok(ssis_common::table::write_atomic(path, s.as_bytes())?)
 }
 
 /// One curve of an [`xy_svg`] plot.

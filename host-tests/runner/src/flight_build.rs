@@ -69,7 +69,7 @@ pub fn control_frames_on_flight_build(
     after: Duration,
 ) -> Result<ControlCheck> {
     crate::qemu::check_qemu_and_elf(elf)?;
-    let calib = crate::qemu_lv::symbol(elf, "_calib_start")?;
+    let calib = crate::qemu::symbol(elf, "_calib_start")?;
     let image = store::image(table);
     let mut unit =
         Unit::start(elf, 3, None, &[("table.img", &image, calib)], &[0], crate::transport::Transport::Sockets)?;

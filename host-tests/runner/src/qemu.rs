@@ -358,6 +358,17 @@ pub fn is_test_build(elf: &Path) -> Result<bool> {
     Ok(file.symbols().any(|s| s.name().is_ok_and(|n| n.starts_with("ERROR(ssis): test hooks"))))
 }
 
+/// Address of a symbol in an ELF.
+pub fn symbol(elf: &Path, name: &str) -> Result<u64> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf)?;
+    let file = object::File::parse(&*data)?;
+    file.symbols()
+        .find(|s| s.name() == Ok(name))
+        .map(|s| s.address())
+        .with_context(|| format!("{} has no symbol {name}", elf.display()))
+}
+
 /// The repository root (`host-tests/runner/../..`).
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).ancestors().nth(2).map(Path::to_path_buf).unwrap_or_default()
@@ -691,6 +702,51 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
     })
 }
 
+/// The summary of a run of `feed` before its first step.
+fn new_summary(feed: &Feed<'_>, opts: &QemuOptions, flight_build: bool) -> QemuSummary {
+    QemuSummary {
+        name: feed.name.clone(),
+        steps: feed.steps,
+        duration_s: feed.steps as f64 * feed.profile.dt_s(),
+        accuracy: Accuracy { settle_s: feed.settle_s, ..Default::default() },
+        icount: opts.icount || opts.lockstep,
+        paged: vec![0; usize::from(page::COUNT)],
+        host: HostPace {
+            mode: match (opts.lockstep, opts.paced) {
+                (true, false) => Pacing::Lockstep,
+                (true, true) => Pacing::Paced,
+                (false, _) => Pacing::RealTime,
+            },
+            ..Default::default()
+        },
+        flight_build,
+        board: opts.board.is_some(),
+        ..Default::default()
+    }
+}
+
+/// Holds step `n` as the run's pacing asks (a host stall injected at it; a paced run not
+/// before its `tick`) and counts it late: in real time any send after the tick, paced only
+/// a delay beyond a step (`dt_s`); plain lockstep keeps no pace.
+fn pace_step(opts: &QemuOptions, n: u64, tick: Instant, dt_s: f64, host: &mut HostPace) {
+    if let Some((_, d)) = opts.host_stall.filter(|(at, _)| *at == n) {
+        std::thread::sleep(d);
+    }
+    if opts.lockstep && opts.paced {
+        // Paced: not before its time; a late step is held, not dropped.
+        let now = Instant::now();
+        if now < tick {
+            std::thread::sleep(tick - now);
+        }
+    }
+    let late_s = Instant::now().saturating_duration_since(tick).as_secs_f64();
+    let late = if opts.lockstep { opts.paced && late_s > dt_s } else { late_s > 0.0 };
+    if late {
+        host.late_steps += 1;
+        host.late_max_s = host.late_max_s.max(late_s);
+    }
+}
+
 /// Runs `feed` on the firmware in QEMU; `on_frame` sees every output frame with its record
 /// against truth (when the feed has truth for it).
 pub fn run_feed(
@@ -714,25 +770,7 @@ pub fn run_feed(
     let mut unit = Unit::boot(&feed.table, opts)?;
     let started = Instant::now();
     let bar = progress_bar(opts.progress, feed.steps, &feed.name);
-    let mut s = QemuSummary {
-        name: feed.name.clone(),
-        steps: feed.steps,
-        duration_s: feed.steps as f64 * feed.profile.dt_s(),
-        accuracy: Accuracy { settle_s: feed.settle_s, ..Default::default() },
-        icount: opts.icount || opts.lockstep,
-        paged: vec![0; usize::from(page::COUNT)],
-        host: HostPace {
-            mode: match (opts.lockstep, opts.paced) {
-                (true, false) => Pacing::Lockstep,
-                (true, true) => Pacing::Paced,
-                (false, _) => Pacing::RealTime,
-            },
-            ..Default::default()
-        },
-        flight_build,
-        board: opts.board.is_some(),
-        ..Default::default()
-    };
+    let mut s = new_summary(&feed, opts, flight_build);
     let mut outputs = Outputs::new(opts.lockstep);
     let mut reference = if opts.lockstep {
         unit.enter_lockstep(|_, b| s.frames_before_data += (b.len() / OutputFrame::LEN) as u64)?;
@@ -767,24 +805,7 @@ pub fn run_feed(
                 std::thread::sleep(Duration::from_micros(200));
             }
         }
-        if let Some((_, d)) = opts.host_stall.filter(|(at, _)| *at == n) {
-            std::thread::sleep(d);
-        }
-        if opts.lockstep && opts.paced {
-            // Paced: not before its time; a late step is held, not dropped.
-            let now = Instant::now();
-            if now < tick(n) {
-                std::thread::sleep(tick(n) - now);
-            }
-        }
-        let late_s = Instant::now().saturating_duration_since(tick(n)).as_secs_f64();
-        // Real time: any send after the tick is late; paced runs sleep until the tick, so
-        // only a delay beyond a step counts; plain lockstep keeps no pace.
-        let late = if opts.lockstep { opts.paced && late_s > dt_s } else { late_s > 0.0 };
-        if late {
-            s.host.late_steps += 1;
-            s.host.late_max_s = s.host.late_max_s.max(late_s);
-        }
+        pace_step(opts, n, tick(n), dt_s, &mut s.host);
         let (fog_sent, st_sent) = sender.send(&mut unit, &input, &feed.profile, &mut s)?;
         if let Some(t) = input.truth {
             eval.push_truth(t);
@@ -938,9 +959,9 @@ impl Unit {
             Some(img) => img.clone(),
             None => store::image(table).to_vec(),
         };
-        let mut images = vec![("table.img", &image[..], crate::qemu_lv::symbol(&opts.elf, "_calib_start")?)];
+        let mut images = vec![("table.img", &image[..], symbol(&opts.elf, "_calib_start")?)];
         if let Some(key) = &opts.key_record {
-            images.push(("key.img", &key[..], crate::qemu_lv::symbol(&opts.elf, "_key_start")?));
+            images.push(("key.img", &key[..], symbol(&opts.elf, "_key_start")?));
         }
         // Lockstep always counts instructions with virtual time bound to them
         // ([`ICOUNT_LOCKSTEP`]); real time follows the host's clock, or with --icount

@@ -33,10 +33,10 @@
 
 use std::collections::VecDeque;
 use std::io::Write;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{Context, Result};
+use anyhow::Result;
 use ssis::calib::accel::AccelTable;
 use ssis::calib::{store, CalibrationTable};
 use ssis::flight::Profile;
@@ -51,7 +51,7 @@ use ssis::frames::Frame;
 use ssis::nav::init::PadInit;
 use ssis::nav::unit::FilterWork;
 
-use crate::qemu::{check_qemu_and_elf, masked, progress_bar, Unit, INSTR_PER_TICK};
+use crate::qemu::{check_qemu_and_elf, masked, progress_bar, symbol, Unit, INSTR_PER_TICK};
 use ssis_sim::lv::angle_between;
 use ssis_sim::lv_replay::{pad_init, AscentSensors, LvCore, LvStepBytes};
 
@@ -274,17 +274,6 @@ pub fn default_elf() -> PathBuf {
 /// Builds `ssis-fw-lv-test` (release, thumb target, test hooks) if it is out of date.
 pub fn build_firmware() -> Result<PathBuf> {
     crate::qemu::build_test_hooks_bin("ssis-fw-lv-test")
-}
-
-/// Address of a symbol in an ELF.
-pub fn symbol(elf: &Path, name: &str) -> Result<u64> {
-    use object::{Object, ObjectSymbol};
-    let data = std::fs::read(elf)?;
-    let file = object::File::parse(&*data)?;
-    file.symbols()
-        .find(|s| s.name() == Ok(name))
-        .map(|s| s.address())
-        .with_context(|| format!("{} has no symbol {name}", elf.display()))
 }
 
 /// What the runner streams to `ssis-fw-lv`: its FOG table and pad block, and its steps'

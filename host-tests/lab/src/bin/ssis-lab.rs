@@ -141,9 +141,10 @@ enum Cmd {
         #[arg(long)]
         table: Option<PathBuf>,
     },
-    /// Turn a firmware log into a session file: a raw capture of the output link (its
-    /// output frames; the body rate is the measurement, bad frames are counted) or the per-step
-    /// CSV of ssis-qemu / ssis-sim (the attitude is the measurement, the truth the reference).
+    /// Turn a log into a session file: a raw capture of the output link (its output frames;
+    /// the body rate is the measurement, bad frames are counted), the per-step CSV of
+    /// ssis-qemu / ssis-sim (the attitude is the measurement, the truth the reference), or a
+    /// logger's own CSV mapped column by column (--map).
     Import {
         /// What the log is.
         kind: LogKind,
@@ -152,13 +153,18 @@ enum Cmd {
         /// Session CSV to write.
         #[arg(long)]
         out: PathBuf,
-        /// Capture only: azimuth of X_P from north (clockwise) of the turntable, rad.
+        /// csv only: a session column from a logger's column, TARGET=SOURCE:UNIT
+        /// (fog0_rad_s=gyro_x:deg/s; counts as SCALE*UNIT: fog1_rad_s=gy:0.00875*deg/s);
+        /// repeat per column (docs/SESSION-FORMAT.md).
+        #[arg(long = "map")]
+        map: Vec<String>,
+        /// Capture, csv: azimuth of X_P from north (clockwise) of the turntable, rad.
         #[arg(long, allow_negative_numbers = true)]
         psi_rad: Option<f64>,
-        /// Capture only: latitude, rad.
+        /// Capture, csv: latitude, rad.
         #[arg(long, allow_negative_numbers = true)]
         lat_rad: Option<f64>,
-        /// Capture only: table rate about Z_P (up), rad/s.
+        /// Capture, csv: table rate about Z_P (up), rad/s.
         #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
         table_rate_rad_s: f64,
     },
@@ -188,6 +194,8 @@ enum LogKind {
     Capture,
     /// The per-step CSV of ssis-qemu / ssis-sim run --csv.
     QemuCsv,
+    /// A logger's CSV with its own column names and units, mapped by --map.
+    Csv,
 }
 
 fn dh(v: f64) -> f64 {
@@ -411,8 +419,13 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
         Cmd::Export { model, base, toml, bin } => export_cmd(model, base, toml, bin),
         Cmd::Report { model, session, out } => report_cmd(model, session, out),
         Cmd::Replay { session, table } => replay_cmd(session, table),
-        Cmd::Import { kind, log, out, psi_rad, lat_rad, table_rate_rad_s } => {
-            import_cmd(kind, log, out, psi_rad, lat_rad, table_rate_rad_s)
+        Cmd::Import { kind, log, out, map, psi_rad, lat_rad, table_rate_rad_s } => {
+            let table = psi_rad.zip(lat_rad).map(|(psi_rad, lat_rad)| ssis_lab::framelog::Turntable {
+                psi_rad,
+                lat_rad,
+                table_rate_rad_s,
+            });
+            import_cmd(kind, log, out, &map, table)
         }
         Cmd::Simulate { preset, out, seed, no_hidden, field } => simulate_cmd(preset, out, seed, no_hidden, &field),
     }
@@ -702,7 +715,7 @@ fn report_cmd(model: PathBuf, session: PathBuf, out: PathBuf) -> Result<()> {
         let mut terms = candidate_terms(&Source::File(&session).header()?);
         terms.extend(versions.iter().flat_map(|(_, v)| v.kinds()));
         let dg = digest(Source::File(&session), &spec_for(&m, &terms, opt.n_blocks), Some(pb))?;
-        let kept = report::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
+        let kept = ssis_lab::fit::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
         let steps = ssis_lab::fit::add_steps(&versions, &dg)?;
         Ok((complete(fit_digest(&m, &dg)?, Source::File(&session), &dg)?, diagnose_digest(&m, &dg, &opt)?, steps, kept))
     })?;
@@ -761,29 +774,37 @@ fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
     Ok(())
 }
 
-/// `import`: a firmware log written as a session.
+/// `import`: a firmware log or a logger's CSV written as a session.
 fn import_cmd(
     kind: LogKind,
     log: PathBuf,
     out: PathBuf,
-    psi_rad: Option<f64>,
-    lat_rad: Option<f64>,
-    table_rate_rad_s: f64,
+    map: &[String],
+    table: Option<ssis_lab::framelog::Turntable>,
 ) -> Result<()> {
-    let (s, rep) = match kind {
+    let (s, axes) = match kind {
         LogKind::Capture => {
-            let (Some(psi_rad), Some(lat_rad)) = (psi_rad, lat_rad) else {
+            let Some(t) = table else {
                 bail!("a capture of the output link has no reference: give --psi-rad and --lat-rad (and --table-rate-rad-s if the table turns)");
             };
-            let t = ssis_lab::framelog::Turntable { psi_rad, lat_rad, table_rate_rad_s };
-            ssis_lab::framelog::read_output_capture(&log, &t)
+            let (s, rep) = ssis_lab::framelog::read_output_capture(&log, &t).context("log refused")?;
+            println!("{rep}");
+            (s, ", body axes as fog0..fog2")
         }
-        LogKind::QemuCsv => ssis_lab::framelog::read_qemu_csv(&log),
-    }
-    .context("log refused")?;
-    println!("{rep}");
+        LogKind::QemuCsv => {
+            let (s, rep) = ssis_lab::framelog::read_qemu_csv(&log).context("log refused")?;
+            println!("{rep}");
+            (s, ", body axes as fog0..fog2")
+        }
+        LogKind::Csv => {
+            let maps = map.iter().map(|m| ssis_lab::import::Mapping::parse(m)).collect::<Result<Vec<_>, _>>()?;
+            let (s, rep) = ssis_lab::import::read_logger_csv(&log, &maps, table.as_ref()).context("log refused")?;
+            println!("{rep}");
+            (s, "")
+        }
+    };
     ssis_lab::write_atomic(&out, ssis_lab::session::session_csv(&s).as_bytes())?;
-    println!("wrote {} ({} samples, body axes as fog0..fog2)", out.display(), s.len());
+    println!("wrote {} ({} samples{axes})", out.display(), s.len());
     Ok(())
 }
 

@@ -332,7 +332,7 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
 /// [`files`] refuses a missing table without it).
 fn load_table(path: &Path) -> Result<TableDoc> {
     if path.exists() {
-        ssis_common::table::read_doc(path)
+        Ok(ssis_common::table::read_doc(path)?)
     } else {
         Ok(TableDoc::new(CalibrationTable::DEFAULT))
     }
