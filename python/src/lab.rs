@@ -308,7 +308,7 @@ fn report_html(
     let mut terms = candidate_terms(&source.header().map_err(lab_err)?);
     terms.extend(versions.iter().flat_map(|(_, v)| v.kinds()));
     let dg = digest(source, &spec_for(m, &terms, opt.n_blocks), None).map_err(lab_err)?;
-    let kept = report::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
+    let kept = ssis_lab::fit::KeptTimes { t_s: dg.kept.t_s.clone(), dt_s: dg.dt_s * dg.kept.stride.max(1) as f64 };
     let steps = add_steps(&versions, &dg).map_err(lab_err)?;
     let f = complete(fit_digest(m, &dg).map_err(lab_err)?, source, &dg).map_err(lab_err)?;
     let d = diagnose_digest(m, &dg, &opt).map_err(lab_err)?;

@@ -42,12 +42,12 @@ impl PyTable {
     fn read(path: PathBuf) -> PyResult<Self> {
         let is_toml = path.extension().is_some_and(|e| e == "toml");
         let doc = if is_toml { table::read_doc(&path) } else { table::read_any(&path).map(|(t, _)| TableDoc::new(t)) };
-        doc.map(|doc| PyTable { doc }).map_err(err)
+        doc.map(|doc| PyTable { doc }).map_err(|e| err(e.into()))
     }
 
     /// The TOML form (with engineering units in comments).
     fn to_toml(&self) -> PyResult<String> {
-        table::doc_to_toml(&self.doc).map_err(err)
+        table::doc_to_toml(&self.doc).map_err(|e| err(e.into()))
     }
 
     /// Writes the table: `.bin` (binary), `.img` (flash image) or TOML; refuses an
@@ -63,7 +63,7 @@ impl PyTable {
             Some("img") => table::write_image(&path, &self.doc.table),
             _ => table::write_doc(&path, &self.doc),
         };
-        r.map_err(err)
+        r.map_err(|e| err(e.into()))
     }
 
     /// Every field's documented name, in storage order.
