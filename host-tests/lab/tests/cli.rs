@@ -243,3 +243,59 @@ fn add_refuses_a_worse_version() {
         assert!(hist.contains(must), "history plot lacks `{must}`");
     }
 }
+
+/// Runs `ssis-lab` in `dir`: (exit status, stdout + stderr).
+fn lab_in(dir: &Path, args: &[&str]) -> (Option<i32>, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ssis-lab"))
+        .current_dir(dir)
+        .env_remove("RUST_BACKTRACE")
+        .args(args)
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    println!("$ ssis-lab {}\n  exit {:?}\n{text}", args.join(" "), out.status.code());
+    (out.status.code(), text)
+}
+
+/// A mistyped catalog term is refused at `init` (not written as an expression) with the
+/// catalog and the nearest name; at `add` an expression's variables must be columns of the
+/// session; nothing is written.
+#[test]
+fn init_and_add_check_terms_against_the_catalog_and_the_columns() {
+    let dir = scratch("terms");
+    let (code, text) = lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,temprate"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("did you mean `temp_rate`?") && text.contains("thermal_t1, thermal_t2"), "{text}");
+    assert!(!dir.join("m.v1.toml").exists(), "a model was written");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["add", "Temp_Rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("did you mean `temp_rate`?"), "{text}");
+    let (code, text) = lab_in(&dir, &["add", "chamber_rh * 2", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("th.csv: `chamber_rh`") && text.contains("not a column of the session"), "{text}");
+    assert!(text.contains("did you mean `chamber_rh_pct`?"), "{text}");
+    assert!(!dir.join("m.v2.toml").exists(), "a version was written");
+}
+
+/// The second `add` of the same term onto the same version is refused (it would repeat
+/// v2), and the lab's own per-FOG history plot is replaced, not left stale.
+#[test]
+fn add_refuses_a_repeated_version_and_replaces_its_own_plots() {
+    let dir = scratch("repeat");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("wrote m.history-fogs.svg") && !text.contains("not written"), "{text}");
+    let (code, text) = lab_in(&dir, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("gives version 2 again") && text.contains("not written"), "{text}");
+    assert!(!dir.join("m.v3.toml").exists(), "a repeated version was written");
+    let before = std::fs::read(dir.join("m.history-fogs.svg")).unwrap();
+    let (code, text) = lab_in(&dir, &["add", "t_times_g", "--model", "m.v2.toml", "--session", "th.csv", "--force"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("wrote m.history-fogs.svg") && !text.contains("not written"), "{text}");
+    assert_ne!(std::fs::read(dir.join("m.history-fogs.svg")).unwrap(), before, "the per-FOG history is stale");
+}

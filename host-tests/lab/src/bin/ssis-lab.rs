@@ -371,7 +371,9 @@ fn files(cmd: &Cmd) -> Result<()> {
         Cmd::Add { model, session, .. } => {
             inputs(&[model, session]);
             versions(model);
-            let h = model.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(model)));
+            let stem = ssis_lab::fit::model_stem(model);
+            svg(&model.with_file_name(format!("{stem}.history-fogs.svg")), "held-out RMS per FOG on ")?;
+            let h = model.with_file_name(format!("{stem}.history.svg"));
             svg(&h, "held-out RMS on ").map(|()| "add")?
         }
         Cmd::Export { model, base, toml, bin } => {
@@ -418,12 +420,83 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
     }
 }
 
+/// The per-FOG variables an expression may use besides the session's columns
+/// (`Kind::Expr`).
+const FOG_VARIABLES: [&str; 5] = ["rate_rad_s", "t_degc", "dt_degc", "g_degc_s", "fog"];
+
+/// The column names of a CSV session (its first line that is not a `#` comment); none for
+/// another format (a capture).
+fn session_columns(path: &Path) -> Vec<String> {
+    use std::io::BufRead;
+    let Ok(f) = std::fs::File::open(path) else { return Vec::new() };
+    let header = std::io::BufReader::new(f).lines().map_while(|l| l.ok()).find(|l| !l.starts_with('#'));
+    match header {
+        Some(h) if h.is_ascii() && h.contains(',') => {
+            h.trim_start_matches('\u{feff}').split(',').map(|c| c.trim().to_string()).collect()
+        }
+        _ => Vec::new(),
+    }
+}
+
+/// The closest of `names` to `word` (case and `_` aside, at most 2 edits, or a name the
+/// word begins), as a "did you mean" clause.
+fn did_you_mean<'a>(word: &str, names: impl Iterator<Item = &'a str>) -> String {
+    let norm = |s: &str| s.to_lowercase().replace(['_', '-'], "");
+    names
+        .map(|n| {
+            let (w, m) = (norm(word), norm(n));
+            // A name the word begins (`chamber_rh` of `chamber_rh_pct`) counts as one edit.
+            (if w.len() >= 3 && m.starts_with(&w) && w != m { 1 } else { strsim::levenshtein(&w, &m) }, n)
+        })
+        .filter(|(d, _)| *d <= 2)
+        .min_by_key(|(d, _)| *d)
+        .map_or(String::new(), |(_, n)| format!("; did you mean `{n}`?"))
+}
+
+/// A command-line term, checked before any work: a name close to a catalog term is a typo
+/// (refused with the catalog and the nearest name, not taken as an expression), and with a
+/// CSV `session` every variable of an expression must be one of its columns or a per-FOG
+/// variable.
+fn checked_term(arg: &str, session: Option<&Path>) -> Result<Kind> {
+    use exmex::Express;
+    let kind = Kind::parse_arg(arg)?;
+    let Kind::Expr(e) = &kind else { return Ok(kind) };
+    let catalog = ssis_lab::model::catalog_names();
+    let bare = !arg.is_empty() && arg.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+    let columns = session.map(session_columns).unwrap_or_default();
+    let known = |v: &str| FOG_VARIABLES.contains(&v) || columns.iter().any(|c| c == v);
+    if bare && !known(arg) {
+        let hint = did_you_mean(arg, catalog.split(", "));
+        if !hint.is_empty() || !columns.is_empty() {
+            bail!(
+                "`{arg}` is not a term of the catalog ({catalog}, sinusoid:F_HZ){hint} \
+                 (an expression over session columns is a term too)"
+            );
+        }
+    }
+    if columns.is_empty() {
+        return Ok(kind);
+    }
+    let parsed = exmex::parse::<f64>(e).map_err(|err| anyhow::anyhow!("`{e}`: {err}"))?;
+    if let Some(v) = parsed.var_names().iter().find(|v| !known(v)) {
+        let names = columns.iter().map(String::as_str).chain(FOG_VARIABLES).chain(catalog.split(", "));
+        bail!(
+            "{}: `{v}` in the term `{e}` is not a column of the session ({}) nor a per-FOG variable ({}){}",
+            session.map_or(String::new(), |p| p.display().to_string()),
+            columns.join(", "),
+            FOG_VARIABLES.join(", "),
+            did_you_mean(v, names)
+        );
+    }
+    Ok(kind)
+}
+
 /// `init`: writes version 1 of a new model (never over an existing file).
 fn init(model: PathBuf, terms: String, t_ref_degc: f64, g_window_s: f64) -> Result<()> {
     if model.exists() {
         bail!("{} exists: the lab never overwrites a model", model.display());
     }
-    let kinds = terms.split(',').map(|t| Kind::parse_arg(t.trim())).collect::<Result<Vec<_>, _>>()?;
+    let kinds = terms.split(',').map(|t| checked_term(t.trim(), None)).collect::<Result<Vec<_>>>()?;
     let mut m = Model::new(&kinds);
     m.t_ref_degc = t_ref_degc;
     m.g_window_s = g_window_s;
@@ -528,7 +601,7 @@ fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
 /// `add`: the next model version with one more term, its held-out gain and the history of versions.
 fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force: bool) -> Result<()> {
     let m = load_model(&model)?;
-    let kind = Kind::parse_arg(&term)?;
+    let kind = checked_term(&term, Some(&session))?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
     notes(&out.notes);
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
@@ -552,6 +625,22 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let path = version_path(&model, out.model.version);
     if path.exists() {
         bail!("{} exists: the lab never overwrites a model", path.display());
+    }
+    // A version that only repeats one that exists (the same terms and coefficients from
+    // the same session) is not written.
+    let same = |a: &Model, b: &Model| {
+        Model { version: 0, note: String::new(), ..a.clone() } == Model { version: 0, note: String::new(), ..b.clone() }
+    };
+    for (v, p) in history_files(&model) {
+        if load_model(&p).is_ok_and(|old| same(&old, &out.model)) {
+            bail!(
+                "{}: adding {} to {} gives version {v} again ({}): not written",
+                session.display(),
+                kind.label(),
+                model.display(),
+                p.display()
+            );
+        }
     }
     // Written whole (or not at all) before anything is printed: a closed pipe cannot cut it.
     output::claim(&path, Origin::New)?;
