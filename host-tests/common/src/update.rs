@@ -126,6 +126,31 @@ pub fn render(changes: &[Change]) -> String {
     out
 }
 
+/// `render`'s lines with, beside each changed field, who had set the value it replaces
+/// (the base's provenance; "no provenance" for a value no tool recorded).
+fn with_provenance(rendered: &str, base: &TableDoc, changes: &[Change]) -> String {
+    rendered
+        .lines()
+        .zip(changes)
+        .map(|(line, c)| {
+            if !c.changed() {
+                return format!("{line}\n");
+            }
+            let field = c.field.to_string();
+            let was = match base.provenance.iter().find(|p| p.field == field) {
+                Some(p) => {
+                    let model = p.model.as_ref().map_or(String::new(), |m| {
+                        format!(", model {m}{}", p.model_version.map_or(String::new(), |v| format!(" version {v}")))
+                    });
+                    format!("was set by {} from {}{model}", p.command, p.session)
+                }
+                None => "old value without provenance".to_string(),
+            };
+            format!("{line}  [{was}]\n")
+        })
+        .collect()
+}
+
 /// The report of an update: the revision, the origin, each field set, and how many kept.
 pub fn report(base: &TableDoc, updated: &TableDoc, changes: &[Change], origin: &Origin) -> String {
     let model = origin.model.as_ref().map_or(String::new(), |(m, v)| format!(", model {m} version {v}"));
@@ -138,6 +163,6 @@ pub fn report(base: &TableDoc, updated: &TableDoc, changes: &[Change], origin: &
         updated.table.revision,
         changes.len(),
         ssis::calib::binary::N_F64 - changes.len(),
-        render(changes)
+        with_provenance(&render(changes), base, changes)
     )
 }

@@ -192,8 +192,8 @@ fn plot_axes(d: &Digest, fog: usize) -> Vec<(String, Vec<f64>)> {
     let k = &d.kept;
     let mut v = vec![("time, h".to_string(), k.t_s.iter().map(|t| t / 3600.0).collect())];
     if let Some((temp, g)) = &k.temp[fog] {
-        v.push(("T, degC".into(), temp.clone()));
-        v.push((format!("G = dT/dt, degC/min ({:.0} s window)", d.g_window_s), g.iter().map(|x| x * 60.0).collect()));
+        v.push(("T, °C".into(), temp.clone()));
+        v.push((format!("G = dT/dt, °C/min ({:.0} s window)", d.g_window_s), g.iter().map(|x| x * 60.0).collect()));
     }
     if let Some(psi) = &k.psi_rad {
         v.push(("azimuth psi, deg".into(), psi.iter().map(|x| x.to_degrees()).collect()));

@@ -25,7 +25,7 @@ pub fn residual_svg(file: &str, fitted: &Fitted, fog: usize) -> LabResult<String
         let root = SVGBackend::with_string(&mut svg, (1000, 260 * rows + 40)).into_drawing_area();
         root.fill(&WHITE).map_err(perr)?;
         let root = root
-            .titled(&format!("{file}: FOG{fog} residual, deg/h (model v{})", fitted.model.version), ("sans-serif", 18))
+            .titled(&format!("{file}: FOG{fog} residual, °/h (model v{})", fitted.model.version), ("sans-serif", 18))
             .map_err(perr)?;
         let areas = root.split_evenly((rows as usize, 2));
         let lim = res.iter().fold(1e-9f64, |m, v| m.max(v.abs())) * 1.05;
@@ -69,7 +69,7 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
         chart
             .configure_mesh()
             .x_desc("model version")
-            .y_desc("held-out residual RMS, deg/h")
+            .y_desc("held-out residual RMS, °/h")
             .x_labels(points.len().max(2))
             .x_label_formatter(&|x| {
                 if (x - x.round()).abs() < 1e-6 {
@@ -115,7 +115,7 @@ pub fn allan_svg(title: &str, curves: &[(AllanCurve, AllanCurve)], floor: &[f64]
         chart
             .configure_mesh()
             .x_desc("averaging time tau, s")
-            .y_desc("Allan deviation of the residual, deg/h")
+            .y_desc("Allan deviation of the residual, °/h")
             .draw()
             .map_err(perr)?;
         for (fog, ((before, after), f)) in curves.iter().zip(floor).enumerate() {
@@ -166,7 +166,7 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
         chart
             .configure_mesh()
             .x_desc("model version, term added")
-            .y_desc("held-out residual RMS, deg/h")
+            .y_desc("held-out residual RMS, °/h")
             .x_labels(2 * (rows.len() + 1))
             .x_label_formatter(&label)
             .draw()
@@ -186,7 +186,7 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
         chart
             .draw_series(LineSeries::new(fl, BLACK.mix(0.4)))
             .map_err(perr)?
-            .label(format!("white-noise floor {floor_deg_h:.4} deg/h"))
+            .label(format!("white-noise floor {floor_deg_h:.4} °/h"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.mix(0.4)));
         chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
         root.present().map_err(perr)?;
@@ -226,7 +226,7 @@ pub fn overlay_svg(step: &super::report::AddStep, kept: &super::report::KeptTime
         let root = SVGBackend::with_string(&mut svg, (1000, 230 * n_fog.div_ceil(2) as u32 + 40)).into_drawing_area();
         root.fill(&WHITE).map_err(perr)?;
         let title = format!(
-            "v{} → v{} ({}): residual, deg/h, means over {}",
+            "v{} → v{} ({}): residual, °/h, means over {}",
             step.from,
             step.to,
             step.added,
@@ -244,7 +244,7 @@ pub fn overlay_svg(step: &super::report::AddStep, kept: &super::report::KeptTime
             let (t0, t1) = if t1 > t0 { (t0, t1) } else { (t0 - 1.0, t1 + 1.0) };
             let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
             let caption = format!(
-                "FOG{fog}: RMS v{} {:.4} (grey) → v{} {:.4} deg/h; floor ±{floor:.4} (dashed)",
+                "FOG{fog}: RMS v{} {:.4} (grey) → v{} {:.4} °/h; floor ±{floor:.4} (dashed)",
                 step.from,
                 rms(&b),
                 step.to,
@@ -260,7 +260,7 @@ pub fn overlay_svg(step: &super::report::AddStep, kept: &super::report::KeptTime
             chart
                 .configure_mesh()
                 .x_desc("time, h")
-                .y_desc("deg/h")
+                .y_desc("°/h")
                 .x_labels(6)
                 .y_labels(5)
                 .y_label_formatter(&|v| format!("{:.2}", if v.abs() < 0.005 { 0.0 } else { *v }))

@@ -225,7 +225,7 @@ fn add_refuses_a_worse_version() {
     let err = String::from_utf8_lossy(&out.stderr).to_string();
     println!("add aging: exit {:?}: {}", out.status.code(), err.trim());
     assert!(!out.status.success(), "a worse version was accepted");
-    assert!(err.contains("th.csv") && err.contains("worse") && err.contains("deg/h"), "message: {err}");
+    assert!(err.contains("th.csv") && err.contains("worse") && err.contains("°/h"), "message: {err}");
     assert!(!dir.join("m.v2.toml").exists(), "a worse version was written");
     let out = lab(&["add", "aging", "--model", "m.v1.toml", "--session", "th.csv", "--force"]);
     assert!(out.status.success(), "--force: {}", String::from_utf8_lossy(&out.stderr));
@@ -298,4 +298,26 @@ fn add_refuses_a_repeated_version_and_replaces_its_own_plots() {
     assert_eq!(code, Some(0), "{text}");
     assert!(text.contains("wrote m.history-fogs.svg") && !text.contains("not written"), "{text}");
     assert_ne!(std::fs::read(dir.join("m.history-fogs.svg")).unwrap(), before, "the per-FOG history is stale");
+}
+
+/// `export --base cal.toml --toml cal.toml` updates the table in place, as every `ssis-cal
+/// --table` does, and prints beside each changed field who had set the value it replaces.
+#[test]
+fn export_updates_its_base_in_place_with_the_provenance_it_replaces() {
+    let dir = scratch("export-in-place");
+    for (session, seed, m) in [("a.csv", "3", "m"), ("b.csv", "4", "n")] {
+        assert_eq!(lab_in(&dir, &["simulate", "thermal", session, "--seed", seed]).0, Some(0));
+        assert_eq!(lab_in(&dir, &["init", &format!("{m}.v1.toml"), "--terms", "bias,thermal_t1"]).0, Some(0));
+        let (code, _) = lab_in(&dir, &["add", "temp_rate", "--model", &format!("{m}.v1.toml"), "--session", session]);
+        assert_eq!(code, Some(0));
+    }
+    assert_eq!(lab_in(&dir, &["export", "--model", "m.v2.toml", "--toml", "cal.toml"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["export", "--model", "n.v2.toml", "--base", "cal.toml", "--toml", "./cal.toml"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("revision 1 → 2") && text.contains("updated ./cal.toml (revision 2)"), "{text}");
+    let bias = text.lines().find(|l| l.trim_start().starts_with("fog[0].bias_rad_s")).unwrap_or("");
+    assert!(bias.contains("[was set by ssis-lab export from a.csv, model m.v2.toml version 2]"), "{text}");
+    let doc = ssis_common::table::read_doc(&dir.join("cal.toml")).unwrap();
+    assert_eq!(doc.table.revision, 2);
+    assert!(doc.provenance.iter().any(|p| p.session == "b.csv"), "provenance not updated");
 }

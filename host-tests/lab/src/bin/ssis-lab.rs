@@ -248,7 +248,7 @@ fn print_diagnosis(d: &Diagnosis) {
     );
     println!(
         "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  {:>27}  origin",
-        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop", "removed deg/h (1 sigma)"
+        "rank", "candidate", "p", "before °/h", "after °/h", "drop", "removed °/h (1σ)"
     );
     for (r, c) in d.candidates.iter().enumerate() {
         let (rm, lo, hi) = c.removed_rad_s();
@@ -269,7 +269,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     println!(
         "p: the larger of the GLS F-test's and the held-out improvement's under each FOG's noise model \
-         (white + Gauss-Markov, fitted on the test blocks' residual); removed: sqrt(before^2 - after^2)"
+         (white + Gauss-Markov, fitted on the test blocks' residual); removed: √(before² − after²)"
     );
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");
@@ -287,7 +287,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     for a in &d.anova {
         println!(
-            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} degC, G at {:.4}/{:.4} degC/min:",
+            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} °C, G at {:.4}/{:.4} °C/min:",
             a.fog,
             a.cells,
             a.t_edges_degc[0],
@@ -360,7 +360,7 @@ fn files(cmd: &Cmd) -> Result<()> {
         Cmd::Compare { model, session, plots, .. } => {
             inputs(&[model, session]);
             for (i, d) in (0..4).flat_map(|i| plots.iter().map(move |d| (i, d))) {
-                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, deg/h"))?;
+                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, °/h"))?;
             }
             "compare"
         }
@@ -378,8 +378,13 @@ fn files(cmd: &Cmd) -> Result<()> {
         }
         Cmd::Export { model, base, toml, bin } => {
             inputs(&[model]);
-            base.iter().for_each(|b| output::input(b));
-            toml.iter().chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
+            // `--toml` onto `--base` updates that table in place, as `ssis-cal --table` does.
+            let in_place = toml.as_deref().filter(|t| base.as_deref().is_some_and(|b| same_file(b, t)));
+            match in_place {
+                Some(t) => output::update(t)?,
+                None => base.iter().for_each(|b| output::input(b)),
+            }
+            toml.iter().filter(|_| in_place.is_none()).chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
         }
         Cmd::Report { model, session, out } => {
             inputs(&[model, session]);
@@ -399,6 +404,11 @@ fn files(cmd: &Cmd) -> Result<()> {
     };
     cli::report("command", || json!(name));
     Ok(())
+}
+
+/// Whether two paths name one existing file (however spelt).
+fn same_file(a: &Path, b: &Path) -> bool {
+    matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
 }
 
 /// One subcommand, one function (`force`: `--force`).
@@ -525,7 +535,7 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
     );
     println!(
         "{:>4} {:>14} {:>14} {:>14} {:>10} {:>16}",
-        "FOG", "error deg/h", "residual deg/h", "max deg/h", "explained", "held-out deg/h"
+        "FOG", "error °/h", "residual °/h", "max °/h", "explained", "held-out °/h"
     );
     for (i, x) in f.summary.iter().enumerate() {
         println!(
@@ -542,8 +552,15 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
     }
     for (t, k) in f.model.kinds().iter().enumerate() {
         for (fog, c) in f.model.terms[t].coef.iter().enumerate() {
+            // Engineering units, as `add` prints them (SI stays in the model file and --json).
             let labels = k.regressor_labels(fog);
-            let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+            let units = k.eng_units(fog);
+            let text: Vec<String> = c
+                .iter()
+                .zip(&labels)
+                .zip(&units)
+                .map(|((v, (n, _)), (u, f))| format!("{n} = {:.5} {u}", v * f))
+                .collect();
             println!("  {:<24} FOG{fog}: {}", k.label(), text.join(", "));
         }
     }
@@ -578,11 +595,11 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
 fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
     use ssis_lab::noise::{allan_deviation, tau_mean_rms};
     let dt = out.kept_dt_s;
-    println!("systematic part removed, sqrt(before^2 - after^2) of the held-out RMS, deg/h:");
+    println!("systematic part removed, √(before² − after²) of the held-out RMS, °/h:");
     for (fog, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
         println!("  FOG{fog} {:.5}", dh((b * b - a * a).max(0.0).sqrt()));
     }
-    println!("residual RMS of tau-means, deg/h (before -> after; white floor from the Allan deviation at one sample):");
+    println!("residual RMS of tau-means, °/h (before -> after; white floor from the Allan deviation at one sample):");
     for (fog, (rb, ra)) in out.residual_before_rad_s.iter().zip(&out.residual_after_rad_s).enumerate() {
         let sigma1 = allan_deviation(ra, dt).first().map_or(f64::NAN, |p| p.1);
         let cells: Vec<String> = [1.0, 100.0, 1000.0]
@@ -607,7 +624,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     if a > b && !force {
         bail!(
-            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} deg/h over {} blocks); no version written \
+            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} °/h over {} blocks); no version written \
              (--force writes it anyway)",
             session.display(),
             kind.label(),
@@ -646,7 +663,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     output::claim(&path, Origin::New)?;
     ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
     cli::report("added", || ssis_lab::json::added(&out, &kind, &path.display().to_string()));
-    println!("held-out residual RMS, deg/h ({} blocks):", blocks);
+    println!("held-out residual RMS, °/h ({} blocks):", blocks);
     println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
     for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
         println!("{i:>4} {:>12.5} {:>12.5} {:>7.1}%", dh(*b), dh(*a), 100.0 * (1.0 - a / b));
@@ -682,7 +699,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     cli::report("history", || {
         json!(h.iter().map(|(v, r, per, terms)| ssis_lab::json::history_row(*v, *r, per, terms)).collect::<Vec<_>>())
     });
-    println!("history on {} (held-out RMS, deg/h):", session.display());
+    println!("history on {} (held-out RMS, °/h):", session.display());
     for (v, r, per, terms) in &h {
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
         println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
@@ -753,7 +770,11 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
     print!("{}", ssis_common::update::report(&base_doc, &doc, &changes, &origin));
     if let Some(p) = &toml {
         ssis_common::table::write_doc(p, &doc)?;
-        println!("wrote {}", p.display());
+        if base.as_deref().is_some_and(|b| same_file(b, p)) {
+            println!("updated {} (revision {})", p.display(), doc.table.revision);
+        } else {
+            println!("wrote {}", p.display());
+        }
     }
     if let Some(p) = &bin {
         ssis_common::table::write_binary(p, &doc.table)?;
@@ -837,7 +858,7 @@ fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
         r.profile.fogs.count()
     );
     println!(
-        "body rate error RMS, deg/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
+        "body rate error RMS, °/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
         axis(0),
         axis(1),
         axis(2),
@@ -889,7 +910,7 @@ fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool, field:
     let sim = simulate::generate(&spec);
     sim.write_csv(&out)?;
     println!(
-        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?}{})",
+        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} °/h, hidden effect {:?}{})",
         out.display(),
         sim.rows.len(),
         spec.dt_s,
