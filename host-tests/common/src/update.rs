@@ -126,8 +126,8 @@ pub fn render(changes: &[Change]) -> String {
     out
 }
 
-/// `render`'s lines with, beside each changed field, who had set the value it replaces
-/// (the base's provenance; "no provenance" for a value no tool recorded).
+/// `render`'s lines with, beside each changed field whose value a tool had set, who set it
+/// (the base's provenance).
 fn with_provenance(rendered: &str, base: &TableDoc, changes: &[Change]) -> String {
     rendered
         .lines()
@@ -137,16 +137,15 @@ fn with_provenance(rendered: &str, base: &TableDoc, changes: &[Change]) -> Strin
                 return format!("{line}\n");
             }
             let field = c.field.to_string();
-            let was = match base.provenance.iter().find(|p| p.field == field) {
+            match base.provenance.iter().find(|p| p.field == field) {
                 Some(p) => {
                     let model = p.model.as_ref().map_or(String::new(), |m| {
                         format!(", model {m}{}", p.model_version.map_or(String::new(), |v| format!(" version {v}")))
                     });
-                    format!("was set by {} from {}{model}", p.command, p.session)
+                    format!("{line}  [was set by {} from {}{model}]\n", p.command, p.session)
                 }
-                None => "old value without provenance".to_string(),
-            };
-            format!("{line}  [{was}]\n")
+                None => format!("{line}\n"),
+            }
         })
         .collect()
 }
