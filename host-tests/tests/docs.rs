@@ -15,6 +15,8 @@
 //!   unless the expected output has a line starting with `error:` (then non-zero).
 //! - Figures: numbers are compared as numbers, exactly as printed unless the block is
 //!   marked `<!-- doc-run: tol 2% -->` (relative) on the line before its fence.
+//! - A block whose first command starts with `cd ` runs from the repository root (the
+//!   text's `cd host-tests` means from there); other blocks go on where the last one left.
 //! - `<!-- doc-run: skip: REASON -->` before a block: not run (QEMU, hour-long runs); the
 //!   reason is required and printed.
 //! - `<!-- doc-run: file NAME -->` before a block: its text is written to NAME in the
@@ -25,7 +27,8 @@
 //! `cargo run --release -q --bin NAME -- ARGS` is served by a shim that calls the
 //! binary built once, in release, by this test (`cargo build --release`), and the
 //! binaries' directory is on `PATH` (`ssis-sim table diff …`). The repository root of the
-//! scratch directory has a `host-tests/` with the real `scenarios/` linked in.
+//! scratch directory has a `host-tests/` with the real `scenarios/` linked in, and the
+//! real `examples/`.
 //!
 //! `DOC_RUN_ONLY=LAB` runs one document (a substring of its path); `DOC_RUN_KEEP=1` keeps
 //! the scratch directories; `DOC_RUN_BLESS=1` writes what the run printed into the document
@@ -47,6 +50,8 @@ struct Step {
     expected: Vec<String>,
     /// Relative tolerance on figures (0: as printed).
     tol: f64,
+    /// The first command of a block that starts with `cd `: run from the repository root.
+    from_root: bool,
 }
 
 /// What a document asks the shell to do, in order.
@@ -124,6 +129,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
                 return Err(format!("{doc}:{}: output before any `$ ` command", i_of(fence_line, k)));
             };
             let line = i_of(fence_line, k);
+            let first_of_block = k == 0;
             let mut cmd = first.to_string();
             while cmd.ends_with('\\') && k + 1 < body.len() {
                 k += 1;
@@ -136,7 +142,8 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
                 expected.push(body[k].to_string());
                 k += 1;
             }
-            actions.push(Action::Run(Step { line, cmd, expected, tol }));
+            let from_root = first_of_block && cmd.starts_with("cd ");
+            actions.push(Action::Run(Step { line, cmd, expected, tol, from_root }));
         }
     }
     Ok(actions)
@@ -366,6 +373,7 @@ fn run_doc(root: &Path, bins: &Path, doc: &str, scratch: &Path) -> Vec<String> {
     std::fs::create_dir_all(scratch.join("host-tests")).expect("scratch");
     std::os::unix::fs::symlink(root.join("host-tests/scenarios"), scratch.join("host-tests/scenarios"))
         .expect("scenarios linked");
+    std::os::unix::fs::symlink(root.join("examples"), scratch.join("examples")).expect("examples linked");
     let cargo = shim.join("cargo");
     std::fs::write(&cargo, CARGO_SHIM).expect("shim");
     std::fs::set_permissions(&cargo, std::os::unix::fs::PermissionsExt::from_mode(0o755)).expect("shim mode");
@@ -375,6 +383,9 @@ fn run_doc(root: &Path, bins: &Path, doc: &str, scratch: &Path) -> Vec<String> {
     for (n, a) in actions.iter().enumerate() {
         match a {
             Action::Run(s) => {
+                if s.from_root {
+                    let _ = writeln!(script, "cd '{}'", scratch.display());
+                }
                 let _ = writeln!(script, "{{\n{}\n}} > '{}/{n}.out' 2>&1 < /dev/null", s.cmd, outs.display());
                 let _ = writeln!(script, "echo $? > '{}/{n}.rc'", outs.display());
             }

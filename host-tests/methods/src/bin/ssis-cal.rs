@@ -593,10 +593,14 @@ fn chamber_summary(path: &Path, fog: usize, c: &thermal_anova::Chamber, levels: 
     out
 }
 
-/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
-/// significant, the thermal model (into the table with `--table`).
-fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
-    let (cells, samples, levels, source) = match input {
+/// The cells and samples of the thermal analysis, its levels and a name for the
+/// provenance: a simulated batch, or a chamber session sorted into its cells (with what the
+/// balanced design uses and drops printed first).
+fn thermal_cells(
+    input: ThermalInput,
+    fog: usize,
+) -> Result<(Vec<thermal_anova::Cell>, Vec<[f64; 3]>, thermal_anova::Levels, String)> {
+    Ok(match input {
         ThermalInput::Simulate(batch, seed) => {
             let sim = match batch {
                 Batch::BatchI => thermal_anova::BatchSim::batch_i(),
@@ -613,7 +617,13 @@ fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<Pat
             print!("{}", chamber_summary(&path, fog, &c, &levels));
             (c.cells, c.samples, levels, path.display().to_string())
         }
-    };
+    })
+}
+
+/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
+/// significant, the thermal model (into the table with `--table`).
+fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
+    let (cells, samples, levels, source) = thermal_cells(input, fog)?;
     let t_lo = levels.t_degc.iter().copied().fold(f64::INFINITY, f64::min);
     let t_hi = levels.t_degc.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let t_ref = (t_lo + t_hi) / 2.0;
