@@ -593,13 +593,13 @@ fn chamber_summary(path: &Path, fog: usize, c: &thermal_anova::Chamber, levels: 
     out
 }
 
+/// Cells, samples (T °C, G °C/s, y rad/s), levels and the provenance's name of a thermal run.
+type ThermalCells = (Vec<thermal_anova::Cell>, Vec<[f64; 3]>, thermal_anova::Levels, String);
+
 /// The cells and samples of the thermal analysis, its levels and a name for the
 /// provenance: a simulated batch, or a chamber session sorted into its cells (with what the
 /// balanced design uses and drops printed first).
-fn thermal_cells(
-    input: ThermalInput,
-    fog: usize,
-) -> Result<(Vec<thermal_anova::Cell>, Vec<[f64; 3]>, thermal_anova::Levels, String)> {
+fn thermal_cells(input: ThermalInput, fog: usize) -> Result<ThermalCells> {
     Ok(match input {
         ThermalInput::Simulate(batch, seed) => {
             let sim = match batch {
