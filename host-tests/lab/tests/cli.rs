@@ -321,3 +321,25 @@ fn export_updates_its_base_in_place_with_the_provenance_it_replaces() {
     assert_eq!(doc.table.revision, 2);
     assert!(doc.provenance.iter().any(|p| p.session == "b.csv"), "provenance not updated");
 }
+
+/// The HTML report on a static chamber session: no empty column or header in the
+/// diagnosis, no residual panel for a quantity the session holds constant (ψ and the input
+/// rate: named instead), the ANOVA with its degrees of freedom and critical values.
+#[test]
+fn report_has_no_empty_columns_or_panels_and_a_full_anova() {
+    let dir = scratch("report-gaps");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["report", "--model", "m.v1.toml", "--session", "th.csv", "--out", "r.html"]).0, Some(0));
+    let html = std::fs::read_to_string(dir.join("r.html")).unwrap();
+    assert!(!html.contains("<th></th>") && !html.contains("\"></td>") && !html.contains("<td></td>"), "empty cell");
+    assert!(html.contains("significant at 1 %</th>"), "the significance column has no header");
+    assert!(html.contains("constant in this session, not plotted: azimuth ψ, °; input rate along the axis, °/s"));
+    // Panel captions are SVG text on a line of their own.
+    assert!(html.contains(">\nT, °C\n<"), "no panel for the temperature");
+    assert!(!html.contains(">\nazimuth ψ, °\n<"), "a panel for the constant azimuth");
+    let anova = html.lines().find(|l| l.contains("two-factor ANOVA")).expect("an ANOVA line");
+    for must in ["F_G = ", "(ν 2, 4;", "critical 5 % 6.94, 1 % 18.00"] {
+        assert!(anova.contains(must), "the ANOVA line lacks `{must}`: {anova}");
+    }
+}
