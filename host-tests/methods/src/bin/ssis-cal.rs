@@ -812,7 +812,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
     cli::report("turns", || methods::json::turns(&turns, &r));
-    println!("turn  up   ψ0 deg   Θ_T* deg   ω* deg/s");
+    println!("turn  up     ψ0 °     Θ_T* °     ω* °/s");
     for (k, t) in turns.iter().enumerate() {
         println!(
             "{:>4}  {}  {:>7.2}  {:>9.4}  {:>8.3}",
@@ -864,7 +864,7 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     let revs = misalign_sins::reversals_from_session(&s, scale)?;
     let r = misalign_sins::solve(&revs, &m0, gamma)?;
     cli::report("sins", || methods::json::sins(&m0, from, &r));
-    println!("rev  up   ψ0 deg   turn deg   measured after ″ (h1, h2)   residual ″ start → end");
+    println!("rev  up     ψ0 °     turn °   measured after ″ (h1, h2)   residual ″ start → end");
     for (k, rv) in revs.iter().enumerate() {
         println!(
             "{:>3}  {}  {:>7.2}  {:>8.2}   {:>10.2} {:>10.2}      {:>7.2} {:>7.2} → {:>5.2} {:>5.2}",
@@ -976,22 +976,22 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     match (&r.scale, &r.mount) {
         (Some(sc), Some(m)) => {
             println!("2. scale factors: 360° maneuvers under star-tracker reference");
-            println!("   span s          axis (ICS)              |Θ_ST| deg   uᵀDu %     residual %");
+            println!("   span s          axis (ICS)              |Θ_ST| °     uᵀDu ppm  residual ppm");
             for (a, res) in sc.maneuvers.iter().zip(&sc.residual) {
                 let u = a.axis();
                 println!(
-                    "   {:>6.0}-{:<6.0}  ({:+.3} {:+.3} {:+.3})   {:>9.4}   {:+.5}   {:+.6}",
+                    "   {:>6.0}-{:<6.0}  ({:+.3} {:+.3} {:+.3})   {:>9.4}   {:>+8.1}   {:>+8.3}",
                     a.span_s.0,
                     a.span_s.1,
                     u.x,
                     u.y,
                     u.z,
                     a.theta_st_rad.norm().to_degrees(),
-                    a.relative_error() * 100.0,
-                    res * 100.0
+                    a.relative_error() * 1e6,
+                    res * 1e6
                 );
             }
-            println!("   Δk % per FOG {}", sc.dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "));
+            println!("   Δk ppm per FOG {}", sc.dk.map(|x| format!("{:+.1}", x * 1e6)).join(" "));
             println!(
                 "3. star-tracker mount: η = {:.2} {:.2} {:.2}″ (|η| {:.2}″) by RLS over {} star-frame pairs",
                 m.eta_rad.x * ARCSEC_PER_RAD,
@@ -1170,11 +1170,11 @@ fn simulate_orbital(outdir: PathBuf, hold_s: Option<f64>, seed: u64, table: Opti
     }
     let (d, dk, eta) = orbital::truth_of(&truth_table, &cap.table, &sc.star_tracker);
     println!(
-        "truth: bias d = {:.4} {:.4} {:.4} °/h; Δk % {}; star-tracker mount η = {:.2} {:.2} {:.2}″",
+        "truth: bias d = {:.4} {:.4} {:.4} °/h; Δk ppm {}; star-tracker mount η = {:.2} {:.2} {:.2}″",
         d.x * DEG_H_PER_RAD_S,
         d.y * DEG_H_PER_RAD_S,
         d.z * DEG_H_PER_RAD_S,
-        dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "),
+        dk.map(|x| format!("{:+.1}", x * 1e6)).join(" "),
         eta.x * ARCSEC_PER_RAD,
         eta.y * ARCSEC_PER_RAD,
         eta.z * ARCSEC_PER_RAD
