@@ -283,8 +283,8 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
             // An existing table must parse before any work: a method never prints its
             // figures or writes its plot and then fails on the table.
             (true, false) => {
-                ssis_common::table::read_doc(t)?;
-                output::update(t)
+                output::update(t)?;
+                ssis_common::table::read_doc(t).map(drop)
             }
             (false, true) => output::update(t),
         }
