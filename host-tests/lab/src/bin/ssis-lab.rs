@@ -287,7 +287,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     for a in &d.anova {
         println!(
-            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} °C, G at {:.4}/{:.4} °C/min:",
+            "FOG{} two-factor ANOVA, T × G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} °C, G at {:.4}/{:.4} °C/min:",
             a.fog,
             a.cells,
             a.t_edges_degc[0],
@@ -297,7 +297,7 @@ fn print_diagnosis(d: &Diagnosis) {
         );
         for (name, f) in [("F_T ", a.f_t), ("F_G ", a.f_g), ("F_TG", a.f_tg)] {
             println!(
-                "    {name} = {:>9.2}  (nu {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
+                "    {name} = {:>9.2}  (ν {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
                 f.0,
                 f.1,
                 f.2,
