@@ -533,7 +533,8 @@ fn cal_thermal_runs_on_a_chamber_session_setting_only_thermal_fields() {
         &["thermal", "--session", "chamber.csv", "--fog", "0", "--table", "cal.toml", "--plot", "t.svg"],
         &["cal.toml", "t.svg"],
     );
-    assert!(text.contains("600 samples in 10 cells") && text.contains("revision 3 → 4"), "{text}");
+    assert!(text.contains("600 rows: 600 in 10 cells") && text.contains("revision 3 → 4"), "{text}");
+    assert!(text.contains("the ANOVA uses 600 of 600 rows (100.0 %)"), "{text}");
     let new = table::read_toml(&s.path("cal.toml")).unwrap();
     let changed: Vec<String> = ssis_common::update::diff(&base, &new).iter().map(|c| c.field.to_string()).collect();
     assert!(changed.iter().all(|f| f.starts_with("fog[0].thermal")), "{changed:?}");
@@ -566,6 +567,69 @@ fn cal_thermal_says_the_session_lacks_a_gradient_level() {
     let cells: Vec<(usize, usize)> = TABLE1_CELLS.iter().copied().filter(|c| c.1 != 2).collect();
     let must = ["chamber.csv", "G = 0.25 °C/min", "lacks that gradient level"];
     cal_thermal_refuses("thermal-no-g", &cells, true, None, &must);
+}
+
+#[test]
+fn cal_thermal_says_how_much_the_balanced_design_drops_and_why() {
+    // One cell twice as long as the others: its extra 60 rows are cut.
+    let s = Scratch::new("thermal-drop");
+    let mut cells = TABLE1_CELLS.to_vec();
+    cells.push((1, 1));
+    s.write("chamber.csv", chamber_session(&cells, true));
+    let text = s.succeeds("ssis-cal", &["thermal", "--session", "chamber.csv", "--plot", "t.svg"], &["t.svg"]);
+    assert!(text.contains("the ANOVA uses 600 of 660 rows (90.9 %)"), "{text}");
+    assert!(text.contains("smallest cell's N = 60") && text.contains("60 rows (9.1 %) dropped to balance"), "{text}");
+    assert!(!text.contains("WARNING"), "{text}");
+    // The lab's 48-h chamber run: most rows are cut, which is said before the ANOVA.
+    s.succeeds("ssis-lab", &["simulate", "thermal", "lab.csv", "--seed", "3"], &["lab.csv"]);
+    let text = s.succeeds("ssis-cal", &["thermal", "--session", "lab.csv", "--plot", "l.svg"], &["l.svg"]);
+    assert!(text.contains("the ANOVA uses 72 of 576 rows (12.5 %)"), "{text}");
+    assert!(text.contains("WARNING: lab.csv: the ANOVA uses less than half of the session"), "{text}");
+    assert!(text.find("WARNING").unwrap() < text.find("two-factor ANOVA").unwrap(), "{text}");
+}
+
+#[test]
+fn cal_thermal_takes_negative_levels_after_a_space_and_shows_commas_in_help() {
+    let s = Scratch::new("thermal-levels");
+    s.write("chamber.csv", chamber_session(&TABLE1_CELLS, true));
+    let args = ["thermal", "--session", "chamber.csv", "--plot", "t.svg", "--g-levels-degc-min", "-0.25,0,0.25"];
+    s.succeeds("ssis-cal", &args, &["t.svg"]);
+    let (_, help, _) = s.run("ssis-cal", &["thermal", "--help"]);
+    assert!(help.contains("[default: -0.25,0,0.25]") && help.contains("[default: 10,20,30,40]"), "{help}");
+}
+
+#[test]
+fn cal_thermal_names_the_cell_with_too_few_samples() {
+    let s = Scratch::new("thermal-thin");
+    s.succeeds("ssis-lab", &["simulate", "thermal", "lab.csv", "--seed", "3"], &["lab.csv"]);
+    let args = ["thermal", "--session", "lab.csv", "--plot", "t.svg", "--g-levels-degc-min", "-0.25,0,0.25,0.5"];
+    s.refused("ssis-cal", &args, 1, &["lab.csv", "T 10 °C, G 0.5 °C/min: 1 sample(s)", "at least 2 samples"]);
+}
+
+#[test]
+fn cal_refuses_bad_arguments_before_any_work() {
+    let s = Scratch::new("cal-args");
+    s.write("chamber.csv", chamber_session(&TABLE1_CELLS, true));
+    for args in [
+        &["thermal", "--session", "chamber.csv", "--fog", "4", "--plot", "t.svg"][..],
+        &["thermal", "--simulate", "batch-i", "--fog", "4", "--plot", "t.svg"][..],
+    ] {
+        let text = s.refused("ssis-cal", args, 2, &["--fog", "4", "the unit has FOGs 0-3"]);
+        assert!(!text.contains("ANOVA"), "worked before refusing: {text}");
+    }
+    let args = ["magnetic", "--unscreened", "u.csv", "--screened", "s.csv", "--site", "50,36", "--date", "2025-01-01"];
+    let text = s.refused("ssis-cal", &args, 1, &["--date `2025-01-01`", "expected YYYY-DDD"]);
+    assert!(!text.contains("u.csv"), "read the sessions before refusing the date: {text}");
+}
+
+#[test]
+fn cal_allan_checks_the_table_before_it_prints_or_writes_anything() {
+    let s = Scratch::new("allan-broken-table");
+    s.succeeds("ssis-cal", &["simulate", "static", "st.csv", "--hours", "2"], &["st.csv"]);
+    s.write("broken.toml", "format = \"ssis-calibration-table/1\"\ngarbage =\n");
+    let text = s.refused("ssis-cal", &["allan", "--session", "st.csv", "--table", "broken.toml"], 1, &["broken.toml"]);
+    assert!(!text.contains("ARW"), "printed figures before refusing: {text}");
+    assert!(!s.path("allan.svg").exists(), "wrote its plot before refusing");
 }
 
 #[test]

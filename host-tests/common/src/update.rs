@@ -107,6 +107,43 @@ pub fn render(changes: &[Change]) -> String {
     out
 }
 
+/// `render`'s lines with, beside each changed field whose value a tool had set, who set it
+/// (the base's provenance).
+fn with_provenance(rendered: &str, base: &TableDoc, changes: &[Change]) -> String {
+    rendered
+        .lines()
+        .zip(changes)
+        .map(|(line, c)| {
+            if !c.changed() {
+                return format!("{line}\n");
+            }
+            let field = c.field.to_string();
+            match base.provenance.iter().find(|p| p.field == field) {
+                Some(p) => {
+                    let model = p.model.as_ref().map_or(String::new(), |m| {
+                        format!(", model {m}{}", p.model_version.map_or(String::new(), |v| format!(" version {v}")))
+                    });
+                    format!("{line}  [was set by {} from {}{model}]\n", p.command, p.session)
+                }
+                None => format!("{line}\n"),
+            }
+        })
+        .collect()
+}
+
+/// The star-tracker mount as an angle: how far the updated `st_mount_q` turns from the
+/// base's, in ″ (a quaternion's components alone say little); empty when it did not change.
+fn mount_turn(base: &TableDoc, updated: &TableDoc) -> String {
+    let (a, b) = (base.table.st_mount_q, updated.table.st_mount_q);
+    if a == b {
+        return String::new();
+    }
+    let dot: f64 = a.iter().zip(&b).map(|(x, y)| x * y).sum::<f64>().abs();
+    let norm = (a.iter().map(|x| x * x).sum::<f64>() * b.iter().map(|x| x * x).sum::<f64>()).sqrt();
+    let turn = 2.0 * (dot / norm).clamp(-1.0, 1.0).acos() * crate::ARCSEC_PER_RAD;
+    format!("  st_mount_q turns the star-tracker mount by {turn:.2} ″ from the base's\n")
+}
+
 /// The report of an update: the revision, the origin, each field set, and how many kept.
 pub fn report(base: &TableDoc, updated: &TableDoc, changes: &[Change], origin: &Origin) -> String {
     let model = origin.model.as_ref().map_or(String::new(), |(m, v)| format!(", model {m} version {v}"));
@@ -119,6 +156,6 @@ pub fn report(base: &TableDoc, updated: &TableDoc, changes: &[Change], origin: &
         updated.table.revision,
         changes.len(),
         ssis::calib::binary::N_F64 - changes.len(),
-        render(changes)
-    )
+        with_provenance(&render(changes), base, changes)
+    ) + &mount_turn(base, updated)
 }

@@ -226,7 +226,7 @@ pub fn anova_beside_main(d: &Diagnosis) -> Vec<String> {
         {
             let Some((name, t)) = find(names, a.fog) else { continue };
             let mut line = format!(
-                "FOG{} {factor}: ANOVA F = {:.2} (nu {}, {}) p {:.2e} | main test {name}: F = {:.2} (nu {}, {}) p {:.2e}",
+                "FOG{} {factor}: ANOVA F = {:.2} (ν {}, {}) p {:.2e} | main test {name}: F = {:.2} (ν {}, {}) p {:.2e}",
                 a.fog, f.0, f.1, f.2, f.3, t.f, t.df1, t.df2, t.p
             );
             let (anova_sig, main_sig) = (f.3 < 0.05, t.p < 0.05);

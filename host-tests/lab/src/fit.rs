@@ -194,15 +194,15 @@ fn plot_axes(d: &Digest, fog: usize) -> Vec<(String, Vec<f64>)> {
     let k = &d.kept;
     let mut v = vec![("time, h".to_string(), k.t_s.iter().map(|t| t / 3600.0).collect())];
     if let Some((temp, g)) = &k.temp[fog] {
-        v.push(("T, degC".into(), temp.clone()));
-        v.push((format!("G = dT/dt, degC/min ({:.0} s window)", d.g_window_s), g.iter().map(|x| x * 60.0).collect()));
+        v.push(("T, °C".into(), temp.clone()));
+        v.push((format!("G = dT/dt, °C/min ({:.0} s window)", d.g_window_s), g.iter().map(|x| x * 60.0).collect()));
     }
     if let Some(psi) = &k.psi_rad {
-        v.push(("azimuth psi, deg".into(), psi.iter().map(|x| x.to_degrees()).collect()));
+        v.push(("azimuth ψ, °".into(), psi.iter().map(|x| x.to_degrees()).collect()));
     }
     let a = super::session::nominal_axes()[fog.min(3)];
     v.push((
-        "input rate along the axis, deg/s".into(),
+        "input rate along the axis, °/s".into(),
         k.omega_rad_s.iter().map(|w| (a.x * w[0] + a.y * w[1] + a.z * w[2]).to_degrees()).collect(),
     ));
     if let Some(b) = &k.field_nt {

@@ -9,6 +9,31 @@ use super::fit::Fitted;
 use super::{LabError, LabResult};
 use ssis_common::DEG_H_PER_RAD_S;
 
+/// The FOGs' colours (FOG0…FOG3): blue, vermilion, bluish green, reddish purple of the
+/// Okabe–Ito set, darkened where needed so each has a contrast of at least 3:1 on white
+/// (WCAG 2.1's minimum for graphics; `fog_colours_are_readable_on_white`).
+pub const FOG_COLOURS: [(u8, u8, u8); 4] = [(0, 114, 178), (196, 78, 0), (0, 128, 92), (170, 68, 136)];
+
+/// The colour of FOG `fog` in every plot.
+pub fn fog_colour(fog: usize) -> RGBColor {
+    let (r, g, b) = FOG_COLOURS[fog % FOG_COLOURS.len()];
+    RGBColor(r, g, b)
+}
+
+/// WCAG 2.1 contrast ratio of an sRGB colour against white.
+pub fn contrast_on_white((r, g, b): (u8, u8, u8)) -> f64 {
+    let lin = |c: u8| {
+        let c = f64::from(c) / 255.0;
+        if c <= 0.04045 {
+            c / 12.92
+        } else {
+            ((c + 0.055) / 1.055).powf(2.4)
+        }
+    };
+    let l = 0.2126 * lin(r) + 0.7152 * lin(g) + 0.0722 * lin(b);
+    1.05 / (l + 0.05)
+}
+
 fn perr(e: impl std::fmt::Display) -> LabError {
     LabError::Numeric(format!("plot: {e}"))
 }
@@ -16,7 +41,18 @@ fn perr(e: impl std::fmt::Display) -> LabError {
 /// Residual of FOG `fog` against every quantity of the session (at the rows the pass kept:
 /// every row of a session up to [`super::stream::DEFAULT_KEEP`] samples), as an SVG string.
 pub fn residual_svg(file: &str, fitted: &Fitted, fog: usize) -> LabResult<String> {
-    let axes = &fitted.sample.axes[fog];
+    // A quantity constant over the session (ψ and the rate of a static run) would give an
+    // empty panel: it is left out and named in the title.
+    let (axes, constant): (Vec<_>, Vec<_>) = fitted.sample.axes[fog].iter().partition(|(_, x)| {
+        let (lo, hi) = x.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
+        hi - lo > 1e-9 * hi.abs().max(lo.abs()).max(1.0)
+    });
+    let note = if constant.is_empty() {
+        String::new()
+    } else {
+        let names: Vec<&str> = constant.iter().map(|(l, _)| l.as_str()).collect();
+        format!("; constant in this session, not plotted: {}", names.join("; "))
+    };
     let res: Vec<f64> = fitted.sample.residual[fog].iter().map(|v| v * DEG_H_PER_RAD_S).collect();
     let stride = res.len().div_ceil(4000).max(1);
     let mut svg = String::new();
@@ -25,18 +61,21 @@ pub fn residual_svg(file: &str, fitted: &Fitted, fog: usize) -> LabResult<String
         let root = SVGBackend::with_string(&mut svg, (1000, 260 * rows + 40)).into_drawing_area();
         root.fill(&WHITE).map_err(perr)?;
         let root = root
-            .titled(&format!("{file}: FOG{fog} residual, deg/h (model v{})", fitted.model.version), ("sans-serif", 18))
+            .titled(
+                &format!("{file}: FOG{fog} residual, °/h (model v{}){note}", fitted.model.version),
+                ("sans-serif", 18),
+            )
             .map_err(perr)?;
         let areas = root.split_evenly((rows as usize, 2));
         let lim = res.iter().fold(1e-9f64, |m, v| m.max(v.abs())) * 1.05;
-        for ((label, x), area) in axes.iter().zip(areas.iter()) {
+        for ((label, x), area) in axes.into_iter().zip(areas.iter()) {
             let (lo, hi) = x.iter().fold((f64::MAX, f64::MIN), |(a, b), &v| (a.min(v), b.max(v)));
             let (lo, hi) = if hi > lo { (lo, hi) } else { (lo - 1.0, hi + 1.0) };
             let mut chart = ChartBuilder::on(area)
                 .margin(8)
                 .x_label_area_size(30)
                 .y_label_area_size(55)
-                .caption(label, ("sans-serif", 14))
+                .caption(label.as_str(), ("sans-serif", 14))
                 .build_cartesian_2d(lo..hi, -lim..lim)
                 .map_err(perr)?;
             chart.configure_mesh().x_labels(6).y_labels(5).draw().map_err(perr)?;
@@ -69,7 +108,7 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
         chart
             .configure_mesh()
             .x_desc("model version")
-            .y_desc("held-out residual RMS, deg/h")
+            .y_desc("held-out residual RMS, °/h")
             .x_labels(points.len().max(2))
             .x_label_formatter(&|x| {
                 if (x - x.round()).abs() < 1e-6 {
@@ -115,11 +154,11 @@ pub fn allan_svg(title: &str, curves: &[(AllanCurve, AllanCurve)], floor: &[f64]
         chart
             .configure_mesh()
             .x_desc("averaging time tau, s")
-            .y_desc("Allan deviation of the residual, deg/h")
+            .y_desc("Allan deviation of the residual, °/h")
             .draw()
             .map_err(perr)?;
         for (fog, ((before, after), f)) in curves.iter().zip(floor).enumerate() {
-            let c = Palette99::pick(fog).to_rgba();
+            let c = fog_colour(fog).to_rgba();
             let dashed = before.iter().map(|p| (p.0, p.1 * DH)).collect::<Vec<_>>();
             chart
                 .draw_series(DashedLineSeries::new(dashed, 6, 4, c.stroke_width(1)))
@@ -166,14 +205,14 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
         chart
             .configure_mesh()
             .x_desc("model version, term added")
-            .y_desc("held-out residual RMS, deg/h")
+            .y_desc("held-out residual RMS, °/h")
             .x_labels(2 * (rows.len() + 1))
             .x_label_formatter(&label)
             .draw()
             .map_err(perr)?;
         let n_fog = rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
         for fog in 0..n_fog {
-            let c = Palette99::pick(fog).to_rgba();
+            let c = fog_colour(fog).to_rgba();
             let pts: Vec<(f64, f64)> = rows.iter().filter_map(|r| r.1.get(fog).map(|v| (r.0 as f64, *v))).collect();
             chart
                 .draw_series(LineSeries::new(pts.clone(), c.stroke_width(2)))
@@ -186,7 +225,7 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
         chart
             .draw_series(LineSeries::new(fl, BLACK.mix(0.4)))
             .map_err(perr)?
-            .label(format!("white-noise floor {floor_deg_h:.4} deg/h"))
+            .label(format!("white-noise floor {floor_deg_h:.4} °/h"))
             .legend(|(x, y)| PathElement::new(vec![(x, y), (x + 16, y)], BLACK.mix(0.4)));
         chart.configure_series_labels().background_style(WHITE.mix(0.8)).border_style(BLACK).draw().map_err(perr)?;
         root.present().map_err(perr)?;
@@ -226,7 +265,7 @@ pub fn overlay_svg(step: &super::fit::AddStep, kept: &super::fit::KeptTimes) -> 
         let root = SVGBackend::with_string(&mut svg, (1000, 230 * n_fog.div_ceil(2) as u32 + 40)).into_drawing_area();
         root.fill(&WHITE).map_err(perr)?;
         let title = format!(
-            "v{} → v{} ({}): residual, deg/h, means over {}",
+            "v{} → v{} ({}): residual, °/h, means over {}",
             step.from,
             step.to,
             step.added,
@@ -244,7 +283,7 @@ pub fn overlay_svg(step: &super::fit::AddStep, kept: &super::fit::KeptTimes) -> 
             let (t0, t1) = if t1 > t0 { (t0, t1) } else { (t0 - 1.0, t1 + 1.0) };
             let rms = |v: &[f64]| (v.iter().map(|x| x * x).sum::<f64>() / v.len().max(1) as f64).sqrt();
             let caption = format!(
-                "FOG{fog}: RMS v{} {:.4} (grey) → v{} {:.4} deg/h; floor ±{floor:.4} (dashed)",
+                "FOG{fog}: RMS v{} {:.4} (grey) → v{} {:.4} °/h; floor ±{floor:.4} (dashed)",
                 step.from,
                 rms(&b),
                 step.to,
@@ -260,13 +299,13 @@ pub fn overlay_svg(step: &super::fit::AddStep, kept: &super::fit::KeptTimes) -> 
             chart
                 .configure_mesh()
                 .x_desc("time, h")
-                .y_desc("deg/h")
+                .y_desc("°/h")
                 .x_labels(6)
                 .y_labels(5)
                 .y_label_formatter(&|v| format!("{:.2}", if v.abs() < 0.005 { 0.0 } else { *v }))
                 .draw()
                 .map_err(perr)?;
-            let c = Palette99::pick(fog).to_rgba();
+            let c = fog_colour(fog).to_rgba();
             chart
                 .draw_series(LineSeries::new(
                     t_h.iter().copied().zip(b.iter().copied()),
@@ -289,4 +328,19 @@ pub fn overlay_svg(step: &super::fit::AddStep, kept: &super::fit::KeptTimes) -> 
 /// Writes an SVG string atomically.
 pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
     super::write_atomic(path, svg.as_bytes())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fog_colours_are_readable_on_white() {
+        for (fog, c) in FOG_COLOURS.iter().enumerate() {
+            let r = contrast_on_white(*c);
+            assert!(r >= 3.0, "FOG{fog} colour {c:?}: contrast {r:.2} on white, under 3:1");
+        }
+        // The check can fail: plotters' Palette99 yellow (FOG2's former colour) is under it.
+        assert!(contrast_on_white((255, 225, 25)) < 3.0);
+    }
 }

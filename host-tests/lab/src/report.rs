@@ -72,26 +72,41 @@ pub fn render(
         h.push_str("<p><b>No significant missing effect.</b></p>\n");
     }
     h.push_str("<table><tr><th>rank</th><th>candidate</th><th>origin</th><th>p</th>");
-    h.push_str("<th>held-out before, °/h</th><th>after, °/h</th><th></th></tr>\n");
+    h.push_str(&format!(
+        "<th>held-out before, °/h</th><th>after, °/h</th><th>significant at {} %</th></tr>\n",
+        100.0 * diag.fdr_level
+    ));
     for (r, c) in diag.candidates.iter().enumerate() {
         h.push_str(&format!(
             "<tr><td>{}</td><td class=\"l\">{}</td><td class=\"l\">{}</td><td>{:.2e}</td><td>{:.4}</td><td>{:.4}</td>\
-             <td class=\"sig\">{}</td></tr>\n",
+             <td class=\"{}\">{}</td></tr>\n",
             r + 1,
             esc(&c.kind.label()),
             esc(&c.origin),
             c.p_value,
             c.before_rad_s * DEG_H_PER_RAD_S,
             c.after_rad_s * DEG_H_PER_RAD_S,
-            if c.significant { "significant" } else { "" }
+            if c.significant { "sig" } else { "l" },
+            if c.significant { "yes" } else { "no" }
         ));
     }
     h.push_str("</table>\n");
     for a in &diag.anova {
+        // As the command line prints it: ratio, degrees of freedom, p, critical values.
+        let f = |name: &str, (r, d1, d2, p): (f64, usize, usize, f64)| {
+            format!(
+                "{name} = {r:.2} (ν {d1}, {d2}; p {p:.2e}; critical 5 % {:.2}, 1 % {:.2})",
+                crate::diagnose::f_critical(0.05, d1, d2),
+                crate::diagnose::f_critical(0.01, d1, d2)
+            )
+        };
         h.push_str(&format!(
-            "<p>FOG{} two-factor ANOVA (T × G, {} cells): F_T = {:.2} (p {:.2e}), F_G = {:.2} (p {:.2e}), \
-             F_TG = {:.2} (p {:.2e})</p>\n",
-            a.fog, a.cells, a.f_t.0, a.f_t.3, a.f_g.0, a.f_g.3, a.f_tg.0, a.f_tg.3
+            "<p>FOG{} two-factor ANOVA (T × G, {} cells): {}, {}, {}</p>\n",
+            a.fog,
+            a.cells,
+            f("F_T", a.f_t),
+            f("F_G", a.f_g),
+            f("F_TG", a.f_tg)
         ));
     }
     if history.len() > 1 {

@@ -225,7 +225,7 @@ fn add_refuses_a_worse_version() {
     let err = String::from_utf8_lossy(&out.stderr).to_string();
     println!("add aging: exit {:?}: {}", out.status.code(), err.trim());
     assert!(!out.status.success(), "a worse version was accepted");
-    assert!(err.contains("th.csv") && err.contains("worse") && err.contains("deg/h"), "message: {err}");
+    assert!(err.contains("th.csv") && err.contains("worse") && err.contains("°/h"), "message: {err}");
     assert!(!dir.join("m.v2.toml").exists(), "a worse version was written");
     let out = lab(&["add", "aging", "--model", "m.v1.toml", "--session", "th.csv", "--force"]);
     assert!(out.status.success(), "--force: {}", String::from_utf8_lossy(&out.stderr));
@@ -241,5 +241,105 @@ fn add_refuses_a_worse_version() {
     let hist = std::fs::read_to_string(dir.join("m.history-fogs.svg")).unwrap();
     for must in ["v2 +aging", "white-noise floor", "FOG3"] {
         assert!(hist.contains(must), "history plot lacks `{must}`");
+    }
+}
+
+/// Runs `ssis-lab` in `dir`: (exit status, stdout + stderr).
+fn lab_in(dir: &Path, args: &[&str]) -> (Option<i32>, String) {
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_ssis-lab"))
+        .current_dir(dir)
+        .env_remove("RUST_BACKTRACE")
+        .args(args)
+        .output()
+        .unwrap();
+    let text = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    println!("$ ssis-lab {}\n  exit {:?}\n{text}", args.join(" "), out.status.code());
+    (out.status.code(), text)
+}
+
+/// A mistyped catalog term is refused at `init` (not written as an expression) with the
+/// catalog and the nearest name; at `add` an expression's variables must be columns of the
+/// session; nothing is written.
+#[test]
+fn init_and_add_check_terms_against_the_catalog_and_the_columns() {
+    let dir = scratch("terms");
+    let (code, text) = lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,temprate"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("did you mean `temp_rate`?") && text.contains("thermal_t1, thermal_t2"), "{text}");
+    assert!(!dir.join("m.v1.toml").exists(), "a model was written");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["add", "Temp_Rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("did you mean `temp_rate`?"), "{text}");
+    let (code, text) = lab_in(&dir, &["add", "chamber_rh * 2", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("th.csv: `chamber_rh`") && text.contains("not a column of the session"), "{text}");
+    assert!(text.contains("did you mean `chamber_rh_pct`?"), "{text}");
+    assert!(!dir.join("m.v2.toml").exists(), "a version was written");
+}
+
+/// The second `add` of the same term onto the same version is refused (it would repeat
+/// v2), and the lab's own per-FOG history plot is replaced, not left stale.
+#[test]
+fn add_refuses_a_repeated_version_and_replaces_its_own_plots() {
+    let dir = scratch("repeat");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("wrote m.history-fogs.svg") && !text.contains("not written"), "{text}");
+    let (code, text) = lab_in(&dir, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "th.csv"]);
+    assert_eq!(code, Some(1), "{text}");
+    assert!(text.contains("gives version 2 again") && text.contains("not written"), "{text}");
+    assert!(!dir.join("m.v3.toml").exists(), "a repeated version was written");
+    let before = std::fs::read(dir.join("m.history-fogs.svg")).unwrap();
+    let (code, text) = lab_in(&dir, &["add", "t_times_g", "--model", "m.v2.toml", "--session", "th.csv", "--force"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("wrote m.history-fogs.svg") && !text.contains("not written"), "{text}");
+    assert_ne!(std::fs::read(dir.join("m.history-fogs.svg")).unwrap(), before, "the per-FOG history is stale");
+}
+
+/// `export --base cal.toml --toml cal.toml` updates the table in place, as every `ssis-cal
+/// --table` does, and prints beside each changed field who had set the value it replaces.
+#[test]
+fn export_updates_its_base_in_place_with_the_provenance_it_replaces() {
+    let dir = scratch("export-in-place");
+    for (session, seed, m) in [("a.csv", "3", "m"), ("b.csv", "4", "n")] {
+        assert_eq!(lab_in(&dir, &["simulate", "thermal", session, "--seed", seed]).0, Some(0));
+        assert_eq!(lab_in(&dir, &["init", &format!("{m}.v1.toml"), "--terms", "bias,thermal_t1"]).0, Some(0));
+        let (code, _) = lab_in(&dir, &["add", "temp_rate", "--model", &format!("{m}.v1.toml"), "--session", session]);
+        assert_eq!(code, Some(0));
+    }
+    assert_eq!(lab_in(&dir, &["export", "--model", "m.v2.toml", "--toml", "cal.toml"]).0, Some(0));
+    let (code, text) = lab_in(&dir, &["export", "--model", "n.v2.toml", "--base", "cal.toml", "--toml", "./cal.toml"]);
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("revision 1 → 2") && text.contains("updated ./cal.toml (revision 2)"), "{text}");
+    let bias = text.lines().find(|l| l.trim_start().starts_with("fog[0].bias_rad_s")).unwrap_or("");
+    assert!(bias.contains("[was set by ssis-lab export from a.csv, model m.v2.toml version 2]"), "{text}");
+    let doc = ssis_common::table::read_doc(&dir.join("cal.toml")).unwrap();
+    assert_eq!(doc.table.revision, 2);
+    assert!(doc.provenance.iter().any(|p| p.session == "b.csv"), "provenance not updated");
+}
+
+/// The HTML report on a static chamber session: no empty column or header in the
+/// diagnosis, no residual panel for a quantity the session holds constant (ψ and the input
+/// rate: named instead), the ANOVA with its degrees of freedom and critical values.
+#[test]
+fn report_has_no_empty_columns_or_panels_and_a_full_anova() {
+    let dir = scratch("report-gaps");
+    assert_eq!(lab_in(&dir, &["simulate", "thermal", "th.csv", "--seed", "3"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["init", "m.v1.toml", "--terms", "bias,thermal_t1"]).0, Some(0));
+    assert_eq!(lab_in(&dir, &["report", "--model", "m.v1.toml", "--session", "th.csv", "--out", "r.html"]).0, Some(0));
+    let html = std::fs::read_to_string(dir.join("r.html")).unwrap();
+    assert!(!html.contains("<th></th>") && !html.contains("\"></td>") && !html.contains("<td></td>"), "empty cell");
+    assert!(html.contains("significant at 1 %</th>"), "the significance column has no header");
+    assert!(html.contains("constant in this session, not plotted: azimuth ψ, °; input rate along the axis, °/s"));
+    // Panel captions are SVG text on a line of their own.
+    assert!(html.contains(">\nT, °C\n<"), "no panel for the temperature");
+    assert!(!html.contains(">\nazimuth ψ, °\n<"), "a panel for the constant azimuth");
+    let anova = html.lines().find(|l| l.contains("two-factor ANOVA")).expect("an ANOVA line");
+    for must in ["F_G = ", "(ν 2, 4;", "critical 5 % 6.94, 1 % 18.00"] {
+        assert!(anova.contains(must), "the ANOVA line lacks `{must}`: {anova}");
     }
 }

@@ -41,12 +41,19 @@ fn export_onto_its_model_is_refused() {
     let s = lab_dir("export-model");
     succeeds(LAB, &s, &["add", "temp_rate", "--model", "m.v1.toml", "--session", "s.csv"], &[]);
     refused(LAB, &s, &["export", "--model", "m.v2.toml", "--toml", "m.v2.toml"], &["m.v2.toml", "input"]);
-    // A base table named as the output is an input too.
+    // A base table named as `--toml` is updated in place (as `ssis-cal --table` is); as
+    // `--bin` it stays an input.
     succeeds(LAB, &s, &["export", "--model", "m.v2.toml", "--toml", "base.toml"], &[]);
-    refused(
+    succeeds(
         LAB,
         &s,
         &["export", "--model", "m.v2.toml", "--base", "base.toml", "--toml", "base.toml"],
+        &["base.toml"],
+    );
+    refused(
+        LAB,
+        &s,
+        &["export", "--model", "m.v2.toml", "--base", "base.toml", "--bin", "base.toml"],
         &["base.toml", "input"],
     );
     // One file named twice as output.

@@ -235,8 +235,8 @@ pub fn static_rates(s: &ssis_session::Session, fog: usize) -> Result<Vec<f64>> {
         bail!(
             "{file}: samples are not equally spaced (interval {} s at t = {} s, the session's is {dt} s): the \
              Allan variance needs a gap-free static session",
-            t[k + 1] - t[k],
-            t[k]
+            ((t[k + 1] - t[k]) * 1e3).round() / 1e3,
+            (t[k] * 1e3).round() / 1e3
         );
     }
     let mut d: Vec<f64> = f.rate_rad_s.windows(2).map(|w| (w[1] - w[0]).abs()).collect();
@@ -252,7 +252,7 @@ pub fn static_rates(s: &ssis_session::Session, fog: usize) -> Result<Vec<f64>> {
              white noise of {:.4} °/h per sample; the Allan variance needs the rate input constant to within the \
              noise (a turntable run reads as noise of the wrong size: record a static run)",
             worst / DEG_H,
-            t.get(k).copied().unwrap_or(f64::NAN),
+            t.get(k).map_or(f64::NAN, |t| (t * 1e3).round() / 1e3),
             sigma / DEG_H
         );
     }

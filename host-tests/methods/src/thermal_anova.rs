@@ -493,7 +493,15 @@ pub fn chamber_cells(s: &ssis_session::Session, fog: usize, levels: &Levels, win
     by_cell.sort_by_key(|c| c.0);
     let n = by_cell.iter().map(|c| c.1.len()).min().unwrap_or(0);
     if n < 2 {
-        bail!("{file}: a cell of the design has fewer than 2 samples of FOG{fog}: the session is too short per cell");
+        let thin = by_cell
+            .iter()
+            .filter(|c| c.1.len() < 2)
+            .map(|((j, l), ks)| {
+                format!("T {} °C, G {} °C/min: {} sample(s)", levels.t_degc[*j], levels.g_degc_min[*l], ks.len())
+            })
+            .collect::<Vec<_>>()
+            .join("; ");
+        bail!("{file}: FOG{fog}: a cell of the design needs at least 2 samples: {thin}");
     }
     let y = |k: usize| {
         let w = s.ref_rad_s[k];

@@ -256,7 +256,7 @@ fn print_diagnosis(d: &Diagnosis) {
     );
     println!(
         "{:>4}  {:<34} {:>10}  {:>12} {:>12} {:>7}  {:>27}  origin",
-        "rank", "candidate", "p", "before deg/h", "after deg/h", "drop", "removed deg/h (1 sigma)"
+        "rank", "candidate", "p", "before °/h", "after °/h", "drop", "removed °/h (1σ)"
     );
     for (r, c) in d.candidates.iter().enumerate() {
         let (rm, lo, hi) = c.removed_rad_s();
@@ -277,7 +277,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     println!(
         "p: the larger of the GLS F-test's and the held-out improvement's under each FOG's noise model \
-         (white + Gauss-Markov, fitted on the test blocks' residual); removed: sqrt(before^2 - after^2)"
+         (white + Gauss-Markov, fitted on the test blocks' residual); removed: √(before² − after²)"
     );
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");
@@ -295,7 +295,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     for a in &d.anova {
         println!(
-            "FOG{} two-factor ANOVA, T x G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} degC, G at {:.4}/{:.4} degC/min:",
+            "FOG{} two-factor ANOVA, T × G (paper Tables 1-2), {} cells, T levels cut at {:.1}/{:.1} °C, G at {:.4}/{:.4} °C/min:",
             a.fog,
             a.cells,
             a.t_edges_degc[0],
@@ -305,7 +305,7 @@ fn print_diagnosis(d: &Diagnosis) {
         );
         for (name, f) in [("F_T ", a.f_t), ("F_G ", a.f_g), ("F_TG", a.f_tg)] {
             println!(
-                "    {name} = {:>9.2}  (nu {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
+                "    {name} = {:>9.2}  (ν {}, {})  p {:.2e}  critical 5 % {:.2}, 1 % {:.2}",
                 f.0,
                 f.1,
                 f.2,
@@ -368,7 +368,7 @@ fn files(cmd: &Cmd) -> Result<()> {
         Cmd::Compare { model, session, plots, .. } => {
             inputs(&[model, session]);
             for (i, d) in (0..4).flat_map(|i| plots.iter().map(move |d| (i, d))) {
-                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, deg/h"))?;
+                svg(&d.join(format!("residual-fog{i}.svg")), &format!(": FOG{i} residual, °/h"))?;
             }
             "compare"
         }
@@ -379,13 +379,20 @@ fn files(cmd: &Cmd) -> Result<()> {
         Cmd::Add { model, session, .. } => {
             inputs(&[model, session]);
             versions(model);
-            let h = model.with_file_name(format!("{}.history.svg", ssis_lab::fit::model_stem(model)));
+            let stem = ssis_lab::fit::model_stem(model);
+            svg(&model.with_file_name(format!("{stem}.history-fogs.svg")), "held-out RMS per FOG on ")?;
+            let h = model.with_file_name(format!("{stem}.history.svg"));
             svg(&h, "held-out RMS on ").map(|()| "add")?
         }
         Cmd::Export { model, base, toml, bin } => {
             inputs(&[model]);
-            base.iter().for_each(|b| output::input(b));
-            toml.iter().chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
+            // `--toml` onto `--base` updates that table in place, as `ssis-cal --table` does.
+            let in_place = toml.as_deref().filter(|t| base.as_deref().is_some_and(|b| same_file(b, t)));
+            match in_place {
+                Some(t) => output::update(t)?,
+                None => base.iter().for_each(|b| output::input(b)),
+            }
+            toml.iter().filter(|_| in_place.is_none()).chain(bin).try_for_each(|p| named(p)).map(|()| "export")?
         }
         Cmd::Report { model, session, out } => {
             inputs(&[model, session]);
@@ -405,6 +412,11 @@ fn files(cmd: &Cmd) -> Result<()> {
     };
     cli::report("command", || json!(name));
     Ok(())
+}
+
+/// Whether two paths name one existing file (however spelt).
+fn same_file(a: &Path, b: &Path) -> bool {
+    matches!((a.canonicalize(), b.canonicalize()), (Ok(x), Ok(y)) if x == y)
 }
 
 /// One subcommand, one function (`force`: `--force`).
@@ -431,12 +443,83 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
     }
 }
 
+/// The per-FOG variables an expression may use besides the session's columns
+/// (`Kind::Expr`).
+const FOG_VARIABLES: [&str; 5] = ["rate_rad_s", "t_degc", "dt_degc", "g_degc_s", "fog"];
+
+/// The column names of a CSV session (its first line that is not a `#` comment); none for
+/// another format (a capture).
+fn session_columns(path: &Path) -> Vec<String> {
+    use std::io::BufRead;
+    let Ok(f) = std::fs::File::open(path) else { return Vec::new() };
+    let header = std::io::BufReader::new(f).lines().map_while(|l| l.ok()).find(|l| !l.starts_with('#'));
+    match header {
+        Some(h) if h.is_ascii() && h.contains(',') => {
+            h.trim_start_matches('\u{feff}').split(',').map(|c| c.trim().to_string()).collect()
+        }
+        _ => Vec::new(),
+    }
+}
+
+/// The closest of `names` to `word` (case and `_` aside, at most 2 edits, or a name the
+/// word begins), as a "did you mean" clause.
+fn did_you_mean<'a>(word: &str, names: impl Iterator<Item = &'a str>) -> String {
+    let norm = |s: &str| s.to_lowercase().replace(['_', '-'], "");
+    names
+        .map(|n| {
+            let (w, m) = (norm(word), norm(n));
+            // A name the word begins (`chamber_rh` of `chamber_rh_pct`) counts as one edit.
+            (if w.len() >= 3 && m.starts_with(&w) && w != m { 1 } else { strsim::levenshtein(&w, &m) }, n)
+        })
+        .filter(|(d, _)| *d <= 2)
+        .min_by_key(|(d, _)| *d)
+        .map_or(String::new(), |(_, n)| format!("; did you mean `{n}`?"))
+}
+
+/// A command-line term, checked before any work: a name close to a catalog term is a typo
+/// (refused with the catalog and the nearest name, not taken as an expression), and with a
+/// CSV `session` every variable of an expression must be one of its columns or a per-FOG
+/// variable.
+fn checked_term(arg: &str, session: Option<&Path>) -> Result<Kind> {
+    use exmex::Express;
+    let kind = Kind::parse_arg(arg)?;
+    let Kind::Expr(e) = &kind else { return Ok(kind) };
+    let catalog = ssis_lab::model::catalog_names();
+    let bare = !arg.is_empty() && arg.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+    let columns = session.map(session_columns).unwrap_or_default();
+    let known = |v: &str| FOG_VARIABLES.contains(&v) || columns.iter().any(|c| c == v);
+    if bare && !known(arg) {
+        let hint = did_you_mean(arg, catalog.split(", "));
+        if !hint.is_empty() || !columns.is_empty() {
+            bail!(
+                "`{arg}` is not a term of the catalog ({catalog}, sinusoid:F_HZ){hint} \
+                 (an expression over session columns is a term too)"
+            );
+        }
+    }
+    if columns.is_empty() {
+        return Ok(kind);
+    }
+    let parsed = exmex::parse::<f64>(e).map_err(|err| anyhow::anyhow!("`{e}`: {err}"))?;
+    if let Some(v) = parsed.var_names().iter().find(|v| !known(v)) {
+        let names = columns.iter().map(String::as_str).chain(FOG_VARIABLES).chain(catalog.split(", "));
+        bail!(
+            "{}: `{v}` in the term `{e}` is not a column of the session ({}) nor a per-FOG variable ({}){}",
+            session.map_or(String::new(), |p| p.display().to_string()),
+            columns.join(", "),
+            FOG_VARIABLES.join(", "),
+            did_you_mean(v, names)
+        );
+    }
+    Ok(kind)
+}
+
 /// `init`: writes version 1 of a new model (never over an existing file).
 fn init(model: PathBuf, terms: String, t_ref_degc: f64, g_window_s: f64) -> Result<()> {
     if model.exists() {
         bail!("{} exists: the lab never overwrites a model", model.display());
     }
-    let kinds = terms.split(',').map(|t| Kind::parse_arg(t.trim())).collect::<Result<Vec<_>, _>>()?;
+    let kinds = terms.split(',').map(|t| checked_term(t.trim(), None)).collect::<Result<Vec<_>>>()?;
     let mut m = Model::new(&kinds);
     m.t_ref_degc = t_ref_degc;
     m.g_window_s = g_window_s;
@@ -465,7 +548,7 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
     );
     println!(
         "{:>4} {:>14} {:>14} {:>14} {:>10} {:>16}",
-        "FOG", "error deg/h", "residual deg/h", "max deg/h", "explained", "held-out deg/h"
+        "FOG", "error °/h", "residual °/h", "max °/h", "explained", "held-out °/h"
     );
     for (i, x) in f.summary.iter().enumerate() {
         println!(
@@ -482,8 +565,15 @@ fn compare_cmd(model: PathBuf, session: PathBuf, evaluate: bool, plots: Option<P
     }
     for (t, k) in f.model.kinds().iter().enumerate() {
         for (fog, c) in f.model.terms[t].coef.iter().enumerate() {
+            // Engineering units, as `add` prints them (SI stays in the model file and --json).
             let labels = k.regressor_labels(fog);
-            let text: Vec<String> = c.iter().zip(&labels).map(|(v, (n, u))| format!("{n} = {v:.6e} {u}")).collect();
+            let units = k.eng_units(fog);
+            let text: Vec<String> = c
+                .iter()
+                .zip(&labels)
+                .zip(&units)
+                .map(|((v, (n, _)), (u, f))| format!("{n} = {:.5} {u}", v * f))
+                .collect();
             println!("  {:<24} FOG{fog}: {}", k.label(), text.join(", "));
         }
     }
@@ -518,11 +608,11 @@ fn diagnose_cmd(model: PathBuf, session: PathBuf, level: f64, blocks: usize) -> 
 fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
     use ssis_lab::noise::{allan_deviation, tau_mean_rms};
     let dt = out.kept_dt_s;
-    println!("systematic part removed, sqrt(before^2 - after^2) of the held-out RMS, deg/h:");
+    println!("systematic part removed, √(before² − after²) of the held-out RMS, °/h:");
     for (fog, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
         println!("  FOG{fog} {:.5}", dh((b * b - a * a).max(0.0).sqrt()));
     }
-    println!("residual RMS of tau-means, deg/h (before -> after; white floor from the Allan deviation at one sample):");
+    println!("residual RMS of tau-means, °/h (before -> after; white floor from the Allan deviation at one sample):");
     for (fog, (rb, ra)) in out.residual_before_rad_s.iter().zip(&out.residual_after_rad_s).enumerate() {
         let sigma1 = allan_deviation(ra, dt).first().map_or(f64::NAN, |p| p.1);
         let cells: Vec<String> = [1.0, 100.0, 1000.0]
@@ -541,13 +631,13 @@ fn print_error_fall(out: &ssis_lab::fit::AddOutcome) {
 /// `add`: the next model version with one more term, its held-out gain and the history of versions.
 fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force: bool) -> Result<()> {
     let m = load_model(&model)?;
-    let kind = Kind::parse_arg(&term)?;
+    let kind = checked_term(&term, Some(&session))?;
     let mut out = pass(&session, "refitting on", |_| add_term(&m, &kind, Source::File(&session), blocks))?;
     notes(&out.notes);
     let (b, a) = (pooled(&out.before_rad_s), pooled(&out.after_rad_s));
     if a > b && !force {
         bail!(
-            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} deg/h over {} blocks); no version written \
+            "{}: adding {} makes the held-out RMS worse ({:.5} -> {:.5} °/h over {} blocks); no version written \
              (--force writes it anyway)",
             session.display(),
             kind.label(),
@@ -566,11 +656,27 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     if path.exists() {
         bail!("{} exists: the lab never overwrites a model", path.display());
     }
+    // A version that only repeats one that exists (the same terms and coefficients from
+    // the same session) is not written.
+    let same = |a: &Model, b: &Model| {
+        Model { version: 0, note: String::new(), ..a.clone() } == Model { version: 0, note: String::new(), ..b.clone() }
+    };
+    for (v, p) in history_files(&model) {
+        if load_model(&p).is_ok_and(|old| same(&old, &out.model)) {
+            bail!(
+                "{}: adding {} to {} gives version {v} again ({}): not written",
+                session.display(),
+                kind.label(),
+                model.display(),
+                p.display()
+            );
+        }
+    }
     // Written whole (or not at all) before anything is printed: a closed pipe cannot cut it.
     output::claim(&path, Origin::New)?;
     ssis_lab::write_atomic(&path, out.model.to_toml().as_bytes())?;
     cli::report("added", || ssis_lab::json::added(&out, &kind, &path.display().to_string()));
-    println!("held-out residual RMS, deg/h ({} blocks):", blocks);
+    println!("held-out residual RMS, °/h ({} blocks):", blocks);
     println!("{:>4} {:>12} {:>12} {:>8}", "FOG", "before", "after", "drop");
     for (i, (b, a)) in out.before_rad_s.iter().zip(&out.after_rad_s).enumerate() {
         println!("{i:>4} {:>12.5} {:>12.5} {:>7.1}%", dh(*b), dh(*a), 100.0 * (1.0 - a / b));
@@ -606,7 +712,7 @@ fn add_cmd(term: String, model: PathBuf, session: PathBuf, blocks: usize, force:
     cli::report("history", || {
         json!(h.iter().map(|(v, r, per, terms)| ssis_lab::json::history_row(*v, *r, per, terms)).collect::<Vec<_>>())
     });
-    println!("history on {} (held-out RMS, deg/h):", session.display());
+    println!("history on {} (held-out RMS, °/h):", session.display());
     for (v, r, per, terms) in &h {
         let per: Vec<String> = per.iter().map(|x| format!("{x:.5}")).collect();
         println!("  v{v:<3} {r:>10.5}  [{}]  {terms}", per.join(" "));
@@ -677,7 +783,11 @@ fn export_cmd(model: PathBuf, base: Option<PathBuf>, toml: Option<PathBuf>, bin:
     print!("{}", ssis_common::update::report(&base_doc, &doc, &changes, &origin));
     if let Some(p) = &toml {
         ssis_common::table::write_doc(p, &doc)?;
-        println!("wrote {}", p.display());
+        if base.as_deref().is_some_and(|b| same_file(b, p)) {
+            println!("updated {} (revision {})", p.display(), doc.table.revision);
+        } else {
+            println!("wrote {}", p.display());
+        }
     }
     if let Some(p) = &bin {
         ssis_common::table::write_binary(p, &doc.table)?;
@@ -761,7 +871,7 @@ fn replay_cmd(session: PathBuf, table: Option<PathBuf>) -> Result<()> {
         r.profile.fogs.count()
     );
     println!(
-        "body rate error RMS, deg/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
+        "body rate error RMS, °/h: x {:.5}  y {:.5}  z {:.5}  |e| {:.5}",
         axis(0),
         axis(1),
         axis(2),
@@ -821,7 +931,7 @@ fn simulate_cmd(preset: String, out: PathBuf, seed: u64, no_hidden: bool, field:
     let sim = simulate::generate(&spec);
     sim.write_csv(&out)?;
     println!(
-        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} deg/h, hidden effect {:?}{})",
+        "wrote {} ({} rows, {} s samples, white-noise floor {:.4} °/h, hidden effect {:?}{})",
         out.display(),
         sim.rows.len(),
         spec.dt_s,

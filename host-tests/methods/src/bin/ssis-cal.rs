@@ -99,17 +99,18 @@ enum Cmd {
         /// samples are sorted into the T × G levels.
         #[arg(long)]
         session: Option<PathBuf>,
-        /// T levels of the design, °C.
-        #[arg(long, value_delimiter = ',', default_values_t = thermal_anova::TABLE1_T_DEGC)]
+        /// T levels of the design, °C, comma-separated.
+        #[arg(long, value_delimiter = ',', default_value = "10,20,30,40")]
         t_levels_degc: Vec<f64>,
-        /// G levels of the design, °C/min.
-        #[arg(long, value_delimiter = ',', allow_negative_numbers = true, default_values_t = thermal_anova::TABLE1_G_DEGC_MIN)]
+        /// G levels of the design, °C/min, comma-separated (`-0.25,0,0.25` and
+        /// `=-0.25,0,0.25` both work).
+        #[arg(long, value_delimiter = ',', allow_hyphen_values = true, default_value = "-0.25,0,0.25")]
         g_levels_degc_min: Vec<f64>,
         /// Seed of the simulation.
         #[arg(long, default_value_t = 1)]
         seed: u64,
         /// FOG whose table entry receives the model (0-3).
-        #[arg(long, default_value_t = 0)]
+        #[arg(long, default_value_t = 0, value_parser = fog_index)]
         fog: usize,
         /// SVG of the cell means against T, one line per G level.
         #[arg(long, default_value = "thermal.svg")]
@@ -123,8 +124,8 @@ enum Cmd {
         /// Static session.
         #[arg(long)]
         session: PathBuf,
-        /// FOG column (fogN_...).
-        #[arg(long, default_value_t = 0)]
+        /// FOG column (fogN_...), 0-3.
+        #[arg(long, default_value_t = 0, value_parser = fog_index)]
         fog: usize,
         /// SVG (log10 σ against log10 τ).
         #[arg(long, default_value = "allan.svg")]
@@ -254,6 +255,14 @@ fn main() -> ExitCode {
     cli::finish_unit(started.and_then(|()| run(cli)))
 }
 
+/// `--fog N`: a FOG of the unit (0-3), refused before any work.
+fn fog_index(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(i) if i <= 3 => Ok(i),
+        _ => Err(format!("`{s}`: the unit has FOGs 0-3")),
+    }
+}
+
 /// Registers the command's inputs and claims its outputs (`ssis_common::output`): a
 /// refusal comes before any work. A plot at its default name is replaced when it is one of
 /// ours (its title); the table a method updates is both input and output.
@@ -271,7 +280,13 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
                 "{}: exists: --new-table starts a table only where none is (without it the table is updated)",
                 t.display()
             ),
-            _ => output::update(t),
+            // An existing table must parse before any work: a method never prints its
+            // figures or writes its plot and then fails on the table.
+            (true, false) => {
+                output::update(t)?;
+                ssis_common::table::read_doc(t).map(drop)
+            }
+            (false, true) => output::update(t),
         }
     };
     let named = |p: &Path| output::claim(p, Origin::Named);
@@ -364,6 +379,7 @@ fn run(cli: Cli) -> Result<()> {
     match cli.cmd {
         Cmd::Simulate { what } => simulate(what),
         Cmd::Magnetic { unscreened, screened, plot, site, date, paper_field } => {
+            date.as_deref().map(parse_date).transpose()?;
             magnetic_cmd(unscreened, screened, plot, site, date, paper_field)
         }
         Cmd::Thermal { simulate, session, t_levels_degc, g_levels_degc_min, seed, fog, plot, table } => {
@@ -393,6 +409,20 @@ fn simulate(what: Sim) -> Result<()> {
     }
 }
 
+/// `--date YYYY-DDD` (year, day of the year 1-366): refused, saying the form, before any work.
+fn parse_date(date: &str) -> Result<(i32, u16)> {
+    let bad = || anyhow::anyhow!("--date `{date}`: expected YYYY-DDD, the year and the day of the year (2025-001)");
+    let (y, d) = date.split_once('-').ok_or_else(bad)?;
+    if y.len() != 4 || d.len() != 3 {
+        return Err(bad());
+    }
+    let (y, d) = (y.parse::<i32>().map_err(|_| bad())?, d.parse::<u16>().map_err(|_| bad())?);
+    if !(1..=366).contains(&d) {
+        return Err(bad());
+    }
+    Ok((y, d))
+}
+
 /// Magnetic sensitivity from an unscreened and a screened session: the eq. (1)/(2) fits, the field
 /// at the site, the plot.
 /// The World Magnetic Model's field at `--site` on `--date`, (north, west, up) nT.
@@ -405,11 +435,7 @@ fn wmm_at(site: &str, date: &str) -> Result<[f64; 3]> {
     if !(2..=3).contains(&v.len()) {
         bail!("--site `{site}`: expected LAT_DEG,LON_DEG[,HEIGHT_M]");
     }
-    let (y, d) = date.split_once('-').ok_or_else(|| anyhow::anyhow!("--date `{date}`: expected YYYY-DDD"))?;
-    let (y, d) = (
-        y.parse::<i32>().map_err(|e| anyhow::anyhow!("--date `{date}`: year: {e}"))?,
-        d.parse::<u16>().map_err(|e| anyhow::anyhow!("--date `{date}`: day of the year: {e}"))?,
-    );
+    let (y, d) = parse_date(date)?;
     magnetic::wmm_field_nwu_nt(v[0], v[1], v.get(2).copied().unwrap_or(0.0), y, d)
 }
 
@@ -525,10 +551,56 @@ enum ThermalInput {
     Session(PathBuf, thermal_anova::Levels),
 }
 
-/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
-/// significant, the thermal model (into the table with `--table`).
-fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
-    let (cells, samples, levels, source) = match input {
+/// What the cells of a chamber session hold and what the balanced design leaves out: the
+/// rows between levels and the rows each cell loses when cut to the smallest cell's N
+/// (named), in rows and as a share of the session.
+fn chamber_summary(path: &Path, fog: usize, c: &thermal_anova::Chamber, levels: &thermal_anova::Levels) -> String {
+    let n = c.cells.first().map_or(0, |x| x.y.len());
+    let in_cells: usize = c.counts.iter().sum();
+    let rows = in_cells + c.outside;
+    let used = n * c.cells.len();
+    let cut = in_cells - used;
+    let smallest = c
+        .cells
+        .iter()
+        .zip(&c.counts)
+        .filter(|(_, &k)| k == n)
+        .map(|(x, _)| format!("T {} °C, G {} °C/min", levels.t_degc[x.t_level], levels.g_degc_min[x.g_level]))
+        .collect::<Vec<_>>()
+        .join("; ");
+    let pct = |k: usize| 100.0 * k as f64 / rows.max(1) as f64;
+    let mut out = format!(
+        "{}: FOG{fog}, {rows} rows: {in_cells} in {} cells (held {:?}), {} between levels left out\n",
+        path.display(),
+        c.cells.len(),
+        c.counts,
+        c.outside
+    );
+    out += &format!(
+        "the ANOVA uses {used} of {rows} rows ({:.1} %): every cell cut to the smallest cell's N = {n} ({smallest}), \
+         {cut} rows ({:.1} %) dropped to balance the design, {} ({:.1} %) between levels\n",
+        pct(used),
+        pct(cut),
+        c.outside,
+        pct(c.outside)
+    );
+    if used * 2 < rows {
+        out += &format!(
+            "WARNING: {}: the ANOVA uses less than half of the session: dwell longer at the smallest cell's levels\n",
+            path.display()
+        );
+    }
+    out
+}
+
+/// Cells, samples (T °C, G °C/s, y rad/s), levels and the provenance's name of a thermal run.
+type ThermalCells = (Vec<thermal_anova::Cell>, Vec<[f64; 3]>, thermal_anova::Levels, String);
+
+/// The cells and samples of the thermal analysis, its levels and a name for the
+/// provenance: a simulated batch, or a chamber session sorted into its cells (with what the
+/// balanced design uses and drops printed first).
+fn thermal_cells(input: ThermalInput, fog: usize) -> Result<ThermalCells> {
+    Ok(match input {
         ThermalInput::Simulate(batch, seed) => {
             let sim = match batch {
                 Batch::BatchI => thermal_anova::BatchSim::batch_i(),
@@ -542,18 +614,16 @@ fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<Pat
             let s = read_session(&path, None)?;
             let window_s = (2.0 * s.median_dt_s()).max(60.0);
             let c = thermal_anova::chamber_cells(&s, fog, &levels, window_s)?;
-            println!(
-                "{}: FOG{fog}, {} samples in {} cells (N = {} each, cells held {:?}), {} between levels left out",
-                path.display(),
-                c.counts.iter().sum::<usize>(),
-                c.cells.len(),
-                c.cells.first().map_or(0, |x| x.y.len()),
-                c.counts,
-                c.outside
-            );
+            print!("{}", chamber_summary(&path, fog, &c, &levels));
             (c.cells, c.samples, levels, path.display().to_string())
         }
-    };
+    })
+}
+
+/// The two-factor ANOVA of a chamber session (or a simulated batch) and, when T is
+/// significant, the thermal model (into the table with `--table`).
+fn thermal_cmd(input: ThermalInput, fog: usize, plot: PathBuf, table: Option<PathBuf>) -> Result<()> {
+    let (cells, samples, levels, source) = thermal_cells(input, fog)?;
     let t_lo = levels.t_degc.iter().copied().fold(f64::INFINITY, f64::min);
     let t_hi = levels.t_degc.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let t_ref = (t_lo + t_hi) / 2.0;
@@ -742,7 +812,7 @@ fn turns_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<
     };
     let r = misalign_turns::solve(&turns, lat, gamma)?;
     cli::report("turns", || methods::json::turns(&turns, &r));
-    println!("turn  up   ψ0 deg   Θ_T* deg   ω* deg/s");
+    println!("turn  up     ψ0 °     Θ_T* °     ω* °/s");
     for (k, t) in turns.iter().enumerate() {
         println!(
             "{:>4}  {}  {:>7.2}  {:>9.4}  {:>8.3}",
@@ -794,7 +864,7 @@ fn sins_cmd(session: PathBuf, plot: PathBuf, table: Option<PathBuf>) -> Result<(
     let revs = misalign_sins::reversals_from_session(&s, scale)?;
     let r = misalign_sins::solve(&revs, &m0, gamma)?;
     cli::report("sins", || methods::json::sins(&m0, from, &r));
-    println!("rev  up   ψ0 deg   turn deg   measured after ″ (h1, h2)   residual ″ start → end");
+    println!("rev  up     ψ0 °     turn °   measured after ″ (h1, h2)   residual ″ start → end");
     for (k, rv) in revs.iter().enumerate() {
         println!(
             "{:>3}  {}  {:>7.2}  {:>8.2}   {:>10.2} {:>10.2}      {:>7.2} {:>7.2} → {:>5.2} {:>5.2}",
@@ -906,22 +976,22 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     match (&r.scale, &r.mount) {
         (Some(sc), Some(m)) => {
             println!("2. scale factors: 360° maneuvers under star-tracker reference");
-            println!("   span s          axis (ICS)              |Θ_ST| deg   uᵀDu %     residual %");
+            println!("   span s          axis (ICS)              |Θ_ST| °     uᵀDu ppm  residual ppm");
             for (a, res) in sc.maneuvers.iter().zip(&sc.residual) {
                 let u = a.axis();
                 println!(
-                    "   {:>6.0}-{:<6.0}  ({:+.3} {:+.3} {:+.3})   {:>9.4}   {:+.5}   {:+.6}",
+                    "   {:>6.0}-{:<6.0}  ({:+.3} {:+.3} {:+.3})   {:>9.4}   {:>+8.1}   {:>+8.3}",
                     a.span_s.0,
                     a.span_s.1,
                     u.x,
                     u.y,
                     u.z,
                     a.theta_st_rad.norm().to_degrees(),
-                    a.relative_error() * 100.0,
-                    res * 100.0
+                    a.relative_error() * 1e6,
+                    res * 1e6
                 );
             }
-            println!("   Δk % per FOG {}", sc.dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "));
+            println!("   Δk ppm per FOG {}", sc.dk.map(|x| format!("{:+.1}", x * 1e6)).join(" "));
             println!(
                 "3. star-tracker mount: η = {:.2} {:.2} {:.2}″ (|η| {:.2}″) by RLS over {} star-frame pairs",
                 m.eta_rad.x * ARCSEC_PER_RAD,
@@ -1100,11 +1170,11 @@ fn simulate_orbital(outdir: PathBuf, hold_s: Option<f64>, seed: u64, table: Opti
     }
     let (d, dk, eta) = orbital::truth_of(&truth_table, &cap.table, &sc.star_tracker);
     println!(
-        "truth: bias d = {:.4} {:.4} {:.4} °/h; Δk % {}; star-tracker mount η = {:.2} {:.2} {:.2}″",
+        "truth: bias d = {:.4} {:.4} {:.4} °/h; Δk ppm {}; star-tracker mount η = {:.2} {:.2} {:.2}″",
         d.x * DEG_H_PER_RAD_S,
         d.y * DEG_H_PER_RAD_S,
         d.z * DEG_H_PER_RAD_S,
-        dk.map(|x| format!("{:+.5}", x * 100.0)).join(" "),
+        dk.map(|x| format!("{:+.1}", x * 1e6)).join(" "),
         eta.x * ARCSEC_PER_RAD,
         eta.y * ARCSEC_PER_RAD,
         eta.z * ARCSEC_PER_RAD
