@@ -284,7 +284,7 @@ fn files(cmd: &Cmd, new_table: bool) -> Result<()> {
             // figures or writes its plot and then fails on the table.
             (true, false) => {
                 output::update(t)?;
-                ssis_common::table::read_doc(t).map(drop)
+                Ok(ssis_common::table::read_doc(t).map(drop)?)
             }
             (false, true) => output::update(t),
         }
