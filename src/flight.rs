@@ -25,14 +25,17 @@ use crate::attitude::{Attitude, Coning};
 use crate::calib::{CalibrationTable, FogCal, N_FOG};
 use crate::combination::{Combiner, FogSet};
 use crate::compensation::{compensate_increment, ThermalTracker};
+use crate::frames::event::{EventFrame, RECORDS};
 use crate::frames::fog::{status, FogFrame};
 use crate::frames::star::StarFrame;
+use crate::frames::Frame;
 use crate::intake::{FogIntake, Pending, StarIntake};
 use crate::integrity::channel::ChannelMonitor;
 use crate::integrity::mounting::{MountCheck, MountState, MountVerdict};
 use crate::integrity::parity::{FdiState, ParityMonitor, SampleVerdict};
 use crate::link::{OutPort, RxLink, RxPort, StarPort};
 use crate::observer::{GainError, Observer, UpdateError};
+use crate::telemetry::events::{Event, EventLog, EventRecord, StatusBits};
 use crate::telemetry::{page, Telemetry, WordAligned};
 
 pub use crate::intake::{
@@ -176,6 +179,8 @@ pub struct FlightCore {
     /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
     /// mounting check found two FOGs swapped).
     fog_map: [usize; N_FOG],
+    /// The log of state changes not yet sent (rarely touched: last).
+    events: EventLog,
 }
 
 impl FlightCore {
@@ -214,6 +219,7 @@ impl FlightCore {
             observer,
             telemetry: Telemetry::new(),
             last_output: StepOutput::START,
+            events: EventLog::new(),
         })
     }
 
@@ -252,6 +258,8 @@ impl FlightCore {
         self.mount = table.st_mount();
         self.table = *table;
         self.table_crc = table_crc(table);
+        let revision = u16::try_from(table.revision).unwrap_or(u16::MAX);
+        self.events.log(self.last_output.time_us, Event::TableSwitched, 0, revision);
         Ok(())
     }
 
@@ -296,6 +304,48 @@ impl FlightCore {
     /// the counters the core derives itself are not changed by it).
     pub fn note(&mut self, c: Counter) {
         self.telemetry.counters.bump(c);
+    }
+
+    /// Logs `event` with details `a`, `b` at the unit time of the last step (the command
+    /// link's outcomes; the core logs its own state changes).
+    pub fn log_event(&mut self, event: Event, a: u8, b: u16) {
+        self.events.log(self.last_output.time_us, event, a, b);
+    }
+
+    /// Board: the watchdog warned (the main loop missed a watchdog period).
+    pub fn note_watchdog_warning(&mut self) {
+        self.log_event(Event::WatchdogWarning, 0, 0);
+    }
+
+    /// The event log (records not yet sent).
+    pub fn events(&self) -> &EventLog {
+        &self.events
+    }
+
+    /// Takes the oldest record not yet sent (host tools that read the log directly).
+    pub fn take_event(&mut self) -> Option<EventRecord> {
+        self.events.pop()
+    }
+
+    /// Board, after the step: sends the oldest records not yet sent (up to four) in one
+    /// event frame on `out`; nothing when there is none. Records the link does not take
+    /// stay for the next call. Returns whether a frame was sent.
+    pub fn send_events<O: OutPort>(&mut self, out: &mut O) -> bool {
+        if self.events.is_empty() {
+            return false;
+        }
+        let mut frame =
+            EventFrame { lost: u16::try_from(self.events.lost()).unwrap_or(u16::MAX), records: [None; RECORDS] };
+        for (slot, r) in frame.records.iter_mut().zip(self.events.pending()) {
+            *slot = Some(*r);
+        }
+        let n = frame.iter().count();
+        let mut scratch = [0u8; EventFrame::LEN];
+        let sent = out.send_frame(&mut scratch, EventFrame::LEN, |buf| frame.encode_into(buf).is_ok());
+        if sent {
+            self.events.drop_sent(n);
+        }
+        sent
     }
 
     /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
@@ -548,6 +598,9 @@ impl FlightCore {
         let page_id = (self.fog_intake.index() as u32 % u32::from(page::COUNT)) as u8;
         let page_value = self.page_value(page_id);
         self.telemetry.emit(&mut links.out, &out, page_id, page_value);
+        let o = &self.last_output;
+        let status = StatusBits { flags: o.flags, st_status: o.st_status, fdi: o.fdi };
+        self.events.on_status(status, o.time_us, &self.fog_map);
         out
     }
 
@@ -684,12 +737,16 @@ impl FlightCore {
             match (before, m.state()) {
                 (MountState::Checking, MountState::Watching { unverified }) => {
                     self.telemetry.counters.add(Counter::MountUnverified, unverified.count_ones());
+                    self.events.log(now_us, Event::MountUnverified, unverified, 0);
                 }
-                (_, MountState::Undecided { .. }) => self.telemetry.counters.bump(Counter::MountUndecided),
+                (_, MountState::Undecided { .. }) => {
+                    self.telemetry.counters.bump(Counter::MountUndecided);
+                    self.events.log(now_us, Event::MountUndecided, 0, 0);
+                }
                 _ => {}
             }
             if let Some(v) = verdict {
-                self.act_on_mounting(v);
+                self.act_on_mounting(v, now_us);
                 // The attitude at this frame's tag was propagated on the wrong gyro up to
                 // the present: the observer aligns on the next frame instead.
                 self.star_intake.used(now_us);
@@ -742,7 +799,14 @@ impl FlightCore {
     /// the tracker) is isolated, a swapped pair flown on the corrected assignment; the
     /// observer starts again, so nothing of the wrong gyro stays in the attitude or the
     /// drift estimate (the unit has not reported aligned yet).
-    fn act_on_mounting(&mut self, v: MountVerdict) {
+    fn act_on_mounting(&mut self, v: MountVerdict, now_us: u64) {
+        let channel = |i: usize| u16::try_from(i + 1).unwrap_or(0);
+        let (kind, fogs) = match v {
+            MountVerdict::Flipped(i) => (1, channel(i)),
+            MountVerdict::Swapped(i, j) => (2, channel(i) | channel(j) << 4),
+            MountVerdict::Unexplained(i) => (3, channel(i)),
+        };
+        self.events.log(now_us, Event::MountVerdict, kind, fogs);
         match v {
             MountVerdict::Flipped(i) | MountVerdict::Unexplained(i) => {
                 if self.fdi.as_mut().is_some_and(|m| m.isolate_mounted_wrong(i)) {

@@ -27,7 +27,7 @@
 //! update.
 //! [`bsp`] is the board seam: the boot policy every board shares (host and target) and,
 //! for the target only, the Cortex-M7 and QEMU `mps2-an500` board code.
-#![no_std]
+#![cfg_attr(not(test), no_std)]
 #![cfg_attr(not(test), deny(clippy::unwrap_used, clippy::expect_used, clippy::indexing_slicing, clippy::panic))]
 
 pub mod attitude;

@@ -1,7 +1,9 @@
 //! Telemetry: what the unit reports each step — the status bits, the counters, and the
-//! output frame that carries them (`docs/ICD.md`).
+//! output frame that carries them (`docs/ICD.md`) — and the log of its state changes
+//! ([`events`]).
 
 pub mod counters;
+pub mod events;
 
 use nalgebra::{Quaternion, Vector3};
 
