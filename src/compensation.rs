@@ -134,3 +134,47 @@ impl TempRateEstimator {
         Thermal { t_degc: self.t_degc, g_degc_s: self.g_degc_s }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A temperature ramp of 0.01 °C/s sampled every 5 ms: the tracker's G settles on the
+    /// ramp with no lag in steady state, and T on the reading.
+    #[test]
+    fn a_ramp_is_tracked_without_steady_state_lag() {
+        let (dt_s, tau_s, g) = (0.005, 30.0, 0.01);
+        let mut tr = ThermalTracker::new(dt_s, tau_s);
+        assert_eq!(tr.predicted_degc(dt_s), None);
+        let mut last = Thermal { t_degc: 0.0, g_degc_s: 0.0 };
+        // 20 time constants.
+        for k in 0..(20.0 * tau_s / dt_s) as u32 {
+            last = tr.update(Some(20.0 + g * f64::from(k) * dt_s), dt_s);
+        }
+        assert!((last.g_degc_s - g).abs() < 1e-6 * g, "G {} °C/s", last.g_degc_s);
+        let t_end = 20.0 + g * (20.0 * tau_s - dt_s);
+        assert!((last.t_degc - t_end).abs() < 1e-6, "T {} °C, reading {t_end}", last.t_degc);
+        let p = tr.predicted_degc(dt_s).unwrap_or(f64::NAN);
+        assert!((p - (t_end + g * dt_s)).abs() < 1e-6, "prediction {p}");
+    }
+
+    /// An untrusted reading holds T and gives G = 0; tracking resumes from the held state.
+    #[test]
+    fn an_untrusted_reading_holds_t_with_no_rate() {
+        let mut tr = ThermalTracker::new(0.005, 30.0);
+        tr.update(Some(25.0), 0.005);
+        let held = tr.update(None, 0.005);
+        assert_eq!(held, Thermal { t_degc: 25.0, g_degc_s: 0.0 });
+        // The time constant can change (table switch) without losing T.
+        tr.set_time_constant(0.005, 10.0);
+        assert_eq!(tr.update(Some(25.0), 0.005).t_degc, 25.0);
+    }
+
+    /// The first reading starts the tracker at that temperature with no rate.
+    #[test]
+    fn the_first_reading_starts_the_tracker() {
+        let mut e = TempRateEstimator::new(0.005, 30.0);
+        assert_eq!(e.update(-12.5, 0.005), Thermal { t_degc: -12.5, g_degc_s: 0.0 });
+        assert_eq!(e.predicted(1.0), Some(-12.5));
+    }
+}

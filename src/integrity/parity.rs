@@ -232,6 +232,18 @@ impl ParityMonitor {
         self.counters = old.counters;
     }
 
+    /// The output frame's bits of the fault logic: the flag bits
+    /// ([`crate::frames::output::flags::FDI_ALARM`] while an alarm stands) and the
+    /// fault-logic byte's (FOG i isolated: bit 4 + i).
+    #[inline]
+    pub fn status_bits(&self) -> (u8, u8) {
+        match self.state() {
+            FdiState::Alarm => (crate::frames::output::flags::FDI_ALARM, 0),
+            FdiState::Isolated(i) => (0, 0x10 << i),
+            FdiState::Watching => (0, 0),
+        }
+    }
+
     /// State of the fault logic.
     pub fn state(&self) -> FdiState {
         self.state
