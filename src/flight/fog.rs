@@ -96,6 +96,7 @@ impl FlightCore {
     /// there and none is isolated).
     pub(super) fn check_parity(&mut self, sample: &mut Sample, time_us: u64) -> f64 {
         let Some(fdi) = self.fdi.as_mut() else { return 0.0 };
+        let before = fdi.state();
         let was_isolated = fdi.isolated().is_some();
         let mut parity_rad = 0.0;
         let drop = match fdi.isolated() {
@@ -123,6 +124,7 @@ impl FlightCore {
                 }
             }
         };
+        self.telemetry.counters.count_fdi(before, fdi.state());
         let newly = if was_isolated { None } else { fdi.isolated() };
         if let Some(i) = newly {
             // Isolated in this sample: its share leaves the drift estimate too.

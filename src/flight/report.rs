@@ -64,23 +64,18 @@ impl FlightCore {
         self.fixed_flags |= flags::BIT_FAILED;
     }
 
-    /// Counters so far (the fault logic's and the observer's included).
+    /// Counters so far (the observer's included).
     pub fn counters(&self) -> Counters {
         let mut c = self.telemetry.counters;
-        for &k in [Counter::FdiAlarms, Counter::FdiTransients, Counter::FdiIsolations, Counter::StReacquired].iter() {
-            c.add(k, self.counter(k));
-        }
+        c.add(Counter::StReacquired, self.counter(Counter::StReacquired));
         c
     }
 
-    /// Counter `c` so far. The parity fault logic and the observer keep their own counts;
-    /// the others are the telemetry stage's.
+    /// Counter `c` so far. The observer keeps its own count of re-acquisitions and the
+    /// table's figures are read from the table in use; the others are the telemetry
+    /// stage's.
     pub fn counter(&self, c: Counter) -> u32 {
-        let fdi = || self.fdi.as_ref().map(|m| m.counters()).unwrap_or_default();
         match c {
-            Counter::FdiAlarms => fdi().alarms,
-            Counter::FdiTransients => fdi().transients,
-            Counter::FdiIsolations => fdi().isolations,
             Counter::StReacquired => self.observer.stats().reacquired,
             Counter::TableRevision => self.table.revision,
             Counter::TableCrcLow => self.table_crc & 0xFFFF,

@@ -93,7 +93,10 @@ impl FlightCore {
             return match self.observer.listen(f.time_us, &q, &self.mount) {
                 Ok(m) => {
                     self.star_intake.used(now_us);
-                    if let Some(iso) = fdi.on_mismatch(&m.e_rad, m.var_rad2) {
+                    let before = fdi.state();
+                    let isolation = fdi.on_mismatch(&m.e_rad, m.var_rad2);
+                    counters.count_fdi(before, fdi.state());
+                    if let Some(iso) = isolation {
                         self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
                         self.on_isolation(iso.fog, now_us);
                     }
@@ -142,6 +145,7 @@ impl FlightCore {
             MountVerdict::Flipped(i) | MountVerdict::Unexplained(i) => {
                 if self.fdi.as_mut().is_some_and(|m| m.isolate_mounted_wrong(i)) {
                     self.telemetry.counters.bump(Counter::MountIsolated);
+                    self.telemetry.counters.bump(Counter::FdiIsolations);
                 }
             }
             MountVerdict::Swapped(i, j) => {

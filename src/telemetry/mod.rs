@@ -114,7 +114,7 @@ pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);
 /// The telemetry stage: counters and the output link's state.
 #[derive(Clone)]
 pub struct Telemetry {
-    /// The counters (the fault logic's and the observer's are read from them).
+    /// The counters (all but the observer's re-acquisitions, which it keeps itself).
     pub(crate) counters: Counters,
     out_counter: u16,
     step_ticks: u16,
