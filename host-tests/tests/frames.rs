@@ -2,10 +2,12 @@
 //! ICD's example frames.
 
 use proptest::prelude::*;
+use ssis::frames::event::EventFrame;
 use ssis::frames::fog::{self, FogFrame};
 use ssis::frames::output::{self, OutputCounters, OutputFrame};
 use ssis::frames::star::{self, StarFrame};
 use ssis::frames::{body_crc, header_crc, kind, DecodeError, EncodeError, Frame, CRC32C, SYNC};
+use ssis::telemetry::events::{Event, EventRecord};
 
 mod frames_common;
 use frames_common::*;
@@ -83,6 +85,7 @@ fn hamming_distance_of_the_crc_at_every_frame_length() {
         ("GNSS", 43, 6),
         ("navigation output", 62, 6),
         ("output", OutputFrame::LEN - 4, 6),
+        ("event", EventFrame::LEN - 4, 6),
         ("telecommand", ssis::frames::telecommand::CRC_COVERED_LEN, 6),
     ] {
         let base = vec![0u8; covered];
@@ -331,6 +334,85 @@ fn output_physical_scaling() {
 }
 
 // ---------------------------------------------------------------------------------------
+// Event frame
+
+/// The ICD's example: the unit aligned at 12.345 s, then isolated FOG3 at 40 s.
+fn icd_event_example() -> EventFrame {
+    let r = |time_us, seq, event, a| EventRecord { time_us, seq, event, a, b: 0 };
+    EventFrame {
+        lost: 0,
+        records: [Some(r(12_345_000, 7, Event::Aligned, 0)), Some(r(40_000_000, 8, Event::Isolated, 3)), None, None],
+    }
+}
+
+#[test]
+fn event_golden_bytes_and_layout() {
+    let b = icd_event_example().to_bytes();
+    assert_eq!((EventFrame::LEN, <EventFrame as Frame>::KIND, kind::EVENT), (60, 0x32, 0x32));
+    assert_eq!(
+        hex_block(&b),
+        "EB 90 32 02 07 00 00 00 A8 5E BC 00 00 00 00 00\n\
+         01 00 00 00 00 5A 62 02 00 00 00 00 06 03 00 00\n\
+         00 00 00 00 00 00 00 00 00 00 00 00 00 00 00 00\n\
+         00 00 00 00 00 00 00 00 34 41 22 63"
+    );
+    // count at 3, seq at 4, lost at 6, record k at 8 + 12k: time, code, a, b.
+    assert_eq!((b[3], u16::from_le_bytes([b[4], b[5]]), u16::from_le_bytes([b[6], b[7]])), (2, 7, 0));
+    assert_eq!(u64::from_le_bytes(b[20..28].try_into().unwrap()), 40_000_000);
+    assert_eq!((b[28], b[29]), (Event::Isolated.code(), 3));
+    assert_eq!(u32::from_le_bytes(b[56..60].try_into().unwrap()), CRC32C.checksum(&b[..56]));
+    let back = EventFrame::decode(&b).expect("decodes");
+    let seqs: Vec<(u16, Event)> = back.iter().map(|r| (r.seq, r.event)).collect();
+    assert_eq!(seqs, [(7, Event::Aligned), (8, Event::Isolated)]);
+    assert_eq!(back, icd_event_example());
+}
+
+#[test]
+fn event_fields_out_of_range_are_rejected() {
+    let good = icd_event_example().to_bytes();
+    let bad = |edit: &dyn Fn(&mut [u8; 60])| {
+        let mut b = good;
+        edit(&mut b);
+        reseal(&mut b);
+        EventFrame::decode(&b)
+    };
+    assert_eq!(bad(&|b| b[3] = 0), Err(DecodeError::BadField), "no record");
+    assert_eq!(bad(&|b| b[3] = 5), Err(DecodeError::BadField), "more than four");
+    assert_eq!(bad(&|b| b[16] = 0), Err(DecodeError::BadField), "code 0 is no event");
+    assert_eq!(bad(&|b| b[16] = 0xEE), Err(DecodeError::BadField), "unknown code");
+    assert_eq!(bad(&|b| b[40] = 1), Err(DecodeError::BadField), "a byte past the count");
+    assert_eq!(bad(&|b| b[3] = 3), Err(DecodeError::BadField), "a third record of code 0");
+    assert!(bad(&|b| b[6] = 9).is_ok_and(|f| f.lost == 9));
+}
+
+#[test]
+fn event_frames_and_output_frames_share_one_stream() {
+    use ssis_common::downlink::{Down, Downlink};
+    let out = icd_output_example().to_bytes();
+    let ev = icd_event_example().to_bytes();
+    let mut stream = Vec::new();
+    for k in 0..5 {
+        stream.extend_from_slice(&out);
+        if k % 2 == 1 {
+            stream.extend_from_slice(&ev);
+        }
+    }
+    stream.extend_from_slice(&[0x00, 0xEB, 0x90, 0x32, 0x01]);
+    let mut link = Downlink::new();
+    let (mut outputs, mut events) = (0, 0);
+    // Fed in odd-sized chunks, so frames split across pushes.
+    for chunk in stream.chunks(37) {
+        link.push(chunk, |d| match d {
+            Down::Output(_) => outputs += 1,
+            Down::Events(e) => events += e.iter().count(),
+            Down::Report(_) => panic!("no report was sent"),
+        });
+    }
+    assert_eq!((outputs, events), (5, 4));
+    assert_eq!(link.bad_bytes(), 1, "the leading 00 of the tail; the rest may start a frame");
+}
+
+// ---------------------------------------------------------------------------------------
 // ICD example frames (docs/ICD.md must show exactly these bytes)
 
 const ICD: &str = include_str!("../../docs/ICD.md");
@@ -340,9 +422,10 @@ fn icd_example_frames() {
     let fog = hex_block(&icd_fog_example().to_bytes());
     let star = hex_block(&icd_star_example().to_bytes());
     let out = hex_block(&icd_output_example().to_bytes());
-    println!("FOG:\n{fog}\nSTAR:\n{star}\nOUTPUT:\n{out}");
+    let ev = hex_block(&icd_event_example().to_bytes());
+    println!("FOG:\n{fog}\nSTAR:\n{star}\nOUTPUT:\n{out}\nEVENT:\n{ev}");
     assert_eq!(fog, "EB 90 10 01 02 01 00 E3 36 1A 00 80 19 00 AD 60\nBD 86");
-    for (name, hex) in [("FOG", &fog), ("star-tracker", &star), ("output", &out)] {
+    for (name, hex) in [("FOG", &fog), ("star-tracker", &star), ("output", &out), ("event", &ev)] {
         assert!(ICD.contains(hex.as_str()), "docs/ICD.md lacks the {name} example:\n{hex}");
     }
     assert!(ICD.contains("## Links and UART mapping") && ICD.contains("| UART1 | 0x4000_5000 |"));

@@ -13,7 +13,7 @@
 //! - the frames: [`fog::FogFrame`] (18 bytes), [`accel::AccelFrame`] (18 bytes),
 //!   [`star::StarFrame`] (34 bytes), [`gnss::GnssFrame`] (47 bytes),
 //!   [`navout::NavOutputFrame`] (66 bytes),
-//!   [`output::OutputFrame`] (85 bytes), each with raw-count fields, physical-unit
+//!   [`output::OutputFrame`] (85 bytes), [`event::EventFrame`] (60 bytes), each with raw-count fields, physical-unit
 //!   accessors and a saturating `from_physical` constructor (NaN encodes as 0);
 //!   [`control::ControlFrame`] (18 bytes, test equipment), and the command link's
 //!   [`telecommand::Telecommand`] (98 bytes) and [`telecommand::CommandReport`]
@@ -27,6 +27,7 @@
 pub mod accel;
 pub mod control;
 pub mod decoder;
+pub mod event;
 pub mod fog;
 pub mod gnss;
 pub mod navout;
@@ -51,6 +52,8 @@ pub mod kind {
     pub const OUTPUT: u8 = 0x30;
     /// Navigation output frame ([`super::navout::NavOutputFrame`], launch-vehicle unit).
     pub const NAV_OUTPUT: u8 = 0x31;
+    /// Event frame: records of the unit's event log ([`super::event::EventFrame`]).
+    pub const EVENT: u8 = 0x32;
     /// Control frame (test equipment → unit).
     pub const CONTROL: u8 = 0x40;
     /// Telecommand (ground → unit, [`super::telecommand::Telecommand`]).

@@ -122,17 +122,6 @@ struct Sums {
     pe: Vector3<f64>,
 }
 
-/// Counters of the fault logic.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct FdiCounters {
-    /// Parity alarms raised.
-    pub alarms: u32,
-    /// Alarms that cleared without isolation.
-    pub transients: u32,
-    /// Gyros isolated.
-    pub isolations: u32,
-}
-
 /// The parity monitor.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ParityMonitor {
@@ -163,7 +152,6 @@ pub struct ParityMonitor {
     samples: u32,
     clear_run: u32,
     sums: Sums,
-    counters: FdiCounters,
 }
 
 impl ParityMonitor {
@@ -218,18 +206,28 @@ impl ParityMonitor {
             samples: 0,
             clear_run: 0,
             sums: Sums::default(),
-            counters: FdiCounters::default(),
         })
     }
 
     /// Takes over from `old` (the same unit's monitor on the table before a switch):
-    /// a gyro it isolated stays isolated, and its counters go on. The residual's
-    /// statistics start again on the new geometry.
+    /// a gyro it isolated stays isolated. The residual's statistics start again on the
+    /// new geometry.
     pub fn carry_from(&mut self, old: &ParityMonitor) {
         if let FdiState::Isolated(i) = old.state {
             self.state = FdiState::Isolated(i);
         }
-        self.counters = old.counters;
+    }
+
+    /// The output frame's bits of the fault logic: the flag bits
+    /// ([`crate::frames::output::flags::FDI_ALARM`] while an alarm stands) and the
+    /// fault-logic byte's (FOG i isolated: bit 4 + i).
+    #[inline]
+    pub fn status_bits(&self) -> (u8, u8) {
+        match self.state() {
+            FdiState::Alarm => (crate::frames::output::flags::FDI_ALARM, 0),
+            FdiState::Isolated(i) => (0, 0x10 << i),
+            FdiState::Watching => (0, 0),
+        }
     }
 
     /// State of the fault logic.
@@ -264,11 +262,6 @@ impl ParityMonitor {
     /// σ₁ in use, rad.
     pub fn sigma1_rad(&self) -> f64 {
         self.sigma1_rad
-    }
-
-    /// Counters.
-    pub fn counters(&self) -> FdiCounters {
-        self.counters
     }
 
     /// One sample with all four gyros: compensated increments `m` (rad), their parity
@@ -326,7 +319,6 @@ impl ParityMonitor {
                     self.samples = 1;
                     self.clear_run = 0;
                     self.sums = Sums::default();
-                    self.counters.alarms = self.counters.alarms.saturating_add(1);
                 }
             }
             FdiState::Alarm => {
@@ -336,7 +328,6 @@ impl ParityMonitor {
                     self.clear_run += 1;
                     if self.clear_run >= CLEAR_SAMPLES {
                         self.state = FdiState::Watching;
-                        self.counters.transients = self.counters.transients.saturating_add(1);
                     }
                 } else {
                     self.clear_run = 0;
@@ -420,7 +411,6 @@ impl ParityMonitor {
 
     fn isolate(&mut self, i: usize) {
         self.state = FdiState::Isolated(i);
-        self.counters.isolations = self.counters.isolations.saturating_add(1);
     }
 
     /// One star-tracker mismatch `e_rad` (ICS, the observer's e) while listening;

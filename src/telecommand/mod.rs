@@ -25,6 +25,7 @@ use crate::calib::store::CalibFlash;
 use crate::flight::FlightCore;
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::telecommand::{command, CommandReport, Telecommand};
+use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
 
 pub use auth::{AuthError, Authenticator, Key};
@@ -175,6 +176,7 @@ impl CommandLink {
             Outcome::Accepted { activated } => {
                 self.accepted = self.accepted.saturating_add(1);
                 core.note(Counter::TcAccepted);
+                core.log_event(Event::CommandAccepted, tc.command, tc.seq as u16);
                 if activated {
                     core.note(Counter::TableActivations);
                 }
@@ -183,6 +185,7 @@ impl CommandLink {
                 self.refused = self.refused.saturating_add(1);
                 self.last_refusal = r.code();
                 core.note(r.counter());
+                core.log_event(Event::CommandRefused, tc.command, u16::from(r.code()));
             }
         }
         if tc.command == command::STATUS && matches!(outcome, Outcome::Accepted { .. }) {

@@ -8,6 +8,7 @@
 //! Every count goes through [`Counters::add`] / [`FogCounters::add`] (or `bump`).
 
 use crate::calib::N_FOG;
+use crate::integrity::parity::FdiState;
 
 /// One set of counters: the enum naming them, its storage with one named field per
 /// counter (plus `$extra` fields), `add` and `get`.
@@ -188,6 +189,20 @@ impl Counters {
     pub fn bump_fog(&mut self, i: usize, c: FogCounter) {
         self.add_fog(i, c, 1);
     }
+
+    /// Counts the parity fault logic's change of state from `before` to `after` (one
+    /// call of it): an alarm raised, an alarm cleared without isolation (a transient),
+    /// a FOG isolated.
+    #[inline]
+    pub fn count_fdi(&mut self, before: FdiState, after: FdiState) {
+        match (before, after) {
+            (FdiState::Watching, FdiState::Alarm) => self.bump(Counter::FdiAlarms),
+            (FdiState::Alarm, FdiState::Watching) => self.bump(Counter::FdiTransients),
+            (FdiState::Isolated(_), _) => {}
+            (_, FdiState::Isolated(_)) => self.bump(Counter::FdiIsolations),
+            _ => {}
+        }
+    }
 }
 
 /// The output frame's counter page: `page_id` → counter. Ids `0..FOG_PAGES` are per FOG
@@ -234,4 +249,32 @@ pub fn write_page_table(w: &mut impl core::fmt::Write) -> core::fmt::Result {
         writeln!(w, "| {} | {} |", usize::from(page::FOG_PAGES) + k, c.describe())?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One alarm that clears, one that ends in an isolation: two alarms, one transient,
+    /// one isolation; staying in a state or an isolation by other evidence after one
+    /// counts nothing more.
+    #[test]
+    fn the_fault_logic_is_counted_by_its_changes_of_state() {
+        use FdiState::{Alarm, Isolated, Watching};
+        let mut c = Counters::default();
+        for (before, after) in [
+            (Watching, Watching),
+            (Watching, Alarm),
+            (Alarm, Alarm),
+            (Alarm, Watching),
+            (Watching, Alarm),
+            (Alarm, Isolated(2)),
+            (Isolated(2), Isolated(2)),
+        ] {
+            c.count_fdi(before, after);
+        }
+        assert_eq!((c.fdi_alarms, c.fdi_transients, c.fdi_isolations), (2, 1, 1));
+        c.count_fdi(Watching, Isolated(0));
+        assert_eq!(c.get(Counter::FdiIsolations), 2, "an isolation straight from watching (mounting, spike latch)");
+    }
 }

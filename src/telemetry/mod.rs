@@ -1,7 +1,9 @@
 //! Telemetry: what the unit reports each step — the status bits, the counters, and the
-//! output frame that carries them (`docs/ICD.md`).
+//! output frame that carries them (`docs/ICD.md`) — and the log of its state changes
+//! ([`events`]).
 
 pub mod counters;
+pub mod events;
 
 use nalgebra::{Quaternion, Vector3};
 
@@ -112,7 +114,7 @@ pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);
 /// The telemetry stage: counters and the output link's state.
 #[derive(Clone)]
 pub struct Telemetry {
-    /// The counters (the fault logic's and the observer's are read from them).
+    /// The counters (all but the observer's re-acquisitions, which it keeps itself).
     pub(crate) counters: Counters,
     out_counter: u16,
     step_ticks: u16,

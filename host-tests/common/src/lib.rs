@@ -10,9 +10,11 @@
 //! - [`plot`]: plots of a run (SVG).
 //! - [`stats`]: running error statistics per axis.
 //! - [`output`]: every file a tool writes: never onto an input, never half-written.
+//! - [`downlink`]: the output link's frame kinds decoded from one stream; the event timeline.
 //! - [`cli`]: a tool's process: closed pipes, Ctrl-C, `--json`, the exit status.
 
 pub mod cli;
+pub mod downlink;
 pub mod keyfile;
 pub mod mock;
 pub mod output;

@@ -282,9 +282,8 @@ pub fn run_observed(sc: &Scenario, fault: &Fault, mut on_step: impl FnMut(&Fault
     let c = core.counters();
     r.counters = c;
     r.fog_map = core.fog_map();
-    let fdi = core.fdi().map(|m| m.counters()).unwrap_or_default();
-    r.alarms = fdi.alarms;
-    r.isolations = fdi.isolations;
+    r.alarms = c.fdi_alarms;
+    r.isolations = c.fdi_isolations;
     r.spikes = c.fog.iter().map(|f| f.spikes).sum();
     r.st_gated = c.st_updates_gated;
     r.st_accepted = c.st_frames_accepted;

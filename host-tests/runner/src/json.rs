@@ -45,6 +45,8 @@ pub fn qemu_summary(s: &QemuSummary) -> Value {
         "step_time_mean": s.step_ticks_mean,
         "step_time_max": s.step_ticks_max,
         "step_counts": s.step_counts,
+        "events": ssis_common::downlink::events_json(&ssis_common::downlink::records(&s.event_frames).0),
+        "events_identical": s.events_match(),
         "frames_identical": s.equal_frames,
         "frames_different": s.differing_frames,
         "firmware_log": s.log,

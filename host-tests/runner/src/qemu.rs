@@ -27,12 +27,14 @@ use anyhow::{bail, Context, Result};
 use ssis::calib::store;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
-use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::event::EventFrame;
 use ssis::frames::output::OutputFrame;
+use ssis::telemetry::events::EventRecord;
 use ssis::telemetry::{page, Counter};
 
 use crate::progress::{Patience, ICOUNT_LOCKSTEP, QEMU_CPU_PATIENCE_S};
 use crate::transport::{open_serial, read_pty_names, BoardPorts, Port, Transport, BAUD};
+use ssis_common::downlink::{records, timeline, Down, Downlink};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::stats::AxisStats;
 use ssis_sim::harness::{Accuracy, Evaluator, Observed, Record, Simulation, StepInput};
@@ -178,6 +180,10 @@ pub struct QemuSummary {
     pub command_reports: Vec<ssis::frames::telecommand::CommandReport>,
     /// Lockstep: the command reports of the in-process core's command link.
     pub reference_reports: Vec<ssis::frames::telecommand::CommandReport>,
+    /// The event frames the firmware sent.
+    pub event_frames: Vec<EventFrame>,
+    /// Lockstep: the in-process core's events.
+    pub reference_events: Vec<EventRecord>,
     /// (time tag µs, page id, value) of every output frame whose counter page is a unit
     /// counter (`ssis::telemetry::PAGED`: the command link's counters, the active table).
     pub unit_pages: Vec<(u64, u8, u16)>,
@@ -241,6 +247,15 @@ impl QemuSummary {
                 self.equal_frames, self.differing_frames
             );
         }
+        let (events, lost) = records(&self.event_frames);
+        s.push_str(&timeline(&events, lost));
+        if let Some(same) = self.events_match() {
+            let _ = writeln!(
+                s,
+                "host/QEMU events: {}",
+                if same { "identical" } else { "DIFFERENT from the in-process core's" }
+            );
+        }
         for l in &self.log {
             let _ = writeln!(s, "firmware: {l}");
         }
@@ -259,7 +274,17 @@ impl QemuSummary {
     /// the runner instead).
     pub fn clean(&self) -> bool {
         let ended = self.exit_code == Some(0) || (self.flight_build || self.board) && self.exit_code.is_none();
-        ended && self.frames_out_bad == 0 && self.differing_frames == 0 && self.frames_out > 0
+        ended
+            && self.frames_out_bad == 0
+            && self.differing_frames == 0
+            && self.frames_out > 0
+            && self.events_match() != Some(false)
+    }
+
+    /// Lockstep: whether the firmware's events are the in-process core's (`None`: not
+    /// compared).
+    pub fn events_match(&self) -> Option<bool> {
+        (self.equal_frames + self.differing_frames > 0).then(|| records(&self.event_frames).0 == self.reference_events)
     }
 }
 
@@ -843,8 +868,6 @@ pub fn run_feed(
         outputs.take(&b, &mut s, &mut eval, &mut on_frame);
     }
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
-    // Each command report cost the output frames' decoder one rejected candidate.
-    s.frames_out_bad = s.frames_out_bad.saturating_sub(s.command_reports.len() as u64);
     for (k, t) in outputs.check.ticks.iter().enumerate() {
         s.step_ticks_mean[k] = t.mean()[0];
         s.step_counts[k] = t.count();
@@ -1195,23 +1218,22 @@ impl Reference {
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         self.core.step(&mut links);
         s.reference_reports.extend(self.commands.take_report());
+        s.reference_events.extend(std::iter::from_fn(|| self.core.take_event()));
         std::mem::take(&mut self.out.bytes)
     }
 }
 
-/// The output link as the runner reads it: frames decoded, then checked ([`FrameCheck`]);
-/// command reports decoded beside them.
+/// The output link as the runner reads it: output frames decoded, then checked
+/// ([`FrameCheck`]); event frames and command reports decoded beside them.
 struct Outputs {
-    dec: StreamDecoder<OutputFrame, 256>,
-    reports: StreamDecoder<ssis::frames::telecommand::CommandReport, 64>,
+    link: Downlink,
     check: FrameCheck,
 }
 
 impl Outputs {
     fn new(lockstep: bool) -> Outputs {
         Outputs {
-            dec: StreamDecoder::new(),
-            reports: StreamDecoder::new(),
+            link: Downlink::new(),
             check: FrameCheck {
                 lockstep,
                 reference: Default::default(),
@@ -1230,16 +1252,13 @@ impl Outputs {
         eval: &mut Evaluator,
         on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
     ) {
-        self.reports.push_slice(bytes, |r| {
-            if let Ok(r) = r {
-                s.command_reports.push(r);
-            }
-        });
         let check = &mut self.check;
-        self.dec.push_slice(bytes, |r| match r {
-            Ok(f) => check.frame(f, s, eval, on_frame),
-            Err(_) => s.frames_out_bad += 1,
+        self.link.push(bytes, |d| match d {
+            Down::Output(f) => check.frame(f, s, eval, on_frame),
+            Down::Events(e) => s.event_frames.push(e),
+            Down::Report(r) => s.command_reports.push(r),
         });
+        s.frames_out_bad = self.link.bad_bytes();
     }
 }
 

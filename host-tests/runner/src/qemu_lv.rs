@@ -52,6 +52,7 @@ use ssis::nav::init::PadInit;
 use ssis::nav::unit::FilterWork;
 
 use crate::qemu::{check_qemu_and_elf, masked, progress_bar, symbol, Unit, INSTR_PER_TICK};
+use ssis_common::downlink::{Down, Downlink};
 use ssis_sim::lv::angle_between;
 use ssis_sim::lv_replay::{pad_init, AscentSensors, LvCore, LvStepBytes};
 
@@ -359,7 +360,7 @@ pub fn run_lv(mut run: LvRun<'_>, opts: &LvOptions, mut on_nav: impl FnMut(&NavO
         }
     }
     s.duration_s = s.steps as f64 * profile.dt_s();
-    s.bad_bytes = out.bad;
+    s.bad_bytes = out.bad + out.flight_link.bad_bytes();
     let status = unit.end()?;
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
     s.firmware_times = firmware_times(&s.log);
@@ -419,7 +420,8 @@ impl LvSender {
 /// against the replay's, undecodable bytes counted.
 #[derive(Default)]
 struct LvOutputs {
-    flight_dec: StreamDecoder<OutputFrame, 256>,
+    /// The flight output link: output frames, and event frames beside them.
+    flight_link: Downlink,
     nav_dec: StreamDecoder<NavOutputFrame, 256>,
     flight: VecDeque<OutputFrame>,
     nav: VecDeque<NavOutputFrame>,
@@ -432,9 +434,10 @@ impl LvOutputs {
         let bad = &mut self.bad;
         if i == 0 {
             let got = &mut self.flight;
-            self.flight_dec.push_slice(b, |r| match r {
-                Ok(f) => got.push_back(f),
-                Err(_) => *bad += 1,
+            self.flight_link.push(b, |d| {
+                if let Down::Output(f) = d {
+                    got.push_back(f);
+                }
             });
         } else {
             let got = &mut self.nav;

@@ -20,14 +20,15 @@ use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::combination::{Combiner, FogSet};
 use ssis::compensation::compensate_increment;
 use ssis::flight::{flags, health, Counters, FlightCore, FogLinks, Links, Profile, StepOutput};
-use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::output::OutputFrame;
 use ssis::math::rotvec_from_quat;
+use ssis::telemetry::events::EventRecord;
 
 use crate::fog::FogModel;
 use crate::scenario::Scenario;
 use crate::star::StarModel;
 use crate::truth::Truth;
+use ssis_common::downlink::{records, Down, Downlink};
 use ssis_common::mock::{LinkStats, MockLink, MockSink};
 use ssis_common::stats::AxisStats;
 use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
@@ -345,8 +346,10 @@ pub struct Summary {
     pub counters: Counters,
     /// Output frames decoded from the output link.
     pub frames_out: u64,
-    /// Output frames that failed to decode (should be 0).
+    /// Bytes of the output link in no frame (should be 0).
     pub frames_out_bad: u64,
+    /// The unit's events as its event frames carried them, and the records it lost.
+    pub events: (Vec<EventRecord>, u16),
     /// Output frames whose decoded content disagrees with the step's output.
     pub frames_out_mismatch: u64,
     /// What the FOG links did.
@@ -382,8 +385,9 @@ pub fn run_until(sc: &Scenario, mut stop: impl FnMut() -> bool, mut on_step: imp
     let mut fog_links = [0u64, 1, 2, 3].map(|i| MockLink::new(sc.links.fog, seed ^ (i + 1)));
     let mut star_link = MockLink::new(sc.links.star, seed ^ 99);
     let mut out_link = MockSink::default();
-    let mut out_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
-    let (mut frames_out, mut frames_bad, mut mismatch) = (0u64, 0u64, 0u64);
+    let mut downlink = Downlink::new();
+    let mut event_frames = Vec::new();
+    let (mut frames_out, mut mismatch) = (0u64, 0u64);
     let mut last = None;
     let mut stopped_at_step = None;
     while let Some(input) = sim.next_step() {
@@ -396,17 +400,20 @@ pub fn run_until(sc: &Scenario, mut stop: impl FnMut() -> bool, mut on_step: imp
         }
         let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, profile.fogs);
         last = Some(out);
+        // The event log's records, as the firmware sends them after the step.
+        core.send_events(&mut out_link);
 
         // Output frames: decode what the core wrote and check it is this step's output.
         let bytes = std::mem::take(&mut out_link.bytes);
-        out_dec.push_slice(&bytes, |r| match r {
-            Ok(f) => {
+        downlink.push(&bytes, |d| match d {
+            Down::Output(f) => {
                 frames_out += 1;
                 if !frame_matches(&f, &out) {
                     mismatch += 1;
                 }
             }
-            Err(_) => frames_bad += 1,
+            Down::Events(e) => event_frames.push(e),
+            Down::Report(_) => {}
         });
         if let Some(rec) = eval.evaluate(&Observed::from(&out)) {
             on_step(&rec);
@@ -419,7 +426,8 @@ pub fn run_until(sc: &Scenario, mut stop: impl FnMut() -> bool, mut on_step: imp
         accuracy: eval.accuracy(last.map(|o| [o.drift_rad_s.x, o.drift_rad_s.y, o.drift_rad_s.z]).unwrap_or_default()),
         counters: core.counters(),
         frames_out,
-        frames_out_bad: frames_bad,
+        frames_out_bad: downlink.bad_bytes(),
+        events: records(&event_frames),
         frames_out_mismatch: mismatch,
         fog_links: [0, 1, 2, 3].map(|i| fog_links[i].stats()),
         star_link: star_link.stats(),

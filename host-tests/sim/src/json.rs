@@ -31,6 +31,8 @@ pub fn run_summary(s: &Summary, wall_s: f64) -> Value {
         "frames_out": s.frames_out,
         "frames_out_bad": s.frames_out_bad,
         "frames_out_mismatched": s.frames_out_mismatch,
+        "events": ssis_common::downlink::events_json(&s.events.0),
+        "events_lost": s.events.1,
         "counters": {
             "fog_frames_rejected": c.fog_frames_rejected,
             "fog_samples_missing": c.fog_samples_missing,
@@ -98,6 +100,8 @@ pub fn replay_summary(s: &crate::replay::ReplaySummary) -> Value {
         "output_hash": format!("{:016x}", s.hash),
         "accuracy": accuracy(&s.accuracy),
         "evidence": evidence(&s.evidence),
+        "events": ssis_common::downlink::events_json(&s.events.0),
+        "events_lost": s.events.1,
     })
 }
 

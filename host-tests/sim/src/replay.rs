@@ -16,14 +16,15 @@ use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
 use ssis::calib::{CalibrationTable, ObserverConfig, ObserverGains, N_FOG};
 use ssis::combination::FogSet;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
-use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::star::{self, StarFrame};
 use ssis::math::{nlerp, rotvec_from_quat};
+use ssis::telemetry::events::EventRecord;
 
 use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
 use crate::recorded::{Recorded, StarSample};
+use ssis_common::downlink::{records, Down, Downlink};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::output;
 use ssis_common::stats::AxisStats;
@@ -417,6 +418,8 @@ pub struct ReplaySummary {
     pub frames_out: u64,
     /// Every output frame's bytes, in order (for comparisons with the firmware's).
     pub hash: u64,
+    /// The unit's events as its event frames carried them, and the records it lost.
+    pub events: (Vec<EventRecord>, u16),
 }
 
 /// Replays `rec` through `FlightCore::step` with `table` (spacecraft profile), the
@@ -434,7 +437,8 @@ pub fn replay(
     let mut eval = Evaluator::for_unit(table, &profile, settle_s);
     let mut evidence = Evidence::new(rec, table, settle_s);
     let (mut fog, mut star, mut out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
-    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut downlink = Downlink::new();
+    let mut event_frames = Vec::new();
     let mut frames_out = 0u64;
     let mut hash = Fnv::default();
     while let Some(input) = feed.next_step() {
@@ -451,15 +455,20 @@ pub fn replay(
         }
         let mut links = Links { fog: FogLinks::Bus(&mut fog), star: &mut star, out: &mut out };
         core.step(&mut links);
-        let produced = std::mem::take(&mut out.bytes);
+        let mut produced = std::mem::take(&mut out.bytes);
+        // The output frames' bytes only: the hash compares them with the firmware's.
         hash.write(&produced);
-        dec.push_slice(&produced, |r| {
-            if let Ok(f) = r {
+        core.send_events(&mut out);
+        produced.append(&mut out.bytes);
+        downlink.push(&produced, |d| match d {
+            Down::Output(f) => {
                 frames_out += 1;
                 evidence.frame(&f);
                 let rec = eval.evaluate(&Observed::from(&f));
                 on_frame(&f, rec.as_ref());
             }
+            Down::Events(e) => event_frames.push(e),
+            Down::Report(_) => {}
         });
     }
     let last_drift = evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
@@ -471,6 +480,7 @@ pub fn replay(
         evidence,
         frames_out,
         hash: hash.0,
+        events: records(&event_frames),
     })
 }
 

@@ -205,6 +205,20 @@ fn a_fog_flipped_from_power_on_leaves_the_conventions_checkable_and_the_replay_n
     let line = out.lines().find(|l| l.contains("FOG4 isolated by the fault logic at")).expect("isolation named");
     let t_s = num(line.split(" at ").nth(1).and_then(|r| r.split_whitespace().next()).expect("time"));
     assert!(t_s < 5.0, "FOG4 isolated at {t_s} s: {out}");
+    // The unit's event log, as its event frames carried it: the timeline names the
+    // mounting check's verdict and the isolation, at the time the evidence gives.
+    let timeline: Vec<&str> = out.lines().skip_while(|l| !l.starts_with("events (")).collect();
+    let event = |name: &str, detail: &str| {
+        timeline.iter().find(|l| l.split_whitespace().nth(2) == Some(name) && l.contains(detail)).map(|l| {
+            let t = l.split_whitespace().next().expect("a time");
+            num(t)
+        })
+    };
+    let iso_s = event("isolated", "FOG4").unwrap_or_else(|| panic!("no isolation in the timeline: {out}"));
+    let verdict_s = event("mount_verdict", "FOG4 reversed").unwrap_or_else(|| panic!("no verdict: {out}"));
+    assert!((iso_s - t_s).abs() <= 0.0051, "timeline {iso_s} s, evidence {t_s} s: {out}");
+    assert!(verdict_s <= iso_s, "the verdict ({verdict_s} s) comes before the isolation ({iso_s} s): {out}");
+    assert!(event("isolated", "FOG1").is_none() && event("parity_alarm", "").is_none(), "{out}");
 }
 
 /// The committed launch-vehicle log with `f` applied to every data row (by column name).

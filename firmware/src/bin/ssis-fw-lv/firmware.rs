@@ -76,6 +76,8 @@ static GNSS_RX: RxRing<256> = RxRing::new();
 static CTL_RX: RxRing<{ mps2::CTL_RX_LEN }> = RxRing::new();
 /// Flight output transmit buffer (output frames, `docs/ICD.md`).
 static OUT_TX: TxRing<256> = TxRing::new();
+/// Steps between two event frames on UART0 at most.
+const EVENT_EVERY: u32 = 8;
 /// Navigation output transmit buffer (64-byte frames).
 static NAV_TX: TxRing<256> = TxRing::new();
 
@@ -184,6 +186,7 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
         NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };
     let mut pacer = Pacer::new(&UARTS, &CTL_RX);
     let mut times = StepTimes::default();
+    let mut event_wait = 0u32;
     let period = mps2::ticks_per_step();
     let mut nav_steps = 0u32;
     loop {
@@ -220,6 +223,13 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
                 core.note_overrun();
             }
             core.set_step_ticks(u16::try_from(busy).unwrap_or(u16::MAX));
+            // UART0 carries the output frames at 84 % of its rate (docs/ICD.md): an event
+            // frame at most every EVENT_EVERY steps, so the ring always has room for the
+            // next output frame.
+            event_wait = event_wait.saturating_sub(1);
+            if event_wait == 0 && core.send_events(&mut links.out) {
+                event_wait = EVENT_EVERY;
+            }
             let k = kind(work);
             if let Some(t) = times.step.get_mut(k) {
                 t.push(step_ticks);

@@ -108,6 +108,7 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     let mut flash = mps2::CalibRegion;
     let mut pacer = Pacer::new(&UARTS, &CTL_RX);
     let mut times = StepTimes::default();
+    let mut warnings = 0;
     loop {
         let due = pacer.due(
             core,
@@ -141,6 +142,11 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
             if let Some(r) = link.take_report() {
                 let _ = write_frame(&mut reports, &r.to_bytes());
             }
+            if mps2::watchdog_warnings() != warnings {
+                warnings = mps2::watchdog_warnings();
+                core.note_watchdog_warning();
+            }
+            core.send_events(&mut links.out);
         }
         pacer.end_pass(due, || report_end(core, &times));
     }

@@ -66,6 +66,7 @@ pub fn run(a: &Args) -> Result<bool> {
         evidence: evidence.clone(),
         frames_out: s.frames_out,
         hash: 0,
+        events: ssis_common::downlink::records(&s.event_frames),
     };
     cli::report("run", || ssis_runner::json::qemu_summary(&s));
     cli::report("replay", || {

@@ -400,6 +400,7 @@ fn run_scenario(
         return Err(e.into());
     }
     print!("{}", summary.report());
+    print!("{}", ssis_common::downlink::timeline(&summary.events.0, summary.events.1));
     let wall = started.elapsed().as_secs_f64();
     cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
     let ran = summary.stopped_at_step.unwrap_or(summary.steps) as f64 / summary.steps.max(1) as f64;

@@ -75,6 +75,7 @@ pub fn run(a: &Args) -> Result<bool> {
     let dt = Profile::SPACECRAFT;
     let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), rec.st_latency_s(dt.dt_us));
     print!("{}", s.report(&rec, Some(limit)));
+    print!("{}", ssis_common::downlink::timeline(&s.events.0, s.events.1));
     print!("{}", conv.report());
     let points = rows.finish()?;
     if let Some(p) = &a.plot {

@@ -1,0 +1,338 @@
+//! The fixed-rate flight step: read what arrived on every link, compensate, combine,
+//! integrate, observe, emit one output frame.
+//!
+//! [`FlightCore::step`] is what the timer tick calls (firmware) and what the host harness
+//! calls in replay; it is the same code. It never waits on a link, never allocates, never
+//! panics; every byte, frame or sample it could not use is counted and flagged in the
+//! output frame (see `docs/ICD.md` for the health and status bits).
+//!
+//! The step reads in data-flow order, one call per stage; each stage owns its policy:
+//!
+//! | stage | file | types it drives |
+//! |---|---|---|
+//! | FOG channels: intake, channel checks, thermal tracking, compensation; parity | `fog.rs` | [`FogIntake`], [`ChannelMonitor`], [`ThermalTracker`], [`ParityMonitor`] |
+//! | combination and attitude (and samples lost on every link) | `propagate.rs` | [`Combiner`], [`Attitude`] |
+//! | the star-tracker aid: frames at their tag, the mounting check, the fault logic's listening, the estimator's update | `star_aid.rs` | [`StarIntake`], [`MountCheck`], [`Observer`] |
+//! | telemetry: the output and its status bits, counters, counter page, event log | `report.rs` | [`Telemetry`], [`EventLog`] |
+//! | the table's geometry: combiner, parity logic, noise figures, table switch | `geometry.rs` | |
+//!
+//! Two profiles ([`Profile`]): the spacecraft unit (four FOGs + star tracker, 5 ms,
+//! ±10 °/s) and the launch-vehicle unit (three FOGs, 1.25 ms, ±100 °/s).
+//!
+//! Timing convention: unit time is the FOG sample clock. The sample with counter k covers
+//! ((k−1)Δt, kΔt] of unit time (counters unwrapped from u16); the step that integrates it
+//! emits the time tag kΔt and Λ(kΔt). Star-tracker time tags are in the same time.
+
+mod fog;
+mod geometry;
+mod propagate;
+mod report;
+mod star_aid;
+
+use propagate::Integrated;
+
+pub use geometry::table_crc;
+use geometry::{checked_combiner, flying_noise, parity_monitor, sample_noise_rad, IDENTITY_MAP};
+
+use nalgebra::{Quaternion, Vector3};
+
+use crate::attitude::{Attitude, Coning};
+use crate::calib::{CalibrationTable, N_FOG};
+use crate::combination::{Combiner, FogSet};
+use crate::compensation::ThermalTracker;
+use crate::frames::fog::FogFrame;
+use crate::intake::{FogIntake, StarIntake};
+use crate::integrity::channel::ChannelMonitor;
+use crate::integrity::mounting::MountCheck;
+use crate::integrity::parity::ParityMonitor;
+use crate::link::{OutPort, RxPort, StarPort};
+use crate::observer::{GainError, Observer};
+use crate::telemetry::events::{EventLog, StatusBits};
+use crate::telemetry::{page, Telemetry, WordAligned};
+
+pub use crate::intake::{
+    FogLinks, FOG_QUEUE, MAX_RX_BYTES_PER_STEP, MAX_WAIT_STEPS, ST_MAX_LEAD_US, ST_OUTAGE_US, ST_PENDING,
+};
+pub use crate::telemetry::{flags, health, st_status, Counter, Counters, FogCounter, FogCounters, StepOutput};
+
+/// Steps of attitude history for star-tracker latency (64 × 5 ms = 320 ms).
+pub const HISTORY: usize = 64;
+/// Bytes read from a link per chunk: a step's four FOG frames on the bus (72 bytes, a
+/// multiple of 4, so runs stay word-aligned). A frame split across two chunks is
+/// decoded byte by byte instead of in place (`StreamDecoder::push_slice`).
+const RX_CHUNK: usize = 4 * FogFrame::LEN;
+
+/// Operating profile of the unit.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Profile {
+    /// Step period, µs.
+    pub dt_us: u32,
+    /// FOGs fitted.
+    pub fogs: FogSet,
+    /// Measuring range, rad/s; a FOG reporting more is out of range for that step.
+    pub rate_limit_rad_s: f64,
+    /// Whether a star tracker is fitted.
+    pub star_tracker: bool,
+}
+
+impl Profile {
+    /// Spacecraft unit (SSIS): four FOGs, star tracker, 5 ms, ±10 °/s.
+    pub const SPACECRAFT: Profile = Profile {
+        dt_us: 5_000,
+        fogs: FogSet::ALL,
+        rate_limit_rad_s: 10.0 * core::f64::consts::PI / 180.0,
+        star_tracker: true,
+    };
+    /// Launch-vehicle unit (SIS): three FOGs, 1.25 ms, ±100 °/s.
+    pub const LAUNCH_VEHICLE: Profile = Profile {
+        dt_us: 1_250,
+        fogs: FogSet::TRIAD,
+        rate_limit_rad_s: 100.0 * core::f64::consts::PI / 180.0,
+        star_tracker: false,
+    };
+
+    /// Step period, s.
+    pub fn dt_s(&self) -> f64 {
+        f64::from(self.dt_us) * 1e-6
+    }
+}
+
+/// The links of one unit: the FOGs, the star tracker, the output.
+/// FOG slots the profile does not fit are never read.
+pub struct Links<F, S, O> {
+    /// FOG1..FOG4.
+    pub fog: FogLinks<F>,
+    /// Star tracker.
+    pub star: S,
+    /// Framed output.
+    pub out: O,
+}
+
+/// Why the core could not be built.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+pub enum CoreError {
+    /// The observer gains could not be computed from the table's figures.
+    Gains(GainError),
+    /// The fitted FOGs do not span 3-D space with this table's geometry.
+    Geometry,
+}
+
+impl From<GainError> for CoreError {
+    fn from(e: GainError) -> Self {
+        CoreError::Gains(e)
+    }
+}
+
+/// The flight core: all state of one unit, stage by stage.
+///
+/// `repr(C)` in this order: the state every step touches first, the large stages last,
+/// so the hot fields sit within the M7's short load offsets of one base address.
+#[repr(C)]
+#[derive(Clone)]
+pub struct FlightCore {
+    profile: Profile,
+    last_body_dtheta: Vector3<f64>,
+    attitude: Attitude,
+    mount: Quaternion<f64>,
+    thermal: [ThermalTracker; N_FOG],
+    channel_monitors: [ChannelMonitor; N_FOG],
+    telemetry: Telemetry,
+    last_output: StepOutput,
+    /// Chunk buffer for draining the links (kept, so a step does not clear one).
+    rx_scratch: WordAligned<RX_CHUNK>,
+    fog_intake: FogIntake,
+    table: CalibrationTable,
+    combiner: Combiner,
+    /// Parity fault logic (`None` without four FOGs).
+    fdi: Option<ParityMonitor>,
+    star_intake: StarIntake,
+    /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
+    fixed_flags: u8,
+    /// FOGs whose temperature sensor has failed (bit i).
+    temp_failed_bits: u8,
+    observer: Observer<HISTORY>,
+    /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
+    /// step, so after the hot state).
+    table_crc: u32,
+    /// The mounting check from power-on (`None` without four FOGs, a star tracker and
+    /// the parity logic).
+    mounting: Option<MountCheck>,
+    /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
+    /// mounting check found two FOGs swapped).
+    fog_map: [usize; N_FOG],
+    /// The log of state changes not yet sent (rarely touched: last).
+    events: EventLog,
+}
+
+impl FlightCore {
+    /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
+    /// was invalid and `table` is the default; flagged in every output frame).
+    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
+        let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
+        let mut observer = Observer::from_config(&table.observer)?;
+        observer.set_noise(&flying_noise(&combiner, profile.fogs));
+        let dt = profile.dt_s();
+        let noise_rad = sample_noise_rad(table, dt);
+        let fdi = parity_monitor(profile, &combiner, noise_rad, dt);
+        let mounting = (profile.star_tracker && fdi.is_some()).then(|| {
+            let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
+            MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
+        });
+        Ok(FlightCore {
+            mounting,
+            fog_map: IDENTITY_MAP,
+            profile,
+            table: *table,
+            table_crc: table_crc(table),
+            fixed_flags: if profile.star_tracker { flags::ST_IN_USE } else { 0 }
+                | if table_defaulted { flags::TABLE_DEFAULTED } else { 0 },
+            rx_scratch: WordAligned([0; RX_CHUNK]),
+            fog_intake: FogIntake::new(profile.fogs),
+            star_intake: StarIntake::new(),
+            channel_monitors: [ChannelMonitor::new(noise_rad); N_FOG],
+            thermal: [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG],
+            fdi,
+            temp_failed_bits: 0,
+            combiner,
+            last_body_dtheta: Vector3::zeros(),
+            attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
+            mount: table.st_mount(),
+            observer,
+            telemetry: Telemetry::new(),
+            last_output: StepOutput::START,
+            events: EventLog::new(),
+        })
+    }
+
+    /// CRC-32 of the table in use (the last four bytes of its binary form).
+    pub fn table_crc(&self) -> u32 {
+        self.table_crc
+    }
+
+    /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
+    pub fn align(&mut self, q: Quaternion<f64>) {
+        self.attitude.set_quaternion(q);
+        self.observer.set_aligned();
+    }
+
+    /// The profile in use.
+    pub fn profile(&self) -> &Profile {
+        &self.profile
+    }
+
+    /// The calibration table in use.
+    pub fn table(&self) -> &CalibrationTable {
+        &self.table
+    }
+
+    /// The observer (gains, statistics).
+    pub fn observer(&self) -> &Observer<HISTORY> {
+        &self.observer
+    }
+
+    /// The combiner (geometry, parity vector).
+    pub fn combiner(&self) -> &Combiner {
+        &self.combiner
+    }
+
+    /// Turns the parity fault logic off, for ground replays of sessions on a table that
+    /// is not calibrated yet (the gyros disagree by more than a calibrated unit's
+    /// parity allows). Never in flight: the per-channel checks stay on.
+    pub fn disable_parity_fdi(&mut self) {
+        self.fdi = None;
+        self.mounting = None;
+    }
+
+    /// The mounting check from power-on (`None` when the unit has none).
+    pub fn mounting(&self) -> Option<&MountCheck> {
+        self.mounting.as_ref()
+    }
+
+    /// The table axis each FOG channel flies on (identity unless two FOGs were found
+    /// swapped).
+    pub fn fog_map(&self) -> [usize; N_FOG] {
+        self.fog_map
+    }
+
+    /// The parity fault logic (`None` without four FOGs).
+    pub fn fdi(&self) -> Option<&ParityMonitor> {
+        self.fdi.as_ref()
+    }
+
+    /// Output of the last step.
+    pub fn last_output(&self) -> &StepOutput {
+        &self.last_output
+    }
+
+    /// One fixed step. Reads every link, integrates the FOG samples that are due,
+    /// observes, writes one output frame.
+    ///
+    /// Each step integrates, in order, every sample that is complete (usually one; more
+    /// after a delay, catching up) and emits the time tag of the last ([`FogIntake`]
+    /// decides which sample is due and how long an owed one is waited for). With no FOG
+    /// data at all for longer, the interval is bridged with the last body increment so
+    /// time and attitude keep moving.
+    pub fn step<F: RxPort, S: StarPort, O: OutPort>(&mut self, links: &mut Links<F, S, O>) -> StepOutput {
+        self.step_with(links, |_, _| {})
+    }
+
+    /// [`FlightCore::step`], handing each body angle increment the attitude integrates
+    /// (combined and compensated, rad) to `on_increment` with the unit time at its end
+    /// (µs): once per sample, none when no sample came, more than one when the step
+    /// catches up. The launch-vehicle navigation runs on them ([`crate::nav::unit`]); a
+    /// caller with no use for them calls `step`, where the empty hook compiles away.
+    pub fn step_with<F: RxPort, S: StarPort, O: OutPort>(
+        &mut self,
+        links: &mut Links<F, S, O>,
+        mut on_increment: impl FnMut(u64, &Vector3<f64>),
+    ) -> StepOutput {
+        let dt_s = self.profile.dt_s();
+        // Intake: the FOG links into the per-FOG sample queues.
+        self.fog_intake.receive(&mut links.fog, &mut self.rx_scratch.0, &mut self.telemetry.counters);
+        let mut acc = Integrated::NONE;
+        // Bounded: at most one pass per queued sample.
+        for _ in 0..FOG_QUEUE {
+            let Some(target) = self.fog_intake.next_sample(&mut self.telemetry.counters) else { break };
+            // Attitude: samples lost on every link are turned through on the last increment.
+            self.bridge_lost(dt_s, &mut on_increment);
+            // FOG channels: intake, channel checks, thermal tracking, compensation.
+            let mut sample = self.take_sample(target, dt_s);
+            let time_us = self.fog_intake.time_us(self.profile.dt_us);
+            // Star-tracker aid: the mounting check (from power-on) sees every sample.
+            self.mount_check_sample(&sample.dtheta, sample.used, time_us);
+            // Parity: may drop a spike or an isolated FOG.
+            acc.parity_rad = self.check_parity(&mut sample, time_us);
+            // Combination, then attitude on the gyros corrected by the drift estimate.
+            let body = self.combine(&sample, &mut acc);
+            self.propagate(&body, time_us, dt_s, &mut acc);
+            on_increment(time_us, &body);
+            self.fog_intake.integrated();
+            if self.fog_intake.bridged() {
+                // A bridged sample (no FOG data): one per step.
+                break;
+            }
+        }
+        if acc.integrated == 0 {
+            self.nothing_integrated(dt_s, &mut acc);
+        }
+        let now_us = self.fog_intake.time_us(self.profile.dt_us);
+        // Star-tracker aid: the frames due by now.
+        let st = match links.star.link() {
+            Some(star) if self.profile.star_tracker => self.observe_star(star, now_us),
+            _ => 0,
+        };
+        // Telemetry: the output, its status bits assembled from each stage's.
+        let out = self.assemble_output(now_us, st, &acc, dt_s);
+        self.last_output = out;
+        // Paged by the sample clock (not the frame counter), so a replay of the same
+        // data pages the same counters in the same frames.
+        let page_id = (self.fog_intake.index() as u32 % u32::from(page::COUNT)) as u8;
+        let page_value = self.page_value(page_id);
+        self.telemetry.emit(&mut links.out, &out, page_id, page_value);
+        let o = &self.last_output;
+        let status = StatusBits { flags: o.flags, st_status: o.st_status, fdi: o.fdi };
+        self.events.on_status(status, o.time_us, &self.fog_map);
+        out
+    }
+}
