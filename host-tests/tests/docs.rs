@@ -31,7 +31,8 @@
 //!   text contains TEXT (the first after it if none before). A figure matches a printed number that rounds
 //!   to it at the figure's last digit (`0.067` matches 0.06681), or within the block's `tol`.
 //!   `X=(A)-(B)` is a figure the prose derives (an error against the truth): A and B must be
-//!   printed, and A − B must round to X. Figures that no run of the document prints (the
+//!   printed, and A − B must round to X. Each figure X must be quoted in the prose between
+//!   the last block and the marker (so the marker cannot drift from its text). Figures that no run of the document prints (the
 //!   paper's, a test's, a skipped block's) are not marked.
 //!
 //! `cargo run --release -q --bin NAME -- ARGS` is served by a shim that calls the
@@ -83,6 +84,32 @@ enum Action {
     },
 }
 
+/// The numbers of a stretch of prose, thousands separators (`294,880,000`, `15 200`) joined.
+fn prose_numbers(prose: &str) -> Vec<f64> {
+    let chars: Vec<char> = prose.chars().collect();
+    let joined: String = chars
+        .iter()
+        .enumerate()
+        .filter(|&(i, &c)| {
+            let group = i > 0
+                && chars[i - 1].is_ascii_digit()
+                && chars.len() > i + 3
+                && chars[i + 1..=i + 3].iter().all(char::is_ascii_digit)
+                && !chars.get(i + 4).is_some_and(|d| d.is_ascii_digit() || *d == '.');
+            !(matches!(c, ',' | ' ' | '\u{202f}') && group)
+        })
+        .map(|(_, &c)| c)
+        .collect();
+    joined
+        .lines()
+        .flat_map(|l| pieces(l, false))
+        .filter_map(|p| match p {
+            Piece::Num(v, _) => Some(v),
+            _ => None,
+        })
+        .collect()
+}
+
 /// A `doc-run: figures` marker's command text (if it names one) and figures.
 type FiguresMarker = (Option<String>, Vec<String>);
 
@@ -112,9 +139,26 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
     let lines: Vec<&str> = text.lines().collect();
     let mut actions = Vec::new();
     let mut i = 0;
+    // Where the prose before a `figures` marker starts: after the last block.
+    let mut prose_from = 0;
     while i < lines.len() {
         if let Some(m) = figures_marker(lines[i]) {
             let (of, figures) = m.map_err(|e| format!("{doc}:{}: {e}", i + 1))?;
+            // The marker's figures are the prose's: each is quoted in the text before it.
+            let prose: Vec<&str> =
+                lines[prose_from..i].iter().copied().filter(|l| !l.trim().starts_with("<!--")).collect();
+            let quoted_in_prose = prose_numbers(&prose.join("\n"));
+            for f in &figures {
+                let x = f.split_once('=').map_or(f.as_str(), |(x, _)| x);
+                let v = quoted(x).ok_or(format!("{doc}:{}: `{f}` is not a figure", i + 1))?.0;
+                if !quoted_in_prose.contains(&v) {
+                    return Err(format!(
+                        "{doc}:{}: `doc-run: figures` lists {x}, which the prose before it (from line {}) does not quote",
+                        i + 1,
+                        prose_from + 1
+                    ));
+                }
+            }
             actions.push(Action::Figures { line: i + 1, of, figures });
             i += 1;
             continue;
@@ -136,6 +180,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
             .ok_or(format!("{doc}:{fence_line}: a block without its closing fence"))?;
         let body = &lines[i + 1..end];
         i = end + 1;
+        prose_from = i;
         match marker.as_deref() {
             Some(m) if m.starts_with("skip") => {
                 let reason = m.trim_start_matches("skip").trim_start_matches(':').trim();
@@ -623,6 +668,8 @@ fn figures_round_to_the_printed_numbers() {
         .is_some_and(|m| m.is_ok_and(|(of, f)| of.as_deref() == Some("add x") && f.len() == 1)));
     assert!(figures_marker("<!-- doc-run: figures 1 2 -->").is_some_and(|m| m.is_err()));
     assert!(figures_marker("<!-- doc-run: tol 2% -->").is_none());
+    let prose = prose_numbers("is 294,880,000 bytes, the 15 200-s flight; (6.59, 16.69) −0.470, +0.38″");
+    assert_eq!(prose, [294880000.0, 15200.0, 6.59, 16.69, -0.47, 0.38]);
 }
 
 #[test]
