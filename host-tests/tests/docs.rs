@@ -24,6 +24,17 @@
 //! - A fenced block with no info string whose first line is a command (`cargo `, `cd `,
 //!   `bash `, `ssis-`) is refused: commands go in ```` ```console ```` blocks.
 //!
+//! - `<!-- doc-run: figures: 0.088 -15.26 4.3=(49.33)-(45.00) -->` after a paragraph:
+//!   the figures its prose quotes, checked against what the run printed (the shown output's
+//!   elisions do not hide them), by default in the output of the last console block before
+//!   it, or with `figures of `TEXT`: …` in the block of the last command before it whose
+//!   text contains TEXT (the first after it if none before). A figure matches a printed number that rounds
+//!   to it at the figure's last digit (`0.067` matches 0.06681), or within the block's `tol`.
+//!   `X=(A)-(B)` is a figure the prose derives (an error against the truth): A and B must be
+//!   printed, and A − B must round to X. Each figure X must be quoted in the prose between
+//!   the last block and the marker (so the marker cannot drift from its text). Figures that no run of the document prints (the
+//!   paper's, a test's, a skipped block's) are not marked.
+//!
 //! `cargo run --release -q --bin NAME -- ARGS` is served by a shim that calls the
 //! binary built once, in release, by this test (`cargo build --release`), and the
 //! binaries' directory is on `PATH` (`ssis-sim table diff …`). The repository root of the
@@ -52,13 +63,75 @@ struct Step {
     tol: f64,
     /// The first command of a block that starts with `cd `: run from the repository root.
     from_root: bool,
+    /// Line of the block's fence: the steps of one block share it.
+    block: usize,
 }
 
 /// What a document asks the shell to do, in order.
 #[derive(Debug)]
 enum Action {
     Run(Step),
-    File { line: usize, name: String, text: String },
+    File {
+        line: usize,
+        name: String,
+        text: String,
+    },
+    /// Figures the prose quotes, checked against a command's output (`doc-run: figures`).
+    Figures {
+        line: usize,
+        of: Option<String>,
+        figures: Vec<String>,
+    },
+}
+
+/// The numbers of a stretch of prose, thousands separators (`294,880,000`, `15 200`) joined.
+fn prose_numbers(prose: &str) -> Vec<f64> {
+    let chars: Vec<char> = prose.chars().collect();
+    let joined: String = chars
+        .iter()
+        .enumerate()
+        .filter(|&(i, &c)| {
+            let group = i > 0
+                && chars[i - 1].is_ascii_digit()
+                && chars.len() > i + 3
+                && chars[i + 1..=i + 3].iter().all(char::is_ascii_digit)
+                && !chars.get(i + 4).is_some_and(|d| d.is_ascii_digit() || *d == '.');
+            !(matches!(c, ',' | ' ' | '\u{202f}') && group)
+        })
+        .map(|(_, &c)| c)
+        .collect();
+    joined
+        .lines()
+        .flat_map(|l| pieces(l, false))
+        .filter_map(|p| match p {
+            Piece::Num(v, _) => Some(v),
+            _ => None,
+        })
+        .collect()
+}
+
+/// A `doc-run: figures` marker's command text (if it names one) and figures.
+type FiguresMarker = (Option<String>, Vec<String>);
+
+/// A `doc-run: figures` marker: the command text it names (if any) and its figures.
+fn figures_marker(line: &str) -> Option<Result<FiguresMarker, String>> {
+    let m = line.trim().strip_prefix("<!-- doc-run:")?.strip_suffix("-->")?.trim();
+    let rest = m.strip_prefix("figures")?;
+    let (of, list) = match rest.trim_start().strip_prefix("of `") {
+        Some(r) => match r.split_once('`') {
+            Some((of, l)) => (Some(of.to_string()), l),
+            None => return Some(Err("`figures of` needs its command text in backticks".into())),
+        },
+        None => (None, rest),
+    };
+    let Some(list) = list.trim_start().strip_prefix(':') else {
+        return Some(Err("`doc-run: figures` needs `:` before its figures".into()));
+    };
+    let figures: Vec<String> = list.split_whitespace().map(str::to_string).collect();
+    if figures.is_empty() {
+        return Some(Err("`doc-run: figures` lists no figure".into()));
+    }
+    Some(Ok((of, figures)))
 }
 
 /// Parses the document's blocks; skipped blocks are listed in `skipped`.
@@ -66,7 +139,30 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
     let lines: Vec<&str> = text.lines().collect();
     let mut actions = Vec::new();
     let mut i = 0;
+    // Where the prose before a `figures` marker starts: after the last block.
+    let mut prose_from = 0;
     while i < lines.len() {
+        if let Some(m) = figures_marker(lines[i]) {
+            let (of, figures) = m.map_err(|e| format!("{doc}:{}: {e}", i + 1))?;
+            // The marker's figures are the prose's: each is quoted in the text before it.
+            let prose: Vec<&str> =
+                lines[prose_from..i].iter().copied().filter(|l| !l.trim().starts_with("<!--")).collect();
+            let quoted_in_prose = prose_numbers(&prose.join("\n"));
+            for f in &figures {
+                let x = f.split_once('=').map_or(f.as_str(), |(x, _)| x);
+                let v = quoted(x).ok_or(format!("{doc}:{}: `{f}` is not a figure", i + 1))?.0;
+                if !quoted_in_prose.contains(&v) {
+                    return Err(format!(
+                        "{doc}:{}: `doc-run: figures` lists {x}, which the prose before it (from line {}) does not quote",
+                        i + 1,
+                        prose_from + 1
+                    ));
+                }
+            }
+            actions.push(Action::Figures { line: i + 1, of, figures });
+            i += 1;
+            continue;
+        }
         let Some(info) = lines[i].trim_start().strip_prefix("```") else {
             i += 1;
             continue;
@@ -75,7 +171,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
         let marker = (0..i)
             .rev()
             .map(|k| lines[k].trim())
-            .find(|l| !l.is_empty())
+            .find(|l| !l.is_empty() && figures_marker(l).is_none())
             .and_then(|l| l.strip_prefix("<!-- doc-run:"))
             .and_then(|l| l.strip_suffix("-->"))
             .map(|l| l.trim().to_string());
@@ -84,6 +180,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
             .ok_or(format!("{doc}:{fence_line}: a block without its closing fence"))?;
         let body = &lines[i + 1..end];
         i = end + 1;
+        prose_from = i;
         match marker.as_deref() {
             Some(m) if m.starts_with("skip") => {
                 let reason = m.trim_start_matches("skip").trim_start_matches(':').trim();
@@ -143,7 +240,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
                 k += 1;
             }
             let from_root = first_of_block && cmd.starts_with("cd ");
-            actions.push(Action::Run(Step { line, cmd, expected, tol, from_root }));
+            actions.push(Action::Run(Step { line, cmd, expected, tol, from_root, block: fence_line }));
         }
     }
     Ok(actions)
@@ -393,6 +490,7 @@ fn run_doc(root: &Path, bins: &Path, doc: &str, scratch: &Path) -> Vec<String> {
                 println!("{doc}:{line}: writes {name}");
                 let _ = writeln!(script, "cp '{}/{n}.file' '{name}'", outs.display());
             }
+            Action::Figures { .. } => {}
         }
     }
     for (n, a) in actions.iter().enumerate() {
@@ -440,6 +538,38 @@ fn run_doc(root: &Path, bins: &Path, doc: &str, scratch: &Path) -> Vec<String> {
             ));
         }
     }
+    for (n, a) in actions.iter().enumerate() {
+        let Action::Figures { line, of, figures } = a else { continue };
+        let Some(steps) = figure_source(&actions, n, of.as_deref()) else {
+            failures.push(format!(
+                "{doc}:{line}: `doc-run: figures` has no command to check against{}",
+                of.as_ref().map_or(String::new(), |o| format!(" (none contains `{o}`)"))
+            ));
+            continue;
+        };
+        let mut printed = Vec::new();
+        let mut out_text = String::new();
+        let mut tol = 0.0;
+        for &k in &steps {
+            let Action::Run(s) = &actions[k] else { continue };
+            tol = s.tol;
+            let out = std::fs::read_to_string(outs.join(format!("{k}.out"))).unwrap_or_default();
+            let _ = writeln!(out_text, "$ {}\n{}", s.cmd, out.trim_end());
+            printed.extend(out.lines().flat_map(|l| pieces(l, false)).filter_map(|p| match p {
+                Piece::Num(v, s) => Some((v, s)),
+                _ => None,
+            }));
+        }
+        let missing: Vec<String> = figures.iter().filter_map(|f| figure_check(f, &printed, tol).err()).collect();
+        println!("{doc}:{line}: figures {}{}", figures.join(" "), if missing.is_empty() { "" } else { "  DRIFTED" });
+        if !missing.is_empty() {
+            failures.push(format!(
+                "{doc}:{line}: the prose quotes figures the run did not print:\n  {}\n--- the run printed:\n{}",
+                missing.join("\n  "),
+                out_text.trim_end()
+            ));
+        }
+    }
     if std::env::var_os("DOC_RUN_BLESS").is_some() && !bless.is_empty() {
         // Replace the drifted outputs with the run's (elisions and tolerances are the
         // writer's to put back).
@@ -451,6 +581,95 @@ fn run_doc(root: &Path, bins: &Path, doc: &str, scratch: &Path) -> Vec<String> {
         std::fs::write(root.join(doc), lines.join("\n") + "\n").expect("the document is written");
     }
     failures
+}
+
+/// The actions whose output a `figures` marker at `n` is checked against: the steps of the
+/// last block before it, or of the block of the last step before it (else the first after)
+/// whose command contains `of`.
+fn figure_source(actions: &[Action], n: usize, of: Option<&str>) -> Option<Vec<usize>> {
+    let run = |k: usize| match &actions[k] {
+        Action::Run(s) => Some(s),
+        _ => None,
+    };
+    let k = match of {
+        Some(text) => {
+            let hit = |k: &usize| run(*k).is_some_and(|s| s.cmd.contains(text));
+            (0..n).rev().find(hit).or_else(|| (n + 1..actions.len()).find(hit))?
+        }
+        None => (0..n).rev().find(|&k| run(k).is_some())?,
+    };
+    let block = run(k)?.block;
+    Some((0..actions.len()).filter(|&j| run(j).is_some_and(|s| s.block == block)).collect())
+}
+
+/// A quoted figure's value and half a unit of its last digit (`0.067`: 0.0005).
+fn quoted(fig: &str) -> Option<(f64, f64)> {
+    let f = fig.replace('−', "-");
+    let v: f64 = f.parse().ok()?;
+    let (mantissa, exp) = match f.split_once(['e', 'E']) {
+        Some((m, e)) => (m.to_string(), e.parse::<i32>().ok()?),
+        None => (f.clone(), 0),
+    };
+    let decimals = mantissa.split_once('.').map_or(0, |(_, d)| d.len() as i32);
+    Some((v, 0.5 * 10f64.powi(exp - decimals)))
+}
+
+/// Whether a printed number rounds to the quoted figure (or lies within `tol` of it).
+fn rounds_to(fig: &str, printed: &[(f64, String)], tol: f64) -> Result<f64, String> {
+    let (v, half) = quoted(fig).ok_or(format!("`{fig}` is not a number"))?;
+    printed
+        .iter()
+        .map(|(w, _)| *w)
+        .find(|w| (w - v).abs() <= half * (1.0 + 1e-9) || (tol > 0.0 && (w - v).abs() <= tol * v.abs().max(w.abs())))
+        .map(|_| v)
+        .ok_or(format!("{fig}: no printed number rounds to it"))
+}
+
+/// Checks one figure of a `figures` marker: `X` printed, or `X=(A)-(B)` with A and B
+/// printed and A − B rounding to X.
+fn figure_check(fig: &str, printed: &[(f64, String)], tol: f64) -> Result<(), String> {
+    let Some((x, expr)) = fig.split_once('=') else {
+        return rounds_to(fig, printed, tol).map(|_| ());
+    };
+    let terms = expr
+        .strip_prefix('(')
+        .and_then(|e| e.strip_suffix(')'))
+        .and_then(|e| e.split_once(")-("))
+        .ok_or(format!("{fig}: a derived figure is written `X=(A)-(B)`"))?;
+    let a = rounds_to(terms.0, printed, tol).map_err(|e| format!("{fig}: {e}"))?;
+    let b = rounds_to(terms.1, printed, tol).map_err(|e| format!("{fig}: {e}"))?;
+    let (v, half) = quoted(x).ok_or(format!("{fig}: `{x}` is not a number"))?;
+    if (a - b - v).abs() <= half * (1.0 + 1e-9) {
+        Ok(())
+    } else {
+        Err(format!("{fig}: {a} - {b} = {} does not round to {x}", a - b))
+    }
+}
+
+#[test]
+fn figures_round_to_the_printed_numbers() {
+    let printed: Vec<(f64, String)> = ["0.06681", "-15.26", "49.33", "45.00", "3.57e-5", "294880000"]
+        .iter()
+        .map(|s| (s.parse().unwrap(), s.to_string()))
+        .collect();
+    assert!(figure_check("0.067", &printed, 0.0).is_ok());
+    assert!(figure_check("0.0668", &printed, 0.0).is_ok());
+    assert!(figure_check("0.066", &printed, 0.0).is_err());
+    assert!(figure_check("−15.3", &printed, 0.0).is_ok());
+    assert!(figure_check("-15.1", &printed, 0.0).is_err());
+    assert!(figure_check("3.6e-5", &printed, 0.0).is_ok());
+    assert!(figure_check("294880000", &printed, 0.0).is_ok());
+    assert!(figure_check("4.3=(49.33)-(45.00)", &printed, 0.0).is_ok());
+    assert!(figure_check("4.4=(49.33)-(45.00)", &printed, 0.0).is_err());
+    assert!(figure_check("4.3=(49.33)-(45.01)", &printed, 0.0).is_err());
+    assert!(figure_check("0.069", &printed, 0.05).is_ok());
+    assert!(figures_marker("<!-- doc-run: figures: 1 2 -->").is_some_and(|m| m.is_ok()));
+    assert!(figures_marker("<!-- doc-run: figures of `add x`: 1 -->")
+        .is_some_and(|m| m.is_ok_and(|(of, f)| of.as_deref() == Some("add x") && f.len() == 1)));
+    assert!(figures_marker("<!-- doc-run: figures 1 2 -->").is_some_and(|m| m.is_err()));
+    assert!(figures_marker("<!-- doc-run: tol 2% -->").is_none());
+    let prose = prose_numbers("is 294,880,000 bytes, the 15 200-s flight; (6.59, 16.69) −0.470, +0.38″");
+    assert_eq!(prose, [294880000.0, 15200.0, 6.59, 16.69, -0.47, 0.38]);
 }
 
 #[test]
