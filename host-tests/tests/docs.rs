@@ -209,7 +209,7 @@ fn parse(doc: &str, text: &str, skipped: &mut Vec<String>) -> Result<Vec<Action>
         let info = info.trim();
         if info.is_empty() {
             let first = body.iter().map(|l| l.trim()).find(|l| !l.is_empty()).unwrap_or("");
-            if ["cargo ", "cd ", "bash ", "ssis-"].iter().any(|p| first.starts_with(p)) {
+            if ["cargo ", "cd ", "bash ", "ssis-", "$ "].iter().any(|p| first.starts_with(p)) {
                 return Err(format!(
                     "{doc}:{fence_line}: a block of commands without `console`: mark it ```console with `$ ` \
                      prompts, or `<!-- doc-run: skip: REASON -->`"
