@@ -95,8 +95,6 @@ pub struct NavUnit {
     out_buf: [u8; NavOutputFrame::LEN],
     out_counter: u16,
     counters: NavCounters,
-    /// The decoders' rejected-frame totals already counted (accelerometer, GNSS).
-    rejected_seen: (u32, u32),
 }
 
 impl NavUnit {
@@ -117,7 +115,6 @@ impl NavUnit {
             out_buf: [0; NavOutputFrame::LEN],
             out_counter: 0,
             counters: NavCounters::default(),
-            rejected_seen: (0, 0),
         })
     }
 
@@ -142,9 +139,10 @@ impl NavUnit {
         let mut fl = 0u8;
         // 1. Accelerometer frames.
         let (dec, queues) = (&mut self.accel_dec, &mut self.accel_q);
+        let mut rejected = 0u32;
         let rep = drain(&mut links.accel, MAX_ACCEL_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
-            dec.push_slice(bytes, |r| {
-                if let Ok(f) = r {
+            dec.push_slice(bytes, |r| match r {
+                Ok(f) => {
                     if let Some(q) = queues.get_mut(usize::from(f.accel_id)) {
                         if q.is_full() {
                             let _ = q.pop_front();
@@ -152,12 +150,11 @@ impl NavUnit {
                         let _ = q.push_back(f);
                     }
                 }
+                Err(_) => rejected = rejected.saturating_add(1),
             })
         });
         self.counters.add(NavCounter::IoErrors, rep.io_errors);
-        let rejected = self.accel_dec.stats().rejected();
-        self.counters.add(NavCounter::AccelFramesRejected, rejected.saturating_sub(self.rejected_seen.0));
-        self.rejected_seen.0 = rejected;
+        self.counters.add(NavCounter::AccelFramesRejected, rejected);
         let mut raw = [0.0; N_ACCEL];
         let mut temps = [0.0; N_ACCEL];
         let mut complete = true;
@@ -193,21 +190,21 @@ impl NavUnit {
         let mut newest: Option<GnssFix> = None;
         let gdec = &mut self.gnss_dec;
         let mut superseded = 0u32;
+        let mut rejected = 0u32;
         let rep = drain(&mut links.gnss, MAX_GNSS_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
-            gdec.push_slice(bytes, |r| {
-                if let Ok(f) = r {
+            gdec.push_slice(bytes, |r| match r {
+                Ok(f) => {
                     if let Some(fix) = f.fix() {
                         if newest.replace(fix).is_some() {
                             superseded += 1;
                         }
                     }
                 }
+                Err(_) => rejected = rejected.saturating_add(1),
             })
         });
         self.counters.add(NavCounter::IoErrors, rep.io_errors);
-        let rejected = self.gnss_dec.stats().rejected();
-        self.counters.add(NavCounter::GnssFramesRejected, rejected.saturating_sub(self.rejected_seen.1));
-        self.rejected_seen.1 = rejected;
+        self.counters.add(NavCounter::GnssFramesRejected, rejected);
         if let Some(fix) = newest {
             if self.pending_fix.replace((fix, time_us)).is_some() {
                 superseded += 1;
