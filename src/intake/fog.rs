@@ -46,15 +46,13 @@ pub struct Arrival {
 struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
     queue: Deque<FogFrame, FOG_QUEUE>,
-    /// Decoder rejections already counted.
-    rejected_seen: u32,
     /// Frames rejected (by the decoder, or for a wrong FOG id) since the last sample taken.
     rejected_new: u32,
 }
 
 impl FogChannel {
     fn new() -> Self {
-        FogChannel { decoder: StreamDecoder::new(), queue: Deque::new(), rejected_seen: 0, rejected_new: 0 }
+        FogChannel { decoder: StreamDecoder::new(), queue: Deque::new(), rejected_new: 0 }
     }
 
     /// Takes sample `target` from the queue (discarding older ones as stale, leaving a
@@ -113,7 +111,6 @@ pub struct FogIntake {
     fitted: FogSet,
     channels: [FogChannel; N_FOG],
     bus_decoder: StreamDecoder<FogFrame, 32>,
-    bus_rejected_seen: u32,
     clock: SampleClock,
     /// FOGs that delivered the last sample taken.
     last_present: FogSet,
@@ -132,7 +129,6 @@ impl FogIntake {
             fitted,
             channels: [FogChannel::new(), FogChannel::new(), FogChannel::new(), FogChannel::new()],
             bus_decoder: StreamDecoder::new(),
-            bus_rejected_seen: 0,
             clock: SampleClock { expected: None, index: 0 },
             last_present: fitted,
             waited: 0,
@@ -182,41 +178,33 @@ impl FogIntake {
                     if !fitted.contains(i) {
                         continue;
                     }
-                    let FogChannel { decoder, queue, rejected_seen, rejected_new } = ch;
+                    let FogChannel { decoder, queue, rejected_new } = ch;
                     let rep = link.drain_into(MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
-                        decoder.push_slice(bytes, |r| {
-                            if let Ok(f) = r {
-                                if usize::from(f.fog_id) == i {
-                                    enqueue(queue, f);
-                                } else {
-                                    *rejected_new = rejected_new.saturating_add(1);
-                                }
-                            }
+                        decoder.push_slice(bytes, |r| match r {
+                            Ok(f) if usize::from(f.fog_id) == i => enqueue(queue, f),
+                            // Rejected by the decoder, or for a wrong FOG id.
+                            _ => *rejected_new = rejected_new.saturating_add(1),
                         });
                     });
-                    let total = decoder.stats().rejected();
-                    *rejected_new = rejected_new.saturating_add(total.saturating_sub(*rejected_seen));
-                    *rejected_seen = total;
                     counters.add(Counter::IoErrors, rep.io_errors);
                 }
             }
             FogLinks::Bus(link) => {
                 let decoder = &mut self.bus_decoder;
                 let channels = &mut self.channels;
+                let mut new_rej = 0u32;
                 let rep = link.drain_into(N_FOG * MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
-                    decoder.push_slice(bytes, |r| {
-                        if let Ok(f) = r {
+                    decoder.push_slice(bytes, |r| match r {
+                        Ok(f) => {
                             let i = usize::from(f.fog_id);
                             if let Some(ch) = channels.get_mut(i).filter(|_| fitted.contains(i)) {
                                 enqueue(&mut ch.queue, f);
                             }
                         }
+                        Err(_) => new_rej = new_rej.saturating_add(1),
                     });
                 });
                 counters.add(Counter::IoErrors, rep.io_errors);
-                let rejected = self.bus_decoder.stats().rejected();
-                let new_rej = rejected.saturating_sub(self.bus_rejected_seen);
-                self.bus_rejected_seen = rejected;
                 counters.add(Counter::FogFramesRejected, new_rej);
             }
         }

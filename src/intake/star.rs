@@ -33,8 +33,6 @@ pub enum Pending {
 pub struct StarIntake {
     decoder: StreamDecoder<StarFrame, 64>,
     pending: Deque<StarFrame, ST_PENDING>,
-    /// Decoder rejections already counted.
-    rejected_seen: u32,
     /// Quaternion counts of the last frame that was not refused as frozen or invalid.
     last_q_counts: [i32; 4],
     /// Unit time of the last frame the observer used, µs.
@@ -54,7 +52,6 @@ impl StarIntake {
         StarIntake {
             decoder: StreamDecoder::new(),
             pending: Deque::new(),
-            rejected_seen: 0,
             last_q_counts: [0; 4],
             last_used_us: None,
             in_outage: false,
@@ -69,9 +66,10 @@ impl StarIntake {
         let pending = &mut self.pending;
         let mut overflow = 0u32;
         let mut arrived = false;
+        let mut new_rej = 0u32;
         let rep = drain(star, MAX_RX_BYTES_PER_STEP, scratch, |bytes| {
-            decoder.push_slice(bytes, |r| {
-                if let Ok(f) = r {
+            decoder.push_slice(bytes, |r| match r {
+                Ok(f) => {
                     arrived = true;
                     if pending.is_full() {
                         let _ = pending.pop_front();
@@ -79,16 +77,13 @@ impl StarIntake {
                     }
                     let _ = pending.push_back(f);
                 }
+                Err(_) => new_rej = new_rej.saturating_add(1),
             });
         });
         counters.add(Counter::IoErrors, rep.io_errors);
         if arrived {
             status |= st_status::FRAME;
         }
-        // The decoder's counts change only with bytes.
-        let decoded_rej = if rep.bytes > 0 { self.decoder.stats().rejected() } else { self.rejected_seen };
-        let new_rej = decoded_rej.saturating_sub(self.rejected_seen);
-        self.rejected_seen = decoded_rej;
         if new_rej > 0 {
             status |= st_status::REFUSED;
             counters.add(Counter::StFramesRejected, new_rej);

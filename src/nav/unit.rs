@@ -65,24 +65,8 @@ pub struct NavLinks<A, G, O> {
     pub out: O,
 }
 
-/// Counters of the stage (saturating).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub struct NavCounters {
-    /// Accelerometer frames rejected by the decoder (CRC, kind, field).
-    pub accel_frames_rejected: u32,
-    /// Steps in which at least one accelerometer sample was missing or faulty.
-    pub accel_steps_held: u32,
-    /// GNSS frames rejected by the decoder.
-    pub gnss_frames_rejected: u32,
-    /// Navigation steps refused (state held).
-    pub nav_faults: u32,
-    /// Valid fixes replaced by a newer one before the filter work used them.
-    pub gnss_fixes_superseded: u32,
-    /// Output frames that could not be written.
-    pub output_dropped: u32,
-    /// Link driver errors.
-    pub io_errors: u32,
-}
+/// Counters of the stage: declared with the unit's in [`crate::telemetry::counters`].
+pub use crate::telemetry::counters::{NavCounter, NavCounters};
 
 /// What one step produced.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -155,9 +139,10 @@ impl NavUnit {
         let mut fl = 0u8;
         // 1. Accelerometer frames.
         let (dec, queues) = (&mut self.accel_dec, &mut self.accel_q);
+        let mut rejected = 0u32;
         let rep = drain(&mut links.accel, MAX_ACCEL_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
-            dec.push_slice(bytes, |r| {
-                if let Ok(f) = r {
+            dec.push_slice(bytes, |r| match r {
+                Ok(f) => {
                     if let Some(q) = queues.get_mut(usize::from(f.accel_id)) {
                         if q.is_full() {
                             let _ = q.pop_front();
@@ -165,10 +150,11 @@ impl NavUnit {
                         let _ = q.push_back(f);
                     }
                 }
+                Err(_) => rejected = rejected.saturating_add(1),
             })
         });
-        self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
-        self.counters.accel_frames_rejected = self.accel_dec.stats().rejected();
+        self.counters.add(NavCounter::IoErrors, rep.io_errors);
+        self.counters.add(NavCounter::AccelFramesRejected, rejected);
         let mut raw = [0.0; N_ACCEL];
         let mut temps = [0.0; N_ACCEL];
         let mut complete = true;
@@ -191,38 +177,40 @@ impl NavUnit {
             }
             None => {
                 fl |= flags::ACCEL_FAULT;
-                self.counters.accel_steps_held = self.counters.accel_steps_held.saturating_add(1);
+                self.counters.add(NavCounter::AccelStepsHeld, 1);
                 self.last_dv_m_s
             }
         };
         // 3. Navigation (strapdown only; the covariance work is `filter_work`'s).
         if self.nav.step_deferred(dtheta_body_rad, &dv).is_err() {
             fl |= flags::NAV_FAULT;
-            self.counters.nav_faults = self.counters.nav_faults.saturating_add(1);
+            self.counters.add(NavCounter::NavFaults, 1);
         }
         // 4. GNSS: hold the newest valid fix for the filter work.
         let mut newest: Option<GnssFix> = None;
         let gdec = &mut self.gnss_dec;
         let mut superseded = 0u32;
+        let mut rejected = 0u32;
         let rep = drain(&mut links.gnss, MAX_GNSS_BYTES_PER_STEP, &mut self.rx_scratch, |bytes| {
-            gdec.push_slice(bytes, |r| {
-                if let Ok(f) = r {
+            gdec.push_slice(bytes, |r| match r {
+                Ok(f) => {
                     if let Some(fix) = f.fix() {
                         if newest.replace(fix).is_some() {
                             superseded += 1;
                         }
                     }
                 }
+                Err(_) => rejected = rejected.saturating_add(1),
             })
         });
-        self.counters.io_errors = self.counters.io_errors.saturating_add(rep.io_errors);
-        self.counters.gnss_frames_rejected = self.gnss_dec.stats().rejected();
+        self.counters.add(NavCounter::IoErrors, rep.io_errors);
+        self.counters.add(NavCounter::GnssFramesRejected, rejected);
         if let Some(fix) = newest {
             if self.pending_fix.replace((fix, time_us)).is_some() {
                 superseded += 1;
             }
         }
-        self.counters.gnss_fixes_superseded = self.counters.gnss_fixes_superseded.saturating_add(superseded);
+        self.counters.add(NavCounter::GnssFixesSuperseded, superseded);
         if core::mem::take(&mut self.updated_since_output) {
             fl |= flags::GNSS_UPDATED;
         }
@@ -246,7 +234,7 @@ impl NavUnit {
         self.out_counter = self.out_counter.wrapping_add(1);
         let ok = frame.encode_into(&mut self.out_buf).is_ok() && write_frame(&mut links.out, &self.out_buf);
         if !ok {
-            self.counters.output_dropped = self.counters.output_dropped.saturating_add(1);
+            self.counters.add(NavCounter::OutputDropped, 1);
         }
         NavStepOutput { flags: fl, state }
     }

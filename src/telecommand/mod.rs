@@ -25,6 +25,7 @@ use crate::calib::store::CalibFlash;
 use crate::flight::FlightCore;
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::telecommand::{command, CommandReport, Telecommand};
+use crate::frames::DecodeError;
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
 
@@ -86,8 +87,6 @@ pub struct CommandLink {
     last_refusal: u8,
     accepted: u16,
     refused: u16,
-    /// Decoder rejections already counted.
-    rejects_counted: u32,
 }
 
 impl CommandLink {
@@ -101,7 +100,6 @@ impl CommandLink {
             last_refusal: 0,
             accepted: 0,
             refused: 0,
-            rejects_counted: 0,
         }
     }
 
@@ -133,12 +131,18 @@ impl CommandLink {
         // The bytes go in runs of one frame's length, each completing at most a few
         // frames, which are acted on after the run (the decoder is not borrowed then).
         let mut rest = bytes;
+        // Frames rejected as corrupt (CRC, fields; a wrong kind byte is not a command).
+        let mut corrupt = 0u32;
         // Bounded: every pass takes at least one byte.
         while !rest.is_empty() {
             let (now, later) = rest.split_at(rest.len().min(Telecommand::LEN));
-            self.decoder.push_slice(now, |r| {
-                if let Ok(tc) = r {
+            self.decoder.push_slice(now, |r| match r {
+                Ok(tc) => {
                     let _ = frames.push(tc);
+                }
+                Err(DecodeError::BadKind) => {}
+                Err(DecodeError::BadCrc | DecodeError::BadField | DecodeError::BadSync | DecodeError::BadLength) => {
+                    corrupt = corrupt.saturating_add(1);
                 }
             });
             rest = later;
@@ -148,12 +152,9 @@ impl CommandLink {
             }
             frames.clear();
         }
-        let s = self.decoder.stats();
-        let rejects = s.crc_errors.saturating_add(s.field_errors);
-        for _ in 0..rejects.wrapping_sub(self.rejects_counted).min(64) {
+        for _ in 0..corrupt.min(64) {
             core.note(Counter::TcCorrupt);
         }
-        self.rejects_counted = rejects;
     }
 
     /// A command report asked for by STATUS, once.

@@ -1,11 +1,14 @@
 //! The unit's counters, declared once.
 //!
 //! `declare_counters!` below is the one list of what the unit counts. From it come the
-//! [`Counter`] and [`FogCounter`] enums, the [`Counters`] and [`FogCounters`] storage
-//! (named fields, saturating), the output frame's counter page ([`page`]) and the page
+//! [`Counter`], [`FogCounter`] and [`NavCounter`] enums, the [`Counters`],
+//! [`FogCounters`] and [`NavCounters`] storage (named fields, saturating; the
+//! navigation stage's, [`crate::nav::unit`], are reported by the launch-vehicle
+//! firmware at the end of a run and are not on the counter page), the output frame's counter page ([`page`]) and the page
 //! table of `docs/ICD.md` ([`write_page_table`]; a host test compares the two).
 //!
-//! Every count goes through [`Counters::add`] / [`FogCounters::add`] (or `bump`).
+//! Every count goes through [`Counters::add`] / [`FogCounters::add`] /
+//! [`NavCounters::add`] (or `bump`).
 
 use crate::calib::N_FOG;
 use crate::integrity::parity::FdiState;
@@ -70,6 +73,7 @@ macro_rules! declare_counters {
         fog { $( $fvar:ident $ffield:ident $fdesc:literal, )* }
         unit { $( $uvar:ident $ufield:ident $udesc:literal, )* }
         paged [ $( $pvar:ident, )* ]
+        nav { $( $nvar:ident $nfield:ident $ndesc:literal, )* }
     ) => {
         counter_set! {
             /// A per-FOG counter (one of each per FOG slot).
@@ -92,6 +96,14 @@ macro_rules! declare_counters {
 
         /// The unit counters the page carries after the per-FOG ones, in page order.
         pub const PAGED: &[Counter] = &[$( Counter::$pvar, )*];
+
+        counter_set! {
+            /// A counter of the launch-vehicle navigation stage ([`crate::nav::unit`]).
+            enum NavCounter;
+            /// The navigation stage's counters (saturating).
+            struct NavCounters {}
+            $( $nvar $nfield $ndesc, )*
+        }
     };
 }
 
@@ -167,6 +179,15 @@ declare_counters! {
         MountUnverified,
         MountUndecided,
     ]
+    nav {
+        AccelFramesRejected accel_frames_rejected "accelerometer frames rejected by the decoder (CRC, kind, field)",
+        AccelStepsHeld accel_steps_held "navigation steps in which at least one accelerometer sample was missing or faulty (previous increment held)",
+        GnssFramesRejected gnss_frames_rejected "GNSS frames rejected by the decoder",
+        NavFaults nav_faults "navigation steps refused (state held)",
+        GnssFixesSuperseded gnss_fixes_superseded "valid GNSS fixes replaced by a newer one before the filter work used them",
+        OutputDropped output_dropped "navigation output frames that could not be written",
+        IoErrors io_errors "navigation link driver errors (accelerometer and GNSS links)",
+    }
 }
 
 impl Counters {

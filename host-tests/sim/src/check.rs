@@ -68,6 +68,38 @@ pub struct CheckReport {
     pub findings: Vec<String>,
 }
 
+impl FogFinding {
+    /// What is wrong with the FOG in words (nothing: none), added to `out`.
+    fn findings(&self, out: &mut Vec<String>) {
+        let (i, j, polarity, scale, scale_se) = (self.channel, self.carries, self.polarity, self.scale, self.scale_se);
+        if j != i {
+            out.push(format!(
+                "FOG{} (channel {i}, columns fog{i}_*) carries FOG{}'s axis: wired to the wrong channel",
+                i + 1,
+                j + 1
+            ));
+        }
+        if polarity < 0.0 {
+            out.push(format!(
+                "FOG{} (channel {i}) reads with reversed polarity (×{:.4}): mounted backwards or its sign flipped",
+                i + 1,
+                -scale
+            ));
+        }
+        if (scale - 1.0).abs() > SCALE_TOL.max(5.0 * scale_se) {
+            out.push(format!("FOG{} (channel {i}): scale {:.4} ± {:.4} relative to the table", i + 1, scale, scale_se));
+        }
+        if self.axis_off_arcsec > AXIS_TOL_ARCSEC {
+            out.push(format!(
+                "FOG{} (channel {i}): apparent axis {:.0}″ from the table's FOG{}",
+                i + 1,
+                self.axis_off_arcsec,
+                j + 1
+            ));
+        }
+    }
+}
+
 /// Runs the check on `rec` against `table`'s axes.
 pub fn check(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -> Result<CheckReport> {
     let axes = table.axes();
@@ -161,36 +193,7 @@ pub fn check(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -> Result<Che
             scale_se,
             axis_off_arcsec: cos.acos() * ARCSEC_PER_RAD,
         };
-        if j != i {
-            findings.push(format!(
-                "FOG{} (channel {i}, columns fog{i}_*) carries FOG{}'s axis: wired to the wrong channel",
-                i + 1,
-                j + 1
-            ));
-        }
-        if polarity < 0.0 {
-            findings.push(format!(
-                "FOG{} (channel {i}) reads with reversed polarity (×{:.4}): mounted backwards or its sign flipped",
-                i + 1,
-                -scale
-            ));
-        }
-        if (scale - 1.0).abs() > SCALE_TOL.max(5.0 * scale_se) {
-            findings.push(format!(
-                "FOG{} (channel {i}): scale {:.4} ± {:.4} relative to the table",
-                i + 1,
-                scale,
-                scale_se
-            ));
-        }
-        if f.axis_off_arcsec > AXIS_TOL_ARCSEC {
-            findings.push(format!(
-                "FOG{} (channel {i}): apparent axis {:.0}″ from the table's FOG{}",
-                i + 1,
-                f.axis_off_arcsec,
-                j + 1
-            ));
-        }
+        f.findings(&mut findings);
         fogs.push(f);
     }
     let (parity_rms_rad, parity_best) = parity_hypotheses(rec, &axes);

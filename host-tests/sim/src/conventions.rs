@@ -386,17 +386,7 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
         .collect();
     let mut unchecked = Vec::new();
     let mut findings = Vec::new();
-    let mut fits = Fits::new(rec, table, rec.fogs, &st, dt_s);
-    if rec.fogs.count() == 4 {
-        for i in 0..N_FOG {
-            let triad = Fits::new(rec, table, rec.fogs.without(i), &st, dt_s);
-            if let (Some(t), Some(b)) = (triad.best(), fits.best()) {
-                if t.rms_arcsec < FORM_RATIO * b.rms_arcsec {
-                    fits = triad;
-                }
-            }
-        }
-    }
+    let fits = fits_of_fogs(rec, table, &st, dt_s);
     let (Some(best), Some(&logged)) = (fits.best(), fits.forms.first()) else {
         unchecked.push(format!(
             "star-tracker conventions: {} pairs of solutions with FOG data between them (need {MIN_PAIRS})",
@@ -471,6 +461,44 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
     // Time tags, if the FOGs are in radians and the form is known.
     let tags =
         if findings.is_empty() && decisive { fit_tag_offset(&st, &fits.gyro, best.form, mount_inv) } else { None };
+    tag_verdict(tags.as_ref(), decisive, &mut findings, &mut unchecked);
+    let tracker_ok = findings.is_empty();
+    let truth = check_truth(rec, &fits.gyro, dt_s, &mut findings, &mut unchecked);
+    Ok(ConventionReport {
+        pairs: fits.pairs.len(),
+        fogs: fits.fogs,
+        tracker_ok,
+        truth,
+        motion_rms_arcsec,
+        forms: fits.forms,
+        best: best.form,
+        tags,
+        findings,
+        unchecked,
+    })
+}
+
+/// The fits of the FOGs against the tracker's solutions `st`: all the log's FOGs, or with
+/// four a triad that fits the tracker clearly better (a FOG wired or mounted wrong).
+fn fits_of_fogs(rec: &Recorded, table: &CalibrationTable, st: &[(f64, [f64; 4])], dt_s: f64) -> Fits {
+    let mut fits = Fits::new(rec, table, rec.fogs, st, dt_s);
+    if rec.fogs.count() == 4 {
+        for i in 0..N_FOG {
+            let triad = Fits::new(rec, table, rec.fogs.without(i), st, dt_s);
+            if let (Some(t), Some(b)) = (triad.best(), fits.best()) {
+                if t.rms_arcsec < FORM_RATIO * b.rms_arcsec {
+                    fits = triad;
+                }
+            }
+        }
+    }
+    fits
+}
+
+/// The verdict on the star-tracker time tags `tags` (fitted only when the FOGs and the
+/// form are `decisive` and nothing else was found): a finding if the tags are off, a
+/// note if the log cannot fix them.
+fn tag_verdict(tags: Option<&TagFit>, decisive: bool, findings: &mut Vec<String>, unchecked: &mut Vec<String>) {
     match tags {
         Some(t) if t.offset_s.abs() > TAG_TOL_S.max(5.0 * t.offset_se_s) => findings.push(format!(
             "the star-tracker time tags are {:.1} ms {} the instant the quaternion holds (± {:.1} ms; residual \
@@ -494,20 +522,6 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
         }
         None => {}
     }
-    let tracker_ok = findings.is_empty();
-    let truth = check_truth(rec, &fits.gyro, dt_s, &mut findings, &mut unchecked);
-    Ok(ConventionReport {
-        pairs: fits.pairs.len(),
-        fogs: fits.fogs,
-        tracker_ok,
-        truth,
-        motion_rms_arcsec,
-        forms: fits.forms,
-        best: best.form,
-        tags,
-        findings,
-        unchecked,
-    })
 }
 
 /// The truth quaternions' reading against the FOGs, as for the star tracker: a log whose
@@ -691,49 +705,10 @@ pub struct LvConventionReport {
 /// such (axes, signs or the initial state).
 pub fn check_lv(rec: &Recorded, table: &CalibrationTable, init: &NavState) -> LvConventionReport {
     let dt_s = f64::from(rec.unit.profile().dt_us) * 1e-6;
-    let mut findings = Vec::new();
+    let (mut findings, fixes, truth) = lv_positions(rec, init, dt_s);
     let mut unchecked = Vec::new();
-    // Positions: an ECEF radius in metres.
-    let (lo, hi) = LV_RADIUS_M;
-    let mut radius = |what: &str, r: Vector3<f64>| {
-        let n = r.norm();
-        if (lo..=hi).contains(&n) || findings.iter().any(|f: &String| f.starts_with(what)) {
-            return;
-        }
-        findings.push(if (lo..=hi).contains(&(n * 1e3)) {
-            format!("{what} look like kilometres, not metres (|r| = {n:.1}: an ECEF radius is {lo:.1e} … {hi:.1e} m)")
-        } else {
-            format!("{what} are not an ECEF position in metres (|r| = {n:.4e}; {lo:.1e} … {hi:.1e} m expected)")
-        });
-    };
-    radius("the initial position (init_x_m …)", init.r_e_m);
-    let fixes: Vec<(f64, Vector3<f64>, f64)> = rec
-        .steps
-        .iter()
-        .flat_map(|s| s.gnss.iter())
-        .map(|g| (g.time_us as f64 * 1e-6, g.r_e_m, g.sigma_pos_m))
-        .collect();
-    for f in &fixes {
-        radius("the GNSS positions (gnss_x_m …)", f.1);
-    }
-    let truth: Vec<(f64, Vector3<f64>)> = rec
-        .steps
-        .iter()
-        .enumerate()
-        .filter_map(|(k, s)| s.truth.and_then(|t| t.pos_vel).map(|(r, _)| ((k + 1) as f64 * dt_s, r)))
-        .collect();
-    for t in &truth {
-        radius("the truth positions (true_x_m …)", t.1);
-    }
-    // The reference the increments are judged against: the fixes, else truth.
     let positions_ok = findings.is_empty();
-    let (name, refs, sigma_m): (&'static str, Vec<(f64, Vector3<f64>)>, f64) = if fixes.len() >= 3 {
-        let mut s: Vec<f64> = fixes.iter().map(|f| f.2).filter(|s| s.is_finite() && *s > 0.0).collect();
-        s.sort_by(f64::total_cmp);
-        ("GNSS fixes", fixes.iter().map(|f| (f.0, f.1)).collect(), s.get(s.len() / 2).copied().unwrap_or(5.0))
-    } else {
-        ("truth", truth, 1.0)
-    };
+    let (name, refs, sigma_m) = lv_reference(&fixes, truth);
     let span_s = (rec.steps.len() as f64 * dt_s).min(LV_CHECK_SPAN_S);
     let refs: Vec<(f64, Vector3<f64>)> = refs.into_iter().filter(|r| r.0 <= span_s).collect();
     if !positions_ok || refs.len() < 3 {
@@ -845,6 +820,65 @@ pub fn check_lv(rec: &Recorded, table: &CalibrationTable, init: &NavState) -> Lv
     }
     let fog_truth_scale = tforms.first().map(|t| (t.scale, t.scale_se));
     LvConventionReport { reference: (name, refs.len()), span_s, fits, fog_truth_scale, findings, unchecked }
+}
+
+/// The log's positions checked as ECEF radii in metres ([`LV_RADIUS_M`]): the findings,
+/// the GNSS fixes (time s, position, σ) and the truth positions (time s, position).
+#[allow(clippy::type_complexity)]
+fn lv_positions(
+    rec: &Recorded,
+    init: &NavState,
+    dt_s: f64,
+) -> (Vec<String>, Vec<(f64, Vector3<f64>, f64)>, Vec<(f64, Vector3<f64>)>) {
+    let mut findings = Vec::new();
+    // Positions: an ECEF radius in metres.
+    let (lo, hi) = LV_RADIUS_M;
+    let mut radius = |what: &str, r: Vector3<f64>| {
+        let n = r.norm();
+        if (lo..=hi).contains(&n) || findings.iter().any(|f: &String| f.starts_with(what)) {
+            return;
+        }
+        findings.push(if (lo..=hi).contains(&(n * 1e3)) {
+            format!("{what} look like kilometres, not metres (|r| = {n:.1}: an ECEF radius is {lo:.1e} … {hi:.1e} m)")
+        } else {
+            format!("{what} are not an ECEF position in metres (|r| = {n:.4e}; {lo:.1e} … {hi:.1e} m expected)")
+        });
+    };
+    radius("the initial position (init_x_m …)", init.r_e_m);
+    let fixes: Vec<(f64, Vector3<f64>, f64)> = rec
+        .steps
+        .iter()
+        .flat_map(|s| s.gnss.iter())
+        .map(|g| (g.time_us as f64 * 1e-6, g.r_e_m, g.sigma_pos_m))
+        .collect();
+    for f in &fixes {
+        radius("the GNSS positions (gnss_x_m …)", f.1);
+    }
+    let truth: Vec<(f64, Vector3<f64>)> = rec
+        .steps
+        .iter()
+        .enumerate()
+        .filter_map(|(k, s)| s.truth.and_then(|t| t.pos_vel).map(|(r, _)| ((k + 1) as f64 * dt_s, r)))
+        .collect();
+    for t in &truth {
+        radius("the truth positions (true_x_m …)", t.1);
+    }
+    (findings, fixes, truth)
+}
+
+/// The reference the increments are judged against: the GNSS fixes (with their median
+/// σ) if there are three, else truth (σ 1 m).
+fn lv_reference(
+    fixes: &[(f64, Vector3<f64>, f64)],
+    truth: Vec<(f64, Vector3<f64>)>,
+) -> (&'static str, Vec<(f64, Vector3<f64>)>, f64) {
+    if fixes.len() >= 3 {
+        let mut s: Vec<f64> = fixes.iter().map(|f| f.2).filter(|s| s.is_finite() && *s > 0.0).collect();
+        s.sort_by(f64::total_cmp);
+        ("GNSS fixes", fixes.iter().map(|f| (f.0, f.1)).collect(), s.get(s.len() / 2).copied().unwrap_or(5.0))
+    } else {
+        ("truth", truth, 1.0)
+    }
 }
 
 /// The RMS miss of a free-inertial navigation over the first `span_s` of `rec` from

@@ -341,81 +341,97 @@ fn partial(cols: &[Option<usize>]) -> bool {
 }
 
 impl Columns {
+    /// The columns of CSV header line `ln` of `origin`, and which unit's log it is.
     fn parse(header: &str, origin: &str, ln: usize) -> Result<Columns> {
         let mut c = Columns::default();
         for (k, name) in header.split(',').map(str::trim).enumerate() {
-            let slot = |prefix: &str, suffix: &str, n: usize| -> Option<usize> {
-                let mid = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
-                mid.parse::<usize>().ok().filter(|&i| i < n)
-            };
-            let axis = |prefix: &str, suffix: &str| xyz_names(prefix, suffix).iter().position(|n| n == name);
-            let set = |col: &mut Option<usize>| *col = Some(k);
-            match name {
-                "t_s" => set(&mut c.t),
-                "st_t_s" => set(&mut c.st_t),
-                "st_valid" => set(&mut c.st_valid),
-                "gnss_t_s" => set(&mut c.gnss_t),
-                "gnss_valid" => set(&mut c.gnss_valid),
-                "gnss_status" => set(&mut c.gnss_status),
-                "gnss_satellites" => set(&mut c.gnss_sats),
-                "gnss_sigma_pos_m" => set(&mut c.gnss_sigma_pos),
-                "gnss_sigma_vel_m_s" => set(&mut c.gnss_sigma_vel),
-                _ => {
-                    let found: Option<&mut Option<usize>> = if let Some(i) = slot("fog", "_dtheta_rad", N_FOG) {
-                        Some(&mut c.fog_dtheta[i])
-                    } else if let Some(i) = slot("fog", "_counter", N_FOG) {
-                        Some(&mut c.fog_counter[i])
-                    } else if let Some(i) = slot("fog", "_t_degc", N_FOG) {
-                        Some(&mut c.fog_t[i])
-                    } else if let Some(i) = slot("fog", "_status", N_FOG) {
-                        Some(&mut c.fog_status[i])
-                    } else if let Some(i) = slot("acc", "_dv_m_s", N_ACCEL) {
-                        Some(&mut c.acc_dv[i])
-                    } else if let Some(i) = slot("acc", "_counter", N_ACCEL) {
-                        Some(&mut c.acc_counter[i])
-                    } else if let Some(i) = slot("acc", "_t_degc", N_ACCEL) {
-                        Some(&mut c.acc_t[i])
-                    } else if let Some(i) = slot("acc", "_status", N_ACCEL) {
-                        Some(&mut c.acc_status[i])
-                    } else if let Some(i) = slot("st_q", "", 4) {
-                        Some(&mut c.st_q[i])
-                    } else if let Some(i) = slot("true_q", "", 4) {
-                        Some(&mut c.true_q[i])
-                    } else if let Some(i) = slot("init_q", "", 4) {
-                        Some(&mut c.init_q[i])
-                    } else if let Some(i) = axis("true_w", "_rad_s") {
-                        Some(&mut c.true_w[i])
-                    } else if let Some(i) = axis("gnss_", "_m") {
-                        Some(&mut c.gnss_r[i])
-                    } else if let Some(i) = axis("gnss_v", "_m_s") {
-                        Some(&mut c.gnss_v[i])
-                    } else if let Some(i) = axis("true_", "_m") {
-                        Some(&mut c.true_r[i])
-                    } else if let Some(i) = axis("true_v", "_m_s") {
-                        Some(&mut c.true_v[i])
-                    } else if let Some(i) = axis("init_", "_m") {
-                        Some(&mut c.init_r[i])
-                    } else if let Some(i) = axis("init_v", "_m_s") {
-                        Some(&mut c.init_v[i])
-                    } else if (name.starts_with("fog") || name.starts_with("acc"))
-                        && (name.ends_with("_deg") || name.ends_with("_arcsec") || name.ends_with("_g"))
-                    {
-                        bail!(
-                            "{origin}: line {ln}, column {} ({name}): increments are in rad and m/s \
+            c.place(k, name, origin, ln)?;
+        }
+        let at = format!("{origin}: line {ln}");
+        c.unit = Some(c.unit_of(&at)?);
+        Ok(c)
+    }
+
+    /// Notes column `k` named `name` (ignored if it is none of the log's).
+    fn place(&mut self, k: usize, name: &str, origin: &str, ln: usize) -> Result<()> {
+        let c = self;
+        let slot = |prefix: &str, suffix: &str, n: usize| -> Option<usize> {
+            let mid = name.strip_prefix(prefix)?.strip_suffix(suffix)?;
+            mid.parse::<usize>().ok().filter(|&i| i < n)
+        };
+        let axis = |prefix: &str, suffix: &str| xyz_names(prefix, suffix).iter().position(|n| n == name);
+        let set = |col: &mut Option<usize>| *col = Some(k);
+        match name {
+            "t_s" => set(&mut c.t),
+            "st_t_s" => set(&mut c.st_t),
+            "st_valid" => set(&mut c.st_valid),
+            "gnss_t_s" => set(&mut c.gnss_t),
+            "gnss_valid" => set(&mut c.gnss_valid),
+            "gnss_status" => set(&mut c.gnss_status),
+            "gnss_satellites" => set(&mut c.gnss_sats),
+            "gnss_sigma_pos_m" => set(&mut c.gnss_sigma_pos),
+            "gnss_sigma_vel_m_s" => set(&mut c.gnss_sigma_vel),
+            _ => {
+                let found: Option<&mut Option<usize>> = if let Some(i) = slot("fog", "_dtheta_rad", N_FOG) {
+                    Some(&mut c.fog_dtheta[i])
+                } else if let Some(i) = slot("fog", "_counter", N_FOG) {
+                    Some(&mut c.fog_counter[i])
+                } else if let Some(i) = slot("fog", "_t_degc", N_FOG) {
+                    Some(&mut c.fog_t[i])
+                } else if let Some(i) = slot("fog", "_status", N_FOG) {
+                    Some(&mut c.fog_status[i])
+                } else if let Some(i) = slot("acc", "_dv_m_s", N_ACCEL) {
+                    Some(&mut c.acc_dv[i])
+                } else if let Some(i) = slot("acc", "_counter", N_ACCEL) {
+                    Some(&mut c.acc_counter[i])
+                } else if let Some(i) = slot("acc", "_t_degc", N_ACCEL) {
+                    Some(&mut c.acc_t[i])
+                } else if let Some(i) = slot("acc", "_status", N_ACCEL) {
+                    Some(&mut c.acc_status[i])
+                } else if let Some(i) = slot("st_q", "", 4) {
+                    Some(&mut c.st_q[i])
+                } else if let Some(i) = slot("true_q", "", 4) {
+                    Some(&mut c.true_q[i])
+                } else if let Some(i) = slot("init_q", "", 4) {
+                    Some(&mut c.init_q[i])
+                } else if let Some(i) = axis("true_w", "_rad_s") {
+                    Some(&mut c.true_w[i])
+                } else if let Some(i) = axis("gnss_", "_m") {
+                    Some(&mut c.gnss_r[i])
+                } else if let Some(i) = axis("gnss_v", "_m_s") {
+                    Some(&mut c.gnss_v[i])
+                } else if let Some(i) = axis("true_", "_m") {
+                    Some(&mut c.true_r[i])
+                } else if let Some(i) = axis("true_v", "_m_s") {
+                    Some(&mut c.true_v[i])
+                } else if let Some(i) = axis("init_", "_m") {
+                    Some(&mut c.init_r[i])
+                } else if let Some(i) = axis("init_v", "_m_s") {
+                    Some(&mut c.init_v[i])
+                } else if (name.starts_with("fog") || name.starts_with("acc"))
+                    && (name.ends_with("_deg") || name.ends_with("_arcsec") || name.ends_with("_g"))
+                {
+                    bail!(
+                        "{origin}: line {ln}, column {} ({name}): increments are in rad and m/s \
                              (`fogN_dtheta_rad`, `accN_dv_m_s`)",
-                            k + 1
-                        );
-                    } else {
-                        // Anything else (the user's own columns) is ignored.
-                        None
-                    };
-                    if let Some(col) = found {
-                        set(col);
-                    }
+                        k + 1
+                    );
+                } else {
+                    // Anything else (the user's own columns) is ignored.
+                    None
+                };
+                if let Some(col) = found {
+                    set(col);
                 }
             }
         }
-        let at = format!("{origin}: line {ln}");
+        Ok(())
+    }
+
+    /// Which unit's log the columns make (launch vehicle if any of its own columns is
+    /// there), after checking that the columns each sensor needs are all there.
+    fn unit_of(&self, at: &str) -> Result<LogUnit> {
+        let c = self;
         if c.fog_dtheta.iter().all(Option::is_none) {
             bail!("{at}: no FOG column (`fog0_dtheta_rad` … `fog3_dtheta_rad`)");
         }
@@ -475,7 +491,7 @@ impl Columns {
                      `init_vx_m_s` … `init_vz_m_s`"
                 );
             }
-            c.unit = Some(LogUnit::LaunchVehicle);
+            Ok(LogUnit::LaunchVehicle)
         } else {
             let st_any = c.st_t.is_some() || c.st_q.iter().any(Option::is_some);
             if st_any && (c.st_t.is_none() || c.st_q.iter().any(Option::is_none)) {
@@ -484,9 +500,8 @@ impl Columns {
             if partial(&c.true_q) {
                 bail!("{at}: truth needs all of `true_q0` … `true_q3`");
             }
-            c.unit = Some(LogUnit::Spacecraft);
+            Ok(LogUnit::Spacecraft)
         }
-        Ok(c)
     }
 }
 
