@@ -110,6 +110,9 @@ fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, prof
         let t0 = board::cycles();
         let _ = core.step(&mut links);
         let cycles = board::cycles().wrapping_sub(t0);
+        // The unit's state changes, after the step's output frame (docs/ICD.md "Event
+        // frame"); only when there is one to send.
+        core.send_events(&mut links.out);
         board::start_tx();
         hw.feed_watchdog();
 
