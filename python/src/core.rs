@@ -11,6 +11,7 @@ use ssis::combination::FogSet;
 use ssis::flight::{Counter, Counters, FlightCore, FogLinks, Links, Profile, StepOutput};
 use ssis::frames::fog::FogFrame;
 use ssis::frames::star::{self, StarFrame};
+use ssis_common::downlink::{self, Down, Downlink};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::ARCSEC_PER_RAD;
 use ssis_sim::harness::StepInput;
@@ -82,6 +83,7 @@ pub struct PyFlightCore {
     fog: MockLink,
     star: MockLink,
     out: MockSink,
+    down: Downlink,
     last: Counters,
 }
 
@@ -95,7 +97,31 @@ pub(crate) fn slice<const N: usize>(a: &PyReadonlyArray1<'_, f64>, what: &str) -
     <[f64; N]>::try_from(s).map_err(|_| SsisError::new_err(format!("{what}: {} values, expected {N}", s.len())))
 }
 
-fn output_dict<'py>(py: Python<'py>, o: &StepOutput, events: Vec<(String, u32)>) -> PyResult<Bound<'py, PyDict>> {
+/// A step's events (the unit's event log, as its event frames carry it) as dicts: `time_s`,
+/// `seq`, `event`, `a`, `b`, `details` (docs/JSON.md, `events`).
+fn event_dicts<'py>(py: Python<'py>, frames: &[ssis::frames::event::EventFrame]) -> PyResult<Vec<Bound<'py, PyDict>>> {
+    let (records, _) = downlink::records(frames);
+    records
+        .iter()
+        .map(|r| {
+            let d = PyDict::new(py);
+            d.set_item("time_s", r.time_us as f64 * 1e-6)?;
+            d.set_item("seq", r.seq)?;
+            d.set_item("event", r.event.name())?;
+            d.set_item("a", r.a)?;
+            d.set_item("b", r.b)?;
+            d.set_item("details", downlink::details(r))?;
+            Ok(d)
+        })
+        .collect()
+}
+
+fn output_dict<'py>(
+    py: Python<'py>,
+    o: &StepOutput,
+    events: Vec<Bound<'py, PyDict>>,
+    counters_moved: Vec<(String, u32)>,
+) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("time_s", o.time_us as f64 * 1e-6)?;
     d.set_item("q", vec![o.q.w, o.q.i, o.q.j, o.q.k].into_pyarray(py))?;
@@ -110,6 +136,7 @@ fn output_dict<'py>(py: Python<'py>, o: &StepOutput, events: Vec<(String, u32)>)
     d.set_item("fogs_used", o.fogs_used.0)?;
     d.set_item("fdi", o.fdi)?;
     d.set_item("events", events)?;
+    d.set_item("counters_moved", counters_moved)?;
     Ok(d)
 }
 
@@ -128,6 +155,7 @@ impl PyFlightCore {
             fog: MockLink::ideal(),
             star: MockLink::ideal(),
             out: MockSink::default(),
+            down: Downlink::new(),
         })
     }
 
@@ -174,9 +202,18 @@ impl PyFlightCore {
         self.star.send(&input.st_bytes);
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         let o = self.core.step(&mut links);
+        // The event frame the board sends after the step's output frame, when a record waits.
+        self.core.send_events(&mut self.out);
+        let mut frames = Vec::new();
+        self.down.push(&self.out.bytes, |d| {
+            if let Down::Events(f) = d {
+                frames.push(f);
+            }
+        });
         self.out.bytes.clear();
+        let events = event_dicts(py, &frames)?;
         let now = self.core.counters();
-        let events = Counter::ALL
+        let counters_moved = Counter::ALL
             .iter()
             .filter_map(|&k| {
                 let d = now.get(k).saturating_sub(self.last.get(k));
@@ -184,7 +221,7 @@ impl PyFlightCore {
             })
             .collect();
         self.last = now;
-        output_dict(py, &o, events)
+        output_dict(py, &o, events, counters_moved)
     }
 
     /// The unit's counters, by name.

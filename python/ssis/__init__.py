@@ -56,9 +56,12 @@ class Step:
     fdi: int
     parity_rad: float
     events: list = field(default_factory=list)
+    """The unit's state changes sent after this step (its event log, as the event frames
+    carry it, docs/ICD.md): dicts ``time_s``, ``seq``, ``event`` (e.g. ``"aligned"``,
+    ``"isolated"``), ``a``, ``b``, ``details``. Empty from :class:`QemuUnit` for now."""
+    counters_moved: list = field(default_factory=list)
     """Counters that moved in this step, ``(name, increment)`` (e.g.
-    ``("StFramesAccepted", 1)``). The unit's event log will replace this list when it
-    lands in the flight core; until then it reads the counters."""
+    ``("StFramesAccepted", 1)``). Empty from :class:`QemuUnit`."""
 
 
 class _Unit:
@@ -116,7 +119,7 @@ class QemuUnit(_Unit):
     emulated UARTs, a STEP control frame, the output frame back). The runner compares every
     output frame with the same core run in-process; :meth:`close` returns its report.
     Needs ``qemu-system-arm`` and the thumb toolchain (the firmware is built if out of
-    date). ``events`` is always empty here."""
+    date). ``events`` and ``counters_moved`` are always empty here."""
 
     def __init__(self, table: Optional[Table] = None, elf: Optional[PathLike] = None, steps: int = 0) -> None:
         self._native = _ssis.QemuUnit(table, None if elf is None else os.fspath(elf), steps)

@@ -52,6 +52,7 @@ def test_flight_core_steps_as_the_replay(short_log, root):
     q = np.empty((len(c["t_s"]), 4))
     drift = np.empty((len(c["t_s"]), 3))
     accepted = 0
+    events = []
     for k in range(len(c["t_s"])):
         d = [c[f"fog{i}_dtheta_rad"][k] for i in range(4)]
         star = None
@@ -61,7 +62,8 @@ def test_flight_core_steps_as_the_replay(short_log, root):
             star = (c["st_t_s"][k] - t0, [v / norm for v in sq])
         s = core.step(d, star, star_valid=c["st_valid"][k] == 1)
         q[k], drift[k] = s.q, s.drift_rad_s
-        accepted += dict(s.events).get("StFramesAccepted", 0)
+        accepted += dict(s.counters_moved).get("StFramesAccepted", 0)
+        events += s.events
         assert abs(s.time_s - r.t_s[k]) < 1e-9
     # the replay's arrays are the output frames': q in counts of 2^-31, saturated
     counts = np.clip(np.round(q * 2**31), -(2**31), 2**31 - 1)
@@ -69,3 +71,10 @@ def test_flight_core_steps_as_the_replay(short_log, root):
     lsb = np.min(np.abs(np.diff(np.unique(r.drift_rad_s))))
     assert np.max(np.abs(drift - r.drift_rad_s)) <= lsb
     assert accepted == core.counters()["StFramesAccepted"] > 800
+    # the event log: aligned on the tracker once, at an output's time, then converged
+    names = [e["event"] for e in events]
+    assert names.count("aligned") == 1, names
+    aligned = next(e for e in events if e["event"] == "aligned")
+    assert 0.0 < aligned["time_s"] <= r.t_s[-1]
+    assert any(abs(aligned["time_s"] - t) < 1e-9 for t in r.t_s), aligned
+    assert [e["seq"] for e in events] == list(range(events[0]["seq"], events[0]["seq"] + len(events)))
