@@ -856,9 +856,11 @@ fn a_static_mems_recording_passes_compare_diagnose_and_allan() {
     s.succeeds("ssis-lab", &["init", "m.v1.toml", "--terms", "bias"], &["m.v1.toml"]);
     let text = s.succeeds("ssis-lab", &["compare", "--model", "m.v1.toml", "--session", "mems.csv"], &[]);
     let fog0 = text.lines().find_map(|l| l.split("FOG0: b = ").nth(1)).expect("compare prints FOG0's bias");
-    let b_rad_s: f64 = fog0.split_whitespace().next().and_then(|v| v.parse().ok()).expect("a number");
+    // compare prints the coefficient in engineering units: `b = 1444.29229 °/h`.
+    let mut words = fog0.split_whitespace();
+    let b_deg_h: f64 = words.next().and_then(|v| v.parse().ok()).expect("a number");
+    assert_eq!(words.next(), Some("°/h"), "compare's bias in °/h: {fog0}");
     // The model's bias is the error about the reference: the gyro's own, ±1.2 °/h (1σ).
-    let b_deg_h = b_rad_s.to_degrees() * 3600.0;
     assert!((b_deg_h - MEMS_BIAS_DEG_H[0]).abs() < 5.0, "bias {b_deg_h} °/h against {}", MEMS_BIAS_DEG_H[0]);
     s.succeeds("ssis-lab", &["diagnose", "--model", "m.v1.toml", "--session", "mems.csv"], &[]);
     let text = s.succeeds("ssis-cal", &["allan", "--session", "mems.csv", "--plot", "a.svg"], &["a.svg"]);
