@@ -17,6 +17,9 @@
 //! Small enums of the state are stored as a `u8` code with a total decoder beside the
 //! enum (an unknown code decodes to the safe value the enum's module names).
 
+// The AnyBitPattern derive bounds a generic parameter once more in its impl.
+#![allow(clippy::multiple_bound_locations)]
+
 use bytemuck::{AnyBitPattern, Pod, Zeroable};
 
 /// A flag in one byte: nonzero is set (`bool` has two valid bit patterns of 256).

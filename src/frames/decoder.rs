@@ -26,6 +26,9 @@
 //! Work per byte is bounded: one header comparison, and at a complete or rejected
 //! candidate one CRC over `LEN` bytes and one scan of at most `LEN` positions.
 
+// The AnyBitPattern derive bounds a generic parameter once more in its impl.
+#![allow(clippy::multiple_bound_locations)]
+
 use core::marker::PhantomData;
 
 use crate::state::Bytes;
