@@ -240,8 +240,15 @@ impl MountCheck {
 
     /// Whether the check still collects evidence (at power-on, or watching FOGs it
     /// could not verify).
+    #[inline]
     pub fn checking(&self) -> bool {
-        matches!(self.state.get(), MountState::Checking | MountState::Watching { .. })
+        // `StateCode::get` read for the two states that check (any unknown code reads
+        // as checking), without decoding the verdict on every sample.
+        match self.state.kind {
+            2 | 4 => false,
+            3 => self.state.verdict.get().is_none(),
+            _ => true,
+        }
     }
 
     /// Whether the unit may report itself aligned: the check is done, or it has run
