@@ -32,20 +32,43 @@ pub enum Coning {
     ThreeSample,
 }
 
+impl Coning {
+    /// Its code in the state (the attitude's state holds a byte, not the enum).
+    pub const fn code(self) -> u8 {
+        match self {
+            Coning::None => 0,
+            Coning::TwoSample => 1,
+            Coning::ThreeSample => 2,
+        }
+    }
+
+    /// The coning terms of code `c`: every byte decodes, an unknown one as
+    /// [`Coning::ThreeSample`] (the flight cores' choice).
+    pub const fn from_code(c: u8) -> Coning {
+        match c {
+            0 => Coning::None,
+            1 => Coning::TwoSample,
+            _ => Coning::ThreeSample,
+        }
+    }
+}
+
 /// Strapdown attitude integrator.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Attitude {
     q: Quaternion<f64>,
     prev1: Vector3<f64>,
     prev2: Vector3<f64>,
-    coning: Coning,
+    /// [`Coning::code`].
+    coning: u8,
     renorm_failures: u32,
 }
 
 impl Attitude {
     /// Starts at `q` (normalised; identity if degenerate).
     pub fn new(q: Quaternion<f64>, coning: Coning) -> Self {
-        let mut a = Attitude { q, prev1: Vector3::zeros(), prev2: Vector3::zeros(), coning, renorm_failures: 0 };
+        let mut a =
+            Attitude { q, prev1: Vector3::zeros(), prev2: Vector3::zeros(), coning: coning.code(), renorm_failures: 0 };
         if !math::normalize(&mut a.q) {
             a.renorm_failures = 1;
         }
@@ -72,7 +95,7 @@ impl Attitude {
 
     /// Rotation vector of the step for increment `dtheta_rad`, with the coning terms.
     pub fn rotation_vector(&self, dtheta_rad: &Vector3<f64>) -> Vector3<f64> {
-        match self.coning {
+        match Coning::from_code(self.coning) {
             Coning::None => *dtheta_rad,
             Coning::TwoSample => dtheta_rad + self.prev1.cross(dtheta_rad) / 12.0,
             Coning::ThreeSample => {

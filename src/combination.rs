@@ -15,8 +15,9 @@ use nalgebra::{Matrix3, Matrix3x4, Matrix4x3, RowVector4, Vector3, Vector4};
 use crate::calib::N_FOG;
 
 /// Which FOGs take part: bit i set = FOG i used.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
+#[repr(transparent)]
 pub struct FogSet(pub u8);
 
 impl FogSet {
@@ -56,12 +57,14 @@ pub enum CombineError {
 }
 
 /// Precomputed least-squares solutions over the calibrated geometry.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Combiner {
-    /// Solution with all four FOGs.
-    all: Option<Matrix3x4<f64>>,
-    /// Solution without FOG i (the column of FOG i is zero).
-    without: [Option<Matrix3x4<f64>>; N_FOG],
+    /// Solution with all four FOGs (if `solved` bit 4).
+    all: Matrix3x4<f64>,
+    /// Solution without FOG i (the column of FOG i is zero; if `solved` bit i).
+    without: [Matrix3x4<f64>; N_FOG],
+    /// Which solutions exist: bit i `without[i]`, bit 4 `all` (any value means a set).
+    solved: u8,
     /// Unit parity vector v (v H = 0), zero when four axes are not available.
     parity: RowVector4<f64>,
 }
@@ -78,7 +81,16 @@ impl Combiner {
             solve(&h, FogSet::ALL.without(2)),
             solve(&h, FogSet::ALL.without(3)),
         ];
-        Combiner { all, without, parity: parity_vector(&h) }
+        let solved = without
+            .iter()
+            .enumerate()
+            .fold(u8::from(all.is_some()) << 4, |acc, (i, w)| acc | u8::from(w.is_some()) << i);
+        Combiner {
+            all: all.unwrap_or_else(Matrix3x4::zeros),
+            without: without.map(|w| w.unwrap_or_else(Matrix3x4::zeros)),
+            solved,
+            parity: parity_vector(&h),
+        }
     }
 
     /// Body increment (ICS) from the compensated increments `m` of the FOGs in `set`;
@@ -90,15 +102,18 @@ impl Combiner {
 
     /// The 3×4 least-squares matrix for `set`.
     pub fn solution(&self, set: FogSet) -> Result<&Matrix3x4<f64>, CombineError> {
-        let sol = match set.0 & 0b1111 {
-            0b1111 => &self.all,
-            0b1110 => &self.without[0],
-            0b1101 => &self.without[1],
-            0b1011 => &self.without[2],
-            0b0111 => &self.without[3],
+        let (sol, bit) = match set.0 & 0b1111 {
+            0b1111 => (&self.all, 1 << 4),
+            0b1110 => (&self.without[0], 1 << 0),
+            0b1101 => (&self.without[1], 1 << 1),
+            0b1011 => (&self.without[2], 1 << 2),
+            0b0111 => (&self.without[3], 1 << 3),
             _ => return Err(CombineError::TooFewFogs),
         };
-        sol.as_ref().ok_or(CombineError::Singular)
+        if self.solved & bit == 0 {
+            return Err(CombineError::Singular);
+        }
+        Ok(sol)
     }
 
     /// Parity residual p = v · m, rad (zero-mean noise when all four FOGs are healthy).
@@ -108,8 +123,7 @@ impl Combiner {
 
     /// The four triad solutions (FOG i left out), when every one exists.
     pub fn triads(&self) -> Option<[Matrix3x4<f64>; N_FOG]> {
-        let [a, b, c, d] = self.without;
-        Some([a?, b?, c?, d?])
+        (self.solved & 0b1111 == 0b1111).then_some(self.without)
     }
 
     /// The unit parity vector v.

@@ -15,6 +15,7 @@
 //! sensor has failed, [`Thermal`] holds the last estimate with G = 0.
 
 use crate::calib::FogCal;
+use crate::state::Flag;
 
 /// Compensated angle increment of one FOG over `dt_s`, rad.
 ///
@@ -47,7 +48,8 @@ pub struct Thermal {
 }
 
 /// One FOG's temperature stage: T and G from the readings the channel checks pass.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(transparent)]
 pub struct ThermalTracker {
     estimator: TempRateEstimator,
 }
@@ -88,28 +90,37 @@ impl ThermalTracker {
 /// Second-order loop with natural frequency 1/τ, critically damped: α = 2Δt/τ,
 /// β = (Δt/τ)². Lag to a constant G: none in steady state; noise from the 1/256 °C
 /// quantisation at τ = 30 s: below 1e-4 °C/s.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct TempRateEstimator {
     t_degc: f64,
     g_degc_s: f64,
     alpha: f64,
     beta_per_s: f64,
-    started: bool,
+    started: Flag,
+    _pad: [u8; 7],
 }
 
 impl TempRateEstimator {
     /// A tracker for samples every `dt_s` with time constant `tau_s`.
     pub fn new(dt_s: f64, tau_s: f64) -> Self {
         let r = if tau_s > dt_s { dt_s / tau_s } else { 1.0 };
-        TempRateEstimator { t_degc: 0.0, g_degc_s: 0.0, alpha: 2.0 * r, beta_per_s: r * r / dt_s, started: false }
+        TempRateEstimator {
+            t_degc: 0.0,
+            g_degc_s: 0.0,
+            alpha: 2.0 * r,
+            beta_per_s: r * r / dt_s,
+            started: Flag::CLEAR,
+            _pad: [0; 7],
+        }
     }
 
     /// Feeds one temperature sample taken `dt_s` after the previous one; returns T and G.
     pub fn update(&mut self, temperature_degc: f64, dt_s: f64) -> Thermal {
-        if !self.started {
+        if !self.started.get() {
             self.t_degc = temperature_degc;
             self.g_degc_s = 0.0;
-            self.started = true;
+            self.started = Flag::SET;
         } else {
             let predicted = self.t_degc + self.g_degc_s * dt_s;
             let r = temperature_degc - predicted;
@@ -122,7 +133,7 @@ impl TempRateEstimator {
     /// The prediction for a sample `dt_s` after the last (`None` before the first).
     #[inline]
     pub fn predicted(&self, dt_s: f64) -> Option<f64> {
-        if self.started {
+        if self.started.get() {
             Some(self.t_degc + self.g_degc_s * dt_s)
         } else {
             None

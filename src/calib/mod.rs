@@ -139,9 +139,10 @@ fn two_turns(first_rad: f64, second_rad: f64) -> Vector3<f64> {
 }
 
 /// Observer gains of eq. (6), per axis, for the discrete update at each star-tracker frame.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
+#[repr(C)]
 pub struct ObserverGains {
     /// K_B: fraction of the attitude mismatch removed per update (dimensionless).
     pub k_b: [f64; 3],

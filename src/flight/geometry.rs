@@ -33,7 +33,7 @@ impl FlightCore {
     /// So the attitude changes only by what the new values imply. Refused (nothing
     /// changed) if [`FlightCore::check_table`] refuses `table`.
     pub fn switch_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
-        let combiner = checked_combiner(self.profile, table, &self.fog_map)?;
+        let combiner = checked_combiner(self.profile.get(), table, &self.fog_map)?;
         self.observer.retune(&table.observer)?;
         let dt = self.profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
@@ -56,11 +56,11 @@ impl FlightCore {
     /// over an isolated FOG and the counters from the one before.
     pub(super) fn install_geometry(&mut self, combiner: Combiner, noise_rad: f64) {
         let dt = self.profile.dt_s();
-        let mut fdi = parity_monitor(self.profile, &combiner, noise_rad, dt);
+        let mut fdi = parity_monitor(self.profile.get(), &combiner, noise_rad, dt);
         if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
             new.carry_from(old);
         }
-        self.fdi = fdi;
+        self.fdi = fdi.into();
         self.combiner = combiner;
         self.observer.set_noise(&flying_noise(&self.combiner, self.flying()));
     }

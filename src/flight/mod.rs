@@ -47,6 +47,7 @@ use crate::integrity::mounting::MountCheck;
 use crate::integrity::parity::ParityMonitor;
 use crate::link::{OutPort, RxPort, StarPort};
 use crate::observer::{GainError, Observer};
+use crate::state::{Flag, Maybe};
 use crate::telemetry::events::{EventLog, StatusBits};
 use crate::telemetry::{page, Telemetry, WordAligned};
 
@@ -97,6 +98,40 @@ impl Profile {
     }
 }
 
+/// [`Profile`] as the core stores it (every bit pattern a value: the star tracker's
+/// presence as a [`Flag`]).
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+struct ProfileState {
+    dt_us: u32,
+    fogs: FogSet,
+    rate_limit_rad_s: f64,
+    star_tracker: Flag,
+}
+
+impl ProfileState {
+    fn of(p: Profile) -> Self {
+        ProfileState {
+            dt_us: p.dt_us,
+            fogs: p.fogs,
+            rate_limit_rad_s: p.rate_limit_rad_s,
+            star_tracker: Flag::new(p.star_tracker),
+        }
+    }
+
+    fn get(&self) -> Profile {
+        Profile {
+            dt_us: self.dt_us,
+            fogs: self.fogs,
+            rate_limit_rad_s: self.rate_limit_rad_s,
+            star_tracker: self.star_tracker.get(),
+        }
+    }
+
+    fn dt_s(&self) -> f64 {
+        f64::from(self.dt_us) * 1e-6
+    }
+}
+
 /// The links of one unit: the FOGs, the star tracker, the output.
 /// FOG slots the profile does not fit are never read.
 pub struct Links<F, S, O> {
@@ -131,7 +166,7 @@ impl From<GainError> for CoreError {
 #[repr(C)]
 #[derive(Clone)]
 pub struct FlightCore {
-    profile: Profile,
+    profile: ProfileState,
     last_body_dtheta: Vector3<f64>,
     attitude: Attitude,
     mount: Quaternion<f64>,
@@ -145,7 +180,7 @@ pub struct FlightCore {
     table: CalibrationTable,
     combiner: Combiner,
     /// Parity fault logic (`None` without four FOGs).
-    fdi: Option<ParityMonitor>,
+    fdi: Maybe<ParityMonitor>,
     star_intake: StarIntake,
     /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
     fixed_flags: u8,
@@ -157,7 +192,7 @@ pub struct FlightCore {
     table_crc: u32,
     /// The mounting check from power-on (`None` without four FOGs, a star tracker and
     /// the parity logic).
-    mounting: Option<MountCheck>,
+    mounting: Maybe<MountCheck>,
     /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
     /// mounting check found two FOGs swapped).
     fog_map: [usize; N_FOG],
@@ -165,7 +200,37 @@ pub struct FlightCore {
     events: EventLog,
 }
 
+// Every field's type but the table's takes any bit pattern as a valid value (issue 30,
+// crate::state); the calibration table (enum and `Option` fields) is the one exception,
+// its bytes [`FlightCore::TABLE_BYTES`].
+const _: fn() = || {
+    fn any_bit_pattern<T: bytemuck::AnyBitPattern>() {}
+    any_bit_pattern::<ProfileState>();
+    any_bit_pattern::<Vector3<f64>>();
+    any_bit_pattern::<Attitude>();
+    any_bit_pattern::<Quaternion<f64>>();
+    any_bit_pattern::<[ThermalTracker; N_FOG]>();
+    any_bit_pattern::<[ChannelMonitor; N_FOG]>();
+    any_bit_pattern::<Telemetry>();
+    any_bit_pattern::<StepOutput>();
+    any_bit_pattern::<WordAligned<RX_CHUNK>>();
+    any_bit_pattern::<FogIntake>();
+    any_bit_pattern::<Combiner>();
+    any_bit_pattern::<Maybe<ParityMonitor>>();
+    any_bit_pattern::<StarIntake>();
+    any_bit_pattern::<Observer<HISTORY>>();
+    any_bit_pattern::<Maybe<MountCheck>>();
+    any_bit_pattern::<[usize; N_FOG]>();
+    any_bit_pattern::<EventLog>();
+};
+
 impl FlightCore {
+    /// The bytes of the core that hold the calibration table in use (offset range in the
+    /// core): the part of the state that is not valid under every bit pattern (a test
+    /// that writes random bytes over the core leaves them).
+    pub const TABLE_BYTES: core::ops::Range<usize> = core::mem::offset_of!(FlightCore, table)
+        ..core::mem::offset_of!(FlightCore, table) + core::mem::size_of::<CalibrationTable>();
+
     /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
     /// was invalid and `table` is the default; flagged in every output frame).
     pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
@@ -180,9 +245,9 @@ impl FlightCore {
             MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
         });
         Ok(FlightCore {
-            mounting,
+            mounting: mounting.into(),
             fog_map: IDENTITY_MAP,
-            profile,
+            profile: ProfileState::of(profile),
             table: *table,
             table_crc: table_crc(table),
             fixed_flags: if profile.star_tracker { flags::ST_IN_USE } else { 0 }
@@ -192,7 +257,7 @@ impl FlightCore {
             star_intake: StarIntake::new(),
             channel_monitors: [ChannelMonitor::new(noise_rad); N_FOG],
             thermal: [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG],
-            fdi,
+            fdi: fdi.into(),
             temp_failed_bits: 0,
             combiner,
             last_body_dtheta: Vector3::zeros(),
@@ -217,8 +282,8 @@ impl FlightCore {
     }
 
     /// The profile in use.
-    pub fn profile(&self) -> &Profile {
-        &self.profile
+    pub fn profile(&self) -> Profile {
+        self.profile.get()
     }
 
     /// The calibration table in use.
@@ -240,8 +305,8 @@ impl FlightCore {
     /// is not calibrated yet (the gyros disagree by more than a calibrated unit's
     /// parity allows). Never in flight: the per-channel checks stay on.
     pub fn disable_parity_fdi(&mut self) {
-        self.fdi = None;
-        self.mounting = None;
+        self.fdi = Maybe::none();
+        self.mounting = Maybe::none();
     }
 
     /// The mounting check from power-on (`None` when the unit has none).
@@ -319,7 +384,7 @@ impl FlightCore {
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
         // Star-tracker aid: the frames due by now.
         let st = match links.star.link() {
-            Some(star) if self.profile.star_tracker => self.observe_star(star, now_us),
+            Some(star) if self.profile.star_tracker.get() => self.observe_star(star, now_us),
             _ => 0,
         };
         // Telemetry: the output, its status bits assembled from each stage's.

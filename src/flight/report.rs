@@ -48,7 +48,7 @@ impl FlightCore {
         let mut frame =
             EventFrame { lost: u16::try_from(self.events.lost()).unwrap_or(u16::MAX), records: [None; RECORDS] };
         for (slot, r) in frame.records.iter_mut().zip(self.events.pending()) {
-            *slot = Some(*r);
+            *slot = Some(r);
         }
         let n = frame.iter().count();
         let mut scratch = [0u8; EventFrame::LEN];
@@ -112,7 +112,7 @@ impl FlightCore {
     pub(super) fn assemble_output(&mut self, now_us: u64, st: u8, acc: &Integrated, dt_s: f64) -> StepOutput {
         let mut status_flags = self.fixed_flags;
         let mut fdi_bits = 0u8;
-        if let Some(fdi) = &self.fdi {
+        if let Some(fdi) = self.fdi.as_ref() {
             let (f, b) = fdi.status_bits();
             status_flags |= f;
             fdi_bits |= b;

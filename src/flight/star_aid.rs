@@ -161,7 +161,7 @@ impl FlightCore {
                         }
                     });
                 }
-                if let Ok(combiner) = checked_combiner(self.profile, &self.table, &map) {
+                if let Ok(combiner) = checked_combiner(self.profile.get(), &self.table, &map) {
                     self.fog_map = map;
                     // Flagged in every frame from now on; kept with the fixed flags so
                     // the step does not compare the maps (a 16-byte memcmp, ~120

@@ -56,6 +56,46 @@ pub struct AccelFrame {
     pub temperature_counts: i16,
 }
 
+/// An [`AccelFrame`] as a queue of the navigation stores it: the same fields without
+/// padding ([`crate::state::Ring`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct AccelSlot {
+    dv_counts: i32,
+    counter: u16,
+    temperature_counts: i16,
+    accel_id: u8,
+    status: u8,
+    _pad: [u8; 2],
+}
+
+impl From<AccelFrame> for AccelSlot {
+    #[inline(always)]
+    fn from(f: AccelFrame) -> Self {
+        AccelSlot {
+            dv_counts: f.dv_counts,
+            counter: f.counter,
+            temperature_counts: f.temperature_counts,
+            accel_id: f.accel_id,
+            status: f.status,
+            _pad: [0; 2],
+        }
+    }
+}
+
+impl From<AccelSlot> for AccelFrame {
+    #[inline(always)]
+    fn from(s: AccelSlot) -> Self {
+        AccelFrame {
+            accel_id: s.accel_id,
+            counter: s.counter,
+            status: s.status,
+            dv_counts: s.dv_counts,
+            temperature_counts: s.temperature_counts,
+        }
+    }
+}
+
 impl AccelFrame {
     /// Frame length in bytes (same as [`Frame::LEN`]).
     pub const LEN: usize = FRAME_LEN;

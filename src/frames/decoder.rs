@@ -26,9 +26,12 @@
 //! Work per byte is bounded: one header comparison, and at a complete or rejected
 //! candidate one CRC over `LEN` bytes and one scan of at most `LEN` positions.
 
+// The AnyBitPattern derive bounds a generic parameter once more in its impl.
+#![allow(clippy::multiple_bound_locations)]
+
 use core::marker::PhantomData;
 
-use heapless::Vec;
+use crate::state::Bytes;
 
 use super::{DecodeError, Frame, OVERHEAD_LEN, SYNC};
 
@@ -37,7 +40,7 @@ use super::{DecodeError, Frame, OVERHEAD_LEN, SYNC};
 /// Every byte pushed is in exactly one place: an accepted frame (`frames_ok × LEN`
 /// bytes), `bytes_skipped`, or the buffer ([`StreamDecoder::buffered`]), until the
 /// counters saturate.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct DecoderStats {
     /// Frames accepted.
@@ -61,9 +64,9 @@ impl DecoderStats {
 
 /// Streaming decoder of frames of type `F` with a buffer of `CAP` bytes
 /// (`CAP >= F::LEN`, checked at compile time by [`StreamDecoder::new`]).
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct StreamDecoder<F: Frame, const CAP: usize> {
-    buf: Vec<u8, CAP>,
+    buf: Bytes<CAP>,
     stats: DecoderStats,
     _frame: PhantomData<fn() -> F>,
 }
@@ -83,7 +86,7 @@ impl<F: Frame, const CAP: usize> StreamDecoder<F, CAP> {
         #[allow(clippy::let_unit_value)]
         let () = Self::CAPACITY_OK;
         StreamDecoder {
-            buf: Vec::new(),
+            buf: Bytes::new(),
             stats: DecoderStats { frames_ok: 0, crc_errors: 0, kind_errors: 0, field_errors: 0, bytes_skipped: 0 },
             _frame: PhantomData,
         }
@@ -209,7 +212,7 @@ impl<F: Frame, const CAP: usize> StreamDecoder<F, CAP> {
     /// Drops the first `n` buffered bytes, counting them as skipped.
     fn drop_front(&mut self, n: usize) {
         let n = n.min(self.buf.len());
-        self.buf.drain(..n);
+        self.buf.drop_front(n);
         self.count_skipped(n);
     }
 

@@ -36,7 +36,7 @@ pub mod status {
 }
 
 /// One FOG sample as carried on the link (raw counts).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct FogFrame {
     /// FOG id, 0..=3.
@@ -49,6 +49,54 @@ pub struct FogFrame {
     pub dtheta_counts: i32,
     /// Temperature, counts of [`FogFrame::TEMP_LSB_DEGC`].
     pub temperature_counts: i16,
+}
+
+/// A [`FogFrame`] as a queue of the state stores it: the same fields without padding
+/// ([`crate::state::Ring`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct FogSlot {
+    dtheta_counts: i32,
+    counter: u16,
+    temperature_counts: i16,
+    fog_id: u8,
+    status: u8,
+    _pad: [u8; 2],
+}
+
+impl FogSlot {
+    /// The frame's sample counter.
+    #[inline(always)]
+    pub fn counter(&self) -> u16 {
+        self.counter
+    }
+}
+
+impl From<FogFrame> for FogSlot {
+    #[inline(always)]
+    fn from(f: FogFrame) -> Self {
+        FogSlot {
+            dtheta_counts: f.dtheta_counts,
+            counter: f.counter,
+            temperature_counts: f.temperature_counts,
+            fog_id: f.fog_id,
+            status: f.status,
+            _pad: [0; 2],
+        }
+    }
+}
+
+impl From<FogSlot> for FogFrame {
+    #[inline(always)]
+    fn from(s: FogSlot) -> Self {
+        FogFrame {
+            fog_id: s.fog_id,
+            counter: s.counter,
+            status: s.status,
+            dtheta_counts: s.dtheta_counts,
+            temperature_counts: s.temperature_counts,
+        }
+    }
 }
 
 impl FogFrame {

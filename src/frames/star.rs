@@ -34,7 +34,7 @@ pub mod flags {
 }
 
 /// One star-tracker solution as carried on the link (raw counts).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct StarFrame {
     /// Flag bits ([`flags`]).
@@ -45,6 +45,32 @@ pub struct StarFrame {
     pub time_us: u64,
     /// Quaternion of the star-tracker frame in 2ECS, scalar first, counts of [`Q_LSB`].
     pub q_counts: [i32; 4],
+}
+
+/// A [`StarFrame`] as a queue of the state stores it: the same fields without padding
+/// ([`crate::state::Ring`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct StarSlot {
+    time_us: u64,
+    q_counts: [i32; 4],
+    counter: u16,
+    flags: u8,
+    _pad: [u8; 5],
+}
+
+impl From<StarFrame> for StarSlot {
+    #[inline(always)]
+    fn from(f: StarFrame) -> Self {
+        StarSlot { time_us: f.time_us, q_counts: f.q_counts, counter: f.counter, flags: f.flags, _pad: [0; 5] }
+    }
+}
+
+impl From<StarSlot> for StarFrame {
+    #[inline(always)]
+    fn from(s: StarSlot) -> Self {
+        StarFrame { flags: s.flags, counter: s.counter, time_us: s.time_us, q_counts: s.q_counts }
+    }
 }
 
 impl StarFrame {

@@ -7,13 +7,12 @@
 //! waited for up to [`MAX_WAIT_STEPS`] steps; then it is taken from the FOGs that have
 //! it, the others flagged missing.
 
-use heapless::Deque;
-
 use crate::calib::N_FOG;
 use crate::combination::FogSet;
 use crate::frames::decoder::StreamDecoder;
-use crate::frames::fog::FogFrame;
+use crate::frames::fog::{FogFrame, FogSlot};
 use crate::link::RxPort;
+use crate::state::{Flag, Maybe, Quad, Ring};
 use crate::telemetry::{health, Counter, Counters, FogCounter};
 
 /// Receive bytes read per link per step at most (four FOG frames' worth).
@@ -42,17 +41,17 @@ pub struct Arrival {
 }
 
 /// One FOG's receive path: decoder and sample queue.
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 struct FogChannel {
     decoder: StreamDecoder<FogFrame, 32>,
-    queue: Deque<FogFrame, FOG_QUEUE>,
+    queue: Ring<FogSlot, FOG_QUEUE>,
     /// Frames rejected (by the decoder, or for a wrong FOG id) since the last sample taken.
     rejected_new: u32,
 }
 
 impl FogChannel {
     fn new() -> Self {
-        FogChannel { decoder: StreamDecoder::new(), queue: Deque::new(), rejected_new: 0 }
+        FogChannel { decoder: StreamDecoder::new(), queue: Ring::new(), rejected_new: 0 }
     }
 
     /// Takes sample `target` from the queue (discarding older ones as stale, leaving a
@@ -69,7 +68,7 @@ impl FogChannel {
         let mut frame = None;
         // Bounded by the queue length.
         for _ in 0..FOG_QUEUE {
-            let Some(f) = self.queue.pop_front() else { break };
+            let Some(f) = self.queue.pop_front().map(FogFrame::from) else { break };
             let age = target.wrapping_sub(f.counter);
             if age == 0 {
                 frame = Some(f);
@@ -78,7 +77,7 @@ impl FogChannel {
             if age >= 0x8000 {
                 // Newer than the target: it waits for its own step (room is certain: it
                 // was just taken out).
-                let _ = self.queue.push_front(f);
+                let _ = self.queue.push_front(f.into());
                 break;
             }
             stale += 1;
@@ -97,19 +96,19 @@ impl FogChannel {
 }
 
 /// Where the unit is in the FOG sample sequence.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 struct SampleClock {
     /// Counter of the next sample to integrate (None before the first frame).
-    expected: Option<u16>,
+    expected: Maybe<u16>,
     /// Index of the last integrated sample since start (its end time is index × Δt).
     index: u64,
 }
 
 /// The FOG intake stage.
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct FogIntake {
     fitted: FogSet,
-    channels: [FogChannel; N_FOG],
+    channels: Quad<FogChannel>,
     bus_decoder: StreamDecoder<FogFrame, 32>,
     clock: SampleClock,
     /// FOGs that delivered the last sample taken.
@@ -117,7 +116,7 @@ pub struct FogIntake {
     /// Steps waited for the expected sample.
     waited: u32,
     /// Samples were lost before the next one taken.
-    gap: bool,
+    gap: Flag,
     /// Samples lost on every link just before the next one, not yet bridged.
     lost: u16,
 }
@@ -127,12 +126,12 @@ impl FogIntake {
     pub fn new(fitted: FogSet) -> Self {
         FogIntake {
             fitted,
-            channels: [FogChannel::new(), FogChannel::new(), FogChannel::new(), FogChannel::new()],
+            channels: Quad::new([FogChannel::new(), FogChannel::new(), FogChannel::new(), FogChannel::new()]),
             bus_decoder: StreamDecoder::new(),
-            clock: SampleClock { expected: None, index: 0 },
+            clock: SampleClock { expected: Maybe::none(), index: 0 },
             last_present: fitted,
             waited: 0,
-            gap: false,
+            gap: Flag::CLEAR,
             lost: 0,
         }
     }
@@ -218,11 +217,11 @@ impl FogIntake {
             return None;
         }
         let fogs = || self.channels.iter().enumerate().filter(move |(i, _)| fitted.contains(*i)).map(|(_, ch)| ch);
-        let Some(e) = self.clock.expected else {
+        let Some(e) = self.clock.expected.get() else {
             // Before the first sample: start at the oldest one waiting, if any.
-            let first = fogs().filter_map(|ch| ch.queue.front().map(|f| f.counter)).min()?;
+            let first = fogs().filter_map(|ch| ch.queue.front().map(|f| f.counter())).min()?;
             self.clock.index = u64::from(first).saturating_sub(1);
-            self.clock.expected = Some(first);
+            self.clock.expected = Maybe::some(first);
             return Some(first);
         };
         // Per FOG: has sample e queued, has only newer ones (e lost), or has nothing yet.
@@ -237,10 +236,10 @@ impl FogIntake {
                 continue;
             }
             let Some(front) = ch.queue.front() else { continue };
-            let mut ahead = front.counter.wrapping_sub(e);
+            let mut ahead = front.counter().wrapping_sub(e);
             if ahead >= 0x8000 {
                 // Stale frames first (rare): look past them.
-                match ch.queue.iter().map(|f| f.counter.wrapping_sub(e)).find(|&d| d < 0x8000) {
+                match ch.queue.iter().map(|f| f.counter().wrapping_sub(e)).find(|&d| d < 0x8000) {
                     Some(d) => ahead = d,
                     None => continue,
                 }
@@ -263,8 +262,8 @@ impl FogIntake {
             // The clock moves over the lost span only when the core bridges it
             // ([`FogIntake::take_lost`]): the attitude must turn through it too.
             self.lost = lost;
-            self.clock.expected = Some(o);
-            self.gap = true;
+            self.clock.expected = Maybe::some(o);
+            self.gap = Flag::SET;
             return Some(o);
         }
         if have != 0 && (owed == 0 || self.waited >= MAX_WAIT_STEPS) {
@@ -290,9 +289,9 @@ impl FogIntake {
     /// FOG carries for it ([`health::COUNTER_GAP`] after lost samples).
     #[inline]
     pub fn begin(&mut self, target: u16) -> u8 {
-        let gap = if core::mem::take(&mut self.gap) { health::COUNTER_GAP } else { 0 };
+        let gap = if self.gap.take() { health::COUNTER_GAP } else { 0 };
         self.clock.index = self.clock.index.saturating_add(1);
-        self.clock.expected = Some(target.wrapping_add(1));
+        self.clock.expected = Maybe::some(target.wrapping_add(1));
         gap
     }
 
@@ -313,9 +312,6 @@ impl FogIntake {
 }
 
 /// Queues a FOG sample; a full queue drops its oldest (late backlog).
-fn enqueue(queue: &mut Deque<FogFrame, FOG_QUEUE>, f: FogFrame) {
-    if queue.is_full() {
-        let _ = queue.pop_front();
-    }
-    let _ = queue.push_back(f);
+fn enqueue(queue: &mut Ring<FogSlot, FOG_QUEUE>, f: FogFrame) {
+    queue.push_back_overwrite(f.into());
 }

@@ -1,11 +1,10 @@
 //! Star-tracker intake: the link drained into a queue of frames held until the attitude
 //! reaches their time tag, frozen-tracker detection and the outage clock.
 
-use heapless::Deque;
-
 use crate::frames::decoder::StreamDecoder;
-use crate::frames::star::StarFrame;
+use crate::frames::star::{StarFrame, StarSlot};
 use crate::link::{drain, RxLink};
+use crate::state::{Flag, Maybe, Ring};
 use crate::telemetry::{st_status, Counter, Counters};
 
 use super::fog::MAX_RX_BYTES_PER_STEP;
@@ -29,15 +28,15 @@ pub enum Pending {
 }
 
 /// The star-tracker intake stage.
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct StarIntake {
     decoder: StreamDecoder<StarFrame, 64>,
-    pending: Deque<StarFrame, ST_PENDING>,
+    pending: Ring<StarSlot, ST_PENDING>,
     /// Quaternion counts of the last frame that was not refused as frozen or invalid.
     last_q_counts: [i32; 4],
     /// Unit time of the last frame the observer used, µs.
-    last_used_us: Option<u64>,
-    in_outage: bool,
+    last_used_us: Maybe<u64>,
+    in_outage: Flag,
 }
 
 impl Default for StarIntake {
@@ -51,10 +50,10 @@ impl StarIntake {
     pub fn new() -> Self {
         StarIntake {
             decoder: StreamDecoder::new(),
-            pending: Deque::new(),
+            pending: Ring::new(),
             last_q_counts: [0; 4],
-            last_used_us: None,
-            in_outage: false,
+            last_used_us: Maybe::none(),
+            in_outage: Flag::CLEAR,
         }
     }
 
@@ -71,11 +70,9 @@ impl StarIntake {
             decoder.push_slice(bytes, |r| match r {
                 Ok(f) => {
                     arrived = true;
-                    if pending.is_full() {
-                        let _ = pending.pop_front();
+                    if pending.push_back_overwrite(f.into()) {
                         overflow += 1;
                     }
-                    let _ = pending.push_back(f);
                 }
                 Err(_) => new_rej = new_rej.saturating_add(1),
             });
@@ -99,7 +96,7 @@ impl StarIntake {
     /// The next pending frame at unit time `now_us`; frames further ahead than
     /// [`ST_MAX_LEAD_US`] are dropped and counted early.
     pub fn next_due(&mut self, now_us: u64, counters: &mut Counters) -> Pending {
-        let Some(f) = self.pending.front().copied() else { return Pending::Wait };
+        let Some(f) = self.pending.front().map(StarFrame::from) else { return Pending::Wait };
         if f.time_us > now_us {
             if f.time_us - now_us > ST_MAX_LEAD_US {
                 let _ = self.pending.pop_front();
@@ -126,25 +123,25 @@ impl StarIntake {
     /// The observer used a frame at unit time `now_us`.
     #[inline]
     pub fn used(&mut self, now_us: u64) {
-        self.last_used_us = Some(now_us);
+        self.last_used_us = Maybe::some(now_us);
     }
 
     /// The outage clock at `now_us`: [`st_status::OUTAGE`] after [`ST_OUTAGE_US`] without
     /// a frame used; an outage that begins after alignment is counted.
     pub fn outage(&mut self, now_us: u64, aligned: bool, counters: &mut Counters) -> u8 {
-        let silent = match self.last_used_us {
+        let silent = match self.last_used_us.get() {
             Some(t) => now_us.saturating_sub(t) > ST_OUTAGE_US,
             None => true,
         };
         let status = if silent {
-            if !self.in_outage && aligned {
+            if !self.in_outage.get() && aligned {
                 counters.bump(Counter::StOutages);
             }
             st_status::OUTAGE
         } else {
             0
         };
-        self.in_outage = silent;
+        self.in_outage = Flag::new(silent);
         status
     }
 }

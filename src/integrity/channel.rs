@@ -17,6 +17,7 @@
 //! ([`crate::telemetry::FogCounters`]) and reach the output frame.
 
 use crate::frames::fog::{status, FogFrame};
+use crate::state::Flag;
 
 /// Identical raw increments in a row that make a FOG "stuck" (40 × 5 ms = 200 ms).
 pub const STUCK_SAMPLES: u16 = 40;
@@ -32,12 +33,13 @@ const TEMP_MIN_COUNTS: i16 = (TEMP_RANGE_DEGC.0 * 256.0) as i16;
 const TEMP_MAX_COUNTS: i16 = (TEMP_RANGE_DEGC.1 * 256.0) as i16;
 
 /// The checks' memory for one FOG.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct ChannelMonitor {
     last_counts: i32,
     same_run: u16,
-    stuck_enabled: bool,
-    temp_failed: bool,
+    stuck_enabled: Flag,
+    temp_failed: Flag,
 }
 
 impl ChannelMonitor {
@@ -47,8 +49,8 @@ impl ChannelMonitor {
         ChannelMonitor {
             last_counts: 0,
             same_run: 0,
-            stuck_enabled: noise_rad >= STUCK_MIN_NOISE_LSB * FogFrame::DTHETA_LSB_RAD,
-            temp_failed: false,
+            stuck_enabled: Flag::new(noise_rad >= STUCK_MIN_NOISE_LSB * FogFrame::DTHETA_LSB_RAD),
+            temp_failed: Flag::CLEAR,
         }
     }
 
@@ -67,7 +69,7 @@ impl ChannelMonitor {
             self.same_run = 0;
             self.last_counts = frame.dtheta_counts;
         }
-        self.stuck_enabled && self.same_run >= STUCK_SAMPLES - 1
+        self.stuck_enabled.get() && self.same_run >= STUCK_SAMPLES - 1
     }
 
     /// Judges the sample's temperature reading against `predicted_degc` (the tracker's
@@ -75,7 +77,7 @@ impl ChannelMonitor {
     /// trusted; `None` once it has failed (latched).
     #[inline]
     pub fn temperature(&mut self, frame: &FogFrame, predicted_degc: Option<f64>) -> Option<f64> {
-        if self.temp_failed {
+        if self.temp_failed.get() {
             return None;
         }
         let c = frame.temperature_counts;
@@ -85,12 +87,12 @@ impl ChannelMonitor {
                 return Some(t);
             }
         }
-        self.temp_failed = true;
+        self.temp_failed = Flag::SET;
         None
     }
 
     /// Whether the temperature sensor has failed.
     pub fn temp_failed(&self) -> bool {
-        self.temp_failed
+        self.temp_failed.get()
     }
 }

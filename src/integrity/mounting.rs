@@ -48,6 +48,7 @@ use nalgebra::{Quaternion, Vector3, Vector4};
 
 use crate::calib::N_FOG;
 use crate::math;
+use crate::state::Maybe;
 
 /// Threshold on a FOG's evidence, in its own σ (noise of two star-tracker frames and the
 /// FOG's random walk): with four FOGs tested at every frame, a false "faulty" about once
@@ -104,8 +105,77 @@ pub enum MountState {
     },
 }
 
+/// A verdict, or none, as the check stores it: a kind (0: none) and the FOGs. Every
+/// triple decodes: an unknown kind or a FOG that is not one as no verdict.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+struct VerdictCode {
+    kind: u8,
+    i: u8,
+    j: u8,
+}
+
+impl VerdictCode {
+    fn of(v: Option<MountVerdict>) -> Self {
+        let fog = |i: usize| u8::try_from(i).unwrap_or(u8::MAX);
+        match v {
+            None => VerdictCode { kind: 0, i: 0, j: 0 },
+            Some(MountVerdict::Flipped(i)) => VerdictCode { kind: 1, i: fog(i), j: 0 },
+            Some(MountVerdict::Swapped(i, j)) => VerdictCode { kind: 2, i: fog(i), j: fog(j) },
+            Some(MountVerdict::Unexplained(i)) => VerdictCode { kind: 3, i: fog(i), j: 0 },
+        }
+    }
+
+    fn get(self) -> Option<MountVerdict> {
+        let (i, j) = (usize::from(self.i), usize::from(self.j));
+        if i >= N_FOG || j >= N_FOG {
+            return None;
+        }
+        match self.kind {
+            1 => Some(MountVerdict::Flipped(i)),
+            2 => Some(MountVerdict::Swapped(i, j)),
+            3 => Some(MountVerdict::Unexplained(i)),
+            _ => None,
+        }
+    }
+}
+
+/// [`MountState`] as the check stores it: a kind, the FOG bits and the verdict. Every
+/// pattern decodes: an unknown one (or a verdict that is none) as [`MountState::Checking`],
+/// which does not clear the unit to report while a FOG is at odds.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+struct StateCode {
+    kind: u8,
+    bits: u8,
+    verdict: VerdictCode,
+}
+
+impl StateCode {
+    fn of(s: MountState) -> Self {
+        let (kind, bits, v) = match s {
+            MountState::Checking => (0, 0, None),
+            MountState::Watching { unverified } => (1, unverified, None),
+            MountState::Passed { unverified } => (2, unverified, None),
+            MountState::Found(v) => (3, 0, Some(v)),
+            MountState::Undecided { faulty } => (4, faulty, None),
+        };
+        StateCode { kind, bits, verdict: VerdictCode::of(v) }
+    }
+
+    fn get(self) -> MountState {
+        match (self.kind, self.verdict.get()) {
+            (1, _) => MountState::Watching { unverified: self.bits },
+            (2, _) => MountState::Passed { unverified: self.bits },
+            (3, Some(v)) => MountState::Found(v),
+            (4, _) => MountState::Undecided { faulty: self.bits },
+            _ => MountState::Checking,
+        }
+    }
+}
+
 /// The previous star-tracker frame: its time tag, Λ* (ICS) and the FOGs' sums at it.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 struct Anchor {
     time_us: u64,
     q: Quaternion<f64>,
@@ -113,7 +183,7 @@ struct Anchor {
 }
 
 /// The mounting check.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct MountCheck {
     axes: [Vector3<f64>; N_FOG],
     /// 2 σ_st², rad².
@@ -128,15 +198,15 @@ pub struct MountCheck {
     last_rad: Vector4<f64>,
     /// Unit time at the end of the last sample, µs.
     last_us: u64,
-    anchor: Option<Anchor>,
+    anchor: Maybe<Anchor>,
     start_us: u64,
     s_rad: Vector4<f64>,
     phi_rad: Vector3<f64>,
     verified: u8,
     faulty: u8,
     /// The hypothesis that fitted at the last frame.
-    pending: Option<MountVerdict>,
-    state: MountState,
+    pending: VerdictCode,
+    state: StateCode,
 }
 
 impl MountCheck {
@@ -152,36 +222,43 @@ impl MountCheck {
             acc_rad: Vector4::zeros(),
             last_rad: Vector4::zeros(),
             last_us: 0,
-            anchor: None,
+            anchor: Maybe::none(),
             start_us: 0,
             s_rad: Vector4::zeros(),
             phi_rad: Vector3::zeros(),
             verified: 0,
             faulty: 0,
-            pending: None,
-            state: MountState::Checking,
+            pending: VerdictCode::of(None),
+            state: StateCode::of(MountState::Checking),
         }
     }
 
     /// State of the check.
     pub fn state(&self) -> MountState {
-        self.state
+        self.state.get()
     }
 
     /// Whether the check still collects evidence (at power-on, or watching FOGs it
     /// could not verify).
+    #[inline]
     pub fn checking(&self) -> bool {
-        matches!(self.state, MountState::Checking | MountState::Watching { .. })
+        // `StateCode::get` read for the two states that check (any unknown code reads
+        // as checking), without decoding the verdict on every sample.
+        match self.state.kind {
+            2 | 4 => false,
+            3 => self.state.verdict.get().is_none(),
+            _ => true,
+        }
     }
 
     /// Whether the unit may report itself aligned: the check is done, or it has run
     /// [`REPORT_SPAN_US`] and no FOG disagrees with the tracker.
     pub fn clear_to_report(&self) -> bool {
-        match self.state {
+        match self.state.get() {
             MountState::Watching { .. } => self.faulty == 0,
             MountState::Checking => {
                 self.faulty == 0
-                    && self.anchor.is_some_and(|a| a.time_us.saturating_sub(self.start_us) >= REPORT_SPAN_US)
+                    && self.anchor.get().is_some_and(|a| a.time_us.saturating_sub(self.start_us) >= REPORT_SPAN_US)
             }
             _ => true,
         }
@@ -200,7 +277,7 @@ impl MountCheck {
             return;
         }
         if !complete {
-            self.anchor = None;
+            self.anchor = Maybe::none();
             return;
         }
         self.acc_rad += m_rad;
@@ -219,12 +296,14 @@ impl MountCheck {
         let back = f64::from(u32::try_from(self.last_us - time_us).unwrap_or(u32::MAX)) / f64::from(self.dt_us);
         let acc_rad = self.acc_rad - self.last_rad * back;
         let here = Anchor { time_us, q: *q_ics, acc_rad };
-        let Some(prev) = self.anchor.replace(here) else {
+        let prev = self.anchor.get();
+        self.anchor = Maybe::some(here);
+        let Some(prev) = prev else {
             self.restart_evidence(time_us);
             return None;
         };
         if time_us <= prev.time_us {
-            self.anchor = Some(prev);
+            self.anchor = Maybe::some(prev);
             return None;
         }
         self.phi_rad += math::rotvec_from_quat(&(prev.q.conjugate() * q_ics));
@@ -242,7 +321,7 @@ impl MountCheck {
         self.s_rad = Vector4::zeros();
         self.phi_rad = Vector3::zeros();
         self.faulty = 0;
-        self.pending = None;
+        self.pending = VerdictCode::of(None);
     }
 
     /// The threshold τ for a span of `span_us`, rad.
@@ -270,25 +349,25 @@ impl MountCheck {
             }
         }
         let fits = self.hypothesis(tau);
-        let confirmed = fits.filter(|v| self.pending == Some(*v));
-        self.pending = fits;
+        let confirmed = fits.filter(|v| self.pending.get() == Some(*v));
+        self.pending = VerdictCode::of(fits);
         if let Some(v) = confirmed {
-            self.state = MountState::Found(v);
+            self.state = StateCode::of(MountState::Found(v));
             return confirmed;
         }
         let all = (1u8 << N_FOG) - 1;
         if self.faulty == 0 && self.verified == all {
-            self.state = MountState::Passed { unverified: 0 };
+            self.state = StateCode::of(MountState::Passed { unverified: 0 });
         } else if self.faulty == 0 && span_us >= PASS_SPAN_US {
-            self.state = MountState::Watching { unverified: all & !self.verified };
-            self.restart_evidence(self.anchor.map_or(self.start_us, |a| a.time_us));
+            self.state = StateCode::of(MountState::Watching { unverified: all & !self.verified });
+            self.restart_evidence(self.anchor.get().map_or(self.start_us, |a| a.time_us));
         } else if span_us >= MAX_SPAN_US {
             if self.faulty.count_ones() == 1 {
                 let v = MountVerdict::Unexplained(self.faulty.trailing_zeros() as usize);
-                self.state = MountState::Found(v);
+                self.state = StateCode::of(MountState::Found(v));
                 return Some(v);
             }
-            self.state = MountState::Undecided { faulty: self.faulty };
+            self.state = StateCode::of(MountState::Undecided { faulty: self.faulty });
         }
         None
     }

@@ -39,6 +39,7 @@
 use nalgebra::{Matrix3, Matrix3x4, RowVector4, Vector3, Vector4};
 
 use crate::calib::N_FOG;
+use crate::state::Maybe;
 
 /// Weight α of the detection mean (1/8: about 16 samples of memory).
 pub const ALPHA: f64 = 0.125;
@@ -112,8 +113,42 @@ pub enum FdiState {
     Isolated(usize),
 }
 
+/// [`FdiState`] as the monitor stores it: a kind and the isolated gyro. Every pair
+/// decodes: an unknown kind, or an isolated gyro that is not one, as an alarm (flagged
+/// in the output; the fault logic looks at the residual again).
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+struct FdiCode {
+    kind: u8,
+    fog: u8,
+}
+
+impl FdiCode {
+    const WATCHING: u8 = 0;
+    const ALARM: u8 = 1;
+    const ISOLATED: u8 = 2;
+
+    #[inline]
+    fn of(s: FdiState) -> Self {
+        match s {
+            FdiState::Watching => FdiCode { kind: Self::WATCHING, fog: 0 },
+            FdiState::Alarm => FdiCode { kind: Self::ALARM, fog: 0 },
+            FdiState::Isolated(i) => FdiCode { kind: Self::ISOLATED, fog: u8::try_from(i).unwrap_or(u8::MAX) },
+        }
+    }
+
+    #[inline]
+    fn get(self) -> FdiState {
+        match self.kind {
+            Self::WATCHING => FdiState::Watching,
+            Self::ISOLATED if usize::from(self.fog) < N_FOG => FdiState::Isolated(usize::from(self.fog)),
+            _ => FdiState::Alarm,
+        }
+    }
+}
+
 /// Running sums of the isolation fit.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
 struct Sums {
     n: u32,
     p: f64,
@@ -123,7 +158,7 @@ struct Sums {
 }
 
 /// The parity monitor.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct ParityMonitor {
     v: RowVector4<f64>,
     u: [Vector3<f64>; N_FOG],
@@ -141,12 +176,12 @@ pub struct ParityMonitor {
     baseline_rad: f64,
     alpha_slow: f64,
     seen: u32,
-    last_m: Option<Vector4<f64>>,
+    last_m: Maybe<Vector4<f64>>,
     /// Parity residual of `last_m` (0 after a spike was taken out of it).
     last_p_rad: f64,
     spike_fog: usize,
     spike_run: u8,
-    state: FdiState,
+    state: FdiCode,
     alarm_us: u64,
     p_acc_rad: f64,
     samples: u32,
@@ -196,11 +231,11 @@ impl ParityMonitor {
             baseline_rad: 0.0,
             alpha_slow: (dt_s / BASELINE_S).clamp(1e-9, 1.0),
             seen: 0,
-            last_m: None,
+            last_m: Maybe::none(),
             last_p_rad: 0.0,
             spike_fog: 0,
             spike_run: 0,
-            state: FdiState::Watching,
+            state: FdiCode::of(FdiState::Watching),
             alarm_us: 0,
             p_acc_rad: 0.0,
             samples: 0,
@@ -213,8 +248,8 @@ impl ParityMonitor {
     /// a gyro it isolated stays isolated. The residual's statistics start again on the
     /// new geometry.
     pub fn carry_from(&mut self, old: &ParityMonitor) {
-        if let FdiState::Isolated(i) = old.state {
-            self.state = FdiState::Isolated(i);
+        if let FdiState::Isolated(i) = old.state.get() {
+            self.state = FdiCode::of(FdiState::Isolated(i));
         }
     }
 
@@ -232,12 +267,12 @@ impl ParityMonitor {
 
     /// State of the fault logic.
     pub fn state(&self) -> FdiState {
-        self.state
+        self.state.get()
     }
 
     /// The isolated gyro, if any.
     pub fn isolated(&self) -> Option<usize> {
-        match self.state {
+        match self.state.get() {
             FdiState::Isolated(i) => Some(i),
             _ => None,
         }
@@ -245,7 +280,7 @@ impl ParityMonitor {
 
     /// Whether a fault is detected and not yet isolated.
     pub fn alarm(&self) -> bool {
-        self.state == FdiState::Alarm
+        self.state.get() == FdiState::Alarm
     }
 
     /// Whether the observer should only listen (alarm, and not yet given up on deciding).
@@ -289,7 +324,7 @@ impl ParityMonitor {
                 if let (Some(ci), Some(vi)) = (clean.get_mut(i), self.v.get(i)) {
                     *ci -= p_rad / vi;
                 }
-                self.last_m = Some(clean);
+                self.last_m = Maybe::some(clean);
                 self.last_p_rad = 0.0;
                 self.spike_run = if self.spike_fog == i { self.spike_run.saturating_add(1) } else { 1 };
                 self.spike_fog = i;
@@ -301,19 +336,19 @@ impl ParityMonitor {
             }
         }
         self.spike_run = 0;
-        self.last_m = Some(*m);
+        self.last_m = Maybe::some(*m);
         self.last_p_rad = p_rad;
         self.mean_rad += ALPHA * (p_rad - self.mean_rad);
         let s = self.mean_rad - self.baseline_rad;
         let s2 = s * s;
-        match self.state {
+        match self.state.get() {
             FdiState::Watching => {
                 self.seen = self.seen.saturating_add(1);
                 // A plain mean until it would weigh less than the slow one.
                 let a = (1.0 / f64::from(self.seen)).max(self.alpha_slow);
                 self.baseline_rad += a * (p_rad - self.baseline_rad);
                 if s2 > self.alarm2_rad2 + model2 && self.seen > WARMUP_SAMPLES {
-                    self.state = FdiState::Alarm;
+                    self.state = FdiCode::of(FdiState::Alarm);
                     self.alarm_us = t_us;
                     self.p_acc_rad = d_rad;
                     self.samples = 1;
@@ -327,7 +362,7 @@ impl ParityMonitor {
                 if s2 < self.clear2_rad2 {
                     self.clear_run += 1;
                     if self.clear_run >= CLEAR_SAMPLES {
-                        self.state = FdiState::Watching;
+                        self.state = FdiCode::of(FdiState::Watching);
                     }
                 } else {
                     self.clear_run = 0;
@@ -342,14 +377,14 @@ impl ParityMonitor {
     /// drift in time: nothing to add to P (the parity is not defined), but the alarm
     /// stays.
     pub fn on_partial_sample(&mut self) {
-        self.last_m = None;
+        self.last_m = Maybe::none();
         self.last_p_rad = 0.0;
     }
 
     /// The gyro whose triad (the other three) implies a small body-rate change since the
     /// previous sample while every other triad implies a large one; `None` if unclear.
     fn spike_owner(&self, m: &Vector4<f64>) -> Option<usize> {
-        let last = self.last_m?;
+        let last = self.last_m.get()?;
         let d = m - last;
         let mut best = (f64::INFINITY, N_FOG);
         let mut second = f64::INFINITY;
@@ -410,7 +445,7 @@ impl ParityMonitor {
     }
 
     fn isolate(&mut self, i: usize) {
-        self.state = FdiState::Isolated(i);
+        self.state = FdiCode::of(FdiState::Isolated(i));
     }
 
     /// One star-tracker mismatch `e_rad` (ICS, the observer's e) while listening;

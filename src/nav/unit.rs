@@ -33,18 +33,18 @@
 //! The accelerometer samples are assumed to be taken in step with the FOG samples (their
 //! counters are not matched).
 
-use heapless::Deque;
 use nalgebra::Vector3;
 
 use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix};
 use super::{NavError, NavState};
 use crate::calib::accel::{AccelCompensator, N_ACCEL};
-use crate::frames::accel::AccelFrame;
+use crate::frames::accel::{AccelFrame, AccelSlot};
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::gnss::GnssFrame;
 use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
 use crate::link::{drain, write_frame, RxLink, TxLink};
+use crate::state::Ring;
 
 /// Accelerometer samples a queue holds ahead of the step.
 pub const ACCEL_QUEUE: usize = 8;
@@ -83,7 +83,7 @@ pub struct NavUnit {
     comp: AccelCompensator,
     dt_s: f64,
     accel_dec: StreamDecoder<AccelFrame, 32>,
-    accel_q: [Deque<AccelFrame, ACCEL_QUEUE>; N_ACCEL],
+    accel_q: [Ring<AccelSlot, ACCEL_QUEUE>; N_ACCEL],
     gnss_dec: StreamDecoder<GnssFrame, 64>,
     last_dv_m_s: Vector3<f64>,
     last_fix_us: Option<u64>,
@@ -105,7 +105,7 @@ impl NavUnit {
             comp,
             dt_s,
             accel_dec: StreamDecoder::new(),
-            accel_q: [Deque::new(), Deque::new(), Deque::new()],
+            accel_q: [Ring::new(), Ring::new(), Ring::new()],
             gnss_dec: StreamDecoder::new(),
             last_dv_m_s: Vector3::zeros(),
             last_fix_us: None,
@@ -144,10 +144,7 @@ impl NavUnit {
             dec.push_slice(bytes, |r| match r {
                 Ok(f) => {
                     if let Some(q) = queues.get_mut(usize::from(f.accel_id)) {
-                        if q.is_full() {
-                            let _ = q.pop_front();
-                        }
-                        let _ = q.push_back(f);
+                        q.push_back_overwrite(f.into());
                     }
                 }
                 Err(_) => rejected = rejected.saturating_add(1),
@@ -159,7 +156,7 @@ impl NavUnit {
         let mut temps = [0.0; N_ACCEL];
         let mut complete = true;
         for ((q, r), t) in self.accel_q.iter_mut().zip(raw.iter_mut()).zip(temps.iter_mut()) {
-            match q.pop_front() {
+            match q.pop_front().map(AccelFrame::from) {
                 Some(f) if !f.device_fault() => {
                     *r = f.dv_m_s();
                     *t = f.temperature_degc();

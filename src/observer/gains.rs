@@ -42,7 +42,7 @@ pub fn steady_state_gains(cfg: &ObserverConfig) -> Result<ObserverGains, GainErr
 }
 
 /// The steady state of the per-axis Kalman filter: gains and the variances the gate needs.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct SteadyState {
     /// Gains K_B, K_U.
     pub gains: ObserverGains,
@@ -108,7 +108,7 @@ pub(super) fn initial_drift_var_rad2_s2(cfg: &ObserverConfig) -> f64 {
 
 /// The noise figures every estimator works with: one FOG's (the table's, [`SteadyState`])
 /// and what they become on each body axis through the FOG combination flying.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Figures {
     /// The table's figures and steady state.
     pub steady: SteadyState,

@@ -46,7 +46,7 @@ pub fn outside(e2: f64, var: f64) -> bool {
 }
 
 /// Consecutive gated frames and their running sums (re-acquisition).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
 pub struct Streak {
     n: u32,
     e: Vector3<f64>,
@@ -79,7 +79,7 @@ impl Streak {
 
 /// Updates since alignment and the running mean-square mismatch per axis: whether the
 /// estimate has converged.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Convergence {
     /// Updates since alignment (the alignment included).
     updates: u32,

@@ -13,15 +13,16 @@
 //! frame's time tag usually lies after the present step of the previous update (4 Hz,
 //! 50 ms latency), and then no fix is applied at all.
 
-use heapless::Deque;
 use nalgebra::{Quaternion, Vector3};
 
 use super::UpdateError;
 use crate::attitude::Attitude;
 use crate::math;
+use crate::state::Ring;
 
 /// One propagated attitude and its unit time.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 struct Sample {
     time_us: u64,
     q: Quaternion<f64>,
@@ -34,7 +35,8 @@ const PENDING_FIXES: usize = 4;
 
 /// A correction of eq. (6) not yet applied to the history: entries with `from_us` ≤
 /// t ≤ `to_us` (recorded before the update) become c ∘ Λ(t) ∘ q(−δΔω · (t − from_us)).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 struct Fix {
     from_us: u64,
     to_us: u64,
@@ -55,19 +57,19 @@ impl Fix {
 
 /// The last `H` propagated attitudes (H × step bounds the latency absorbed: 64 × 5 ms =
 /// 320 ms) and the corrections not yet applied to them.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct History<const H: usize> {
     /// Ring of the last H propagated attitudes: `head` is the next slot written, `len` how
     /// many are held (a plain array: one store a step, no deque bookkeeping).
     ring: [Sample; H],
     head: usize,
     len: usize,
-    fixes: Deque<Fix, PENDING_FIXES>,
+    fixes: Ring<Fix, PENDING_FIXES>,
 }
 
 impl<const H: usize> Default for History<H> {
     fn default() -> Self {
-        History { ring: [Sample { time_us: 0, q: Quaternion::identity() }; H], head: 0, len: 0, fixes: Deque::new() }
+        History { ring: [Sample { time_us: 0, q: Quaternion::identity() }; H], head: 0, len: 0, fixes: Ring::new() }
     }
 }
 

@@ -23,6 +23,7 @@
 //! gate and the return narrows it only as fast as the observer converges. Its gate opens
 //! only once [`super::gate::Convergence`] says the observer converged.
 
+use crate::state::{Flag, Maybe};
 use nalgebra::{Matrix3, Vector3};
 
 use super::gains::Figures;
@@ -32,7 +33,7 @@ use crate::calib::{ObserverConfig, ObserverGains};
 
 /// The acquisition stage of a two-stage observer: eq. (6) with the table's override gains
 /// for `for_ms` after alignment, then with the steady-state Kalman gains.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 struct Acquisition {
     /// K_B, K_U of the acquisition (the table's `gains_override`).
     gains: ObserverGains,
@@ -53,17 +54,17 @@ impl Acquisition {
 }
 
 /// The fixed-gain observer of eq. (6): its gains and its running covariance.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Luenberger {
     gains: ObserverGains,
     /// The first stage of a two-stage observer; `None`: one stage, `gains` throughout.
-    acquisition: Option<Acquisition>,
+    acquisition: Maybe<Acquisition>,
     /// Covariance of (attitude error, drift error) of each axis after the last update:
     /// P11 rad², P12 rad²/s, P22 rad²/s² (the gate's expected mismatch variance).
     cov: [[f64; 3]; 3],
     /// Whether the three axes' covariances and noise figures are equal (then one axis is
     /// propagated for all: the nominal four FOGs, and the orthogonal triad).
-    isotropic: bool,
+    isotropic: Flag,
     /// The last 1σ of the attitude error (rad, x y z) and of the drift error (rad/s, x y
     /// z) reported ([`Luenberger::sigmas`]): the start of the next Newton step; 0 none.
     roots: [f64; 6],
@@ -72,21 +73,21 @@ pub struct Luenberger {
 impl Luenberger {
     /// An observer with `gains` throughout.
     pub fn new(gains: ObserverGains) -> Self {
-        Luenberger { gains, acquisition: None, cov: [[0.0; 3]; 3], isotropic: true, roots: [0.0; 6] }
+        Luenberger { gains, acquisition: Maybe::none(), cov: [[0.0; 3]; 3], isotropic: Flag::SET, roots: [0.0; 6] }
     }
 
     /// From the table: its override gains if present, else the steady-state `steady`
     /// gains; two stages if it asks for them.
     pub fn from_config(cfg: &ObserverConfig, steady: &ObserverGains) -> Self {
         let mut o = Self::new(cfg.gains_override.unwrap_or(*steady));
-        o.acquisition = Acquisition::of(cfg);
+        o.acquisition = Acquisition::of(cfg).into();
         o
     }
 
     /// A new table's gains; the covariance stays.
     pub fn retune(&mut self, cfg: &ObserverConfig, steady: &ObserverGains) {
         self.gains = cfg.gains_override.unwrap_or(*steady);
-        self.acquisition = Acquisition::of(cfg);
+        self.acquisition = Acquisition::of(cfg).into();
     }
 
     /// Taking over from another estimator: its per-axis (P11, P12, P22) as of its last
@@ -137,14 +138,14 @@ impl Luenberger {
         let [c0, c1, c2] = &self.cov;
         let cov_same =
             c0.iter().zip(c1).zip(c2).all(|((a, b), c)| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits());
-        self.isotropic = cov_same && same(&fig.arw_axis_rad2_s) && same(&fig.rrw_axis_rad2_s3);
+        self.isotropic = Flag::new(cov_same && same(&fig.arw_axis_rad2_s) && same(&fig.rrw_axis_rad2_s3));
     }
 
     /// The gains of eq. (6) for an update at `time_us`: with two stages the acquisition's
     /// until t_acq after alignment (`aligned_us`), the steady-state gains from then on.
     #[inline(never)]
     fn shift_gears(&mut self, time_us: u64, aligned_us: Option<u64>, steady: &ObserverGains) {
-        if let (Some(acq), Some(t0)) = (self.acquisition, aligned_us) {
+        if let (Some(acq), Some(t0)) = (self.acquisition.get(), aligned_us) {
             let acquiring = time_us.saturating_sub(t0) < u64::from(acq.for_ms) * 1000;
             self.gains = if acquiring { acq.gains } else { *steady };
         }
@@ -153,7 +154,7 @@ impl Luenberger {
     /// Each axis's covariance propagated over `tau_s` since the last update.
     fn propagated(&self, fig: &Figures, tau_s: f64) -> [[f64; 3]; 3] {
         let mut out = self.cov;
-        if self.isotropic {
+        if self.isotropic.get() {
             let ([c0, ..], [sv2, ..], [su2, ..]) = (self.cov, fig.arw_axis_rad2_s, fig.rrw_axis_rad2_s3);
             return [propagate(&c0, tau_s, sv2, su2); 3];
         }
@@ -204,8 +205,11 @@ impl Luenberger {
         let r = fig.steady.r_rad2;
         let prior = self.propagated(fig, tau_s);
         let gains_equal = |[a, b, c]: [f64; 3]| a.to_bits() == b.to_bits() && b.to_bits() == c.to_bits();
-        let axes =
-            if self.isotropic && gains_equal(self.gains.k_b) && gains_equal(self.gains.k_u_per_s) { 1 } else { 3 };
+        let axes = if self.isotropic.get() && gains_equal(self.gains.k_b) && gains_equal(self.gains.k_u_per_s) {
+            1
+        } else {
+            3
+        };
         for (((c, [p11, p12, p22]), k1), k_u) in
             self.cov.iter_mut().zip(prior).zip(self.gains.k_b).zip(self.gains.k_u_per_s).take(axes)
         {
@@ -228,7 +232,7 @@ impl Luenberger {
     /// the attitude-error variance (the mean of the axes' P11 when they differ).
     pub fn mismatch_var_rad2(&self, fig: &Figures, tau_s: f64) -> f64 {
         let [c0, c1, c2] = self.propagated(fig, tau_s);
-        let p11 = if self.isotropic { c0[0] } else { (c0[0] + c1[0] + c2[0]) / 3.0 };
+        let p11 = if self.isotropic.get() { c0[0] } else { (c0[0] + c1[0] + c2[0]) / 3.0 };
         p11 + fig.steady.r_rad2
     }
 
@@ -237,7 +241,7 @@ impl Luenberger {
     /// for all while they are equal; each root one Newton step from the last
     /// ([`mekf::root`]).
     pub fn sigmas(&mut self, fig: &Figures, tau_s: f64) -> ([f64; 3], [f64; 3]) {
-        if !self.isotropic {
+        if !self.isotropic.get() {
             return self.axis_sigmas(fig, tau_s);
         }
         let [c, ..] = &self.cov;

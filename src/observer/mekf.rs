@@ -45,7 +45,7 @@ use super::{Correction, UpdateAt, UpdateError};
 use crate::math;
 
 /// The MEKF: its covariance after the last update and its last 1σ roots.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Mekf {
     cov: MekfCov,
     /// The last 1σ roots (attitude x y z, drift x y z): the start of the next Newton
@@ -160,7 +160,7 @@ impl Default for Mekf {
 }
 
 /// The MEKF's covariance (blocks of the 6 × 6 P) after its last update.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct MekfCov {
     /// Attitude error, rad².
     pub paa: Matrix3<f64>,

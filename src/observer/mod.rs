@@ -37,12 +37,13 @@
 //!    [`Filter::set_noise`]). It reads the shared pieces: [`gains::Figures`] for the
 //!    noise, [`UpdateAt`] for the frame (its mismatch, the time since the last update,
 //!    whether the estimate converged), [`gate::Streak`] for re-acquisition.
-//! 2. A variant of [`crate::calib::Estimator`] for the table, and one of [`Filter`]
+//! 2. A variant of [`crate::calib::Estimator`] for the table, and a field of [`Filter`]
 //!    holding the new state; each `match` in `impl Filter` gets its arm (the compiler
 //!    lists them), and [`Filter::retune`] says what the covariance becomes when a table
 //!    switches estimators in flight.
 //!
-//! There is no dynamic dispatch and no allocation: [`Filter`] is an enum held by value.
+//! There is no dynamic dispatch and no allocation: [`Filter`] holds each estimator's state
+//! by value and a byte naming the one that flies.
 
 pub mod gains;
 pub mod gate;
@@ -55,6 +56,7 @@ use nalgebra::{Matrix3, Quaternion, Vector3};
 use crate::attitude::Attitude;
 use crate::calib::{Estimator, ObserverConfig, ObserverGains};
 use crate::math;
+use crate::state::{Flag, Maybe};
 use gains::{initial_drift_var_rad2_s2, Figures, ARCSEC_RAD};
 use gate::{Convergence, Streak};
 use luenberger::Luenberger;
@@ -128,30 +130,71 @@ pub struct UpdateAt<'a> {
     pub last_q: &'a Quaternion<f64>,
 }
 
-/// The estimator that flies: one variant per estimator, one `match` per method.
-#[derive(Debug, Clone, PartialEq)]
-pub enum Filter {
-    /// The paper's eq. (6) with fixed gains ([`luenberger`]).
-    Luenberger(Luenberger),
-    /// The MEKF ([`mekf`]).
-    Mekf(Mekf),
+/// The estimator that flies: the state of each estimator, and which one flies as a
+/// byte every value of which decodes ([`Filter::estimator`]); one `match` per method.
+/// Both states are held (no enum: a corrupted discriminant would be a wild jump); the
+/// one that does not fly is not touched.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+pub struct Filter {
+    /// [`Filter::LUENBERGER`] or [`Filter::MEKF`].
+    kind: u8,
+    luenberger: Luenberger,
+    mekf: Mekf,
 }
 
+/// Whether byte b is nearer [`Filter::MEKF`] than [`Filter::LUENBERGER`] (more than four
+/// bits set): one load, where a bit count is a dozen instructions on the M7.
+// Evaluated at compile time: an index out of range fails the build.
+#[allow(clippy::indexing_slicing)]
+const NEARER_MEKF: [bool; 256] = {
+    let mut t = [false; 256];
+    let mut b = 0;
+    while b < 256 {
+        t[b] = (b as u8).count_ones() > 4;
+        b += 1;
+    }
+    t
+};
+
 impl Filter {
+    /// The code of the paper's eq. (6).
+    const LUENBERGER: u8 = 0x00;
+    /// The code of the MEKF: eight bits from the other's, so a byte decodes to the
+    /// nearer one and any single flipped bit is corrected.
+    const MEKF: u8 = 0xFF;
+
     /// The estimator `cfg` selects, `steady` its steady-state gains.
     pub fn of(cfg: &ObserverConfig, steady: &ObserverGains) -> Self {
-        match cfg.estimator {
-            Estimator::Luenberger => Filter::Luenberger(Luenberger::from_config(cfg, steady)),
-            Estimator::Mekf => Filter::Mekf(Mekf::new()),
+        let kind = match cfg.estimator {
+            Estimator::Luenberger => Self::LUENBERGER,
+            Estimator::Mekf => Self::MEKF,
+        };
+        Filter { kind, luenberger: Luenberger::from_config(cfg, steady), mekf: Mekf::new() }
+    }
+
+    /// Eq. (6) with `l`.
+    fn luenberger(l: Luenberger) -> Self {
+        Filter { kind: Self::LUENBERGER, luenberger: l, mekf: Mekf::new() }
+    }
+
+    /// Which estimator this is: the code nearer in bits (more than four set: the MEKF).
+    #[inline(always)]
+    pub fn estimator(&self) -> Estimator {
+        if NEARER_MEKF.get(usize::from(self.kind)).copied().unwrap_or(false) {
+            Estimator::Mekf
+        } else {
+            Estimator::Luenberger
         }
     }
 
-    /// Which estimator this is.
-    pub fn estimator(&self) -> Estimator {
-        match self {
-            Filter::Luenberger(_) => Estimator::Luenberger,
-            Filter::Mekf(_) => Estimator::Mekf,
-        }
+    /// The state of eq. (6), when it flies.
+    pub fn as_luenberger(&self) -> Option<&Luenberger> {
+        (self.estimator() == Estimator::Luenberger).then_some(&self.luenberger)
+    }
+
+    /// The MEKF's state, when it flies.
+    pub fn as_mekf(&self) -> Option<&Mekf> {
+        (self.estimator() == Estimator::Mekf).then_some(&self.mekf)
     }
 
     /// A new table `cfg` (figures already in `fig`). A switch of estimator carries the
@@ -159,75 +202,76 @@ impl Filter {
     /// blocks, or the diagonals of the MEKF's into the observer's running one.
     pub fn retune(&mut self, cfg: &ObserverConfig, fig: &Figures) {
         let steady = &fig.steady.gains;
-        *self = match (&mut *self, cfg.estimator) {
-            (Filter::Luenberger(l), Estimator::Luenberger) => {
-                l.retune(cfg, steady);
-                return;
+        match (self.estimator(), cfg.estimator) {
+            (Estimator::Luenberger, Estimator::Luenberger) => self.luenberger.retune(cfg, steady),
+            (Estimator::Mekf, Estimator::Mekf) => {}
+            (Estimator::Luenberger, Estimator::Mekf) => {
+                self.mekf = Mekf::with_axes(self.luenberger.cov());
+                self.kind = Self::MEKF;
             }
-            (Filter::Mekf(_), Estimator::Mekf) => return,
-            (Filter::Luenberger(l), Estimator::Mekf) => Filter::Mekf(Mekf::with_axes(l.cov())),
-            (Filter::Mekf(m), Estimator::Luenberger) => {
-                Filter::Luenberger(Luenberger::from_config(cfg, steady).with_cov(m.axes(), fig))
+            (Estimator::Mekf, Estimator::Luenberger) => {
+                self.luenberger = Luenberger::from_config(cfg, steady).with_cov(self.mekf.axes(), fig);
+                self.kind = Self::LUENBERGER;
             }
-        };
+        }
     }
 
     /// At alignment on one frame (`sb2`: each FOG's turn-on bias variance).
     pub fn align(&mut self, fig: &Figures, sb2: f64) {
-        match self {
-            Filter::Luenberger(l) => l.align(fig, sb2),
-            Filter::Mekf(m) => m.align(fig, sb2),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.align(fig, sb2),
+            Estimator::Mekf => self.mekf.align(fig, sb2),
         }
     }
 
     /// Starts again from nothing (a new alignment follows).
     pub fn restart(&mut self, fig: &Figures) {
-        match self {
-            Filter::Luenberger(l) => l.restart(fig),
-            Filter::Mekf(m) => m.forget_roots(),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.restart(fig),
+            Estimator::Mekf => self.mekf.forget_roots(),
         }
     }
 
     /// The noise figures per axis changed (`fig`).
     pub fn set_noise(&mut self, fig: &Figures) {
-        match self {
-            Filter::Luenberger(l) => l.refresh_isotropic(fig),
-            Filter::Mekf(_) => {}
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.refresh_isotropic(fig),
+            Estimator::Mekf => {}
         }
     }
 
     /// The gate and the correction for a frame `at`.
     #[inline]
     pub fn update(&mut self, fig: &Figures, at: &UpdateAt, streak: &mut Streak) -> Result<Correction, UpdateError> {
-        match self {
-            Filter::Luenberger(l) => l.update(fig, at, streak),
-            Filter::Mekf(m) => m.update(fig, at, streak),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.update(fig, at, streak),
+            Estimator::Mekf => self.mekf.update(fig, at, streak),
         }
     }
 
     /// Expected variance of a mismatch per axis `tau_s` after the last update, rad².
     pub fn mismatch_var_rad2(&self, fig: &Figures, tau_s: f64) -> f64 {
-        match self {
-            Filter::Luenberger(l) => l.mismatch_var_rad2(fig, tau_s),
-            Filter::Mekf(m) => m.mismatch_var_rad2(fig, tau_s),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.mismatch_var_rad2(fig, tau_s),
+            Estimator::Mekf => self.mekf.mismatch_var_rad2(fig, tau_s),
         }
     }
 
     /// 1σ of the attitude error (rad) and of the drift error (rad/s) per axis.
     #[inline]
     pub fn sigmas(&mut self, fig: &Figures, tau_s: f64) -> ([f64; 3], [f64; 3]) {
-        match self {
-            Filter::Luenberger(l) => l.sigmas(fig, tau_s),
-            Filter::Mekf(m) => m.sigmas(fig, tau_s),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.sigmas(fig, tau_s),
+            Estimator::Mekf => self.mekf.sigmas(fig, tau_s),
         }
     }
 
     /// Forgets the last 1σ roots (unaligned).
     #[inline]
     pub fn forget_roots(&mut self) {
-        match self {
-            Filter::Luenberger(l) => l.forget_roots(),
-            Filter::Mekf(m) => m.forget_roots(),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.forget_roots(),
+            Estimator::Mekf => self.mekf.forget_roots(),
         }
     }
 
@@ -240,9 +284,9 @@ impl Filter {
         share: (&Vector3<f64>, &Matrix3<f64>),
         pbb0: &Matrix3<f64>,
     ) {
-        match self {
-            Filter::Luenberger(l) => l.remove_share(fig, times_us, drift_rad_s, share),
-            Filter::Mekf(m) => m.remove_share(drift_rad_s, share, pbb0),
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.remove_share(fig, times_us, drift_rad_s, share),
+            Estimator::Mekf => self.mekf.remove_share(drift_rad_s, share, pbb0),
         }
     }
 }
@@ -250,15 +294,15 @@ impl Filter {
 /// The estimate from star-tracker frames: the attitude history, alignment, the drift
 /// estimate, and the estimator that flies ([`Filter`]). `H` attitudes of history bound
 /// the star-tracker latency it can absorb (H × step: 64 × 5 ms = 320 ms).
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct Observer<const H: usize> {
     history: History<H>,
     drift_rad_s: Vector3<f64>,
-    aligned: bool,
+    aligned: Flag,
     /// Unit time of the alignment, µs.
-    aligned_us: Option<u64>,
+    aligned_us: Maybe<u64>,
     /// Time tag of the last frame that updated the observer, µs.
-    last_update_tag_us: Option<u64>,
+    last_update_tag_us: Maybe<u64>,
     /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
     last_q: Quaternion<f64>,
     conv: Convergence,
@@ -279,16 +323,16 @@ impl<const H: usize> Observer<H> {
         Observer {
             history: History::default(),
             drift_rad_s: Vector3::zeros(),
-            aligned: false,
-            aligned_us: None,
-            last_update_tag_us: None,
+            aligned: Flag::CLEAR,
+            aligned_us: Maybe::none(),
+            last_update_tag_us: Maybe::none(),
             last_q: Quaternion::identity(),
             conv: Convergence::new(sigma_st_rad),
             streak: Streak::default(),
             fig: Figures::new(steady),
             initial_drift_var_rad2_s2: 0.0,
             drift_cov0: Matrix3::zeros(),
-            filter: Filter::Luenberger(Luenberger::new(gains)),
+            filter: Filter::luenberger(Luenberger::new(gains)),
         }
     }
 
@@ -336,10 +380,7 @@ impl<const H: usize> Observer<H> {
     /// Gains of eq. (6) in use (of the stage the last update flew, with two stages);
     /// `None` when the MEKF flies.
     pub fn gains(&self) -> Option<&ObserverGains> {
-        match &self.filter {
-            Filter::Luenberger(l) => Some(l.gains()),
-            Filter::Mekf(_) => None,
-        }
+        self.filter.as_luenberger().map(Luenberger::gains)
     }
 
     /// Drift estimate Δω (ICS), rad/s.
@@ -351,19 +392,19 @@ impl<const H: usize> Observer<H> {
     /// Whether the first star-tracker frame has aligned the attitude.
     #[inline]
     pub fn aligned(&self) -> bool {
-        self.aligned
+        self.aligned.get()
     }
 
     /// Marks the attitude as aligned by other means (launch-vehicle pad alignment).
     pub fn set_aligned(&mut self) {
-        self.aligned = true;
+        self.aligned = Flag::SET;
     }
 
     /// Converged: aligned, at least 40 updates, and the mean-square mismatch (per axis)
     /// within 3σ of the star tracker's ([`Convergence`]).
     #[inline]
     pub fn converged(&self) -> bool {
-        self.aligned && self.conv.converged()
+        self.aligned.get() && self.conv.converged()
     }
 
     /// Records the propagated attitude at the end of a step.
@@ -380,7 +421,7 @@ impl<const H: usize> Observer<H> {
     /// Seconds from the last update's time tag to `time_us` (0 before any).
     #[inline(always)]
     fn since_update_s(&self, time_us: u64) -> f64 {
-        let gap_us = self.last_update_tag_us.map_or(0, |t| time_us.saturating_sub(t));
+        let gap_us = self.last_update_tag_us.get().map_or(0, |t| time_us.saturating_sub(t));
         f64::from(u32::try_from(gap_us).unwrap_or(u32::MAX)) * 1e-6
     }
 
@@ -393,7 +434,7 @@ impl<const H: usize> Observer<H> {
     /// does from step to step and at an update), and a full square root otherwise.
     #[inline]
     pub fn sigmas(&mut self, time_us: u64) -> ([f64; 3], [f64; 3]) {
-        if !self.aligned {
+        if !self.aligned.get() {
             self.filter.forget_roots();
             return ([f64::INFINITY; 3], [f64::INFINITY; 3]);
         }
@@ -431,7 +472,7 @@ impl<const H: usize> Observer<H> {
         q_st: &Quaternion<f64>,
         mount: &Quaternion<f64>,
     ) -> Result<Mismatch, UpdateError> {
-        if !self.aligned {
+        if !self.aligned.get() {
             return Err(UpdateError::Future);
         }
         let (q_at, q_meas) = self.at_frame(time_us, q_st, mount)?;
@@ -452,7 +493,7 @@ impl<const H: usize> Observer<H> {
         mount: &Quaternion<f64>,
     ) -> Result<Updated, UpdateError> {
         let (q_at, q_meas) = self.at_frame(time_us, q_st, mount)?;
-        if !self.aligned {
+        if !self.aligned.get() {
             self.align(att, now_us, time_us, &q_at, &q_meas);
             return Ok(Updated { e_rad: Vector3::zeros(), reacquired: false });
         }
@@ -462,7 +503,7 @@ impl<const H: usize> Observer<H> {
             converged: self.conv.converged(),
             time_us,
             tau_s: self.since_update_s(time_us),
-            aligned_us: self.aligned_us,
+            aligned_us: self.aligned_us.get(),
             q_at: &q_at,
             last_q: &self.last_q,
         };
@@ -473,7 +514,7 @@ impl<const H: usize> Observer<H> {
         self.drift_rad_s += corr.d_drift_rad_s;
         self.last_q = c * q_at;
         self.conv.note(e.norm_squared());
-        self.last_update_tag_us = Some(time_us);
+        self.last_update_tag_us = Maybe::some(time_us);
         Ok(Updated { e_rad: e, reacquired: corr.reacquired })
     }
 
@@ -491,9 +532,9 @@ impl<const H: usize> Observer<H> {
     ) {
         let c = q_meas * q_at.conjugate();
         self.history.fix(att, now_us, time_us, &c, &Vector3::zeros());
-        self.aligned = true;
-        self.aligned_us = Some(time_us);
-        self.last_update_tag_us = Some(time_us);
+        self.aligned = Flag::SET;
+        self.aligned_us = Maybe::some(time_us);
+        self.last_update_tag_us = Maybe::some(time_us);
         let sb2 = self.initial_drift_var_rad2_s2;
         self.filter.align(&self.fig, sb2);
         self.drift_cov0 = self.fig.noise * sb2;
@@ -507,11 +548,11 @@ impl<const H: usize> Observer<H> {
     /// reads the attitude as it was propagated.
     /// Everything else (gains, figures, the estimator's choice) stays.
     pub fn restart(&mut self) {
-        self.aligned = false;
-        self.aligned_us = None;
+        self.aligned = Flag::CLEAR;
+        self.aligned_us = Maybe::none();
         self.drift_rad_s = Vector3::zeros();
         self.conv.reset();
-        self.last_update_tag_us = None;
+        self.last_update_tag_us = Maybe::none();
         self.filter.restart(&self.fig);
         self.streak.end();
     }
@@ -522,7 +563,7 @@ impl<const H: usize> Observer<H> {
     /// `now_us`; each estimator by what its own gains have learned of it
     /// ([`Luenberger::remove_share`], [`mekf::MekfCov::remove_share`]).
     pub fn remove_drift_share(&mut self, now_us: u64, share_rad_s: &Vector3<f64>, share_cov_rad2_s2: &Matrix3<f64>) {
-        let Some(t0) = self.aligned_us else { return };
+        let Some(t0) = self.aligned_us.get() else { return };
         self.filter.remove_share(
             &self.fig,
             (now_us, t0),

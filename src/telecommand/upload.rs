@@ -145,7 +145,7 @@ impl Upload {
         if self.buf.last_chunk::<4>() != Some(&crc.to_le_bytes()) {
             return Err(UploadError::TableInvalid);
         }
-        FlightCore::check_table(*core.profile(), &table).map_err(|_| UploadError::TableInvalid)?;
+        FlightCore::check_table(core.profile(), &table).map_err(|_| UploadError::TableInvalid)?;
         if table.revision <= core.table().revision {
             return Err(UploadError::NotNewer);
         }

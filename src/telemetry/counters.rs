@@ -40,7 +40,8 @@ macro_rules! counter_set {
         }
 
         $(#[doc = $sdoc])*
-        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::Pod, bytemuck::Zeroable)]
+        #[repr(C)]
         pub struct $store {
             $( #[doc = $desc] pub $field: u32, )*
             $( $(#[doc = $xdoc])* pub $xfield: $xty, )*

@@ -17,10 +17,9 @@
 //! frames ([`crate::frames::event::EventFrame`]) on the output link, only when there is
 //! one to send.
 
-use heapless::Deque;
-
 use crate::calib::N_FOG;
 use crate::frames::output::flags;
+use crate::state::Ring;
 use crate::telemetry::st_status;
 
 /// Records the event log holds before the oldest gives way.
@@ -110,6 +109,32 @@ pub struct EventRecord {
     pub b: u16,
 }
 
+/// An [`EventRecord`] as the log stores it: plain numbers without padding, the event
+/// by its code (a record whose code names no event is skipped when read).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+struct EventSlot {
+    time_us: u64,
+    seq: u16,
+    code: u8,
+    a: u8,
+    b: u16,
+    _pad: [u8; 2],
+}
+
+impl EventSlot {
+    #[inline]
+    fn of(r: &EventRecord) -> Self {
+        EventSlot { time_us: r.time_us, seq: r.seq, code: r.event.code(), a: r.a, b: r.b, _pad: [0; 2] }
+    }
+
+    #[inline]
+    fn record(self) -> Option<EventRecord> {
+        let event = Event::from_code(self.code)?;
+        Some(EventRecord { time_us: self.time_us, seq: self.seq, event, a: self.a, b: self.b })
+    }
+}
+
 /// The status bits of one step's output whose edges are events (the output frame's
 /// flags, star-tracker status and fault-logic bits).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -137,11 +162,11 @@ impl StatusBits {
 }
 
 /// The event log: a bounded ring of [`EventRecord`], oldest first.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone, Copy, Default, bytemuck::AnyBitPattern)]
 pub struct EventLog {
     /// The last step's [`StatusBits::packed`].
     last_status: u32,
-    ring: Deque<EventRecord, EVENT_LOG>,
+    ring: Ring<EventSlot, EVENT_LOG>,
     /// Sequence number of the next record.
     next_seq: u16,
     /// Records that gave way to newer ones, saturating.
@@ -150,8 +175,8 @@ pub struct EventLog {
 
 impl EventLog {
     /// An empty log.
-    pub const fn new() -> Self {
-        EventLog { last_status: 0, ring: Deque::new(), next_seq: 0, lost: 0 }
+    pub fn new() -> Self {
+        EventLog { last_status: 0, ring: Ring::new(), next_seq: 0, lost: 0 }
     }
 
     /// Logs `event` at `time_us` with details `a`, `b`; the oldest record gives way when
@@ -159,10 +184,8 @@ impl EventLog {
     pub fn log(&mut self, time_us: u64, event: Event, a: u8, b: u16) {
         let r = EventRecord { time_us, seq: self.next_seq, event, a, b };
         self.next_seq = self.next_seq.wrapping_add(1);
-        if let Err(r) = self.ring.push_back(r) {
-            let _ = self.ring.pop_front();
+        if self.ring.push_back_overwrite(EventSlot::of(&r)) {
             self.lost = self.lost.saturating_add(1);
-            let _ = self.ring.push_back(r);
         }
     }
 
@@ -230,30 +253,43 @@ impl EventLog {
     }
 
     /// The records not yet sent, oldest first.
-    pub fn pending(&self) -> impl Iterator<Item = &EventRecord> {
-        self.ring.iter()
+    pub fn pending(&self) -> impl Iterator<Item = EventRecord> + '_ {
+        self.ring.iter().filter_map(EventSlot::record)
     }
 
     /// Records not yet sent.
     pub fn len(&self) -> usize {
-        self.ring.len()
+        self.pending().count()
     }
 
     /// Whether every record has been sent.
     pub fn is_empty(&self) -> bool {
-        self.ring.is_empty()
+        self.pending().next().is_none()
     }
 
-    /// Drops the oldest `n` records (they were sent).
+    /// Drops the oldest `n` records (they were sent), and the unreadable ones among them.
     pub fn drop_sent(&mut self, n: usize) {
-        for _ in 0..n.min(EVENT_LOG) {
-            let _ = self.ring.pop_front();
+        let mut left = n;
+        for _ in 0..EVENT_LOG {
+            if left == 0 {
+                break;
+            }
+            match self.ring.pop_front() {
+                Some(slot) if slot.record().is_some() => left -= 1,
+                Some(_) => {}
+                None => break,
+            }
         }
     }
 
     /// Takes the oldest record.
     pub fn pop(&mut self) -> Option<EventRecord> {
-        self.ring.pop_front()
+        for _ in 0..EVENT_LOG {
+            if let Some(r) = self.ring.pop_front()?.record() {
+                return Some(r);
+            }
+        }
+        None
     }
 
     /// Records that gave way to newer ones before they were sent (saturating).
@@ -309,7 +345,7 @@ mod tests {
         }
         assert_eq!(log.len(), EVENT_LOG);
         assert_eq!(log.lost(), 3);
-        let first = log.pending().next().copied();
+        let first = log.pending().next();
         assert_eq!(first.map(|r| (r.time_us, r.seq)), Some((3, 3)));
         log.drop_sent(EVENT_LOG + 10);
         assert!(log.is_empty());

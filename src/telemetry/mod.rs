@@ -12,6 +12,7 @@ use crate::combination::FogSet;
 use crate::frames::output::OutputFrame;
 use crate::frames::Frame;
 use crate::link::OutPort;
+use crate::state::Flag;
 
 /// Output-frame flag bits (defined with the frame, `docs/ICD.md`).
 pub use crate::frames::output::flags;
@@ -56,7 +57,7 @@ pub mod st_status {
 }
 
 /// Everything one step produced, in physical units (the output frame is its encoding).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct StepOutput {
     /// Unit time at the end of the integrated interval, µs.
     pub time_us: u64,
@@ -108,17 +109,17 @@ impl StepOutput {
 /// word (a byte array can land at any offset in the core, and a misaligned copy of the
 /// output frame cost ~180 instructions a step more on the M7).
 #[repr(C, align(4))]
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub(crate) struct WordAligned<const N: usize>(pub(crate) [u8; N]);
 
 /// The telemetry stage: counters and the output link's state.
-#[derive(Clone)]
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct Telemetry {
     /// The counters (all but the observer's re-acquisitions, which it keeps itself).
     pub(crate) counters: Counters,
     out_counter: u16,
     step_ticks: u16,
-    output_dropped_last: bool,
+    output_dropped_last: Flag,
     /// The output frame's bytes (kept, so a step does not clear them).
     out_buf: WordAligned<{ OutputFrame::LEN }>,
 }
@@ -136,7 +137,7 @@ impl Telemetry {
             counters: Counters::default(),
             out_counter: 0,
             step_ticks: 0,
-            output_dropped_last: false,
+            output_dropped_last: Flag::CLEAR,
             out_buf: WordAligned([0; OutputFrame::LEN]),
         }
     }
@@ -150,7 +151,7 @@ impl Telemetry {
     /// Whether the previous step's output frame was dropped.
     #[inline]
     pub fn output_dropped_last(&self) -> bool {
-        self.output_dropped_last
+        self.output_dropped_last.get()
     }
 
     /// Encodes `o` with counter page `page_id` carrying `page_value` and writes it; a
@@ -184,7 +185,7 @@ impl Telemetry {
         frame.page_value = sat(page_value);
         self.out_counter = self.out_counter.wrapping_add(1);
         let ok = out.send_frame(&mut self.out_buf.0, OutputFrame::LEN, |buf| frame.encode_into(buf).is_ok());
-        self.output_dropped_last = !ok;
+        self.output_dropped_last = Flag::new(!ok);
         if !ok {
             self.counters.bump(Counter::OutputDropped);
         }
