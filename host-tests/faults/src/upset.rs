@@ -235,6 +235,7 @@ pub fn draw_flips(seed: u64, n: usize, reference: &Reference) -> Vec<Flip> {
 
 /// How a flip ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
 pub enum Outcome {
     /// Every output identical to the undisturbed flight.
     Masked,
@@ -260,6 +261,18 @@ impl Outcome {
         Outcome::Silent,
         Outcome::Crash,
     ];
+
+    /// Its key in the JSON output (`--json`).
+    pub fn key(self) -> &'static str {
+        match self {
+            Outcome::Masked => "masked",
+            Outcome::Tolerated => "tolerated",
+            Outcome::DetectedRecovered => "detected_recovered",
+            Outcome::DetectedNotRecovered => "detected_not_recovered",
+            Outcome::Silent => "silent",
+            Outcome::Crash => "crash",
+        }
+    }
 
     /// Its name in the tables.
     pub fn name(self) -> &'static str {
@@ -322,9 +335,11 @@ pub fn fly_flipped(flight: &mut Flight, flip: Flip, reference: &Reference) -> Ve
     while let Some(s) = flight.step() {
         let i = flight.n - 1;
         let Some(r) = reference.steps.get(i) else { break };
+        // Times from the undisturbed flight's clock (a flip may corrupt the unit's).
+        let t_s = r.t_s;
         if s.out != r.out || s.down != r.down {
             changed = true;
-            v.first_change_s.get_or_insert(s.t_s - t0);
+            v.first_change_s.get_or_insert(t_s - t0);
         }
         for e in &s.events {
             let known =
@@ -341,7 +356,7 @@ pub fn fly_flipped(flight: &mut Flight, flip: Flip, reference: &Reference) -> Ve
         if e > recover_arcsec {
             v.recovered_after_s = None;
         } else if v.recovered_after_s.is_none() {
-            v.recovered_after_s = Some(s.t_s - t0);
+            v.recovered_after_s = Some(t_s - t0);
         }
         if e > reference.bound_arcsec(i) {
             beyond = true;
@@ -690,21 +705,30 @@ pub fn report(reference: &Reference, verdicts: &[Verdict]) -> String {
         let _ = writeln!(s, "\nEvery silent and crash flip (byte of the field, bit; the flip's time in the flight):\n");
         let _ = writeln!(
             s,
-            "| outcome | field | byte, bit | at, s | worst claimed-good error, ″ | claimed-good frames | why |"
+            "| outcome | field | byte, bit | at, s | worst claimed-good error, ″ | claimed-good frames | largest error, ″ \
+             | back within 2× 3σ after, s | why |"
         );
-        let _ = writeln!(s, "|---|---|---|---|---|---|---|");
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
         let mut bad = bad;
         bad.sort_by_key(|v| (v.outcome, v.flip.field().0, v.flip.byte, v.flip.bit));
         for v in bad {
             let (f, off) = v.flip.field();
+            let silent = v.outcome == Outcome::Silent;
+            let shown = |x: String| if silent { x } else { String::new() };
+            let back = match v.recovered_after_s {
+                None => "not by the end".into(),
+                Some(t) => format!("{t:.2}"),
+            };
             let _ = writeln!(
                 s,
-                "| {} | {f} | {off}, {} | {:.3} | {} | {} | {} |",
+                "| {} | {f} | {off}, {} | {:.3} | {} | {} | {} | {} | {} |",
                 v.outcome.name(),
                 v.flip.bit,
                 reference.steps.get(v.flip.step).map_or(0.0, |s| s.t_s),
-                if v.outcome == Outcome::Silent { format!("{:.0}", v.worst_silent_arcsec) } else { String::new() },
-                if v.outcome == Outcome::Silent { v.silent_frames.to_string() } else { String::new() },
+                shown(format!("{:.0}", v.worst_silent_arcsec)),
+                shown(v.silent_frames.to_string()),
+                shown(format!("{:.0}", v.max_err_arcsec)),
+                shown(back),
                 v.crash.as_deref().unwrap_or("")
             );
         }
