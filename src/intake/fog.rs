@@ -13,6 +13,7 @@ use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::{FogFrame, FogSlot};
 use crate::link::RxPort;
 use crate::state::{Flag, Maybe, Quad, Ring};
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::{health, Counter, Counters, FogCounter};
 
 /// Receive bytes read per link per step at most (four FOG frames' worth).
@@ -122,6 +123,18 @@ pub struct FogIntake {
 }
 
 impl FogIntake {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(FogIntake {
+        fitted: FogSet,
+        channels: Quad<FogChannel>,
+        bus_decoder: StreamDecoder<FogFrame, 32>,
+        clock: SampleClock,
+        last_present: FogSet,
+        waited: u32,
+        gap: Flag,
+        lost: u16,
+    });
+
     /// An intake for the `fitted` FOGs; slots not fitted are never read.
     pub fn new(fitted: FogSet) -> Self {
         FogIntake {

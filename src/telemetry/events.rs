@@ -20,6 +20,7 @@
 use crate::calib::N_FOG;
 use crate::frames::output::flags;
 use crate::state::Ring;
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::st_status;
 
 /// Records the event log holds before the oldest gives way.
@@ -174,6 +175,14 @@ pub struct EventLog {
 }
 
 impl EventLog {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(EventLog {
+        last_status: u32,
+        ring: Ring<EventSlot, EVENT_LOG>,
+        next_seq: u16,
+        lost: u32,
+    });
+
     /// An empty log.
     pub fn new() -> Self {
         EventLog { last_status: 0, ring: Ring::new(), next_seq: 0, lost: 0 }

@@ -31,6 +31,7 @@ use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation, Ste
 use ssis_sim::scenario::Scenario;
 
 pub mod mounting;
+pub mod upset;
 
 /// What goes wrong.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -749,4 +750,20 @@ fn frame_lines(s: &mut String, rows: &[CampaignRow], nominal: Option<&FaultRun>,
             r.att_before_arcsec
         );
     }
+}
+
+/// Today's date (UTC), YYYY-MM-DD, from the system clock (days to civil date,
+/// proleptic Gregorian).
+pub fn utc_date() -> String {
+    let secs = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+    let z = (secs / 86_400) as i64 + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z - era * 146_097;
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = doy - (153 * mp + 2) / 5 + 1;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 };
+    let y = yoe + era * 400 + i64::from(m <= 2);
+    format!("{y:04}-{m:02}-{d:02}")
 }
