@@ -25,6 +25,7 @@
 
 mod fog;
 mod geometry;
+mod guard;
 mod propagate;
 mod report;
 mod star_aid;
@@ -161,6 +162,8 @@ pub struct FlightCore {
     /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
     /// mounting check found two FOGs swapped).
     fog_map: [usize; N_FOG],
+    /// The shadows of the guarded state ([`guard`]).
+    guard: guard::Guard,
     /// The log of state changes not yet sent (rarely touched: last).
     events: EventLog,
 }
@@ -179,7 +182,7 @@ impl FlightCore {
             let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
             MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
         });
-        Ok(FlightCore {
+        let mut core = FlightCore {
             mounting,
             fog_map: IDENTITY_MAP,
             profile,
@@ -201,8 +204,11 @@ impl FlightCore {
             observer,
             telemetry: Telemetry::new(),
             last_output: StepOutput::START,
+            guard: guard::Guard::default(),
             events: EventLog::new(),
-        })
+        };
+        core.guard_seal_all();
+        Ok(core)
     }
 
     /// CRC-32 of the table in use (the last four bytes of its binary form).
@@ -212,8 +218,10 @@ impl FlightCore {
 
     /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
     pub fn align(&mut self, q: Quaternion<f64>) {
+        self.guard_touch();
         self.attitude.set_quaternion(q);
         self.observer.set_aligned();
+        self.guard_seal_all();
     }
 
     /// The profile in use.
@@ -288,6 +296,8 @@ impl FlightCore {
         mut on_increment: impl FnMut(u64, &Vector3<f64>),
     ) -> StepOutput {
         let dt_s = self.profile.dt_s();
+        // The guarded state as the last step left it (restored if a bit flipped since).
+        self.guard_check();
         // Intake: the FOG links into the per-FOG sample queues.
         self.fog_intake.receive(&mut links.fog, &mut self.rx_scratch.0, &mut self.telemetry.counters);
         let mut acc = Integrated::NONE;
@@ -333,6 +343,7 @@ impl FlightCore {
         let o = &self.last_output;
         let status = StatusBits { flags: o.flags, st_status: o.st_status, fdi: o.fdi };
         self.events.on_status(status, o.time_us, &self.fog_map);
+        self.guard_seal();
         out
     }
 }
