@@ -51,7 +51,7 @@ const STEP_WORDS: usize = 13;
 /// Words of the `Steady` block at most.
 const STEADY_WORDS: usize = 24;
 /// Words of the `Frame` block at most.
-const FRAME_WORDS: usize = 96;
+const FRAME_WORDS: usize = 84;
 /// Words of a `Without` block at most.
 const WITHOUT_WORDS: usize = 12;
 
@@ -126,7 +126,14 @@ pub(super) struct Guard {
     /// Non-zero: this step changed a block other than `Step` (saved at its end); the
     /// `Frame` block was checked before.
     touched: u32,
+    /// [`SEALED`] once the shadows hold the state (the core is built without a save, so
+    /// that it is built in place: the first check saves instead).
+    sealed: u32,
 }
+
+/// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
+/// sealed: the state is saved again unchecked, at worst one check missed).
+const SEALED: u32 = 0x5EA1_ED5A;
 
 /// The core's guarded fields, borrowed apart from the guard's shadows.
 struct Parts<'a> {
@@ -218,17 +225,23 @@ fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
 
 impl FlightCore {
     /// Saves every block (the core built, or changed between steps).
+    #[inline(never)]
+    #[cold]
     pub(super) fn guard_seal_all(&mut self) {
         for b in Block::ALL {
             save(self, b);
         }
         self.guard.touched = 0;
+        self.guard.sealed = SEALED;
     }
 
     /// Start of a step: the `Step` and `Steady` blocks and one `Without` block checked,
     /// then the plausibility of Λ and Δω.
     #[inline(always)]
     pub(super) fn guard_check(&mut self) {
+        if self.guard.sealed != SEALED {
+            self.guard_seal_all();
+        }
         self.guard_check_block(Block::Step);
         self.guard_check_block(Block::Steady);
         let i = self.guard.next_without as usize % N_FOG;
@@ -247,9 +260,13 @@ impl FlightCore {
     /// A block other than `Step` is about to change (a star-tracker frame is due, a FOG is
     /// isolated, a table switched): the first time in a step the `Frame` block and the
     /// covariance's plausibility are checked, and every block is saved at the step's end.
+    #[inline(never)]
     pub(super) fn guard_touch(&mut self) {
         if self.guard.touched != 0 {
             return;
+        }
+        if self.guard.sealed != SEALED {
+            self.guard_seal_all();
         }
         self.guard.touched = 1;
         self.guard_check_block(Block::Frame);
@@ -268,6 +285,7 @@ impl FlightCore {
     }
 
     #[inline(never)]
+    #[cold]
     fn guard_seal_changed(&mut self) {
         for b in Block::ALL {
             if b != Block::Step {

@@ -182,7 +182,9 @@ impl FlightCore {
             let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
             MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
         });
-        let mut core = FlightCore {
+        // Built in the return value (a local moved into `Ok` would be one more copy of
+        // the core on the boot stack); the guard seals the state on its first check.
+        Ok(FlightCore {
             mounting,
             fog_map: IDENTITY_MAP,
             profile,
@@ -206,9 +208,7 @@ impl FlightCore {
             last_output: StepOutput::START,
             guard: guard::Guard::default(),
             events: EventLog::new(),
-        };
-        core.guard_seal_all();
-        Ok(core)
+        })
     }
 
     /// CRC-32 of the table in use (the last four bytes of its binary form).
