@@ -128,7 +128,7 @@ impl Combiner {
     }
 
     /// The solution without FOG `i` (used after an isolation), for the state guard.
-    #[inline(never)]
+    #[inline(always)]
     pub fn visit_without<V: crate::guard::Visit>(&mut self, i: usize, v: &mut V) {
         if let Some(m) = self.without.get_mut(i).and_then(Option::as_mut) {
             v.f64s(m.as_mut_slice());

@@ -116,6 +116,52 @@ impl Visit for Restore<'_> {
     }
 }
 
+/// Any of the three passes, for the blocks checked rarely: one compiled walk of the block
+/// serves them all (flash), where the blocks of every step get one walk each (time).
+#[derive(Debug)]
+pub enum Pass<'a> {
+    /// [`Sum`].
+    Sum(Sum),
+    /// [`Save`].
+    Save(Save<'a>),
+    /// [`Restore`].
+    Restore(Restore<'a>),
+}
+
+impl Visit for Pass<'_> {
+    /// The sum and the save write back what they read (the same bits).
+    const WRITES: bool = true;
+
+    /// Out of line, and the runs below too: a rarely checked block's walk is a call a
+    /// field, not code a word.
+    #[inline(never)]
+    fn word(&mut self, w: &mut u64) {
+        match self {
+            Pass::Sum(s) => s.word(w),
+            Pass::Save(s) => s.word(w),
+            Pass::Restore(r) => r.word(w),
+        }
+    }
+
+    fn f64(&mut self, x: &mut f64) {
+        self.f64s(core::slice::from_mut(x));
+    }
+
+    /// One pass over a run: the pass chosen once, not a word.
+    #[inline(never)]
+    fn f64s(&mut self, xs: &mut [f64]) {
+        match self {
+            Pass::Sum(s) => xs.iter().for_each(|x| s.0 ^= x.to_bits()),
+            Pass::Save(s) => xs.iter().for_each(|x| s.word(&mut x.to_bits())),
+            Pass::Restore(r) => xs.iter_mut().for_each(|x| {
+                let mut b = x.to_bits();
+                r.word(&mut b);
+                *x = f64::from_bits(b);
+            }),
+        }
+    }
+}
+
 /// Counts the words of a block (its shadow must hold them all: the unit tests check).
 #[derive(Debug, Default)]
 pub struct Count(pub usize);
@@ -195,6 +241,21 @@ impl<const N: usize> Shadow<N> {
         self.sum = s.sum;
     }
 
+    /// [`Shadow::save`] through a [`Pass`].
+    pub fn save_pass(&mut self, visit: impl FnOnce(&mut Pass<'_>)) {
+        let mut pass = Pass::Save(Save { words: &mut self.words, at: 0, sum: 0 });
+        visit(&mut pass);
+        if let Pass::Save(s) = pass {
+            self.len = u32::try_from(s.at).unwrap_or(u32::MAX);
+            self.sum = s.sum;
+        }
+    }
+
+    /// [`Shadow::restore`] through a [`Pass`].
+    pub fn restore_pass(&self, visit: impl FnOnce(&mut Pass<'_>)) {
+        visit(&mut Pass::Restore(Restore { words: &self.words, at: 0 }));
+    }
+
     /// The stored checksum against the live words' `live` ([`Sum`]).
     #[inline(always)]
     pub fn check(&mut self, live: u64) -> Check {
@@ -208,7 +269,7 @@ impl<const N: usize> Shadow<N> {
     #[cold]
     fn check_cold(&mut self, live: u64) -> Check {
         let n = usize::try_from(self.len).unwrap_or(N).min(N);
-        let own = self.words.iter().take(n).fold(0, |a, w| a ^ w);
+        let own = xor_of(self.words.get(..n).unwrap_or(&self.words));
         if own == self.sum {
             Check::Restore
         } else if own == live {
@@ -234,6 +295,12 @@ impl<const N: usize> Shadow<N> {
 
     /// Words the shadow can hold.
     pub const CAPACITY: usize = N;
+}
+
+/// The checksum of a shadow's words (one copy for every block size).
+#[inline(never)]
+fn xor_of(words: &[u64]) -> u64 {
+    words.iter().fold(0, |a, w| a ^ w)
 }
 
 #[cfg(test)]

@@ -58,7 +58,7 @@ impl FlightCore {
     /// Flies on `combiner` from the next sample: the parity logic on its geometry, taking
     /// over an isolated FOG and the counters from the one before.
     pub(super) fn install_geometry(&mut self, combiner: Combiner, noise_rad: f64) {
-        self.guard_touch();
+        self.guard_touch_combiner();
         let dt = self.profile.dt_s();
         let mut fdi = parity_monitor(self.profile, &combiner, noise_rad, dt);
         if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {

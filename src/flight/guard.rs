@@ -8,10 +8,10 @@
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
-//! | `Step` | Λ, the coning terms' two previous increments, the last body increment | end of every step | start of every step |
+//! | `Step` | Λ, the coning terms' two previous increments | end of every step | start of every step |
 //! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector | end of a step that changed them | start of every step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
-//! | `Without(i)` | the combiner without FOG i | as `Steady` | one a step, in turn |
+//! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
 //!
 //! The covariance and the noise figures also give the reported 1σ every step: a flip in
 //! them between two frames shows in the 1σ until the next frame's check restores them
@@ -33,13 +33,13 @@
 //! next star-tracker frame (not aligned, not converged until it converges again), and
 //! `state_implausible` is logged (a: [`Implausible`]) and counted.
 
-use nalgebra::{Quaternion, Vector3};
+use nalgebra::Quaternion;
 
 use super::{FlightCore, HISTORY};
 use crate::attitude::Attitude;
 use crate::calib::N_FOG;
 use crate::combination::Combiner;
-use crate::guard::{Check, Shadow, Sum, Visit};
+use crate::guard::{Check, Pass, Shadow, Sum, Visit};
 use crate::observer::Observer;
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
@@ -47,7 +47,7 @@ use crate::telemetry::Counter;
 use super::geometry::{checked_combiner, sample_noise_rad};
 
 /// Words of the `Step` block.
-const STEP_WORDS: usize = 13;
+const STEP_WORDS: usize = 10;
 /// Words of the `Steady` block at most.
 const STEADY_WORDS: usize = 24;
 /// Words of the `Frame` block at most.
@@ -121,11 +121,11 @@ pub(super) struct Guard {
     steady: Shadow<STEADY_WORDS>,
     frame: Shadow<FRAME_WORDS>,
     without: [Shadow<WITHOUT_WORDS>; N_FOG],
-    /// The `Without` block checked next.
-    next_without: u32,
     /// Non-zero: this step changed a block other than `Step` (saved at its end); the
     /// `Frame` block was checked before.
     touched: u32,
+    /// The `Without` block the next touch checks.
+    next_without: u32,
     /// [`SEALED`] once the shadows hold the state (the core is built without a save, so
     /// that it is built in place: the first check saves instead).
     sealed: u32,
@@ -135,10 +135,12 @@ pub(super) struct Guard {
 /// sealed: the state is saved again unchecked, at worst one check missed).
 const SEALED: u32 = 0x5EA1_ED5A;
 
+/// [`Guard::touched`]: the combiner changed too.
+const COMBINER_TOUCHED: u32 = 2;
+
 /// The core's guarded fields, borrowed apart from the guard's shadows.
 struct Parts<'a> {
     attitude: &'a mut Attitude,
-    last_body_dtheta: &'a mut Vector3<f64>,
     observer: &'a mut Observer<HISTORY>,
     combiner: &'a mut Combiner,
     mount: &'a mut Quaternion<f64>,
@@ -147,8 +149,8 @@ struct Parts<'a> {
 /// The guarded fields and the shadows of `core`.
 #[inline(always)]
 fn split(core: &mut FlightCore) -> (Parts<'_>, &mut Guard) {
-    let FlightCore { attitude, last_body_dtheta, observer, combiner, mount, guard, .. } = core;
-    (Parts { attitude, last_body_dtheta, observer, combiner, mount }, guard)
+    let FlightCore { attitude, observer, combiner, mount, guard, .. } = core;
+    (Parts { attitude, observer, combiner, mount }, guard)
 }
 
 /// The one list of guarded state: the words of `block`, in order. A new state goes into
@@ -159,7 +161,6 @@ fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
         Block::Step => {
             p.attitude.visit_q(v);
             p.attitude.visit_increments(v);
-            v.f64s(p.last_body_dtheta.as_mut_slice());
         }
         Block::Steady => {
             p.observer.visit_steady(v);
@@ -173,17 +174,30 @@ fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
     }
 }
 
-/// Saves `block` of `core` into its shadow.
+/// [`visit`] through a [`Pass`]: one compiled walk for the blocks checked rarely.
+#[inline(never)]
+fn visit_pass(p: &mut Parts<'_>, block: Block, pass: &mut Pass<'_>) {
+    visit(p, block, pass);
+}
+
+/// Saves the `Step` block of `core` into its shadow (every step: its own walk).
 #[inline(always)]
+fn save_step(core: &mut FlightCore) {
+    let (mut p, g) = split(core);
+    g.step.save(|s| visit(&mut p, Block::Step, s));
+}
+
+/// Saves `block` of `core` into its shadow (through the one walk of [`visit_pass`]).
+#[inline(never)]
 fn save(core: &mut FlightCore, block: Block) {
     let (mut p, g) = split(core);
     match block {
-        Block::Step => g.step.save(|s| visit(&mut p, block, s)),
-        Block::Steady => g.steady.save(|s| visit(&mut p, block, s)),
-        Block::Frame => g.frame.save(|s| visit(&mut p, block, s)),
+        Block::Step => g.step.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Steady => g.steady.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Frame => g.frame.save_pass(|s| visit_pass(&mut p, block, s)),
         Block::Without(i) => {
             if let Some(sh) = g.without.get_mut(i) {
-                sh.save(|s| visit(&mut p, block, s));
+                sh.save_pass(|s| visit_pass(&mut p, block, s));
             }
         }
     }
@@ -194,8 +208,21 @@ fn save(core: &mut FlightCore, block: Block) {
 #[inline(always)]
 fn check(core: &mut FlightCore, block: Block) -> Check {
     let (mut p, g) = split(core);
-    let mut live = Sum::default();
-    visit(&mut p, block, &mut live);
+    let live = match block {
+        Block::Step | Block::Steady => {
+            let mut live = Sum::default();
+            visit(&mut p, block, &mut live);
+            live
+        }
+        Block::Frame | Block::Without(_) => {
+            let mut pass = Pass::Sum(Sum::default());
+            visit_pass(&mut p, block, &mut pass);
+            match pass {
+                Pass::Sum(s) => s,
+                _ => Sum::default(),
+            }
+        }
+    };
     let c = match block {
         Block::Step => g.step.check(live.0),
         Block::Steady => g.steady.check(live.0),
@@ -212,12 +239,12 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
 #[cold]
 fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
     match block {
-        Block::Step => g.step.restore(|r| visit(p, block, r)),
-        Block::Steady => g.steady.restore(|r| visit(p, block, r)),
-        Block::Frame => g.frame.restore(|r| visit(p, block, r)),
+        Block::Step => g.step.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Steady => g.steady.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Frame => g.frame.restore_pass(|b| visit_pass(p, block, b)),
         Block::Without(i) => {
             if let Some(w) = g.without.get(i) {
-                w.restore(|r| visit(p, block, r));
+                w.restore_pass(|b| visit_pass(p, block, b));
             }
         }
     }
@@ -235,8 +262,8 @@ impl FlightCore {
         self.guard.sealed = SEALED;
     }
 
-    /// Start of a step: the `Step` and `Steady` blocks and one `Without` block checked,
-    /// then the plausibility of Λ and Δω.
+    /// Start of a step: the `Step` and `Steady` blocks checked, then the plausibility of
+    /// Λ and Δω.
     #[inline(always)]
     pub(super) fn guard_check(&mut self) {
         if self.guard.sealed != SEALED {
@@ -244,9 +271,6 @@ impl FlightCore {
         }
         self.guard_check_block(Block::Step);
         self.guard_check_block(Block::Steady);
-        let i = self.guard.next_without as usize % N_FOG;
-        self.guard.next_without = (i as u32 + 1) % N_FOG as u32;
-        self.guard_check_block(Block::Without(i));
         let q = self.attitude.quaternion();
         if (q.norm_squared() - 1.0).abs() > Q_NORM2_TOL || q.norm_squared().is_nan() {
             self.implausible(Implausible::QuaternionNorm);
@@ -270,6 +294,10 @@ impl FlightCore {
         }
         self.guard.touched = 1;
         self.guard_check_block(Block::Frame);
+        // One triad solution a touch, in turn (flown only after an isolation).
+        let i = self.guard.next_without as usize % N_FOG;
+        self.guard.next_without = (i as u32 + 1) % N_FOG as u32;
+        self.guard_check_block(Block::Without(i));
         if !self.observer.filter().cov_plausible(MAX_ATT_VAR_RAD2, MAX_DRIFT_VAR_RAD2_S2) {
             self.implausible(Implausible::Covariance);
         }
@@ -278,7 +306,7 @@ impl FlightCore {
     /// End of a step: the `Step` block saved, and every other block if the step changed it.
     #[inline(always)]
     pub(super) fn guard_seal(&mut self) {
-        save(self, Block::Step);
+        save_step(self);
         if self.guard.touched != 0 {
             self.guard_seal_changed();
         }
@@ -287,12 +315,21 @@ impl FlightCore {
     #[inline(never)]
     #[cold]
     fn guard_seal_changed(&mut self) {
-        for b in Block::ALL {
-            if b != Block::Step {
-                save(self, b);
+        save(self, Block::Steady);
+        save(self, Block::Frame);
+        if self.guard.touched & COMBINER_TOUCHED != 0 {
+            for i in 0..N_FOG {
+                save(self, Block::Without(i));
             }
         }
         self.guard.touched = 0;
+    }
+
+    /// The combiner is about to change ([`FlightCore::guard_touch`], and its `Without`
+    /// blocks saved at the step's end).
+    pub(super) fn guard_touch_combiner(&mut self) {
+        self.guard_touch();
+        self.guard.touched |= COMBINER_TOUCHED;
     }
 
     /// Checks `block` against its checksum and restores it.
@@ -327,6 +364,8 @@ impl FlightCore {
 
     /// A block neither copy restores: what derives from the table is derived again, and
     /// the estimator starts again from the next star-tracker frame.
+    #[inline(never)]
+    #[cold]
     fn guard_rederive(&mut self) {
         if let Ok(combiner) = checked_combiner(self.profile, &self.table, &self.fog_map) {
             let noise_rad = sample_noise_rad(&self.table, self.profile.dt_s());
@@ -496,11 +535,13 @@ mod tests {
                         let mut c = core.clone();
                         c.flip_guarded(block, word, bit);
                         assert_ne!(words(&mut c, block), good);
-                        // The checks of one step: every `Without` block once in four.
+                        // The checks of four steps that touch the state (every
+                        // `Without` block once in four).
                         for _ in 0..N_FOG {
                             c.guard_check();
+                            c.guard_touch();
+                            c.guard.touched = 0;
                         }
-                        c.guard_touch();
                         assert_eq!(words(&mut c, block), good, "{est:?} {block:?} word {word} bit {bit}");
                         assert_eq!(restored(&c), 1, "{est:?} {block:?} word {word} bit {bit}");
                         assert_eq!(c.telemetry.counters.get(Counter::StateImplausible), 0);
@@ -524,7 +565,7 @@ mod tests {
                     for bit in [0, 31, 51, 62, 63] {
                         let (mut a, mut b) = (core.clone(), core.clone());
                         b.flip_guarded(block, word, bit);
-                        for s in 2401..2461 {
+                        for s in 2401..2621 {
                             let (mut oa, mut ob) = (fly(&mut a, s), fly(&mut b, s));
                             if block == Block::Frame {
                                 // Its covariance and noise figures give the 1σ of the

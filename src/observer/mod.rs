@@ -401,7 +401,6 @@ impl<const H: usize> Observer<H> {
     /// What a star-tracker frame reads: the last update's Λ, the alignment time, the
     /// re-acquisition streak, the noise figures, the estimator's gains and covariance,
     /// for the state guard ([`crate::guard`]).
-    #[inline(never)]
     pub fn visit_frame<V: crate::guard::Visit>(&mut self, v: &mut V) {
         v.f64s(self.last_q.coords.as_mut_slice());
         v.opt_u64(&mut self.aligned_us);
