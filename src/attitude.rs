@@ -19,6 +19,7 @@
 use nalgebra::{Quaternion, Vector3};
 
 use crate::math;
+use crate::state_map::{state_map, StateField};
 
 /// Coning-correction order.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -43,6 +44,15 @@ pub struct Attitude {
 }
 
 impl Attitude {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(Attitude {
+        q: Quaternion<f64>,
+        prev1: Vector3<f64>,
+        prev2: Vector3<f64>,
+        coning: Coning,
+        renorm_failures: u32,
+    });
+
     /// Starts at `q` (normalised; identity if degenerate).
     pub fn new(q: Quaternion<f64>, coning: Coning) -> Self {
         let mut a = Attitude { q, prev1: Vector3::zeros(), prev2: Vector3::zeros(), coning, renorm_failures: 0 };

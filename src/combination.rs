@@ -13,6 +13,7 @@
 use nalgebra::{Matrix3, Matrix3x4, Matrix4x3, RowVector4, Vector3, Vector4};
 
 use crate::calib::N_FOG;
+use crate::state_map::{state_map, StateField};
 
 /// Which FOGs take part: bit i set = FOG i used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -67,6 +68,13 @@ pub struct Combiner {
 }
 
 impl Combiner {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(Combiner {
+        all: Option<Matrix3x4<f64>>,
+        without: [Option<Matrix3x4<f64>>; N_FOG],
+        parity: RowVector4<f64>,
+    });
+
     /// Precomputes the solutions for axes `s` (rows of H).
     pub fn new(s: &[Vector3<f64>; N_FOG]) -> Self {
         let [s0, s1, s2, s3] = s;

@@ -51,5 +51,6 @@ pub mod link;
 pub mod math;
 pub mod nav;
 pub mod observer;
+pub mod state_map;
 pub mod telecommand;
 pub mod telemetry;

@@ -48,6 +48,7 @@ use crate::integrity::mounting::MountCheck;
 use crate::integrity::parity::ParityMonitor;
 use crate::link::{OutPort, RxPort, StarPort};
 use crate::observer::{GainError, Observer};
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::events::{EventLog, StatusBits};
 use crate::telemetry::{page, Telemetry, WordAligned};
 
@@ -168,7 +169,39 @@ pub struct FlightCore {
     events: EventLog,
 }
 
+/// Where each field of the core lies ([`FlightCore::state_map`]).
+const STATE_MAP: &[StateField] = state_map!(FlightCore {
+    profile: Profile,
+    last_body_dtheta: Vector3<f64>,
+    attitude: Attitude => Attitude::STATE_MAP,
+    mount: Quaternion<f64>,
+    thermal: [ThermalTracker; N_FOG],
+    channel_monitors: [ChannelMonitor; N_FOG],
+    telemetry: Telemetry,
+    last_output: StepOutput,
+    rx_scratch: WordAligned<RX_CHUNK>,
+    fog_intake: FogIntake => FogIntake::STATE_MAP,
+    table: CalibrationTable,
+    combiner: Combiner => Combiner::STATE_MAP,
+    fdi: Option<ParityMonitor>,
+    star_intake: StarIntake => StarIntake::STATE_MAP,
+    fixed_flags: u8,
+    temp_failed_bits: u8,
+    observer: Observer<HISTORY> => Observer::<HISTORY>::STATE_MAP,
+    table_crc: u32,
+    mounting: Option<MountCheck>,
+    fog_map: [usize; N_FOG],
+    events: EventLog => EventLog::STATE_MAP,
+});
+
 impl FlightCore {
+    /// Where each field of the core lies in the value, down to the stages (and inside the
+    /// attitude and the observer): the upset campaign names the field a flipped bit
+    /// belongs to ([`crate::state_map`]). Nothing in a step reads it.
+    pub fn state_map() -> &'static [StateField] {
+        STATE_MAP
+    }
+
     /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
     /// was invalid and `table` is the default; flagged in every output frame).
     pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {

@@ -14,6 +14,7 @@ use crate::combination::FogSet;
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::FogFrame;
 use crate::link::RxPort;
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::{health, Counter, Counters, FogCounter};
 
 /// Receive bytes read per link per step at most (four FOG frames' worth).
@@ -123,6 +124,18 @@ pub struct FogIntake {
 }
 
 impl FogIntake {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(FogIntake {
+        fitted: FogSet,
+        channels: [FogChannel; N_FOG],
+        bus_decoder: StreamDecoder<FogFrame, 32>,
+        clock: SampleClock,
+        last_present: FogSet,
+        waited: u32,
+        gap: bool,
+        lost: u16,
+    });
+
     /// An intake for the `fitted` FOGs; slots not fitted are never read.
     pub fn new(fitted: FogSet) -> Self {
         FogIntake {

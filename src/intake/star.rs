@@ -6,6 +6,7 @@ use heapless::Deque;
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::star::StarFrame;
 use crate::link::{drain, RxLink};
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::{st_status, Counter, Counters};
 
 use super::fog::MAX_RX_BYTES_PER_STEP;
@@ -47,6 +48,15 @@ impl Default for StarIntake {
 }
 
 impl StarIntake {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(StarIntake {
+        decoder: StreamDecoder<StarFrame, 64>,
+        pending: Deque<StarFrame, ST_PENDING>,
+        last_q_counts: [i32; 4],
+        last_used_us: Option<u64>,
+        in_outage: bool,
+    });
+
     /// An empty intake.
     pub fn new() -> Self {
         StarIntake {

@@ -19,6 +19,7 @@ use nalgebra::{Quaternion, Vector3};
 use super::UpdateError;
 use crate::attitude::Attitude;
 use crate::math;
+use crate::state_map::{state_map, StateField};
 
 /// One propagated attitude and its unit time.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -72,6 +73,14 @@ impl<const H: usize> Default for History<H> {
 }
 
 impl<const H: usize> History<H> {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(History<H> {
+        ring: [Sample; H],
+        head: usize,
+        len: usize,
+        fixes: Deque<Fix, PENDING_FIXES>,
+    });
+
     /// Records the propagated attitude at the end of a step.
     #[inline]
     pub fn record(&mut self, time_us: u64, q: Quaternion<f64>) {

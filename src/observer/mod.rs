@@ -55,6 +55,7 @@ use nalgebra::{Matrix3, Quaternion, Vector3};
 use crate::attitude::Attitude;
 use crate::calib::{Estimator, ObserverConfig, ObserverGains};
 use crate::math;
+use crate::state_map::{state_map, StateField};
 use gains::{initial_drift_var_rad2_s2, Figures, ARCSEC_RAD};
 use gate::{Convergence, Streak};
 use luenberger::Luenberger;
@@ -295,6 +296,22 @@ pub struct Observer<const H: usize> {
 }
 
 impl<const H: usize> Observer<H> {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(Observer<H> {
+        history: History<H> => History::<H>::STATE_MAP,
+        drift_rad_s: Vector3<f64>,
+        aligned: bool,
+        aligned_us: Option<u64>,
+        last_update_tag_us: Option<u64>,
+        last_q: Quaternion<f64>,
+        conv: Convergence,
+        streak: Streak,
+        fig: Figures,
+        initial_drift_var_rad2_s2: f64,
+        drift_cov0: Matrix3<f64>,
+        filter: Filter,
+    });
+
     /// A new observer of eq. (6) with `gains`, expecting star-tracker noise `sigma_st_rad`
     /// (1σ), gating with the noise figures of `steady`.
     pub fn new(gains: ObserverGains, sigma_st_rad: f64, steady: SteadyState) -> Self {

@@ -21,6 +21,7 @@ use heapless::Deque;
 
 use crate::calib::N_FOG;
 use crate::frames::output::flags;
+use crate::state_map::{state_map, StateField};
 use crate::telemetry::st_status;
 
 /// Records the event log holds before the oldest gives way.
@@ -151,6 +152,14 @@ pub struct EventLog {
 }
 
 impl EventLog {
+    /// Where each field lies in the value ([`crate::state_map`]).
+    pub const STATE_MAP: &'static [StateField] = state_map!(EventLog {
+        last_status: u32,
+        ring: Deque<EventRecord, EVENT_LOG>,
+        next_seq: u16,
+        lost: u32,
+    });
+
     /// An empty log.
     pub const fn new() -> Self {
         EventLog { last_status: 0, ring: Deque::new(), next_seq: 0, lost: 0 }

@@ -31,6 +31,7 @@ use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation, Ste
 use ssis_sim::scenario::Scenario;
 
 pub mod mounting;
+pub mod upset;
 
 /// What goes wrong.
 #[derive(Debug, Clone, Copy, PartialEq)]

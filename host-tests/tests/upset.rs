@@ -1,0 +1,77 @@
+//! The upset campaign (`ssis_faults::upset`, `ssis-upset`, docs/UPSET-CAMPAIGN.md) on a
+//! small sample: every flip classed, the same seed giving the same flips and verdicts,
+//! and flips whose fate is known classed as it must be. The campaign's verdict on the
+//! unit (0 silent, 0 crashes) is asserted here once the mitigations of issue 30 fly;
+//! until then this checks the campaign's accounting.
+
+use ssis_faults::upset::{self, draw_flips, field_span, run_flips, Flip, Outcome, Reference, Settings};
+use ssis_sim::scenario::Scenario;
+
+/// The main job's two-minute scenario.
+fn scenario() -> Scenario {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    Scenario::from_file(&path).expect("the QEMU scenario")
+}
+
+fn settings() -> Settings {
+    let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
+    Settings { flips: 0, seed: 0, jobs, timeout_s: 120 }
+}
+
+#[test]
+fn a_sample_campaign_classes_every_flip_and_repeats_with_its_seed() {
+    let sc = scenario();
+    let reference = Reference::fly(&sc).expect("the undisturbed flight");
+    let flips = draw_flips(7, 300, &reference);
+    let size = std::mem::size_of::<ssis::flight::FlightCore>();
+    assert!(flips.iter().all(|f| f.step > reference.converged_step && f.step < reference.steps.len()));
+    assert!(flips.iter().all(|f| f.byte < size && f.bit < 8));
+    let mut done = 0;
+    let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| done += 1).expect("the campaign");
+    assert_eq!((verdicts.len(), done), (flips.len(), flips.len()));
+    for (v, f) in verdicts.iter().zip(&flips) {
+        assert_eq!(v.flip, *f, "verdicts come back in the order of the flips");
+        match v.outcome {
+            Outcome::Crash => assert!(v.crash.is_some(), "{v:?}: a crash names its cause"),
+            Outcome::Silent => assert!(v.silent_frames > 0 && v.worst_silent_arcsec > upset::TOLERATED_ARCSEC, "{v:?}"),
+            Outcome::DetectedRecovered | Outcome::DetectedNotRecovered => {
+                assert!(v.flagged_frames > 0 && v.silent_frames == 0, "{v:?}")
+            }
+            Outcome::Masked => assert!(v.first_change_s.is_none() && v.new_events.is_empty(), "{v:?}"),
+            Outcome::Tolerated => assert!(v.first_change_s.is_some(), "{v:?}"),
+        }
+    }
+    let counts = upset::counts(&verdicts);
+    assert_eq!(counts.values().sum::<u64>(), flips.len() as u64);
+    let md = upset::report(&reference, &verdicts);
+    assert!(md.contains(&format!("| masked | {} |", counts[&Outcome::Masked])), "{md}");
+    // The same seed draws the same flips (a shorter campaign, the first ones), and they
+    // fly to the same verdicts; another seed draws others.
+    assert_eq!(draw_flips(7, 40, &reference), flips[..40]);
+    assert_ne!(draw_flips(8, 40, &reference), flips[..40]);
+    let again = run_flips(&sc, &reference, &flips[..40], &settings(), |_| {}).expect("the campaign again");
+    assert_eq!(again, verdicts[..40]);
+}
+
+#[test]
+fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_exponent_is_not() {
+    let sc = scenario();
+    let reference = Reference::fly(&sc).expect("the undisturbed flight");
+    // 10 s after convergence.
+    let step = reference.converged_step + 2000;
+    // The links' chunk buffer is written before it is read, every step.
+    let (scratch, _) = field_span("rx_scratch").expect("rx_scratch in the map");
+    // The exponent's top bit (bit 62) of each of Λ's four f64 components.
+    let (q, q_size) = field_span("attitude.q").expect("attitude.q in the map");
+    assert_eq!(q_size, 32);
+    let mut flips = vec![Flip { step, byte: scratch, bit: 0 }];
+    flips.extend((0..4).map(|c| Flip { step, byte: q + 8 * c + 7, bit: 6 }));
+    let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
+    assert_eq!(verdicts[0].outcome, Outcome::Masked, "{:?}", verdicts[0]);
+    for v in &verdicts[1..] {
+        assert!(
+            matches!(v.outcome, Outcome::Silent | Outcome::DetectedRecovered | Outcome::DetectedNotRecovered),
+            "{v:?}"
+        );
+    }
+}
