@@ -191,6 +191,7 @@ const STATE_MAP: &[StateField] = state_map!(FlightCore {
     table_crc: u32,
     mounting: Option<MountCheck>,
     fog_map: [usize; N_FOG],
+    guard: guard::Guard,
     events: EventLog => EventLog::STATE_MAP,
 });
 
