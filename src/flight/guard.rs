@@ -8,7 +8,7 @@
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
-//! | `Step` | Λ, the coning terms' two previous increments | end of every step | start of every step |
+//! | `Step` | Λ, the coning terms' two previous increments, the sample clock (unit time) | end of every step | start of every step |
 //! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector | end of a step that changed them | start of every step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
@@ -40,6 +40,7 @@ use crate::attitude::Attitude;
 use crate::calib::N_FOG;
 use crate::combination::Combiner;
 use crate::guard::{Check, Pass, Shadow, Sum, Visit};
+use crate::intake::FogIntake;
 use crate::observer::Observer;
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
@@ -47,7 +48,7 @@ use crate::telemetry::Counter;
 use super::geometry::{checked_combiner, sample_noise_rad};
 
 /// Words of the `Step` block.
-const STEP_WORDS: usize = 10;
+const STEP_WORDS: usize = 12;
 /// Words of the `Steady` block at most.
 const STEADY_WORDS: usize = 24;
 /// Words of the `Frame` block at most.
@@ -144,13 +145,14 @@ struct Parts<'a> {
     observer: &'a mut Observer<HISTORY>,
     combiner: &'a mut Combiner,
     mount: &'a mut Quaternion<f64>,
+    fog_intake: &'a mut FogIntake,
 }
 
 /// The guarded fields and the shadows of `core`.
 #[inline(always)]
 fn split(core: &mut FlightCore) -> (Parts<'_>, &mut Guard) {
-    let FlightCore { attitude, observer, combiner, mount, guard, .. } = core;
-    (Parts { attitude, observer, combiner, mount }, guard)
+    let FlightCore { attitude, observer, combiner, mount, fog_intake, guard, .. } = core;
+    (Parts { attitude, observer, combiner, mount, fog_intake }, guard)
 }
 
 /// The one list of guarded state: the words of `block`, in order. A new state goes into
@@ -161,6 +163,7 @@ fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
         Block::Step => {
             p.attitude.visit_q(v);
             p.attitude.visit_increments(v);
+            p.fog_intake.visit_clock(v);
         }
         Block::Steady => {
             p.observer.visit_steady(v);
