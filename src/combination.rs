@@ -139,6 +139,27 @@ impl Combiner {
     pub fn parity_vector(&self) -> RowVector4<f64> {
         self.parity
     }
+
+    /// The four-FOG solution and the parity vector (used every sample), for the state
+    /// guard ([`crate::guard`]).
+    #[inline(always)]
+    pub fn visit_nominal<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.f64s(self.all.as_mut_slice());
+        let mut solved = u64::from(self.solved);
+        v.word(&mut solved);
+        if V::WRITES {
+            self.solved = u8::try_from(solved).unwrap_or(0);
+        }
+        v.f64s(self.parity.as_mut_slice());
+    }
+
+    /// The solution without FOG `i` (used after an isolation), for the state guard.
+    #[inline(always)]
+    pub fn visit_without<V: crate::guard::Visit>(&mut self, i: usize, v: &mut V) {
+        if let Some(m) = self.without.get_mut(i) {
+            v.f64s(m.as_mut_slice());
+        }
+    }
 }
 
 /// (H_Sᵀ H_S)⁻¹ H_Sᵀ with the rows of FOGs outside `set` zeroed.

@@ -44,6 +44,7 @@ pub mod combination;
 pub mod compensation;
 pub mod flight;
 pub mod frames;
+pub mod guard;
 pub mod intake;
 pub mod integrity;
 pub mod link;

@@ -184,6 +184,12 @@ pub struct Quad<T> {
     q3: T,
 }
 
+impl<T: Default> Default for Quad<T> {
+    fn default() -> Self {
+        Quad::new([T::default(), T::default(), T::default(), T::default()])
+    }
+}
+
 impl<T> Quad<T> {
     /// From an array.
     pub fn new([q0, q1, q2, q3]: [T; 4]) -> Self {

@@ -34,6 +34,8 @@ impl FlightCore {
     /// changed) if [`FlightCore::check_table`] refuses `table`.
     pub fn switch_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
         let combiner = checked_combiner(self.profile.get(), table, &self.fog_map)?;
+        crate::observer::steady_state(&table.observer)?;
+        self.guard_touch();
         self.observer.retune(&table.observer)?;
         let dt = self.profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
@@ -49,12 +51,14 @@ impl FlightCore {
         self.table_crc = table_crc(table);
         let revision = u16::try_from(table.revision).unwrap_or(u16::MAX);
         self.events.log(self.last_output.time_us, Event::TableSwitched, 0, revision);
+        self.guard_seal_all();
         Ok(())
     }
 
     /// Flies on `combiner` from the next sample: the parity logic on its geometry, taking
     /// over an isolated FOG and the counters from the one before.
     pub(super) fn install_geometry(&mut self, combiner: Combiner, noise_rad: f64) {
+        self.guard_touch_combiner();
         let dt = self.profile.dt_s();
         let mut fdi = parity_monitor(self.profile.get(), &combiner, noise_rad, dt);
         if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
@@ -77,6 +81,7 @@ impl FlightCore {
     /// estimate ([`Observer::remove_drift_share`]), and the estimators' noise follows
     /// the triad that flies from now on.
     pub(super) fn on_isolation(&mut self, i: usize, now_us: u64) {
+        self.guard_touch();
         if let Some(fdi) = self.fdi.as_ref() {
             let (share, cov) = (fdi.drift_share_rad_s(i), fdi.drift_share_cov_rad2_s2(i));
             self.observer.remove_drift_share(now_us, &share, &cov);

@@ -25,6 +25,7 @@
 
 mod fog;
 mod geometry;
+mod guard;
 mod propagate;
 mod report;
 mod star_aid;
@@ -197,6 +198,8 @@ pub struct FlightCore {
     /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
     /// mounting check found two FOGs swapped).
     fog_map: [usize; N_FOG],
+    /// The shadows of the guarded state ([`guard`]).
+    guard: guard::Guard,
     /// The log of state changes not yet sent (rarely touched: last).
     events: EventLog,
 }
@@ -222,6 +225,7 @@ const _: fn() = || {
     any_bit_pattern::<Observer<HISTORY>>();
     any_bit_pattern::<Maybe<MountCheck>>();
     any_bit_pattern::<[usize; N_FOG]>();
+    any_bit_pattern::<guard::Guard>();
     any_bit_pattern::<EventLog>();
 };
 
@@ -255,6 +259,7 @@ const STATE_MAP: &[StateField] = state_map!(FlightCore {
     table_crc: u32,
     mounting: Maybe<MountCheck>,
     fog_map: [usize; N_FOG],
+    guard: guard::Guard,
     events: EventLog => EventLog::STATE_MAP,
 });
 
@@ -279,6 +284,8 @@ impl FlightCore {
             let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
             MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
         });
+        // Built in the return value (a local moved into `Ok` would be one more copy of
+        // the core on the boot stack); the guard seals the state on its first check.
         Ok(FlightCore {
             mounting: mounting.into(),
             fog_map: IDENTITY_MAP,
@@ -301,6 +308,7 @@ impl FlightCore {
             observer,
             telemetry: Telemetry::new(),
             last_output: StepOutput::START,
+            guard: guard::Guard::default(),
             events: EventLog::new(),
         })
     }
@@ -312,8 +320,10 @@ impl FlightCore {
 
     /// Sets the attitude (pad alignment without a star tracker) and marks it aligned.
     pub fn align(&mut self, q: Quaternion<f64>) {
+        self.guard_touch();
         self.attitude.set_quaternion(q);
         self.observer.set_aligned();
+        self.guard_seal_all();
     }
 
     /// The profile in use.
@@ -388,6 +398,8 @@ impl FlightCore {
         mut on_increment: impl FnMut(u64, &Vector3<f64>),
     ) -> StepOutput {
         let dt_s = self.profile.dt_s();
+        // The guarded state as the last step left it (restored if a bit flipped since).
+        self.guard_check();
         // Intake: the FOG links into the per-FOG sample queues.
         self.fog_intake.receive(&mut links.fog, &mut self.rx_scratch.0, &mut self.telemetry.counters);
         let mut acc = Integrated::NONE;
@@ -433,6 +445,7 @@ impl FlightCore {
         let o = &self.last_output;
         let status = StatusBits { flags: o.flags, st_status: o.st_status, fdi: o.fdi };
         self.events.on_status(status, o.time_us, &self.fog_map);
+        self.guard_seal();
         out
     }
 }

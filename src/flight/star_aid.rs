@@ -37,7 +37,10 @@ impl FlightCore {
         // Bounded: at most ST_PENDING frames are examined.
         for _ in 0..ST_PENDING {
             match self.star_intake.next_due(now_us, &mut self.telemetry.counters) {
-                Pending::Due(f) => status |= self.apply_star(&f, now_us),
+                Pending::Due(f) => {
+                    self.guard_touch();
+                    status |= self.apply_star(&f, now_us);
+                }
                 Pending::Refused => status |= st_status::REFUSED,
                 Pending::Wait => break,
             }

@@ -124,6 +124,26 @@ pub struct Figures {
 }
 
 impl Figures {
+    /// Its words, for the state guard ([`crate::guard`]).
+    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        let s = &mut self.steady;
+        v.f64s(&mut s.gains.k_b);
+        v.f64s(&mut s.gains.k_u_per_s);
+        for x in [
+            &mut s.prior_var_rad2,
+            &mut s.drift_var_rad2_s2,
+            &mut s.r_rad2,
+            &mut s.arw_var_rad2_s,
+            &mut s.rrw_var_rad2_s3,
+        ] {
+            v.f64(x);
+        }
+        v.f64s(self.noise.as_mut_slice());
+        v.f64s(&mut self.noise_axis);
+        v.f64s(&mut self.arw_axis_rad2_s);
+        v.f64s(&mut self.rrw_axis_rad2_s3);
+    }
+
     /// One FOG's figures on every axis (N = I) until [`Figures::set_noise`].
     pub fn new(steady: SteadyState) -> Self {
         Figures {

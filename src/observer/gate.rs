@@ -70,6 +70,13 @@ impl Streak {
         Some(self.e.norm_squared() / (n * n))
     }
 
+    /// Its words, for the state guard ([`crate::guard`]).
+    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.u32(&mut self.n);
+        v.f64s(self.e.as_mut_slice());
+        v.f64(&mut self.ee);
+    }
+
     /// A frame was used: the streak ends.
     #[inline]
     pub fn end(&mut self) {
@@ -98,6 +105,14 @@ impl Convergence {
     /// A new table's star-tracker 1σ; what was seen stays.
     pub fn set_sigma_st_rad(&mut self, sigma_st_rad: f64) {
         self.sigma_st_rad = sigma_st_rad;
+    }
+
+    /// Its words, for the state guard ([`crate::guard`]).
+    #[inline(always)]
+    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.u32(&mut self.updates);
+        v.f64(&mut self.innov_ms_rad2);
+        v.f64(&mut self.sigma_st_rad);
     }
 
     /// Starts again (a new alignment).

@@ -125,6 +125,21 @@ impl Luenberger {
         self.roots = [0.0; 6];
     }
 
+    /// Its gains and covariance, for the state guard ([`crate::guard`]); the 1σ roots are
+    /// only a Newton step's start.
+    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        for c in self.cov.iter_mut() {
+            v.f64s(c);
+        }
+        v.f64s(&mut self.gains.k_b);
+        v.f64s(&mut self.gains.k_u_per_s);
+        if let Some(a) = self.acquisition.as_mut() {
+            v.f64s(&mut a.gains.k_b);
+            v.f64s(&mut a.gains.k_u_per_s);
+            v.u32(&mut a.for_ms);
+        }
+    }
+
     /// Forgets the last 1σ roots (unaligned).
     #[inline]
     pub fn forget_roots(&mut self) {

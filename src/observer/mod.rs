@@ -267,6 +267,30 @@ impl Filter {
         }
     }
 
+    /// Its gains and covariance, for the state guard ([`crate::guard`]).
+    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.visit(v),
+            Estimator::Mekf => self.mekf.visit(v),
+        }
+    }
+
+    /// Whether the covariance is plausible: every variance finite, at least 0, and at
+    /// most `max_att_rad2` (attitude) or `max_drift_rad2_s2` (drift).
+    pub fn cov_plausible(&self, max_att_rad2: f64, max_drift_rad2_s2: f64) -> bool {
+        let ok = |p: f64, max: f64| (0.0..=max).contains(&p);
+        match self.estimator() {
+            Estimator::Luenberger => {
+                self.luenberger.cov().iter().all(|[a, _, d]| ok(*a, max_att_rad2) && ok(*d, max_drift_rad2_s2))
+            }
+            Estimator::Mekf => {
+                let c = self.mekf.cov();
+                c.paa.diagonal().iter().all(|a| ok(*a, max_att_rad2))
+                    && c.pbb.diagonal().iter().all(|d| ok(*d, max_drift_rad2_s2))
+            }
+        }
+    }
+
     /// Forgets the last 1σ roots (unaligned).
     #[inline]
     pub fn forget_roots(&mut self) {
@@ -422,6 +446,29 @@ impl<const H: usize> Observer<H> {
     #[inline]
     pub fn converged(&self) -> bool {
         self.aligned.get() && self.conv.converged()
+    }
+
+    /// What every step reads: the drift estimate Δω, the last update's time and the
+    /// convergence state, for the
+    /// state guard ([`crate::guard`]).
+    #[inline(always)]
+    pub fn visit_steady<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.f64s(self.drift_rad_s.as_mut_slice());
+        v.opt_u64(&mut self.last_update_tag_us);
+        self.conv.visit(v);
+    }
+
+    /// What a star-tracker frame reads: the last update's Λ, the alignment time, the
+    /// re-acquisition streak, the noise figures, the estimator's gains and covariance,
+    /// for the state guard ([`crate::guard`]).
+    pub fn visit_frame<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.f64s(self.last_q.coords.as_mut_slice());
+        v.opt_u64(&mut self.aligned_us);
+        self.streak.visit(v);
+        self.fig.visit(v);
+        v.f64(&mut self.initial_drift_var_rad2_s2);
+        v.f64s(self.drift_cov0.as_mut_slice());
+        self.filter.visit(v);
     }
 
     /// Records the propagated attitude at the end of a step.

@@ -151,6 +151,8 @@ declare_counters! {
         MountSwapped mount_swapped "pairs of FOGs found swapped in their mounts by the mounting check (flown on the corrected assignment)",
         MountUnverified mount_unverified "FOGs the mounting check could not verify in its first 10 s (no turn about their axes; watched on)",
         MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
+        StateRestored state_restored "guarded state found changed between two steps (a bit flip) and restored from its good copy",
+        StateImplausible state_implausible "guarded state found implausible (attitude norm, drift, covariance): the estimator re-aligned on the star tracker",
     }
     paged [
         FdiAlarms,

@@ -92,6 +92,8 @@ declare_events! {
     18 CommandAccepted "command_accepted" "a telecommand was authenticated and acted on (a: command code; b: its sequence number, low 16 bits)",
     19 CommandRefused "command_refused" "a decoded telecommand was refused (a: command code; b: the refusal code of the command report)",
     20 TableSwitched "table_switched" "the unit switched to a calibration table (a: 0; b: its revision, low 16 bits)",
+    21 StateRestored "state_restored" "guarded state changed between two steps (a bit flip) was restored (a: block, 1 attitude, 2 drift/convergence/combiner, 3 estimator and mount, 4+i combiner without FOG i+1; b: 0 from its good copy, 1 the copy took the flip, 2 neither: derived again, re-aligning)",
+    22 StateImplausible "state_implausible" "guarded state was implausible (a: 1 attitude norm, 2 drift beyond 1000 °/h, 3 covariance): the estimator re-aligns on the next star-tracker frame (b: 0)",
 }
 
 /// One event with its unit time.

@@ -1,0 +1,633 @@
+//! The state guard: the flight core's critical state checked every step against a shadow
+//! copy and its checksum ([`crate::guard`]), restored bit for bit on a mismatch, and its
+//! plausibility checked; so a bit flipped in RAM (a single-event upset) between two
+//! steps never flies.
+//!
+//! Blocks, by when their words change and when they are read ([`Block`]; the one list of
+//! what is guarded is [`visit`]):
+//!
+//! | block | words | saved | checked |
+//! |---|---|---|---|
+//! | `Step` | Λ, the coning terms' two previous increments, the sample clock (unit time) | end of every step | start of every step |
+//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector | end of a step that changed them | start of every step |
+//! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
+//! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
+//!
+//! The covariance and the noise figures also give the reported 1σ every step: a flip in
+//! them between two frames shows in the 1σ until the next frame's check restores them
+//! (at most one tracker period), never in the attitude or the drift estimate.
+//!
+//! A changed block is marked ([`FlightCore::guard_touch`], which first checks the `Frame`
+//! block, so what a step changes was good before) and saved at the end of the step.
+//!
+//! On a mismatch the good copy is written back and the step proceeds exactly as without
+//! the flip: `state_restored` is logged (a: the block, b: 0 restored, 1 the shadow or
+//! checksum took the flip, 2 lost) and counted. A block that neither copy can restore
+//! is derived again from the table (combiner, mount, gains) and the estimator starts
+//! again from the next star-tracker frame (the alignment path).
+//!
+//! Plausibility every step, for what the checksums cannot see (a flip during the step,
+//! or a bug): |Λ| within 1e-9 of 1, each drift component within ±1000 °/h, and at a
+//! frame each variance of the estimator's covariance finite, ≥ 0 and bounded. On a
+//! failure the unit does not claim its attitude: the estimator starts again from the
+//! next star-tracker frame (not aligned, not converged until it converges again), and
+//! `state_implausible` is logged (a: [`Implausible`]) and counted.
+
+use nalgebra::Quaternion;
+
+use super::{FlightCore, HISTORY};
+use crate::attitude::Attitude;
+use crate::calib::N_FOG;
+use crate::combination::Combiner;
+use crate::guard::{Check, Pass, Shadow, Sum, Visit};
+use crate::intake::FogIntake;
+use crate::observer::Observer;
+use crate::telemetry::events::Event;
+use crate::telemetry::Counter;
+
+use super::geometry::{checked_combiner, sample_noise_rad};
+
+/// Words of the `Step` block.
+const STEP_WORDS: usize = 12;
+/// Words of the `Steady` block at most.
+const STEADY_WORDS: usize = 24;
+/// Words of the `Frame` block at most.
+const FRAME_WORDS: usize = 84;
+/// Words of a `Without` block at most.
+const WITHOUT_WORDS: usize = 12;
+
+/// |Λ|² − 1 beyond this is implausible: Λ is normalised every step (to ~1e-16).
+const Q_NORM2_TOL: f64 = 1e-9;
+/// A drift estimate component beyond this is implausible, rad/s (1000 °/h: the FOGs'
+/// uncalibrated biases are tens of °/h).
+const MAX_DRIFT_RAD_S: f64 = 1000.0 * core::f64::consts::PI / 180.0 / 3600.0;
+/// An attitude-error variance beyond this is implausible, rad² (1 rad²).
+const MAX_ATT_VAR_RAD2: f64 = 1.0;
+/// A drift-error variance beyond this is implausible, (rad/s)² ((1 rad/s)²).
+const MAX_DRIFT_VAR_RAD2_S2: f64 = 1.0;
+
+/// A guarded block of the core's state.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Block {
+    /// Λ and the increments: changed every step.
+    Step,
+    /// The drift estimate, the convergence state, the nominal combiner: read every step.
+    Steady,
+    /// What a star-tracker frame reads.
+    Frame,
+    /// The combiner without FOG i.
+    Without(usize),
+}
+
+impl Block {
+    /// Its number in the `state_restored` event (1 `Step`, 2 `Steady`, 3 `Frame`, 4 + i
+    /// `Without(i)`).
+    pub fn id(self) -> u8 {
+        match self {
+            Block::Step => 1,
+            Block::Steady => 2,
+            Block::Frame => 3,
+            Block::Without(i) => 4 + (i as u8 & 3),
+        }
+    }
+
+    /// Every block.
+    pub const ALL: [Block; 3 + N_FOG] = [
+        Block::Step,
+        Block::Steady,
+        Block::Frame,
+        Block::Without(0),
+        Block::Without(1),
+        Block::Without(2),
+        Block::Without(3),
+    ];
+}
+
+/// Which plausibility check failed (the `state_implausible` event's a).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Implausible {
+    /// |Λ| not 1.
+    QuaternionNorm = 1,
+    /// The drift estimate beyond the FOGs' plausible range.
+    Drift = 2,
+    /// A variance of the estimator's covariance negative, not finite or too large.
+    Covariance = 3,
+}
+
+/// The shadows of the guarded blocks and what the step changed.
+#[derive(Debug, Clone, Copy, Default, bytemuck::AnyBitPattern)]
+pub(super) struct Guard {
+    step: Shadow<STEP_WORDS>,
+    steady: Shadow<STEADY_WORDS>,
+    frame: Shadow<FRAME_WORDS>,
+    without: crate::state::Quad<Shadow<WITHOUT_WORDS>>,
+    /// Non-zero: this step changed a block other than `Step` (saved at its end); the
+    /// `Frame` block was checked before.
+    touched: u32,
+    /// The `Without` block the next touch checks.
+    next_without: u32,
+    /// [`SEALED`] once the shadows hold the state (the core is built without a save, so
+    /// that it is built in place: the first check saves instead).
+    sealed: u32,
+}
+
+/// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
+/// sealed: the state is saved again unchecked, at worst one check missed).
+const SEALED: u32 = 0x5EA1_ED5A;
+
+/// [`Guard::touched`]: the combiner changed too.
+const COMBINER_TOUCHED: u32 = 2;
+
+/// The core's guarded fields, borrowed apart from the guard's shadows.
+struct Parts<'a> {
+    attitude: &'a mut Attitude,
+    observer: &'a mut Observer<HISTORY>,
+    combiner: &'a mut Combiner,
+    mount: &'a mut Quaternion<f64>,
+    fog_intake: &'a mut FogIntake,
+}
+
+/// The guarded fields and the shadows of `core`.
+#[inline(always)]
+fn split(core: &mut FlightCore) -> (Parts<'_>, &mut Guard) {
+    let FlightCore { attitude, observer, combiner, mount, fog_intake, guard, .. } = core;
+    (Parts { attitude, observer, combiner, mount, fog_intake }, guard)
+}
+
+/// The one list of guarded state: the words of `block`, in order. A new state goes into
+/// the block whose row in the module's table fits it.
+#[inline(always)]
+fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
+    match block {
+        Block::Step => {
+            p.attitude.visit_q(v);
+            p.attitude.visit_increments(v);
+            p.fog_intake.visit_clock(v);
+        }
+        Block::Steady => {
+            p.observer.visit_steady(v);
+            p.combiner.visit_nominal(v);
+        }
+        Block::Frame => {
+            p.observer.visit_frame(v);
+            v.f64s(p.mount.coords.as_mut_slice());
+        }
+        Block::Without(i) => p.combiner.visit_without(i, v),
+    }
+}
+
+/// [`visit`] through a [`Pass`]: one compiled walk for the blocks checked rarely.
+#[inline(never)]
+fn visit_pass(p: &mut Parts<'_>, block: Block, pass: &mut Pass<'_>) {
+    visit(p, block, pass);
+}
+
+/// Saves the `Step` block of `core` into its shadow (every step: its own walk).
+#[inline(always)]
+fn save_step(core: &mut FlightCore) {
+    let (mut p, g) = split(core);
+    g.step.save(|s| visit(&mut p, Block::Step, s));
+}
+
+/// Saves `block` of `core` into its shadow (through the one walk of [`visit_pass`]).
+#[inline(never)]
+fn save(core: &mut FlightCore, block: Block) {
+    let (mut p, g) = split(core);
+    match block {
+        Block::Step => g.step.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Steady => g.steady.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Frame => g.frame.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Without(i) => {
+            if let Some(sh) = g.without.get_mut(i) {
+                sh.save_pass(|s| visit_pass(&mut p, block, s));
+            }
+        }
+    }
+}
+
+/// Checks `block` of `core` against its checksum; restores it from the shadow when the
+/// shadow is the good copy.
+#[inline(always)]
+fn check(core: &mut FlightCore, block: Block) -> Check {
+    let (mut p, g) = split(core);
+    let live = match block {
+        Block::Step | Block::Steady => {
+            let mut live = Sum::default();
+            visit(&mut p, block, &mut live);
+            live
+        }
+        Block::Frame | Block::Without(_) => {
+            let mut pass = Pass::Sum(Sum::default());
+            visit_pass(&mut p, block, &mut pass);
+            match pass {
+                Pass::Sum(s) => s,
+                _ => Sum::default(),
+            }
+        }
+    };
+    let c = match block {
+        Block::Step => g.step.check(live.0),
+        Block::Steady => g.steady.check(live.0),
+        Block::Frame => g.frame.check(live.0),
+        Block::Without(i) => g.without.get_mut(i).map_or(Check::Intact, |s| s.check(live.0)),
+    };
+    if c == Check::Restore {
+        restore(&mut p, g, block);
+    }
+    c
+}
+
+#[inline(never)]
+#[cold]
+fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
+    match block {
+        Block::Step => g.step.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Steady => g.steady.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Frame => g.frame.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Without(i) => {
+            if let Some(w) = g.without.get(i) {
+                w.restore_pass(|b| visit_pass(p, block, b));
+            }
+        }
+    }
+}
+
+impl FlightCore {
+    /// Saves every block (the core built, or changed between steps).
+    #[inline(never)]
+    #[cold]
+    pub(super) fn guard_seal_all(&mut self) {
+        for b in Block::ALL {
+            save(self, b);
+        }
+        self.guard.touched = 0;
+        self.guard.sealed = SEALED;
+    }
+
+    /// Start of a step: the `Step` and `Steady` blocks checked, then the plausibility of
+    /// Λ and Δω.
+    #[inline(always)]
+    pub(super) fn guard_check(&mut self) {
+        if self.guard.sealed != SEALED {
+            self.guard_seal_all();
+        }
+        self.guard_check_block(Block::Step);
+        self.guard_check_block(Block::Steady);
+        let q = self.attitude.quaternion();
+        if (q.norm_squared() - 1.0).abs() > Q_NORM2_TOL || q.norm_squared().is_nan() {
+            self.implausible(Implausible::QuaternionNorm);
+        }
+        let d = self.observer.drift_rad_s();
+        if !(d.x.abs() <= MAX_DRIFT_RAD_S && d.y.abs() <= MAX_DRIFT_RAD_S && d.z.abs() <= MAX_DRIFT_RAD_S) {
+            self.implausible(Implausible::Drift);
+        }
+    }
+
+    /// A block other than `Step` is about to change (a star-tracker frame is due, a FOG is
+    /// isolated, a table switched): the first time in a step the `Frame` block and the
+    /// covariance's plausibility are checked, and every block is saved at the step's end.
+    #[inline(never)]
+    pub(super) fn guard_touch(&mut self) {
+        if self.guard.touched != 0 {
+            return;
+        }
+        if self.guard.sealed != SEALED {
+            self.guard_seal_all();
+        }
+        self.guard.touched = 1;
+        self.guard_check_block(Block::Frame);
+        // One triad solution a touch, in turn (flown only after an isolation).
+        let i = self.guard.next_without as usize % N_FOG;
+        self.guard.next_without = (i as u32 + 1) % N_FOG as u32;
+        self.guard_check_block(Block::Without(i));
+        if !self.observer.filter().cov_plausible(MAX_ATT_VAR_RAD2, MAX_DRIFT_VAR_RAD2_S2) {
+            self.implausible(Implausible::Covariance);
+        }
+    }
+
+    /// End of a step: the `Step` block saved, and every other block if the step changed it.
+    #[inline(always)]
+    pub(super) fn guard_seal(&mut self) {
+        save_step(self);
+        if self.guard.touched != 0 {
+            self.guard_seal_changed();
+        }
+    }
+
+    #[inline(never)]
+    #[cold]
+    fn guard_seal_changed(&mut self) {
+        save(self, Block::Steady);
+        save(self, Block::Frame);
+        if self.guard.touched & COMBINER_TOUCHED != 0 {
+            for i in 0..N_FOG {
+                save(self, Block::Without(i));
+            }
+        }
+        self.guard.touched = 0;
+    }
+
+    /// The combiner is about to change ([`FlightCore::guard_touch`], and its `Without`
+    /// blocks saved at the step's end).
+    pub(super) fn guard_touch_combiner(&mut self) {
+        self.guard_touch();
+        self.guard.touched |= COMBINER_TOUCHED;
+    }
+
+    /// Checks `block` against its checksum and restores it.
+    #[inline(always)]
+    fn guard_check_block(&mut self, block: Block) {
+        let c = check(self, block);
+        if c != Check::Intact {
+            self.guard_repaired(block, c);
+        }
+    }
+
+    /// A mismatch in `block`, restored from the shadow (or the shadow saved again, or the
+    /// block derived again): logged and counted.
+    #[inline(never)]
+    #[cold]
+    fn guard_repaired(&mut self, block: Block, c: Check) {
+        let how = match c {
+            Check::Intact => return,
+            Check::Restore => 0,
+            Check::ShadowRepaired => {
+                save(self, block);
+                1
+            }
+            Check::Lost => {
+                self.guard_rederive();
+                2
+            }
+        };
+        self.telemetry.counters.bump(Counter::StateRestored);
+        self.events.log(self.last_output.time_us, Event::StateRestored, block.id(), how);
+    }
+
+    /// A block neither copy restores: what derives from the table is derived again, and
+    /// the estimator starts again from the next star-tracker frame.
+    #[inline(never)]
+    #[cold]
+    fn guard_rederive(&mut self) {
+        if let Ok(combiner) = checked_combiner(self.profile.get(), &self.table, &self.fog_map) {
+            let noise_rad = sample_noise_rad(&self.table, self.profile.dt_s());
+            self.install_geometry(combiner, noise_rad);
+        }
+        self.mount = self.table.st_mount();
+        let _ = self.observer.retune(&self.table.observer);
+        self.observer.restart();
+        self.guard_seal_all();
+    }
+
+    /// A plausibility check failed: the estimator starts again from the next star-tracker
+    /// frame, and the unit claims no attitude until it has converged again.
+    #[inline(never)]
+    #[cold]
+    fn implausible(&mut self, what: Implausible) {
+        self.telemetry.counters.bump(Counter::StateImplausible);
+        self.events.log(self.last_output.time_us, Event::StateImplausible, what as u8, 0);
+        self.observer.restart();
+        self.guard_seal_all();
+    }
+
+    /// Flips bit `bit` of word `word` of `block` (tests: an upset between two steps).
+    #[cfg(test)]
+    pub(crate) fn flip_guarded(&mut self, block: Block, word: usize, bit: u32) {
+        visit(&mut split(self).0, block, &mut crate::guard::Flip::new(word, bit));
+    }
+
+    /// Words in `block` (tests).
+    #[cfg(test)]
+    pub(crate) fn guarded_words(&mut self, block: Block) -> usize {
+        let mut c = crate::guard::Count::default();
+        visit(&mut split(self).0, block, &mut c);
+        c.0
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::convert::Infallible;
+
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    use super::*;
+    use crate::calib::CalibrationTable;
+    use crate::flight::{flags, FogLinks, Links, Profile, StepOutput};
+    use crate::frames::fog::FogFrame;
+    use crate::frames::star::{flags as st_flags, StarFrame};
+    use crate::guard::Visit;
+
+    /// A receive link holding one step's bytes.
+    #[derive(Default)]
+    struct BytesIn(Vec<u8>, usize);
+
+    impl embedded_io::ErrorType for BytesIn {
+        type Error = Infallible;
+    }
+    impl embedded_io::ReadReady for BytesIn {
+        fn read_ready(&mut self) -> Result<bool, Infallible> {
+            Ok(self.1 < self.0.len())
+        }
+    }
+    impl embedded_io::Read for BytesIn {
+        fn read(&mut self, out: &mut [u8]) -> Result<usize, Infallible> {
+            let n = (self.0.len() - self.1).min(out.len());
+            out[..n].copy_from_slice(&self.0[self.1..self.1 + n]);
+            self.1 += n;
+            Ok(n)
+        }
+    }
+
+    /// A transmit link that drops what it is given.
+    struct Sink;
+
+    impl embedded_io::ErrorType for Sink {
+        type Error = Infallible;
+    }
+    impl embedded_io::WriteReady for Sink {
+        fn write_ready(&mut self) -> Result<bool, Infallible> {
+            Ok(true)
+        }
+    }
+    impl embedded_io::Write for Sink {
+        fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
+            Ok(buf.len())
+        }
+        fn flush(&mut self) -> Result<(), Infallible> {
+            Ok(())
+        }
+    }
+
+    /// Body rate of the test flight, rad/s.
+    const RATE_RAD_S: [f64; 3] = [2.0e-3, -1.0e-3, 1.5e-3];
+
+    /// Step `n` of a slow tumble with a star tracker at 4 Hz (50 ms latency): four FOG
+    /// frames, and a star-tracker frame every 50th step.
+    fn fly(core: &mut FlightCore, n: u32) -> StepOutput {
+        let table = CalibrationTable::DEFAULT;
+        let dt_s = Profile::SPACECRAFT.dt_s();
+        let w = Vector3::from(RATE_RAD_S);
+        let mut bus = BytesIn::default();
+        for (i, axis) in table.axes().iter().enumerate() {
+            let f = FogFrame::from_physical(i as u8, n as u16, 0, axis.dot(&w) * dt_s, 20.0);
+            bus.0.extend_from_slice(&f.to_bytes());
+        }
+        let mut star = BytesIn::default();
+        if n.is_multiple_of(50) && n >= 20 {
+            let tag_us = u64::from(n - 10) * 5_000;
+            let truth = UnitQuaternion::from_scaled_axis(w * (tag_us as f64 * 1e-6)).into_inner() * table.st_mount();
+            let f = StarFrame::from_physical(st_flags::VALID, n as u16, tag_us, [truth.w, truth.i, truth.j, truth.k]);
+            star.0.extend_from_slice(&f.to_bytes());
+        }
+        let mut out = Sink;
+        core.step(&mut Links { fog: FogLinks::Bus(&mut bus), star: &mut star, out: &mut out })
+    }
+
+    /// A core flown `steps` steps.
+    fn flown(estimator: crate::calib::Estimator, steps: u32) -> FlightCore {
+        let mut table = CalibrationTable::DEFAULT;
+        table.observer.estimator = estimator;
+        let mut core = FlightCore::new(Profile::SPACECRAFT, &table, false).unwrap();
+        for n in 1..=steps {
+            fly(&mut core, n);
+        }
+        core
+    }
+
+    /// The words of `block`.
+    struct Collect(Vec<u64>);
+    impl Visit for Collect {
+        const WRITES: bool = false;
+        fn word(&mut self, w: &mut u64) {
+            self.0.push(*w);
+        }
+    }
+
+    fn words(core: &mut FlightCore, block: Block) -> Vec<u64> {
+        let mut c = Collect(Vec::new());
+        visit(&mut split(core).0, block, &mut c);
+        c.0
+    }
+
+    fn restored(core: &FlightCore) -> u32 {
+        core.telemetry.counters.get(Counter::StateRestored)
+    }
+
+    /// Every bit of every word of every block, flipped between two steps, is found by
+    /// the checks the next step makes and restored bit for bit, once, and logged.
+    #[test]
+    fn every_flip_of_every_block_is_restored() {
+        for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
+            let mut core = flown(est, 2400);
+            assert!(core.last_output().flags & flags::CONVERGED != 0, "{est:?}: the test flight converges");
+            for block in Block::ALL {
+                let n = core.guarded_words(block);
+                assert!(n > 0, "{block:?} holds words");
+                let capacity = match block {
+                    Block::Step => STEP_WORDS,
+                    Block::Steady => STEADY_WORDS,
+                    Block::Frame => FRAME_WORDS,
+                    Block::Without(_) => WITHOUT_WORDS,
+                };
+                assert!(n <= capacity, "{block:?}: {n} words, shadow {capacity}");
+                let good = words(&mut core, block);
+                for word in 0..n {
+                    for bit in 0..64 {
+                        let mut c = core.clone();
+                        c.flip_guarded(block, word, bit);
+                        assert_ne!(words(&mut c, block), good);
+                        // The checks of four steps that touch the state (every
+                        // `Without` block once in four).
+                        for _ in 0..N_FOG {
+                            c.guard_check();
+                            c.guard_touch();
+                            c.guard.touched = 0;
+                        }
+                        assert_eq!(words(&mut c, block), good, "{est:?} {block:?} word {word} bit {bit}");
+                        assert_eq!(restored(&c), 1, "{est:?} {block:?} word {word} bit {bit}");
+                        assert_eq!(c.telemetry.counters.get(Counter::StateImplausible), 0);
+                        let ev = c.events.pending().find(|e| e.event == Event::StateRestored).unwrap();
+                        assert_eq!((ev.event, ev.a, ev.b), (Event::StateRestored, block.id(), 0));
+                    }
+                }
+            }
+        }
+    }
+
+    /// After a flip the flight goes on exactly as without it: every output of the next
+    /// steps identical, bit for bit.
+    #[test]
+    fn a_restored_flight_is_the_undisturbed_flight() {
+        for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
+            let core = flown(est, 2400);
+            for block in Block::ALL {
+                let n = core.clone().guarded_words(block);
+                for word in 0..n {
+                    for bit in [0, 31, 51, 62, 63] {
+                        let (mut a, mut b) = (core.clone(), core.clone());
+                        b.flip_guarded(block, word, bit);
+                        for s in 2401..2621 {
+                            let (mut oa, mut ob) = (fly(&mut a, s), fly(&mut b, s));
+                            if block == Block::Frame {
+                                // Its covariance and noise figures give the 1σ of the
+                                // steps before the next frame's check.
+                                (oa.att_sigma_rad, oa.drift_sigma_rad_s) = ([0.0; 3], [0.0; 3]);
+                                (ob.att_sigma_rad, ob.drift_sigma_rad_s) = ([0.0; 3], [0.0; 3]);
+                            }
+                            assert_eq!(format!("{oa:?}"), format!("{ob:?}"), "{est:?} {block:?} {word} {bit} step {s}");
+                        }
+                        assert_eq!(restored(&b), 1);
+                    }
+                }
+            }
+        }
+    }
+
+    /// A change the checksums cannot see (made and sealed, as a bug or a flip inside the
+    /// step would): Λ off unit norm, or a drift estimate beyond the FOGs' range. The unit
+    /// stops claiming its attitude, re-aligns on the next star-tracker frame and logs it.
+    #[test]
+    fn implausible_state_re_aligns() {
+        for (block, word, bit, what) in
+            [(Block::Step, 0, 61, Implausible::QuaternionNorm), (Block::Steady, 0, 62, Implausible::Drift)]
+        {
+            let mut core = flown(crate::calib::Estimator::Luenberger, 2400);
+            core.flip_guarded(block, word, bit);
+            core.guard_seal_all();
+            let o = fly(&mut core, 2401);
+            assert_eq!(core.telemetry.counters.get(Counter::StateImplausible), 1);
+            assert_eq!(restored(&core), 0);
+            assert_eq!(o.flags & flags::CONVERGED, 0, "{what:?}: not converged");
+            let ev = core.events.pending().find(|e| e.event == Event::StateImplausible).unwrap();
+            assert_eq!((ev.event, ev.a), (Event::StateImplausible, what as u8));
+            // The next star-tracker frame aligns again.
+            let mut aligned_at = None;
+            for s in 2402..2502 {
+                fly(&mut core, s);
+                if core.observer().aligned() && aligned_at.is_none() {
+                    aligned_at = Some(s);
+                }
+            }
+            assert_eq!(aligned_at, Some(2450), "{what:?}");
+            let q = core.last_output().q;
+            assert!((q.norm() - 1.0).abs() < 1e-12);
+        }
+    }
+
+    /// A block neither copy can restore (the live words and the shadow both changed) is
+    /// derived again from the table and the estimator re-aligns.
+    #[test]
+    fn a_lost_block_is_derived_again() {
+        let mut core = flown(crate::calib::Estimator::Luenberger, 2400);
+        let nominal = core.combiner;
+        core.guard.steady.flip_word(7, 12);
+        core.flip_guarded(Block::Steady, 8, 40);
+        fly(&mut core, 2401);
+        assert_eq!(core.combiner, nominal);
+        assert!(!core.observer().converged());
+        let ev = core.events.pending().find(|e| e.event == Event::StateRestored).unwrap();
+        assert_eq!((ev.event, ev.a, ev.b), (Event::StateRestored, Block::Steady.id(), 2));
+    }
+}
