@@ -12,6 +12,11 @@
 //!   fault): the estimator takes the frame and reopens its gate.
 //! - Convergence ([`Convergence`]): the running mean-square mismatch the fixed-gain
 //!   observer's gate waits for.
+//! - The consistency monitor ([`Monitor`]): from the [`SUSPECT_FRAMES`]-th gated frame in
+//!   a row the estimate is not reported converged; [`REALIGN_FRAMES`] in a row whose
+//!   inertial corrections Λ* ∘ Λ(t_s)⁻¹ agree with each other (the tracker's attitude
+//!   changed between them as the gyros propagated it: the propagated attitude, not the
+//!   tracker, is off) re-align the attitude on the tracker at once.
 
 use nalgebra::{Quaternion, Vector3};
 
@@ -22,6 +27,13 @@ pub const CHI2_GATE: f64 = 16.266;
 /// Consecutive gated frames that agree with each other and re-acquire (8 at 4 Hz: 2 s):
 /// the attitude, not the star tracker, is off (after a long outage or a fault).
 pub const REACQUIRE_FRAMES: u32 = 8;
+
+/// Consecutive gated frames from which the estimate is no longer reported converged (2
+/// at 4 Hz: 0.25 s): two gated frames in a row happen once in 10⁶ nominal frames.
+pub const SUSPECT_FRAMES: u32 = 2;
+/// Consecutive gated frames whose inertial corrections agree that re-align the attitude
+/// on the tracker (4 at 4 Hz: 0.75 s after the first).
+pub const REALIGN_FRAMES: u32 = 4;
 
 /// Whether a frame's star-tracker quaternion can be used: finite and unit (to 1e-5 in
 /// |q|²).
@@ -74,6 +86,65 @@ impl Streak {
     #[inline]
     pub fn end(&mut self) {
         *self = Streak::default();
+    }
+}
+
+/// The consistency monitor between the star tracker and the propagated attitude:
+/// consecutive gated frames and the running sums of their inertial corrections
+/// d = 2 vect(Λ* ∘ Λ(t_s)⁻¹) (the rotation that takes the propagated attitude onto the
+/// tracker's, in the ICS: constant over frames when the attitude took a jump, however the
+/// body turns; scattered for tracker outliers).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Monitor {
+    n: u32,
+    d: Vector3<f64>,
+    dd: f64,
+    /// The next frame re-aligns whatever its mismatch ([`Monitor::force`]).
+    forced: bool,
+}
+
+impl Monitor {
+    /// A gated frame's inertial correction `d` (rad) into the run, the mismatch variance
+    /// per axis `var` (rad²): `Some(|mean|²)` of the run's corrections when
+    /// [`REALIGN_FRAMES`] in a row agree with each other within the gate: re-align; else
+    /// `None`.
+    pub fn realigns(&mut self, d: &Vector3<f64>, var: f64) -> Option<f64> {
+        self.n = self.n.saturating_add(1);
+        self.d += d;
+        self.dd += d.norm_squared();
+        let n = f64::from(self.n);
+        // Spread of the corrections about their mean, per frame (the gate of one frame).
+        let spread = (self.dd - self.d.norm_squared() / n) / n;
+        if self.n < REALIGN_FRAMES || outside(spread, var) {
+            return None;
+        }
+        Some(self.d.norm_squared() / (n * n))
+    }
+
+    /// Whether the last [`SUSPECT_FRAMES`] frames or more were gated in a row (or a
+    /// re-alignment was asked for): the propagated attitude may be off, the estimate is
+    /// not reported converged.
+    #[inline]
+    pub fn suspect(&self) -> bool {
+        self.n >= SUSPECT_FRAMES || self.forced
+    }
+
+    /// The next frame re-aligns the attitude whatever its mismatch (the state was found
+    /// corrupted); until then the estimate is suspect.
+    pub fn force(&mut self) {
+        self.forced = true;
+    }
+
+    /// Whether a re-alignment was asked for ([`Monitor::force`]).
+    #[inline]
+    pub fn forced(&self) -> bool {
+        self.forced
+    }
+
+    /// A frame was used (or the attitude re-aligned): the run ends.
+    #[inline]
+    pub fn end(&mut self) {
+        *self = Monitor::default();
     }
 }
 
@@ -169,6 +240,33 @@ mod tests {
         }
         s.end();
         assert_eq!(s, Streak::default());
+    }
+
+    #[test]
+    fn a_jump_the_frames_agree_on_realigns_on_the_fourth_and_is_suspect_from_the_second() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        let d = Vector3::new(2e-3, -1e-3, 5e-4);
+        for k in 1..REALIGN_FRAMES {
+            assert_eq!(m.suspect(), k > SUSPECT_FRAMES, "frame {k}");
+            assert_eq!(m.realigns(&(d * (1.0 + 1e-4 * f64::from(k))), var), None, "frame {k}");
+            assert_eq!(m.suspect(), k >= SUSPECT_FRAMES, "frame {k}");
+        }
+        let mean2 = m.realigns(&d, var).expect("re-aligns");
+        assert!((mean2 / d.norm_squared() - 1.0).abs() < 1e-3);
+        m.end();
+        assert!(!m.suspect());
+    }
+
+    #[test]
+    fn scattered_gated_frames_are_suspect_but_never_realign() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        for k in 0..3 * REALIGN_FRAMES {
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            assert_eq!(m.realigns(&Vector3::new(0.0, sign * 1e-3, 0.0), var), None);
+        }
+        assert!(m.suspect());
     }
 
     #[test]

@@ -117,6 +117,16 @@ impl Luenberger {
         self.refresh_isotropic(fig);
     }
 
+    /// A re-alignment on one frame, the drift estimate kept: each axis's attitude known
+    /// to R, uncorrelated with its drift, whose variance stays.
+    pub fn realign(&mut self, fig: &Figures) {
+        let r = fig.steady.r_rad2;
+        for c in self.cov.iter_mut() {
+            *c = [r, 0.0, c[2]];
+        }
+        self.refresh_isotropic(fig);
+    }
+
     /// Starts again from nothing (a new alignment follows).
     pub fn restart(&mut self, fig: &Figures) {
         self.cov = [[0.0; 3]; 3];

@@ -85,6 +85,13 @@ impl Mekf {
         self.cov = MekfCov::aligned(fig.steady.r_rad2, sb2, &fig.noise);
     }
 
+    /// A re-alignment on one frame, the drift estimate kept: the attitude known to the
+    /// star tracker's noise R, uncorrelated with the bias, whose covariance stays.
+    pub fn realign(&mut self, fig: &Figures) {
+        self.cov.paa = Matrix3::identity() * fig.steady.r_rad2;
+        self.cov.pab = Matrix3::zeros();
+    }
+
     /// Forgets the last 1σ roots (unaligned, or a restart).
     #[inline]
     pub fn forget_roots(&mut self) {

@@ -56,12 +56,12 @@ use crate::attitude::Attitude;
 use crate::calib::{Estimator, ObserverConfig, ObserverGains};
 use crate::math;
 use gains::{initial_drift_var_rad2_s2, Figures, ARCSEC_RAD};
-use gate::{Convergence, Streak};
+use gate::{Convergence, Monitor, Streak};
 use luenberger::Luenberger;
 use mekf::Mekf;
 
 pub use gains::{steady_state, steady_state_gains, GainError, SteadyState};
-pub use gate::{CHI2_GATE, REACQUIRE_FRAMES};
+pub use gate::{CHI2_GATE, REACQUIRE_FRAMES, REALIGN_FRAMES, SUSPECT_FRAMES};
 pub use history::History;
 
 /// A star-tracker frame's mismatch, heard but not used ([`Observer::listen`]).
@@ -81,6 +81,9 @@ pub struct Updated {
     /// The frame ended a streak of gated frames that agreed with each other: the
     /// estimator re-acquired.
     pub reacquired: bool,
+    /// The consistency monitor re-aligned the attitude on the frame ([`gate::Monitor`]);
+    /// `e_rad` is the disagreement.
+    pub realigned: bool,
 }
 
 /// Why a star-tracker frame did not update the observer.
@@ -188,6 +191,15 @@ impl Filter {
         }
     }
 
+    /// A re-alignment on one frame ([`Observer::realign`]), the drift estimate kept: the
+    /// attitude known to R, uncorrelated with the drift, whose covariance stays.
+    pub fn realign(&mut self, fig: &Figures) {
+        match self {
+            Filter::Luenberger(l) => l.realign(fig),
+            Filter::Mekf(m) => m.realign(fig),
+        }
+    }
+
     /// The noise figures per axis changed (`fig`).
     pub fn set_noise(&mut self, fig: &Figures) {
         match self {
@@ -263,6 +275,8 @@ pub struct Observer<const H: usize> {
     last_q: Quaternion<f64>,
     conv: Convergence,
     streak: Streak,
+    /// The consistency monitor between the tracker and the propagated attitude.
+    monitor: Monitor,
     fig: Figures,
     /// Each FOG's drift variance at alignment, (rad/s)² (the table's initial drift 1σ
     /// squared).
@@ -285,6 +299,7 @@ impl<const H: usize> Observer<H> {
             last_q: Quaternion::identity(),
             conv: Convergence::new(sigma_st_rad),
             streak: Streak::default(),
+            monitor: Monitor::default(),
             fig: Figures::new(steady),
             initial_drift_var_rad2_s2: 0.0,
             drift_cov0: Matrix3::zeros(),
@@ -360,10 +375,19 @@ impl<const H: usize> Observer<H> {
     }
 
     /// Converged: aligned, at least 40 updates, and the mean-square mismatch (per axis)
-    /// within 3σ of the star tracker's ([`Convergence`]).
+    /// within 3σ of the star tracker's ([`Convergence`]), and the consistency monitor
+    /// not suspecting the attitude ([`gate::Monitor::suspect`]: the last frames gated in
+    /// a row, or a re-alignment asked for).
     #[inline]
     pub fn converged(&self) -> bool {
-        self.aligned && self.conv.converged()
+        self.aligned && self.conv.converged() && !self.monitor.suspect()
+    }
+
+    /// Re-aligns the attitude on the next star-tracker frame whatever its mismatch (the
+    /// estimator's state was found corrupted), as the consistency monitor does on a
+    /// persistent disagreement ([`Observer::realign`]); not converged until then.
+    pub fn realign_on_next_frame(&mut self) {
+        self.monitor.force();
     }
 
     /// Records the propagated attitude at the end of a step.
@@ -454,9 +478,13 @@ impl<const H: usize> Observer<H> {
         let (q_at, q_meas) = self.at_frame(time_us, q_st, mount)?;
         if !self.aligned {
             self.align(att, now_us, time_us, &q_at, &q_meas);
-            return Ok(Updated { e_rad: Vector3::zeros(), reacquired: false });
+            return Ok(Updated { e_rad: Vector3::zeros(), reacquired: false, realigned: false });
         }
         let e = gate::mismatch_rad(&q_at, &q_meas);
+        if self.monitor.forced() {
+            self.realign(att, now_us, time_us, &q_at, &q_meas);
+            return Ok(Updated { e_rad: e, reacquired: false, realigned: true });
+        }
         let at = UpdateAt {
             e_rad: &e,
             converged: self.conv.converged(),
@@ -466,7 +494,12 @@ impl<const H: usize> Observer<H> {
             q_at: &q_at,
             last_q: &self.last_q,
         };
-        let corr = self.filter.update(&self.fig, &at, &mut self.streak)?;
+        let corr = match self.filter.update(&self.fig, &at, &mut self.streak) {
+            Ok(corr) => corr,
+            Err(UpdateError::Gated) => return self.on_gated(att, (now_us, time_us), (&q_at, &q_meas), &e),
+            Err(err) => return Err(err),
+        };
+        self.monitor.end();
         // Body correction at t_s as an inertial left factor: Λ(t_s) ∘ q(corr) ∘ Λ(t_s)⁻¹.
         let c = q_at * math::quat_from_rotvec(&corr.body_rad) * q_at.conjugate();
         self.history.fix(att, now_us, time_us, &c, &corr.d_drift_rad_s);
@@ -474,7 +507,64 @@ impl<const H: usize> Observer<H> {
         self.last_q = c * q_at;
         self.conv.note(e.norm_squared());
         self.last_update_tag_us = Some(time_us);
-        Ok(Updated { e_rad: e, reacquired: corr.reacquired })
+        Ok(Updated { e_rad: e, reacquired: corr.reacquired, realigned: false })
+    }
+
+    /// A gated frame (mismatch `e`, Λ(t_s) and Λ* in `q`, at `times_us` = (now, t_s))
+    /// into the consistency monitor: refused, unless it is the [`gate::REALIGN_FRAMES`]-th
+    /// gated in a row and their inertial corrections agree, when the attitude re-aligns
+    /// on it ([`Observer::realign`]).
+    #[inline(never)]
+    fn on_gated(
+        &mut self,
+        att: &mut Attitude,
+        (now_us, time_us): (u64, u64),
+        (q_at, q_meas): (&Quaternion<f64>, &Quaternion<f64>),
+        e: &Vector3<f64>,
+    ) -> Result<Updated, UpdateError> {
+        let d = math::rotvec_from_quat(&(q_meas * q_at.conjugate()));
+        let var = self.mismatch_var_rad2(time_us);
+        if self.monitor.realigns(&d, var).is_none() {
+            return Err(UpdateError::Gated);
+        }
+        self.realign(att, now_us, time_us, q_at, q_meas);
+        Ok(Updated { e_rad: *e, reacquired: false, realigned: true })
+    }
+
+    /// Re-aligns on a frame as the first frame aligns (C ∘ Λ(t_s) = Λ*, the present and
+    /// the history), the estimate already aligned: the drift estimate stays if it is
+    /// plausible (|Δω|² within 25 σ_b² tr N: 5σ of what the FOGs' turn-on biases leave,
+    /// the drift covariance kept, the attitude's set to R), else it starts again from
+    /// zero as at alignment (the acquisition stage too). Not converged until
+    /// [`Convergence`] says so again (40 updates).
+    fn realign(
+        &mut self,
+        att: &mut Attitude,
+        now_us: u64,
+        time_us: u64,
+        q_at: &Quaternion<f64>,
+        q_meas: &Quaternion<f64>,
+    ) {
+        let sb2 = self.initial_drift_var_rad2_s2;
+        let drift = self.drift_rad_s;
+        let plausible = drift.norm_squared() <= 25.0 * sb2 * self.fig.noise.trace();
+        let d_drift = if plausible || !drift.iter().all(|v| v.is_finite()) { Vector3::zeros() } else { -drift };
+        let c = q_meas * q_at.conjugate();
+        self.history.fix(att, now_us, time_us, &c, &d_drift);
+        if plausible {
+            self.filter.realign(&self.fig);
+        } else {
+            self.drift_rad_s = Vector3::zeros();
+            self.aligned_us = Some(time_us);
+            self.filter.align(&self.fig, sb2);
+            self.drift_cov0 = self.fig.noise * sb2;
+        }
+        self.last_update_tag_us = Some(time_us);
+        self.last_q = c * q_at;
+        self.conv.reset();
+        self.conv.aligned();
+        self.streak.end();
+        self.monitor.end();
     }
 
     /// The first frame: C ∘ Λ(t_s) = Λ*, applied to the present and the history. The
@@ -499,6 +589,7 @@ impl<const H: usize> Observer<H> {
         self.drift_cov0 = self.fig.noise * sb2;
         self.last_q = c * q_at;
         self.conv.aligned();
+        self.monitor.end();
     }
 
     /// Starts again from an unaligned state (a FOG found mounted wrong before the unit
@@ -514,6 +605,7 @@ impl<const H: usize> Observer<H> {
         self.last_update_tag_us = None;
         self.filter.restart(&self.fig);
         self.streak.end();
+        self.monitor.end();
     }
 
     /// Takes out of the drift estimate what it has learned of a constant drift

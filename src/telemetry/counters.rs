@@ -150,6 +150,7 @@ declare_counters! {
         MountSwapped mount_swapped "pairs of FOGs found swapped in their mounts by the mounting check (flown on the corrected assignment)",
         MountUnverified mount_unverified "FOGs the mounting check could not verify in its first 10 s (no turn about their axes; watched on)",
         MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
+        Realigned realigned "re-alignments on the star tracker after a persistent disagreement with the propagated attitude (or a state found corrupted)",
     }
     paged [
         FdiAlarms,

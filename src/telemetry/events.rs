@@ -92,6 +92,7 @@ declare_events! {
     18 CommandAccepted "command_accepted" "a telecommand was authenticated and acted on (a: command code; b: its sequence number, low 16 bits)",
     19 CommandRefused "command_refused" "a decoded telecommand was refused (a: command code; b: the refusal code of the command report)",
     20 TableSwitched "table_switched" "the unit switched to a calibration table (a: 0; b: its revision, low 16 bits)",
+    21 Realigned "realigned" "the star tracker and the propagated attitude disagreed on consecutive frames that agree with each other: the attitude was re-aligned on the tracker, not converged until the estimate converges again (a: the disagreement in whole degrees, saturating; b: in arcsec, saturating at 65,535)",
 }
 
 /// One event with its unit time.
