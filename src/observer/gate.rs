@@ -57,29 +57,44 @@ pub fn outside(e2: f64, var: f64) -> bool {
     e2 > CHI2_GATE * var
 }
 
+/// Consecutive gated frames and the running sums of a vector each gives: whether they
+/// agree with each other ([`Streak`], [`Monitor`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+struct Run {
+    n: u32,
+    sum: Vector3<f64>,
+    sum_sq: f64,
+}
+
+impl Run {
+    /// One more frame's vector `v`: `Some` of the run's sum and length once `frames` in
+    /// a row spread about their mean within the gate (per-axis variance `var`), else
+    /// `None`.
+    fn agree(&mut self, v: &Vector3<f64>, var: f64, frames: u32) -> Option<(Vector3<f64>, f64)> {
+        self.n = self.n.saturating_add(1);
+        self.sum += v;
+        self.sum_sq += v.norm_squared();
+        // Spread of the run's vectors about their mean, per frame.
+        let n = f64::from(self.n);
+        let spread = (self.sum_sq - self.sum.norm_squared() / n) / n;
+        if self.n < frames || outside(spread, var) {
+            return None;
+        }
+        Some((self.sum, n))
+    }
+}
+
 /// Consecutive gated frames and their running sums (re-acquisition).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Streak {
-    n: u32,
-    e: Vector3<f64>,
-    ee: f64,
-}
+pub struct Streak(Run);
 
 impl Streak {
     /// A gated frame's mismatch `e` into the streak: `Some(mean²)` of the streak's
     /// mismatch when [`REACQUIRE_FRAMES`] in a row agree with each other within the gate
     /// (per-axis variance `var`): re-acquire; else `None` (the frame stays refused).
     pub fn reacquires(&mut self, e: &Vector3<f64>, var: f64) -> Option<f64> {
-        self.n = self.n.saturating_add(1);
-        self.e += e;
-        self.ee += e.norm_squared();
-        // Spread of the streak's mismatches about their mean, per frame.
-        let n = f64::from(self.n);
-        let spread = (self.ee - self.e.norm_squared() / n) / n;
-        if self.n < REACQUIRE_FRAMES || outside(spread, var) {
-            return None;
-        }
-        Some(self.e.norm_squared() / (n * n))
+        let (sum, n) = self.0.agree(e, var, REACQUIRE_FRAMES)?;
+        Some(sum.norm_squared() / (n * n))
     }
 
     /// A frame was used: the streak ends.
@@ -96,29 +111,19 @@ impl Streak {
 /// body turns; scattered for tracker outliers).
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Monitor {
-    n: u32,
-    d: Vector3<f64>,
-    dd: f64,
+    run: Run,
     /// The next frame re-aligns whatever its mismatch ([`Monitor::force`]).
     forced: bool,
 }
 
 impl Monitor {
     /// A gated frame's inertial correction `d` (rad) into the run, the mismatch variance
-    /// per axis `var` (rad²): `Some(|mean|²)` of the run's corrections when
-    /// [`REALIGN_FRAMES`] in a row agree with each other within the gate: re-align; else
-    /// `None`.
-    pub fn realigns(&mut self, d: &Vector3<f64>, var: f64) -> Option<f64> {
-        self.n = self.n.saturating_add(1);
-        self.d += d;
-        self.dd += d.norm_squared();
-        let n = f64::from(self.n);
-        // Spread of the corrections about their mean, per frame (the gate of one frame).
-        let spread = (self.dd - self.d.norm_squared() / n) / n;
-        if self.n < REALIGN_FRAMES || outside(spread, var) {
-            return None;
-        }
-        Some(self.d.norm_squared() / (n * n))
+    /// per axis `var` (rad²): `Some` of the run's mean correction (rad) and its length
+    /// when [`REALIGN_FRAMES`] in a row agree with each other within the gate: re-align;
+    /// else `None`.
+    pub fn realigns(&mut self, d: &Vector3<f64>, var: f64) -> Option<(Vector3<f64>, f64)> {
+        let (sum, n) = self.run.agree(d, var, REALIGN_FRAMES)?;
+        Some((sum / n, n))
     }
 
     /// Whether the last [`SUSPECT_FRAMES`] frames or more were gated in a row (or a
@@ -126,7 +131,7 @@ impl Monitor {
     /// not reported converged.
     #[inline]
     pub fn suspect(&self) -> bool {
-        self.n >= SUSPECT_FRAMES || self.forced
+        self.run.n >= SUSPECT_FRAMES || self.forced
     }
 
     /// The next frame re-aligns the attitude whatever its mismatch (the state was found
@@ -252,8 +257,9 @@ mod tests {
             assert_eq!(m.realigns(&(d * (1.0 + 1e-4 * f64::from(k))), var), None, "frame {k}");
             assert_eq!(m.suspect(), k >= SUSPECT_FRAMES, "frame {k}");
         }
-        let mean2 = m.realigns(&d, var).expect("re-aligns");
-        assert!((mean2 / d.norm_squared() - 1.0).abs() < 1e-3);
+        let (mean, n) = m.realigns(&d, var).expect("re-aligns");
+        assert_eq!(n, f64::from(REALIGN_FRAMES));
+        assert!((mean - d).norm() < 1e-3 * d.norm());
         m.end();
         assert!(!m.suspect());
     }

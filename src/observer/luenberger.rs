@@ -117,12 +117,11 @@ impl Luenberger {
         self.refresh_isotropic(fig);
     }
 
-    /// A re-alignment on one frame, the drift estimate kept: each axis's attitude known
-    /// to R, uncorrelated with its drift, whose variance stays.
-    pub fn realign(&mut self, fig: &Figures) {
-        let r = fig.steady.r_rad2;
+    /// A re-alignment, the drift estimate kept: each axis's attitude known to
+    /// `att_var_rad2`, uncorrelated with its drift, whose variance stays.
+    pub fn realign(&mut self, fig: &Figures, att_var_rad2: f64) {
         for c in self.cov.iter_mut() {
-            *c = [r, 0.0, c[2]];
+            *c = [att_var_rad2, 0.0, c[2]];
         }
         self.refresh_isotropic(fig);
     }

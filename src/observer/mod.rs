@@ -191,12 +191,13 @@ impl Filter {
         }
     }
 
-    /// A re-alignment on one frame ([`Observer::realign`]), the drift estimate kept: the
-    /// attitude known to R, uncorrelated with the drift, whose covariance stays.
-    pub fn realign(&mut self, fig: &Figures) {
+    /// A re-alignment ([`Observer::realign`]), the drift estimate kept: the attitude
+    /// known to `att_var_rad2` per axis, uncorrelated with the drift, whose covariance
+    /// stays.
+    pub fn realign(&mut self, fig: &Figures, att_var_rad2: f64) {
         match self {
-            Filter::Luenberger(l) => l.realign(fig),
-            Filter::Mekf(m) => m.realign(fig),
+            Filter::Luenberger(l) => l.realign(fig, att_var_rad2),
+            Filter::Mekf(m) => m.realign(att_var_rad2),
         }
     }
 
@@ -482,7 +483,9 @@ impl<const H: usize> Observer<H> {
         }
         let e = gate::mismatch_rad(&q_at, &q_meas);
         if self.monitor.forced() {
-            self.realign(att, now_us, time_us, &q_at, &q_meas);
+            let c = q_meas * q_at.conjugate();
+            let r = self.fig.steady.r_rad2;
+            self.realign(att, (now_us, time_us), &q_at, &c, r);
             return Ok(Updated { e_rad: e, reacquired: false, realigned: true });
         }
         let at = UpdateAt {
@@ -496,7 +499,7 @@ impl<const H: usize> Observer<H> {
         };
         let corr = match self.filter.update(&self.fig, &at, &mut self.streak) {
             Ok(corr) => corr,
-            Err(UpdateError::Gated) => return self.on_gated(att, (now_us, time_us), (&q_at, &q_meas), &e),
+            Err(UpdateError::Gated) => return self.on_gated(att, (now_us, time_us), (&q_at, &q_meas)),
             Err(err) => return Err(err),
         };
         self.monitor.end();
@@ -510,61 +513,44 @@ impl<const H: usize> Observer<H> {
         Ok(Updated { e_rad: e, reacquired: corr.reacquired, realigned: false })
     }
 
-    /// A gated frame (mismatch `e`, Λ(t_s) and Λ* in `q`, at `times_us` = (now, t_s))
-    /// into the consistency monitor: refused, unless it is the [`gate::REALIGN_FRAMES`]-th
-    /// gated in a row and their inertial corrections agree, when the attitude re-aligns
-    /// on it ([`Observer::realign`]).
+    /// A gated frame (Λ(t_s) and Λ* in `q`, at `times_us` = (now, t_s)) into the
+    /// consistency monitor: refused, unless it is the [`gate::REALIGN_FRAMES`]-th gated in
+    /// a row and their inertial corrections agree, when the attitude re-aligns by their
+    /// mean ([`Observer::realign`]), known to R / n; the disagreement reported is that
+    /// mean.
     #[inline(never)]
     fn on_gated(
         &mut self,
         att: &mut Attitude,
-        (now_us, time_us): (u64, u64),
+        times_us: (u64, u64),
         (q_at, q_meas): (&Quaternion<f64>, &Quaternion<f64>),
-        e: &Vector3<f64>,
     ) -> Result<Updated, UpdateError> {
         let d = math::rotvec_from_quat(&(q_meas * q_at.conjugate()));
-        let var = self.mismatch_var_rad2(time_us);
-        if self.monitor.realigns(&d, var).is_none() {
-            return Err(UpdateError::Gated);
-        }
-        self.realign(att, now_us, time_us, q_at, q_meas);
-        Ok(Updated { e_rad: *e, reacquired: false, realigned: true })
+        let var = self.mismatch_var_rad2(times_us.1);
+        let Some((mean, n)) = self.monitor.realigns(&d, var) else { return Err(UpdateError::Gated) };
+        let c = math::quat_from_rotvec(&mean);
+        let r = self.fig.steady.r_rad2 / n;
+        self.realign(att, times_us, q_at, &c, r);
+        Ok(Updated { e_rad: mean, reacquired: false, realigned: true })
     }
 
-    /// Re-aligns on a frame as the first frame aligns (C ∘ Λ(t_s) = Λ*, the present and
-    /// the history), the estimate already aligned: the drift estimate stays if it is
-    /// plausible (|Δω|² within 25 σ_b² tr N: 5σ of what the FOGs' turn-on biases leave,
-    /// the drift covariance kept, the attitude's set to R), else it starts again from
-    /// zero as at alignment (the acquisition stage too). Not converged until
-    /// [`Convergence`] says so again (40 updates).
+    /// Re-aligns by an inertial correction `c` (C ∘ Λ(t_s), for the present and the
+    /// history; [`Observer::settle_on`]), the attitude then known to `att_var_rad2` per
+    /// axis, the estimate already aligned: the drift estimate stays if it is plausible
+    /// (|Δω|² within 25 σ_b² tr N: 5σ of what the FOGs' turn-on biases leave; its
+    /// covariance kept), else it starts again from zero as at alignment (the acquisition
+    /// stage too). Not converged until [`Convergence`] says so again (40 updates).
     fn realign(
         &mut self,
         att: &mut Attitude,
-        now_us: u64,
-        time_us: u64,
+        times_us: (u64, u64),
         q_at: &Quaternion<f64>,
-        q_meas: &Quaternion<f64>,
+        c: &Quaternion<f64>,
+        att_var_rad2: f64,
     ) {
-        let sb2 = self.initial_drift_var_rad2_s2;
-        let drift = self.drift_rad_s;
-        let plausible = drift.norm_squared() <= 25.0 * sb2 * self.fig.noise.trace();
-        let d_drift = if plausible || !drift.iter().all(|v| v.is_finite()) { Vector3::zeros() } else { -drift };
-        let c = q_meas * q_at.conjugate();
-        self.history.fix(att, now_us, time_us, &c, &d_drift);
-        if plausible {
-            self.filter.realign(&self.fig);
-        } else {
-            self.drift_rad_s = Vector3::zeros();
-            self.aligned_us = Some(time_us);
-            self.filter.align(&self.fig, sb2);
-            self.drift_cov0 = self.fig.noise * sb2;
-        }
-        self.last_update_tag_us = Some(time_us);
-        self.last_q = c * q_at;
-        self.conv.reset();
-        self.conv.aligned();
-        self.streak.end();
-        self.monitor.end();
+        let plausible =
+            self.drift_rad_s.norm_squared() <= 25.0 * self.initial_drift_var_rad2_s2 * self.fig.noise.trace();
+        self.settle_on(att, times_us, (q_at, c), plausible.then_some(att_var_rad2));
     }
 
     /// The first frame: C ∘ Λ(t_s) = Λ*, applied to the present and the history. The
@@ -579,16 +565,44 @@ impl<const H: usize> Observer<H> {
         q_at: &Quaternion<f64>,
         q_meas: &Quaternion<f64>,
     ) {
-        let c = q_meas * q_at.conjugate();
-        self.history.fix(att, now_us, time_us, &c, &Vector3::zeros());
         self.aligned = true;
-        self.aligned_us = Some(time_us);
+        self.settle_on(att, (now_us, time_us), (q_at, &(q_meas * q_at.conjugate())), None);
+    }
+
+    /// Sets the attitude by the inertial correction `c` at a frame (Λ(t_s) and C in `q`,
+    /// at `times_us` = (now, t_s)): C ∘ Λ(t_s) for the present and the history; the drift
+    /// estimate and its covariance kept (`kept_att_var_rad2`: `Some` of the attitude's
+    /// variance per axis) or started again from zero as at alignment, the history
+    /// re-propagated without the old drift. The convergence count starts again.
+    fn settle_on(
+        &mut self,
+        att: &mut Attitude,
+        (now_us, time_us): (u64, u64),
+        (q_at, c): (&Quaternion<f64>, &Quaternion<f64>),
+        kept_att_var_rad2: Option<f64>,
+    ) {
+        let keep_drift = kept_att_var_rad2.is_some();
+        let drift = self.drift_rad_s;
+        let d_drift = if keep_drift || drift == Vector3::zeros() || !drift.iter().all(|v| v.is_finite()) {
+            Vector3::zeros()
+        } else {
+            -drift
+        };
+        self.history.fix(att, now_us, time_us, c, &d_drift);
+        if let Some(var) = kept_att_var_rad2 {
+            self.filter.realign(&self.fig, var);
+        } else {
+            let sb2 = self.initial_drift_var_rad2_s2;
+            self.drift_rad_s = Vector3::zeros();
+            self.aligned_us = Some(time_us);
+            self.filter.align(&self.fig, sb2);
+            self.drift_cov0 = self.fig.noise * sb2;
+        }
         self.last_update_tag_us = Some(time_us);
-        let sb2 = self.initial_drift_var_rad2_s2;
-        self.filter.align(&self.fig, sb2);
-        self.drift_cov0 = self.fig.noise * sb2;
         self.last_q = c * q_at;
+        self.conv.reset();
         self.conv.aligned();
+        self.streak.end();
         self.monitor.end();
     }
 
