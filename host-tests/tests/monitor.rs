@@ -59,11 +59,17 @@ struct Flight {
     steps: Vec<Scored>,
     core: FlightCore,
     realigned: Vec<(f64, u8, u16)>,
+    /// Times the frames stopped claiming converged (`convergence_lost`), s.
+    convergence_lost: Vec<f64>,
     last: StepOutput,
 }
 
 fn fly(estimator: Estimator, jump_rad: f64) -> Flight {
-    let sc = scenario_with(11, RUN_S, estimator).expect("scenario");
+    fly_for(estimator, jump_rad, RUN_S)
+}
+
+fn fly_for(estimator: Estimator, jump_rad: f64, run_s: f64) -> Flight {
+    let sc = scenario_with(11, run_s, estimator).expect("scenario");
     let mut sim = Simulation::new(&sc).expect("simulation");
     let mut eval = Evaluator::new(&sim);
     let mut core = FlightCore::new(sim.profile, &sim.table, false).expect("core");
@@ -71,7 +77,7 @@ fn fly(estimator: Estimator, jump_rad: f64) -> Flight {
     let (mut star_link, mut out_link) = (MockLink::ideal(), MockSink::default());
     let dt_s = sim.profile.dt_s();
     let axis = Vector3::new(1.0, 2.0, 3.0).normalize();
-    let (mut steps, mut realigned) = (Vec::new(), Vec::new());
+    let (mut steps, mut realigned, mut convergence_lost) = (Vec::new(), Vec::new(), Vec::new());
     let mut jumped = false;
     let mut last = None;
     while let Some(input) = sim.next_step() {
@@ -88,8 +94,10 @@ fn fly(estimator: Estimator, jump_rad: f64) -> Flight {
         let out = step_on_mock_links(&mut core, &mut fog_links, &mut star_link, &mut out_link, &input, fogs);
         out_link.bytes.clear();
         while let Some(r) = core.take_event() {
-            if r.event == Event::Realigned {
-                realigned.push((r.time_us as f64 * 1e-6, r.a, r.b));
+            match r.event {
+                Event::Realigned => realigned.push((r.time_us as f64 * 1e-6, r.a, r.b)),
+                Event::ConvergenceLost => convergence_lost.push(r.time_us as f64 * 1e-6),
+                _ => {}
             }
         }
         last = Some(out);
@@ -102,7 +110,7 @@ fn fly(estimator: Estimator, jump_rad: f64) -> Flight {
             bound_arcsec: bound_arcsec(&out.att_sigma_rad),
         });
     }
-    Flight { steps, core, realigned, last: last.expect("steps") }
+    Flight { steps, core, realigned, convergence_lost, last: last.expect("steps") }
 }
 
 /// Three times the largest axis's RMS of the error from [`SETTLE_S`] on, arcsec
@@ -250,4 +258,27 @@ fn the_swapped_fog_recording_stops_claiming_a_good_attitude_within_two_tracker_f
     );
     assert!(remapped_at_s.is_some(), "the swap was never found");
     assert!(longest <= 0.25, "claimed a good attitude beyond the bound for {longest:.2} s in a row");
+}
+
+/// A nominal hour on each estimator: never re-aligned, never a frame claiming a good
+/// attitude beyond the bound; the times the monitor's doubt (two gated frames in a row)
+/// cleared converged are printed (about 1 s each, until the next frame is used).
+#[test]
+#[ignore = "two one-hour flights, about a minute"]
+fn a_nominal_hour_never_realigns() {
+    for estimator in [Estimator::Luenberger, Estimator::Mekf] {
+        let f = fly_for(estimator, 0.0, 3600.0);
+        let (n, _) = silent(&f.steps, 0.0, 0.005);
+        let gated = f.core.counter(Counter::StUpdatesGated);
+        let accepted = f.core.counter(Counter::StFramesAccepted);
+        println!(
+            "{estimator:?} nominal 1 h: {} re-alignments; converged cleared at {:?} s; frames gated {gated} of {}; \
+             claimed good beyond the bound {n}",
+            f.realigned.len(),
+            f.convergence_lost,
+            gated + accepted,
+        );
+        assert!(f.realigned.is_empty(), "{estimator:?}: {:?}", f.realigned);
+        assert_eq!(n, 0, "{estimator:?}");
+    }
 }
