@@ -25,7 +25,7 @@
 //! | [`luenberger`] | eq. (6) with fixed gains, two stages (acquisition, steady state) |
 //! | [`mekf`] | the MEKF: 6-state covariance, its gain and gate |
 //! | [`history`] | the attitude history, [`History::attitude_at`], the lazy fix |
-//! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence |
+//! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence, the consistency monitor |
 //! | [`gains`] | the steady-state Kalman gains (Farrenkopf 1978), the noise figures |
 //!
 //! # Adding an estimator
