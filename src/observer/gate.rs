@@ -35,6 +35,12 @@ pub const SUSPECT_FRAMES: u32 = 2;
 /// on the tracker (4 at 4 Hz: 0.75 s after the first).
 pub const REALIGN_FRAMES: u32 = 4;
 
+/// How far beyond the gate a run's mean correction must lie to re-align, in |d|² per
+/// gate: twice the gate's radius. A jump of the attitude lies far beyond; an estimator
+/// lagging just beyond its gate (an uncalibrated drift being learned) does not, and is
+/// left to re-acquisition ([`Streak`]), which keeps learning the drift.
+pub const REALIGN_GATES: f64 = 4.0;
+
 /// Whether a frame's star-tracker quaternion can be used: finite and unit (to 1e-5 in
 /// |q|²).
 #[inline]
@@ -119,11 +125,12 @@ pub struct Monitor {
 impl Monitor {
     /// A gated frame's inertial correction `d` (rad) into the run, the mismatch variance
     /// per axis `var` (rad²): `Some` of the run's mean correction (rad) and its length
-    /// when [`REALIGN_FRAMES`] in a row agree with each other within the gate: re-align;
-    /// else `None`.
+    /// when [`REALIGN_FRAMES`] in a row or more agree with each other within the gate and
+    /// their mean lies [`REALIGN_GATES`] beyond it: re-align; else `None`.
     pub fn realigns(&mut self, d: &Vector3<f64>, var: f64) -> Option<(Vector3<f64>, f64)> {
         let (sum, n) = self.run.agree(d, var, REALIGN_FRAMES)?;
-        Some((sum / n, n))
+        let mean = sum / n;
+        outside(mean.norm_squared(), REALIGN_GATES * var).then_some((mean, n))
     }
 
     /// Whether the last [`SUSPECT_FRAMES`] frames or more were gated in a row (or a
@@ -262,6 +269,18 @@ mod tests {
         assert!((mean - d).norm() < 1e-3 * d.norm());
         m.end();
         assert!(!m.suspect());
+    }
+
+    #[test]
+    fn agreeing_frames_just_beyond_the_gate_do_not_realign() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        // 1.5 gate radii: beyond the gate, within twice its radius (a lagging estimate).
+        let d = Vector3::new(1.5 * libm::sqrt(CHI2_GATE * var), 0.0, 0.0);
+        for _ in 0..3 * REALIGN_FRAMES {
+            assert_eq!(m.realigns(&d, var), None);
+        }
+        assert!(m.suspect());
     }
 
     #[test]

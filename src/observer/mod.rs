@@ -64,6 +64,13 @@ pub use gains::{steady_state, steady_state_gains, GainError, SteadyState};
 pub use gate::{CHI2_GATE, REACQUIRE_FRAMES, REALIGN_FRAMES, SUSPECT_FRAMES};
 pub use history::History;
 
+/// A drift estimate the re-alignment keeps whatever the table's initial drift 1σ, (rad/s)²:
+/// |Δω| up to 10 °/h, ten times the largest bias residue calibration can leave
+/// ([`crate::integrity::mounting::BIAS_MAX_RAD_S`]; an estimate learning an uncalibrated
+/// offset of a few °/h is kept, a corrupted one of orders of magnitude more is not).
+const DRIFT_PLAUSIBLE_RAD_S2: f64 =
+    100.0 * crate::integrity::mounting::BIAS_MAX_RAD_S * crate::integrity::mounting::BIAS_MAX_RAD_S;
+
 /// A star-tracker frame's mismatch, heard but not used ([`Observer::listen`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Mismatch {
@@ -537,9 +544,9 @@ impl<const H: usize> Observer<H> {
     /// Re-aligns by an inertial correction `c` (C ∘ Λ(t_s), for the present and the
     /// history; [`Observer::settle_on`]), the attitude then known to `att_var_rad2` per
     /// axis, the estimate already aligned: the drift estimate stays if it is plausible
-    /// (|Δω|² within 25 σ_b² tr N: 5σ of what the FOGs' turn-on biases leave; its
-    /// covariance kept), else it starts again from zero as at alignment (the acquisition
-    /// stage too). Not converged until [`Convergence`] says so again (40 updates).
+    /// (|Δω|² within 25 σ_b² tr N, 5σ of what the FOGs' turn-on biases leave, or within
+    /// [`DRIFT_PLAUSIBLE_RAD_S2`]; its covariance kept), else it starts again from zero as
+    /// at alignment (the acquisition stage too). Not converged until [`Convergence`] says so again (40 updates).
     fn realign(
         &mut self,
         att: &mut Attitude,
@@ -548,8 +555,8 @@ impl<const H: usize> Observer<H> {
         c: &Quaternion<f64>,
         att_var_rad2: f64,
     ) {
-        let plausible =
-            self.drift_rad_s.norm_squared() <= 25.0 * self.initial_drift_var_rad2_s2 * self.fig.noise.trace();
+        let bound2 = (25.0 * self.initial_drift_var_rad2_s2 * self.fig.noise.trace()).max(DRIFT_PLAUSIBLE_RAD_S2);
+        let plausible = self.drift_rad_s.norm_squared() <= bound2;
         self.settle_on(att, times_us, (q_at, c), plausible.then_some(att_var_rad2));
     }
 
