@@ -4,7 +4,9 @@
 //! listens for the faulty FOG, and otherwise to the estimator, whose gate, latency
 //! alignment on the attitude history and re-acquisition decide its use
 //! ([`crate::observer`]). The mounting check's verdict is acted on here (a FOG isolated,
-//! a swapped pair remapped). Returns the output frame's star-tracker status bits.
+//! a swapped pair remapped), and a re-alignment by the consistency monitor between the
+//! tracker and the propagated attitude ([`crate::observer::gate::Monitor`]) counted and
+//! logged. Returns the output frame's star-tracker status bits.
 
 use nalgebra::Quaternion;
 
@@ -115,6 +117,12 @@ impl FlightCore {
             Ok(u) => {
                 self.star_intake.used(now_us);
                 counters.bump(Counter::StFramesAccepted);
+                if u.realigned {
+                    counters.bump(Counter::Realigned);
+                    let arcsec = u.e_rad.norm() * 180.0 / core::f64::consts::PI * 3600.0;
+                    // `as` saturates (and takes NaN to 0).
+                    self.events.log(now_us, Event::Realigned, (arcsec / 3600.0) as u8, arcsec as u16);
+                }
                 if u.reacquired {
                     counters.bump(Counter::StReacquired);
                     st_status::UPDATED | st_status::REACQUIRED
@@ -132,6 +140,16 @@ impl FlightCore {
             }
         }
     }
+    /// Re-aligns the attitude on the next star-tracker frame the estimator is given,
+    /// whatever its mismatch, keeping the drift estimate if it is plausible (the path the
+    /// consistency monitor takes on a persistent disagreement,
+    /// [`crate::observer::Observer::realign_on_next_frame`]); the frames do not claim
+    /// converged meanwhile, nor until the estimate converges again. Logged as
+    /// `realigned` when it happens.
+    pub fn realign_from_next_star_frame(&mut self) {
+        self.observer.realign_on_next_frame();
+    }
+
     /// Acts on the mounting check's verdict: a reversed FOG (or one alone at odds with
     /// the tracker) is isolated, a swapped pair flown on the corrected assignment; the
     /// observer starts again, so nothing of the wrong gyro stays in the attitude or the

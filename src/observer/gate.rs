@@ -12,16 +12,35 @@
 //!   fault): the estimator takes the frame and reopens its gate.
 //! - Convergence ([`Convergence`]): the running mean-square mismatch the fixed-gain
 //!   observer's gate waits for.
+//! - The consistency monitor ([`Monitor`]): from the [`SUSPECT_FRAMES`]-th gated frame in
+//!   a row the estimate is not reported converged; [`REALIGN_FRAMES`] in a row whose
+//!   inertial corrections Λ* ∘ Λ(t_s)⁻¹ agree with each other (the tracker's attitude
+//!   changed between them as the gyros propagated it: the propagated attitude, not the
+//!   tracker, is off) re-align the attitude on the tracker at once.
 
 use nalgebra::{Quaternion, Vector3};
 
 use crate::math;
+use crate::state::Flag;
 
 /// χ²₃ gate on the normalised mismatch: 16.27 refuses 0.1 % of nominal frames.
 pub const CHI2_GATE: f64 = 16.266;
 /// Consecutive gated frames that agree with each other and re-acquire (8 at 4 Hz: 2 s):
 /// the attitude, not the star tracker, is off (after a long outage or a fault).
 pub const REACQUIRE_FRAMES: u32 = 8;
+
+/// Consecutive gated frames from which the estimate is no longer reported converged (2
+/// at 4 Hz: 0.25 s): two gated frames in a row happen once in 10⁶ nominal frames.
+pub const SUSPECT_FRAMES: u32 = 2;
+/// Consecutive gated frames whose inertial corrections agree that re-align the attitude
+/// on the tracker (4 at 4 Hz: 0.75 s after the first).
+pub const REALIGN_FRAMES: u32 = 4;
+
+/// How far beyond the gate a run's mean correction must lie to re-align, in |d|² per
+/// gate: twice the gate's radius. A jump of the attitude lies far beyond; an estimator
+/// lagging just beyond its gate (an uncalibrated drift being learned) does not, and is
+/// left to re-acquisition ([`Streak`]), which keeps learning the drift.
+pub const REALIGN_GATES: f64 = 4.0;
 
 /// Whether a frame's star-tracker quaternion can be used: finite and unit (to 1e-5 in
 /// |q|²).
@@ -45,42 +64,107 @@ pub fn outside(e2: f64, var: f64) -> bool {
     e2 > CHI2_GATE * var
 }
 
+/// Consecutive gated frames and the running sums of a vector each gives: whether they
+/// agree with each other ([`Streak`], [`Monitor`]).
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
+struct Run {
+    n: u32,
+    sum: Vector3<f64>,
+    sum_sq: f64,
+}
+
+impl Run {
+    /// One more frame's vector `v`: `Some` of the run's sum and length once `frames` in
+    /// a row spread about their mean within the gate (per-axis variance `var`), else
+    /// `None`.
+    fn agree(&mut self, v: &Vector3<f64>, var: f64, frames: u32) -> Option<(Vector3<f64>, f64)> {
+        self.n = self.n.saturating_add(1);
+        self.sum += v;
+        self.sum_sq += v.norm_squared();
+        // Spread of the run's vectors about their mean, per frame.
+        let n = f64::from(self.n);
+        let spread = (self.sum_sq - self.sum.norm_squared() / n) / n;
+        if self.n < frames || outside(spread, var) {
+            return None;
+        }
+        Some((self.sum, n))
+    }
+}
+
 /// Consecutive gated frames and their running sums (re-acquisition).
 #[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
-pub struct Streak {
-    n: u32,
-    e: Vector3<f64>,
-    ee: f64,
-}
+pub struct Streak(Run);
 
 impl Streak {
     /// A gated frame's mismatch `e` into the streak: `Some(mean²)` of the streak's
     /// mismatch when [`REACQUIRE_FRAMES`] in a row agree with each other within the gate
     /// (per-axis variance `var`): re-acquire; else `None` (the frame stays refused).
     pub fn reacquires(&mut self, e: &Vector3<f64>, var: f64) -> Option<f64> {
-        self.n = self.n.saturating_add(1);
-        self.e += e;
-        self.ee += e.norm_squared();
-        // Spread of the streak's mismatches about their mean, per frame.
-        let n = f64::from(self.n);
-        let spread = (self.ee - self.e.norm_squared() / n) / n;
-        if self.n < REACQUIRE_FRAMES || outside(spread, var) {
-            return None;
-        }
-        Some(self.e.norm_squared() / (n * n))
+        let (sum, n) = self.0.agree(e, var, REACQUIRE_FRAMES)?;
+        Some(sum.norm_squared() / (n * n))
     }
 
     /// Its words, for the state guard ([`crate::guard`]).
     pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
-        v.u32(&mut self.n);
-        v.f64s(self.e.as_mut_slice());
-        v.f64(&mut self.ee);
+        v.u32(&mut self.0.n);
+        v.f64s(self.0.sum.as_mut_slice());
+        v.f64(&mut self.0.sum_sq);
     }
 
     /// A frame was used: the streak ends.
     #[inline]
     pub fn end(&mut self) {
         *self = Streak::default();
+    }
+}
+
+/// The consistency monitor between the star tracker and the propagated attitude:
+/// consecutive gated frames and the running sums of their inertial corrections
+/// d = 2 vect(Λ* ∘ Λ(t_s)⁻¹) (the rotation that takes the propagated attitude onto the
+/// tracker's, in the ICS: constant over frames when the attitude took a jump, however the
+/// body turns; scattered for tracker outliers).
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
+pub struct Monitor {
+    run: Run,
+    /// The next frame re-aligns whatever its mismatch ([`Monitor::force`]).
+    forced: Flag,
+}
+
+impl Monitor {
+    /// A gated frame's inertial correction `d` (rad) into the run, the mismatch variance
+    /// per axis `var` (rad²): `Some` of the run's mean correction (rad) and its length
+    /// when [`REALIGN_FRAMES`] in a row or more agree with each other within the gate and
+    /// their mean lies [`REALIGN_GATES`] beyond it: re-align; else `None`.
+    pub fn realigns(&mut self, d: &Vector3<f64>, var: f64) -> Option<(Vector3<f64>, f64)> {
+        let (sum, n) = self.run.agree(d, var, REALIGN_FRAMES)?;
+        let mean = sum / n;
+        outside(mean.norm_squared(), REALIGN_GATES * var).then_some((mean, n))
+    }
+
+    /// Whether the last [`SUSPECT_FRAMES`] frames or more were gated in a row (or a
+    /// re-alignment was asked for): the propagated attitude may be off, the estimate is
+    /// not reported converged.
+    #[inline]
+    pub fn suspect(&self) -> bool {
+        self.run.n >= SUSPECT_FRAMES || self.forced.get()
+    }
+
+    /// The next frame re-aligns the attitude whatever its mismatch (the state was found
+    /// corrupted); until then the estimate is suspect.
+    pub fn force(&mut self) {
+        self.forced.set(true);
+    }
+
+    /// Whether a re-alignment was asked for ([`Monitor::force`]).
+    #[inline]
+    pub fn forced(&self) -> bool {
+        self.forced.get()
+    }
+
+    /// A frame was used (or the attitude re-aligned): the run ends.
+    #[inline]
+    pub fn end(&mut self) {
+        *self = Monitor::default();
     }
 }
 
@@ -184,6 +268,46 @@ mod tests {
         }
         s.end();
         assert_eq!(s, Streak::default());
+    }
+
+    #[test]
+    fn a_jump_the_frames_agree_on_realigns_on_the_fourth_and_is_suspect_from_the_second() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        let d = Vector3::new(2e-3, -1e-3, 5e-4);
+        for k in 1..REALIGN_FRAMES {
+            assert_eq!(m.suspect(), k > SUSPECT_FRAMES, "frame {k}");
+            assert_eq!(m.realigns(&(d * (1.0 + 1e-4 * f64::from(k))), var), None, "frame {k}");
+            assert_eq!(m.suspect(), k >= SUSPECT_FRAMES, "frame {k}");
+        }
+        let (mean, n) = m.realigns(&d, var).expect("re-aligns");
+        assert_eq!(n, f64::from(REALIGN_FRAMES));
+        assert!((mean - d).norm() < 1e-3 * d.norm());
+        m.end();
+        assert!(!m.suspect());
+    }
+
+    #[test]
+    fn agreeing_frames_just_beyond_the_gate_do_not_realign() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        // 1.5 gate radii: beyond the gate, within twice its radius (a lagging estimate).
+        let d = Vector3::new(1.5 * libm::sqrt(CHI2_GATE * var), 0.0, 0.0);
+        for _ in 0..3 * REALIGN_FRAMES {
+            assert_eq!(m.realigns(&d, var), None);
+        }
+        assert!(m.suspect());
+    }
+
+    #[test]
+    fn scattered_gated_frames_are_suspect_but_never_realign() {
+        let var = 1e-10;
+        let mut m = Monitor::default();
+        for k in 0..3 * REALIGN_FRAMES {
+            let sign = if k % 2 == 0 { 1.0 } else { -1.0 };
+            assert_eq!(m.realigns(&Vector3::new(0.0, sign * 1e-3, 0.0), var), None);
+        }
+        assert!(m.suspect());
     }
 
     #[test]

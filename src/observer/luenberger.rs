@@ -118,6 +118,15 @@ impl Luenberger {
         self.refresh_isotropic(fig);
     }
 
+    /// A re-alignment, the drift estimate kept: each axis's attitude known to
+    /// `att_var_rad2`, uncorrelated with its drift, whose variance stays.
+    pub fn realign(&mut self, fig: &Figures, att_var_rad2: f64) {
+        for c in self.cov.iter_mut() {
+            *c = [att_var_rad2, 0.0, c[2]];
+        }
+        self.refresh_isotropic(fig);
+    }
+
     /// Starts again from nothing (a new alignment follows).
     pub fn restart(&mut self, fig: &Figures) {
         self.cov = [[0.0; 3]; 3];

@@ -93,6 +93,13 @@ impl Mekf {
         self.cov = MekfCov::aligned(fig.steady.r_rad2, sb2, &fig.noise);
     }
 
+    /// A re-alignment, the drift estimate kept: the attitude known to `att_var_rad2` per
+    /// axis, uncorrelated with the bias, whose covariance stays.
+    pub fn realign(&mut self, att_var_rad2: f64) {
+        self.cov.paa = Matrix3::identity() * att_var_rad2;
+        self.cov.pab = Matrix3::zeros();
+    }
+
     /// Forgets the last 1σ roots (unaligned, or a restart).
     #[inline]
     pub fn forget_roots(&mut self) {

@@ -25,7 +25,7 @@
 //! | [`luenberger`] | eq. (6) with fixed gains, two stages (acquisition, steady state) |
 //! | [`mekf`] | the MEKF: 6-state covariance, its gain and gate |
 //! | [`history`] | the attitude history, [`History::attitude_at`], the lazy fix |
-//! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence |
+//! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence, the consistency monitor |
 //! | [`gains`] | the steady-state Kalman gains (Farrenkopf 1978), the noise figures |
 //!
 //! # Adding an estimator
@@ -59,13 +59,20 @@ use crate::math;
 use crate::state::{Flag, Maybe};
 use crate::state_map::{state_map, StateField};
 use gains::{initial_drift_var_rad2_s2, Figures, ARCSEC_RAD};
-use gate::{Convergence, Streak};
+use gate::{Convergence, Monitor, Streak};
 use luenberger::Luenberger;
 use mekf::Mekf;
 
 pub use gains::{steady_state, steady_state_gains, GainError, SteadyState};
-pub use gate::{CHI2_GATE, REACQUIRE_FRAMES};
+pub use gate::{CHI2_GATE, REACQUIRE_FRAMES, REALIGN_FRAMES, SUSPECT_FRAMES};
 pub use history::History;
+
+/// A drift estimate the re-alignment keeps whatever the table's initial drift 1σ, (rad/s)²:
+/// |Δω| up to 10 °/h, ten times the largest bias residue calibration can leave
+/// ([`crate::integrity::mounting::BIAS_MAX_RAD_S`]; an estimate learning an uncalibrated
+/// offset of a few °/h is kept, a corrupted one of orders of magnitude more is not).
+const DRIFT_PLAUSIBLE_RAD_S2: f64 =
+    100.0 * crate::integrity::mounting::BIAS_MAX_RAD_S * crate::integrity::mounting::BIAS_MAX_RAD_S;
 
 /// A star-tracker frame's mismatch, heard but not used ([`Observer::listen`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -84,6 +91,9 @@ pub struct Updated {
     /// The frame ended a streak of gated frames that agreed with each other: the
     /// estimator re-acquired.
     pub reacquired: bool,
+    /// The consistency monitor re-aligned the attitude on the frame ([`gate::Monitor`]);
+    /// `e_rad` is the disagreement.
+    pub realigned: bool,
 }
 
 /// Why a star-tracker frame did not update the observer.
@@ -233,6 +243,16 @@ impl Filter {
         }
     }
 
+    /// A re-alignment ([`Observer::realign`]), the drift estimate kept: the attitude
+    /// known to `att_var_rad2` per axis, uncorrelated with the drift, whose covariance
+    /// stays.
+    pub fn realign(&mut self, fig: &Figures, att_var_rad2: f64) {
+        match self.estimator() {
+            Estimator::Luenberger => self.luenberger.realign(fig, att_var_rad2),
+            Estimator::Mekf => self.mekf.realign(att_var_rad2),
+        }
+    }
+
     /// The noise figures per axis changed (`fig`).
     pub fn set_noise(&mut self, fig: &Figures) {
         match self.estimator() {
@@ -332,6 +352,8 @@ pub struct Observer<const H: usize> {
     last_q: Quaternion<f64>,
     conv: Convergence,
     streak: Streak,
+    /// The consistency monitor between the tracker and the propagated attitude.
+    monitor: Monitor,
     fig: Figures,
     /// Each FOG's drift variance at alignment, (rad/s)² (the table's initial drift 1σ
     /// squared).
@@ -352,6 +374,7 @@ impl<const H: usize> Observer<H> {
         last_q: Quaternion<f64>,
         conv: Convergence,
         streak: Streak,
+        monitor: Monitor,
         fig: Figures,
         initial_drift_var_rad2_s2: f64,
         drift_cov0: Matrix3<f64>,
@@ -370,6 +393,7 @@ impl<const H: usize> Observer<H> {
             last_q: Quaternion::identity(),
             conv: Convergence::new(sigma_st_rad),
             streak: Streak::default(),
+            monitor: Monitor::default(),
             fig: Figures::new(steady),
             initial_drift_var_rad2_s2: 0.0,
             drift_cov0: Matrix3::zeros(),
@@ -442,10 +466,12 @@ impl<const H: usize> Observer<H> {
     }
 
     /// Converged: aligned, at least 40 updates, and the mean-square mismatch (per axis)
-    /// within 3σ of the star tracker's ([`Convergence`]).
+    /// within 3σ of the star tracker's ([`Convergence`]), and the consistency monitor
+    /// not suspecting the attitude ([`gate::Monitor::suspect`]: the last frames gated in
+    /// a row, or a re-alignment asked for).
     #[inline]
     pub fn converged(&self) -> bool {
-        self.aligned.get() && self.conv.converged()
+        self.aligned.get() && self.conv.converged() && !self.monitor.suspect()
     }
 
     /// What every step reads: the drift estimate Δω, the last update's time and the
@@ -469,6 +495,13 @@ impl<const H: usize> Observer<H> {
         v.f64(&mut self.initial_drift_var_rad2_s2);
         v.f64s(self.drift_cov0.as_mut_slice());
         self.filter.visit(v);
+    }
+
+    /// Re-aligns the attitude on the next star-tracker frame whatever its mismatch (the
+    /// estimator's state was found corrupted), as the consistency monitor does on a
+    /// persistent disagreement ([`Observer::realign`]); not converged until then.
+    pub fn realign_on_next_frame(&mut self) {
+        self.monitor.force();
     }
 
     /// Records the propagated attitude at the end of a step.
@@ -559,9 +592,15 @@ impl<const H: usize> Observer<H> {
         let (q_at, q_meas) = self.at_frame(time_us, q_st, mount)?;
         if !self.aligned.get() {
             self.align(att, now_us, time_us, &q_at, &q_meas);
-            return Ok(Updated { e_rad: Vector3::zeros(), reacquired: false });
+            return Ok(Updated { e_rad: Vector3::zeros(), reacquired: false, realigned: false });
         }
         let e = gate::mismatch_rad(&q_at, &q_meas);
+        if self.monitor.forced() {
+            let c = q_meas * q_at.conjugate();
+            let r = self.fig.steady.r_rad2;
+            self.realign(att, (now_us, time_us), &q_at, &c, r);
+            return Ok(Updated { e_rad: e, reacquired: false, realigned: true });
+        }
         let at = UpdateAt {
             e_rad: &e,
             converged: self.conv.converged(),
@@ -571,7 +610,12 @@ impl<const H: usize> Observer<H> {
             q_at: &q_at,
             last_q: &self.last_q,
         };
-        let corr = self.filter.update(&self.fig, &at, &mut self.streak)?;
+        let corr = match self.filter.update(&self.fig, &at, &mut self.streak) {
+            Ok(corr) => corr,
+            Err(UpdateError::Gated) => return self.on_gated(att, (now_us, time_us), (&q_at, &q_meas)),
+            Err(err) => return Err(err),
+        };
+        self.monitor.end();
         // Body correction at t_s as an inertial left factor: Λ(t_s) ∘ q(corr) ∘ Λ(t_s)⁻¹.
         let c = q_at * math::quat_from_rotvec(&corr.body_rad) * q_at.conjugate();
         self.history.fix(att, now_us, time_us, &c, &corr.d_drift_rad_s);
@@ -579,7 +623,47 @@ impl<const H: usize> Observer<H> {
         self.last_q = c * q_at;
         self.conv.note(e.norm_squared());
         self.last_update_tag_us = Maybe::some(time_us);
-        Ok(Updated { e_rad: e, reacquired: corr.reacquired })
+        Ok(Updated { e_rad: e, reacquired: corr.reacquired, realigned: false })
+    }
+
+    /// A gated frame (Λ(t_s) and Λ* in `q`, at `times_us` = (now, t_s)) into the
+    /// consistency monitor: refused, unless it is the [`gate::REALIGN_FRAMES`]-th gated in
+    /// a row and their inertial corrections agree, when the attitude re-aligns by their
+    /// mean ([`Observer::realign`]), known to R / n; the disagreement reported is that
+    /// mean.
+    #[inline(never)]
+    fn on_gated(
+        &mut self,
+        att: &mut Attitude,
+        times_us: (u64, u64),
+        (q_at, q_meas): (&Quaternion<f64>, &Quaternion<f64>),
+    ) -> Result<Updated, UpdateError> {
+        let d = math::rotvec_from_quat(&(q_meas * q_at.conjugate()));
+        let var = self.mismatch_var_rad2(times_us.1);
+        let Some((mean, n)) = self.monitor.realigns(&d, var) else { return Err(UpdateError::Gated) };
+        let c = math::quat_from_rotvec(&mean);
+        let r = self.fig.steady.r_rad2 / n;
+        self.realign(att, times_us, q_at, &c, r);
+        Ok(Updated { e_rad: mean, reacquired: false, realigned: true })
+    }
+
+    /// Re-aligns by an inertial correction `c` (C ∘ Λ(t_s), for the present and the
+    /// history; [`Observer::settle_on`]), the attitude then known to `att_var_rad2` per
+    /// axis, the estimate already aligned: the drift estimate stays if it is plausible
+    /// (|Δω|² within 25 σ_b² tr N, 5σ of what the FOGs' turn-on biases leave, or within
+    /// [`DRIFT_PLAUSIBLE_RAD_S2`]; its covariance kept), else it starts again from zero as
+    /// at alignment (the acquisition stage too). Not converged until [`Convergence`] says so again (40 updates).
+    fn realign(
+        &mut self,
+        att: &mut Attitude,
+        times_us: (u64, u64),
+        q_at: &Quaternion<f64>,
+        c: &Quaternion<f64>,
+        att_var_rad2: f64,
+    ) {
+        let bound2 = (25.0 * self.initial_drift_var_rad2_s2 * self.fig.noise.trace()).max(DRIFT_PLAUSIBLE_RAD_S2);
+        let plausible = self.drift_rad_s.norm_squared() <= bound2;
+        self.settle_on(att, times_us, (q_at, c), plausible.then_some(att_var_rad2));
     }
 
     /// The first frame: C ∘ Λ(t_s) = Λ*, applied to the present and the history. The
@@ -594,16 +678,45 @@ impl<const H: usize> Observer<H> {
         q_at: &Quaternion<f64>,
         q_meas: &Quaternion<f64>,
     ) {
-        let c = q_meas * q_at.conjugate();
-        self.history.fix(att, now_us, time_us, &c, &Vector3::zeros());
         self.aligned = Flag::SET;
-        self.aligned_us = Maybe::some(time_us);
+        self.settle_on(att, (now_us, time_us), (q_at, &(q_meas * q_at.conjugate())), None);
+    }
+
+    /// Sets the attitude by the inertial correction `c` at a frame (Λ(t_s) and C in `q`,
+    /// at `times_us` = (now, t_s)): C ∘ Λ(t_s) for the present and the history; the drift
+    /// estimate and its covariance kept (`kept_att_var_rad2`: `Some` of the attitude's
+    /// variance per axis) or started again from zero as at alignment, the history
+    /// re-propagated without the old drift. The convergence count starts again.
+    fn settle_on(
+        &mut self,
+        att: &mut Attitude,
+        (now_us, time_us): (u64, u64),
+        (q_at, c): (&Quaternion<f64>, &Quaternion<f64>),
+        kept_att_var_rad2: Option<f64>,
+    ) {
+        let keep_drift = kept_att_var_rad2.is_some();
+        let drift = self.drift_rad_s;
+        let d_drift = if keep_drift || drift == Vector3::zeros() || !drift.iter().all(|v| v.is_finite()) {
+            Vector3::zeros()
+        } else {
+            -drift
+        };
+        self.history.fix(att, now_us, time_us, c, &d_drift);
+        if let Some(var) = kept_att_var_rad2 {
+            self.filter.realign(&self.fig, var);
+        } else {
+            let sb2 = self.initial_drift_var_rad2_s2;
+            self.drift_rad_s = Vector3::zeros();
+            self.aligned_us = Maybe::some(time_us);
+            self.filter.align(&self.fig, sb2);
+            self.drift_cov0 = self.fig.noise * sb2;
+        }
         self.last_update_tag_us = Maybe::some(time_us);
-        let sb2 = self.initial_drift_var_rad2_s2;
-        self.filter.align(&self.fig, sb2);
-        self.drift_cov0 = self.fig.noise * sb2;
         self.last_q = c * q_at;
+        self.conv.reset();
         self.conv.aligned();
+        self.streak.end();
+        self.monitor.end();
     }
 
     /// Starts again from an unaligned state (a FOG found mounted wrong before the unit
@@ -619,6 +732,7 @@ impl<const H: usize> Observer<H> {
         self.last_update_tag_us = Maybe::none();
         self.filter.restart(&self.fig);
         self.streak.end();
+        self.monitor.end();
     }
 
     /// Takes out of the drift estimate what it has learned of a constant drift

@@ -153,6 +153,7 @@ declare_counters! {
         MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
         StateRestored state_restored "guarded state found changed between two steps (a bit flip) and restored from its good copy",
         StateImplausible state_implausible "guarded state found implausible (attitude norm, drift, covariance): the estimator re-aligned on the star tracker",
+        Realigned realigned "re-alignments on the star tracker after a persistent disagreement with the propagated attitude (or a state found corrupted)",
     }
     paged [
         FdiAlarms,

@@ -94,6 +94,7 @@ declare_events! {
     20 TableSwitched "table_switched" "the unit switched to a calibration table (a: 0; b: its revision, low 16 bits)",
     21 StateRestored "state_restored" "guarded state changed between two steps (a bit flip) was restored (a: block, 1 attitude, 2 drift/convergence/combiner, 3 estimator and mount, 4+i combiner without FOG i+1; b: 0 from its good copy, 1 the copy took the flip, 2 neither: derived again, re-aligning)",
     22 StateImplausible "state_implausible" "guarded state was implausible (a: 1 attitude norm, 2 drift beyond 1000 °/h, 3 covariance): the estimator re-aligns on the next star-tracker frame (b: 0)",
+    23 Realigned "realigned" "the star tracker and the propagated attitude disagreed on consecutive frames that agree with each other: the attitude was re-aligned on the tracker, not converged until the estimate converges again (a: the disagreement in whole degrees, saturating; b: in arcsec, saturating at 65,535)",
 }
 
 /// One event with its unit time.
