@@ -7,7 +7,7 @@
 //!   reset, which rewrites every ELF load segment including `.uninit`, clears it),
 //!   written by the main loop every
 //!   [`SNAPSHOT_STEPS`] through [`FlightCore::snapshot_into`] and read at boot by
-//!   [`resume`], which hands it to [`FlightCore::resume`] (CRC, table, plausibility; its
+//!   [`resume`], which hands it to [`FlightCore::resume`] (check word, table, plausibility; its
 //!   age at the first sample) and spoils it, so one snapshot is resumed at most once. A
 //!   watchdog reset or a HardFault (which resets the unit: [`reset`]) comes back
 //!   aligned, where it was; a cold start or a bad snapshot aligns on the star tracker.
@@ -21,8 +21,10 @@
 use ssis::flight::snapshot::Snapshot;
 use ssis::flight::FlightCore;
 
-/// Steps between two snapshots (200 ms at 5 ms): the snapshot costs about a CRC of its
-/// 400 bytes, spread this thin it is a small share of the step (BENCHMARKS.md).
+/// Steps between two snapshots (200 ms at 5 ms): a snapshot costs about 1,000
+/// instructions (its 104 words written and checksummed), some 25 a step spread this
+/// thin (BENCHMARKS.md); the resume corrects the bridge over the snapshot's age by the
+/// turn's trend.
 pub const SNAPSHOT_STEPS: u32 = 40;
 
 extern "C" {
@@ -66,8 +68,8 @@ pub fn reset() -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
-/// Bytes of flash the code check reads per step.
-pub const CODE_SLICE: usize = 8;
+/// Bytes of flash the code check reads per step: 128 KiB in 160 s at 5 ms.
+pub const CODE_SLICE: usize = 4;
 
 extern "C" {
     static __vector_table: u32;

@@ -2,13 +2,14 @@
 //! not align again from nothing.
 //!
 //! [`FlightCore::snapshot`] writes the state that takes minutes to rebuild into a
-//! [`Snapshot`] of plain 32-bit words, sealed with a CRC-32: the attitude Λ, the drift
+//! [`Snapshot`] of plain 32-bit words, sealed with a check word (Fletcher's checksum
+//! on the words, [`Snapshot::checksum`]): the attitude Λ, the drift
 //! estimate Δω, unit time (the sample clock), the alignment and the estimator's
 //! convergence and covariance, the FOG assignment, the last body increment and the CRC
 //! of the table it was taken under. The board keeps it in RAM its reset does not clear
 //! (`ssis-firmware`: the `.uninit` section) and, after a reset, hands it to
 //! [`FlightCore::resume`], which resumes only a snapshot that passes every check
-//! ([`SnapshotError`]): its CRC, its format, the table in use, and plausibility (a unit
+//! ([`SnapshotError`]): its check word, its format, the table in use, and plausibility (a unit
 //! quaternion, finite values, a drift within [`MAX_DRIFT_RAD_S`]). Its age is checked at
 //! the first FOG sample after the reset: the samples sent meanwhile are bridged on the
 //! last increment, and a snapshot more than [`MAX_AGE_STEPS`] old is dropped (the
@@ -26,7 +27,6 @@
 use nalgebra::{Quaternion, Vector3};
 
 use super::FlightCore;
-use crate::calib::binary::CRC32;
 use crate::observer::ResumeState;
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
@@ -57,8 +57,8 @@ const W_F64: usize = 12;
 const N_F64: usize = 45;
 /// Index of the increment's change per step among the f64 fields.
 const F_TREND: usize = 42;
-const W_CRC: usize = SNAPSHOT_WORDS - 1;
-const _: () = assert!(W_F64 + 2 * N_F64 <= W_CRC);
+const W_CHECK: usize = SNAPSHOT_WORDS - 1;
+const _: () = assert!(W_F64 + 2 * N_F64 <= W_CHECK);
 
 const MOUNT_CLEARED: u32 = 1;
 /// [`W_FLAGS`] of the identity FOG assignment (channel k on axis k, bits 8 + 2k).
@@ -71,7 +71,7 @@ const IDENTITY_FLAGS: u32 = 1 << 10 | 2 << 12 | 3 << 14;
 pub enum SnapshotError {
     /// No snapshot: wrong magic or layout (a cold start).
     Absent = 1,
-    /// Its CRC does not match: corrupted.
+    /// Its check word does not match: corrupted.
     BadCrc = 2,
     /// Taken under another calibration table.
     OtherTable = 3,
@@ -83,7 +83,8 @@ pub enum SnapshotError {
     TooOld = 5,
 }
 
-/// The snapshot: [`SNAPSHOT_WORDS`] plain words, the last one the CRC-32 of the others.
+/// The snapshot: [`SNAPSHOT_WORDS`] plain words, the last one the check word of the
+/// others ([`Snapshot::checksum`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(C)]
 pub struct Snapshot {
@@ -125,24 +126,35 @@ impl Snapshot {
         }
     }
 
-    /// CRC-32 of every word but the last.
-    pub fn crc(&self) -> u32 {
-        let mut d = CRC32.digest();
-        for w in self.words.iter().take(W_CRC) {
-            d.update(&w.to_le_bytes());
+    /// The check word of every word but the last: Fletcher's checksum on 32-bit words
+    /// (a = Σ wᵢ, b = Σ a, both modulo 2³² − 1), folded to 32 bits. A flip of any one
+    /// bit, or of any burst within one word, always changes it; any change of two words
+    /// unless a and b both cancel. About 5 instructions a word, where a bytewise CRC-32
+    /// costs some 30: the snapshot is rewritten every 40 steps within the step's
+    /// budget.
+    pub fn checksum(&self) -> u32 {
+        const M: u64 = 0xFFFF_FFFF;
+        let (mut a, mut b) = (0u64, 0u64);
+        for w in self.words.iter().take(W_CHECK) {
+            a += u64::from(*w);
+            b += a;
+            // Bounded: fold before either can overflow (a < 2³³, b < 2⁶³).
+            a = (a & M) + (a >> 32);
+            b = (b & M) + (b >> 32);
         }
-        d.finalize()
+        let (a, b) = (a % M, b % M);
+        (a ^ b.rotate_left(16) ^ (b >> 16)) as u32 ^ MAGIC
     }
 
-    /// Whether its CRC matches (the first check of [`FlightCore::resume`]).
+    /// Whether its check word matches (the first check of [`FlightCore::resume`]).
     pub fn sealed(&self) -> bool {
-        self.word(W_CRC) == self.crc()
+        self.word(W_CHECK) == self.checksum()
     }
 
-    /// Writes the CRC (the last step of [`FlightCore::snapshot_into`]).
+    /// Writes the check word (the last step of [`FlightCore::snapshot_into`]).
     pub fn seal(&mut self) {
-        let c = self.crc();
-        self.set_word(W_CRC, c);
+        let c = self.checksum();
+        self.set_word(W_CHECK, c);
     }
 
     /// Unit time it was taken at, in samples (the sample clock's index).
@@ -150,10 +162,10 @@ impl Snapshot {
         self.u64_at(W_INDEX)
     }
 
-    /// Spoils the CRC (the board after resuming: the same snapshot is not resumed twice).
+    /// Spoils the check word (the board after resuming: the same snapshot is not resumed twice).
     pub fn invalidate(&mut self) {
-        let c = self.word(W_CRC);
-        self.set_word(W_CRC, !c);
+        let c = self.word(W_CHECK);
+        self.set_word(W_CHECK, !c);
     }
 }
 
@@ -207,13 +219,16 @@ impl FlightCore {
     /// Resumes this core (just built at boot, on the table the snapshot names) from `s`:
     /// the attitude, the drift estimate, unit time, the alignment and the estimator; the
     /// frames report aligned from the first step. Refused, the core unchanged and
-    /// `snapshot_invalid` logged, when a check fails ([`SnapshotError`]); the age is
-    /// checked at the first FOG sample.
+    /// `snapshot_invalid` logged, when a check fails ([`SnapshotError`]; not for
+    /// [`SnapshotError::Absent`], a cold start); the age is checked at the first FOG
+    /// sample.
     #[inline(never)]
     pub fn resume(&mut self, s: &Snapshot) -> Result<(), SnapshotError> {
         let r = self.check_snapshot(s);
         match r {
             Ok(()) => self.apply_snapshot(s),
+            // A cold start has no snapshot: nothing to report.
+            Err(SnapshotError::Absent) => {}
             Err(e) => self.snapshot_refused(e),
         }
         r

@@ -155,6 +155,8 @@ declare_counters! {
         Resumes resumes "resets resumed from the snapshot in RAM",
         SnapshotsInvalid snapshots_invalid "snapshots not resumed after a reset (absent, corrupt, another table, implausible, too old)",
         CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed",
+        SramEccCorrected sram_ecc_corrected "single-bit errors the board's SRAM ECC corrected (STM32H7 RAMECC)",
+        SramEccUncorrected sram_ecc_uncorrected "double-bit errors the board's SRAM ECC detected and could not correct (STM32H7 RAMECC)",
     }
     paged [
         FdiAlarms,

@@ -97,6 +97,7 @@ declare_events! {
     43 Resumed "resumed" "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
     44 SnapshotInvalid "snapshot_invalid" "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
     45 CodeCorrupt "code_corrupt" "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
+    46 SramEcc "sram_ecc" "the board's SRAM ECC reported errors since the last step (a: uncorrected, saturating at 255; b: corrected, saturating)",
 }
 
 /// One event with its unit time.
