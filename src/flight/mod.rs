@@ -28,6 +28,8 @@ mod geometry;
 mod guard;
 mod propagate;
 mod report;
+mod scrub;
+pub mod snapshot;
 mod star_aid;
 
 use propagate::Integrated;
@@ -202,6 +204,13 @@ pub struct FlightCore {
     guard: guard::Guard,
     /// The log of state changes not yet sent (rarely touched: last).
     events: EventLog,
+    /// Resumed from a reset's snapshot taken at this sample index, its age not yet
+    /// checked ([`snapshot`]).
+    resumed_at: Maybe<u64>,
+    /// The snapshot's increment change per step, rad, until the resume is confirmed.
+    resume_trend: [f64; 3],
+    /// The background check of the table in use ([`FlightCore::background`]).
+    scrub: scrub::TableScrub,
 }
 
 // Every field's type but the table's takes any bit pattern as a valid value (issue 30,
@@ -227,6 +236,9 @@ const _: fn() = || {
     any_bit_pattern::<[usize; N_FOG]>();
     any_bit_pattern::<guard::Guard>();
     any_bit_pattern::<EventLog>();
+    any_bit_pattern::<Maybe<u64>>();
+    any_bit_pattern::<[f64; 3]>();
+    any_bit_pattern::<scrub::TableScrub>();
 };
 
 impl FlightCore {
@@ -261,6 +273,9 @@ const STATE_MAP: &[StateField] = state_map!(FlightCore {
     fog_map: [usize; N_FOG],
     guard: guard::Guard,
     events: EventLog => EventLog::STATE_MAP,
+    resumed_at: Maybe<u64>,
+    resume_trend: [f64; 3],
+    scrub: scrub::TableScrub,
 });
 
 impl FlightCore {
@@ -310,6 +325,9 @@ impl FlightCore {
             last_output: StepOutput::START,
             guard: guard::Guard::default(),
             events: EventLog::new(),
+            resumed_at: Maybe::none(),
+            resume_trend: [0.0; 3],
+            scrub: scrub::TableScrub::new(),
         })
     }
 
@@ -427,6 +445,8 @@ impl FlightCore {
         }
         if acc.integrated == 0 {
             self.nothing_integrated(dt_s, &mut acc);
+        } else if let Some(taken_at) = self.resumed_at.get() {
+            self.confirm_resume(taken_at);
         }
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
         // Star-tracker aid: the frames due by now.

@@ -23,6 +23,32 @@ impl FlightCore {
         self.events.log(self.last_output.time_us, event, a, b);
     }
 
+    /// The board's background check of the code in flash found its CRC changed: logged
+    /// (`code_corrupt`) and counted.
+    pub fn note_code_corrupt(&mut self) {
+        self.telemetry.counters.bump(Counter::CodeCorrupt);
+        self.events.log(self.last_output.time_us, Event::CodeCorrupt, 0, 0);
+    }
+
+    /// The board's SRAM ECC reported `corrected` single-bit and `uncorrected` double-bit
+    /// errors since the last step: counted, and logged (`sram_ecc`).
+    pub fn note_sram_ecc(&mut self, corrected: u32, uncorrected: u32) {
+        let c = &mut self.telemetry.counters;
+        c.add(Counter::SramEccCorrected, corrected);
+        c.add(Counter::SramEccUncorrected, uncorrected);
+        let a = u8::try_from(uncorrected).unwrap_or(u8::MAX);
+        let b = u16::try_from(corrected).unwrap_or(u16::MAX);
+        self.events.log(self.last_output.time_us, Event::SramEcc, a, b);
+    }
+
+    /// The background check of the command key found it changed and restored it from
+    /// its record (`telecommand::CommandLink::check_key`): logged (`key_restored`) and
+    /// counted.
+    pub fn note_key_restored(&mut self) {
+        self.telemetry.counters.bump(Counter::KeysRestored);
+        self.events.log(self.last_output.time_us, Event::KeyRestored, 0, 0);
+    }
+
     /// Board: the watchdog warned (the main loop missed a watchdog period).
     pub fn note_watchdog_warning(&mut self) {
         self.log_event(Event::WatchdogWarning, 0, 0);

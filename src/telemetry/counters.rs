@@ -154,6 +154,13 @@ declare_counters! {
         StateRestored state_restored "guarded state found changed between two steps (a bit flip) and restored from its good copy",
         StateImplausible state_implausible "guarded state found implausible (attitude norm, drift, covariance): the estimator re-aligned on the star tracker",
         Realigned realigned "re-alignments on the star tracker after a persistent disagreement with the propagated attitude (or a state found corrupted)",
+        TablesRestored tables_restored "calibration tables in RAM found corrupt by the background check and restored from the store",
+        KeysRestored keys_restored "command keys in RAM found corrupt by the background check and restored from the record",
+        Resumes resumes "resets resumed from the snapshot in RAM",
+        SnapshotsInvalid snapshots_invalid "snapshots not resumed after a reset (absent, corrupt, another table, implausible, too old)",
+        CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed",
+        SramEccCorrected sram_ecc_corrected "single-bit errors the board's SRAM ECC corrected (STM32H7 RAMECC)",
+        SramEccUncorrected sram_ecc_uncorrected "double-bit errors the board's SRAM ECC detected and could not correct (STM32H7 RAMECC)",
     }
     paged [
         FdiAlarms,

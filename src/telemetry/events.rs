@@ -95,6 +95,12 @@ declare_events! {
     21 StateRestored "state_restored" "guarded state changed between two steps (a bit flip) was restored (a: block, 1 attitude, 2 drift/convergence/combiner, 3 estimator and mount, 4+i combiner without FOG i+1; b: 0 from its good copy, 1 the copy took the flip, 2 neither: derived again, re-aligning)",
     22 StateImplausible "state_implausible" "guarded state was implausible (a: 1 attitude norm, 2 drift beyond 1000 °/h, 3 covariance): the estimator re-aligns on the next star-tracker frame (b: 0)",
     23 Realigned "realigned" "the star tracker and the propagated attitude disagreed on consecutive frames that agree with each other: the attitude was re-aligned on the tracker, not converged until the estimate converges again (a: the disagreement in whole degrees, saturating; b: in arcsec, saturating at 65,535)",
+    41 TableRestored "table_restored" "the background check found the calibration table in RAM differing from its CRC: restored from the two-copy store, combiner and gains rebuilt (a: 1 restored, 0 no good copy: flying on as it was, degraded; b: the restored table's revision, low 16 bits)",
+    42 KeyRestored "key_restored" "the background check found the command key in RAM differing from its protected record: restored from the record (a, b: 0)",
+    43 Resumed "resumed" "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
+    44 SnapshotInvalid "snapshot_invalid" "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
+    45 CodeCorrupt "code_corrupt" "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
+    46 SramEcc "sram_ecc" "the board's SRAM ECC reported errors since the last step (a: uncorrected, saturating at 255; b: corrected, saturating)",
 }
 
 /// One event with its unit time.

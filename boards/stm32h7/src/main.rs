@@ -23,6 +23,9 @@
 //!   with the defaulted flag set in every output frame), the flight core, the power-on
 //!   built-in test. This board implements `ssis::bsp::Board` ([`board::Stm32h7`]).
 //! - **Watchdog**: the IWDG (50 ms) starts first thing and is fed once per step.
+//! - **SRAM ECC**: the AXI SRAM, SRAM1–4 and the TCMs correct single-bit errors in
+//!   hardware; the RAMECC monitors' flags are enabled at boot and polled once a step
+//!   ([`board::ecc`]), their counts added to the core's counters and event log.
 //! - **Log**: defmt over RTT (a panic-free RTT channel, [`board::rtt_write`]): at boot
 //!   (reset reason, clock, table), every 10 s (counters, stack high-water).
 //! - **Panics**: none. The release build links only if the optimiser has proved every
@@ -104,6 +107,7 @@ fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, prof
     };
     let mut window = Window::default();
     let mut steps: u32 = 0;
+    board::ecc::enable();
     let mut handled = hw.ticks();
     loop {
         handled = board::wait_for_tick(handled);
@@ -127,6 +131,12 @@ fn fly(hw: &mut board::Stm32h7, core: &mut FlightCore, report: &BootReport, prof
         let ticks = cycles.checked_div(hw.cycles_per_tick).unwrap_or(cycles);
         core.set_step_ticks(u16::try_from(ticks).unwrap_or(u16::MAX));
         window.add(ticks);
+        // The SRAM ECC's flags, once a step: counted and logged in the core.
+        let ecc = board::ecc::poll();
+        if ecc.corrected != 0 || ecc.uncorrected != 0 {
+            core.note_sram_ecc(ecc.corrected, ecc.uncorrected);
+            defmt::warn!("SRAM ECC: {}", ecc);
+        }
 
         steps = steps.wrapping_add(1);
         if steps.is_multiple_of(LOG_EVERY_STEPS) {

@@ -9,6 +9,7 @@
 //! | [`watchdog`] | the IWDG |
 //! | [`calib`] | the calibration flash sector |
 //! | [`rtt`] | the panic-free RTT channel of the defmt log |
+//! | [`ecc`] | the SRAM ECC's error reporting (RAMECC), polled once a step |
 //!
 //! Here: the board's type ([`Stm32h7`], `ssis::bsp::Board`), its bring-up ([`init`]) and
 //! what can go wrong in it.
@@ -16,6 +17,7 @@
 
 mod calib;
 mod clocks;
+pub mod ecc;
 mod rtt;
 mod tick;
 mod uart;
