@@ -186,14 +186,17 @@ pub struct Quad<T> {
 
 impl<T: Default> Default for Quad<T> {
     fn default() -> Self {
-        Quad::new([T::default(), T::default(), T::default(), T::default()])
+        Quad { q0: T::default(), q1: T::default(), q2: T::default(), q3: T::default() }
     }
 }
 
 impl<T> Quad<T> {
-    /// From an array.
-    pub fn new([q0, q1, q2, q3]: [T; 4]) -> Self {
-        Quad { q0, q1, q2, q3 }
+    /// Four copies of `v` (built in place: no array on the stack first).
+    pub fn splat(v: T) -> Self
+    where
+        T: Copy,
+    {
+        Quad { q0: v, q1: v, q2: v, q3: v }
     }
 
     /// Slot `i`, if `i < 4`.

@@ -139,7 +139,7 @@ impl FogIntake {
     pub fn new(fitted: FogSet) -> Self {
         FogIntake {
             fitted,
-            channels: Quad::new([FogChannel::new(), FogChannel::new(), FogChannel::new(), FogChannel::new()]),
+            channels: Quad::splat(FogChannel::new()),
             bus_decoder: StreamDecoder::new(),
             clock: SampleClock { expected: Maybe::none(), index: 0 },
             last_present: fitted,

@@ -444,6 +444,11 @@ impl<const H: usize> Observer<H> {
     /// A new observer of eq. (6) with `gains`, expecting star-tracker noise `sigma_st_rad`
     /// (1σ), gating with the noise figures of `steady`.
     pub fn new(gains: ObserverGains, sigma_st_rad: f64, steady: SteadyState) -> Self {
+        Self::with_filter(Filter::luenberger(Luenberger::new(gains)), sigma_st_rad, steady)
+    }
+
+    /// An observer flying `filter`.
+    fn with_filter(filter: Filter, sigma_st_rad: f64, steady: SteadyState) -> Self {
         Observer {
             history: History::default(),
             drift_rad_s: Vector3::zeros(),
@@ -457,7 +462,7 @@ impl<const H: usize> Observer<H> {
             fig: Figures::new(steady),
             initial_drift_var_rad2_s2: 0.0,
             drift_cov0: Matrix3::zeros(),
-            filter: Filter::luenberger(Luenberger::new(gains)),
+            filter,
         }
     }
 
@@ -465,8 +470,7 @@ impl<const H: usize> Observer<H> {
     /// present, else the steady-state gains.
     pub fn from_config(cfg: &ObserverConfig) -> Result<Self, GainError> {
         let steady = steady_state(cfg)?;
-        let mut o = Self::new(steady.gains, cfg.st_sigma_arcsec * ARCSEC_RAD, steady);
-        o.filter = Filter::of(cfg, &steady.gains);
+        let mut o = Self::with_filter(Filter::of(cfg, &steady.gains), cfg.st_sigma_arcsec * ARCSEC_RAD, steady);
         o.initial_drift_var_rad2_s2 = initial_drift_var_rad2_s2(cfg);
         Ok(o)
     }
