@@ -8,7 +8,7 @@
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
-//! | `Step` | Λ, the coning terms' two previous increments, the sample clock (unit time) | end of every step | start of every step |
+//! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) | end of every step | start of every step |
 //! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector | end of a step that changed them | start of every step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
@@ -48,7 +48,7 @@ use crate::telemetry::Counter;
 use super::geometry::{checked_combiner, sample_noise_rad};
 
 /// Words of the `Step` block.
-const STEP_WORDS: usize = 12;
+const STEP_WORDS: usize = 11;
 /// Words of the `Steady` block at most.
 const STEADY_WORDS: usize = 24;
 /// Words of the `Frame` block at most.

@@ -149,15 +149,10 @@ impl FogIntake {
         }
     }
 
-    /// The sample clock's words (unit time), for the state guard ([`crate::guard`]).
+    /// The sample clock's index (unit time), for the state guard ([`crate::guard`]).
     #[inline(always)]
     pub fn visit_clock<V: crate::guard::Visit>(&mut self, v: &mut V) {
         v.word(&mut self.clock.index);
-        let mut e = self.clock.expected.get().map_or(u64::MAX, u64::from);
-        v.word(&mut e);
-        if V::WRITES {
-            self.clock.expected.set(u16::try_from(e).ok());
-        }
     }
 
     /// Index of the last sample taken since start (its end time is index × Δt).
