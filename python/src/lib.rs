@@ -63,6 +63,15 @@ impl<'py> Progress<'py> {
         }
     }
 
+    /// Reports the end, `done` of `done` (the total was an estimate when the log was read
+    /// as it was replayed).
+    pub(crate) fn end(&mut self, done: u64) {
+        if self.total != done {
+            self.total = done;
+            self.tick(done);
+        }
+    }
+
     /// The callback's first exception, if any.
     pub(crate) fn finish(self) -> PyResult<()> {
         self.failed.map_or(Ok(()), Err)

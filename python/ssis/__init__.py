@@ -164,13 +164,24 @@ def replay(
     table: Optional[Table] = None,
     settle_s: float = 60.0,
     progress: Union[bool, Callable[[int, int], None], None] = None,
+    decimate: int = 1,
+    summary_only: bool = False,
 ) -> Replay:
     """Replays a recorded spacecraft log (one CSV, or link captures) through the flight core,
     as ``ssis-sim replay LOG [--table T] [--settle S] --json``. ``progress``: a callable
-    ``(done, total)``, or ``True`` for a bar on standard error."""
+    ``(done, total)``, or ``True`` for a bar on standard error (the total is estimated from
+    the file's size until the end).
+
+    The arrays hold every output frame: 120 bytes a step, 2 GB for a 24-hour log.
+    ``decimate=N`` keeps every N-th (the first, the (N+1)-th, ...); ``summary_only=True``
+    keeps none (empty arrays). The summary, the conventions and the report are the whole
+    log's either way, and a CSV log is read as it is replayed (docs/RECORDED-LOG.md,
+    "Long logs"), so memory is the arrays' and little else."""
+    if decimate < 1:
+        raise ValueError(f"decimate must be 1 or more, not {decimate}")
     logs = [os.fspath(log)] if isinstance(log, (str, os.PathLike)) else [os.fspath(p) for p in log]
     cb = _bar("replay") if progress is True else (progress or None)
-    d, summary, conv = _ssis.replay(logs, table, settle_s, cb)
+    d, summary, conv = _ssis.replay(logs, table, settle_s, cb, 0 if summary_only else decimate)
     return Replay(
         t_s=d["t_s"],
         q=d["q"].reshape(-1, 4),

@@ -26,6 +26,19 @@ def test_replay_summary_is_the_command_lines(cli, short_log, root):
     np.testing.assert_allclose(three_sigma, want, rtol=1e-9)
 
 
+def test_replay_decimated_and_summary_only_keep_the_summary(short_log, root):
+    table = ssis.Table.read(root / "examples/basilisk/table.toml")
+    full = ssis.replay(short_log, table)
+    every = ssis.replay(short_log, table, decimate=7)
+    none = ssis.replay(short_log, table, summary_only=True)
+    assert every.summary == full.summary and none.summary == full.summary
+    assert every.conventions == full.conventions and none.report == full.report
+    np.testing.assert_array_equal(every.t_s, full.t_s[::7])
+    np.testing.assert_array_equal(every.q, full.q[::7])
+    np.testing.assert_array_equal(every.att_err_arcsec, full.att_err_arcsec[::7])
+    assert len(none.t_s) == 0 and none.q.shape == (0, 4)
+
+
 def _read_log(path):
     """The log's FOG increments and star solutions per row (the reader's unit time)."""
     names = None

@@ -159,6 +159,10 @@ pub struct ConventionReport {
     pub findings: Vec<String>,
     /// What could not be checked, and why.
     pub unchecked: Vec<String>,
+    /// The span at the log's start the check ran on, s, when the log is longer
+    /// (`crate::streamed`: a long log is checked on its first [`crate::streamed::CHECK_SPAN_S`]);
+    /// `None`: the whole log.
+    pub span_s: Option<f64>,
 }
 
 /// Units a FOG column may have been written in, as the slope s they give (s = the log's
@@ -404,6 +408,7 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
             tags: None,
             findings,
             unchecked,
+            span_s: None,
         });
     };
     let mount_inv = table.st_mount().conjugate();
@@ -475,6 +480,7 @@ pub fn check_conventions(rec: &Recorded, table: &CalibrationTable, dt_us: u32) -
         tags,
         findings,
         unchecked,
+        span_s: None,
     })
 }
 
@@ -620,10 +626,11 @@ impl ConventionReport {
     /// The report a person reads.
     pub fn report(&self) -> String {
         let mut s = format!(
-            "conventions: {} pairs of star-tracker solutions against {} (body turns {:.1}″ RMS between them)\n",
+            "conventions: {} pairs of star-tracker solutions against {} (body turns {:.1}″ RMS between them){}\n",
             self.pairs,
             crate::replay::fog_names(self.fogs),
-            self.motion_rms_arcsec
+            self.motion_rms_arcsec,
+            self.span_s.map_or(String::new(), |t| format!(", over the log's first {t:.0} s"))
         );
         for f in &self.forms {
             s.push_str(&format!(

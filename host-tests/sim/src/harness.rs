@@ -305,7 +305,8 @@ impl Evaluator {
     /// Compares one output; `None` if its sample is unknown (no sample integrated yet).
     pub fn evaluate(&mut self, out: &Observed) -> Option<Record> {
         let k = out.time_us / self.dt_us;
-        let p = self.past.iter().find(|p| p.n == k)?;
+        // Truth samples have one number each, the newest most often asked for.
+        let p = self.past.iter().rev().find(|p| p.n == k)?;
         let dt_s = self.dt_us as f64 * 1e-6;
         let e = rotvec_from_quat(&(p.q.conjugate() * out.q)) * ARCSEC_PER_RAD;
         let body_sys = self.combiner.combine(&p.m_sys, out.fogs_used).unwrap_or(p.dtheta);

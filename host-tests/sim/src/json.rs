@@ -165,6 +165,7 @@ pub fn conventions(r: &crate::conventions::ConventionReport) -> Value {
         "findings": r.findings,
         "unchecked": r.unchecked,
         "clean": r.findings.is_empty(),
+        "span_s": r.span_s,
     })
 }
 

@@ -19,6 +19,8 @@
 //!   recorded log as the same bytes, the firmware's period, judging its navigation output).
 //! - [`recorded`], [`replay`], [`check`]: recorded logs (`docs/RECORDED-LOG.md`) replayed through the core.
 //! - [`conventions`]: a log's quaternion form, FOG units and time tags checked against its data.
+//! - [`sc_record`]: a spacecraft recorded log written from a scenario.
+//! - [`streamed`]: a spacecraft CSV log replayed while it is read, in bounded memory.
 
 pub mod accel;
 pub mod check;
@@ -33,6 +35,8 @@ pub mod lv;
 pub mod lv_replay;
 pub mod recorded;
 pub mod replay;
+pub mod sc_record;
 pub mod scenario;
 pub mod star;
+pub mod streamed;
 pub mod truth;

@@ -646,7 +646,7 @@ pub fn log_line(rec: &Recorded) -> String {
 
 /// The shortest decimal that gives back `counts` of `lsb` when the unit rounds it to
 /// its frame's counts (what a log must hold for the replay to send the same bytes).
-fn decimal(counts: i64, lsb: f64) -> String {
+pub(crate) fn decimal(counts: i64, lsb: f64) -> String {
     let v = counts as f64 * lsb;
     let sci = (0..=17)
         .map(|d| format!("{v:.d$e}"))

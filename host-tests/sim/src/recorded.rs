@@ -33,6 +33,9 @@ use ssis::frames::star::StarFrame;
 use ssis::frames::{DecodeError, Frame};
 use ssis::nav::NavState;
 
+mod csv;
+pub use csv::{read_csv, LogStream};
+
 /// One FOG's sample in a row.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FogSample {
@@ -293,7 +296,8 @@ pub fn read_log(paths: &[PathBuf]) -> Result<Recorded> {
     }
 }
 
-fn is_csv(p: &Path) -> bool {
+/// Whether `p` names a CSV log (else a capture).
+pub fn is_csv(p: &Path) -> bool {
     p.extension().is_some_and(|e| e.eq_ignore_ascii_case("csv"))
 }
 
@@ -520,43 +524,26 @@ struct RawRow {
     init: Option<NavState>,
 }
 
-/// Reads a CSV log (`docs/RECORDED-LOG.md`).
-pub fn read_csv(path: &Path) -> Result<Recorded> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let origin = path.display().to_string();
-    let text = String::from_utf8_lossy(bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(&bytes)).into_owned();
-    let mut p = Problems::default();
-    let mut lines = text.split_inclusive('\n').enumerate().map(|(i, l)| (i + 1, l));
-    let (cols, header_line) = loop {
-        let Some((ln, l)) = lines.next() else { bail!("{origin}: empty log: no header line") };
-        let l = l.trim_end_matches(['\n', '\r']);
-        if l.trim().is_empty() || l.starts_with('#') {
-            continue;
-        }
-        break (Columns::parse(l, &origin, ln)?, (ln, l.split(',').count()));
-    };
-    let mut rows = Vec::new();
-    for (ln, raw) in lines {
-        let ended = raw.ends_with('\n');
-        let l = raw.trim_end_matches(['\n', '\r']);
-        if l.trim().is_empty() || l.starts_with('#') {
-            continue;
-        }
-        let fields: Vec<&str> = l.split(',').map(str::trim).collect();
-        if fields.len() != header_line.1 || !ended {
-            let why = if ended {
-                format!("{} fields, the header has {}", fields.len(), header_line.1)
-            } else {
-                "last line without its line end (cut while written?)".to_string()
-            };
-            p.truncated_lines.add(1, || format!("{origin}:{ln}: {why}"));
-            continue;
-        }
-        rows.push(parse_row(&fields, &cols, ln, &origin, &mut p));
-    }
-    let has_truth = cols.true_q[0].is_some();
-    let unit = cols.unit.unwrap_or(LogUnit::Spacecraft);
-    place_rows(rows, unit, origin, p, has_truth)
+/// Column names in messages, spelt out once (a row's parse allocates none).
+mod names {
+    pub const FOG_DTHETA: [&str; 4] = ["fog0_dtheta_rad", "fog1_dtheta_rad", "fog2_dtheta_rad", "fog3_dtheta_rad"];
+    pub const FOG_COUNTER: [&str; 4] = ["fog0_counter", "fog1_counter", "fog2_counter", "fog3_counter"];
+    pub const FOG_T: [&str; 4] = ["fog0_t_degc", "fog1_t_degc", "fog2_t_degc", "fog3_t_degc"];
+    pub const FOG_STATUS: [&str; 4] = ["fog0_status", "fog1_status", "fog2_status", "fog3_status"];
+    pub const ACC_DV: [&str; 3] = ["acc0_dv_m_s", "acc1_dv_m_s", "acc2_dv_m_s"];
+    pub const ACC_COUNTER: [&str; 3] = ["acc0_counter", "acc1_counter", "acc2_counter"];
+    pub const ACC_T: [&str; 3] = ["acc0_t_degc", "acc1_t_degc", "acc2_t_degc"];
+    pub const ACC_STATUS: [&str; 3] = ["acc0_status", "acc1_status", "acc2_status"];
+    pub const ST_Q: [&str; 4] = ["st_q0", "st_q1", "st_q2", "st_q3"];
+    pub const TRUE_Q: [&str; 4] = ["true_q0", "true_q1", "true_q2", "true_q3"];
+    pub const INIT_Q: [&str; 4] = ["init_q0", "init_q1", "init_q2", "init_q3"];
+    pub const TRUE_W: [&str; 3] = ["true_wx_rad_s", "true_wy_rad_s", "true_wz_rad_s"];
+    pub const GNSS_R: [&str; 3] = ["gnss_x_m", "gnss_y_m", "gnss_z_m"];
+    pub const GNSS_V: [&str; 3] = ["gnss_vx_m_s", "gnss_vy_m_s", "gnss_vz_m_s"];
+    pub const TRUE_R: [&str; 3] = ["true_x_m", "true_y_m", "true_z_m"];
+    pub const TRUE_V: [&str; 3] = ["true_vx_m_s", "true_vy_m_s", "true_vz_m_s"];
+    pub const INIT_R: [&str; 3] = ["init_x_m", "init_y_m", "init_z_m"];
+    pub const INIT_V: [&str; 3] = ["init_vx_m_s", "init_vy_m_s", "init_vz_m_s"];
 }
 
 /// One row's fields; a value that is not a finite number is counted and left out.
@@ -583,10 +570,10 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
     let u16_of = |v: f64| v.rem_euclid(65536.0) as u16;
     let u8_of = |v: f64| v.clamp(0.0, 255.0) as u8;
     for i in 0..N_FOG {
-        counter[i] = num(c.fog_counter[i], &format!("fog{i}_counter")).map(u16_of);
-        let t = num(c.fog_t[i], &format!("fog{i}_t_degc")).unwrap_or(25.0);
-        let status = num(c.fog_status[i], &format!("fog{i}_status")).unwrap_or(0.0);
-        fog[i] = num(c.fog_dtheta[i], &format!("fog{i}_dtheta_rad")).map(|d| FogSample {
+        counter[i] = num(c.fog_counter[i], names::FOG_COUNTER[i]).map(u16_of);
+        let t = num(c.fog_t[i], names::FOG_T[i]).unwrap_or(25.0);
+        let status = num(c.fog_status[i], names::FOG_STATUS[i]).unwrap_or(0.0);
+        fog[i] = num(c.fog_dtheta[i], names::FOG_DTHETA[i]).map(|d| FogSample {
             dtheta_rad: d,
             t_degc: t,
             status: u8_of(status),
@@ -595,23 +582,20 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
     let mut acc_counter = [None; N_ACCEL];
     let mut accel = [None; N_ACCEL];
     for i in 0..N_ACCEL {
-        acc_counter[i] = num(c.acc_counter[i], &format!("acc{i}_counter")).map(u16_of);
-        let t = num(c.acc_t[i], &format!("acc{i}_t_degc")).unwrap_or(25.0);
-        let status = num(c.acc_status[i], &format!("acc{i}_status")).unwrap_or(0.0);
-        accel[i] = num(c.acc_dv[i], &format!("acc{i}_dv_m_s")).map(|d| AccelSample {
-            dv_m_s: d,
-            t_degc: t,
-            status: u8_of(status),
-        });
+        acc_counter[i] = num(c.acc_counter[i], names::ACC_COUNTER[i]).map(u16_of);
+        let t = num(c.acc_t[i], names::ACC_T[i]).unwrap_or(25.0);
+        let status = num(c.acc_status[i], names::ACC_STATUS[i]).unwrap_or(0.0);
+        accel[i] =
+            num(c.acc_dv[i], names::ACC_DV[i]).map(|d| AccelSample { dv_m_s: d, t_degc: t, status: u8_of(status) });
     }
-    let vec3 = |cols: &[Option<usize>; 3], names: [String; 3]| -> Option<Vector3<f64>> {
-        let v = [0, 1, 2].map(|k| num(cols[k], &names[k]));
+    let vec3 = |cols: &[Option<usize>; 3], names: [&str; 3]| -> Option<Vector3<f64>> {
+        let v = [0, 1, 2].map(|k| num(cols[k], names[k]));
         Some(Vector3::new(v[0]?, v[1]?, v[2]?))
     };
     let gnss = (|| {
         let t = num(c.gnss_t, "gnss_t_s")?;
-        let r = vec3(&c.gnss_r, xyz_names("gnss_", "_m"))?;
-        let v = vec3(&c.gnss_v, xyz_names("gnss_v", "_m_s"))?;
+        let r = vec3(&c.gnss_r, names::GNSS_R)?;
+        let v = vec3(&c.gnss_v, names::GNSS_V)?;
         let mut status =
             num(c.gnss_status, "gnss_status").map_or(gnss::status::FIX_VALID | gnss::status::FIX_3D, u8_of);
         match num(c.gnss_valid, "gnss_valid") {
@@ -625,27 +609,25 @@ fn parse_row(fields: &[&str], c: &Columns, ln: usize, origin: &str, p: &mut Prob
         Some((t, GnssSample { time_us: 0, status, satellites, r_e_m: r, v_e_m_s: v, sigma_pos_m, sigma_vel_m_s }))
     })();
     let init = (|| {
-        let q = [0, 1, 2, 3].map(|k| num(c.init_q[k], &format!("init_q{k}")));
+        let q = [0, 1, 2, 3].map(|k| num(c.init_q[k], names::INIT_Q[k]));
         let q = Quaternion::new(q[0]?, q[1]?, q[2]?, q[3]?);
-        let r_e_m = vec3(&c.init_r, xyz_names("init_", "_m"))?;
-        let v_e_m_s = vec3(&c.init_v, xyz_names("init_v", "_m_s"))?;
+        let r_e_m = vec3(&c.init_r, names::INIT_R)?;
+        let v_e_m_s = vec3(&c.init_v, names::INIT_V)?;
         // Kept as written when it is a unit quaternion to the last bits (a pad block
         // written out exactly replays to the same output); else normalised.
         let q = if (q.norm() - 1.0).abs() > 1e-12 { q / q.norm() } else { q };
         Some(NavState { q_eb: q, v_e_m_s, r_e_m })
     })();
-    let pos_vel =
-        (|| Some((vec3(&c.true_r, xyz_names("true_", "_m"))?, vec3(&c.true_v, xyz_names("true_v", "_m_s"))?)))();
+    let pos_vel = (|| Some((vec3(&c.true_r, names::TRUE_R)?, vec3(&c.true_v, names::TRUE_V)?)))();
     let st = num(c.st_t, "st_t_s").and_then(|t| {
         let valid = num(c.st_valid, "st_valid").is_none_or(|v| v != 0.0);
-        let q = [0, 1, 2, 3].map(|k| num(c.st_q[k], &format!("st_q{k}")));
+        let q = [0, 1, 2, 3].map(|k| num(c.st_q[k], names::ST_Q[k]));
         Some((t, valid, [q[0]?, q[1]?, q[2]?, q[3]?]))
     });
     let lv = c.unit == Some(LogUnit::LaunchVehicle);
     let truth = (|| {
-        let q = [0, 1, 2, 3].map(|k| num(c.true_q[k], &format!("true_q{k}")));
-        let names = xyz_names("true_w", "_rad_s");
-        let w = [0, 1, 2].map(|k| num(c.true_w[k], &names[k]));
+        let q = [0, 1, 2, 3].map(|k| num(c.true_q[k], names::TRUE_Q[k]));
+        let w = [0, 1, 2].map(|k| num(c.true_w[k], names::TRUE_W[k]));
         let q = Quaternion::new(q[0]?, q[1]?, q[2]?, q[3]?);
         if lv && pos_vel.is_none() {
             return None;
@@ -678,137 +660,6 @@ fn check_counters<const N: usize>(
             last[i] = Some((n, *c));
         }
     }
-}
-
-/// Places rows on the unit's clock: sample k of the log is step k + 1 after re-basing;
-/// repeated and backward samples dropped, gaps left empty, each counted.
-fn place_rows(rows: Vec<RawRow>, unit: LogUnit, origin: String, mut p: Problems, has_truth: bool) -> Result<Recorded> {
-    let dt_s = unit.profile().dt_s();
-    // Time of a row: t_s, or the first FOG counter unwrapped (sample interval dt).
-    let mut unwrap = Unwrap::default();
-    let mut timed: Vec<(f64, RawRow)> = Vec::with_capacity(rows.len());
-    for r in rows {
-        let t = match r.t_s {
-            Some(t) => Some(t),
-            None => r.counter.iter().flatten().next().map(|&c| unwrap.next(c) as f64 * dt_s),
-        };
-        if let Some(t) = t {
-            timed.push((t, r));
-        }
-    }
-    let Some(first) = timed.first().map(|(t, _)| *t) else {
-        bail!("{origin}: nothing usable: no row with a time and a FOG sample\n{}", p.report());
-    };
-    check_interval(&timed, unit, &origin)?;
-    let t0_s = first - dt_s;
-    let init = timed.iter().find_map(|(_, r)| r.init);
-    if unit == LogUnit::LaunchVehicle && timed.iter().any(|(_, r)| r.init.is_some()) && init.is_none() {
-        bail!("{origin}: the initial state (`init_*`) is not usable");
-    }
-    let mut steps: Vec<LogStep> = Vec::with_capacity(timed.len());
-    let mut fogs = 0u8;
-    let mut accels = 0u8;
-    let mut last_n = 0u64;
-    let mut last_counter: [Option<(u64, u16)>; N_FOG] = [None; N_FOG];
-    let mut last_acc_counter: [Option<(u64, u16)>; N_ACCEL] = [None; N_ACCEL];
-    let mut last_st_us: Option<u64> = None;
-    let mut last_gnss_us: Option<u64> = None;
-    for (t, r) in timed {
-        let n = ((t - t0_s) / dt_s).round();
-        let at = || format!("{origin}:{}", r.line);
-        if n <= last_n as f64 {
-            let d = if n == last_n as f64 { &mut p.repeated_samples } else { &mut p.backward_samples };
-            d.add(1, || format!("{}: t = {t} s, the sample before is at {} s", at(), t0_s + last_n as f64 * dt_s));
-            continue;
-        }
-        let n = n as u64;
-        if n > last_n + 1 {
-            let lost = n - last_n - 1;
-            p.gaps.add(lost, || format!("{}: {lost} samples missing before t = {t} s", at()));
-        }
-        check_counters(&r.counter, &mut last_counter, n, "fog", &mut p.counter_jumps, &at);
-        check_counters(&r.acc_counter, &mut last_acc_counter, n, "acc", &mut p.counter_jumps, &at);
-        steps.resize_with(n as usize, LogStep::default);
-        let step = &mut steps[n as usize - 1];
-        step.fog = r.fog;
-        step.accel = r.accel;
-        for (i, f) in r.fog.iter().enumerate() {
-            if f.is_some() {
-                fogs |= 1 << i;
-            }
-        }
-        for (i, a) in r.accel.iter().enumerate() {
-            if a.is_some() {
-                accels |= 1 << i;
-            }
-        }
-        step.truth = r.truth;
-        if let Some((t_st, valid, q)) = r.st {
-            let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
-            let us = ((t_st - t0_s) * 1e6).round();
-            if (norm - 1.0).abs() > 1e-3 {
-                p.st_not_unit.add(1, || format!("{}: |st_q| = {norm}", at()));
-            } else if us < 0.0 || last_st_us.is_some_and(|l| us as u64 <= l) {
-                p.st_time_backward.add(1, || format!("{}: st_t_s = {t_st} s not after the previous tag", at()));
-            } else {
-                last_st_us = Some(us as u64);
-                step.st.push(StarSample { time_us: us as u64, valid, q: q.map(|v| v / norm) });
-            }
-        }
-        if let Some((t_g, mut g)) = r.gnss {
-            let us = ((t_g - t0_s) * 1e6).round();
-            if us < 0.0 || last_gnss_us.is_some_and(|l| us as u64 <= l) {
-                p.gnss_time_backward
-                    .add(1, || format!("{}: gnss_t_s = {t_g} s not after the previous fix's tag", at()));
-            } else {
-                last_gnss_us = Some(us as u64);
-                g.time_us = us as u64;
-                step.gnss.push(g);
-            }
-        }
-        last_n = n;
-    }
-    if fogs == 0 {
-        bail!("{origin}: nothing usable: no FOG sample\n{}", p.report());
-    }
-    if unit == LogUnit::LaunchVehicle && accels == 0 {
-        bail!("{origin}: nothing usable: no accelerometer sample\n{}", p.report());
-    }
-    Ok(Recorded { origin, steps, fogs: FogSet(fogs), t0_s, problems: p, has_truth, unit, init })
-}
-
-/// The log's sample interval must be its unit's: the median of the first intervals
-/// within 1 %.
-fn check_interval(timed: &[(f64, RawRow)], unit: LogUnit, origin: &str) -> Result<()> {
-    let mut d: Vec<f64> = timed.windows(2).take(1000).map(|w| w[1].0 - w[0].0).filter(|d| *d > 0.0).collect();
-    if d.is_empty() {
-        return Ok(());
-    }
-    d.sort_by(f64::total_cmp);
-    let med = d[d.len() / 2];
-    let dt_s = unit.profile().dt_s();
-    let near = |dt: f64| (med - dt).abs() <= 0.01 * dt;
-    if near(dt_s) {
-        return Ok(());
-    }
-    let why = match unit {
-        LogUnit::Spacecraft if near(Profile::LAUNCH_VEHICLE.dt_s()) => {
-            "that is the launch-vehicle unit's interval, but the log has no accelerometer columns (`acc0_dv_m_s` … \
-             `acc2_dv_m_s`): a launch-vehicle log needs them (docs/RECORDED-LOG.md); a spacecraft log must be \
-             resampled to"
-        }
-        LogUnit::LaunchVehicle if near(Profile::SPACECRAFT.dt_s()) => {
-            "that is the spacecraft unit's interval, but the log has accelerometer (launch-vehicle) columns; \
-             the launch-vehicle unit integrates one sample of each sensor every"
-        }
-        _ => "resample the log to the unit's interval,",
-    };
-    bail!(
-        "{origin}: the samples are {:.4} ms apart (median of the first intervals): {why} {:.4} ms ({} unit)",
-        med * 1e3,
-        dt_s * 1e3,
-        unit.name()
-    );
 }
 
 /// A 16-bit counter unwrapped into a sample count.

@@ -23,7 +23,7 @@ use ssis::math::{nlerp, rotvec_from_quat};
 use ssis::telemetry::events::EventRecord;
 
 use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
-use crate::recorded::{Recorded, StarSample};
+use crate::recorded::{LogStep, Recorded, StarSample};
 use ssis_common::downlink::{records, Down, Downlink};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::output;
@@ -33,17 +33,13 @@ use ssis_common::{ARCSEC_PER_RAD, DEG_H_PER_RAD_S};
 /// The log as the unit's links carry it, step by step.
 pub struct Feed<'a> {
     rec: &'a Recorded,
-    axes: [Vector3<f64>; N_FOG],
-    dt_us: u32,
-    n: u64,
-    st_counter: u16,
-    prev_truth: Option<Quaternion<f64>>,
+    enc: Encoder,
 }
 
 impl<'a> Feed<'a> {
     /// Steps of `rec` for a unit flying `table` at `dt_us`.
     pub fn new(rec: &'a Recorded, table: &CalibrationTable, dt_us: u32) -> Feed<'a> {
-        Feed { rec, axes: table.axes(), dt_us, n: 0, st_counter: 0, prev_truth: None }
+        Feed { rec, enc: Encoder::new(table, dt_us) }
     }
 
     /// Steps in the log.
@@ -54,7 +50,34 @@ impl<'a> Feed<'a> {
     /// The next step's bytes (FOG frames numbered from counter 1, star frames at their
     /// re-based tags) and its truth, or `None` at the end.
     pub fn next_step(&mut self) -> Option<StepInput> {
-        let step = self.rec.steps.get(self.n as usize)?;
+        let step = self.rec.steps.get(self.enc.n as usize)?;
+        Some(self.enc.encode(step))
+    }
+}
+
+/// A log's steps turned into the bytes the unit's links carry, one step after another.
+pub struct Encoder {
+    axes: [Vector3<f64>; N_FOG],
+    dt_us: u32,
+    n: u64,
+    st_counter: u16,
+    prev_truth: Option<Quaternion<f64>>,
+}
+
+impl Encoder {
+    /// For a unit flying `table` at `dt_us`, from step 1.
+    pub fn new(table: &CalibrationTable, dt_us: u32) -> Encoder {
+        Encoder { axes: table.axes(), dt_us, n: 0, st_counter: 0, prev_truth: None }
+    }
+
+    /// Steps encoded so far.
+    pub fn steps(&self) -> u64 {
+        self.n
+    }
+
+    /// The next step's bytes (FOG frames numbered from counter 1, star frames at their
+    /// re-based tags) and its truth.
+    pub fn encode(&mut self, step: &LogStep) -> StepInput {
         self.n += 1;
         let n = self.n;
         let counter = (n % 65_536) as u16;
@@ -85,7 +108,7 @@ impl<'a> Feed<'a> {
             TruthSample { n, q: t.q, dtheta, m_sys, rate: t.rate_rad_s }
         });
         self.prev_truth = step.truth.map(|t| t.q);
-        Some(StepInput { n, fog_frames, present: FogSet(present), st_bytes, truth })
+        StepInput { n, fog_frames, present: FogSet(present), st_bytes, truth }
     }
 }
 
@@ -130,9 +153,18 @@ impl Evidence {
     /// For the star solutions of `rec`, the table's star-tracker mount, statistics from
     /// `settle_s` of unit time on.
     pub fn new(rec: &Recorded, table: &CalibrationTable, settle_s: f64) -> Evidence {
-        let pending = rec.steps.iter().flat_map(|s| s.st.iter().copied()).filter(|s| s.valid).collect();
+        let mut e = Evidence::empty(table, settle_s);
+        for s in rec.steps.iter().flat_map(|s| s.st.iter()) {
+            e.star(s);
+        }
+        e
+    }
+
+    /// For star solutions given as they arrive ([`Evidence::star`]), before the output
+    /// frame of the step they arrive in.
+    pub fn empty(table: &CalibrationTable, settle_s: f64) -> Evidence {
         Evidence {
-            pending,
+            pending: VecDeque::new(),
             mount_inv: table.st_mount().conjugate(),
             history: VecDeque::new(),
             settle_us: (settle_s * 1e6) as u64,
@@ -141,6 +173,14 @@ impl Evidence {
             last: None,
             fogs: [FogUse::default(); N_FOG],
             remapped_at_us: None,
+        }
+    }
+
+    /// Takes a star-tracker solution (kept until the output frames reach its tag; an
+    /// invalid one is not compared).
+    pub fn star(&mut self, s: &StarSample) {
+        if s.valid {
+            self.pending.push_back(*s);
         }
     }
 
@@ -431,38 +471,82 @@ pub fn replay(
     settle_s: f64,
     mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
 ) -> Result<ReplaySummary> {
-    let profile = Profile::SPACECRAFT;
-    let mut core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
-    let mut feed = Feed::new(rec, table, profile.dt_us);
-    let mut eval = Evaluator::for_unit(table, &profile, settle_s);
-    let mut evidence = Evidence::new(rec, table, settle_s);
-    let (mut fog, mut star, mut out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
-    let mut downlink = Downlink::new();
-    let mut event_frames = Vec::new();
-    let mut frames_out = 0u64;
-    let mut hash = Fnv::default();
-    while let Some(input) = feed.next_step() {
-        let mut bytes = Vec::with_capacity(64);
+    let mut r = Replayer::new(table, settle_s)?;
+    for step in &rec.steps {
+        r.step(step, &mut on_frame);
+    }
+    Ok(r.finish(rec.origin.clone()))
+}
+
+/// A replay driven one log step at a time (a log read whole, or as it is read).
+pub struct Replayer {
+    profile: Profile,
+    core: FlightCore,
+    enc: Encoder,
+    eval: Evaluator,
+    evidence: Evidence,
+    fog: MockLink,
+    star: MockLink,
+    out: MockSink,
+    downlink: Downlink,
+    event_frames: Vec<ssis::frames::event::EventFrame>,
+    frames_out: u64,
+    hash: Fnv,
+    bytes: Vec<u8>,
+}
+
+impl Replayer {
+    /// A unit flying `table` (spacecraft profile), statistics from `settle_s`.
+    pub fn new(table: &CalibrationTable, settle_s: f64) -> Result<Replayer> {
+        let profile = Profile::SPACECRAFT;
+        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
+        Ok(Replayer {
+            profile,
+            core,
+            enc: Encoder::new(table, profile.dt_us),
+            eval: Evaluator::for_unit(table, &profile, settle_s),
+            evidence: Evidence::empty(table, settle_s),
+            fog: MockLink::ideal(),
+            star: MockLink::ideal(),
+            out: MockSink::default(),
+            downlink: Downlink::new(),
+            event_frames: Vec::new(),
+            frames_out: 0,
+            hash: Fnv::default(),
+            bytes: Vec::with_capacity(64),
+        })
+    }
+
+    /// Steps the unit on the log's next step; `on_frame` sees its output frame and the
+    /// record against truth.
+    pub fn step(&mut self, step: &LogStep, on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>)) {
+        let input = self.enc.encode(step);
+        for s in &step.st {
+            self.evidence.star(s);
+        }
+        self.bytes.clear();
         for (i, f) in input.fog_frames.iter().enumerate() {
-            if profile.fogs.contains(i) && input.present.contains(i) {
-                bytes.extend_from_slice(f);
+            if self.profile.fogs.contains(i) && input.present.contains(i) {
+                self.bytes.extend_from_slice(f);
             }
         }
-        fog.send(&bytes);
-        star.send(&input.st_bytes);
+        self.fog.send(&self.bytes);
+        self.star.send(&input.st_bytes);
         if let Some(t) = input.truth {
-            eval.push_truth(t);
+            self.eval.push_truth(t);
         }
-        let mut links = Links { fog: FogLinks::Bus(&mut fog), star: &mut star, out: &mut out };
-        core.step(&mut links);
-        let mut produced = std::mem::take(&mut out.bytes);
+        let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
+        self.core.step(&mut links);
+        let mut produced = std::mem::take(&mut self.out.bytes);
         // The output frames' bytes only: the hash compares them with the firmware's.
-        hash.write(&produced);
-        core.send_events(&mut out);
-        produced.append(&mut out.bytes);
-        downlink.push(&produced, |d| match d {
+        self.hash.write(&produced);
+        self.core.send_events(&mut self.out);
+        produced.append(&mut self.out.bytes);
+        let (frames_out, evidence, eval, event_frames) =
+            (&mut self.frames_out, &mut self.evidence, &mut self.eval, &mut self.event_frames);
+        self.downlink.push(&produced, |d| match d {
             Down::Output(f) => {
-                frames_out += 1;
+                *frames_out += 1;
                 evidence.frame(&f);
                 let rec = eval.evaluate(&Observed::from(&f));
                 on_frame(&f, rec.as_ref());
@@ -470,18 +554,25 @@ pub fn replay(
             Down::Events(e) => event_frames.push(e),
             Down::Report(_) => {}
         });
+        // The sink's buffer back, emptied, for the next step.
+        produced.clear();
+        self.out.bytes = produced;
     }
-    let last_drift = evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
-    Ok(ReplaySummary {
-        origin: rec.origin.clone(),
-        steps: feed.steps(),
-        duration_s: feed.steps() as f64 * profile.dt_s(),
-        accuracy: eval.accuracy(last_drift),
-        evidence,
-        frames_out,
-        hash: hash.0,
-        events: records(&event_frames),
-    })
+
+    /// What the replay found, for the log named `origin`.
+    pub fn finish(self, origin: String) -> ReplaySummary {
+        let last_drift = self.evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
+        ReplaySummary {
+            origin,
+            steps: self.enc.steps(),
+            duration_s: self.enc.steps() as f64 * self.profile.dt_s(),
+            accuracy: self.eval.accuracy(last_drift),
+            evidence: self.evidence,
+            frames_out: self.frames_out,
+            hash: self.hash.0,
+            events: records(&self.event_frames),
+        }
+    }
 }
 
 /// FNV-1a over bytes: a fingerprint of a run's output.
@@ -503,18 +594,51 @@ impl Fnv {
     }
 }
 
+/// What a replay's report says of the log itself, counted over the whole log.
+#[derive(Debug, Clone)]
+pub struct LogInfo {
+    /// FOG samples present.
+    pub fog_samples: u64,
+    /// The FOG slots the log has.
+    pub fogs: FogSet,
+    /// Star-tracker solutions delivered.
+    pub st_count: u64,
+    /// Whether the log carries truth.
+    pub has_truth: bool,
+    /// The damage counted.
+    pub problems: crate::recorded::Problems,
+}
+
+impl LogInfo {
+    /// Of a log read whole.
+    pub fn of(rec: &Recorded) -> LogInfo {
+        LogInfo {
+            fog_samples: rec.fog_samples() as u64,
+            fogs: rec.fogs,
+            st_count: rec.st_count() as u64,
+            has_truth: rec.has_truth,
+            problems: rec.problems.clone(),
+        }
+    }
+}
+
 impl ReplaySummary {
     /// A report a person can read.
     pub fn report(&self, rec: &Recorded, limit: Option<Limit>) -> String {
+        self.report_on(&LogInfo::of(rec), limit)
+    }
+
+    /// The same, from what was counted of the log while it was read.
+    pub fn report_on(&self, rec: &LogInfo, limit: Option<Limit>) -> String {
         let mut s = format!(
             "replay  {}  through FlightCore::step ({:.1} s, {} steps, {} output frames)\n",
             self.origin, self.duration_s, self.steps, self.frames_out
         );
         s.push_str(&format!(
             "log: {} FOG samples (FOGs {}), {} star-tracker solutions, truth {}\n",
-            rec.fog_samples(),
+            rec.fog_samples,
             fog_names(rec.fogs),
-            rec.st_count(),
+            rec.st_count,
             if rec.has_truth { "yes" } else { "no" }
         ));
         s.push_str("damage in the log (counted, skipped):\n");

@@ -7,13 +7,16 @@ use std::path::{Path, PathBuf};
 use anyhow::Result;
 use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
+use ssis::frames::output::OutputFrame;
 use ssis_common::cli;
 use ssis_common::output;
 use ssis_common::plot::{write_svg, write_svg_panels, PlotPoint};
+use ssis_sim::harness::Record;
 use ssis_sim::harness::CSV_HEADER;
 use ssis_sim::lv_replay::{replay_lv, LogOptions, LvScenario, LV_CSV_HEADER};
-use ssis_sim::recorded::{LogUnit, Recorded};
-use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay, Rows};
+use ssis_sim::recorded::{LogStream, LogUnit, Recorded};
+use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay, LogInfo, Rows};
+use ssis_sim::streamed::{self, Streamed};
 use ssis_sim::{check, conventions, recorded};
 
 /// The command's arguments.
@@ -35,6 +38,23 @@ pub fn run(a: &Args) -> Result<bool> {
         None => CalibrationTable::DEFAULT,
     };
     let dt_us = Profile::SPACECRAFT.dt_us;
+    if let [p] = a.log.as_slice() {
+        if recorded::is_csv(p) && !a.check {
+            let stream = LogStream::open(p)?;
+            if stream.unit == LogUnit::Spacecraft {
+                anyhow::ensure!(a.pad.is_none(), "--pad: {} is a spacecraft log (no navigation to start)", p.display());
+                return run_spacecraft(a, &table, |table, on_frame| {
+                    streamed::replay_stream(
+                        stream,
+                        table,
+                        a.settle,
+                        |c| cli::report("conventions", || ssis_sim::json::conventions(c)),
+                        on_frame,
+                    )
+                });
+            }
+        }
+    }
     let rec = recorded::read_log(&a.log)?;
     if rec.unit == LogUnit::LaunchVehicle {
         anyhow::ensure!(
@@ -63,8 +83,20 @@ pub fn run(a: &Args) -> Result<bool> {
         cli::report("damage", || ssis_sim::json::damage(&rec.problems));
         return Ok(r.findings.is_empty() && conv.findings.is_empty());
     }
+    run_spacecraft(a, &table, |table, on_frame| {
+        let summary = replay(&rec, table, a.settle, on_frame)?;
+        Ok(Streamed { summary, conventions: conv, info: LogInfo::of(&rec), st_latency_s: rec.st_latency_s(dt_us) })
+    })
+}
+
+/// The replay of a spacecraft log that `replay_log` runs (with the conventions check;
+/// every output frame to its `on_frame`), and its report, CSV, plot and JSON.
+fn run_spacecraft<F>(a: &Args, table: &CalibrationTable, replay_log: F) -> Result<bool>
+where
+    F: FnOnce(&CalibrationTable, &mut dyn FnMut(&OutputFrame, Option<&Record>)) -> Result<Streamed>,
+{
     let mut rows = Rows::new(a.csv.as_deref(), &CSV_HEADER, a.every)?;
-    let s = replay(&rec, &table, a.settle, |_, r| {
+    let Streamed { summary: s, conventions: conv, info, st_latency_s } = replay_log(table, &mut |_, r| {
         if let Some(r) = r {
             rows.take(
                 || r.csv_row(),
@@ -73,19 +105,19 @@ pub fn run(a: &Args) -> Result<bool> {
         }
     })?;
     let dt = Profile::SPACECRAFT;
-    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), rec.st_latency_s(dt.dt_us));
-    print!("{}", s.report(&rec, Some(limit)));
+    let limit = farrenkopf_1sigma_arcsec(&table.observer, &table.axes(), dt.dt_s(), st_latency_s);
+    print!("{}", s.report_on(&info, Some(limit)));
     print!("{}", ssis_common::downlink::timeline(&s.events.0, s.events.1));
     print!("{}", conv.report());
     let points = rows.finish()?;
     if let Some(p) = &a.plot {
         anyhow::ensure!(!points.is_empty(), "{}: no truth in the log: nothing to plot", p.display());
-        write_svg(p, &format!("replay of {}", rec.origin), &points)?;
+        write_svg(p, &format!("replay of {}", s.origin), &points)?;
         println!("wrote {}", p.display());
     }
     cli::report("replay", || {
         let mut v = ssis_sim::json::replay_summary(&s);
-        ssis_sim::json::add_limit_and_damage(&mut v, &limit, &rec.problems);
+        ssis_sim::json::add_limit_and_damage(&mut v, &limit, &info.problems);
         v
     });
     if let Some(w) = conv.warning() {

@@ -1,0 +1,134 @@
+//! A spacecraft CSV log replayed while it is read (`ssis-sim replay`, `ssis.replay`), in
+//! memory bounded whatever the log's length (`docs/RECORDED-LOG.md`, "Long logs").
+//!
+//! The conventions check (`crate::conventions`) needs the FOGs' motion between star-tracker
+//! solutions, so it runs first, on the log's first [`CHECK_SPAN_S`] held in memory (a
+//! shorter log whole: the very report of a log read whole); a log's conventions are how it
+//! was written, the same at every row. Those steps are then replayed, and the rest of the
+//! log follows as [`LogStream`] reads it, on a thread of its own a few batches ahead of
+//! the replay: nothing else grows with the log but the counts.
+
+use anyhow::Result;
+use ssis::calib::CalibrationTable;
+use ssis::flight::Profile;
+use ssis::frames::output::OutputFrame;
+
+use crate::conventions::{check_conventions, ConventionReport};
+use crate::harness::Record;
+use crate::recorded::{LogStep, LogStream, Problems, Recorded};
+use crate::replay::{LogInfo, ReplaySummary, Replayer};
+
+/// The span at a log's start that the conventions check reads, s (the unit's steps held
+/// in memory meanwhile: 120,000 at 5 ms).
+pub const CHECK_SPAN_S: f64 = 600.0;
+
+/// Steps handed from the reading thread to the replay at a time.
+const BATCH_STEPS: usize = 1024;
+/// Batches in flight between the two (the memory the overlap costs: a few MB).
+const BATCHES_IN_FLIGHT: usize = 4;
+
+/// The rest of `stream` read on a thread of its own, its steps given to `take` in order,
+/// a batch at a time: reading (parsing the CSV) and stepping overlap on two cores.
+/// Returns the stream at its end (its counts), or the error that stopped it.
+fn read_beside(mut stream: LogStream, mut take: impl FnMut(&[LogStep])) -> Result<LogStream> {
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<LogStep>>(BATCHES_IN_FLIGHT);
+    let reader = std::thread::spawn(move || -> Result<LogStream> {
+        loop {
+            let mut batch = Vec::with_capacity(BATCH_STEPS);
+            while batch.len() < BATCH_STEPS {
+                match stream.next_step()? {
+                    Some(s) => batch.push(s),
+                    None => break,
+                }
+            }
+            let last = batch.len() < BATCH_STEPS;
+            if !batch.is_empty() && tx.send(batch).is_err() {
+                return Ok(stream);
+            }
+            if last {
+                return Ok(stream);
+            }
+        }
+    });
+    for batch in rx {
+        take(&batch);
+    }
+    reader.join().map_err(|_| anyhow::anyhow!("the log's reading thread panicked"))?
+}
+
+/// What a streamed replay found.
+#[derive(Debug, Clone)]
+pub struct Streamed {
+    /// The replay.
+    pub summary: ReplaySummary,
+    /// The conventions check (on the first [`CHECK_SPAN_S`] of a longer log).
+    pub conventions: ConventionReport,
+    /// What was counted of the log.
+    pub info: LogInfo,
+    /// The star tracker's latency as logged (median), s.
+    pub st_latency_s: f64,
+}
+
+/// The conventions of the log `stream` reads, checked on its first [`CHECK_SPAN_S`]
+/// against `table`: the report, given to `on_conventions` before any step, and the
+/// replay of the whole log through `FlightCore::step` (statistics from `settle_s`;
+/// `on_frame` sees every output frame and its record against truth).
+pub fn replay_stream(
+    mut stream: LogStream,
+    table: &CalibrationTable,
+    settle_s: f64,
+    on_conventions: impl FnOnce(&ConventionReport),
+    mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
+) -> Result<Streamed> {
+    let profile = Profile::SPACECRAFT;
+    let span_steps = (CHECK_SPAN_S / profile.dt_s()).round() as usize;
+    let mut head = Vec::with_capacity(span_steps.min(1 << 16));
+    while head.len() < span_steps {
+        match stream.next_step()? {
+            Some(s) => head.push(s),
+            None => break,
+        }
+    }
+    let next = if head.len() == span_steps { stream.next_step()? } else { None };
+    let longer = next.is_some();
+    let rec = Recorded {
+        origin: stream.origin().to_string(),
+        steps: head,
+        fogs: stream.fogs(),
+        t0_s: stream.t0_s().unwrap_or(0.0),
+        problems: Problems::default(),
+        has_truth: stream.has_truth,
+        unit: stream.unit,
+        init: None,
+    };
+    let mut conventions = check_conventions(&rec, table, profile.dt_us)?;
+    if longer {
+        conventions.span_s = Some(CHECK_SPAN_S);
+    }
+    on_conventions(&conventions);
+    let mut r = Replayer::new(table, settle_s)?;
+    for step in rec.steps {
+        r.step(&step, &mut on_frame);
+    }
+    if let Some(step) = next {
+        r.step(&step, &mut on_frame);
+        stream = read_beside(stream, |batch| {
+            for step in batch {
+                r.step(step, &mut on_frame);
+            }
+        })?;
+    }
+    let info = LogInfo {
+        fog_samples: stream.fog_samples,
+        fogs: stream.fogs(),
+        st_count: stream.st_count,
+        has_truth: stream.has_truth,
+        problems: stream.problems.clone(),
+    };
+    Ok(Streamed {
+        summary: r.finish(stream.origin().to_string()),
+        conventions,
+        info,
+        st_latency_s: stream.st_latency_s(),
+    })
+}
