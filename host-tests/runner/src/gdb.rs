@@ -115,6 +115,44 @@ impl Gdb {
         }
     }
 
+    /// A command of QEMU's monitor (`qRcmd`); its printed output.
+    pub fn monitor(&mut self, cmd: &str) -> Result<String> {
+        self.send(&format!("qRcmd,{}", hex_encode(cmd.as_bytes())))?;
+        let mut out = Vec::new();
+        loop {
+            let r = self
+                .receive(Duration::from_secs(10))?
+                .with_context(|| format!("gdbstub: no reply to monitor {cmd}"))?;
+            match r.strip_prefix('O') {
+                Some(h) if r != "OK" => out.extend(hex_decode(h).unwrap_or_default()),
+                _ if r.starts_with('T') => {}
+                _ => {
+                    anyhow::ensure!(r == "OK", "gdbstub: monitor {cmd}: {r}");
+                    return Ok(String::from_utf8_lossy(&out).into_owned());
+                }
+            }
+        }
+    }
+
+    /// Saves the halted guest's whole state to `path` (QEMU's migration to a file: start
+    /// another QEMU with `-incoming exec:cat PATH`), waiting until it is written.
+    pub fn save_state(&mut self, path: &std::path::Path) -> Result<()> {
+        self.monitor(&format!("migrate \"exec:cat > {}\"", path.display()))?;
+        let t0 = Instant::now();
+        loop {
+            let st = self.monitor("info migrate")?;
+            if st.contains("status: completed") {
+                return Ok(());
+            }
+            anyhow::ensure!(
+                !st.contains("status: failed") && t0.elapsed() < Duration::from_secs(60),
+                "QEMU's migration to {} did not complete: {st}",
+                path.display()
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+
     fn ok(&mut self, data: &str) -> Result<()> {
         let r = self.command(data)?;
         anyhow::ensure!(r == "OK", "gdbstub refused {data}: {r}");

@@ -433,6 +433,10 @@ struct Ctx<'a> {
     code: StepCode,
     /// The traced path of one step (empty until the first flip).
     path: std::cell::RefCell<Vec<u32>>,
+    /// The guest's state before the first flip step, once saved.
+    snapshot: std::cell::RefCell<Option<Snapshot>>,
+    /// Where the snapshot is saved.
+    snapshot_path: PathBuf,
     ram: Ram,
     started: Instant,
 }
@@ -444,6 +448,25 @@ impl Ctx<'_> {
 
     fn steps(&self, s: f64) -> u64 {
         (s / self.flight.profile.dt_s()).round().max(1.0) as u64
+    }
+}
+
+/// The firmware's whole state after a step (QEMU's migration stream), and the runner's
+/// side of the links at that point: a flight restored from it starts at the next step.
+#[derive(Debug, Clone, Copy)]
+struct Snapshot {
+    /// The last step the guest completed.
+    n: u64,
+    fog_total: u32,
+    st_total: u32,
+}
+
+/// Removes the snapshot file when the campaign ends.
+struct RemoveOnDrop(PathBuf);
+
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
     }
 }
 
@@ -592,10 +615,23 @@ fn run_flight(
 ) -> Result<()> {
     let (o, fl) = (ctx.o, ctx.flight);
     let port = free_port()?;
-    let extra = ["-gdb".to_string(), format!("tcp:127.0.0.1:{port}")];
+    let snap = *ctx.snapshot.borrow();
+    let mut extra = vec!["-gdb".to_string(), format!("tcp:127.0.0.1:{port}")];
+    if snap.is_some() {
+        extra.extend(["-incoming".to_string(), format!("exec:cat {}", ctx.snapshot_path.display())]);
+    }
     let mut unit = Unit::boot_with(&fl.table, &QemuOptions::lockstep(o.elf.clone()), &extra)?;
-    unit.enter_lockstep(|_, _| {})?;
+    if snap.is_none() {
+        unit.enter_lockstep(|_, _| {})?;
+    }
     let mut g = Gdb::connect(port, Duration::from_secs(10))?;
+    if snap.is_some() {
+        let t0 = Instant::now();
+        while g.monitor("info status")?.contains("inmigrate") {
+            anyhow::ensure!(t0.elapsed() < Duration::from_secs(60), "QEMU did not load the saved state");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
     g.resume()?;
     let (quiet, window, gap) = (ctx.steps(o.quiet_s), ctx.steps(o.window_s), ctx.steps(o.gap_s));
     let last_n = fl.inputs.last().map_or(0, |i| i.n);
@@ -605,10 +641,22 @@ fn run_flight(
     let mut earlier = 0;
     let mut eval = Evaluator::for_unit(&fl.table, &fl.profile, fl.settle_s);
     let mut rx = Received::default();
-    let (mut fog_total, mut st_total) = (0u32, 0u32);
+    let (mut fog_total, mut st_total) = snap.map_or((0, 0), |s| (s.fog_total, s.st_total));
     let mut crash = None;
     for input in &fl.inputs {
         let n = input.n;
+        if snap.is_some_and(|s| n <= s.n) {
+            if let Some(t) = input.truth {
+                eval.push_truth(t);
+            }
+            continue;
+        }
+        if ctx.snapshot.borrow().is_none() && n == ctx.steps(o.first_s) {
+            g.halt()?;
+            g.save_state(&ctx.snapshot_path)?;
+            g.resume()?;
+            *ctx.snapshot.borrow_mut() = Some(Snapshot { n: n - 1, fog_total, st_total });
+        }
         let done = flips.len() >= o.flips || ctx.out_of_time() || next_flip + window > last_n;
         if watch.is_none() && done {
             break;
@@ -725,7 +773,18 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
     let flight = Flight::record(sc)?;
     anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let code = step_code(&o.elf)?;
-    let ctx = Ctx { o, flight: &flight, code, path: Default::default(), ram: Ram::of(&o.elf)?, started };
+    let snapshot_path = std::env::temp_dir().join(format!("ssis-upset-{}.state", std::process::id()));
+    let _remove = RemoveOnDrop(snapshot_path.clone());
+    let ctx = Ctx {
+        o,
+        flight: &flight,
+        code,
+        path: Default::default(),
+        snapshot: Default::default(),
+        snapshot_path,
+        ram: Ram::of(&o.elf)?,
+        started,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
     let mut flips = Vec::with_capacity(o.flips);
     let mut flights = 0u32;
