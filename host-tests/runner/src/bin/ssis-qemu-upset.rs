@@ -121,7 +121,10 @@ fn campaign(args: &Args) -> Result<bool> {
     print!("{}", c.report());
     cli::report("campaign", || c.json());
     if let Some(p) = &args.out {
-        let command = std::env::args().collect::<Vec<_>>().join(" ");
+        let command = std::iter::once("ssis-qemu-upset".to_string())
+            .chain(std::env::args().skip(1))
+            .collect::<Vec<_>>()
+            .join(" ");
         output::write(p, c.document(&command).as_bytes())?;
         println!("wrote {}", p.display());
     }

@@ -437,6 +437,8 @@ struct Ctx<'a> {
     snapshot: std::cell::RefCell<Option<Snapshot>>,
     /// Where the snapshot is saved.
     snapshot_path: PathBuf,
+    /// Flights that stopped after their flips had all been classed masked.
+    latent: std::cell::RefCell<u32>,
     ram: Ram,
     started: Instant,
 }
@@ -495,7 +497,7 @@ fn free_port() -> Result<u16> {
 }
 
 /// QEMU processor time without an output frame after which a flipped unit has hung, s.
-const HANG_CPU_S: f64 = 5.0;
+pub(crate) const HANG_CPU_S: f64 = 2.0;
 
 /// Waits for the output frame of the step just sent (`want` frames in all); `Some(why)`
 /// when the unit stopped instead: QEMU exited, the guest stopped for the debugger (a
@@ -662,8 +664,10 @@ fn run_flight(
             break;
         }
         let fb = fog_bytes(input, &fl.profile);
-        unit.uarts[1].write_all(&fb)?;
-        unit.uarts[2].write_all(&input.st_bytes)?;
+        if let Err(e) = unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes)) {
+            crash = Some(format!("the unit's links closed ({e})"));
+            break;
+        }
         fog_total = fog_total.wrapping_add(fb.len() as u32);
         st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
         if let Some(t) = input.truth {
@@ -723,7 +727,9 @@ fn run_flight(
         flips.push(finish(w, why, ctx, &rx));
         on_flip(flips.last().context("no flip")?);
     } else if let Some(c) = crash {
-        anyhow::bail!("the undisturbed firmware stopped: {c}");
+        // Stopped with no flip being watched: a masked flip's latent effect, or a fault.
+        anyhow::ensure!(earlier > 0, "the undisturbed firmware stopped: {c}");
+        *ctx.latent.borrow_mut() += 1;
     }
     unit.kill();
     Ok(())
@@ -782,6 +788,7 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         path: Default::default(),
         snapshot: Default::default(),
         snapshot_path,
+        latent: Default::default(),
         ram: Ram::of(&o.elf)?,
         started,
     };
@@ -798,6 +805,7 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
     }
     let path_len = ctx.path.borrow().len();
+    let latent = *ctx.latent.borrow();
     Ok(Campaign {
         name: sc.name.clone(),
         options: o.clone(),
@@ -806,6 +814,7 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         wall_s: started.elapsed().as_secs_f64(),
         entry: ctx.code.entry,
         path_len,
+        latent,
         stack_top: ctx.ram.stack_top,
         statics: ctx.ram.statics,
     })

@@ -66,6 +66,9 @@ pub struct Campaign {
     pub entry: u32,
     /// Instructions in the traced path of a step.
     pub path_len: usize,
+    /// Flights that stopped (crash) after every flip in them had been classed masked: a
+    /// latent effect of one of them.
+    pub latent: u32,
     /// Top of the stack.
     pub stack_top: u32,
     /// Statics' range.
@@ -135,7 +138,7 @@ impl Campaign {
             .collect();
         json!({
             "scenario": self.name, "flips": n, "flights": self.flights, "wall_s": self.wall_s,
-            "flips_per_hour": self.flips_per_hour(), "seed": self.options.seed,
+            "flips_per_hour": self.flips_per_hour(), "seed": self.options.seed, "latent_flights": self.latent,
             "outcomes": rows, "per_flip": flips,
         })
     }
@@ -157,9 +160,11 @@ impl Campaign {
             s,
             "Scenario `{}` on `ssis-fw-test` in QEMU mps2-an500, lockstep, `-icount shift=0,sleep=off`. \
              One bit per flip, through QEMU's gdbstub, at a random instruction inside a random step: the \
-             runner breaks at the first instruction of the inlined `FlightCore::step` ({:#x}), \
-             single-steps a random count below the previous step's instruction count, then flips a bit \
-             chosen uniformly in the RAM in use (the live stack from SP to {:#x}, the statics \
+             runner breaks at the first instruction of the inlined `FlightCore::step` ({:#x}, from the \
+             ELF's DWARF), draws an instruction uniformly over the path of a step (traced once by \
+             single-stepping) and runs to it through a breakpoint at its address (the m-th time it is \
+             reached, as in the traced path; a step that leaves the path stops at that address or at \
+             the step's end), then flips a bit chosen uniformly in the RAM in use (the live stack from SP to {:#x}, the statics \
              {:#x}..{:#x}) or, for {:.0} % of the flips, uniformly over the bits of r0–r15, xPSR, d0–d15 \
              and FPSCR. First flip at {} s (the observer converges at 10.05 s), seed {}.\n",
             self.name,
@@ -181,25 +186,30 @@ impl Campaign {
              one when it says converged, not degraded, no parity alarm) and back, claiming it, before \
              the window ends ({} s after the flip); **silent** a claimed-good frame beyond the bound; \
              **crash** QEMU exited (HardFault, watchdog), the guest stopped at a breakpoint \
-             instruction, or no output for 5 s of QEMU's processor time. **Reset and recovered** \
+             instruction, or no output for {} s of QEMU's processor time. **Reset and recovered** \
              needs the reset path of issue 30 (a watchdog or HardFault reset that resumes from a \
              snapshot); until the firmware has it, a reset ends the run and counts as a crash.\n",
-            o.quiet_s, o.window_s
+            o.quiet_s,
+            o.window_s,
+            super::HANG_CPU_S
         );
         let _ = writeln!(
             s,
             "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time ({:.0} flips an hour on this \
              host): a flip whose outputs stay identical costs its quiet time, and the next flip goes \
              into the same flight; a flip that changes an output is followed for the window and ends \
-             its flight (the next one boots and converges again, about 12 s of flight). 1,000 flips \
-             at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
+             its flight (the next one starts QEMU from the guest's state saved by the first flight \
+             before the first flip time, `-incoming`, instead of booting and converging again). \
+             Placing a flip costs tens of milliseconds. 1,000 flips at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
              later is charged to a later flip of the same flight: of the changed flips below, {} had \
-             masked flips before them in their flight.\n",
+             masked flips before them in their flight; {} flights stopped with no flip being watched \
+             (every flip in them masked).\n",
             self.flights,
             self.wall_s,
             self.flips_per_hour(),
             1000.0 / self.flips_per_hour().max(1e-9),
-            self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count()
+            self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
+            self.latent
         );
         let classes = ["stack", "statics", "core register", "sp/pc", "FPU register"];
         let _ = writeln!(s, "| outcome | flips | share [95 % interval] | {} |", classes.join(" | "));
@@ -212,6 +222,7 @@ impl Campaign {
         let totals: Vec<String> =
             classes.iter().map(|c| self.flips.iter().filter(|f| f.target.class() == *c).count().to_string()).collect();
         let _ = writeln!(s, "| all | {n} | | {} |\n", totals.join(" | "));
+        s.push_str(&self.details());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
         if changed.is_empty() {
             let _ = writeln!(s, "No flip changed an output.");
@@ -238,6 +249,82 @@ impl Campaign {
                     cause
                 );
             }
+        }
+        s
+    }
+}
+
+impl Campaign {
+    /// When the flips landed, the recovery times, the events logged and the crashes'
+    /// causes (Markdown paragraphs).
+    fn details(&self) -> String {
+        let mut s = String::new();
+        let mut t: Vec<f64> = self.flips.iter().map(|f| f.step as f64 * 0.005).collect();
+        t.sort_by(f64::total_cmp);
+        let q = |v: &[f64], p: f64| v.get(((v.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
+        let _ = writeln!(
+            s,
+            "Flip times: first {:.1} s, median {:.1} s, last {:.1} s (every flight restarts at the \
+             first flip time, so early times are sampled more often than late ones). Instruction \
+             of the flip within the step's traced path of {} instructions: median {}.\n",
+            q(&t, 0.0),
+            q(&t, 0.5),
+            q(&t, 1.0),
+            self.path_len,
+            {
+                let mut k: Vec<u32> = self.flips.iter().map(|f| f.instr).collect();
+                k.sort_unstable();
+                k.get(k.len() / 2).copied().unwrap_or(0)
+            }
+        );
+        let mut r: Vec<f64> = self.flips.iter().filter_map(|f| f.recovery_s).collect();
+        r.sort_by(f64::total_cmp);
+        if !r.is_empty() {
+            let _ = writeln!(
+                s,
+                "Recovery (detected and recovered: from the flip to the last frame beyond the bound or \
+                 not claiming a good attitude): {} flips, median {:.2} s, worst {:.2} s.\n",
+                r.len(),
+                q(&r, 0.5),
+                q(&r, 1.0)
+            );
+        }
+        let mut events: Vec<(String, usize)> = Vec::new();
+        for e in self.flips.iter().flat_map(|f| f.events.iter()) {
+            match events.iter_mut().find(|(n, _)| n == e) {
+                Some((_, k)) => *k += 1,
+                None => events.push((e.clone(), 1)),
+            }
+        }
+        let list: Vec<String> = events.iter().map(|(n, k)| format!("`{n}` {k}")).collect();
+        let _ = writeln!(
+            s,
+            "Events the unit logged after a flip that the undisturbed run did not: {}.\n",
+            if list.is_empty() { "none".to_string() } else { list.join(", ") }
+        );
+        let mut causes: Vec<(&str, usize)> = Vec::new();
+        for f in &self.flips {
+            if let Outcome::Crash(w) = &f.outcome {
+                let c = if w.starts_with("hang") {
+                    "no output (hang)"
+                } else if w.contains("hard fault") || w.contains("HardFault") {
+                    "HardFault"
+                } else if w.contains("watchdog") {
+                    "watchdog reset"
+                } else if w.contains("debugger") {
+                    "breakpoint instruction"
+                } else {
+                    "QEMU ended otherwise"
+                };
+                match causes.iter_mut().find(|(n, _)| *n == c) {
+                    Some((_, k)) => *k += 1,
+                    None => causes.push((c, 1)),
+                }
+            }
+        }
+        if !causes.is_empty() {
+            let list: Vec<String> = causes.iter().map(|(n, k)| format!("{n} {k}")).collect();
+            let _ = writeln!(s, "Crashes by cause: {}.\n", list.join(", "));
         }
         s
     }
