@@ -13,10 +13,12 @@
 //! same bytes is bit-identical to the firmware, `host/QEMU equivalence`), giving the
 //! undisturbed output of every step. A flip whose outputs stay identical to it for
 //! [`UpsetOptions::quiet_s`] is classed masked and the same flight goes on to the next
-//! flip; a flip that changes an output is followed for [`UpsetOptions::window_s`] and ends
-//! its flight (the next flip boots a fresh one). The caveat: a corruption that stays
+//! flip; so does one whose outputs changed within the bound and are identical again for
+//! the quiet time (tolerated). Any other flip is followed for [`UpsetOptions::window_s`]
+//! and ends its flight; the next flight starts QEMU from the guest's state saved before
+//! the first flip time (`-incoming`). The caveat: a corruption that stays
 //! invisible for the quiet time and shows later is charged to a later flip of the same
-//! flight (the document counts how many disturbed flips had masked flips before them).
+//! flight (the document counts how many disturbed flips had earlier flips before them).
 
 mod report;
 
@@ -175,7 +177,7 @@ pub struct Flip {
     pub recovery_s: Option<f64>,
     /// Events the unit logged after the flip that the undisturbed run did not.
     pub events: Vec<String>,
-    /// Masked flips made earlier in the same flight.
+    /// Flips made earlier in the same flight (classed masked or tolerated).
     pub earlier_in_flight: u32,
 }
 
@@ -363,6 +365,8 @@ struct Watch {
     instr: u32,
     target: Target,
     changed: bool,
+    /// The last step whose frame differed from the undisturbed one.
+    last_diff: Option<u64>,
     worst: f64,
     silent: f64,
     last_bad: Option<u64>,
@@ -376,10 +380,12 @@ impl Watch {
         self.last_n = n;
         if reference.is_none_or(|r| masked(*r) != masked(*f)) {
             self.changed = true;
+            self.last_diff = Some(n);
         }
         let Some(e) = err_arcsec else {
             // A time tag with no step of the flight: not judged against truth.
             self.changed = true;
+            self.last_diff = Some(n);
             return;
         };
         let o = Observed::from(f);
@@ -437,7 +443,7 @@ struct Ctx<'a> {
     snapshot: std::cell::RefCell<Option<Snapshot>>,
     /// Where the snapshot is saved.
     snapshot_path: PathBuf,
-    /// Flights that stopped after their flips had all been classed masked.
+    /// Flights that stopped after their flips had all been classed (masked, tolerated).
     latent: std::cell::RefCell<u32>,
     ram: Ram,
     started: Instant,
@@ -681,6 +687,7 @@ fn run_flight(
                 instr,
                 target,
                 changed: false,
+                last_diff: None,
                 worst: 0.0,
                 silent: 0.0,
                 last_bad: None,
@@ -703,12 +710,15 @@ fn run_flight(
             w.frame(n, f, reference, err);
         }
         let end = if w.changed { w.flip_step + window } else { w.flip_step + quiet };
-        if n >= end {
-            let unchanged = !w.changed;
+        // Changed within the bound, then identical again for the quiet time: tolerated, and
+        // the flight goes on as after a masked flip (with the same caveat).
+        let settled = w.last_bad.is_none() && w.last_diff.is_some_and(|d| n >= d + quiet);
+        if n >= end || settled {
+            let goes_on = !w.changed || settled;
             flips.push(finish(w, None, ctx, &rx));
             on_flip(flips.last().context("no flip")?);
             watch = None;
-            if !unchanged {
+            if !goes_on {
                 break;
             }
             earlier += 1;

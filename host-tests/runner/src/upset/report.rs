@@ -66,8 +66,8 @@ pub struct Campaign {
     pub entry: u32,
     /// Instructions in the traced path of a step.
     pub path_len: usize,
-    /// Flights that stopped (crash) after every flip in them had been classed masked: a
-    /// latent effect of one of them.
+    /// Flights that stopped (crash) after every flip in them had been classed masked or
+    /// tolerated: a latent effect of one of them.
     pub latent: u32,
     /// Top of the stack.
     pub stack_top: u32,
@@ -197,13 +197,14 @@ impl Campaign {
             s,
             "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time ({:.0} flips an hour on this \
              host): a flip whose outputs stay identical costs its quiet time, and the next flip goes \
-             into the same flight; a flip that changes an output is followed for the window and ends \
-             its flight (the next one starts QEMU from the guest's state saved by the first flight \
+             into the same flight (so does one whose outputs changed within the bound and were \
+             identical again for the quiet time: tolerated); any other flip is followed for the \
+             window and ends its flight (the next one starts QEMU from the guest's state saved by the first flight \
              before the first flip time, `-incoming`, instead of booting and converging again). \
              Placing a flip costs tens of milliseconds. 1,000 flips at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
              later is charged to a later flip of the same flight: of the changed flips below, {} had \
-             masked flips before them in their flight; {} flights stopped with no flip being watched \
-             (every flip in them masked).\n",
+             earlier flips before them in their flight; {} flights stopped with no flip being \
+             watched (every flip in them already classed masked or tolerated).\n",
             self.flights,
             self.wall_s,
             self.flips_per_hour(),
