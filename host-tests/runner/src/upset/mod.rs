@@ -497,6 +497,23 @@ impl Received {
     }
 }
 
+impl Received {
+    /// Signs that the unit reset (a firmware with the reset path resumes on its own tick,
+    /// out of lockstep): more output frames than the `want` STEPs sent, or a `resumed` or
+    /// `snapshot_invalid` event. The runner does not re-enter lockstep after a reset, so
+    /// such a flip is a crash here, never "reset and recovered".
+    fn reset(&self, want: usize) -> Option<String> {
+        let (events, _) = ssis_common::downlink::records(&self.events);
+        let reset_event = events.iter().find(|e| matches!(e.event.name(), "resumed" | "snapshot_invalid"));
+        if let Some(e) = reset_event {
+            return Some(format!("the unit reset (event {}); the runner does not follow a reset yet", e.event.name()));
+        }
+        (self.frames.len() > want).then(|| {
+            "the unit reset (output frames without a STEP); the runner does not follow a reset yet".to_string()
+        })
+    }
+}
+
 /// A free TCP port for QEMU's gdbstub.
 fn free_port() -> Result<u16> {
     Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
@@ -507,10 +524,14 @@ pub(crate) const HANG_CPU_S: f64 = 2.0;
 
 /// Waits for the output frame of the step just sent (`want` frames in all); `Some(why)`
 /// when the unit stopped instead: QEMU exited, the guest stopped for the debugger (a
-/// breakpoint instruction reached by a wild jump), or no output for [`HANG_CPU_S`].
+/// breakpoint instruction reached by a wild jump), no output for [`HANG_CPU_S`], or it
+/// reset ([`Received::reset`], checked for the frames before this step's).
 fn await_frame(unit: &mut Unit, g: &mut Gdb, rx: &mut Received, want: usize) -> Result<Option<String>> {
     let child = &unit.q.as_ref().context("no QEMU")?.child;
     let patience = crate::progress::Patience::new(child, HANG_CPU_S);
+    if let Some(why) = rx.reset(want) {
+        return Ok(Some(why));
+    }
     while rx.frames.len() < want {
         match unit.rx.recv_timeout(Duration::from_millis(20)) {
             Ok((_, b)) => rx.push(&b),
@@ -651,6 +672,8 @@ fn run_flight(
     let mut rx = Received::default();
     let (mut fog_total, mut st_total) = snap.map_or((0, 0), |s| (s.fog_total, s.st_total));
     let mut crash = None;
+    // STEP frames sent in this flight: one output frame each.
+    let mut sent = 0usize;
     for input in &fl.inputs {
         let n = input.n;
         if snap.is_some_and(|s| n <= s.n) {
@@ -697,8 +720,8 @@ fn run_flight(
         } else {
             unit.control(&step)?;
         }
-        let want = rx.frames.len() + 1;
-        if let Some(why) = await_frame(&mut unit, &mut g, &mut rx, want)? {
+        sent += 1;
+        if let Some(why) = await_frame(&mut unit, &mut g, &mut rx, sent)? {
             crash = Some(why);
             break;
         }
