@@ -266,11 +266,16 @@ impl FramedLog {
 ///   `scripts/panic-paths`) log `panic` and stop. `panic: log`: always log and stop (the
 ///   on-target test binaries).
 ///
-/// `stop: fn(bool) -> !` ends the run (QEMU) or parks the CPU (hardware).
+/// `stop: fn(bool) -> !` ends the run (QEMU) or parks the CPU (hardware); `fault: fn(bool)
+/// -> !`, if given, is what the HardFault entry calls instead (a flight firmware resets
+/// the unit: `resilience::reset`).
 #[macro_export]
 macro_rules! cortex_m7_runtime {
     (sink: $sink:path, stop: $stop:path, panic: never) => {
-        $crate::cortex_m7_runtime!(@common $sink, $stop);
+        $crate::cortex_m7_runtime!(sink: $sink, stop: $stop, fault: $stop, panic: never);
+    };
+    (sink: $sink:path, stop: $stop:path, fault: $fault:path, panic: never) => {
+        $crate::cortex_m7_runtime!(@common $sink, $fault);
 
         #[cfg(not(any(debug_assertions, feature = "allow-panic")))]
         #[panic_handler]
@@ -344,7 +349,7 @@ macro_rules! cortex_m7_runtime {
             report = sym __ssis_fault_report,
         );
 
-        /// Logs the fault and stops with failure (the HardFault entry above).
+        /// Logs the fault and stops with failure, or resets (the HardFault entry above).
         extern "C" fn __ssis_fault_report(msp: u32, psp: u32, exc_return: u32) -> ! {
             $crate::cortex_m7::log_fault(msp, psp, exc_return, $sink);
             $stop(false)

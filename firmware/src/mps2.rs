@@ -314,6 +314,14 @@ pub fn on_watchdog_warning() {
     defmt::warn!("watchdog: the main loop has not run for one watchdog period; reset at the next");
 }
 
+/// A flight firmware's way out of a HardFault (logged first): a reset
+/// (`resilience::reset`, SYSRESETREQ; QEMU resets the machine), after which the unit
+/// resumes from its snapshot (`resilience`).
+pub fn fault_reset(_ok: bool) -> ! {
+    defmt::error!("hard fault: resetting the unit");
+    crate::resilience::reset()
+}
+
 /// Ends a QEMU run with the given outcome (semihosting); on hardware it would not
 /// return either.
 pub fn exit(success: bool) -> ! {
@@ -663,6 +671,7 @@ macro_rules! mps2_firmware {
         $crate::cortex_m7_runtime!(
             sink: $crate::mps2::semihosting_sink,
             stop: $crate::mps2::exit,
+            fault: $crate::mps2::fault_reset,
             panic: never
         );
 

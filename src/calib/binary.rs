@@ -73,7 +73,18 @@ pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
 pub fn encode_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableError> {
     let buf = out.get_mut(..TABLE_LEN).ok_or(TableError::BufferTooSmall)?;
     buf.fill(0);
-    let mut w = Cursor { buf, pos: 0 };
+    let pos = encode_body_into(t, buf)?;
+    let mut w = Cursor { buf, pos };
+    let crc = CRC32.checksum(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
+    w.put(&crc.to_le_bytes())?;
+    Ok(w.pos)
+}
+
+/// Writes the binary table without its CRC (the first `TABLE_LEN − 4` bytes, the bytes
+/// the CRC covers) into `out`; returns the number of bytes written. The background check
+/// of the table in RAM computes their CRC in slices (`crate::flight`).
+pub fn encode_body_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableError> {
+    let mut w = Cursor { buf: out, pos: 0 };
     w.put(&MAGIC)?;
     w.put(&FORMAT_VERSION.to_le_bytes())?;
     w.put(&(PAYLOAD_LEN as u16).to_le_bytes())?;
@@ -83,9 +94,6 @@ pub fn encode_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableE
     }
     let flags: u8 = u8::from(t.observer.gains_override.is_some());
     w.put(&[flags, t.observer.estimator.code(), 0, 0])?;
-    let pos = w.pos;
-    let crc = CRC32.checksum(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
-    w.put(&crc.to_le_bytes())?;
     Ok(w.pos)
 }
 

@@ -33,6 +33,16 @@ impl FlightCore {
     /// So the attitude changes only by what the new values imply. Refused (nothing
     /// changed) if [`FlightCore::check_table`] refuses `table`.
     pub fn switch_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
+        self.install_table(table)?;
+        let revision = u16::try_from(table.revision).unwrap_or(u16::MAX);
+        self.events.log(self.last_output.time_us, Event::TableSwitched, 0, revision);
+        Ok(())
+    }
+
+    /// Flies on `table` from the next step, everything built from it rebuilt
+    /// ([`FlightCore::switch_table`] without its event; a table restored by the
+    /// background check).
+    pub(super) fn install_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
         let combiner = checked_combiner(self.profile, table, &self.fog_map)?;
         self.observer.retune(&table.observer)?;
         let dt = self.profile.dt_s();
@@ -47,8 +57,6 @@ impl FlightCore {
         self.mount = table.st_mount();
         self.table = *table;
         self.table_crc = table_crc(table);
-        let revision = u16::try_from(table.revision).unwrap_or(u16::MAX);
-        self.events.log(self.last_output.time_us, Event::TableSwitched, 0, revision);
         Ok(())
     }
 

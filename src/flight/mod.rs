@@ -27,6 +27,8 @@ mod fog;
 mod geometry;
 mod propagate;
 mod report;
+mod scrub;
+pub mod snapshot;
 mod star_aid;
 
 use propagate::Integrated;
@@ -163,6 +165,13 @@ pub struct FlightCore {
     fog_map: [usize; N_FOG],
     /// The log of state changes not yet sent (rarely touched: last).
     events: EventLog,
+    /// Resumed from a reset's snapshot taken at this sample index, its age not yet
+    /// checked ([`snapshot`]).
+    resumed_at: Option<u64>,
+    /// The snapshot's increment change per step, rad, until the resume is confirmed.
+    resume_trend: [f64; 3],
+    /// The background check of the table in use ([`FlightCore::background`]).
+    scrub: scrub::TableScrub,
 }
 
 impl FlightCore {
@@ -202,6 +211,9 @@ impl FlightCore {
             telemetry: Telemetry::new(),
             last_output: StepOutput::START,
             events: EventLog::new(),
+            resumed_at: None,
+            resume_trend: [0.0; 3],
+            scrub: scrub::TableScrub::new(),
         })
     }
 
@@ -315,6 +327,8 @@ impl FlightCore {
         }
         if acc.integrated == 0 {
             self.nothing_integrated(dt_s, &mut acc);
+        } else if let Some(taken_at) = self.resumed_at {
+            self.confirm_resume(taken_at);
         }
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
         // Star-tracker aid: the frames due by now.

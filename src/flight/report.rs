@@ -23,6 +23,21 @@ impl FlightCore {
         self.events.log(self.last_output.time_us, event, a, b);
     }
 
+    /// The board's background check of the code in flash found its CRC changed: logged
+    /// (`code_corrupt`) and counted.
+    pub fn note_code_corrupt(&mut self) {
+        self.telemetry.counters.bump(Counter::CodeCorrupt);
+        self.events.log(self.last_output.time_us, Event::CodeCorrupt, 0, 0);
+    }
+
+    /// The background check of the command key found it changed and restored it from
+    /// its record (`telecommand::CommandLink::check_key`): logged (`key_restored`) and
+    /// counted.
+    pub fn note_key_restored(&mut self) {
+        self.telemetry.counters.bump(Counter::KeysRestored);
+        self.events.log(self.last_output.time_us, Event::KeyRestored, 0, 0);
+    }
+
     /// Board: the watchdog warned (the main loop missed a watchdog period).
     pub fn note_watchdog_warning(&mut self) {
         self.log_event(Event::WatchdogWarning, 0, 0);

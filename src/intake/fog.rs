@@ -143,6 +143,19 @@ impl FogIntake {
         self.clock.index
     }
 
+    /// The sample clock: the last sample's index and the counter expected next (`None`
+    /// before the first frame); a reset's snapshot.
+    pub fn clock(&self) -> (u64, Option<u16>) {
+        (self.clock.index, self.clock.expected)
+    }
+
+    /// Resumes the sample clock after a reset: the samples the FOGs sent meanwhile
+    /// (counters from `expected` on) are lost on every link and bridged, so unit time
+    /// goes on where it was.
+    pub fn resume_clock(&mut self, index: u64, expected: u16) {
+        self.clock = SampleClock { expected: Some(expected), index };
+    }
+
     /// End time of the last sample taken, µs: index × Δt. The product cannot overflow in
     /// any flight (2^64 µs is 585,000 years), so it wraps instead of saturating (a 64-bit
     /// saturating multiply costs a dozen instructions on the M7).

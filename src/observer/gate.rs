@@ -110,6 +110,17 @@ impl Convergence {
         self.updates = self.updates.saturating_add(1);
     }
 
+    /// Updates seen and the running mean square (a reset's snapshot).
+    pub fn state(&self) -> (u32, f64) {
+        (self.updates, self.innov_ms_rad2)
+    }
+
+    /// The inverse of [`Convergence::state`] (a reset resumed).
+    pub fn restore(&mut self, updates: u32, innov_ms_rad2: f64) {
+        self.updates = updates;
+        self.innov_ms_rad2 = innov_ms_rad2;
+    }
+
     /// An update with mismatch |e|² = `e2`: the running mean square per axis (an
     /// exponential mean over about 20 updates) and the update count.
     pub fn note(&mut self, e2: f64) {

@@ -59,6 +59,11 @@ impl Mekf {
         Mekf { cov: MekfCov::aligned(0.0, 0.0, &Matrix3::zeros()), roots: [0.0; 6] }
     }
 
+    /// With covariance `cov` (a reset resumed); the 1σ roots start over.
+    pub fn with_cov(cov: MekfCov) -> Self {
+        Mekf { cov, roots: [0.0; 6] }
+    }
+
     /// Taking over from the fixed-gain observer: its per-axis (P11, P12, P22) as of its
     /// last update into the diagonals of the blocks.
     pub fn with_axes(cov: [[f64; 3]; 3]) -> Self {

@@ -231,6 +231,45 @@ impl Filter {
         }
     }
 
+    /// The covariance as plain numbers (a reset's snapshot): the MEKF's blocks P_aa,
+    /// P_ab, P_bb column by column, or the observer's per-axis (P11, P12, P22) in the
+    /// first nine.
+    pub fn cov_words(&self) -> [f64; 27] {
+        let mut out = [0.0; 27];
+        match self {
+            Filter::Luenberger(l) => {
+                for (o, v) in out.iter_mut().zip(l.cov().iter().flatten()) {
+                    *o = *v;
+                }
+            }
+            Filter::Mekf(m) => {
+                let c = m.cov();
+                for (o, v) in out.iter_mut().zip(c.paa.iter().chain(c.pab.iter()).chain(c.pbb.iter())) {
+                    *o = *v;
+                }
+            }
+        }
+        out
+    }
+
+    /// The inverse of [`Filter::cov_words`] (a reset resumed); the 1σ roots start over.
+    pub fn set_cov_words(&mut self, w: &[f64; 27], fig: &Figures) {
+        match self {
+            Filter::Luenberger(l) => {
+                let mut cov = [[0.0; 3]; 3];
+                for (c, v) in cov.iter_mut().flatten().zip(w) {
+                    *c = *v;
+                }
+                *l = l.clone().with_cov(cov, fig);
+                l.forget_roots();
+            }
+            Filter::Mekf(m) => {
+                let block = |k: usize| Matrix3::from_iterator(w.iter().skip(9 * k).take(9).copied());
+                *m = mekf::Mekf::with_cov(mekf::MekfCov { paa: block(0), pab: block(1), pbb: block(2) });
+            }
+        }
+    }
+
     /// Takes an isolated gyro's share out of `drift_rad_s` ([`Observer::remove_drift_share`]).
     pub fn remove_share(
         &mut self,
@@ -245,6 +284,27 @@ impl Filter {
             Filter::Mekf(m) => m.remove_share(drift_rad_s, share, pbb0),
         }
     }
+}
+
+/// What a reset resumes of the estimate ([`Observer::resume_state`]): plain numbers, so
+/// any bit pattern of a snapshot reads back as a value (checked by its CRC and
+/// plausibility, `crate::flight::snapshot`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ResumeState {
+    /// Drift estimate Δω (ICS), rad/s.
+    pub drift_rad_s: [f64; 3],
+    /// Unit time of the alignment, µs.
+    pub aligned_us: u64,
+    /// Time tag of the last frame that updated the estimate, µs.
+    pub last_update_tag_us: u64,
+    /// Λ(t_s) after the last update (w x y z).
+    pub last_q: [f64; 4],
+    /// Updates since alignment ([`gate::Convergence`]).
+    pub updates: u32,
+    /// Running mean-square mismatch per axis, rad².
+    pub innov_ms_rad2: f64,
+    /// The estimator's covariance ([`Filter::cov_words`]).
+    pub cov: [f64; 27],
 }
 
 /// The estimate from star-tracker frames: the attitude history, alignment, the drift
@@ -499,6 +559,38 @@ impl<const H: usize> Observer<H> {
         self.drift_cov0 = self.fig.noise * sb2;
         self.last_q = c * q_at;
         self.conv.aligned();
+    }
+
+    /// The estimate a reset resumes from (`None` before alignment).
+    pub fn resume_state(&self) -> Option<ResumeState> {
+        let aligned_us = self.aligned_us.filter(|_| self.aligned)?;
+        let (updates, innov_ms_rad2) = self.conv.state();
+        let q = &self.last_q;
+        Some(ResumeState {
+            drift_rad_s: self.drift_rad_s.into(),
+            aligned_us,
+            last_update_tag_us: self.last_update_tag_us.unwrap_or(aligned_us),
+            last_q: [q.w, q.i, q.j, q.k],
+            updates,
+            innov_ms_rad2,
+            cov: self.filter.cov_words(),
+        })
+    }
+
+    /// Resumes the estimate `s` after a reset: aligned at `s.aligned_us`, its drift
+    /// estimate, convergence and covariance; the attitude history starts empty (frames
+    /// tagged before the resume are refused as late).
+    pub fn resume(&mut self, s: &ResumeState) {
+        let [w, i, j, k] = s.last_q;
+        self.aligned = true;
+        self.aligned_us = Some(s.aligned_us);
+        self.last_update_tag_us = Some(s.last_update_tag_us);
+        self.last_q = Quaternion::new(w, i, j, k);
+        self.drift_rad_s = Vector3::from(s.drift_rad_s);
+        self.conv.restore(s.updates, s.innov_ms_rad2);
+        self.drift_cov0 = self.fig.noise * self.initial_drift_var_rad2_s2;
+        self.filter.set_cov_words(&s.cov, &self.fig);
+        self.streak.end();
     }
 
     /// Starts again from an unaligned state (a FOG found mounted wrong before the unit

@@ -175,6 +175,27 @@ impl Authenticator {
         m.verify_truncated_left(&tc.mac).is_ok()
     }
 
+    /// The background check of the key in RAM: the keyed MAC state rebuilt from the
+    /// protected record `record` and compared with the one in use by their tags on a
+    /// fixed message; on a difference (or a key id that differs) the rebuilt state
+    /// replaces it and this returns true. A record that no longer passes its own checks
+    /// changes nothing (the key in use stays; the record is the ground's to reload).
+    pub fn check_key(&mut self, record: &[u8]) -> bool {
+        let Ok(k) = Key::from_record(record) else { return false };
+        let Some(good) = k.mac() else { return false };
+        let tag = |m: &Hmac<Sha256>| {
+            let mut m = m.clone();
+            m.update(b"ssis key check");
+            m.finalize().into_bytes()
+        };
+        let same = k.id == self.key_id && self.mac.as_ref().is_some_and(|m| tag(m) == tag(&good));
+        if !same {
+            self.mac = Some(good);
+            self.key_id = k.id;
+        }
+        !same
+    }
+
     /// Authenticates `tc`: its MAC, then its sequence number, which it then takes as the
     /// last accepted one.
     pub fn check(&mut self, tc: &Telecommand) -> Result<(), AuthError> {
@@ -189,5 +210,32 @@ impl Authenticator {
         }
         self.last_seq = tc.seq;
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_key_state_that_differs_from_its_record_is_restored() {
+        let key = Key { id: 7, bytes: [0x5A; KEY_LEN] };
+        let record = key.to_record();
+        let tc = seal(&key, Telecommand { seq: 1, ..Telecommand::default() });
+        let mut a = Authenticator::new(&record);
+        assert!(a.verify(&tc));
+        assert!(!a.check_key(&record), "an intact key is left as it is");
+        // An upset in the keyed state: stands for any change of its bytes.
+        a.mac = Key { id: 7, bytes: [0x5B; KEY_LEN] }.mac();
+        assert!(!a.verify(&tc));
+        assert!(a.check_key(&record), "the changed key is found");
+        assert!(a.verify(&tc), "and restored from its record");
+        assert_eq!(a.key_id(), 7);
+        // A record that fails its own checks changes nothing.
+        let mut bad = record;
+        bad[10] ^= 1;
+        a.mac = None;
+        assert!(!a.check_key(&bad));
+        assert!(!a.verify(&tc));
     }
 }

@@ -108,6 +108,12 @@ impl CommandLink {
         self.auth.key_id()
     }
 
+    /// The background check of the key in RAM against its record in the KEY region
+    /// ([`Authenticator::check_key`]); true when it was restored.
+    pub fn check_key(&mut self, key_record: &[u8]) -> bool {
+        self.auth.check_key(key_record)
+    }
+
     /// The authenticator (the key and the last sequence number).
     pub fn authenticator(&self) -> &Authenticator {
         &self.auth

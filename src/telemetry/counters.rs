@@ -150,6 +150,11 @@ declare_counters! {
         MountSwapped mount_swapped "pairs of FOGs found swapped in their mounts by the mounting check (flown on the corrected assignment)",
         MountUnverified mount_unverified "FOGs the mounting check could not verify in its first 10 s (no turn about their axes; watched on)",
         MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
+        TablesRestored tables_restored "calibration tables in RAM found corrupt by the background check and restored from the store",
+        KeysRestored keys_restored "command keys in RAM found corrupt by the background check and restored from the record",
+        Resumes resumes "resets resumed from the snapshot in RAM",
+        SnapshotsInvalid snapshots_invalid "snapshots not resumed after a reset (absent, corrupt, another table, implausible, too old)",
+        CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed",
     }
     paged [
         FdiAlarms,

@@ -92,6 +92,11 @@ declare_events! {
     18 CommandAccepted "command_accepted" "a telecommand was authenticated and acted on (a: command code; b: its sequence number, low 16 bits)",
     19 CommandRefused "command_refused" "a decoded telecommand was refused (a: command code; b: the refusal code of the command report)",
     20 TableSwitched "table_switched" "the unit switched to a calibration table (a: 0; b: its revision, low 16 bits)",
+    41 TableRestored "table_restored" "the background check found the calibration table in RAM differing from its CRC: restored from the two-copy store, combiner and gains rebuilt (a: 1 restored, 0 no good copy: flying on as it was, degraded; b: the restored table's revision, low 16 bits)",
+    42 KeyRestored "key_restored" "the background check found the command key in RAM differing from its protected record: restored from the record (a, b: 0)",
+    43 Resumed "resumed" "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
+    44 SnapshotInvalid "snapshot_invalid" "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
+    45 CodeCorrupt "code_corrupt" "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
 }
 
 /// One event with its unit time.

@@ -11,8 +11,8 @@
 //! frame, once the bytes it names have arrived) for exact host/QEMU comparisons, and ends
 //! a run with a control frame: the firmware logs its figures (defmt over semihosting) and
 //! exits QEMU with success; the flight build ignores control frames. A panic cannot
-//! happen (the release build links only without a panic path); a hard fault exits with
-//! failure.
+//! happen (the release build links only without a panic path); a hard fault is logged
+//! and resets the unit.
 //!
 //! | UART | RX | TX |
 //! |---|---|---|
@@ -20,23 +20,34 @@
 //! | 1 | FOG bus: all four FOGs, told apart by `fog_id` | — |
 //! | 2 | star tracker | — |
 //!
-//! Memory: `memory.x` (128 KiB flash, 32 KiB RAM: 28 KiB of stack at the bottom, 4 KiB
-//! of statics above; the calibration table's two copies and the command key in their
-//! own regions).
+//! Memory: `memory.x` (128 KiB flash, 32 KiB RAM: 28 KiB of stack at the bottom, 3.5 KiB
+//! of statics above, 512 B for the reset snapshot; the calibration table's two copies
+//! and the command key in their own regions).
+//!
+//! Against upsets and resets (`ssis_firmware::resilience`): after each step, timed with
+//! it, the background work: a slice of the CRC of the table in RAM
+//! ([`FlightCore::background`], restored from the store when it differs) and of the
+//! code in flash ([`CodeCheck`]), the snapshot every [`SNAPSHOT_STEPS`] and the
+//! command key against its record every [`KEY_CHECK_STEPS`]. A HardFault resets the
+//! unit, as the watchdog does; at boot a good snapshot resumes the core where it was.
 
 use core::convert::Infallible;
 
 use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
 use ssis::bsp::Board;
+use ssis::flight::snapshot::Snapshot;
 use ssis::flight::{st_status, FlightCore, FogLinks, Links, Profile};
 use ssis::frames::telecommand::{CommandReport, Telecommand};
 use ssis::link::{write_frame, RxRing, TxRing};
 use ssis::telecommand::{CommandLink, Outcome};
 use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis_firmware::resilience::{self, CodeCheck, SNAPSHOT_STEPS};
 
 /// Watchdog period in steps (warning after one period, reset after two).
 const WATCHDOG_STEPS: u32 = 10;
+/// Steps between two background checks of the command key (10 s at 5 ms).
+const KEY_CHECK_STEPS: u32 = 2_000;
 
 /// FOG bus receive buffer (four FOG frames per step, several steps of margin).
 static FOG_RX: RxRing<512> = RxRing::new();
@@ -90,6 +101,13 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
         report.defaulted,
         profile.dt_us
     );
+    // A reset resumes from the snapshot in RAM the reset does not clear, if it passes.
+    let mut spare = Snapshot::default();
+    let snap = resilience::snapshot().unwrap_or(&mut spare);
+    resilience::resume(core, snap);
+    let mut code = CodeCheck::new();
+    let (code_len, code_crc) = code.image();
+    defmt::info!("code check: {} bytes of flash, CRC {=u32:#010x}", code_len, code_crc);
     mps2::init(syst, profile.dt_us, &UARTS);
     // Ten steps without a pass of the loop give the warning, twenty the reset.
     mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
@@ -109,6 +127,7 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     let mut pacer = Pacer::new(&UARTS, &CTL_RX);
     let mut times = StepTimes::default();
     let mut warnings = 0;
+    let mut steps = 0u32;
     loop {
         let due = pacer.due(
             core,
@@ -133,6 +152,17 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
         if due {
             let t = Stopwatch::start();
             let out = core.step(&mut links);
+            // The background work, timed with the step: a slice of the table's and the
+            // code's CRC, the snapshot every SNAPSHOT_STEPS, the key every KEY_CHECK_STEPS.
+            core.background(mps2::calib_area());
+            let _ = code.step(core);
+            steps = steps.wrapping_add(1);
+            if steps.is_multiple_of(SNAPSHOT_STEPS) {
+                core.snapshot_into(snap);
+            }
+            if steps.is_multiple_of(KEY_CHECK_STEPS) && link.check_key(mps2::key_area()) {
+                core.note_key_restored();
+            }
             let ticks = t.ticks();
             core.set_step_ticks(u16::try_from(ticks).unwrap_or(u16::MAX));
             times.all.push(ticks);

@@ -1,0 +1,143 @@
+//! What a Cortex-M7 board keeps against upsets and resets, besides the flight core's own
+//! checks: the reset snapshot in RAM the reset does not clear, and the background CRC
+//! of the code in flash.
+//!
+//! - **Snapshot** ([`snapshot`]): one [`Snapshot`] in the layout's SNAP region, RAM no
+//!   section is placed in (`memory.x`: neither cortex-m-rt's start-up nor QEMU's system
+//!   reset, which rewrites every ELF load segment including `.uninit`, clears it),
+//!   written by the main loop every
+//!   [`SNAPSHOT_STEPS`] through [`FlightCore::snapshot_into`] and read at boot by
+//!   [`resume`], which hands it to [`FlightCore::resume`] (CRC, table, plausibility; its
+//!   age at the first sample) and spoils it, so one snapshot is resumed at most once. A
+//!   watchdog reset or a HardFault (which resets the unit: [`reset`]) comes back
+//!   aligned, where it was; a cold start or a bad snapshot aligns on the star tracker.
+//! - **Code check** ([`CodeCheck`]): CRC-32 of the image in flash, the vector table
+//!   through `.rodata`, taken at boot as the reference and then recomputed in slices of
+//!   [`CODE_SLICE`] bytes a step; a difference is logged (`code_corrupt` in the event
+//!   log, counted) and reported. On the target flash is not what an upset changes (the
+//!   CPU reads it through ECC and caches); a reset re-reads it.
+#![allow(unsafe_code)]
+
+use ssis::flight::snapshot::Snapshot;
+use ssis::flight::FlightCore;
+
+/// Steps between two snapshots (200 ms at 5 ms): the snapshot costs about a CRC of its
+/// 400 bytes, spread this thin it is a small share of the step (BENCHMARKS.md).
+pub const SNAPSHOT_STEPS: u32 = 40;
+
+extern "C" {
+    /// The SNAP region of the layout (`memory.x`): RAM no section is placed in.
+    static mut _snapshot_start: u32;
+    static _snapshot_len: u8;
+}
+
+/// The snapshot in RAM the reset does not clear (the layout's SNAP region), as plain
+/// words (any bit pattern is a value: `Snapshot` holds only `u32`s). Only the main loop
+/// calls this, once, so the reference is unique; a layout whose region is too small
+/// gets `None`.
+pub fn snapshot() -> Option<&'static mut Snapshot> {
+    let len = core::ptr::addr_of!(_snapshot_len) as usize;
+    if len < core::mem::size_of::<Snapshot>() {
+        return None;
+    }
+    // SAFETY: the SNAP region is word-aligned RAM of at least `size_of::<Snapshot>()`
+    // bytes (checked), used by nothing else; `Snapshot` is `repr(C)` u32 words, valid for
+    // any bit pattern (RAM after a cold start holds some pattern; its CRC judges it); the
+    // main loop takes this reference once and no interrupt touches it.
+    unsafe { Some(&mut *(core::ptr::addr_of_mut!(_snapshot_start) as *mut Snapshot)) }
+}
+
+/// At boot, with the core just built: resumes it from the snapshot if that passes its
+/// checks, and spoils the snapshot either way (it is rewritten within
+/// [`SNAPSHOT_STEPS`] once the unit is aligned). Logged on the board's log and in the
+/// core's event log.
+#[inline(never)]
+pub fn resume(core: &mut FlightCore, snap: &mut Snapshot) {
+    match core.resume(snap) {
+        Ok(()) => defmt::warn!("reset: resumed from the snapshot taken at sample {}", snap.index()),
+        Err(e) => defmt::info!("no snapshot resumed ({}): aligning on the star tracker", e),
+    }
+    snap.invalidate();
+}
+
+/// Resets the unit (SYSRESETREQ): the HardFault's way out, so an upset of the program
+/// counter or the stack pointer costs a reset and a resume, not the rest of the flight.
+pub fn reset() -> ! {
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
+/// Bytes of flash the code check reads per step.
+pub const CODE_SLICE: usize = 8;
+
+extern "C" {
+    static __vector_table: u32;
+    static __erodata: u32;
+}
+
+/// The flash image the code check covers: the vector table through `.rodata`.
+fn code_image() -> &'static [u8] {
+    let start = core::ptr::addr_of!(__vector_table) as usize;
+    let end = core::ptr::addr_of!(__erodata) as usize;
+    // SAFETY: [vector table, end of .rodata) is the firmware's own image in flash,
+    // mapped and never written.
+    unsafe { core::slice::from_raw_parts(start as *const u8, end.saturating_sub(start)) }
+}
+
+static CODE_CRC32: crc::Crc<u32> = ssis::calib::binary::CRC32;
+
+/// The background CRC of the code in flash (module doc).
+pub struct CodeCheck {
+    image: &'static [u8],
+    reference: u32,
+    pos: usize,
+    digest: crc::Digest<'static, u32>,
+    mismatches: u32,
+}
+
+impl CodeCheck {
+    /// Takes the reference CRC of the image now (at boot: about 6 instructions a byte).
+    #[inline(never)]
+    pub fn new() -> Self {
+        let image = code_image();
+        CodeCheck { image, reference: CODE_CRC32.checksum(image), pos: 0, digest: CODE_CRC32.digest(), mismatches: 0 }
+    }
+
+    /// One slice; at the end of a pass, whether the image still has its reference CRC
+    /// (`Some(false)`: it changed; logged and counted in `core`).
+    #[inline(never)]
+    pub fn step(&mut self, core: &mut FlightCore) -> Option<bool> {
+        let end = (self.pos + CODE_SLICE).min(self.image.len());
+        if let Some(bytes) = self.image.get(self.pos..end) {
+            self.digest.update(bytes);
+        }
+        self.pos = end;
+        if end < self.image.len() {
+            return None;
+        }
+        self.pos = 0;
+        let crc = core::mem::replace(&mut self.digest, CODE_CRC32.digest()).finalize();
+        let same = crc == self.reference;
+        if !same {
+            self.mismatches = self.mismatches.saturating_add(1);
+            core.note_code_corrupt();
+            defmt::error!("code check: flash CRC {=u32:#010x}, {=u32:#010x} at boot", crc, self.reference);
+        }
+        Some(same)
+    }
+
+    /// Bytes covered and the reference CRC.
+    pub fn image(&self) -> (usize, u32) {
+        (self.image.len(), self.reference)
+    }
+
+    /// Passes that found the CRC changed.
+    pub fn mismatches(&self) -> u32 {
+        self.mismatches
+    }
+}
+
+impl Default for CodeCheck {
+    fn default() -> Self {
+        Self::new()
+    }
+}

@@ -1,0 +1,152 @@
+//! The background check of the calibration table in RAM, as cFS's checksum application
+//! checks its tables: a few dozen bytes a step between two flight steps
+//! ([`FlightCore::background`]), the whole table once a second, against the CRC-32 it
+//! was loaded or activated with. A table that differs is restored from the two-copy
+//! store in flash (`calib::store`: the newest good copy), and what the step builds from
+//! it (the combiner, the parity logic, the observer's gains, the mount) is rebuilt from
+//! the restored table; logged `table_restored`, counted. The attitude flown on the
+//! corrupt table since the last good check cannot be backed: the frames are flagged
+//! degraded for [`HOLD_STEPS`] after a restore (for good if no stored copy is good).
+//!
+//! The step itself never runs any of this: the board calls [`FlightCore::background`]
+//! after each step, so a replay that does not call it (the host's golden flights) is
+//! unchanged, and a call that finds nothing wrong changes no output.
+
+use super::FlightCore;
+use crate::calib::binary::{self, TABLE_LEN};
+use crate::calib::store;
+use crate::telemetry::events::Event;
+use crate::telemetry::{flags, Counter};
+
+/// Bytes of the table's binary form the CRC covers.
+const BODY_LEN: usize = TABLE_LEN - 4;
+/// Bytes checked per step.
+const SLICE: usize = 32;
+/// Steps per pass: the whole table once a second at 5 ms (encoding it is the pass's
+/// first step, its slices the next ones, then nothing until the next pass).
+pub const PASS_STEPS: u16 = 200;
+/// Steps the frames stay flagged degraded after a restore (1 s at 5 ms).
+pub const HOLD_STEPS: u16 = 200;
+
+/// The CRC the store and the command link name a table by (CRC-32/ISO-HDLC).
+static TABLE_CRC32: crc::Crc<u32> = binary::CRC32;
+
+/// Where the background check of the table is.
+#[derive(Clone)]
+pub(super) struct TableScrub {
+    /// The table's binary form up to its CRC, encoded at the start of a pass.
+    body: [u8; BODY_LEN],
+    /// The CRC of the bytes checked so far in this pass.
+    digest: crc::Digest<'static, u32>,
+    /// Step within the pass (0: encode).
+    tick: u16,
+    /// Steps left of the degraded flag after a restore (`u16::MAX`: for good).
+    hold: u16,
+}
+
+impl TableScrub {
+    pub(super) fn new() -> Self {
+        TableScrub { body: [0; BODY_LEN], digest: TABLE_CRC32.digest(), tick: 0, hold: 0 }
+    }
+}
+
+impl FlightCore {
+    /// The background work between two steps, a slice a call (the board calls it after
+    /// every step): the table in RAM against its CRC, restored from `calib_region` (the
+    /// two-copy store, [`store::REGION_LEN`] bytes of flash) when it differs (module
+    /// doc). Returns true when it restored a table.
+    #[inline(never)]
+    pub fn background(&mut self, calib_region: &[u8]) -> bool {
+        let s = &mut self.scrub;
+        if s.hold > 0 && s.hold != u16::MAX {
+            s.hold -= 1;
+            if s.hold == 0 {
+                self.fixed_flags &= !flags::DEGRADED;
+            }
+        }
+        let s = &mut self.scrub;
+        let tick = s.tick;
+        s.tick = if tick + 1 >= PASS_STEPS { 0 } else { tick + 1 };
+        let slices = BODY_LEN.div_ceil(SLICE);
+        match usize::from(tick) {
+            0 => {
+                let _ = binary::encode_body_into(&self.table, &mut s.body);
+                s.digest = TABLE_CRC32.digest();
+                false
+            }
+            k if k <= slices => {
+                let from = (k - 1) * SLICE;
+                if let Some(bytes) = s.body.get(from..(from + SLICE).min(BODY_LEN)) {
+                    s.digest.update(bytes);
+                }
+                if k < slices {
+                    return false;
+                }
+                let crc = core::mem::replace(&mut s.digest, TABLE_CRC32.digest()).finalize();
+                crc != self.table_crc && self.restore_table(calib_region)
+            }
+            _ => false,
+        }
+    }
+
+    /// The table in RAM differs from its CRC: flies the newest good stored copy, all
+    /// that is built from it rebuilt; degraded for [`HOLD_STEPS`]. With no good copy (or
+    /// one the core refuses) it flies on as it was, degraded for good.
+    #[inline(never)]
+    fn restore_table(&mut self, calib_region: &[u8]) -> bool {
+        let loaded = store::load(calib_region);
+        let now_us = self.last_output.time_us;
+        self.telemetry.counters.bump(Counter::TablesRestored);
+        self.fixed_flags |= flags::DEGRADED;
+        let restored = !loaded.defaulted() && self.install_table(&loaded.table).is_ok();
+        let revision = u16::try_from(loaded.table.revision).unwrap_or(u16::MAX);
+        self.scrub.hold = if restored { HOLD_STEPS } else { u16::MAX };
+        self.events.log(now_us, Event::TableRestored, u8::from(restored), if restored { revision } else { 0 });
+        restored
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::calib::CalibrationTable;
+    use crate::flight::Profile;
+    use crate::telemetry::events::Event;
+
+    #[test]
+    fn a_changed_table_is_found_within_a_pass_and_restored_from_the_store() {
+        let table = CalibrationTable::DEFAULT;
+        let region = store::image(&table);
+        let mut core = FlightCore::new(Profile::SPACECRAFT, &table, false).unwrap();
+        let combiner = core.combiner;
+        for _ in 0..3 * PASS_STEPS {
+            assert!(!core.background(&region), "an intact table is left as it is");
+        }
+        assert_eq!(core.fixed_flags & flags::DEGRADED, 0);
+        // One bit of a FOG's misalignment: the combiner built from it changes too.
+        core.table.misalignment.d12_rad = f64::from_bits(core.table.misalignment.d12_rad.to_bits() ^ (1 << 40));
+        core.combiner = crate::combination::Combiner::new(&[nalgebra::Vector3::x(); 4]);
+        let restored = (0..PASS_STEPS).filter(|_| core.background(&region)).count();
+        assert_eq!(restored, 1, "found once, within one pass");
+        assert_eq!(binary::encode(&core.table), binary::encode(&table));
+        assert_eq!(core.combiner, combiner, "the combiner is rebuilt from the restored table");
+        assert_eq!(core.counter(Counter::TablesRestored), 1);
+        let e = core.events.pending().last().copied().unwrap();
+        assert_eq!((e.event, e.a), (Event::TableRestored, 1));
+        assert_ne!(core.fixed_flags & flags::DEGRADED, 0, "degraded after the restore");
+        for _ in 0..HOLD_STEPS {
+            core.background(&region);
+        }
+        assert_eq!(core.fixed_flags & flags::DEGRADED, 0, "and no longer after the hold");
+        // No good copy in the store: it flies on, degraded for good.
+        core.table.gamma_rad += 1e-6;
+        let blank = [0xFFu8; store::REGION_LEN];
+        let restored = (0..PASS_STEPS).filter(|_| core.background(&blank)).count();
+        assert_eq!(restored, 0);
+        assert_eq!(core.counter(Counter::TablesRestored), 2);
+        for _ in 0..3 * PASS_STEPS {
+            core.background(&blank);
+        }
+        assert_ne!(core.fixed_flags & flags::DEGRADED, 0);
+    }
+}
