@@ -21,10 +21,10 @@ fn upset_sample_in_qemu() {
 
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
     let mut sc = Scenario::from_file(&path).expect("scenario");
-    sc.duration_s = 16.0;
+    sc.duration_s = 15.0;
     let o = UpsetOptions {
         elf,
-        flips: 8,
+        flips: 6,
         seed: 3,
         first_s: 12.0,
         quiet_s: 0.25,
@@ -34,12 +34,12 @@ fn upset_sample_in_qemu() {
         max_wall_s: None,
     };
     let c = run_campaign(&sc, &o, |_| {}).expect("campaign");
-    assert_eq!(c.flips.len(), 8);
+    assert_eq!(c.flips.len(), 6);
     let masked = c.flips.iter().filter(|f| f.outcome == Outcome::Masked).count();
     // Most single flips change nothing the unit outputs (issue 30: 95.6 % on the host).
-    assert!(masked >= 4, "{}", c.report());
+    assert!(masked >= 3, "{}", c.report());
     for f in &c.flips {
-        assert!(f.step >= 2400 && f.step as f64 * 0.005 <= 16.0, "{f:?}");
+        assert!(f.step >= 2400 && f.step as f64 * 0.005 <= 15.0, "{f:?}");
         assert!((f.instr as usize) < c.path_len, "{f:?}");
         match f.target {
             Target::Stack { addr, .. } => assert!(addr < c.stack_top, "{f:?}"),
@@ -51,6 +51,6 @@ fn upset_sample_in_qemu() {
             assert!(f.events.is_empty() && f.recovery_s.is_none(), "{f:?}");
         }
     }
-    let doc = c.document("ssis-qemu-upset --flips 8");
+    let doc = c.document("ssis-qemu-upset --flips 6");
     assert!(doc.contains("| masked | ") && doc.contains("| silent | "), "{doc}");
 }
