@@ -72,7 +72,7 @@ pub fn control_frames_on_flight_build(
     let calib = crate::qemu::symbol(elf, "_calib_start")?;
     let image = store::image(table);
     let mut unit =
-        Unit::start(elf, 3, None, &[("table.img", &image, calib)], &[0], crate::transport::Transport::Sockets)?;
+        Unit::start(elf, 3, None, &[("table.img", &image, calib)], &[0], crate::transport::Transport::Sockets, &[])?;
     let mut bytes = Vec::new();
     let listen = |unit: &mut Unit, bytes: &mut Vec<u8>, d: Duration| {
         let t0 = Instant::now();

@@ -12,15 +12,21 @@
 //!   the board's USB–RS-422 adapters).
 //! - [`telecommands`]: the command link's side of a lockstep run (telecommands by step,
 //!   the in-process reference's command link).
+//! - [`gdb`]: a minimal client of QEMU's gdbstub (halt, step, breakpoints, registers,
+//!   memory).
+//! - [`upset`]: the upset campaign on the firmware (bit flips through the gdbstub,
+//!   `ssis-qemu-upset`).
 //!
 //! The runner drives the test builds (`ssis-fw-test`, `ssis-fw-lv-test`: the flight
 //! firmwares with their test hooks); a flight build ignores control frames and runs in
 //! real time only.
 
 pub mod flight_build;
+pub mod gdb;
 pub mod json;
 pub mod progress;
 pub mod qemu;
 pub mod qemu_lv;
 pub mod telecommands;
 pub mod transport;
+pub mod upset;

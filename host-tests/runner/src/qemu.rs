@@ -558,8 +558,8 @@ pub(crate) struct Started {
 /// serial ports, each a Unix socket in `dir` (removed with the returned [`Qemu`]) or, with
 /// [`Transport::Pty`], a pseudo-terminal opened as a serial port,
 /// `-icount` with `icount` if given, semihosting, `-action watchdog=poweroff` (with
-/// `-icount`; otherwise `none`), and each
-/// (file, address) of `loaders` loaded with `-device loader`; waits for every UART to
+/// `-icount`; otherwise `none`), the arguments `extra` (the upset campaign's `-gdb`), and
+/// each (file, address) of `loaders` loaded with `-device loader`; waits for every UART to
 /// connect.
 pub(crate) fn start_qemu(
     elf: &Path,
@@ -568,6 +568,7 @@ pub(crate) fn start_qemu(
     icount: Option<&str>,
     loaders: &[(PathBuf, u64)],
     transport: Transport,
+    extra: &[String],
 ) -> Result<Started> {
     let pty = transport == Transport::Pty;
     let socks: Vec<PathBuf> =
@@ -600,6 +601,7 @@ pub(crate) fn start_qemu(
     if let Ok(extra) = std::env::var("SSIS_QEMU_EXTRA_ARGS") {
         cmd.args(extra.split_whitespace());
     }
+    cmd.args(extra);
     for (file, addr) in loaders {
         cmd.args(["-device", &format!("loader,file={},addr={addr:#x}", file.display())]);
     }
@@ -892,7 +894,8 @@ pub(crate) struct Unit {
 }
 
 impl Unit {
-    /// Starts QEMU on `elf` with `n_uarts` UARTs and `-icount` with `icount` if given; each
+    /// Starts QEMU on `elf` with `n_uarts` UARTs, `-icount` with `icount` if given and the
+    /// arguments `extra`; each
     /// (file name, bytes, address) of `images` is written to the run's directory and loaded
     /// into flash; a thread reads each UART of `outputs`.
     pub(crate) fn start(
@@ -902,6 +905,7 @@ impl Unit {
         images: &[(&str, &[u8], u64)],
         outputs: &[usize],
         transport: Transport,
+        extra: &[String],
     ) -> Result<Unit> {
         static RUN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
         let k = RUN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -914,7 +918,7 @@ impl Unit {
             std::fs::write(&path, bytes)?;
             loaders.push((path, *addr));
         }
-        let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders, transport)?;
+        let Started { q, uarts, log_thread } = start_qemu(elf, dir, n_uarts, icount, &loaders, transport, extra)?;
         Unit::with_uarts(Some(q), uarts, outputs, Some(log_thread))
     }
 
@@ -967,7 +971,7 @@ impl Unit {
     }
 
     /// Stops QEMU (a board is left running).
-    fn kill(&mut self) {
+    pub(crate) fn kill(&mut self) {
         if let Some(q) = self.q.as_mut() {
             let _ = q.child.kill();
             let _ = q.child.wait();
@@ -978,6 +982,15 @@ impl Unit {
     /// `ssis::calib::store`, as a flight image, or the options' image): UART0 control and
     /// output, UART1 FOG bus, UART2 star tracker.
     fn boot(table: &ssis::calib::CalibrationTable, opts: &QemuOptions) -> Result<Unit> {
+        Unit::boot_with(table, opts, &[])
+    }
+
+    /// [`Unit::boot`] with more QEMU arguments (`-gdb tcp::PORT`).
+    pub(crate) fn boot_with(
+        table: &ssis::calib::CalibrationTable,
+        opts: &QemuOptions,
+        extra: &[String],
+    ) -> Result<Unit> {
         let image = match &opts.table_image {
             Some(img) => img.clone(),
             None => store::image(table).to_vec(),
@@ -993,7 +1006,7 @@ impl Unit {
         if let Some(board) = &opts.board {
             return Unit::attach(board, &[0]);
         }
-        Unit::start(&opts.elf, 3, icount, &images, &[0], opts.transport)
+        Unit::start(&opts.elf, 3, icount, &images, &[0], opts.transport, extra)
     }
 
     /// Sends a control frame with `command` alone.
@@ -1139,7 +1152,7 @@ impl Unit {
     }
 
     /// The firmware's defmt log, decoded (once QEMU has ended: the log closes with it).
-    fn log(&mut self, elf: &Path) -> Vec<String> {
+    pub(crate) fn log(&mut self, elf: &Path) -> Vec<String> {
         let bytes = self.log_thread.take().and_then(|t| t.join().ok()).unwrap_or_default();
         decode_defmt(elf, &bytes).unwrap_or_else(|e| vec![format!("(defmt log not decoded: {e})")])
     }

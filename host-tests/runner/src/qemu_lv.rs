@@ -383,7 +383,7 @@ fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit) -> Result<Un
     let icount = Some(crate::progress::ICOUNT_LOCKSTEP);
     let images: [(&str, &[u8], u64); 2] =
         [("table.img", &store::image(table), calib_addr), ("lvdata.img", &lvdata, lvdata_addr)];
-    Unit::start(&opts.elf, 5, icount, &images, &[0, 2], crate::transport::Transport::Sockets)
+    Unit::start(&opts.elf, 5, icount, &images, &[0, 2], crate::transport::Transport::Sockets, &[])
 }
 
 /// The sensor links as the runner writes them (UART1 FOG bus, UART3 accelerometer bus,

@@ -1,0 +1,132 @@
+//! `ssis-qemu-upset`: the upset campaign on the firmware in QEMU (issue 30): single bit
+//! flips into the RAM in use and the registers through QEMU's gdbstub, at random
+//! instructions inside random steps after convergence, classed against truth and the
+//! undisturbed run (`ssis_runner::upset`). `--help` for options.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Result;
+use clap::Parser;
+use ssis_common::cli;
+use ssis_common::output::{self, Origin};
+use ssis_runner::qemu::{build_firmware, default_elf};
+use ssis_runner::upset::{run_campaign, UpsetOptions};
+use ssis_sim::scenario::Scenario;
+
+#[derive(Parser)]
+#[command(
+    name = "ssis-qemu-upset",
+    version,
+    about = "Upset campaign on the firmware in QEMU (bit flips through the gdbstub)"
+)]
+struct Args {
+    /// Scenario file (TOML).
+    #[arg(default_value = "scenarios/qemu-flight.toml")]
+    scenario: PathBuf,
+    /// Flips to make.
+    #[arg(long, default_value_t = 20)]
+    flips: usize,
+    /// Seed of the flips.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Shorten the scenario to this many seconds.
+    #[arg(long)]
+    duration: Option<f64>,
+    /// First flip at this time, s (after the observer's convergence).
+    #[arg(long, default_value_t = 12.0)]
+    first: f64,
+    /// Outputs identical for this long after a flip: masked, s.
+    #[arg(long, default_value_t = 0.5)]
+    quiet: f64,
+    /// A flip that changed an output is followed this long, s.
+    #[arg(long, default_value_t = 10.0)]
+    window: f64,
+    /// Largest gap between one masked flip's quiet time and the next flip, s.
+    #[arg(long, default_value_t = 0.5)]
+    gap: f64,
+    /// Share of flips into registers (core and FPU); the rest go into the RAM in use.
+    #[arg(long, default_value_t = 0.25)]
+    register_share: f64,
+    /// Make no new flip after this many minutes of wall time.
+    #[arg(long)]
+    max_minutes: Option<f64>,
+    /// Firmware ELF (default: build and use the test build ssis-fw-test).
+    #[arg(long)]
+    elf: Option<PathBuf>,
+    /// Write the campaign document here (docs/UPSET-CAMPAIGN-QEMU.md).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// One line per flip on standard error.
+    #[arg(long)]
+    verbose: bool,
+    #[command(flatten)]
+    flags: cli::Flags,
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    cli::finish(args.flags.start("ssis-qemu-upset").and_then(|()| campaign(&args)))
+}
+
+/// Runs the campaign; `Ok(false)` when a flip was silent.
+fn campaign(args: &Args) -> Result<bool> {
+    output::input(&args.scenario);
+    if let Some(p) = &args.out {
+        output::claim(p, Origin::Named)?;
+    }
+    let mut sc = Scenario::from_file(&args.scenario)?;
+    if let Some(d) = args.duration {
+        sc.duration_s = d;
+    }
+    let elf = match &args.elf {
+        Some(e) => e.clone(),
+        None => {
+            build_firmware()?;
+            default_elf()
+        }
+    };
+    let o = UpsetOptions {
+        elf,
+        flips: args.flips,
+        seed: args.seed,
+        first_s: args.first,
+        quiet_s: args.quiet,
+        window_s: args.window,
+        gap_s: args.gap,
+        register_share: args.register_share,
+        max_wall_s: args.max_minutes.map(|m| m * 60.0),
+    };
+    let mut k = 0;
+    let c = run_campaign(&sc, &o, |f| {
+        k += 1;
+        if args.verbose || f.outcome.name() != "masked" {
+            eprintln!(
+                "flip {k}/{}: step {} (+{} instr) {} -> {} (worst {:.1}″{})",
+                o.flips,
+                f.step,
+                f.instr,
+                f.target.describe(),
+                f.outcome.name(),
+                f.worst_arcsec,
+                match &f.outcome {
+                    ssis_runner::upset::Outcome::Crash(w) => format!("; {w}"),
+                    _ => String::new(),
+                }
+            );
+        } else if k % 50 == 0 {
+            eprintln!("flip {k}/{}", o.flips);
+        }
+    })?;
+    print!("{}", c.report());
+    cli::report("campaign", || c.json());
+    if let Some(p) = &args.out {
+        let command = std::iter::once("ssis-qemu-upset".to_string())
+            .chain(std::env::args().skip(1))
+            .collect::<Vec<_>>()
+            .join(" ");
+        output::write(p, c.document(&command).as_bytes())?;
+        println!("wrote {}", p.display());
+    }
+    Ok(c.silent() == 0)
+}

@@ -1,0 +1,854 @@
+//! The upset campaign on the firmware in QEMU (issue 30): single bit flips into the RAM
+//! the firmware uses (the live stack, from SP to the stack's top, and its statics) and
+//! into its core and FPU registers, through QEMU's gdbstub ([`crate::gdb`]), each at a
+//! random instruction inside a random step after convergence, classed against truth and
+//! the undisturbed run ([`Outcome`]).
+//!
+//! How a flip is placed: the runner halts the guest before a step, sets a breakpoint at
+//! the first instruction of the inlined `FlightCore::step` (found in the ELF's debug
+//! information, [`step_code`]), sends the STEP frame, runs to a random instruction of the
+//! step ([`place_flip`]), then flips one bit and lets the guest run.
+//!
+//! What makes it affordable: the flight is run once in-process (the flight core on the
+//! same bytes is bit-identical to the firmware, `host/QEMU equivalence`), giving the
+//! undisturbed output of every step. A flip whose outputs stay identical to it for
+//! [`UpsetOptions::quiet_s`] is classed masked and the same flight goes on to the next
+//! flip; so does one whose outputs changed within the bound and are identical again for
+//! the quiet time (tolerated). Any other flip is followed for [`UpsetOptions::window_s`]
+//! and ends its flight; the next flight starts QEMU from the guest's state saved before
+//! the first flip time (`-incoming`). The caveat: a corruption that stays
+//! invisible for the quiet time and shows later is charged to a later flip of the same
+//! flight (the document counts how many disturbed flips had earlier flips before them).
+
+mod report;
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, Result};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::output::{flags, OutputFrame};
+use ssis::telemetry::events::EventRecord;
+use ssis_common::downlink::{Down, Downlink};
+use ssis_common::mock::{MockLink, MockSink};
+use ssis_sim::harness::{Evaluator, Observed, Simulation, StepInput};
+use ssis_sim::scenario::Scenario;
+
+pub use report::{Campaign, Interval};
+
+use crate::gdb::{self, Gdb};
+use crate::qemu::{masked, symbol, QemuOptions, Unit};
+
+/// How a campaign runs.
+#[derive(Debug, Clone)]
+pub struct UpsetOptions {
+    /// Firmware ELF (a test build: lockstep).
+    pub elf: PathBuf,
+    /// Flips to make.
+    pub flips: usize,
+    /// Seed of the flips' steps, instructions, targets and bits.
+    pub seed: u64,
+    /// First flip time, s (after the observer's convergence).
+    pub first_s: f64,
+    /// Outputs identical to the undisturbed run for this long after a flip: masked, s.
+    pub quiet_s: f64,
+    /// A flip that changed an output is followed this long, s.
+    pub window_s: f64,
+    /// Largest gap between the end of one flip's quiet time and the next flip, s.
+    pub gap_s: f64,
+    /// Share of flips into registers (the rest into RAM).
+    pub register_share: f64,
+    /// Stop making new flips after this much wall time, s.
+    pub max_wall_s: Option<f64>,
+}
+
+/// Where a bit was flipped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Target {
+    /// A byte of the live stack (SP to the stack's top) at the flip.
+    Stack {
+        /// Address.
+        addr: u32,
+        /// Bit 0–7.
+        bit: u8,
+    },
+    /// A byte of the statics (.data, .bss, .uninit).
+    Static {
+        /// Address.
+        addr: u32,
+        /// Bit 0–7.
+        bit: u8,
+    },
+    /// A core register (r0–r15, xPSR as gdb numbers them).
+    Core {
+        /// gdb register number.
+        reg: u32,
+        /// Bit 0–31.
+        bit: u8,
+    },
+    /// An FPU register (d0–d15, FPSCR).
+    Fpu {
+        /// gdb register number.
+        reg: u32,
+        /// Bit 0–63 (0–31 for FPSCR).
+        bit: u8,
+    },
+}
+
+impl Target {
+    /// The class of the target, for the tables.
+    pub fn class(&self) -> &'static str {
+        match self {
+            Target::Stack { .. } => "stack",
+            Target::Static { .. } => "statics",
+            Target::Core { reg: gdb::SP, .. } | Target::Core { reg: gdb::PC, .. } => "sp/pc",
+            Target::Core { .. } => "core register",
+            Target::Fpu { .. } => "FPU register",
+        }
+    }
+
+    /// A short description (`stack 0x20005f10 bit 3`, `r13 bit 7`, `d4 bit 52`).
+    pub fn describe(&self) -> String {
+        match *self {
+            Target::Stack { addr, bit } => format!("stack {addr:#010x} bit {bit}"),
+            Target::Static { addr, bit } => format!("statics {addr:#010x} bit {bit}"),
+            Target::Core { reg: gdb::XPSR, bit } => format!("xpsr bit {bit}"),
+            Target::Core { reg, bit } => format!("r{reg} bit {bit}"),
+            Target::Fpu { reg: gdb::FPSCR, bit } => format!("fpscr bit {bit}"),
+            Target::Fpu { reg, bit } => format!("d{} bit {bit}", reg - gdb::D0),
+        }
+    }
+}
+
+/// What a flip did, against truth and the undisturbed run.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Outcome {
+    /// Every output identical to the undisturbed run's for the quiet time.
+    Masked,
+    /// Outputs changed; every frame's error within max(20″, the unit's 3σ).
+    Tolerated,
+    /// Error beyond the bound only in frames that did not claim a good attitude, and back
+    /// within it (and claiming it) before the window's end.
+    DetectedRecovered,
+    /// Beyond the bound, flagged, and not back by the window's end.
+    DetectedNotRecovered,
+    /// The unit reset and came back (not possible yet: a reset ends the QEMU run).
+    ResetRecovered,
+    /// A frame claiming a good attitude beyond the bound.
+    Silent,
+    /// The firmware stopped: QEMU exited (HardFault, watchdog) or no output came.
+    Crash(String),
+}
+
+impl Outcome {
+    /// The row name in the tables.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Outcome::Masked => "masked",
+            Outcome::Tolerated => "tolerated",
+            Outcome::DetectedRecovered => "detected and recovered",
+            Outcome::DetectedNotRecovered => "detected, not recovered in the window",
+            Outcome::ResetRecovered => "reset and recovered",
+            Outcome::Silent => "silent",
+            Outcome::Crash(_) => "crash",
+        }
+    }
+}
+
+/// One flip and what it did.
+#[derive(Debug, Clone)]
+pub struct Flip {
+    /// Step the flip was made in.
+    pub step: u64,
+    /// Instructions executed in that step before the flip.
+    pub instr: u32,
+    /// The bit.
+    pub target: Target,
+    /// The class.
+    pub outcome: Outcome,
+    /// Largest attitude error after the flip, ″ (any axis).
+    pub worst_arcsec: f64,
+    /// Largest error in a frame that claimed a good attitude beyond the bound, ″.
+    pub silent_arcsec: f64,
+    /// From the flip to the last frame beyond the bound (recovered flips), s.
+    pub recovery_s: Option<f64>,
+    /// Events the unit logged after the flip that the undisturbed run did not.
+    pub events: Vec<String>,
+    /// Flips made earlier in the same flight (classed masked or tolerated).
+    pub earlier_in_flight: u32,
+}
+
+/// The undisturbed flight: every step's bytes and the in-process core's output frame and
+/// events.
+struct Flight {
+    table: ssis::calib::CalibrationTable,
+    profile: ssis::flight::Profile,
+    settle_s: f64,
+    inputs: Vec<StepInput>,
+    frames: Vec<Option<OutputFrame>>,
+    events: Vec<EventRecord>,
+}
+
+impl Flight {
+    fn record(sc: &Scenario) -> Result<Flight> {
+        let mut sim = Simulation::new(sc)?;
+        let (table, profile) = (sim.table, sim.profile);
+        let mut core = ssis::flight::FlightCore::new(profile, &table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+        let (mut fog, mut star, mut out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
+        let mut link = Downlink::new();
+        let (mut inputs, mut frames, mut events) = (Vec::new(), Vec::new(), Vec::new());
+        while let Some(input) = sim.next_step() {
+            fog.send(&fog_bytes(&input, &profile));
+            star.send(&input.st_bytes);
+            let mut links =
+                ssis::flight::Links { fog: ssis::flight::FogLinks::Bus(&mut fog), star: &mut star, out: &mut out };
+            core.step(&mut links);
+            events.extend(std::iter::from_fn(|| core.take_event()));
+            let mut frame = None;
+            link.push(&std::mem::take(&mut out.bytes), |d| {
+                if let Down::Output(f) = d {
+                    frame = Some(f);
+                }
+            });
+            frames.push(frame);
+            inputs.push(input);
+        }
+        Ok(Flight { table, profile, settle_s: sc.settle_s, inputs, frames, events })
+    }
+}
+
+/// The FOG bus bytes of one step (the profile's FOGs that sent a frame).
+fn fog_bytes(input: &StepInput, profile: &ssis::flight::Profile) -> Vec<u8> {
+    let mut b = Vec::with_capacity(64);
+    for (i, f) in input.fog_frames.iter().enumerate() {
+        if profile.fogs.contains(i) && input.present.contains(i) {
+            b.extend_from_slice(f);
+        }
+    }
+    b
+}
+
+/// Where the step's code is: `FlightCore::step` as inlined into the firmware's main loop.
+#[derive(Debug, Clone)]
+pub struct StepCode {
+    /// Its first instruction: the lowest address of the inlined instance's ranges in the
+    /// ELF's DWARF (`DW_AT_entry_pc` where given).
+    pub entry: u32,
+    /// The inlined instance's address ranges.
+    pub ranges: Vec<(u32, u32)>,
+    /// The address range of the function it is inlined into (the main loop).
+    pub caller: (u32, u32),
+}
+
+impl StepCode {
+    /// Whether `pc` is back in the main loop after the step (in the caller, outside the
+    /// step's ranges).
+    fn after(&self, pc: u32) -> bool {
+        (self.caller.0..self.caller.1).contains(&pc) && !self.ranges.iter().any(|r| (r.0..r.1).contains(&pc))
+    }
+}
+
+/// The step's code in `elf` ([`StepCode`]).
+pub fn step_code(elf: &Path) -> Result<StepCode> {
+    use gimli::{AttributeValue, EndianSlice, RunTimeEndian};
+    use object::{Object, ObjectSection, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    let load = |id: gimli::SectionId| -> Result<std::borrow::Cow<'_, [u8]>, gimli::Error> {
+        Ok(file.section_by_name(id.name()).and_then(|s| s.uncompressed_data().ok()).unwrap_or_default())
+    };
+    let sections = gimli::DwarfSections::load(load)?;
+    let dwarf = sections.borrow(|s| EndianSlice::new(s, RunTimeEndian::Little));
+    let mut units = dwarf.units();
+    while let Some(header) = units.next()? {
+        let unit = dwarf.unit(header)?;
+        let mut entries = unit.entries();
+        while let Some((_, e)) = entries.next_dfs()? {
+            if e.tag() != gimli::DW_TAG_inlined_subroutine {
+                continue;
+            }
+            let Some(AttributeValue::UnitRef(o)) = e.attr_value(gimli::DW_AT_abstract_origin)? else { continue };
+            let mut origin = unit.entry(o)?;
+            if let Some(AttributeValue::UnitRef(spec)) = origin.attr_value(gimli::DW_AT_specification)? {
+                origin = unit.entry(spec)?;
+            }
+            let Some(name) = origin.attr_value(gimli::DW_AT_linkage_name)? else { continue };
+            let name = dwarf.attr_string(&unit, name)?;
+            if !name.to_string_lossy().contains("10FlightCore4step17h") {
+                continue;
+            }
+            let mut ranges = Vec::new();
+            let mut it = dwarf.die_ranges(&unit, e)?;
+            while let Some(r) = it.next()? {
+                ranges.push((r.begin as u32, r.end as u32));
+            }
+            let low = ranges.iter().map(|r| r.0).min().context("the inlined FlightCore::step has no address range")?;
+            let entry = match e.attr_value(gimli::DW_AT_entry_pc)? {
+                Some(AttributeValue::Addr(a)) => a as u32,
+                _ => low,
+            };
+            let caller = file
+                .symbols()
+                .map(|s| ((s.address() & !1) as u32, s.size() as u32))
+                .find(|&(a, size)| size > 0 && (a..a + size).contains(&entry))
+                .map(|(a, size)| (a, a + size))
+                .context("no function symbol around the step's code")?;
+            return Ok(StepCode { entry, ranges, caller });
+        }
+    }
+    anyhow::bail!("{}: no inlined FlightCore::step in its debug information", elf.display())
+}
+
+/// The memory a RAM flip may hit: the stack's top and the statics' range.
+#[derive(Debug, Clone, Copy)]
+struct Ram {
+    stack_top: u32,
+    statics: (u32, u32),
+}
+
+impl Ram {
+    fn of(elf: &Path) -> Result<Ram> {
+        let s = |n: &str| symbol(elf, n).map(|a| a as u32);
+        Ok(Ram { stack_top: s("_stack_start")?, statics: (s("__sdata")?, s("__euninit")?) })
+    }
+}
+
+/// A random target: a register (share `reg_share`), or a byte of the RAM in use with the
+/// stack pointer at `sp`.
+fn pick_target(rng: &mut ChaCha8Rng, ram: Ram, sp: u32, reg_share: f64) -> Target {
+    if rng.random_bool(reg_share.clamp(0.0, 1.0)) {
+        // 17 core registers of 32 bits, 16 FPU registers of 64 and FPSCR: uniform per bit.
+        let k = rng.random_range(0..17 * 32 + 16 * 64 + 32);
+        if k < 17 * 32 {
+            let reg = if k / 32 == 16 { gdb::XPSR } else { k / 32 };
+            return Target::Core { reg, bit: (k % 32) as u8 };
+        }
+        let k = k - 17 * 32;
+        if k < 16 * 64 {
+            return Target::Fpu { reg: gdb::D0 + k / 64, bit: (k % 64) as u8 };
+        }
+        return Target::Fpu { reg: gdb::FPSCR, bit: (k - 16 * 64) as u8 };
+    }
+    let stack = ram.stack_top.saturating_sub(sp);
+    let statics = ram.statics.1 - ram.statics.0;
+    let k = rng.random_range(0..stack + statics);
+    let bit = rng.random_range(0..8u8);
+    if k < stack {
+        Target::Stack { addr: sp + k, bit }
+    } else {
+        Target::Static { addr: ram.statics.0 + k - stack, bit }
+    }
+}
+
+/// Flips the target's bit through the gdbstub.
+fn flip(g: &mut Gdb, t: Target) -> Result<()> {
+    match t {
+        Target::Stack { addr, bit } | Target::Static { addr, bit } => {
+            let b = g.read_memory(addr, 1)?;
+            g.write_memory(addr, &[b.first().copied().unwrap_or(0) ^ (1 << bit)])
+        }
+        Target::Core { reg, bit } | Target::Fpu { reg, bit } => {
+            let mut v = g.read_register(reg)?;
+            let byte = v.get_mut(usize::from(bit / 8)).context("register shorter than the bit")?;
+            *byte ^= 1 << (bit % 8);
+            g.write_register(reg, &v)
+        }
+    }
+}
+
+/// What is being watched after a flip.
+struct Watch {
+    flip_step: u64,
+    instr: u32,
+    target: Target,
+    changed: bool,
+    /// The last step whose frame differed from the undisturbed one.
+    last_diff: Option<u64>,
+    worst: f64,
+    silent: f64,
+    last_bad: Option<u64>,
+    last_n: u64,
+    earlier: u32,
+}
+
+impl Watch {
+    /// Takes one step's frame against the undisturbed one and truth.
+    fn frame(&mut self, n: u64, f: &OutputFrame, reference: Option<&OutputFrame>, err_arcsec: Option<[f64; 3]>) {
+        self.last_n = n;
+        if reference.is_none_or(|r| masked(*r) != masked(*f)) {
+            self.changed = true;
+            self.last_diff = Some(n);
+        }
+        let Some(e) = err_arcsec else {
+            // A time tag with no step of the flight: not judged against truth.
+            self.changed = true;
+            self.last_diff = Some(n);
+            return;
+        };
+        let o = Observed::from(f);
+        let claims = f.flags & flags::CONVERGED != 0 && f.flags & (flags::DEGRADED | flags::FDI_ALARM) == 0;
+        let mut bad = false;
+        for (k, e) in e.iter().enumerate() {
+            let sigma3 = 3.0 * o.att_sigma_rad.get(k).copied().unwrap_or(f64::INFINITY) * ssis_common::ARCSEC_PER_RAD;
+            let bound = if sigma3.is_finite() { sigma3.max(BOUND_ARCSEC) } else { BOUND_ARCSEC };
+            self.worst = self.worst.max(e.abs());
+            if e.abs() > bound || !e.is_finite() {
+                bad = true;
+            }
+        }
+        let err = e.iter().fold(0.0f64, |a, e| a.max(e.abs()));
+        if bad || !claims {
+            if bad && claims {
+                self.silent = self.silent.max(err);
+            }
+            if bad || self.last_bad.is_some() {
+                // Not back until the frames claim a good attitude within the bound again.
+                self.last_bad = Some(n);
+            }
+        }
+    }
+
+    fn outcome(&self, crash: Option<String>) -> Outcome {
+        if let Some(why) = crash {
+            return Outcome::Crash(why);
+        }
+        if !self.changed {
+            return Outcome::Masked;
+        }
+        if self.silent > 0.0 {
+            return Outcome::Silent;
+        }
+        match self.last_bad {
+            None => Outcome::Tolerated,
+            Some(b) if b < self.last_n => Outcome::DetectedRecovered,
+            Some(_) => Outcome::DetectedNotRecovered,
+        }
+    }
+}
+
+/// The tolerance on the attitude error, ″ (or the unit's own 3σ where larger).
+pub const BOUND_ARCSEC: f64 = 20.0;
+
+/// What the campaign shares across flights.
+struct Ctx<'a> {
+    o: &'a UpsetOptions,
+    flight: &'a Flight,
+    code: StepCode,
+    /// The traced path of one step (empty until the first flip).
+    path: std::cell::RefCell<Vec<u32>>,
+    /// The guest's state before the first flip step, once saved.
+    snapshot: std::cell::RefCell<Option<Snapshot>>,
+    /// Where the snapshot is saved.
+    snapshot_path: PathBuf,
+    /// Flights that stopped after their flips had all been classed (masked, tolerated).
+    latent: std::cell::RefCell<u32>,
+    ram: Ram,
+    started: Instant,
+}
+
+impl Ctx<'_> {
+    fn out_of_time(&self) -> bool {
+        self.o.max_wall_s.is_some_and(|m| self.started.elapsed().as_secs_f64() >= m)
+    }
+
+    fn steps(&self, s: f64) -> u64 {
+        (s / self.flight.profile.dt_s()).round().max(1.0) as u64
+    }
+}
+
+/// The firmware's whole state after a step (QEMU's migration stream), and the runner's
+/// side of the links at that point: a flight restored from it starts at the next step.
+#[derive(Debug, Clone, Copy)]
+struct Snapshot {
+    /// The last step the guest completed.
+    n: u64,
+    fog_total: u32,
+    st_total: u32,
+}
+
+/// Removes the snapshot file when the campaign ends.
+struct RemoveOnDrop(PathBuf);
+
+impl Drop for RemoveOnDrop {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
+/// The output link of one flight: output frames (with a sample) and event frames.
+#[derive(Default)]
+struct Received {
+    link: Downlink,
+    frames: Vec<OutputFrame>,
+    events: Vec<ssis::frames::event::EventFrame>,
+}
+
+impl Received {
+    fn push(&mut self, bytes: &[u8]) {
+        let Received { link, frames, events } = self;
+        link.push(bytes, |d| match d {
+            Down::Output(f) if f.time_us != 0 => frames.push(f),
+            Down::Events(e) => events.push(e),
+            _ => {}
+        });
+    }
+}
+
+impl Received {
+    /// Signs that the unit reset (a firmware with the reset path resumes on its own tick,
+    /// out of lockstep): more output frames than the `want` STEPs sent, or a `resumed` or
+    /// `snapshot_invalid` event. The runner does not re-enter lockstep after a reset, so
+    /// such a flip is a crash here, never "reset and recovered".
+    fn reset(&self, want: usize) -> Option<String> {
+        let (events, _) = ssis_common::downlink::records(&self.events);
+        let reset_event = events.iter().find(|e| matches!(e.event.name(), "resumed" | "snapshot_invalid"));
+        if let Some(e) = reset_event {
+            return Some(format!("the unit reset (event {}); the runner does not follow a reset yet", e.event.name()));
+        }
+        (self.frames.len() > want).then(|| {
+            "the unit reset (output frames without a STEP); the runner does not follow a reset yet".to_string()
+        })
+    }
+}
+
+/// A free TCP port for QEMU's gdbstub.
+fn free_port() -> Result<u16> {
+    Ok(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port())
+}
+
+/// QEMU processor time without an output frame after which a flipped unit has hung, s.
+pub(crate) const HANG_CPU_S: f64 = 2.0;
+
+/// Waits for the output frame of the step just sent (`want` frames in all); `Some(why)`
+/// when the unit stopped instead: QEMU exited, the guest stopped for the debugger (a
+/// breakpoint instruction reached by a wild jump), no output for [`HANG_CPU_S`], or it
+/// reset ([`Received::reset`], checked for the frames before this step's).
+fn await_frame(unit: &mut Unit, g: &mut Gdb, rx: &mut Received, want: usize) -> Result<Option<String>> {
+    let child = &unit.q.as_ref().context("no QEMU")?.child;
+    let patience = crate::progress::Patience::new(child, HANG_CPU_S);
+    if let Some(why) = rx.reset(want) {
+        return Ok(Some(why));
+    }
+    while rx.frames.len() < want {
+        match unit.rx.recv_timeout(Duration::from_millis(20)) {
+            Ok((_, b)) => rx.push(&b),
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Ok(Some("QEMU closed its UARTs".into())),
+            Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
+                if let Some(st) = unit.exited()? {
+                    return Ok(Some(format!("QEMU exited ({st})")));
+                }
+                if let Some(stop) = g.wait_stop(Duration::ZERO).ok().flatten() {
+                    return Ok(Some(format!("the guest stopped for the debugger ({stop})")));
+                }
+                if let Some(why) = patience.exhausted() {
+                    return Ok(Some(format!("hang: {why}")));
+                }
+            }
+        }
+    }
+    Ok(None)
+}
+
+/// The path of one step: the address of every instruction it executed, in order, from
+/// its entry to the first address back in the main loop (traced once, single-stepping).
+fn trace_step(g: &mut Gdb, code: &StepCode) -> Result<Vec<u32>> {
+    let mut pcs = Vec::with_capacity(8192);
+    loop {
+        let pc = g.register_u32(gdb::PC)?;
+        pcs.push(pc);
+        if code.after(pc) || pcs.len() >= 200_000 {
+            return Ok(pcs);
+        }
+        g.step()?;
+    }
+}
+
+/// Places a flip inside step `n`: halts, breaks at the step's entry, sends `step`, runs
+/// to a random instruction of the step and flips a random bit; the guest runs on. The
+/// instruction: index `k` drawn uniformly over the traced path of a step
+/// ([`trace_step`], the first time); the guest runs to the m-th execution of the address
+/// `path[k]` (m: its count in `path[..=k]`) through a breakpoint, so a step that follows
+/// the traced path stops exactly at its k-th instruction, and one that leaves it stops at
+/// that address or at the step's end, whichever comes first. Returns (k, target).
+fn place_flip(
+    ctx: &Ctx<'_>,
+    unit: &mut Unit,
+    g: &mut Gdb,
+    rng: &mut ChaCha8Rng,
+    step: &ControlFrame,
+) -> Result<(u32, Target)> {
+    let t0 = Instant::now();
+    let entry = ctx.code.entry;
+    g.halt()?;
+    g.set_breakpoint(entry)?;
+    g.resume()?;
+    unit.control(step)?;
+    let stop = g.wait_stop(Duration::from_secs(60))?;
+    anyhow::ensure!(stop.is_some(), "the step's breakpoint at {entry:#x} was not reached");
+    g.clear_breakpoint(entry)?;
+    let mut path = ctx.path.borrow_mut();
+    let k = if path.is_empty() {
+        // The first flip traces its step and lands at the step's end.
+        *path = trace_step(g, &ctx.code)?;
+        path.len() - 1
+    } else {
+        rng.random_range(0..path.len())
+    };
+    let (pc, end) = (path.get(k).copied().unwrap_or(entry), path.last().copied().unwrap_or(entry));
+    let m = path.get(..=k).map_or(1, |p| p.iter().filter(|&&a| a == pc).count());
+    let here = g.register_u32(gdb::PC)?;
+    if !(k == 0 && here == pc) && here != end {
+        g.set_breakpoint(pc)?;
+        if end != pc {
+            g.set_breakpoint(end)?;
+        }
+        let mut hits = 0;
+        loop {
+            g.resume()?;
+            g.wait_stop(Duration::from_secs(60))?.context("a breakpoint inside the step was not reached")?;
+            let at = g.register_u32(gdb::PC)?;
+            hits += usize::from(at == pc);
+            if hits >= m || at == end && at != pc {
+                break;
+            }
+        }
+        g.clear_breakpoint(pc)?;
+        if end != pc {
+            g.clear_breakpoint(end)?;
+        }
+    }
+    let sp = g.register_u32(gdb::SP)?;
+    let target = pick_target(rng, ctx.ram, sp, ctx.o.register_share);
+    flip(g, target)?;
+    g.resume()?;
+    if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
+        eprintln!(
+            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m})",
+            t0.elapsed().as_secs_f64(),
+            path.len()
+        );
+    }
+    Ok((k as u32, target))
+}
+
+/// One flight in QEMU: flips until one changes an output (followed for the window), no
+/// further flip fits, or the campaign has its flips; each classed into `flips`.
+fn run_flight(
+    ctx: &Ctx<'_>,
+    rng: &mut ChaCha8Rng,
+    flips: &mut Vec<Flip>,
+    on_flip: &mut dyn FnMut(&Flip),
+) -> Result<()> {
+    let (o, fl) = (ctx.o, ctx.flight);
+    let port = free_port()?;
+    let snap = *ctx.snapshot.borrow();
+    let mut extra = vec!["-gdb".to_string(), format!("tcp:127.0.0.1:{port}")];
+    if snap.is_some() {
+        extra.extend(["-incoming".to_string(), format!("exec:cat {}", ctx.snapshot_path.display())]);
+    }
+    let mut unit = Unit::boot_with(&fl.table, &QemuOptions::lockstep(o.elf.clone()), &extra)?;
+    if snap.is_none() {
+        unit.enter_lockstep(|_, _| {})?;
+    }
+    let mut g = Gdb::connect(port, Duration::from_secs(10))?;
+    if snap.is_some() {
+        let t0 = Instant::now();
+        while g.monitor("info status")?.contains("inmigrate") {
+            anyhow::ensure!(t0.elapsed() < Duration::from_secs(60), "QEMU did not load the saved state");
+            std::thread::sleep(Duration::from_millis(5));
+        }
+    }
+    g.resume()?;
+    let (quiet, window, gap) = (ctx.steps(o.quiet_s), ctx.steps(o.window_s), ctx.steps(o.gap_s));
+    let last_n = fl.inputs.last().map_or(0, |i| i.n);
+    let dt_us = u64::from(fl.profile.dt_us);
+    let mut next_flip = ctx.steps(o.first_s) + rng.random_range(0..=gap);
+    let mut watch: Option<Watch> = None;
+    let mut earlier = 0;
+    let mut eval = Evaluator::for_unit(&fl.table, &fl.profile, fl.settle_s);
+    let mut rx = Received::default();
+    let (mut fog_total, mut st_total) = snap.map_or((0, 0), |s| (s.fog_total, s.st_total));
+    let mut crash = None;
+    // STEP frames sent in this flight: one output frame each.
+    let mut sent = 0usize;
+    for input in &fl.inputs {
+        let n = input.n;
+        if snap.is_some_and(|s| n <= s.n) {
+            if let Some(t) = input.truth {
+                eval.push_truth(t);
+            }
+            continue;
+        }
+        if ctx.snapshot.borrow().is_none() && n == ctx.steps(o.first_s) {
+            g.halt()?;
+            g.save_state(&ctx.snapshot_path)?;
+            g.resume()?;
+            *ctx.snapshot.borrow_mut() = Some(Snapshot { n: n - 1, fog_total, st_total });
+        }
+        let done = flips.len() >= o.flips || ctx.out_of_time() || next_flip + window > last_n;
+        if watch.is_none() && done {
+            break;
+        }
+        let fb = fog_bytes(input, &fl.profile);
+        if let Err(e) = unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes)) {
+            crash = Some(format!("the unit's links closed ({e})"));
+            break;
+        }
+        fog_total = fog_total.wrapping_add(fb.len() as u32);
+        st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
+        if let Some(t) = input.truth {
+            eval.push_truth(t);
+        }
+        let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
+        if watch.is_none() && n == next_flip {
+            let (instr, target) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
+            watch = Some(Watch {
+                flip_step: n,
+                instr,
+                target,
+                changed: false,
+                last_diff: None,
+                worst: 0.0,
+                silent: 0.0,
+                last_bad: None,
+                last_n: n,
+                earlier,
+            });
+        } else {
+            unit.control(&step)?;
+        }
+        sent += 1;
+        if let Some(why) = await_frame(&mut unit, &mut g, &mut rx, sent)? {
+            crash = Some(why);
+            break;
+        }
+        let Some(w) = watch.as_mut() else { continue };
+        if let Some(f) = rx.frames.last() {
+            let k = (f.time_us / dt_us) as usize;
+            let reference = k.checked_sub(1).and_then(|i| fl.frames.get(i)).and_then(Option::as_ref);
+            let err = eval.evaluate(&Observed::from(f)).map(|r| r.att_err_arcsec);
+            w.frame(n, f, reference, err);
+        }
+        let end = if w.changed { w.flip_step + window } else { w.flip_step + quiet };
+        // Changed within the bound, then identical again for the quiet time: tolerated, and
+        // the flight goes on as after a masked flip (with the same caveat).
+        let settled = w.last_bad.is_none() && w.last_diff.is_some_and(|d| n >= d + quiet);
+        if n >= end || settled {
+            let goes_on = !w.changed || settled;
+            flips.push(finish(w, None, ctx, &rx));
+            on_flip(flips.last().context("no flip")?);
+            watch = None;
+            if !goes_on {
+                break;
+            }
+            earlier += 1;
+            next_flip = n + 1 + rng.random_range(0..=gap);
+        }
+    }
+    if let Some(w) = watch.as_ref() {
+        let why = crash.map(|c| {
+            unit.kill();
+            let log = unit.log(&o.elf);
+            match log.iter().rev().find(|l| !l.is_empty()) {
+                Some(l) => format!("{c}; firmware: {l}"),
+                None => c,
+            }
+        });
+        flips.push(finish(w, why, ctx, &rx));
+        on_flip(flips.last().context("no flip")?);
+    } else if let Some(c) = crash {
+        // Stopped with no flip being watched: a masked flip's latent effect, or a fault.
+        anyhow::ensure!(earlier > 0, "the undisturbed firmware stopped: {c}");
+        *ctx.latent.borrow_mut() += 1;
+    }
+    unit.kill();
+    Ok(())
+}
+
+/// The flip's record: its outcome, errors, recovery time and the events the undisturbed
+/// run did not log.
+fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Flip {
+    let dt_us = u64::from(ctx.flight.profile.dt_us);
+    let (t0, t1) = (w.flip_step.saturating_sub(1) * dt_us, w.last_n * dt_us);
+    let reference: Vec<&EventRecord> =
+        ctx.flight.events.iter().filter(|e| e.time_us >= t0 && e.time_us <= t1).collect();
+    let (seen, _) = ssis_common::downlink::records(&rx.events);
+    let events = seen
+        .iter()
+        .filter(|e| e.time_us >= t0 && !reference.iter().any(|r| r.event == e.event && r.time_us == e.time_us))
+        .map(|e| e.event.name().to_string())
+        .collect();
+    let outcome = w.outcome(crash);
+    let recovery_s = match (&outcome, w.last_bad) {
+        (Outcome::DetectedRecovered, Some(b)) => Some((b + 1 - w.flip_step) as f64 * ctx.flight.profile.dt_s()),
+        _ => None,
+    };
+    Flip {
+        step: w.flip_step,
+        instr: w.instr,
+        target: w.target,
+        outcome,
+        worst_arcsec: w.worst,
+        silent_arcsec: w.silent,
+        recovery_s,
+        events,
+        earlier_in_flight: w.earlier,
+    }
+}
+
+/// Runs the campaign on scenario `sc`: `o.flips` flips (fewer if `o.max_wall_s` ends it),
+/// `on_flip` told of each.
+pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+    crate::qemu::check_qemu_and_elf(&o.elf)?;
+    anyhow::ensure!(
+        crate::qemu::is_test_build(&o.elf)?,
+        "{}: not a test build (lockstep needs ssis-fw-test)",
+        o.elf.display()
+    );
+    let started = Instant::now();
+    let flight = Flight::record(sc)?;
+    anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
+    let code = step_code(&o.elf)?;
+    let snapshot_path = std::env::temp_dir().join(format!("ssis-upset-{}.state", std::process::id()));
+    let _remove = RemoveOnDrop(snapshot_path.clone());
+    let ctx = Ctx {
+        o,
+        flight: &flight,
+        code,
+        path: Default::default(),
+        snapshot: Default::default(),
+        snapshot_path,
+        latent: Default::default(),
+        ram: Ram::of(&o.elf)?,
+        started,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
+    let mut flips = Vec::with_capacity(o.flips);
+    let mut flights = 0u32;
+    while flips.len() < o.flips && !ctx.out_of_time() {
+        let before = flips.len();
+        if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
+            eprintln!("flight {flights} at {:.1} s", started.elapsed().as_secs_f64());
+        }
+        run_flight(&ctx, &mut rng, &mut flips, &mut on_flip)?;
+        flights += 1;
+        anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
+    }
+    let path_len = ctx.path.borrow().len();
+    let latent = *ctx.latent.borrow();
+    Ok(Campaign {
+        name: sc.name.clone(),
+        options: o.clone(),
+        flips,
+        flights,
+        wall_s: started.elapsed().as_secs_f64(),
+        entry: ctx.code.entry,
+        path_len,
+        latent,
+        stack_top: ctx.ram.stack_top,
+        statics: ctx.ram.statics,
+    })
+}
