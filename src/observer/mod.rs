@@ -23,7 +23,7 @@
 //! |---|---|
 //! | `mod.rs` | [`Observer`]: alignment, the frame's path above, [`Filter`] |
 //! | [`luenberger`] | eq. (6) with fixed gains, two stages (acquisition, steady state) |
-//! | [`mekf`] | the MEKF: 6-state covariance, its gain and gate |
+//! | [`mekf`] | the MEKF: 6-state covariance (9 with the star tracker's low-frequency error), its gain and gate |
 //! | [`history`] | the attitude history, [`History::attitude_at`], the lazy fix |
 //! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence |
 //! | [`gains`] | the steady-state Kalman gains (Farrenkopf 1978), the noise figures |

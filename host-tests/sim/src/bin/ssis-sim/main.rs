@@ -400,6 +400,12 @@ fn run_scenario(
         return Err(e.into());
     }
     print!("{}", summary.report());
+    if let Some(l) = sc.lfe_limit().and_then(|l| l.lfe.map(|x| (l, x))) {
+        let (l, (_, lfe)) = l;
+        let row = |v: [f64; 3]| format!("{:>9.2} {:>9.2} {:>9.2}", 3.0 * v[0], 3.0 * v[1], 3.0 * v[2]);
+        println!("  limit 3σ, white tracker (period mean, latency), ″  {}", row(l.latency_mean_arcsec));
+        println!("  limit 3σ, the tracker's LFE estimated, ″            {}", row(lfe));
+    }
     print!("{}", ssis_common::downlink::timeline(&summary.events.0, summary.events.1));
     let wall = started.elapsed().as_secs_f64();
     cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
