@@ -112,7 +112,7 @@ impl Lfe {
     fn propagated(&self, a: &Matrix3<f64>, b: &Matrix3<f64>, tau_s: f64, st: &SteadyState) -> Lfe {
         let phi = libm::exp(-tau_s / st.lfe_tau_s);
         Lfe {
-            pac: (a * self.pac - b * self.pbc) * phi,
+            pac: (mul(a, &self.pac) - mul(b, &self.pbc)) * phi,
             pbc: self.pbc * phi,
             pcc: self.pcc * (phi * phi) + Matrix3::identity() * (st.lfe_var_rad2 * (1.0 - phi * phi)),
             c_rad: self.c_rad * phi,
@@ -248,14 +248,16 @@ impl Mekf {
         let ua = prior.paa + lfe.pac;
         let ub = prior.pab.transpose() + lfe.pbc;
         let uc = lfe.pac.transpose() + lfe.pcc;
-        let (ka, kb, kc) = (ua * s_inv, ub * s_inv, uc * s_inv);
-        let (uat, ubt, uct) = (ua.transpose(), ub.transpose(), uc.transpose());
-        self.cov =
-            MekfCov { paa: sym(&(prior.paa - ka * uat)), pab: prior.pab - ka * ubt, pbb: sym(&(prior.pbb - kb * ubt)) };
+        let (ka, kb, kc) = (mul(&ua, &s_inv), mul(&ub, &s_inv), mul(&uc, &s_inv));
+        self.cov = MekfCov {
+            paa: sym(&(prior.paa - mul_t(&ka, &ua))),
+            pab: prior.pab - mul_t(&ka, &ub),
+            pbb: sym(&(prior.pbb - mul_t(&kb, &ub))),
+        };
         self.lfe = Lfe {
-            pac: lfe.pac - ka * uct,
-            pbc: lfe.pbc - kb * uct,
-            pcc: sym(&(lfe.pcc - kc * uct)),
+            pac: lfe.pac - mul_t(&ka, &uc),
+            pbc: lfe.pbc - mul_t(&kb, &uc),
+            pcc: sym(&(lfe.pcc - mul_t(&kc, &uc))),
             c_rad: lfe.c_rad + kc * nu,
         };
         Ok(Correction { body_rad: ka * nu, d_drift_rad_s: kb * nu, reacquired })
@@ -340,6 +342,19 @@ pub fn dcm(q: &Quaternion<f64>) -> Matrix3<f64> {
 /// Symmetric part of `m` (removes the rounding asymmetry of the products).
 fn sym(m: &Matrix3<f64>) -> Matrix3<f64> {
     (m + m.transpose()) * 0.5
+}
+
+/// a b, out of line: the LFE update's many products share one copy (flash; the 6-state
+/// code keeps its products inline).
+#[inline(never)]
+fn mul(a: &Matrix3<f64>, b: &Matrix3<f64>) -> Matrix3<f64> {
+    a * b
+}
+
+/// a bᵀ, out of line ([`mul`]).
+#[inline(never)]
+fn mul_t(a: &Matrix3<f64>, b: &Matrix3<f64>) -> Matrix3<f64> {
+    a * b.transpose()
 }
 
 /// (M + r I)⁻¹ of a symmetric M ([`inverse_spd`]).
