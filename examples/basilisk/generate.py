@@ -236,6 +236,22 @@ def basilisk_truth(n, args, rng):
     return qs, rates, sols
 
 
+def with_lfe(sols, sigma, tau, rng):
+    """The tracker's low-frequency error: a first-order Gauss-Markov rotation per tracker
+    axis (the tracker frame is the body's), c_k = phi c_(k-1) + sigma sqrt(1 - phi^2) w,
+    phi = exp(-dt/tau), c_0 from its stationary distribution, on each solution after the
+    tracker's own white noise."""
+    out, c, t_last = [], rng.normal(0, sigma, 3), None
+    for t_tag, q in sols:
+        if t_last is not None:
+            phi = math.exp(-(t_tag - t_last) / tau)
+            c = phi * c + sigma * math.sqrt(1 - phi * phi) * rng.normal(0, 1, 3)
+        t_last = t_tag
+        s = qmul(q, qexp(c))
+        out.append((t_tag, s if s[0] >= 0 else tuple(-x for x in s)))
+    return out
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", required=True, help="CSV log to write (refused if it exists)")
@@ -250,6 +266,9 @@ def main():
     ap.add_argument("--st-sigma", type=float, default=20.0 / 3, help="star tracker 1 sigma per axis, arcsec")
     ap.add_argument("--st-rate", type=float, default=10.0, help="star tracker rate, Hz")
     ap.add_argument("--st-latency", type=float, default=0.05, help="star tracker latency, s")
+    ap.add_argument("--st-lfe-sigma", type=float, default=0.0,
+                    help="star tracker low-frequency error, 1 sigma per tracker axis, arcsec (0: none)")
+    ap.add_argument("--st-lfe-tau", type=float, default=300.0, help="its correlation time, s")
     ap.add_argument("--truth-every", type=int, default=10, help="truth on every N-th row")
     ap.add_argument("--compact", action="store_true", help="6 digits, FOG1's counter alone, no temperatures")
     a = ap.parse_args()
@@ -266,6 +285,8 @@ def main():
                     (b0 + 145.0, 25.0, (-1.0, 0.0, 0.0), math.radians(15))]
     truth = numpy_truth if a.backend == "numpy" else basilisk_truth
     qs, rates, sols = truth(n, a, rng)
+    if a.st_lfe_sigma > 0:
+        sols = with_lfe(sols, a.st_lfe_sigma * ARCSEC, a.st_lfe_tau, rng)
 
     deg = math.pi / 180
     sv = a.arw * deg / 60 * math.sqrt(DT)  # rad per sample
@@ -291,7 +312,9 @@ def main():
     with f:
         f.write(f"# recorded log: LEO nadir pointing with slews ({a.backend}), seed {a.seed}\n")
         f.write(f"# FOG ARW {a.arw} deg/sqrt(h), bias walk {a.rrw} deg/h/sqrt(h), turn-on bias 1 sigma {a.bias} deg/h;"
-                f" star tracker {a.st_sigma:.4f} arcsec 1 sigma per axis at {a.st_rate} Hz, latency {a.st_latency} s\n")
+                f" star tracker {a.st_sigma:.4f} arcsec 1 sigma per axis at {a.st_rate} Hz, latency {a.st_latency} s"
+                + (f", low-frequency error {a.st_lfe_sigma} arcsec 1 sigma over {a.st_lfe_tau} s" if a.st_lfe_sigma > 0 else "")
+                + "\n")
         # Compact: 6 significant digits (the noise per sample is 1e-6 rad), FOG1's counter
         # alone, no temperatures (the reader takes 25 degC).
         per_fog = [("dtheta_rad", "counter", "t_degc")] * 4 if not a.compact else [("dtheta_rad", "counter")] + [("dtheta_rad",)] * 3

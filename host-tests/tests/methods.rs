@@ -557,6 +557,49 @@ fn orbital_calibration_on_flight_telemetry() {
     println!("whole test {:.1} s", t0.elapsed().as_secs_f64());
 }
 
+/// The same calibration flight with a star tracker that is not white: a low-frequency
+/// error (LFE) of 4″ 1σ per tracker axis correlated over 300 s. The bias (the observer's
+/// average over its window) and the mount (RLS on rates between consecutive frames, where
+/// the LFE moves by σ √(2T/τ) ≈ 0.16″ against the white noise's 9.4″) keep their bounds.
+/// The scale factors do not: each turn's angle carries the LFE's change over the 600-s
+/// turn (about 1.3 σ), and four turns for four FOGs amplify it; one set of turns gave
+/// 64 ppm worst against the paper's 20 ppm (BENCHMARKS.md, "Star tracker with a
+/// low-frequency error"). Printed, not asserted: the session this method needs with an
+/// LFE is longer (more sets of turns) than this flight.
+#[test]
+fn orbital_calibration_with_a_tracker_lfe() {
+    use ssis_common::ARCSEC_PER_RAD;
+    use ssis_methods::orbital;
+    let truth_m = misalign_turns::example_truth();
+    let (fog, star) = orbital::example_unit(truth_m);
+    let star = ssis_sim::star::StarSpec { lfe_sigma_arcsec: 4.0, lfe_tau_s: 300.0, ..star };
+    let mut sc = orbital::calibration_flight(fog, star, 10_000.0, 600.0, 200.0);
+    let mut flown = ssis::calib::CalibrationTable::DEFAULT;
+    flown.misalignment =
+        misalign_turns::from_angles(&misalign_turns::angles(&truth_m).map(|x| x + 3.0 / ARCSEC_PER_RAD));
+    let table_path = tmp("orbital-lfe-flown.toml");
+    ssis_common::table::write_toml(&table_path, &flown).unwrap();
+    sc.table.file = Some(table_path);
+    let cap = orbital::fly(&sc).unwrap();
+    let r =
+        orbital::calibrate(&orbital::Telemetry::decode(&cap.out, &cap.star), &cap.table, &orbital::Settings::default())
+            .unwrap();
+    let mut truth_table = ssis::calib::CalibrationTable::DEFAULT;
+    truth_table.fog = sc.fog.errors.unwrap().fog;
+    let (d_true, dk_true, eta_true) = orbital::truth_of(&truth_table, &cap.table, &sc.star_tracker);
+    let d_err = (r.bias.drift_rad_s - d_true) * DEG_H_PER_RAD_S;
+    let dk = &r.scale.as_ref().unwrap().dk;
+    let dk_err = (0..4).map(|i| ((dk[i] - dk_true[i]) * 100.0).abs()).fold(0.0f64, f64::max);
+    let eta_err = (r.mount.as_ref().unwrap().eta_rad - eta_true) * ARCSEC_PER_RAD;
+    println!(
+        "tracker LFE 4″ / 300 s, {:.0} s flight: bias error {:+.4} {:+.4} {:+.4} °/h, worst scale-factor error {dk_err:.5} %, \
+         mount error {:+.2} {:+.2} {:+.2}″",
+        sc.duration_s, d_err.x, d_err.y, d_err.z, eta_err.x, eta_err.y, eta_err.z
+    );
+    assert!(d_err.amax() <= 0.05, "bias error {d_err:?} °/h");
+    assert!(eta_err.amax() <= 10.0, "mount error {eta_err:?}″");
+}
+
 #[test]
 fn allan_reports_an_unresolved_rate_random_walk_as_an_upper_bound() {
     // 2 h of 1-s means: the random walk of 0.002 °/h/√h is far below the white noise at

@@ -9,10 +9,18 @@
 //! | 6 | 2 | payload length (u16) = [`PAYLOAD_LEN`] |
 //! | 8 | 4 | table revision (u32) |
 //! | 12 | 464 | 58 × f64, in the order of [`fields`] |
-//! | 476 | 1 | flags: bit0 observer gains override present; other bits 0 |
+//! | 476 | 1 | flags: bit0 observer gains override present; bit1 star-tracker LFE present; other bits 0 |
 //! | 477 | 1 | estimator: 0 Luenberger observer (eq. 6), 1 MEKF ([`super::Estimator`]) |
 //! | 478 | 2 | zero |
 //! | 480 | 4 | CRC-32/ISO-HDLC over bytes 0..480 (u32) |
+//!
+//! The star tracker's low-frequency error (`observer.st_lfe_sigma_arcsec`, `st_lfe_tau_s`)
+//! is stored in the first two gain slots, K_B x and y (fields 50 and 51, bytes 412 and 420; the other four gain slots 0), with flag bit1;
+//! a table has a gain override (the fixed-gain observer's) or an LFE (the MEKF's), never
+//! both ([`TableError::LfeWithGains`]). Without an LFE, bit1 and those slots are 0: the
+//! bytes and the CRC of a white-tracker table are those of the format without the LFE,
+//! and a firmware that does not know bit1 refuses a table with an LFE (flag bits it does
+//! not define) rather than flying it as white.
 //!
 //! Decoding checks, in order: length, magic, version, declared length, CRC, then
 //! [`CalibrationTable::validate`]. A table that fails any check is refused whole.
@@ -27,6 +35,8 @@ pub const FORMAT_VERSION: u16 = 3;
 pub const N_F64: usize = 58;
 /// Bytes after the 8-byte header up to the CRC.
 pub const PAYLOAD_LEN: usize = 4 + 8 * N_F64 + 4;
+/// The first gain slot (K_B x), where a table with an LFE stores its 1σ and τ.
+const LFE_SLOT: usize = N_F64 - 8;
 /// Total length of the binary table.
 pub const TABLE_LEN: usize = 8 + PAYLOAD_LEN + 4;
 /// CRC used for the table (CRC-32/ISO-HDLC, the zlib/Ethernet CRC).
@@ -38,9 +48,11 @@ pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 /// initial drift 1σ, the acquisition time (format 3).
 pub fn fields(t: &CalibrationTable) -> [f64; N_F64] {
     let mut out = [0.0; N_F64];
-    let gains = t.observer.gains_override.unwrap_or(ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] });
-    let m = &t.misalignment;
     let o = &t.observer;
+    let lfe = ObserverGains { k_b: [o.st_lfe_sigma_arcsec, o.st_lfe_tau_s, 0.0], k_u_per_s: [0.0; 3] };
+    let gains =
+        o.gains_override.unwrap_or(if o.lfe() { lfe } else { ObserverGains { k_b: [0.0; 3], k_u_per_s: [0.0; 3] } });
+    let m = &t.misalignment;
     let tail = [m.d12_rad, m.d13_rad, m.d21_rad, m.d23_rad, m.d31_rad, m.d32_rad, m.d42_rad, m.d43_rad, t.gamma_rad];
     let fogs = t.fog.iter().flat_map(|f| {
         let [a1, a2, a3] = f.thermal_t_rad_s;
@@ -92,7 +104,7 @@ pub fn encode_body_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, T
     for v in fields(t) {
         w.put(&v.to_le_bytes())?;
     }
-    let flags: u8 = u8::from(t.observer.gains_override.is_some());
+    let flags: u8 = u8::from(t.observer.gains_override.is_some()) | (u8::from(t.observer.lfe()) << 1);
     w.put(&[flags, t.observer.estimator.code(), 0, 0])?;
     Ok(w.pos)
 }
@@ -132,10 +144,19 @@ pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
     }
     let [flags, code, p1, p2] = r.take::<4>()?;
     let estimator = Estimator::from_code(code).ok_or(TableError::BadFlags)?;
-    if flags & !1 != 0 || p1 != 0 || p2 != 0 {
+    if flags & !3 != 0 || flags == 3 || p1 != 0 || p2 != 0 {
         return Err(TableError::BadFlags);
     }
     let mut t = from_fields(revision, &v, flags & 1 == 1);
+    if flags & 2 != 0 {
+        let slots = v.get(LFE_SLOT..LFE_SLOT + 6).unwrap_or(&[]);
+        let [sigma, tau, rest @ ..] = slots else { return Err(TableError::BadFlags) };
+        t.observer.st_lfe_sigma_arcsec = *sigma;
+        t.observer.st_lfe_tau_s = *tau;
+        if !t.observer.lfe() || rest.iter().any(|x| x.to_bits() != 0) {
+            return Err(TableError::BadFlags);
+        }
+    }
     t.observer.estimator = estimator;
     t.validate()?;
     Ok(t)
@@ -186,6 +207,8 @@ fn from_fields(revision: u32, v: &[f64; N_F64], gains_present: bool) -> Calibrat
             estimator: Estimator::Luenberger,
             initial_drift_sigma_deg_h: next(),
             acquisition_s: next(),
+            st_lfe_sigma_arcsec: 0.0,
+            st_lfe_tau_s: 0.0,
         },
     }
 }
@@ -326,6 +349,39 @@ mod tests {
         b[12 + 8 * 41..20 + 8 * 41].copy_from_slice(&2.0f64.to_le_bytes());
         reseal(&mut b);
         assert!(decode(&b).is_err());
+    }
+
+    #[test]
+    fn a_tracker_lfe_rides_in_the_gain_slots_and_a_white_table_keeps_its_bytes() {
+        let mut white = sample();
+        white.observer.gains_override = None;
+        let mut lfe = white;
+        lfe.observer.st_lfe_sigma_arcsec = 4.0;
+        lfe.observer.st_lfe_tau_s = 300.0;
+        let bytes = encode(&lfe);
+        assert_eq!(decode(&bytes), Ok(lfe));
+        assert_eq!(bytes[476], 2);
+        assert_eq!(bytes[12 + 8 * LFE_SLOT..20 + 8 * LFE_SLOT], 4.0f64.to_le_bytes());
+        assert_eq!(bytes[20 + 8 * LFE_SLOT..28 + 8 * LFE_SLOT], 300.0f64.to_le_bytes());
+        // A 1σ without a correlation time is a white tracker: the white table's bytes.
+        let mut half = white;
+        half.observer.st_lfe_sigma_arcsec = 4.0;
+        let w = encode(&white);
+        assert_eq!(encode(&half), w);
+        assert_eq!(w[412..460], [0u8; 48]);
+        // Both flags, or the LFE flag over empty slots, are refused.
+        let mut b = bytes;
+        b[476] = 3;
+        reseal(&mut b);
+        assert_eq!(decode(&b), Err(TableError::BadFlags));
+        let mut b = w;
+        b[476] = 2;
+        reseal(&mut b);
+        assert_eq!(decode(&b), Err(TableError::BadFlags));
+        // An LFE with a gain override is refused before it is stored.
+        let mut both = lfe;
+        both.observer.gains_override = sample().observer.gains_override;
+        assert_eq!(both.validate(), Err(TableError::LfeWithGains));
     }
 
     #[test]

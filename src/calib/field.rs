@@ -2,7 +2,9 @@
 //! engineering unit and plausible range, and the typed refusal [`FieldError`] that names the
 //! field, its value and the range.
 //!
-//! The order of [`Field::from_index`] is the binary storage order of [`super::binary::fields`].
+//! The order of [`Field::from_index`] is the binary storage order of [`super::binary::fields`]
+//! for the first [`super::binary::N_F64`]; the last two, the star tracker's low-frequency
+//! error, are stored in the gain override's first two slots ([`super::binary`]).
 //! [`super::CalibrationTable::validate`] checks every field against its range (in
 //! engineering units) and refuses the first that is outside, or not finite: on the host at
 //! every write and at `to-bin`, on the target at every boot before a stored copy is
@@ -35,7 +37,11 @@
 //!   0.1 °/h 1σ; 100 °/h is the bias bound);
 //! - acquisition time: 0…7200 s (0: the override flies throughout; the steady-state
 //!   gains' own slowest pole is about 30 min at 4 Hz, so an acquisition of more than
-//!   four of them would outlast the bias it is meant to find faster).
+//!   four of them would outlast the bias it is meant to find faster);
+//! - star-tracker low-frequency error (LFE): 1σ 0…100″ per axis (the noise's own range;
+//!   real trackers: a few arcseconds), correlation time 0…86,400 s (0: a white tracker;
+//!   the time stars take to cross the field of view, tens to hundreds of seconds on an
+//!   Earth-pointing satellite, and a day bounds an inertially pointing one's).
 
 use core::fmt;
 
@@ -142,6 +148,10 @@ pub enum Field {
     InitialDriftSigma,
     /// `observer.acquisition_s`.
     Acquisition,
+    /// `observer.st_lfe_sigma_arcsec`.
+    StLfeSigma,
+    /// `observer.st_lfe_tau_s`.
+    StLfeTau,
 }
 
 /// Units and plausible range of a field.
@@ -169,8 +179,9 @@ impl Spec {
     }
 }
 
-/// Number of fields (the binary form's f64 count).
-pub const N_FIELDS: usize = super::binary::N_F64;
+/// Number of fields (the binary form's f64 count and the two LFE figures it stores in the
+/// gain slots).
+pub const N_FIELDS: usize = super::binary::N_F64 + 2;
 
 const FOG_FIELDS: usize = 8 * N_FOG;
 
@@ -210,6 +221,8 @@ impl Field {
             j @ 21..=23 => Field::GainKu((j - 21) as u8),
             24 => Field::InitialDriftSigma,
             25 => Field::Acquisition,
+            26 => Field::StLfeSigma,
+            27 => Field::StLfeTau,
             _ => return None,
         })
     }
@@ -255,6 +268,8 @@ impl Field {
             Field::GainKu(_) => Spec::new("1/s", "1/s", 1.0, 0.0, 0.999),
             Field::InitialDriftSigma => Spec::new("°/h", "°/h", 1.0, 0.001, 100.0),
             Field::Acquisition => Spec::new("s", "s", 1.0, 0.0, 7200.0),
+            Field::StLfeSigma => Spec::new("″", "″", 1.0, 0.0, 100.0),
+            Field::StLfeTau => Spec::new("s", "s", 1.0, 0.0, 86_400.0),
         }
     }
 
@@ -303,6 +318,8 @@ impl Field {
             Field::GainKu(k) => gain(k, false),
             Field::InitialDriftSigma => o.initial_drift_sigma_deg_h,
             Field::Acquisition => o.acquisition_s,
+            Field::StLfeSigma => o.st_lfe_sigma_arcsec,
+            Field::StLfeTau => o.st_lfe_tau_s,
         }
     }
 
@@ -338,6 +355,8 @@ impl Field {
             Field::GainKu(k) => t.observer.gains_override.as_mut().and_then(|g| g.k_u_per_s.get_mut(usize::from(k))),
             Field::InitialDriftSigma => Some(&mut t.observer.initial_drift_sigma_deg_h),
             Field::Acquisition => Some(&mut t.observer.acquisition_s),
+            Field::StLfeSigma => Some(&mut t.observer.st_lfe_sigma_arcsec),
+            Field::StLfeTau => Some(&mut t.observer.st_lfe_tau_s),
         };
         if let Some(s) = slot {
             *s = v;
@@ -370,6 +389,8 @@ impl fmt::Display for Field {
             Field::StPeriod => "observer.st_period_s",
             Field::InitialDriftSigma => "observer.initial_drift_sigma_deg_h",
             Field::Acquisition => "observer.acquisition_s",
+            Field::StLfeSigma => "observer.st_lfe_sigma_arcsec",
+            Field::StLfeTau => "observer.st_lfe_tau_s",
         };
         f.write_str(plain)
     }

@@ -199,6 +199,25 @@ pub struct ObserverConfig {
     /// τ = 60 s → n = 12, 720 s.
     #[cfg_attr(feature = "serde", serde(default))]
     pub acquisition_s: f64,
+    /// The star tracker's low-frequency error (LFE), 1σ per tracker axis, arcsec: a
+    /// first-order Gauss–Markov error with correlation time `st_lfe_tau_s`, which the MEKF
+    /// carries as three more states ([`crate::observer::mekf`]). Ignored while
+    /// `st_lfe_tau_s` is 0.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub st_lfe_sigma_arcsec: f64,
+    /// The LFE's correlation time, s; 0 (the default, and what a table without the field
+    /// means): a white star tracker, the 6-state MEKF.
+    #[cfg_attr(feature = "serde", serde(default))]
+    pub st_lfe_tau_s: f64,
+}
+
+impl ObserverConfig {
+    /// Whether the table describes a star-tracker LFE (both its 1σ and its correlation
+    /// time above 0): the MEKF then carries it.
+    #[inline]
+    pub fn lfe(&self) -> bool {
+        self.st_lfe_sigma_arcsec > 0.0 && self.st_lfe_tau_s > 0.0
+    }
 }
 
 /// The paper's pre-calibration random zero signal, ±0.3 °/h (3σ), as 1σ.
@@ -254,6 +273,8 @@ impl ObserverConfig {
         estimator: Estimator::Luenberger,
         initial_drift_sigma_deg_h: PAPER_INITIAL_DRIFT_SIGMA_DEG_H,
         acquisition_s: 0.0,
+        st_lfe_sigma_arcsec: 0.0,
+        st_lfe_tau_s: 0.0,
     };
 }
 
@@ -315,6 +336,9 @@ impl CalibrationTable {
                 return Err(TableError::Field(FieldError::new(f, v)));
             }
         }
+        if self.observer.lfe() && self.observer.gains_override.is_some() {
+            return Err(TableError::LfeWithGains);
+        }
         let n2: f64 = self.st_mount_q.iter().map(|x| x * x).sum();
         if (n2 - 1.0).abs() > 1e-9 {
             return Err(TableError::MountNotUnit);
@@ -356,6 +380,10 @@ pub enum TableError {
     MountNotUnit,
     /// Flag or padding bits that this format does not define are set.
     BadFlags,
+    /// A star-tracker LFE and a gain override together: the binary form stores the LFE in
+    /// the override's slots ([`binary`]), and the LFE is the MEKF's, the override the
+    /// fixed-gain observer's.
+    LfeWithGains,
     /// The encoded table does not decode back to the same table.
     RoundTrip,
     /// Output buffer too small for encoding.
@@ -367,6 +395,10 @@ impl core::fmt::Display for TableError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             TableError::Field(e) => write!(f, "{e}"),
+            TableError::LfeWithGains => f.write_str(
+                "observer.st_lfe_sigma_arcsec and st_lfe_tau_s with observer.gains_override: a table holds one \
+                 or the other (docs/CALIBRATION.md)",
+            ),
             other => write!(f, "{other:?}"),
         }
     }

@@ -59,6 +59,7 @@ impl FlightCore {
         self.mount = table.st_mount();
         self.table = *table;
         self.table_crc = table_crc(table);
+        self.scrub.seal(table);
         self.guard_seal_all();
         Ok(())
     }

@@ -9,7 +9,7 @@
 //! | block | words | saved | checked |
 //! |---|---|---|---|
 //! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) | end of every step | start of every step |
-//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector | end of a step that changed them | start of every step |
+//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed them | start of every step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
 //!
@@ -50,9 +50,9 @@ use super::geometry::{checked_combiner, sample_noise_rad};
 /// Words of the `Step` block.
 const STEP_WORDS: usize = 11;
 /// Words of the `Steady` block at most.
-const STEADY_WORDS: usize = 24;
+const STEADY_WORDS: usize = 28;
 /// Words of the `Frame` block at most.
-const FRAME_WORDS: usize = 84;
+const FRAME_WORDS: usize = 114;
 /// Words of a `Without` block at most.
 const WITHOUT_WORDS: usize = 12;
 
@@ -141,6 +141,7 @@ const COMBINER_TOUCHED: u32 = 2;
 
 /// The core's guarded fields, borrowed apart from the guard's shadows.
 struct Parts<'a> {
+    profile: &'a mut super::ProfileState,
     attitude: &'a mut Attitude,
     observer: &'a mut Observer<HISTORY>,
     combiner: &'a mut Combiner,
@@ -151,8 +152,8 @@ struct Parts<'a> {
 /// The guarded fields and the shadows of `core`.
 #[inline(always)]
 fn split(core: &mut FlightCore) -> (Parts<'_>, &mut Guard) {
-    let FlightCore { attitude, observer, combiner, mount, fog_intake, guard, .. } = core;
-    (Parts { attitude, observer, combiner, mount, fog_intake }, guard)
+    let FlightCore { profile, attitude, observer, combiner, mount, fog_intake, guard, .. } = core;
+    (Parts { profile, attitude, observer, combiner, mount, fog_intake }, guard)
 }
 
 /// The one list of guarded state: the words of `block`, in order. A new state goes into
@@ -168,6 +169,7 @@ fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
         Block::Steady => {
             p.observer.visit_steady(v);
             p.combiner.visit_nominal(v);
+            p.profile.visit(v);
         }
         Block::Frame => {
             p.observer.visit_frame(v);

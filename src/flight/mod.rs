@@ -122,6 +122,20 @@ impl ProfileState {
         }
     }
 
+    /// Its words, for the state guard ([`guard`]): the period, the FOGs fitted, the
+    /// measuring range. (The star tracker's presence is not guarded: a flip that clears
+    /// it reads as a tracker outage, flagged.)
+    #[inline(always)]
+    fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+        v.u32(&mut self.dt_us);
+        let mut fogs = u64::from(self.fogs.0);
+        v.word(&mut fogs);
+        if V::WRITES {
+            self.fogs = FogSet(u8::try_from(fogs).unwrap_or(0));
+        }
+        v.f64(&mut self.rate_limit_rad_s);
+    }
+
     fn get(&self) -> Profile {
         Profile {
             dt_us: self.dt_us,
@@ -327,7 +341,7 @@ impl FlightCore {
             events: EventLog::new(),
             resumed_at: Maybe::none(),
             resume_trend: [0.0; 3],
-            scrub: scrub::TableScrub::new(),
+            scrub: scrub::TableScrub::of(table),
         })
     }
 
@@ -415,9 +429,9 @@ impl FlightCore {
         links: &mut Links<F, S, O>,
         mut on_increment: impl FnMut(u64, &Vector3<f64>),
     ) -> StepOutput {
-        let dt_s = self.profile.dt_s();
         // The guarded state as the last step left it (restored if a bit flipped since).
         self.guard_check();
+        let dt_s = self.profile.dt_s();
         // Intake: the FOG links into the per-FOG sample queues.
         self.fog_intake.receive(&mut links.fog, &mut self.rx_scratch.0, &mut self.telemetry.counters);
         let mut acc = Integrated::NONE;

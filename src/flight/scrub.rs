@@ -1,7 +1,7 @@
 //! The background check of the calibration table in RAM, as cFS's checksum application
 //! checks its tables: a few dozen bytes a step between two flight steps
-//! ([`FlightCore::background`]), the whole table once a second, against the CRC-32 it
-//! was loaded or activated with. A table that differs is restored from the two-copy
+//! ([`FlightCore::background`]), the whole table once a second, against the CRC-32C of
+//! its binary form taken when it was loaded or activated. A table that differs is restored from the two-copy
 //! store in flash (`calib::store`: the newest good copy), and what the step builds from
 //! it (the combiner, the parity logic, the observer's gains, the mount) is rebuilt from
 //! the restored table; logged `table_restored`, counted. The attitude flown on the
@@ -14,7 +14,8 @@
 
 use super::FlightCore;
 use crate::calib::binary::{self, TABLE_LEN};
-use crate::calib::store;
+use crate::calib::{store, CalibrationTable};
+use crate::frames;
 use crate::telemetry::events::Event;
 use crate::telemetry::{flags, Counter};
 
@@ -28,35 +29,26 @@ pub const PASS_STEPS: u16 = 200;
 /// Steps the frames stay flagged degraded after a restore (1 s at 5 ms).
 pub const HOLD_STEPS: u16 = 200;
 
-/// The CRC the store and the command link name a table by (CRC-32/ISO-HDLC).
-static TABLE_CRC32: crc::Crc<u32> = binary::CRC32;
+/// The register of CRC-32C (the frames' CRC, [`frames::body_crc`], whose tables it
+/// shares) at the start of a pass.
+const CRC_INIT: u32 = crc::CRC_32_ISCSI.init;
 
-/// The register of `d` as the initial value that resumes it (`digest_with_initial`): the
-/// crate keeps a reflected algorithm's register reflected and `finalize` only adds
-/// `xorout` when input and output are reflected alike.
-fn park(d: crc::Digest<'_, u32>) -> u32 {
-    let reg = d.finalize() ^ TABLE_CRC32.algorithm.xorout;
-    if TABLE_CRC32.algorithm.refin {
-        reg.reverse_bits()
-    } else {
-        reg
-    }
+/// CRC-32C of `bytes` continued from register `r` (the register after them).
+fn crc_on(r: u32, bytes: &[u8]) -> u32 {
+    frames::body_crc(r, bytes) ^ crc::CRC_32_ISCSI.xorout
 }
-
-const _: () = assert!(
-    binary::CRC32.algorithm.refin == binary::CRC32.algorithm.refout && binary::CRC32.algorithm.width == 32,
-    "park() resumes a 32-bit CRC reflected alike in and out"
-);
 
 /// Where the background check of the table is.
 #[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub(super) struct TableScrub {
     /// The table's binary form up to its CRC, encoded at the start of a pass.
     body: [u8; BODY_LEN],
-    /// The CRC register over the bytes checked so far in this pass, as the initial value
-    /// that resumes it ([`resume`], [`park`]: a plain word, as a `crc::Digest` holds a
-    /// reference that a flipped bit would make wild).
+    /// The CRC-32C register over the bytes checked so far in this pass (a plain word: a
+    /// `crc::Digest` holds a reference, which a flipped bit would make wild).
     partial: u32,
+    /// The CRC-32C of the table's binary form when it was installed ([`TableScrub::seal`]):
+    /// what each pass must find.
+    reference: u32,
     /// Step within the pass (0: encode).
     tick: u16,
     /// Steps left of the degraded flag after a restore (`u16::MAX`: for good).
@@ -65,7 +57,22 @@ pub(super) struct TableScrub {
 
 impl TableScrub {
     pub(super) fn new() -> Self {
-        TableScrub { body: [0; BODY_LEN], partial: TABLE_CRC32.algorithm.init, tick: 0, hold: 0 }
+        TableScrub { body: [0; BODY_LEN], partial: CRC_INIT, reference: 0, tick: 0, hold: 0 }
+    }
+
+    /// Checking `table` ([`TableScrub::seal`]).
+    pub(super) fn of(table: &CalibrationTable) -> Self {
+        let mut s = TableScrub::new();
+        s.seal(table);
+        s
+    }
+
+    /// `table` is the one in use from now on: its CRC is what the passes check, and the
+    /// pass starts again.
+    pub(super) fn seal(&mut self, table: &CalibrationTable) {
+        let _ = binary::encode_body_into(table, &mut self.body);
+        self.reference = crc_on(CRC_INIT, &self.body) ^ crc::CRC_32_ISCSI.xorout;
+        self.tick = 0;
     }
 }
 
@@ -90,21 +97,18 @@ impl FlightCore {
         match usize::from(tick) {
             0 => {
                 let _ = binary::encode_body_into(&self.table, &mut s.body);
-                s.partial = TABLE_CRC32.algorithm.init;
+                s.partial = CRC_INIT;
                 false
             }
             k if k <= slices => {
                 let from = (k - 1) * SLICE;
                 if let Some(bytes) = s.body.get(from..(from + SLICE).min(BODY_LEN)) {
-                    let mut d = TABLE_CRC32.digest_with_initial(s.partial);
-                    d.update(bytes);
-                    s.partial = park(d);
+                    s.partial = crc_on(s.partial, bytes);
                 }
                 if k < slices {
                     return false;
                 }
-                let crc = TABLE_CRC32.digest_with_initial(s.partial).finalize();
-                crc != self.table_crc && self.restore_table(calib_region)
+                s.partial ^ crc::CRC_32_ISCSI.xorout != s.reference && self.restore_table(calib_region)
             }
             _ => false,
         }
@@ -130,7 +134,6 @@ impl FlightCore {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::calib::CalibrationTable;
     use crate::flight::Profile;
     use crate::telemetry::events::Event;
 

@@ -56,6 +56,19 @@ pub struct SteadyState {
     pub arw_var_rad2_s: f64,
     /// Rate random walk variance rate σ_u², rad²/s³.
     pub rrw_var_rad2_s3: f64,
+    /// The star tracker's low-frequency error (LFE) variance per axis σ_c², rad² (0: a
+    /// white tracker; the MEKF's LFE states, [`super::mekf`]).
+    pub lfe_var_rad2: f64,
+    /// The LFE's correlation time τ_c, s (0: a white tracker).
+    pub lfe_tau_s: f64,
+}
+
+impl SteadyState {
+    /// Whether the table describes an LFE the MEKF carries.
+    #[inline(always)]
+    pub fn lfe(&self) -> bool {
+        self.lfe_tau_s > 0.0 && self.lfe_var_rad2 > 0.0
+    }
 }
 
 /// [`steady_state_gains`] with the variances at steady state.
@@ -64,6 +77,7 @@ pub fn steady_state(cfg: &ObserverConfig) -> Result<SteadyState, GainError> {
     let sv = cfg.arw_deg_sqrt_h * DEG_RAD / 60.0; // rad/√s
     let su = cfg.rrw_deg_h_sqrt_h * DEG_RAD / 3600.0 / 60.0; // rad/s/√s
     let r = (cfg.st_sigma_arcsec * ARCSEC_RAD) * (cfg.st_sigma_arcsec * ARCSEC_RAD);
+    let lfe = cfg.st_lfe_sigma_arcsec * ARCSEC_RAD;
     let ok = |x: f64| x.is_finite() && x > 0.0;
     if !(ok(t) && ok(sv) && ok(su) && ok(r)) {
         return Err(GainError::BadFigures);
@@ -94,6 +108,8 @@ pub fn steady_state(cfg: &ObserverConfig) -> Result<SteadyState, GainError> {
                 r_rad2: r,
                 arw_var_rad2_s: sv * sv,
                 rrw_var_rad2_s3: su * su,
+                lfe_var_rad2: if cfg.lfe() { lfe * lfe } else { 0.0 },
+                lfe_tau_s: if cfg.lfe() && lfe.is_finite() { cfg.st_lfe_tau_s } else { 0.0 },
             });
         }
     }

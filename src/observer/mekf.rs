@@ -36,10 +36,40 @@
 //! 0.25 s). The update is the Joseph form with the full 3 × 3 innovation covariance
 //! S = P_aa + R I, and the χ² gate is eᵀ S⁻¹ e. Stored as three 3 × 3 blocks
 //! P_aa, P_ab, P_bb (P_ba = P_abᵀ), 216 bytes.
+//!
+//! # The star tracker's low-frequency error (9 states)
+//!
+//! When the table gives the tracker a low-frequency error (LFE: `observer.st_lfe_sigma_arcsec`
+//! σ_c per tracker axis, correlated over `observer.st_lfe_tau_s` τ_c), the filter carries
+//! it as three more states, a first-order Gauss–Markov process per axis:
+//!
+//! ```text
+//! x = (δθ, δb, c),   ċ = −c / τ_c + n_c,   n_c ~ 2 σ_c² / τ_c
+//! Λ* = Λ ∘ q_bs ∘ q(c_st + v)   ⇒   e = δθ + c + v,   H = [I 0 I],   c = C(q_bs) c_st
+//! ```
+//!
+//! The LFE is an error of the tracker's solution, in the tracker's frame (c_st); taken
+//! back through the mount it is c = C(q_bs) c_st in the body, fixed to it (the tracker is),
+//! with the same isotropic statistics σ_c² I, so the filter carries it in the body frame
+//! and it does not turn with A. Over τ since the last update, with φ = e^(−τ/τ_c):
+//!
+//! ```text
+//! P_ac ← (A P_ac − B P_bc) φ,   P_bc ← P_bc φ,   P_cc ← φ² P_cc + σ_c² (1 − φ²) I,   ĉ ← φ ĉ
+//! ```
+//!
+//! (the exact discrete form of the process noise 2σ_c²/τ_c). The innovation is
+//! ν = e − ĉ with S = P_aa + P_ac + P_ca + P_cc + R I; with U = P Hᵀ by blocks
+//! (U_a = P_aa + P_ac, U_b = P_ba + P_bc, U_c = P_ca + P_cc) the gain is K_x = U_x S⁻¹ and
+//! the update P_xy ← P_xy − K_x U_yᵀ (diagonal blocks symmetrised); the LFE estimate keeps
+//! ĉ ← ĉ + K_c ν while the attitude and drift take K_a ν and K_b ν as before. At
+//! alignment on one frame the attitude takes the frame's LFE too: P_aa = (R + σ_c²) I,
+//! P_ac = −σ_c² I, P_cc = σ_c² I. The six LFE blocks ([`Lfe`]) are 9 × 3 × 3 + 3 more
+//! numbers; without an LFE in the table they stay zero and the update is the 6-state code
+//! above, unchanged.
 
 use nalgebra::{Matrix3, Quaternion, Vector3};
 
-use super::gains::Figures;
+use super::gains::{Figures, SteadyState};
 use super::gate::{Streak, CHI2_GATE};
 use super::{Correction, UpdateAt, UpdateError};
 use crate::math;
@@ -51,17 +81,56 @@ pub struct Mekf {
     /// The last 1σ roots (attitude x y z, drift x y z): the start of the next Newton
     /// step ([`root`]); 0 none.
     roots: [f64; 6],
+    /// The star tracker's LFE states (module doc); zero without an LFE in the table.
+    lfe: Lfe,
 }
+
+/// The MEKF's LFE states after its last update: the estimate ĉ (body frame) and the
+/// blocks of the 9 × 9 covariance that involve it.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+pub struct Lfe {
+    /// Attitude error × LFE, rad².
+    pub pac: Matrix3<f64>,
+    /// Bias error × LFE, rad²/s.
+    pub pbc: Matrix3<f64>,
+    /// LFE, rad².
+    pub pcc: Matrix3<f64>,
+    /// The LFE estimate ĉ, body frame, rad.
+    pub c_rad: Vector3<f64>,
+}
+
+impl Lfe {
+    /// No LFE (a white tracker).
+    pub const NONE: Lfe = Lfe { pac: ZERO3, pbc: ZERO3, pcc: ZERO3, c_rad: Vector3::new(0.0, 0.0, 0.0) };
+
+    /// Unknown: its stationary covariance σ_c² I, uncorrelated with the rest, ĉ = 0.
+    fn unknown(var_rad2: f64) -> Lfe {
+        Lfe { pcc: Matrix3::identity() * var_rad2, ..Lfe::NONE }
+    }
+
+    /// Propagated over `tau_s` (module doc), `a` and `b` the attitude error's Φ blocks.
+    fn propagated(&self, a: &Matrix3<f64>, b: &Matrix3<f64>, tau_s: f64, st: &SteadyState) -> Lfe {
+        let phi = libm::exp(-tau_s / st.lfe_tau_s);
+        Lfe {
+            pac: (mul(a, &self.pac) - mul(b, &self.pbc)) * phi,
+            pbc: self.pbc * phi,
+            pcc: self.pcc * (phi * phi) + Matrix3::identity() * (st.lfe_var_rad2 * (1.0 - phi * phi)),
+            c_rad: self.c_rad * phi,
+        }
+    }
+}
+
+const ZERO3: Matrix3<f64> = Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
 
 impl Mekf {
     /// Before alignment (the covariance is set by [`Mekf::align`]).
     pub fn new() -> Self {
-        Mekf { cov: MekfCov::aligned(0.0, 0.0, &Matrix3::zeros()), roots: [0.0; 6] }
+        Mekf { cov: MekfCov::aligned(0.0, 0.0, &Matrix3::zeros()), roots: [0.0; 6], lfe: Lfe::NONE }
     }
 
     /// With covariance `cov` (a reset resumed); the 1σ roots start over.
     pub fn with_cov(cov: MekfCov) -> Self {
-        Mekf { cov, roots: [0.0; 6] }
+        Mekf { cov, roots: [0.0; 6], lfe: Lfe::NONE }
     }
 
     /// Taking over from the fixed-gain observer: its per-axis (P11, P12, P22) as of its
@@ -69,7 +138,11 @@ impl Mekf {
     pub fn with_axes(cov: [[f64; 3]; 3]) -> Self {
         let [[a0, b0, c0], [a1, b1, c1], [a2, b2, c2]] = cov;
         let d = |x: f64, y: f64, z: f64| Matrix3::from_diagonal(&Vector3::new(x, y, z));
-        Mekf { cov: MekfCov { paa: d(a0, a1, a2), pab: d(b0, b1, b2), pbb: d(c0, c1, c2) }, roots: [0.0; 6] }
+        Mekf {
+            cov: MekfCov { paa: d(a0, a1, a2), pab: d(b0, b1, b2), pbb: d(c0, c1, c2) },
+            roots: [0.0; 6],
+            lfe: Lfe::NONE,
+        }
     }
 
     /// The diagonals of the blocks as per-axis (P11, P12, P22), as of the last update.
@@ -85,6 +158,10 @@ impl Mekf {
         v.f64s(self.cov.paa.as_mut_slice());
         v.f64s(self.cov.pab.as_mut_slice());
         v.f64s(self.cov.pbb.as_mut_slice());
+        v.f64s(self.lfe.pac.as_mut_slice());
+        v.f64s(self.lfe.pbc.as_mut_slice());
+        v.f64s(self.lfe.pcc.as_mut_slice());
+        v.f64s(self.lfe.c_rad.as_mut_slice());
     }
 
     /// The covariance after the last update.
@@ -92,10 +169,31 @@ impl Mekf {
         &self.cov
     }
 
+    /// The LFE states after the last update (zero without an LFE in the table).
+    pub fn lfe(&self) -> &Lfe {
+        &self.lfe
+    }
+
     /// At alignment on one frame ([`MekfCov::aligned`]; `sb2` each FOG's turn-on bias
-    /// variance).
+    /// variance); with an LFE, the frame's LFE in the attitude (module doc).
     pub fn align(&mut self, fig: &Figures, sb2: f64) {
         self.cov = MekfCov::aligned(fig.steady.r_rad2, sb2, &fig.noise);
+        self.lfe = Lfe::NONE;
+        if fig.steady.lfe() {
+            let v = fig.steady.lfe_var_rad2;
+            self.cov.paa += Matrix3::identity() * v;
+            self.lfe = Lfe { pac: Matrix3::identity() * -v, ..Lfe::unknown(v) };
+        }
+    }
+
+    /// A new table (`fig`): an LFE it adds starts unknown (its stationary covariance), one
+    /// it removes is dropped, one it keeps stays.
+    pub fn retune(&mut self, fig: &Figures) {
+        if !fig.steady.lfe() {
+            self.lfe = Lfe::NONE;
+        } else if self.lfe == Lfe::NONE {
+            self.lfe = Lfe::unknown(fig.steady.lfe_var_rad2);
+        }
     }
 
     /// A re-alignment, the drift estimate kept: the attitude known to `att_var_rad2` per
@@ -117,6 +215,9 @@ impl Mekf {
     /// mismatch may be; re-acquisition through `streak`), the Joseph update, and the
     /// corrections K_a e (attitude, body at t_s) and K_b e (drift).
     pub fn update(&mut self, fig: &Figures, at: &UpdateAt, streak: &mut Streak) -> Result<Correction, UpdateError> {
+        if fig.steady.lfe() {
+            return self.update_lfe(fig, at, streak);
+        }
         let (st, e) = (&fig.steady, at.e_rad);
         let q_rel = at.last_q.conjugate() * at.q_at;
         let mut prior = self.cov.propagated(&q_rel, at.tau_s, st.arw_var_rad2_s, st.rrw_var_rad2_s3, &fig.noise);
@@ -140,11 +241,58 @@ impl Mekf {
         Ok(Correction { body_rad: gain.ka * e, d_drift_rad_s: gain.kb * e, reacquired })
     }
 
+    /// [`Mekf::update`] with the LFE states (module doc): the same gate, re-acquisition
+    /// and correction on the innovation ν = e − ĉ.
+    #[inline(never)]
+    fn update_lfe(&mut self, fig: &Figures, at: &UpdateAt, streak: &mut Streak) -> Result<Correction, UpdateError> {
+        let st = &fig.steady;
+        let q_rel = at.last_q.conjugate() * at.q_at;
+        let a = dcm(&q_rel).transpose();
+        let b = (a + Matrix3::identity()) * (0.5 * at.tau_s);
+        let mut prior = self.cov.propagated(&q_rel, at.tau_s, st.arw_var_rad2_s, st.rrw_var_rad2_s3, &fig.noise);
+        let mut lfe = self.lfe.propagated(&a, &b, at.tau_s, st);
+        let nu = at.e_rad - lfe.c_rad;
+        let s_of = |p: &MekfCov, l: &Lfe| sym(&(p.paa + l.pac + l.pac.transpose() + l.pcc));
+        let mut s_inv = inverse_plus_r(&s_of(&prior, &lfe), st.r_rad2);
+        let d2 = s_inv.map_or(f64::INFINITY, |s| normalised(&nu, &s));
+        let mut reacquired = false;
+        if d2 > CHI2_GATE {
+            let var = s_of(&prior, &lfe).trace() / 3.0 + st.r_rad2;
+            let Some(mean2) = streak.reacquires(&nu, var) else { return Err(UpdateError::Gated) };
+            // Re-acquire as the 6-state filter does; the LFE keeps what it knew.
+            prior.paa = Matrix3::identity() * (2.0 * mean2 / 3.0);
+            prior.pab = Matrix3::zeros();
+            lfe.pac = Matrix3::zeros();
+            s_inv = inverse_plus_r(&s_of(&prior, &lfe), st.r_rad2);
+            reacquired = true;
+        }
+        let Some(s_inv) = s_inv else { return Err(UpdateError::Gated) };
+        streak.end();
+        // U = P Hᵀ by blocks, K = U S⁻¹, P ← P − K Uᵀ.
+        let ua = prior.paa + lfe.pac;
+        let ub = prior.pab.transpose() + lfe.pbc;
+        let uc = lfe.pac.transpose() + lfe.pcc;
+        let (ka, kb, kc) = (mul(&ua, &s_inv), mul(&ub, &s_inv), mul(&uc, &s_inv));
+        self.cov = MekfCov {
+            paa: sym(&(prior.paa - mul_t(&ka, &ua))),
+            pab: prior.pab - mul_t(&ka, &ub),
+            pbb: sym(&(prior.pbb - mul_t(&kb, &ub))),
+        };
+        self.lfe = Lfe {
+            pac: lfe.pac - mul_t(&ka, &uc),
+            pbc: lfe.pbc - mul_t(&kb, &uc),
+            pcc: sym(&(lfe.pcc - mul_t(&kc, &uc))),
+            c_rad: lfe.c_rad + kc * nu,
+        };
+        Ok(Correction { body_rad: ka * nu, d_drift_rad_s: kb * nu, reacquired })
+    }
+
     /// Expected variance of a mismatch per axis `tau_s` after the last update, rad²: the
-    /// mean per axis of P_aa propagated there, plus R.
+    /// mean per axis of P_aa propagated there, plus R, plus the LFE's σ_c² when the table
+    /// has one (the mismatch e carries the whole LFE, not only its unestimated part).
     pub fn mismatch_var_rad2(&self, fig: &Figures, tau_s: f64) -> f64 {
         let (pa, _) = self.cov.diagonals(tau_s, &fig.arw_axis_rad2_s, &fig.rrw_axis_rad2_s3);
-        pa.iter().sum::<f64>() / 3.0 + fig.steady.r_rad2
+        pa.iter().sum::<f64>() / 3.0 + fig.steady.r_rad2 + fig.steady.lfe_var_rad2
     }
 
     /// The 1σ of the attitude error (rad) and of the drift error (rad/s) per axis `tau_s`
@@ -218,6 +366,24 @@ pub fn dcm(q: &Quaternion<f64>) -> Matrix3<f64> {
 /// Symmetric part of `m` (removes the rounding asymmetry of the products).
 fn sym(m: &Matrix3<f64>) -> Matrix3<f64> {
     (m + m.transpose()) * 0.5
+}
+
+/// a b, out of line: the LFE update's many products share one copy (flash; the 6-state
+/// code keeps its products inline).
+#[inline(never)]
+fn mul(a: &Matrix3<f64>, b: &Matrix3<f64>) -> Matrix3<f64> {
+    a * b
+}
+
+/// a bᵀ, out of line ([`mul`]).
+#[inline(never)]
+fn mul_t(a: &Matrix3<f64>, b: &Matrix3<f64>) -> Matrix3<f64> {
+    a * b.transpose()
+}
+
+/// (M + r I)⁻¹ of a symmetric M ([`inverse_spd`]).
+fn inverse_plus_r(m: &Matrix3<f64>, r: f64) -> Option<Matrix3<f64>> {
+    inverse_spd(&(m + Matrix3::identity() * r))
 }
 
 /// Inverse of a symmetric positive definite 3 × 3 matrix by cofactors; `None` if it is
@@ -424,6 +590,76 @@ mod tests {
         let per_axis = cov.paa.trace() / 3.0;
         let ss = (1.0 - st.gains.k_b[0]) * st.prior_var_rad2;
         assert!(per_axis > 0.5 * ss && per_axis < 1.5 * ss, "{per_axis:e} against {ss:e}");
+    }
+
+    /// The full 9 × 9 P of the filter with the tracker's LFE.
+    fn full9(m: &Mekf) -> nalgebra::SMatrix<f64, 9, 9> {
+        let (c, l) = (&m.cov, &m.lfe);
+        let mut p = nalgebra::SMatrix::<f64, 9, 9>::zeros();
+        for (i, j, b) in [(0, 0, c.paa), (0, 3, c.pab), (3, 3, c.pbb), (0, 6, l.pac), (3, 6, l.pbc), (6, 6, l.pcc)] {
+            p.fixed_view_mut::<3, 3>(i, j).copy_from(&b);
+            p.fixed_view_mut::<3, 3>(j, i).copy_from(&b.transpose());
+        }
+        p
+    }
+
+    #[test]
+    fn with_the_tracker_lfe_the_covariance_settles_on_the_per_axis_kalman_filter() {
+        // The paper's sensors with a 4″ / 300 s LFE; one FOG per axis (N = I) and no
+        // turning, so the 9 states are three independent copies of the per-axis filter
+        // x = (attitude, drift, LFE), H = [1 0 1], iterated here on its own.
+        let cfg = ObserverConfig { st_lfe_sigma_arcsec: 4.0, st_lfe_tau_s: 300.0, ..ObserverConfig::PAPER };
+        let st = steady_state(&cfg).unwrap();
+        let fig = Figures::new(st);
+        let mut m = Mekf::new();
+        m.align(&fig, 1e-12);
+        let (tau, phi) = (0.25, libm::exp(-0.25 / 300.0));
+        let f = Matrix3::new(1.0, -tau, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, phi);
+        let (sv2, su2) = (st.arw_var_rad2_s, st.rrw_var_rad2_s3);
+        let q = Matrix3::new(
+            sv2 * tau + su2 * tau * tau * tau / 3.0,
+            -su2 * tau * tau / 2.0,
+            0.0,
+            -su2 * tau * tau / 2.0,
+            su2 * tau,
+            0.0,
+            0.0,
+            0.0,
+            st.lfe_var_rad2 * (1.0 - phi * phi),
+        );
+        let h = Vector3::new(1.0, 0.0, 1.0);
+        let v = st.lfe_var_rad2;
+        let mut p = Matrix3::new(st.r_rad2 + v, 0.0, -v, 0.0, 1e-12, 0.0, -v, 0.0, v);
+        let mut streak = Streak::default();
+        let zero = Vector3::zeros();
+        let ident = Quaternion::identity();
+        for k in 0..20_000u32 {
+            let at = UpdateAt {
+                e_rad: &zero,
+                converged: true,
+                time_us: 0,
+                tau_s: tau,
+                aligned_us: None,
+                q_at: &ident,
+                last_q: &ident,
+            };
+            m.update(&fig, &at, &mut streak).expect("not gated");
+            let pm = f * p * f.transpose() + q;
+            let u = pm * h;
+            p = pm - u * u.transpose() / (h.dot(&u) + st.r_rad2);
+            if k % 1000 == 0 {
+                let full = full9(&m);
+                assert!(full.cholesky().is_some(), "update {k}: not positive definite");
+            }
+        }
+        for (got, want) in
+            [(m.cov.paa.m11, p.m11), (m.lfe.pcc.m22, p.m33), (m.lfe.pac.m33, p.m13), (m.cov.pbb.m11, p.m22)]
+        {
+            assert!((got - want).abs() <= 1e-6 * want.abs(), "{got:e} against {want:e}");
+        }
+        // Estimating the LFE leaves less of it in the attitude than a white filter's
+        // whole σ_c: the attitude 1σ after an update is below √(σ_c²).
+        assert!(m.cov.paa.m11 < v, "{:e} against {v:e}", m.cov.paa.m11);
     }
 
     #[test]

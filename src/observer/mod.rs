@@ -23,7 +23,7 @@
 //! |---|---|
 //! | `mod.rs` | [`Observer`]: alignment, the frame's path above, [`Filter`] |
 //! | [`luenberger`] | eq. (6) with fixed gains, two stages (acquisition, steady state) |
-//! | [`mekf`] | the MEKF: 6-state covariance, its gain and gate |
+//! | [`mekf`] | the MEKF: 6-state covariance (9 with the star tracker's low-frequency error), its gain and gate |
 //! | [`history`] | the attitude history, [`History::attitude_at`], the lazy fix |
 //! | [`gate`] | the mismatch, the χ²₃ gate, re-acquisition, convergence, the consistency monitor |
 //! | [`gains`] | the steady-state Kalman gains (Farrenkopf 1978), the noise figures |
@@ -215,9 +215,11 @@ impl Filter {
         let steady = &fig.steady.gains;
         match (self.estimator(), cfg.estimator) {
             (Estimator::Luenberger, Estimator::Luenberger) => self.luenberger.retune(cfg, steady),
-            (Estimator::Mekf, Estimator::Mekf) => {}
+            (Estimator::Mekf, Estimator::Mekf) => self.mekf.retune(fig),
             (Estimator::Luenberger, Estimator::Mekf) => {
-                self.mekf = Mekf::with_axes(self.luenberger.cov());
+                let mut m = Mekf::with_axes(self.luenberger.cov());
+                m.retune(fig);
+                self.mekf = m;
                 self.kind = Self::MEKF;
             }
             (Estimator::Mekf, Estimator::Luenberger) => {
@@ -349,7 +351,7 @@ impl Filter {
                 for (c, v) in cov.iter_mut().flatten().zip(w) {
                     *c = *v;
                 }
-                self.luenberger = self.luenberger.clone().with_cov(cov, fig);
+                self.luenberger = self.luenberger.with_cov(cov, fig);
                 self.luenberger.forget_roots();
             }
             Estimator::Mekf => {

@@ -272,7 +272,7 @@ pub fn write_binary(path: &Path, t: &CalibrationTable) -> TableResult<()> {
 }
 
 /// Writes the flash image of the table region: `t` in both slots (generation 1), the rest
-/// erased (what the QEMU board loads at its CALIB region, 0x0002_0000).
+/// erased (what the QEMU board loads at its CALIB region, the ELF's `_calib_start`).
 pub fn write_image(path: &Path, t: &CalibrationTable) -> TableResult<()> {
     valid(t)?;
     write_atomic(path, &store::image(t))

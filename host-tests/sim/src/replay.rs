@@ -424,7 +424,74 @@ pub fn loop_1sigma_arcsec(
         period_mean_arcsec: per_axis.map(|p| p.1),
         latency_mean_arcsec: per_axis.map(|p| p.2),
         latency_s,
+        lfe: if gains.is_none() && cfg.lfe() { Some(lfe_1sigma_arcsec(cfg, &inv, dt_s, latency_s)) } else { None },
     }
+}
+
+/// The estimation limit of [`farrenkopf_1sigma_arcsec`] when the star tracker has the
+/// table's low-frequency error (LFE) and the filter estimates it: the steady-state per-axis
+/// Kalman filter of x = (attitude error, drift error, LFE), the LFE a first-order
+/// Gauss–Markov process (1σ `st_lfe_sigma_arcsec`, correlation time `st_lfe_tau_s`) seen
+/// with the attitude, H = [1 0 1]: the model `ssis::observer::mekf` flies. `n` is
+/// (SᵀS)⁻¹ of the table's axes. Returns (after an update, period mean with latency), 1σ
+/// per axis, arcsec.
+fn lfe_1sigma_arcsec(cfg: &ObserverConfig, n: &Matrix3<f64>, dt_s: f64, latency_s: f64) -> ([f64; 3], [f64; 3]) {
+    let deg = std::f64::consts::PI / 180.0;
+    let su2 = (cfg.rrw_deg_h_sqrt_h * deg / 3600.0 / 60.0).powi(2);
+    let r = (cfg.st_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
+    let sc2 = (cfg.st_lfe_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
+    let per_update = (cfg.st_period_s / dt_s).round().max(1.0) as usize;
+    let per_axis = [0, 1, 2].map(|k| {
+        let sv2 = (cfg.arw_deg_sqrt_h * deg / 60.0).powi(2) * n[(k, k)];
+        let prop = |p: &Matrix3<f64>, h: f64| {
+            let phi = (-h / cfg.st_lfe_tau_s).exp();
+            let f = Matrix3::new(1.0, -h, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, phi);
+            let q12 = -su2 * h * h / 2.0;
+            let q = Matrix3::new(
+                sv2 * h + su2 * h.powi(3) / 3.0,
+                q12,
+                0.0,
+                q12,
+                su2 * h,
+                0.0,
+                0.0,
+                0.0,
+                sc2 * (1.0 - phi * phi),
+            );
+            f * p * f.transpose() + q
+        };
+        let update = |p: &Matrix3<f64>| {
+            let h = Vector3::new(1.0, 0.0, 1.0);
+            let u = p * h;
+            let s = h.dot(&u) + r;
+            let post = p - u * u.transpose() / s;
+            (post + post.transpose()) * 0.5
+        };
+        let t = per_update as f64 * dt_s;
+        let mut p = update(&Matrix3::from_diagonal(&Vector3::new(r + sc2, su2 * 1e4, sc2)));
+        for _ in 0..2_000_000 {
+            let next = update(&prop(&p, t));
+            let done = (next[(0, 0)] - p[(0, 0)]).abs() <= 1e-15 * p[(0, 0)]
+                && (next[(1, 1)] - p[(1, 1)]).abs() <= 1e-12 * p[(1, 1)];
+            p = next;
+            if done {
+                break;
+            }
+        }
+        let post = p[(0, 0)];
+        let mut q = p;
+        for _ in 0..(latency_s.max(0.0) / dt_s).round().min(1e6) as usize {
+            q = prop(&q, dt_s);
+        }
+        let mut late_sum = 0.0;
+        for _ in 0..per_update {
+            late_sum += q[(0, 0)];
+            q = prop(&q, dt_s);
+        }
+        let late = late_sum / per_update as f64;
+        (post.sqrt() * ARCSEC_PER_RAD, late.sqrt() * ARCSEC_PER_RAD)
+    });
+    (per_axis.map(|p| p.0), per_axis.map(|p| p.1))
 }
 
 /// The estimation limit, attitude 1σ per axis.
@@ -439,6 +506,10 @@ pub struct Limit {
     pub latency_mean_arcsec: [f64; 3],
     /// The star tracker's latency it was computed for, s.
     pub latency_s: f64,
+    /// With the table's star-tracker low-frequency error estimated (the MEKF's 9 states):
+    /// the limit after an update and averaged over the period with the latency, arcsec;
+    /// `None` for a white tracker.
+    pub lfe: Option<([f64; 3], [f64; 3])>,
 }
 
 /// What a host replay found.
@@ -659,6 +730,10 @@ impl ReplaySummary {
                 row("  Farrenkopf limit 3σ after update, ″".into(), l.posterior_arcsec, true);
                 row("  limit 3σ averaged over a period, ″".into(), l.period_mean_arcsec, false);
                 row(format!("  the same, tracker latency {:.3} s, ″", l.latency_s), l.latency_mean_arcsec, true);
+                if let Some((post, late)) = l.lfe {
+                    row("  with the tracker's LFE estimated: after update, ″".into(), post, false);
+                    row(format!("  the same, period mean, latency {:.3} s, ″", l.latency_s), late, true);
+                }
             }
         } else {
             s.push_str("no truth in the log: no error against truth\n");

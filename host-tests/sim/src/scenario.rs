@@ -250,6 +250,37 @@ impl Scenario {
     }
 }
 
+impl Scenario {
+    /// The estimation limits for this scenario's sensors (its FOGs' noise, its star tracker's
+    /// noise, rate, latency and low-frequency error; the nominal axes), when its star
+    /// tracker has a low-frequency error: the white-tracker limit and the limit with the
+    /// error estimated ([`crate::replay::farrenkopf_1sigma_arcsec`]). `None` for a white
+    /// tracker.
+    pub fn lfe_limit(&self) -> Option<crate::replay::Limit> {
+        let st = &self.star_tracker;
+        if !(st.lfe_sigma_arcsec > 0.0 && st.lfe_tau_s > 0.0) {
+            return None;
+        }
+        let profile = self.profile.profile();
+        let dt_s = profile.dt_s();
+        let cfg = ObserverConfig {
+            arw_deg_sqrt_h: self.fog.arw_deg_sqrt_h,
+            rrw_deg_h_sqrt_h: self.fog.rrw_deg_h_sqrt_h,
+            st_sigma_arcsec: st.sigma_3sigma_arcsec / 3.0,
+            st_period_s: ((1.0 / st.rate_hz) / dt_s).round().max(1.0) * dt_s,
+            st_lfe_sigma_arcsec: st.lfe_sigma_arcsec,
+            st_lfe_tau_s: st.lfe_tau_s,
+            ..ObserverConfig::PAPER
+        };
+        Some(crate::replay::farrenkopf_1sigma_arcsec(
+            &cfg,
+            &CalibrationTable::DEFAULT.axes(),
+            dt_s,
+            st.latency_ms * 1e-3,
+        ))
+    }
+}
+
 /// An estimator named on a command line (`--estimator`): `luenberger` or `mekf`.
 pub fn parse_estimator(s: &str) -> std::result::Result<Estimator, String> {
     match s {

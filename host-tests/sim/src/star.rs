@@ -1,7 +1,12 @@
 //! Star-tracker model, the paper's eq. (5): Λ* = Λ ∘ δΨ_Λ ∘ δΞ.
 //!
 //! δΨ_Λ is the true mount (the table's mount times a misalignment the table does not
-//! know), δΞ white noise per axis. Frames are taken every `1/rate` s at step boundaries
+//! know), δΞ white noise per axis plus, when the scenario gives one, a low-frequency
+//! error (LFE) per tracker axis: a first-order Gauss–Markov process of 1σ
+//! `lfe_sigma_arcsec` and correlation time `lfe_tau_s` (c_k = φ c_(k−1) + σ √(1 − φ²) w,
+//! φ = e^(−Δt/τ) over the time Δt since the last frame, c_0 ~ N(0, σ²)), the model the
+//! MEKF carries (`ssis::observer::mekf`). Without it no number is drawn for it, so a
+//! white scenario's frames are as they were. Frames are taken every `1/rate` s at step boundaries
 //! with the time tag of the instant they hold, and delivered `latency` later. Above
 //! `max_rate_deg_s` the solution is flagged invalid; in an outage nothing is sent.
 
@@ -33,6 +38,10 @@ pub struct StarSpec {
     pub max_rate_deg_s: f64,
     /// Outages: [start, end) in s.
     pub outages: Vec<[f64; 2]>,
+    /// Low-frequency error, 1σ per tracker axis, arcsec (0: none).
+    pub lfe_sigma_arcsec: f64,
+    /// Its correlation time, s (0: none).
+    pub lfe_tau_s: f64,
 }
 
 impl Default for StarSpec {
@@ -45,6 +54,8 @@ impl Default for StarSpec {
             misalignment_arcsec: [0.0; 3],
             max_rate_deg_s: 2.0,
             outages: Vec::new(),
+            lfe_sigma_arcsec: 0.0,
+            lfe_tau_s: 0.0,
         }
     }
 }
@@ -58,6 +69,8 @@ pub struct StarModel {
     sigma_rad: f64,
     counter: u16,
     pending: std::collections::VecDeque<(u64, [u8; StarFrame::LEN])>,
+    /// The LFE (tracker frame, rad) and the time of the frame it was last drawn for, µs.
+    lfe: Option<(Vector3<f64>, u64)>,
 }
 
 impl StarModel {
@@ -73,6 +86,7 @@ impl StarModel {
             sigma_rad: spec.sigma_3sigma_arcsec / 3.0 / ARCSEC_PER_RAD,
             counter: 0,
             pending: Default::default(),
+            lfe: None,
             spec: spec.clone(),
         }
     }
@@ -90,7 +104,10 @@ impl StarModel {
         let t_s = now_us as f64 * 1e-6;
         let in_outage = self.spec.outages.iter().any(|[a, b]| t_s >= *a && t_s < *b);
         if self.spec.enabled && n.is_multiple_of(self.period_steps) && !in_outage {
-            let noise = Vector3::from_fn(|_, _| self.sigma_rad * rng.sample::<f64, _>(StandardNormal));
+            let mut noise = Vector3::from_fn(|_, _| self.sigma_rad * rng.sample::<f64, _>(StandardNormal));
+            if let Some(c) = self.lfe_at(now_us, rng) {
+                noise += c;
+            }
             let q_st = q * self.true_mount * quat_from_rotvec(&noise);
             let valid = rate.norm().to_degrees() <= self.spec.max_rate_deg_s;
             self.counter = self.counter.wrapping_add(1);
@@ -107,5 +124,24 @@ impl StarModel {
             }
         }
         out
+    }
+
+    /// The LFE at `now_us` (module doc), `None` without one.
+    fn lfe_at(&mut self, now_us: u64, rng: &mut ChaCha20Rng) -> Option<Vector3<f64>> {
+        let (sigma_rad, tau_s) = (self.spec.lfe_sigma_arcsec / ARCSEC_PER_RAD, self.spec.lfe_tau_s);
+        if !(sigma_rad > 0.0 && tau_s > 0.0) {
+            return None;
+        }
+        let mut w = || rng.sample::<f64, _>(StandardNormal);
+        let c = match self.lfe {
+            None => Vector3::new(w(), w(), w()) * sigma_rad,
+            Some((c, t_us)) => {
+                let phi = (-(now_us.saturating_sub(t_us) as f64 * 1e-6) / tau_s).exp();
+                let k = sigma_rad * (1.0 - phi * phi).sqrt();
+                c * phi + Vector3::new(w(), w(), w()) * k
+            }
+        };
+        self.lfe = Some((c, now_us));
+        Some(c)
     }
 }

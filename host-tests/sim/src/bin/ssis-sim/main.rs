@@ -143,7 +143,7 @@ enum TableCmd {
         out: PathBuf,
     },
     /// Convert a TOML table to the flash image of the table region (two copies), what the
-    /// QEMU board loads at its CALIB region (0x0002_0000).
+    /// QEMU board loads at its CALIB region (the ELF's `_calib_start`).
     ToImage {
         /// Input TOML.
         input: PathBuf,
@@ -193,7 +193,7 @@ enum KeyCmd {
         id: u16,
     },
     /// Write a key's record for the unit's protected KEY region (44 bytes; the QEMU
-    /// runner loads it at the ELF's `_key_start`, 0x0002_1000).
+    /// runner loads it at the ELF's `_key_start`).
     ToImage {
         /// Key file.
         key: PathBuf,
@@ -400,6 +400,12 @@ fn run_scenario(
         return Err(e.into());
     }
     print!("{}", summary.report());
+    if let Some(l) = sc.lfe_limit().and_then(|l| l.lfe.map(|x| (l, x))) {
+        let (l, (_, lfe)) = l;
+        let row = |v: [f64; 3]| format!("{:>9.2} {:>9.2} {:>9.2}", 3.0 * v[0], 3.0 * v[1], 3.0 * v[2]);
+        println!("  limit 3σ, white tracker (period mean, latency), ″  {}", row(l.latency_mean_arcsec));
+        println!("  limit 3σ, the tracker's LFE estimated, ″            {}", row(lfe));
+    }
     print!("{}", ssis_common::downlink::timeline(&summary.events.0, summary.events.1));
     let wall = started.elapsed().as_secs_f64();
     cli::report("run", || ssis_sim::json::run_summary(&summary, wall));
