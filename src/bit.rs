@@ -17,7 +17,7 @@ use nalgebra::Vector3;
 
 use crate::calib::{binary, CalibrationTable, Estimator, FogCal, N_FOG};
 use crate::compensation::compensate_rate;
-use crate::flight::{FlightCore, FogLinks, Links, Profile};
+use crate::flight::{CoreError, FlightCore, FogLinks, Links, Profile};
 use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::FogFrame;
 use crate::frames::{body_crc, DecodeError};
@@ -43,6 +43,7 @@ pub enum BitError {
 }
 
 /// Runs the known-answer tests; `Ok` if all pass, else the first failure.
+#[inline(never)]
 pub fn power_on() -> Result<(), BitError> {
     const CHECK: &[u8] = b"123456789";
     // From the register's initial value 0xFFFFFFFF, as if there were no header.
@@ -143,16 +144,31 @@ pub struct ReplayDigest {
 
 /// Flies the spacecraft profile for `steps` steps on the default table: four FOG frames
 /// a step from a constant body rate, no star tracker; returns the digest.
+/// Not inlined, and the core flown where it was built (no second copy): the on-target
+/// self-test runs it on a 28 KiB stack.
+#[inline(never)]
 pub fn replay_digest(steps: u32) -> ReplayDigest {
+    let mut built = replay_core();
+    match built.as_mut() {
+        Ok(core) => replay_on(core, steps),
+        Err(_) => ReplayDigest { steps: 0, output_crc: 0, q_bits: [0; 4] },
+    }
+}
+
+/// The core [`replay_digest`] flies: the spacecraft profile on the default table.
+#[inline(never)]
+fn replay_core() -> Result<FlightCore, CoreError> {
+    FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false)
+}
+
+/// [`replay_digest`] on `core`, fresh from [`replay_core`].
+#[inline(never)]
+fn replay_on(core: &mut FlightCore, steps: u32) -> ReplayDigest {
     let table = CalibrationTable::DEFAULT;
-    let profile = Profile::SPACECRAFT;
-    let dt_s = profile.dt_s();
+    let dt_s = Profile::SPACECRAFT.dt_s();
     let axes = table.axes();
     let mut digest = binary::CRC32.digest();
     let mut q_bits = [0u64; 4];
-    let Ok(mut core) = FlightCore::new(profile, &table, false) else {
-        return ReplayDigest { steps: 0, output_crc: 0, q_bits };
-    };
     let w = Vector3::from(REPLAY_RATE_RAD_S);
     let mut bus = BytesIn::default();
     let mut star = BytesIn::default();
