@@ -35,9 +35,10 @@ fn upset_sample_in_qemu() {
     };
     let c = run_campaign(&sc, &o, |_| {}).expect("campaign");
     assert_eq!(c.flips.len(), 6);
-    let masked = c.flips.iter().filter(|f| f.outcome == Outcome::Masked).count();
-    // Most single flips change nothing the unit outputs (issue 30: 95.6 % on the host).
-    assert!(masked >= 3, "{}", c.report());
+    // The sample's flips change nothing the unit outputs, or only what its state guard logs
+    // when it restores them (issue 30): none is silent, none stops the unit.
+    let bad = c.flips.iter().filter(|f| matches!(f.outcome, Outcome::Silent | Outcome::Crash(_))).count();
+    assert_eq!(bad, 0, "{}", c.report());
     for f in &c.flips {
         assert!(f.step >= 2400 && f.step as f64 * 0.005 <= 15.0, "{f:?}");
         assert!((f.instr as usize) < c.path_len, "{f:?}");

@@ -240,8 +240,17 @@ fn every_field_in_storage_order_with_its_toml_name() {
     let stored = ssis::calib::binary::fields(&t);
     let doc: toml::Value = toml::from_str(&table::to_toml(&t).expect("toml")).expect("parses");
     let all: Vec<Field> = Field::all().collect();
-    assert_eq!(all.len(), stored.len());
-    for (k, f) in all.iter().enumerate() {
+    // The star tracker's two LFE figures ride in the gain override's first two slots
+    // (flag bit 1): the last two fields, after the storage order.
+    let (slots, lfe) = all.split_at(stored.len());
+    assert_eq!(lfe.len(), 2);
+    for f in lfe {
+        assert!(toml_value_at(&doc, &f.to_string()).is_some(), "{f} in the TOML form");
+        let mut u = t;
+        f.set(&mut u, 0.25);
+        assert_eq!(f.get(&u), 0.25, "{f}");
+    }
+    for (k, f) in slots.iter().enumerate() {
         assert_eq!(f.get(&t).to_bits(), stored[k].to_bits(), "{f} is not storage slot {k}");
         assert_eq!(toml_value_at(&doc, &f.to_string()).map(f64::to_bits), Some(stored[k].to_bits()), "{f}");
         // Setting it changes that slot only.

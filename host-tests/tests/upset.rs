@@ -15,7 +15,9 @@ fn scenario() -> Scenario {
 
 fn settings() -> Settings {
     let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
-    Settings { flips: 0, seed: 0, jobs, timeout_s: 120 }
+    // A hang is a crash; the limit leaves room for a loaded machine (a child flies the
+    // rest of a two-minute flight, about a second of CPU).
+    Settings { flips: 0, seed: 0, jobs, timeout_s: 600 }
 }
 
 #[test]
@@ -80,8 +82,12 @@ fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_is_restored(
 
 /// Issue 30's verdict on a sample: no silent flip and no crash (the 20,000-flip
 /// campaign of docs/UPSET-CAMPAIGN.md is the benchmark; before the mitigations 2,000
-/// flips gave 5 silent and 23 crashes).
+/// flips gave 5 silent and 23 crashes). The flight build wraps integer arithmetic
+/// (`overflow-checks = false`, as the firmware flies); a debug build's overflow checks
+/// would turn a flipped counter into a panic the unit never has, so it runs in release
+/// builds only (`cargo test --release --test upset`).
 #[test]
+#[cfg_attr(debug_assertions, ignore = "overflow checks: the unit flies a release build")]
 fn no_flip_of_the_sample_is_silent_or_a_crash() {
     let sc = scenario();
     let reference = Reference::fly(&sc).expect("the undisturbed flight");

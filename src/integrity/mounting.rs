@@ -308,7 +308,11 @@ impl MountCheck {
         }
         self.phi_rad += math::rotvec_from_quat(&(prev.q.conjugate() * q_ics));
         self.s_rad += acc_rad - prev.acc_rad;
-        let span_us = time_us - self.start_us;
+        // A start after now is a corrupted state (a flipped bit): the evidence starts again.
+        let Some(span_us) = time_us.checked_sub(self.start_us) else {
+            self.restart_evidence(time_us);
+            return None;
+        };
         if span_us < MIN_SPAN_US {
             return None;
         }

@@ -155,7 +155,7 @@ pub fn report(base: &TableDoc, updated: &TableDoc, changes: &[Change], origin: &
         base.table.revision,
         updated.table.revision,
         changes.len(),
-        ssis::calib::binary::N_F64 - changes.len(),
+        ssis::calib::field::N_FIELDS - changes.len(),
         with_provenance(&render(changes), base, changes)
     ) + &mount_turn(base, updated)
 }
