@@ -30,7 +30,10 @@ impl Interval {
         let d = 1.0 + z * z / n;
         let c = (p + z * z / (2.0 * n)) / d;
         let h = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / d;
-        Interval { share: p, low: (c - h).max(0.0), high: (c + h).min(1.0) }
+        // At k = 0 (k = n) the bound is exactly 0 (1): c − h cancels, to rounding.
+        let low = if k == 0.0 { 0.0 } else { (c - h).max(0.0) };
+        let high = if k == n { 1.0 } else { (c + h).min(1.0) };
+        Interval { share: p, low, high }
     }
 
     fn pct(&self) -> String {
