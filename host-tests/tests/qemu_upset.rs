@@ -32,6 +32,7 @@ fn upset_sample_in_qemu() {
         gap_s: 0.25,
         register_share: 0.5,
         max_wall_s: None,
+        forced_reset: false,
     };
     let c = run_campaign(&sc, &o, |_| {}).expect("campaign");
     assert_eq!(c.flips.len(), 6);
@@ -47,6 +48,7 @@ fn upset_sample_in_qemu() {
             Target::Static { addr, .. } => assert!((c.statics.0..c.statics.1).contains(&addr), "{f:?}"),
             Target::Core { reg, bit } => assert!((reg < 16 || reg == 25) && bit < 32, "{f:?}"),
             Target::Fpu { reg, bit } => assert!((26..=42).contains(&reg) && bit < 64, "{f:?}"),
+            Target::Reset => panic!("no forced reset in a flip campaign: {f:?}"),
         }
         if f.outcome == Outcome::Masked {
             assert!(f.events.is_empty() && f.recovery_s.is_none(), "{f:?}");
