@@ -185,6 +185,8 @@ pub struct Flip {
     pub step: u64,
     /// Instructions executed in that step before the flip.
     pub instr: u32,
+    /// Where the guest was at the flip: the address and the function it lies in.
+    pub at: String,
     /// The bit.
     pub target: Target,
     /// The class.
@@ -419,6 +421,7 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
 struct Watch {
     flip_step: u64,
     instr: u32,
+    at: String,
     target: Target,
     changed: bool,
     /// The last step whose frame differed from the undisturbed one.
@@ -668,7 +671,14 @@ fn demangle(name: &str) -> String {
         let Some(part) = rest.get(digits..digits + len) else { break };
         let hash = part.len() == 17 && part.starts_with('h') && part.bytes().skip(1).all(|b| b.is_ascii_hexdigit());
         if !hash {
-            parts.push(part.replace("$LT$", "<").replace("$GT$", ">").replace("$u20$", " ").replace("..", "::"));
+            let part = part.strip_prefix('_').filter(|p| p.starts_with('$')).unwrap_or(part);
+            let mut p = part.to_string();
+            for (from, to) in
+                [("$LT$", "<"), ("$GT$", ">"), ("$u20$", " "), ("$u7b$", "{"), ("$u7d$", "}"), ("..", "::")]
+            {
+                p = p.replace(from, to);
+            }
+            parts.push(p);
         }
         rest = rest.get(digits + len..).unwrap_or("");
     }
@@ -750,7 +760,15 @@ fn await_frame(
                     let at = match g.halt() {
                         Ok(()) => {
                             let (pc, lr) = (g.register_u32(gdb::PC)?, g.register_u32(14)?);
-                            format!("; at {}, lr {}", ctx.syms.name(pc), ctx.syms.name(lr))
+                            // Halted just after a WFI: the main loop is idle, feeding the
+                            // watchdog, and never takes the STEP (its lockstep state hit).
+                            let idle = g.read_memory(pc.wrapping_sub(2), 2).is_ok_and(|b| b == [0x30, 0xbf]);
+                            let idle = if idle {
+                                " (idle after WFI: the loop runs, feeds the watchdog, takes no STEP)"
+                            } else {
+                                ""
+                            };
+                            format!("; at {}{idle}, lr {}", ctx.syms.name(pc), ctx.syms.name(lr))
                         }
                         Err(_) => String::new(),
                     };
@@ -827,7 +845,7 @@ fn place_flip(
     g: &mut Gdb,
     rng: &mut ChaCha8Rng,
     step: &ControlFrame,
-) -> Result<(u32, Target)> {
+) -> Result<(u32, Target, u32)> {
     let t0 = Instant::now();
     let entry = ctx.code.entry;
     g.halt()?;
@@ -868,6 +886,7 @@ fn place_flip(
             g.clear_breakpoint(end)?;
         }
     }
+    let here_at_flip = g.register_u32(gdb::PC)?;
     let sp = g.register_u32(gdb::SP)?;
     let target = if ctx.o.forced_reset { Target::Reset } else { pick_target(rng, ctx.ram, sp, ctx.o.register_share) };
     flip(g, target)?;
@@ -879,7 +898,7 @@ fn place_flip(
             path.len()
         );
     }
-    Ok((k as u32, target))
+    Ok((k as u32, target, here_at_flip))
 }
 
 /// One flight in QEMU: flips until one changes an output (followed for the window), no
@@ -959,10 +978,11 @@ fn run_flight(
         }
         let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
         if watch.is_none() && n == next_flip {
-            let (instr, target) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
+            let (instr, target, pc) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
             watch = Some(Watch {
                 flip_step: n,
                 instr,
+                at: ctx.syms.name(pc),
                 target,
                 changed: false,
                 last_diff: None,
@@ -1096,6 +1116,7 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
     Flip {
         step: w.flip_step,
         instr: w.instr,
+        at: w.at.clone(),
         target: w.target,
         outcome,
         worst_arcsec: w.worst,
@@ -1222,4 +1243,19 @@ pub fn run_campaign_jobs(
     c.wall_s = started.elapsed().as_secs_f64();
     c.jobs = jobs;
     Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::demangle;
+
+    #[test]
+    fn legacy_rust_names_lose_their_hash_and_escapes() {
+        assert_eq!(demangle("_ZN12ssis_fw_test8firmware3fly17h61a948d826c07518E"), "ssis_fw_test::firmware::fly");
+        assert_eq!(
+            demangle("_ZN4ssis6intake3fog9FogIntake7receive28_$u7b$$u7b$closure$u7d$$u7d$17h57d8c27ef99bbe14E"),
+            "ssis::intake::fog::FogIntake::receive::{{closure}}"
+        );
+        assert_eq!(demangle("HardFault"), "HardFault");
+    }
 }

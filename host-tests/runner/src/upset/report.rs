@@ -135,7 +135,7 @@ impl Campaign {
             .iter()
             .map(|f| {
                 json!({
-                    "step": f.step, "instr": f.instr, "target": f.target.describe(), "class": f.target.class(),
+                    "step": f.step, "instr": f.instr, "at": f.at, "target": f.target.describe(), "class": f.target.class(),
                     "outcome": f.outcome.name(),
                     "crash": match &f.outcome { Outcome::Crash(w) => Some(w.clone()), _ => None },
                     "worst_arcsec": f.worst_arcsec, "silent_arcsec": f.silent_arcsec,
@@ -262,9 +262,9 @@ impl Campaign {
             let _ = writeln!(s, "Every flip that changed an output:\n");
             let _ = writeln!(
                 s,
-                "| step (s) | instruction | bit | outcome | worst error ″ | recovery s | reset: aligned s | reset: within 2× 3σ s | events | cause |"
+                "| step (s) | instruction | at | bit | outcome | worst error ″ | recovery s | reset: aligned s | reset: within 2× 3σ s | events | cause |"
             );
-            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|");
+            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
             let opt = |v: Option<f64>| v.map_or(String::new(), |r| format!("{r:.2}"));
             for f in changed {
                 let cause = match (&f.outcome, &f.reset_cause) {
@@ -274,9 +274,10 @@ impl Campaign {
                 };
                 let _ = writeln!(
                     s,
-                    "| {:.3} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
+                    "| {:.3} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
                     f.step as f64 * 0.005,
                     f.instr,
+                    f.at.replace('|', "/"),
                     f.target.describe(),
                     f.outcome.name(),
                     f.worst_arcsec,
@@ -376,7 +377,9 @@ impl Campaign {
         let mut causes: Vec<(&str, usize)> = Vec::new();
         for f in &self.flips {
             if let Outcome::Crash(w) = &f.outcome {
-                let c = if w.starts_with("hang") {
+                let c = if w.starts_with("hang") && w.contains("idle after WFI") {
+                    "no output: the loop idles, never taking the STEP (lockstep stalled)"
+                } else if w.starts_with("hang") {
                     "no output (hang)"
                 } else if w.contains("Lockup") {
                     "lockup (QEMU ends)"
