@@ -893,9 +893,10 @@ fn place_flip(
     g.resume()?;
     if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
         eprintln!(
-            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m})",
+            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
             t0.elapsed().as_secs_f64(),
-            path.len()
+            path.len(),
+            target.describe()
         );
     }
     Ok((k as u32, target, here_at_flip))
