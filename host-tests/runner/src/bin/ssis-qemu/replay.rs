@@ -46,6 +46,7 @@ pub fn run(a: &Args) -> Result<bool> {
         steps,
         settle_s: a.settle,
         next: Box::new(move || log_feed.next_step().filter(|i| i.n <= steps)),
+        on_step: None,
     };
     let opts = super::options(a, &elf)?;
     let mut evidence = Evidence::new(&rec, &table, a.settle);
