@@ -824,8 +824,10 @@ pub fn run_feed(
     // Real time from here: step n's tick is at t0 + n·Δt.
     let t0 = Instant::now();
     let tick = |n: u64| t0 + dt * (n as u32);
+    let mut sent = 0;
     while let Some(input) = (feed.next)() {
         let n = input.n;
+        sent += 1;
         if !opts.lockstep {
             // Real time: the frames of step n go out LEAD steps before its tick, and never
             // more than MAX_LEAD steps ahead of the outputs received.
@@ -883,6 +885,9 @@ pub fn run_feed(
             }
         }
     }
+    // The run's length is what was sent (a streamed log's is known only at its end).
+    s.steps = sent;
+    s.duration_s = sent as f64 * dt_s;
     // Collect what is still coming, then end the run.
     let t_end = Instant::now();
     while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {

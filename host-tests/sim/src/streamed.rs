@@ -69,17 +69,20 @@ pub struct Streamed {
     pub st_latency_s: f64,
 }
 
-/// The conventions of the log `stream` reads, checked on its first [`CHECK_SPAN_S`]
-/// against `table`: the report, given to `on_conventions` before any step, and the
-/// replay of the whole log through `FlightCore::step` (statistics from `settle_s`;
-/// `on_frame` sees every output frame and its record against truth).
-pub fn replay_stream(
-    mut stream: LogStream,
-    table: &CalibrationTable,
-    settle_s: f64,
-    on_conventions: impl FnOnce(&ConventionReport),
-    mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
-) -> Result<Streamed> {
+/// A log's first [`CHECK_SPAN_S`] (a shorter log whole), held in memory, and its
+/// conventions checked on it.
+pub struct Head {
+    /// The steps read, as a log read whole (its counts are the head's only).
+    pub rec: Recorded,
+    /// The step after the head (`None`: the log ended within it).
+    pub next: Option<LogStep>,
+    /// The conventions check on the head (`span_s` set when the log goes on).
+    pub conventions: ConventionReport,
+}
+
+/// Reads the head of the log `stream` reads and checks its conventions against `table`
+/// (`ssis-sim replay`, `ssis-qemu --replay`).
+pub fn read_head(stream: &mut LogStream, table: &CalibrationTable) -> Result<Head> {
     let profile = Profile::SPACECRAFT;
     let span_steps = (CHECK_SPAN_S / profile.dt_s()).round() as usize;
     let mut head = Vec::with_capacity(span_steps.min(1 << 16));
@@ -90,7 +93,6 @@ pub fn replay_stream(
         }
     }
     let next = if head.len() == span_steps { stream.next_step()? } else { None };
-    let longer = next.is_some();
     let rec = Recorded {
         origin: stream.origin().to_string(),
         steps: head,
@@ -102,9 +104,37 @@ pub fn replay_stream(
         init: None,
     };
     let mut conventions = check_conventions(&rec, table, profile.dt_us)?;
-    if longer {
+    if next.is_some() {
         conventions.span_s = Some(CHECK_SPAN_S);
     }
+    Ok(Head { rec, next, conventions })
+}
+
+impl LogInfo {
+    /// What `stream` counted of the log it read.
+    pub fn of_stream(stream: &LogStream) -> LogInfo {
+        LogInfo {
+            fog_samples: stream.fog_samples,
+            fogs: stream.fogs(),
+            st_count: stream.st_count,
+            has_truth: stream.has_truth,
+            problems: stream.problems.clone(),
+        }
+    }
+}
+
+/// The conventions of the log `stream` reads, checked on its first [`CHECK_SPAN_S`]
+/// against `table`: the report, given to `on_conventions` before any step, and the
+/// replay of the whole log through `FlightCore::step` (statistics from `settle_s`;
+/// `on_frame` sees every output frame and its record against truth).
+pub fn replay_stream(
+    mut stream: LogStream,
+    table: &CalibrationTable,
+    settle_s: f64,
+    on_conventions: impl FnOnce(&ConventionReport),
+    mut on_frame: impl FnMut(&OutputFrame, Option<&Record>),
+) -> Result<Streamed> {
+    let Head { rec, next, conventions } = read_head(&mut stream, table)?;
     on_conventions(&conventions);
     let mut r = Replayer::new(table, settle_s)?;
     for step in rec.steps {
@@ -118,17 +148,10 @@ pub fn replay_stream(
             }
         })?;
     }
-    let info = LogInfo {
-        fog_samples: stream.fog_samples,
-        fogs: stream.fogs(),
-        st_count: stream.st_count,
-        has_truth: stream.has_truth,
-        problems: stream.problems.clone(),
-    };
     Ok(Streamed {
         summary: r.finish(stream.origin().to_string()),
         conventions,
-        info,
+        info: LogInfo::of_stream(&stream),
         st_latency_s: stream.st_latency_s(),
     })
 }
