@@ -5,8 +5,9 @@
 //! solutions, so it runs first, on the log's first [`CHECK_SPAN_S`] held in memory (a
 //! shorter log whole: the very report of a log read whole); a log's conventions are how it
 //! was written, the same at every row. Those steps are then replayed, and the rest of the
-//! log follows as [`LogStream`] reads it, on a thread of its own a few batches ahead of
-//! the replay: nothing else grows with the log but the counts.
+//! log follows as [`LogStream`] reads it, in three stages on threads of their own a few
+//! batches apart: reading the log, stepping the unit (`FlightCore::step`), reading what
+//! it sent. Nothing else grows with the log but the counts.
 
 use anyhow::Result;
 use ssis::calib::CalibrationTable;
@@ -16,44 +17,75 @@ use ssis::frames::output::OutputFrame;
 use crate::conventions::{check_conventions, ConventionReport};
 use crate::harness::Record;
 use crate::recorded::{LogStep, LogStream, Problems, Recorded};
-use crate::replay::{LogInfo, ReplaySummary, Replayer};
+use crate::replay::{LogInfo, OutputSide, ReplaySummary, Replayer, Sent, UnitSide};
 
 /// The span at a log's start that the conventions check reads, s (the unit's steps held
 /// in memory meanwhile: 120,000 at 5 ms).
 pub const CHECK_SPAN_S: f64 = 600.0;
 
-/// Steps handed from the reading thread to the replay at a time.
+/// Steps handed from one stage of a replay to the next at a time.
 const BATCH_STEPS: usize = 1024;
-/// Batches in flight between the two (the memory the overlap costs: a few MB).
+/// Batches in flight between two stages (the memory the overlap costs: a few MB).
 const BATCHES_IN_FLIGHT: usize = 4;
 
-/// The rest of `stream` read on a thread of its own, its steps given to `take` in order,
-/// a batch at a time: reading (parsing the CSV) and stepping overlap on two cores.
-/// Returns the stream at its end (its counts), or the error that stopped it.
-fn read_beside(mut stream: LogStream, mut take: impl FnMut(&[LogStep])) -> Result<LogStream> {
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Vec<LogStep>>(BATCHES_IN_FLIGHT);
-    let reader = std::thread::spawn(move || -> Result<LogStream> {
-        loop {
-            let mut batch = Vec::with_capacity(BATCH_STEPS);
-            while batch.len() < BATCH_STEPS {
-                match stream.next_step()? {
-                    Some(s) => batch.push(s),
-                    None => break,
+/// Up to [`BATCH_STEPS`] of the next steps of `stream` (fewer at its end).
+fn read_batch(stream: &mut LogStream) -> Result<Vec<LogStep>> {
+    let mut batch = Vec::with_capacity(BATCH_STEPS);
+    while batch.len() < BATCH_STEPS {
+        match stream.next_step()? {
+            Some(s) => batch.push(s),
+            None => break,
+        }
+    }
+    Ok(batch)
+}
+
+/// A batch of steps the unit took: the steps, the bytes it sent and where each step's are.
+struct Stepped {
+    steps: Vec<LogStep>,
+    bytes: Vec<u8>,
+    sent: Vec<Sent>,
+}
+
+/// The rest of `stream` replayed in three stages on threads of their own, a batch of
+/// steps at a time, up to [`BATCHES_IN_FLIGHT`] batches between two stages: one reads the
+/// log (parsing the CSV), one steps the unit (`unit`), and this one reads what the unit
+/// sent (`output`, `on_frame`). Returns the stream at its end (its counts), or the error
+/// that stopped it.
+fn replay_beside(
+    mut stream: LogStream,
+    unit: &mut UnitSide,
+    output: &mut OutputSide,
+    on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
+) -> Result<LogStream> {
+    std::thread::scope(|scope| {
+        let (to_unit, unit_rx) = std::sync::mpsc::sync_channel::<Vec<LogStep>>(BATCHES_IN_FLIGHT);
+        let (to_output, output_rx) = std::sync::mpsc::sync_channel::<Stepped>(BATCHES_IN_FLIGHT);
+        let reader = scope.spawn(move || -> Result<LogStream> {
+            loop {
+                let batch = read_batch(&mut stream)?;
+                let last = batch.len() < BATCH_STEPS;
+                if !batch.is_empty() && to_unit.send(batch).is_err() || last {
+                    return Ok(stream);
                 }
             }
-            let last = batch.len() < BATCH_STEPS;
-            if !batch.is_empty() && tx.send(batch).is_err() {
-                return Ok(stream);
+        });
+        scope.spawn(move || {
+            for steps in unit_rx {
+                let mut bytes = Vec::with_capacity(steps.len() * 160);
+                let sent = steps.iter().map(|s| unit.step(s, &mut bytes)).collect();
+                if to_output.send(Stepped { steps, bytes, sent }).is_err() {
+                    return;
+                }
             }
-            if last {
-                return Ok(stream);
+        });
+        for b in output_rx {
+            for (step, sent) in b.steps.iter().zip(&b.sent) {
+                output.take(step, sent, &b.bytes, on_frame);
             }
         }
-    });
-    for batch in rx {
-        take(&batch);
-    }
-    reader.join().map_err(|_| anyhow::anyhow!("the log's reading thread panicked"))?
+        reader.join().map_err(|_| anyhow::anyhow!("the log's reading thread panicked"))?
+    })
 }
 
 /// What a streamed replay found.
@@ -142,11 +174,7 @@ pub fn replay_stream(
     }
     if let Some(step) = next {
         r.step(&step, &mut on_frame);
-        stream = read_beside(stream, |batch| {
-            for step in batch {
-                r.step(step, &mut on_frame);
-            }
-        })?;
+        stream = replay_beside(stream, &mut r.unit, &mut r.output, &mut on_frame)?;
     }
     Ok(Streamed {
         summary: r.finish(stream.origin().to_string()),
