@@ -127,9 +127,9 @@ fn the_latency_limit_adds_the_angle_random_walk_over_the_latency() {
     }
 }
 
-/// A log longer than the conventions check's head (`CHECK_SPAN_S`) replays streamed, its
-/// rest in three stages on threads of their own, exactly as the same log read whole: the
-/// output frames' fingerprint, the frames, the events and every accuracy figure.
+/// A log longer than the conventions check's head (`CHECK_SPAN_S`) replays streamed (in
+/// three stages on threads of their own) exactly as the same log read whole: the output
+/// frames' fingerprint, the frames, the events and every accuracy figure.
 #[test]
 fn a_log_streamed_in_stages_replays_as_read_whole() {
     use ssis_sim::recorded::LogStream;

@@ -47,13 +47,15 @@ struct Stepped {
     sent: Vec<Sent>,
 }
 
-/// The rest of `stream` replayed in three stages on threads of their own, a batch of
-/// steps at a time, up to [`BATCHES_IN_FLIGHT`] batches between two stages: one reads the
-/// log (parsing the CSV), one steps the unit (`unit`), and this one reads what the unit
-/// sent (`output`, `on_frame`). Returns the stream at its end (its counts), or the error
-/// that stopped it.
+/// The steps `head` then the rest of `stream` (`Err`: the log ended within the head, the
+/// stream given back as it is) replayed in three stages on threads of their own, a batch
+/// of steps at a time, up to [`BATCHES_IN_FLIGHT`] batches between two stages: one reads
+/// the log (parsing the CSV), one steps the unit (`unit`), and this one reads what the
+/// unit sent (`output`, `on_frame`). Returns the stream at its end (its counts), or the
+/// error that stopped it.
 fn replay_beside(
-    mut stream: LogStream,
+    head: Vec<LogStep>,
+    stream: Result<LogStream, LogStream>,
     unit: &mut UnitSide,
     output: &mut OutputSide,
     on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
@@ -62,6 +64,16 @@ fn replay_beside(
         let (to_unit, unit_rx) = std::sync::mpsc::sync_channel::<Vec<LogStep>>(BATCHES_IN_FLIGHT);
         let (to_output, output_rx) = std::sync::mpsc::sync_channel::<Stepped>(BATCHES_IN_FLIGHT);
         let reader = scope.spawn(move || -> Result<LogStream> {
+            let mut head = head.into_iter().peekable();
+            while head.peek().is_some() {
+                if to_unit.send(head.by_ref().take(BATCH_STEPS).collect()).is_err() {
+                    break;
+                }
+            }
+            let mut stream = match stream {
+                Ok(s) => s,
+                Err(s) => return Ok(s),
+            };
             loop {
                 let batch = read_batch(&mut stream)?;
                 let last = batch.len() < BATCH_STEPS;
@@ -169,13 +181,11 @@ pub fn replay_stream(
     let Head { rec, next, conventions } = read_head(&mut stream, table)?;
     on_conventions(&conventions);
     let mut r = Replayer::new(table, settle_s)?;
-    for step in rec.steps {
-        r.step(&step, &mut on_frame);
-    }
-    if let Some(step) = next {
-        r.step(&step, &mut on_frame);
-        stream = replay_beside(stream, &mut r.unit, &mut r.output, &mut on_frame)?;
-    }
+    let more = next.is_some();
+    let mut head = rec.steps;
+    head.extend(next);
+    let stream = if more { Ok(stream) } else { Err(stream) };
+    let stream = replay_beside(head, stream, &mut r.unit, &mut r.output, &mut on_frame)?;
     Ok(Streamed {
         summary: r.finish(stream.origin().to_string()),
         conventions,
