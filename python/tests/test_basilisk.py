@@ -42,7 +42,9 @@ def test_qemu_unit_outputs_what_the_core_does(short_log, root):
             a, b = core.step(d, star), fw.step(d, star)
             counts = np.clip(np.round(a.q * 2**31), -(2**31), 2**31 - 1)
             assert np.array_equal(counts, np.round(b.q * 2**31)), k
-            assert (a.flags, a.st_status, a.fog_health) == (b.flags, b.st_status, b.fog_health)
+            # OUTPUT_DROPPED (bit 4) masked as the runner masks it: the board's TX ring may
+            # drop a frame on its own tick before lockstep, while QEMU starts on a busy host
+            assert (a.flags & ~16, a.st_status, a.fog_health) == (b.flags & ~16, b.st_status, b.fog_health), k
             assert a.time_s == b.time_s
             # each step's events with that step, not a step later
             assert a.events == b.events, k
