@@ -79,8 +79,8 @@ impl Visit for Sum {
 /// Copies the words visited into a shadow and sums them ([`Shadow::save`]).
 #[derive(Debug)]
 pub struct Save<'a> {
-    words: &'a mut [u64],
-    at: usize,
+    /// The shadow's words not yet written.
+    words: core::slice::IterMut<'a, u64>,
     sum: u64,
 }
 
@@ -89,10 +89,9 @@ impl Visit for Save<'_> {
 
     #[inline(always)]
     fn word(&mut self, w: &mut u64) {
-        if let Some(s) = self.words.get_mut(self.at) {
+        if let Some(s) = self.words.next() {
             *s = *w;
         }
-        self.at += 1;
         self.sum ^= *w;
     }
 }
@@ -100,8 +99,8 @@ impl Visit for Save<'_> {
 /// Writes the shadow's words back into the words visited ([`Shadow::restore`]).
 #[derive(Debug)]
 pub struct Restore<'a> {
-    words: &'a [u64],
-    at: usize,
+    /// The shadow's words not yet written back.
+    words: core::slice::Iter<'a, u64>,
 }
 
 impl Visit for Restore<'_> {
@@ -109,10 +108,9 @@ impl Visit for Restore<'_> {
 
     #[inline(always)]
     fn word(&mut self, w: &mut u64) {
-        if let Some(s) = self.words.get(self.at) {
+        if let Some(s) = self.words.next() {
             *w = *s;
         }
-        self.at += 1;
     }
 }
 
@@ -235,25 +233,32 @@ impl<const N: usize> Shadow<N> {
     /// Saves the block `visit` walks.
     #[inline(always)]
     pub fn save(&mut self, visit: impl FnOnce(&mut Save<'_>)) {
-        let mut s = Save { words: &mut self.words, at: 0, sum: 0 };
+        let mut s = Save { words: self.words.iter_mut(), sum: 0 };
         visit(&mut s);
-        self.len = u32::try_from(s.at).unwrap_or(u32::MAX);
-        self.sum = s.sum;
+        let (left, sum) = (s.words.len(), s.sum);
+        self.seal(left, sum);
+    }
+
+    /// The save's length (`left` words of the shadow not written) and checksum.
+    #[inline(always)]
+    fn seal(&mut self, left: usize, sum: u64) {
+        self.len = u32::try_from(N.saturating_sub(left)).unwrap_or(u32::MAX);
+        self.sum = sum;
     }
 
     /// [`Shadow::save`] through a [`Pass`].
     pub fn save_pass(&mut self, visit: impl FnOnce(&mut Pass<'_>)) {
-        let mut pass = Pass::Save(Save { words: &mut self.words, at: 0, sum: 0 });
+        let mut pass = Pass::Save(Save { words: self.words.iter_mut(), sum: 0 });
         visit(&mut pass);
         if let Pass::Save(s) = pass {
-            self.len = u32::try_from(s.at).unwrap_or(u32::MAX);
-            self.sum = s.sum;
+            let (left, sum) = (s.words.len(), s.sum);
+            self.seal(left, sum);
         }
     }
 
     /// [`Shadow::restore`] through a [`Pass`].
     pub fn restore_pass(&self, visit: impl FnOnce(&mut Pass<'_>)) {
-        visit(&mut Pass::Restore(Restore { words: &self.words, at: 0 }));
+        visit(&mut Pass::Restore(Restore { words: self.words.iter() }));
     }
 
     /// The stored checksum against the live words' `live` ([`Sum`]).
@@ -283,7 +288,7 @@ impl<const N: usize> Shadow<N> {
 
     /// Writes the shadow back into the block `visit` walks.
     pub fn restore(&self, visit: impl FnOnce(&mut Restore<'_>)) {
-        let mut r = Restore { words: &self.words, at: 0 };
+        let mut r = Restore { words: self.words.iter() };
         visit(&mut r);
     }
 
