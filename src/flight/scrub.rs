@@ -23,6 +23,8 @@ use crate::telemetry::{flags, Counter};
 const BODY_LEN: usize = TABLE_LEN - 4;
 /// Bytes checked per step.
 const SLICE: usize = 32;
+/// Slices of a pass.
+const SLICES: usize = BODY_LEN.div_ceil(SLICE);
 /// Steps per pass: the whole table once a second at 5 ms (encoding it is the pass's
 /// first step, its slices the next ones, then nothing until the next pass).
 pub const PASS_STEPS: u16 = 200;
@@ -80,9 +82,24 @@ impl FlightCore {
     /// The background work between two steps, a slice a call (the board calls it after
     /// every step): the table in RAM against its CRC, restored from `calib_region` (the
     /// two-copy store, [`store::REGION_LEN`] bytes of flash) when it differs (module
-    /// doc). Returns true when it restored a table.
-    #[inline(never)]
+    /// doc). Returns true when it restored a table. Inline: most calls only count the
+    /// step (no slice due, no hold running) and return.
+    #[inline(always)]
     pub fn background(&mut self, calib_region: &[u8]) -> bool {
+        let s = &mut self.scrub;
+        let tick = s.tick;
+        s.tick = if tick + 1 >= PASS_STEPS { 0 } else { tick + 1 };
+        // No hold counting down: 0 (none) or u16::MAX (for good).
+        if usize::from(tick) > SLICES && s.hold.wrapping_add(1) <= 1 {
+            return false;
+        }
+        self.background_slice(tick, calib_region)
+    }
+
+    /// [`FlightCore::background`]'s step `tick` of the pass with work due: the hold
+    /// counted down, the table encoded (step 0) or a slice checked.
+    #[inline(never)]
+    fn background_slice(&mut self, tick: u16, calib_region: &[u8]) -> bool {
         let s = &mut self.scrub;
         if s.hold > 0 && s.hold != u16::MAX {
             s.hold -= 1;
@@ -91,21 +108,18 @@ impl FlightCore {
             }
         }
         let s = &mut self.scrub;
-        let tick = s.tick;
-        s.tick = if tick + 1 >= PASS_STEPS { 0 } else { tick + 1 };
-        let slices = BODY_LEN.div_ceil(SLICE);
         match usize::from(tick) {
             0 => {
                 let _ = binary::encode_body_into(&self.table, &mut s.body);
                 s.partial = CRC_INIT;
                 false
             }
-            k if k <= slices => {
+            k if k <= SLICES => {
                 let from = (k - 1) * SLICE;
                 if let Some(bytes) = s.body.get(from..(from + SLICE).min(BODY_LEN)) {
                     s.partial = crc_on(s.partial, bytes);
                 }
-                if k < slices {
+                if k < SLICES {
                     return false;
                 }
                 s.partial ^ crc::CRC_32_ISCSI.xorout != s.reference && self.restore_table(calib_region)
