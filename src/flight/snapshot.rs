@@ -200,7 +200,9 @@ impl FlightCore {
         let cleared = self.mounting.as_ref().is_none_or(|m| !m.checking() || m.clear_to_report());
         // The body increment's change per step since the snapshot before (the turn's
         // angular acceleration): the bridge over the reset is corrected by it.
-        let (old, old_magic) = (s.f64s(), s.word(W_MAGIC));
+        // Only the last increment of the snapshot before is read (fields 11..14).
+        let old_d: [f64; 3] = core::array::from_fn(|i| f64::from_bits(s.u64_at(W_F64 + 2 * (11 + i))));
+        let old_magic = s.word(W_MAGIC);
         let steps = index.wrapping_sub(s.index());
         s.set_word(W_MAGIC, MAGIC);
         s.set_word(W_TABLE_CRC, self.table_crc);
@@ -214,7 +216,7 @@ impl FlightCore {
         let head = [q.w, q.i, q.j, q.k, o.last_q[0], o.last_q[1], o.last_q[2], o.last_q[3], dx, dy, dz, d.x, d.y, d.z];
         let trend = if old_magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps) {
             let k = 1.0 / steps as f64;
-            [0, 1, 2].map(|i| (head.get(11 + i).copied().unwrap_or(0.0) - old.get(11 + i).copied().unwrap_or(0.0)) * k)
+            [0, 1, 2].map(|i| (head.get(11 + i).copied().unwrap_or(0.0) - old_d.get(i).copied().unwrap_or(0.0)) * k)
         } else {
             [0.0; 3]
         };
