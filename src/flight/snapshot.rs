@@ -221,8 +221,12 @@ impl FlightCore {
             [0.0; 3]
         };
         let values = head.iter().chain(core::iter::once(&o.innov_ms_rad2)).chain(o.cov.iter()).chain(trend.iter());
-        for (k, v) in values.enumerate() {
-            s.set_u64(W_F64 + 2 * k, v.to_bits());
+        // The f64 fields as word pairs, low word first (as `set_u64`), in one pass.
+        if let Some(slots) = s.words.get_mut(W_F64..W_F64 + 2 * N_F64) {
+            for ([lo, hi], v) in slots.as_chunks_mut::<2>().0.iter_mut().zip(values) {
+                let b = v.to_bits();
+                (*lo, *hi) = (b as u32, (b >> 32) as u32);
+            }
         }
         s.seal();
         true
