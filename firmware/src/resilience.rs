@@ -70,12 +70,12 @@ pub fn reset() -> ! {
 }
 
 /// Bytes of flash the code check reads a slice.
-pub const CODE_SLICE: usize = 32;
+pub const CODE_SLICE: usize = 64;
 /// Steps from one slice to the next: 4 bytes a step on average, the 128 KiB image in
 /// about 170 s at 5 ms. A slice every [`CODE_STEPS`] (not a few bytes every step) spends
-/// the per-call overhead once for 32 bytes; the flash changes far more rarely than the
+/// the per-call overhead once for 64 bytes; the flash changes far more rarely than the
 /// state in RAM (module doc).
-pub const CODE_STEPS: u32 = 8;
+pub const CODE_STEPS: u32 = 16;
 
 extern "C" {
     static __vector_table: u32;
