@@ -270,20 +270,9 @@ impl<const N: usize> Shadow<N> {
         self.check_cold(live)
     }
 
-    #[inline(never)]
-    #[cold]
+    #[inline(always)]
     fn check_cold(&mut self, live: u64) -> Check {
-        let n = usize::try_from(self.len).unwrap_or(N).min(N);
-        let own = xor_of(self.words.get(..n).unwrap_or(&self.words));
-        if own == self.sum {
-            Check::Restore
-        } else if own == live {
-            // The stored checksum took the flip: the shadow and the live words agree.
-            self.sum = live;
-            Check::ShadowRepaired
-        } else {
-            Check::Lost
-        }
+        check_words(&self.words, self.len, &mut self.sum, live)
     }
 
     /// Writes the shadow back into the block `visit` walks.
@@ -302,10 +291,23 @@ impl<const N: usize> Shadow<N> {
     pub const CAPACITY: usize = N;
 }
 
-/// The checksum of a shadow's words (one copy for every block size).
+/// [`Shadow::check`]'s mismatch: which copy is good, from the shadow's `words` (the first
+/// `len` hold the block), its checksum `sum` and the live words' `live` (one copy for
+/// every block size).
 #[inline(never)]
-fn xor_of(words: &[u64]) -> u64 {
-    words.iter().fold(0, |a, w| a ^ w)
+#[cold]
+fn check_words(words: &[u64], len: u32, sum: &mut u64, live: u64) -> Check {
+    let n = usize::try_from(len).unwrap_or(usize::MAX).min(words.len());
+    let own = words.get(..n).unwrap_or(words).iter().fold(0, |a, w| a ^ w);
+    if own == *sum {
+        Check::Restore
+    } else if own == live {
+        // The stored checksum took the flip: the shadow and the live words agree.
+        *sum = live;
+        Check::ShadowRepaired
+    } else {
+        Check::Lost
+    }
 }
 
 #[cfg(test)]

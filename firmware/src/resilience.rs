@@ -94,12 +94,11 @@ fn code_image() -> &'static [u8] {
 /// The CRC-32C register at the start of a pass.
 const CRC_INIT: u32 = crc::CRC_32_ISCSI.init;
 
-/// CRC-32C of `bytes` continued from register `r` (the register after them): the frames'
-/// four-bytes-a-pass CRC ([`ssis::frames::body_crc`]), whose tables it shares; one copy
-/// for the boot's reference and the slices.
-#[inline(never)]
+/// CRC-32C of `bytes` continued from register `r` (the register after them): the
+/// frames' four-bytes-a-pass CRC, whose tables it shares, out of line
+/// ([`ssis::frames::crc32c_register`]).
 fn crc_on(r: u32, bytes: &[u8]) -> u32 {
-    ssis::frames::body_crc(r, bytes) ^ crc::CRC_32_ISCSI.xorout
+    ssis::frames::crc32c_register(r, bytes)
 }
 
 /// The background CRC of the code in flash (module doc).

@@ -43,7 +43,7 @@ const CRC_INIT: u32 = crc::CRC_32_ISCSI.init;
 
 /// CRC-32C of `bytes` continued from register `r` (the register after them).
 fn crc_on(r: u32, bytes: &[u8]) -> u32 {
-    frames::body_crc(r, bytes) ^ crc::CRC_32_ISCSI.xorout
+    frames::crc32c_register(r, bytes)
 }
 
 /// Where the background check of the table is.

@@ -121,6 +121,14 @@ pub fn body_crc(header_crc: u32, body: &[u8]) -> u32 {
     r ^ crc::CRC_32_ISCSI.xorout
 }
 
+/// The CRC-32C register after `bytes`, continued from register `r` ([`body_crc`] without
+/// its final XOR): out of line, one copy for the background checks (the table's in RAM,
+/// the code's in flash), which run a slice every few steps.
+#[inline(never)]
+pub fn crc32c_register(r: u32, bytes: &[u8]) -> u32 {
+    body_crc(r, bytes) ^ crc::CRC_32_ISCSI.xorout
+}
+
 /// T₀ … T₃ of [`body_crc`], built at compile time.
 static CRC_TABLES: [[u32; 256]; 4] = crc_tables(POLY_REFLECTED);
 
