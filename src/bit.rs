@@ -50,7 +50,7 @@ pub fn power_on() -> Result<(), BitError> {
     if body_crc(crc::CRC_32_ISCSI.init, CHECK) != 0xE306_9283 {
         return Err(BitError::FrameCrc);
     }
-    if binary::CRC32.checksum(CHECK) != 0xCBF4_3926 {
+    if binary::crc32(CHECK) != 0xCBF4_3926 {
         return Err(BitError::TableCrc);
     }
     arithmetic()?;
@@ -248,7 +248,7 @@ impl embedded_io::WriteReady for DigestOut<'_, '_> {
 
 impl embedded_io::Write for DigestOut<'_, '_> {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Infallible> {
-        self.digest.update(buf);
+        binary::crc32_update(self.digest, buf);
         Ok(buf.len())
     }
 

@@ -79,8 +79,8 @@ impl Visit for Sum {
 /// Copies the words visited into a shadow and sums them ([`Shadow::save`]).
 #[derive(Debug)]
 pub struct Save<'a> {
-    words: &'a mut [u64],
-    at: usize,
+    /// The shadow's words not yet written.
+    words: core::slice::IterMut<'a, u64>,
     sum: u64,
 }
 
@@ -89,10 +89,9 @@ impl Visit for Save<'_> {
 
     #[inline(always)]
     fn word(&mut self, w: &mut u64) {
-        if let Some(s) = self.words.get_mut(self.at) {
+        if let Some(s) = self.words.next() {
             *s = *w;
         }
-        self.at += 1;
         self.sum ^= *w;
     }
 }
@@ -100,8 +99,8 @@ impl Visit for Save<'_> {
 /// Writes the shadow's words back into the words visited ([`Shadow::restore`]).
 #[derive(Debug)]
 pub struct Restore<'a> {
-    words: &'a [u64],
-    at: usize,
+    /// The shadow's words not yet written back.
+    words: core::slice::Iter<'a, u64>,
 }
 
 impl Visit for Restore<'_> {
@@ -109,10 +108,9 @@ impl Visit for Restore<'_> {
 
     #[inline(always)]
     fn word(&mut self, w: &mut u64) {
-        if let Some(s) = self.words.get(self.at) {
+        if let Some(s) = self.words.next() {
             *w = *s;
         }
-        self.at += 1;
     }
 }
 
@@ -235,25 +233,32 @@ impl<const N: usize> Shadow<N> {
     /// Saves the block `visit` walks.
     #[inline(always)]
     pub fn save(&mut self, visit: impl FnOnce(&mut Save<'_>)) {
-        let mut s = Save { words: &mut self.words, at: 0, sum: 0 };
+        let mut s = Save { words: self.words.iter_mut(), sum: 0 };
         visit(&mut s);
-        self.len = u32::try_from(s.at).unwrap_or(u32::MAX);
-        self.sum = s.sum;
+        let (left, sum) = (s.words.len(), s.sum);
+        self.seal(left, sum);
+    }
+
+    /// The save's length (`left` words of the shadow not written) and checksum.
+    #[inline(always)]
+    fn seal(&mut self, left: usize, sum: u64) {
+        self.len = u32::try_from(N.saturating_sub(left)).unwrap_or(u32::MAX);
+        self.sum = sum;
     }
 
     /// [`Shadow::save`] through a [`Pass`].
     pub fn save_pass(&mut self, visit: impl FnOnce(&mut Pass<'_>)) {
-        let mut pass = Pass::Save(Save { words: &mut self.words, at: 0, sum: 0 });
+        let mut pass = Pass::Save(Save { words: self.words.iter_mut(), sum: 0 });
         visit(&mut pass);
         if let Pass::Save(s) = pass {
-            self.len = u32::try_from(s.at).unwrap_or(u32::MAX);
-            self.sum = s.sum;
+            let (left, sum) = (s.words.len(), s.sum);
+            self.seal(left, sum);
         }
     }
 
     /// [`Shadow::restore`] through a [`Pass`].
     pub fn restore_pass(&self, visit: impl FnOnce(&mut Pass<'_>)) {
-        visit(&mut Pass::Restore(Restore { words: &self.words, at: 0 }));
+        visit(&mut Pass::Restore(Restore { words: self.words.iter() }));
     }
 
     /// The stored checksum against the live words' `live` ([`Sum`]).
@@ -265,25 +270,14 @@ impl<const N: usize> Shadow<N> {
         self.check_cold(live)
     }
 
-    #[inline(never)]
-    #[cold]
+    #[inline(always)]
     fn check_cold(&mut self, live: u64) -> Check {
-        let n = usize::try_from(self.len).unwrap_or(N).min(N);
-        let own = xor_of(self.words.get(..n).unwrap_or(&self.words));
-        if own == self.sum {
-            Check::Restore
-        } else if own == live {
-            // The stored checksum took the flip: the shadow and the live words agree.
-            self.sum = live;
-            Check::ShadowRepaired
-        } else {
-            Check::Lost
-        }
+        check_words(&self.words, self.len, &mut self.sum, live)
     }
 
     /// Writes the shadow back into the block `visit` walks.
     pub fn restore(&self, visit: impl FnOnce(&mut Restore<'_>)) {
-        let mut r = Restore { words: &self.words, at: 0 };
+        let mut r = Restore { words: self.words.iter() };
         visit(&mut r);
     }
 
@@ -297,10 +291,23 @@ impl<const N: usize> Shadow<N> {
     pub const CAPACITY: usize = N;
 }
 
-/// The checksum of a shadow's words (one copy for every block size).
+/// [`Shadow::check`]'s mismatch: which copy is good, from the shadow's `words` (the first
+/// `len` hold the block), its checksum `sum` and the live words' `live` (one copy for
+/// every block size).
 #[inline(never)]
-fn xor_of(words: &[u64]) -> u64 {
-    words.iter().fold(0, |a, w| a ^ w)
+#[cold]
+fn check_words(words: &[u64], len: u32, sum: &mut u64, live: u64) -> Check {
+    let n = usize::try_from(len).unwrap_or(usize::MAX).min(words.len());
+    let own = words.get(..n).unwrap_or(words).iter().fold(0, |a, w| a ^ w);
+    if own == *sum {
+        Check::Restore
+    } else if own == live {
+        // The stored checksum took the flip: the shadow and the live words agree.
+        *sum = live;
+        Check::ShadowRepaired
+    } else {
+        Check::Lost
+    }
 }
 
 #[cfg(test)]

@@ -43,6 +43,7 @@ fn on_firmware(
         steps,
         settle_s: 30.0,
         next: Box::new(move || log.next_step().filter(|i| i.n <= steps)),
+        on_step: None,
     };
     let mut frames = Vec::new();
     let s = run_feed(feed, opts, |f, _| frames.push(masked(*f).to_bytes().to_vec())).expect("run");

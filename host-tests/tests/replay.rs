@@ -126,3 +126,39 @@ fn the_latency_limit_adds_the_angle_random_walk_over_the_latency() {
         assert!((got / want - 1.0).abs() < 1e-3, "axis {k}: {got} against {want}");
     }
 }
+
+/// A log longer than the conventions check's head (`CHECK_SPAN_S`) replays streamed (in
+/// three stages on threads of their own) exactly as the same log read whole: the output
+/// frames' fingerprint, the frames, the events and every accuracy figure.
+#[test]
+fn a_log_streamed_in_stages_replays_as_read_whole() {
+    use ssis_sim::recorded::LogStream;
+    use ssis_sim::streamed::{replay_stream, CHECK_SPAN_S};
+    let sc = ssis_sim::scenario::Scenario::from_file(Path::new("scenarios/earth-pointing-2h.toml")).expect("scenario");
+    let mut sim = ssis_sim::harness::Simulation::new(&sc).expect("simulation");
+    let steps = ((CHECK_SPAN_S + 150.0) / sim.profile.dt_s()) as u64;
+    let mut csv = Vec::new();
+    ssis_sim::sc_record::write_log(&mut sim, steps, 2, false, &mut csv).expect("log written");
+    let table = ssis::calib::CalibrationTable::DEFAULT;
+    let open = || LogStream::from_reader(Box::new(std::io::Cursor::new(csv.clone())), "long.csv".into()).expect("log");
+    let whole = replay(&open().collect().expect("read whole"), &table, 60.0, |_, _| {}).expect("replays");
+    let (mut frames, mut last) = (0u64, None);
+    let streamed = replay_stream(
+        open(),
+        &table,
+        60.0,
+        |_| {},
+        |f, _| {
+            frames += 1;
+            last = Some(*f);
+        },
+    )
+    .expect("replays streamed");
+    let s = streamed.summary;
+    assert_eq!(s.steps, steps);
+    assert_eq!((s.hash, s.frames_out, frames), (whole.hash, whole.frames_out, whole.frames_out));
+    assert_eq!(s.events, whole.events);
+    assert_eq!(last.map(|f| f.time_us), whole.evidence.last.map(|f| f.time_us));
+    assert_eq!(format!("{:?}", s.accuracy), format!("{:?}", whole.accuracy));
+    assert_eq!(streamed.conventions.span_s, Some(CHECK_SPAN_S));
+}

@@ -1,12 +1,16 @@
 //! The calibration methods of `ssis-cal`, on arrays or on a session: the overlapping
 //! Allan deviation and its noise terms, the misalignment turns (first method), the SINS
-//! reversals (second method), the thermal ANOVA and the magnetic sensitivity. Each returns the JSON value `ssis-cal … --json` prints
-//! under the method's key (ssis_methods::json).
+//! reversals (second method), the thermal ANOVA, the magnetic sensitivity and the orbital
+//! calibration on telemetry. Each returns the JSON value `ssis-cal … --json` prints under the
+//! method's key (ssis_methods::json).
+
+use std::path::PathBuf;
 
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use ssis::calib::{CalibrationTable, GAMMA_NOMINAL_RAD};
-use ssis_methods::{allan, json, magnetic, misalign_sins, misalign_turns, thermal_anova};
+use ssis_common::update;
+use ssis_methods::{allan, json, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova};
 
 use crate::lab::session_of;
 use crate::table::PyTable;
@@ -97,7 +101,34 @@ fn magnetic_json(unscreened: &Bound<'_, PyAny>, screened: &Bound<'_, PyAny>) -> 
     Ok(json::magnetic(&r, b0).to_string())
 }
 
+/// `ssis-cal orbital --output O --star S --table T`: zero bias, scale factors and
+/// star-tracker mount from a flight's output-link and star-tracker-link captures, and the
+/// table flown with the fields found set (what the command line writes into T).
+#[pyfunction]
+fn orbital_json(output: PathBuf, star: PathBuf, table: &PyTable) -> PyResult<(String, PyTable)> {
+    let tel = orbital::Telemetry::read(&output, &star).map_err(err)?;
+    let flown = &table.doc;
+    let r = orbital::calibrate(&tel, &flown.table, &orbital::Settings::default())
+        .map_err(|e| err(e.context(format!("{} and {} with the table given", output.display(), star.display()))))?;
+    let tau = orbital::observer_time_constant_s(&flown.table).map_err(err)?;
+    if let Some(t_m) = r.settles_after_first_maneuver(&tel) {
+        return Err(SsisError::new_err(format!(
+            "{}: the observer settles (convergence + 5τ, τ = {tau:.0} s) only after the first maneuver at \
+             {t_m:.0} s: no steady part before the maneuvers; fly a longer hold",
+            output.display()
+        )));
+    }
+    let origin = update::Origin {
+        command: "ssis.cal.orbital".into(),
+        session: format!("{} + {}", output.display(), star.display()),
+        model: None,
+    };
+    let (doc, _) = update::apply(flown, &r.table, &r.fields_set(), &origin).map_err(err)?;
+    Ok((json::orbital(&r, tau).to_string(), PyTable { doc }))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(orbital_json, m)?)?;
     m.add_function(wrap_pyfunction!(thermal_json, m)?)?;
     m.add_function(wrap_pyfunction!(magnetic_json, m)?)?;
     m.add_function(wrap_pyfunction!(allan_json, m)?)?;

@@ -99,7 +99,10 @@ pub(crate) fn slice<const N: usize>(a: &PyReadonlyArray1<'_, f64>, what: &str) -
 
 /// A step's events (the unit's event log, as its event frames carry it) as dicts: `time_s`,
 /// `seq`, `event`, `a`, `b`, `details` (docs/JSON.md, `events`).
-fn event_dicts<'py>(py: Python<'py>, frames: &[ssis::frames::event::EventFrame]) -> PyResult<Vec<Bound<'py, PyDict>>> {
+pub(crate) fn event_dicts<'py>(
+    py: Python<'py>,
+    frames: &[ssis::frames::event::EventFrame],
+) -> PyResult<Vec<Bound<'py, PyDict>>> {
     let (records, _) = downlink::records(frames);
     records
         .iter()

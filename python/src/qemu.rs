@@ -16,12 +16,13 @@ use numpy::{IntoPyArray, PyReadonlyArray1};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use ssis::flight::{health, Profile};
+use ssis::frames::event::EventFrame;
 use ssis::frames::output::OutputFrame;
 use ssis_common::ARCSEC_PER_RAD;
 use ssis_runner::qemu::{build_firmware, run_feed, Feed, QemuOptions, QemuSummary};
 use ssis_sim::harness::StepInput;
 
-use crate::core::Encoder;
+use crate::core::{event_dicts, Encoder};
 use crate::table::PyTable;
 use crate::{err, SsisError};
 
@@ -33,7 +34,7 @@ const STEP_PATIENCE: Duration = Duration::from_secs(120);
 pub struct PyQemuUnit {
     tx: Option<mpsc::SyncSender<StepInput>>,
     /// (In a mutex: Basilisk calls a module from its own threads.)
-    rx: Mutex<mpsc::Receiver<OutputFrame>>,
+    rx: Mutex<mpsc::Receiver<(OutputFrame, Vec<EventFrame>)>>,
     run: Option<JoinHandle<anyhow::Result<QemuSummary>>>,
     enc: Encoder,
     report: Option<String>,
@@ -70,7 +71,7 @@ impl PyQemuUnit {
             None => build_firmware().map_err(err)?,
         };
         let (tx, rx_in) = mpsc::sync_channel::<StepInput>(1);
-        let (tx_out, rx) = mpsc::channel::<OutputFrame>();
+        let (tx_out, rx) = mpsc::channel::<(OutputFrame, Vec<EventFrame>)>();
         let run = std::thread::spawn(move || {
             let feed = Feed {
                 name: "ssis.QemuUnit".into(),
@@ -79,15 +80,17 @@ impl PyQemuUnit {
                 steps,
                 settle_s: 0.0,
                 next: Box::new(move || rx_in.recv().ok()),
+                on_step: Some(Box::new(move |f, events| {
+                    let _ = tx_out.send((*f, events.to_vec()));
+                })),
             };
-            run_feed(feed, &QemuOptions::lockstep(elf), |f, _| {
-                let _ = tx_out.send(*f);
-            })
+            run_feed(feed, &QemuOptions::lockstep(elf), |_, _| {})
         });
         Ok(PyQemuUnit { tx: Some(tx), rx: Mutex::new(rx), run: Some(run), enc: Encoder::new(table), report: None })
     }
 
-    /// One step, as `FlightCore.step`; returns the firmware's output frame, decoded.
+    /// One step, as `FlightCore.step`; returns the firmware's output frame, decoded, and the
+    /// events of the event frame it sent after it (`events`, as `FlightCore.step`'s).
     #[pyo3(signature = (fog_dtheta_rad, star = None, temperature_degc = None, star_valid = true))]
     fn step<'py>(
         &mut self,
@@ -103,7 +106,7 @@ impl PyQemuUnit {
         let rx = self.rx.lock().map_err(|_| SsisError::new_err("QEMU: the output channel is poisoned"))?;
         let frame = if sent { rx.recv_timeout(STEP_PATIENCE).ok() } else { None };
         drop(rx);
-        let Some(f) = frame else {
+        let Some((f, events)) = frame else {
             let why = self.finish().err().map_or_else(|| "the run ended".to_string(), |e| e.to_string());
             return Err(SsisError::new_err(format!("QEMU: no output for step {n}: {why}")));
         };
@@ -122,7 +125,7 @@ impl PyQemuUnit {
             f.fog_health.iter().enumerate().filter(|(_, h)| *h & health::USED != 0).fold(0u8, |a, (i, _)| a | 1 << i);
         d.set_item("fogs_used", used)?;
         d.set_item("fdi", f.fdi)?;
-        d.set_item("events", Vec::<(String, u32)>::new())?;
+        d.set_item("events", event_dicts(py, &events)?)?;
         Ok(d)
     }
 

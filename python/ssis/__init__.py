@@ -58,7 +58,8 @@ class Step:
     events: list = field(default_factory=list)
     """The unit's state changes sent after this step (its event log, as the event frames
     carry it, docs/ICD.md): dicts ``time_s``, ``seq``, ``event`` (e.g. ``"aligned"``,
-    ``"isolated"``), ``a``, ``b``, ``details``. Empty from :class:`QemuUnit` for now."""
+    ``"isolated"``), ``a``, ``b``, ``details``. Both units give the same: :class:`QemuUnit`
+    decodes the event frame the firmware sent after the step's output frame."""
     counters_moved: list = field(default_factory=list)
     """Counters that moved in this step, ``(name, increment)`` (e.g.
     ``("StFramesAccepted", 1)``). Empty from :class:`QemuUnit`."""
@@ -119,7 +120,8 @@ class QemuUnit(_Unit):
     emulated UARTs, a STEP control frame, the output frame back). The runner compares every
     output frame with the same core run in-process; :meth:`close` returns its report.
     Needs ``qemu-system-arm`` and the thumb toolchain (the firmware is built if out of
-    date). ``events`` and ``counters_moved`` are always empty here."""
+    date). ``events`` are the firmware's (its event frames); ``counters_moved`` is always
+    empty here (the output frame pages one counter at a time)."""
 
     def __init__(self, table: Optional[Table] = None, elf: Optional[PathLike] = None, steps: int = 0) -> None:
         self._native = _ssis.QemuUnit(table, None if elf is None else os.fspath(elf), steps)

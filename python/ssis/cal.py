@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from typing import Any, Optional, Union
 
@@ -12,7 +13,7 @@ import numpy as np
 from . import _ssis
 from ._ssis import Table
 
-__all__ = ["Allan", "allan", "allan_session", "turns", "sins", "thermal", "magnetic"]
+__all__ = ["Allan", "allan", "allan_session", "turns", "sins", "thermal", "magnetic", "orbital"]
 
 
 @dataclass
@@ -88,3 +89,17 @@ def _s(session: Any) -> Union[str, Any]:
     if isinstance(session, Session):
         return session._s
     return str(session)
+
+
+def orbital(output: Any, star: Any, table: Table) -> dict:
+    """``ssis-cal orbital --output O --star S --table T``: the orbital calibration of a
+    flight's telemetry (docs/TUTORIAL-CALIBRATION.md section 6): zero bias from the
+    observer's steady drift estimate, scale factors from the 360° maneuvers, the
+    star-tracker mount by RLS. ``output`` and ``star`` are the output-link and
+    star-tracker-link captures (paths), ``table`` the table the unit flew. Returns the
+    command line's ``orbital`` JSON value, with ``"table"``: the table flown with the fields
+    found set, as the command line writes it (``table`` itself is left as it is)."""
+    text, updated = _ssis.orbital_json(os.fspath(output), os.fspath(star), table)
+    v = json.loads(text)
+    v["table"] = updated
+    return v

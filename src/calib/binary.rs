@@ -42,6 +42,20 @@ pub const TABLE_LEN: usize = 8 + PAYLOAD_LEN + 4;
 /// CRC used for the table (CRC-32/ISO-HDLC, the zlib/Ethernet CRC).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
+/// [`CRC32`] of `bytes`, out of line: one copy of the CRC loop for every caller (the
+/// table codec, the store, the command link, the built-in test; none on the step's path),
+/// where `CRC32.checksum` inlined it into each.
+#[inline(never)]
+pub fn crc32(bytes: &[u8]) -> u32 {
+    CRC32.checksum(bytes)
+}
+
+/// Feeds `bytes` to a [`CRC32`] digest, out of line (as [`crc32`]).
+#[inline(never)]
+pub fn crc32_update(digest: &mut crc::Digest<'_, u32>, bytes: &[u8]) {
+    digest.update(bytes);
+}
+
 /// The f64 fields of `t` in storage order: per FOG (bias, scale, T_ref, a1, a2, a3, g, h),
 /// then δ12 δ13 δ21 δ23 δ31 δ32 δ42 δ43, γ, the mount quaternion (w x y z), the G-filter
 /// time constant, ARW, RRW, star-tracker σ, star-tracker period, K_B (3), K_U (3), the
@@ -87,7 +101,7 @@ pub fn encode_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, TableE
     buf.fill(0);
     let pos = encode_body_into(t, buf)?;
     let mut w = Cursor { buf, pos };
-    let crc = CRC32.checksum(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
+    let crc = crc32(w.buf.get(..pos).ok_or(TableError::BufferTooSmall)?);
     w.put(&crc.to_le_bytes())?;
     Ok(w.pos)
 }
@@ -134,7 +148,7 @@ pub fn decode(bytes: &[u8]) -> Result<CalibrationTable, TableError> {
     let body = buf.get(..TABLE_LEN - 4).ok_or(TableError::Truncated)?;
     let stored =
         u32::from_le_bytes(buf.get(TABLE_LEN - 4..).and_then(|s| s.try_into().ok()).ok_or(TableError::Truncated)?);
-    if CRC32.checksum(body) != stored {
+    if crc32(body) != stored {
         return Err(TableError::BadCrc);
     }
     let revision = u32::from_le_bytes(r.take::<4>()?);

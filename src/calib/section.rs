@@ -14,7 +14,7 @@
 //! Decoding checks, in order: length, magic, version, declared payload length, CRC. The
 //! values are the caller's to check.
 
-use super::binary::CRC32;
+use super::binary::crc32;
 
 /// Length of a section of `n_f64` fields, bytes.
 pub const fn section_len(n_f64: usize) -> usize {
@@ -51,7 +51,7 @@ pub fn encode<const N: usize>(magic: [u8; 4], version: u16, revision: u32, field
         *slot = b;
     }
     if let Some((body, crc)) = section.split_last_chunk_mut::<4>() {
-        *crc = CRC32.checksum(body).to_le_bytes();
+        *crc = crc32(body).to_le_bytes();
     }
 }
 
@@ -72,7 +72,7 @@ pub fn decode<const N: usize>(bytes: &[u8], magic: [u8; 4], version: u16) -> Res
     if usize::from(u16::from_le_bytes([l0, l1])) != 8 * N {
         return Err(SectionError::Length);
     }
-    if CRC32.checksum(body) != u32::from_le_bytes(*crc) {
+    if crc32(body) != u32::from_le_bytes(*crc) {
         return Err(SectionError::Crc);
     }
     let mut f = [0.0; N];

@@ -40,7 +40,7 @@
 //! (3,872 bits), so every 1-, 2- and 3-bit error in a record is detected; the host test
 //! `host-tests/tests/table.rs` enumerates every 1- and 2-bit flip and every truncation.
 
-use super::binary::{self, CRC32, TABLE_LEN};
+use super::binary::{self, crc32, crc32_update, CRC32, TABLE_LEN};
 use super::{CalibrationTable, TableError};
 
 /// Magic bytes of a stored record.
@@ -234,8 +234,8 @@ pub fn encode_record(t: &CalibrationTable, generation: u32) -> [u8; RECORD_LEN] 
     header.copy_from_slice(&[m0, m1, m2, m3, v0, v1, l0, l1, g0, g1, g2, g3]);
     body.copy_from_slice(&table);
     let mut digest = CRC32.digest();
-    digest.update(header);
-    digest.update(body);
+    crc32_update(&mut digest, header);
+    crc32_update(&mut digest, body);
     crc_bytes.copy_from_slice(&digest.finalize().to_le_bytes());
     out
 }
@@ -256,7 +256,7 @@ pub fn decode_record(bytes: &[u8]) -> Result<(CalibrationTable, u32), StoreError
     if usize::from(u16::from_le_bytes([l0, l1])) != TABLE_LEN {
         return Err(StoreError::BadLength);
     }
-    if CRC32.checksum(covered) != u32::from_le_bytes(*crc) {
+    if crc32(covered) != u32::from_le_bytes(*crc) {
         return Err(StoreError::BadCrc);
     }
     let generation = u32::from_le_bytes([g0, g1, g2, g3]);

@@ -102,8 +102,9 @@ pub const fn header_crc(kind: u8) -> u32 {
 /// polynomial and Tₖ\[x\] = (Tₖ₋₁\[x\] ≫ 8) ⊕ T₀\[Tₖ₋₁\[x\] & 0xFF\] (the table of a byte
 /// followed by k zero bytes), r ← T₃\[r₀\] ⊕ T₂\[r₁\] ⊕ T₁\[r₂\] ⊕ T₀\[r₃\] for
 /// r = crc ⊕ (the four bytes read as one little-endian word), rᵢ its bytes, by the
-/// linearity of the CRC: one word load, one XOR and four table loads per four bytes.
-/// 4 KiB of flash. `tests/frames.rs` checks it against [`CRC32C`].
+/// linearity of the CRC: one word load, one XOR and four table loads per four bytes;
+/// the one to three bytes left over likewise in one pass. 4 KiB of flash.
+/// `tests/frames.rs` checks it against [`CRC32C`].
 #[inline]
 pub fn body_crc(header_crc: u32, body: &[u8]) -> u32 {
     let [t0, t1, t2, t3] = &CRC_TABLES;
@@ -114,11 +115,24 @@ pub fn body_crc(header_crc: u32, body: &[u8]) -> u32 {
         let [b0, b1, b2, b3] = (r ^ u32::from_le_bytes(*w)).to_le_bytes();
         r = at(t3, b0) ^ at(t2, b1) ^ at(t1, b2) ^ at(t0, b3);
     }
-    for &b in rest {
-        let [lo, ..] = r.to_le_bytes();
-        r = at(t0, lo ^ b) ^ (r >> 8);
-    }
+    // The last one to three bytes in one pass, by the same linearity: Tₖ₋₁ … T₀ of the
+    // register's low bytes XOR the bytes, and the register shifted past them.
+    let [x0, x1, x2, _] = r.to_le_bytes();
+    r = match *rest {
+        [b0] => at(t0, x0 ^ b0) ^ (r >> 8),
+        [b0, b1] => at(t1, x0 ^ b0) ^ at(t0, x1 ^ b1) ^ (r >> 16),
+        [b0, b1, b2] => at(t2, x0 ^ b0) ^ at(t1, x1 ^ b1) ^ at(t0, x2 ^ b2) ^ (r >> 24),
+        _ => r,
+    };
     r ^ crc::CRC_32_ISCSI.xorout
+}
+
+/// The CRC-32C register after `bytes`, continued from register `r` ([`body_crc`] without
+/// its final XOR): out of line, one copy for the background checks (the table's in RAM,
+/// the code's in flash), which run a slice every few steps.
+#[inline(never)]
+pub fn crc32c_register(r: u32, bytes: &[u8]) -> u32 {
+    body_crc(r, bytes) ^ crc::CRC_32_ISCSI.xorout
 }
 
 /// T₀ … T₃ of [`body_crc`], built at compile time.

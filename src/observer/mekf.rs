@@ -300,13 +300,9 @@ impl Mekf {
     /// ([`MekfCov::diagonals`]). Out of line: the observer's step stays as short as it was.
     #[inline(never)]
     pub fn sigmas(&mut self, fig: &Figures, tau_s: f64) -> ([f64; 3], [f64; 3]) {
-        let (pa, pb) = self.cov.diagonals(tau_s, &fig.arw_axis_rad2_s, &fig.rrw_axis_rad2_s3);
-        let mut out = [0.0; 6];
-        for ((o, x), p) in out.iter_mut().zip(self.roots.iter_mut()).zip(pa.into_iter().chain(pb)) {
-            *o = root(x, p);
-        }
-        let [a0, a1, a2, d0, d1, d2] = out;
-        ([a0, a1, a2], [d0, d1, d2])
+        let ([pa0, pa1, pa2], [pb0, pb1, pb2]) = self.cov.diagonals(tau_s, &fig.arw_axis_rad2_s, &fig.rrw_axis_rad2_s3);
+        let [a0, a1, a2, d0, d1, d2] = &mut self.roots;
+        ([root(a0, pa0), root(a1, pa1), root(a2, pa2)], [root(d0, pb0), root(d1, pb1), root(d2, pb2)])
     }
 
     /// Takes an isolated FOG's share out of `drift_rad_s` ([`MekfCov::remove_share`];

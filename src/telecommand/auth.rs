@@ -18,7 +18,7 @@
 use hmac::{Hmac, KeyInit, Mac};
 use sha2::Sha256;
 
-use crate::calib::binary::CRC32;
+use crate::calib::binary::crc32;
 use crate::frames::telecommand::{Telecommand, MAC_LEN};
 
 /// Bytes of the key.
@@ -75,7 +75,7 @@ impl Key {
         if u16::from_le_bytes([v0, v1]) != KEY_VERSION {
             return Err(KeyError::UnsupportedVersion);
         }
-        if CRC32.checksum(covered) != u32::from_le_bytes(*crc) {
+        if crc32(covered) != u32::from_le_bytes(*crc) {
             return Err(KeyError::BadCrc);
         }
         let id = u16::from_le_bytes([i0, i1]);
@@ -97,7 +97,7 @@ impl Key {
             *d = *s;
         }
         if let Some((covered, crc)) = out.split_last_chunk_mut::<4>() {
-            *crc = CRC32.checksum(covered).to_le_bytes();
+            *crc = crc32(covered).to_le_bytes();
         }
         out
     }

@@ -541,6 +541,31 @@ pub struct OrbitalResult {
     pub table: CalibrationTable,
 }
 
+impl OrbitalResult {
+    /// The time of the first maneuver, s, when the observer settles (convergence + 5τ) only
+    /// after it: the bias average then has no steady part before the maneuvers, and
+    /// `ssis-cal orbital` refuses.
+    pub fn settles_after_first_maneuver(&self, t: &Telemetry) -> Option<f64> {
+        let m = self.maneuvers.first()?;
+        let t_m = t.out.get(m.start)?.time_us as f64 * 1e-6;
+        (self.bias.window_s.0 > t_m).then_some(t_m)
+    }
+
+    /// The table fields the result sets: the four FOG biases, and the scale factors and the
+    /// star-tracker mount when there were maneuvers to estimate them.
+    pub fn fields_set(&self) -> Vec<ssis::calib::Field> {
+        use ssis::calib::{Field, FogTerm};
+        let mut set: Vec<Field> = (0..N_FOG as u8).map(|i| Field::Fog(i, FogTerm::Bias)).collect();
+        if self.scale.is_some() {
+            set.extend((0..N_FOG as u8).map(|i| Field::Fog(i, FogTerm::ScaleFactor)));
+        }
+        if self.mount.is_some() {
+            set.extend((0..4u8).map(Field::StMountQ));
+        }
+        set
+    }
+}
+
 /// Largest disagreement per radian turned that the fitted scale factors and mount may leave
 /// ([`unexplained_coupling`]): 30″ (1.5e-4), the paper's accuracy of its first ground method
 /// for the FOG axes. The mount absorbs the skew part of a misalignment the table lacks; the

@@ -682,6 +682,9 @@ pub(crate) fn check_qemu_and_elf(elf: &Path) -> Result<()> {
     Ok(())
 }
 
+/// Called with a lockstep step's output frame and the event frames sent after it.
+pub type OnStep<'a> = Box<dyn FnMut(&OutputFrame, &[EventFrame]) + 'a>;
+
 /// What the runner streams to the unit: its table and profile, and its steps' bytes one
 /// after the other (a simulated scenario, or a recorded log: `ssis_sim::replay::Feed`).
 pub struct Feed<'a> {
@@ -697,6 +700,9 @@ pub struct Feed<'a> {
     pub settle_s: f64,
     /// The next step's bytes, or `None` at the end.
     pub next: Box<dyn FnMut() -> Option<StepInput> + 'a>,
+    /// Lockstep: called once a step's output is all in, with its output frame and the
+    /// event frames the firmware sent after it (as many as the in-process core sent).
+    pub on_step: Option<OnStep<'a>>,
 }
 
 /// Runs `sc` on the firmware in QEMU; `on_step` sees every evaluated output.
@@ -724,6 +730,7 @@ pub fn run_qemu(sc: &Scenario, opts: &QemuOptions, mut on_step: impl FnMut(&Reco
             }
             Some(input)
         }),
+        on_step: None,
     };
     run_feed(feed, opts, |_, r| {
         if let Some(r) = r {
@@ -777,6 +784,10 @@ fn pace_step(opts: &QemuOptions, n: u64, tick: Instant, dt_s: f64, host: &mut Ho
     }
 }
 
+/// How long a lockstep step waits, after its output frame, for the event frame the
+/// in-process core sent in the same step.
+const EVENT_FRAME_WAIT: Duration = Duration::from_secs(2);
+
 /// Runs `feed` on the firmware in QEMU; `on_frame` sees every output frame with its record
 /// against truth (when the feed has truth for it).
 pub fn run_feed(
@@ -809,13 +820,17 @@ pub fn run_feed(
         None
     };
     let mut sender = Sender::new(opts.corrupt_every);
+    // Lockstep: event frames the in-process core sent so far.
+    let mut expected_events = 0;
     let dt = Duration::from_micros(u64::from(feed.profile.dt_us));
     let dt_s = feed.profile.dt_s();
     // Real time from here: step n's tick is at t0 + n·Δt.
     let t0 = Instant::now();
     let tick = |n: u64| t0 + dt * (n as u32);
+    let mut sent = 0;
     while let Some(input) = (feed.next)() {
         let n = input.n;
+        sent += 1;
         if !opts.lockstep {
             // Real time: the frames of step n go out LEAD steps before its tick, and never
             // more than MAX_LEAD steps ahead of the outputs received.
@@ -843,16 +858,29 @@ pub fn run_feed(
         if let Some(r) = reference.as_mut() {
             let commands = crate::telecommands::due(&opts.commands, n);
             unit.uarts[0].write_all(&commands)?;
-            outputs.check.reference.push_back(r.step(&fog_sent, &st_sent, &commands, &mut s));
+            let (frame, events) = r.step(&fog_sent, &st_sent, &commands, &mut s);
+            outputs.check.reference.push_back(frame);
+            expected_events += events;
             if opts.stall_at_step == Some(n) {
                 return unit.stall(s, &opts.elf);
             }
             let step =
                 ControlFrame { command: command::STEP, fog_bytes: sender.fog_total, st_bytes: sender.st_total, arg: 0 };
             unit.control(&step)?;
-            let before = s.frames_out;
+            let before = (s.frames_out, s.event_frames.len());
             let take = |s: &mut QemuSummary, _, b: &[u8]| outputs.take(b, s, &mut eval, &mut on_frame);
-            unit.await_output(n, &opts.elf, &mut s, take, |s| s.frames_out != before)?;
+            unit.await_output(n, &opts.elf, &mut s, take, |s| s.frames_out != before.0)?;
+            // The step's event frame follows its output frame: a moment for it to arrive (a
+            // firmware that does not send it is told by `events_match`, not stopped here).
+            let t = Instant::now();
+            while s.event_frames.len() < expected_events && t.elapsed() < EVENT_FRAME_WAIT {
+                if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(20)) {
+                    outputs.take(&b, &mut s, &mut eval, &mut on_frame);
+                }
+            }
+            if let Some(f) = feed.on_step.as_mut() {
+                f(&s.last_frame, s.event_frames.get(before.1..).unwrap_or_default());
+            }
         }
         if let Some(b) = &bar {
             if n.is_multiple_of(200) {
@@ -860,6 +888,9 @@ pub fn run_feed(
             }
         }
     }
+    // The run's length is what was sent (a streamed log's is known only at its end).
+    s.steps = sent;
+    s.duration_s = sent as f64 * dt_s;
     // Collect what is still coming, then end the run.
     let t_end = Instant::now();
     while s.frames_out < s.steps && t_end.elapsed() < Duration::from_secs(2) {
@@ -1226,6 +1257,9 @@ struct Reference {
     fog: MockLink,
     star: MockLink,
     out: MockSink,
+    /// The event frames the core sends after its step, as the board does.
+    events: MockSink,
+    down: Downlink,
     commands: crate::telecommands::ReferenceLink,
 }
 
@@ -1234,20 +1268,37 @@ impl Reference {
         let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
         let image = opts.table_image.clone().unwrap_or_else(|| store::image(table).to_vec());
         let commands = crate::telecommands::ReferenceLink::new(opts.key_record.as_deref(), &image);
-        Ok(Reference { core, fog: MockLink::ideal(), star: MockLink::ideal(), out: MockSink::default(), commands })
+        Ok(Reference {
+            core,
+            fog: MockLink::ideal(),
+            star: MockLink::ideal(),
+            out: MockSink::default(),
+            events: MockSink::default(),
+            down: Downlink::new(),
+            commands,
+        })
     }
 
-    /// One step on the bytes the firmware was sent (telecommands before the step); the
-    /// output frame's bytes. A command report goes to `s`.
-    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8], commands: &[u8], s: &mut QemuSummary) -> Vec<u8> {
+    /// One step on the bytes the firmware was sent (telecommands before the step): the
+    /// output frame's bytes and the number of event frames sent after it (0 or 1, as the
+    /// board's `send_events`). A command report and the events go to `s`.
+    fn step(&mut self, fog_sent: &[u8], st_sent: &[u8], commands: &[u8], s: &mut QemuSummary) -> (Vec<u8>, usize) {
         self.commands.receive(commands, &mut self.core);
         self.fog.send(fog_sent);
         self.star.send(st_sent);
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         self.core.step(&mut links);
         s.reference_reports.extend(self.commands.take_report());
-        s.reference_events.extend(std::iter::from_fn(|| self.core.take_event()));
-        std::mem::take(&mut self.out.bytes)
+        self.core.send_events(&mut self.events);
+        let mut sent = 0;
+        self.down.push(&self.events.bytes, |d| {
+            if let Down::Events(f) = d {
+                s.reference_events.extend(f.iter().copied());
+                sent += 1;
+            }
+        });
+        self.events.bytes.clear();
+        (std::mem::take(&mut self.out.bytes), sent)
     }
 }
 

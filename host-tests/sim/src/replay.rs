@@ -16,6 +16,7 @@ use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
 use ssis::calib::{CalibrationTable, ObserverConfig, ObserverGains, N_FOG};
 use ssis::combination::FogSet;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::star::{self, StarFrame};
@@ -24,7 +25,7 @@ use ssis::telemetry::events::EventRecord;
 
 use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
 use crate::recorded::{LogStep, Recorded, StarSample};
-use ssis_common::downlink::{records, Down, Downlink};
+use ssis_common::downlink::records;
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_common::output;
 use ssis_common::stats::AxisStats;
@@ -549,52 +550,50 @@ pub fn replay(
     Ok(r.finish(rec.origin.clone()))
 }
 
-/// A replay driven one log step at a time (a log read whole, or as it is read).
+/// A replay driven one log step at a time (a log read whole, or as it is read): the
+/// unit's side ([`UnitSide`]: the log's step into frames, `FlightCore::step`, the output
+/// link's bytes) and the reading of what it sent ([`OutputSide`]), which a streamed
+/// replay runs on two threads (`crate::streamed`).
 pub struct Replayer {
+    /// The unit's side.
+    pub unit: UnitSide,
+    /// The output side.
+    pub output: OutputSide,
+    /// A step's bytes (reused).
+    produced: Vec<u8>,
+}
+
+/// The unit: the log's steps encoded into its links' bytes, stepped, its output link's
+/// bytes kept.
+pub struct UnitSide {
     profile: Profile,
     core: FlightCore,
     enc: Encoder,
-    eval: Evaluator,
-    evidence: Evidence,
     fog: MockLink,
     star: MockLink,
     out: MockSink,
-    downlink: Downlink,
-    event_frames: Vec<ssis::frames::event::EventFrame>,
-    frames_out: u64,
-    hash: Fnv,
     bytes: Vec<u8>,
 }
 
-impl Replayer {
-    /// A unit flying `table` (spacecraft profile), statistics from `settle_s`.
-    pub fn new(table: &CalibrationTable, settle_s: f64) -> Result<Replayer> {
-        let profile = Profile::SPACECRAFT;
-        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
-        Ok(Replayer {
-            profile,
-            core,
-            enc: Encoder::new(table, profile.dt_us),
-            eval: Evaluator::for_unit(table, &profile, settle_s),
-            evidence: Evidence::empty(table, settle_s),
-            fog: MockLink::ideal(),
-            star: MockLink::ideal(),
-            out: MockSink::default(),
-            downlink: Downlink::new(),
-            event_frames: Vec::new(),
-            frames_out: 0,
-            hash: Fnv::default(),
-            bytes: Vec::with_capacity(64),
-        })
-    }
+/// What one step of the unit sent: its output link's bytes from `start` in the buffer
+/// they were appended to, the output frame's first (`output_len` bytes), then the event
+/// frame if one was sent; and the step's truth.
+#[derive(Debug, Clone, Copy)]
+pub struct Sent {
+    /// Where the step's bytes start.
+    pub start: usize,
+    /// Bytes of its output frame.
+    pub output_len: usize,
+    /// All its bytes (output and event frames).
+    pub len: usize,
+    /// Its truth (a log may have none).
+    pub truth: Option<TruthSample>,
+}
 
-    /// Steps the unit on the log's next step; `on_frame` sees its output frame and the
-    /// record against truth.
-    pub fn step(&mut self, step: &LogStep, on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>)) {
+impl UnitSide {
+    /// Steps the unit on `step`; its output link's bytes appended to `produced`.
+    pub fn step(&mut self, step: &LogStep, produced: &mut Vec<u8>) -> Sent {
         let input = self.enc.encode(step);
-        for s in &step.st {
-            self.evidence.star(s);
-        }
         self.bytes.clear();
         for (i, f) in input.fog_frames.iter().enumerate() {
             if self.profile.fogs.contains(i) && input.present.contains(i) {
@@ -603,45 +602,123 @@ impl Replayer {
         }
         self.fog.send(&self.bytes);
         self.star.send(&input.st_bytes);
-        if let Some(t) = input.truth {
-            self.eval.push_truth(t);
-        }
         let mut links = Links { fog: FogLinks::Bus(&mut self.fog), star: &mut self.star, out: &mut self.out };
         self.core.step(&mut links);
-        let mut produced = std::mem::take(&mut self.out.bytes);
-        // The output frames' bytes only: the hash compares them with the firmware's.
-        self.hash.write(&produced);
+        let start = produced.len();
+        produced.append(&mut self.out.bytes);
+        let output_len = produced.len() - start;
         self.core.send_events(&mut self.out);
         produced.append(&mut self.out.bytes);
-        let (frames_out, evidence, eval, event_frames) =
-            (&mut self.frames_out, &mut self.evidence, &mut self.eval, &mut self.event_frames);
-        self.downlink.push(&produced, |d| match d {
-            Down::Output(f) => {
+        Sent { start, output_len, len: produced.len() - start, truth: input.truth }
+    }
+
+    /// Steps taken.
+    pub fn steps(&self) -> u64 {
+        self.enc.steps()
+    }
+}
+
+/// The unit's output link read as the ground reads it: frames decoded, fingerprinted,
+/// evaluated against truth and the unit's own evidence.
+pub struct OutputSide {
+    eval: Evaluator,
+    evidence: Evidence,
+    /// The output frames' decoder and the event frames' (each step's bytes are whole
+    /// frames, the output frame first: each decoder is given its own).
+    output: StreamDecoder<OutputFrame, 256>,
+    events: StreamDecoder<ssis::frames::event::EventFrame, 128>,
+    event_frames: Vec<ssis::frames::event::EventFrame>,
+    frames_out: u64,
+    hash: Fnv,
+}
+
+impl OutputSide {
+    /// Takes what the unit sent in one step of the log's `step` (`bytes` from
+    /// [`UnitSide::step`]); `on_frame` sees its output frame and the record against truth.
+    pub fn take(
+        &mut self,
+        step: &LogStep,
+        sent: &Sent,
+        bytes: &[u8],
+        on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>),
+    ) {
+        for s in &step.st {
+            self.evidence.star(s);
+        }
+        if let Some(t) = sent.truth {
+            self.eval.push_truth(t);
+        }
+        let mine = bytes.get(sent.start..sent.start + sent.len).unwrap_or_default();
+        let (out, events) = mine.split_at(sent.output_len.min(mine.len()));
+        // The output frames' bytes only: the hash compares them with the firmware's.
+        self.hash.write(out);
+        let (frames_out, evidence, eval) = (&mut self.frames_out, &mut self.evidence, &mut self.eval);
+        self.output.push_slice(out, |r| {
+            if let Ok(f) = r {
                 *frames_out += 1;
                 evidence.frame(&f);
                 let rec = eval.evaluate(&Observed::from(&f));
                 on_frame(&f, rec.as_ref());
             }
-            Down::Events(e) => event_frames.push(e),
-            Down::Report(_) => {}
         });
-        // The sink's buffer back, emptied, for the next step.
-        produced.clear();
-        self.out.bytes = produced;
+        let event_frames = &mut self.event_frames;
+        self.events.push_slice(events, |r| {
+            if let Ok(f) = r {
+                event_frames.push(f);
+            }
+        });
+    }
+}
+
+impl Replayer {
+    /// A unit flying `table` (spacecraft profile), statistics from `settle_s`.
+    pub fn new(table: &CalibrationTable, settle_s: f64) -> Result<Replayer> {
+        let profile = Profile::SPACECRAFT;
+        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
+        Ok(Replayer {
+            unit: UnitSide {
+                profile,
+                core,
+                enc: Encoder::new(table, profile.dt_us),
+                fog: MockLink::ideal(),
+                star: MockLink::ideal(),
+                out: MockSink::default(),
+                bytes: Vec::with_capacity(64),
+            },
+            output: OutputSide {
+                eval: Evaluator::for_unit(table, &profile, settle_s),
+                evidence: Evidence::empty(table, settle_s),
+                output: StreamDecoder::new(),
+                events: StreamDecoder::new(),
+                event_frames: Vec::new(),
+                frames_out: 0,
+                hash: Fnv::default(),
+            },
+            produced: Vec::with_capacity(256),
+        })
+    }
+
+    /// Steps the unit on the log's next step; `on_frame` sees its output frame and the
+    /// record against truth.
+    pub fn step(&mut self, step: &LogStep, on_frame: &mut impl FnMut(&OutputFrame, Option<&Record>)) {
+        self.produced.clear();
+        let sent = self.unit.step(step, &mut self.produced);
+        self.output.take(step, &sent, &self.produced, on_frame);
     }
 
     /// What the replay found, for the log named `origin`.
     pub fn finish(self, origin: String) -> ReplaySummary {
-        let last_drift = self.evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
+        let (u, o) = (self.unit, self.output);
+        let last_drift = o.evidence.last.map(|f| f.drift_rad_s()).unwrap_or_default();
         ReplaySummary {
             origin,
-            steps: self.enc.steps(),
-            duration_s: self.enc.steps() as f64 * self.profile.dt_s(),
-            accuracy: self.eval.accuracy(last_drift),
-            evidence: self.evidence,
-            frames_out: self.frames_out,
-            hash: self.hash.0,
-            events: records(&self.event_frames),
+            steps: u.enc.steps(),
+            duration_s: u.enc.steps() as f64 * u.profile.dt_s(),
+            accuracy: o.eval.accuracy(last_drift),
+            evidence: o.evidence,
+            frames_out: o.frames_out,
+            hash: o.hash.0,
+            events: records(&o.event_frames),
         }
     }
 }

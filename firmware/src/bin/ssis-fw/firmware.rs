@@ -182,7 +182,10 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     }
 }
 
-/// The end-of-run figures, on the defmt log.
+/// The end-of-run figures, on the defmt log (out of line: once a run, kept out of the
+/// main loop's code).
+#[inline(never)]
+#[cold]
 fn report_end(core: &FlightCore, t: &StepTimes) {
     defmt::info!(
         "steps {} mean_ticks_x100 {} max_ticks {} st_steps {} st_mean_ticks_x100 {} st_max_ticks {}",

@@ -945,16 +945,13 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
         .with_context(|| format!("{} and {} with {}", output.display(), star.display(), table.display()))?;
     let b = &r.bias;
     let tau = orbital::observer_time_constant_s(&flown)?;
-    if let Some(m) = r.maneuvers.first() {
-        let t_m = tel.out[m.start].time_us as f64 * 1e-6;
-        if b.window_s.0 > t_m {
-            bail!(
-                "{}: the observer settles (convergence + 5τ, τ = {tau:.0} s) only after the first maneuver at \
-                 {t_m:.0} s: no steady part before the maneuvers; fly a longer hold ({} left unchanged)",
-                output.display(),
-                table.display()
-            );
-        }
+    if let Some(t_m) = r.settles_after_first_maneuver(&tel) {
+        bail!(
+            "{}: the observer settles (convergence + 5τ, τ = {tau:.0} s) only after the first maneuver at \
+             {t_m:.0} s: no steady part before the maneuvers; fly a longer hold ({} left unchanged)",
+            output.display(),
+            table.display()
+        );
     }
     cli::report("orbital", || methods::json::orbital(&r, tau));
     let dh = |v: f64| v * DEG_H_PER_RAD_S;
@@ -1030,15 +1027,8 @@ fn orbital_cmd(output: PathBuf, star: PathBuf, table: PathBuf, plot: PathBuf) ->
     }
     methods::xy_svg(&plot, "Orbital calibration: observer drift estimate", "t, s", "°/h", &series)?;
     println!("wrote {}", plot.display());
-    let mut set: Vec<Field> = (0..4).map(|i| Field::Fog(i, FogTerm::Bias)).collect();
-    if r.scale.is_some() {
-        set.extend((0..4).map(|i| Field::Fog(i, FogTerm::ScaleFactor)));
-    }
-    if r.mount.is_some() {
-        set.extend((0..4).map(Field::StMountQ));
-    }
     let session = format!("{} + {}", output.display(), star.display());
-    save_table(&table, &flown_doc, &r.table, &set, "orbital", session)?;
+    save_table(&table, &flown_doc, &r.table, &r.fields_set(), "orbital", session)?;
     Ok(())
 }
 

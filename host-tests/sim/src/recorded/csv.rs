@@ -31,6 +31,8 @@ pub struct LogStream {
     n_fields: usize,
     line: usize,
     buf: Vec<u8>,
+    /// The current line's fields, as byte ranges of `buf`.
+    fields: Vec<std::ops::Range<usize>>,
     /// Rows with a time not yet placed (the interval check's look-ahead).
     ahead: VecDeque<(f64, RawRow)>,
     interval_checked: bool,
@@ -70,6 +72,15 @@ struct Placer {
     last_gnss_us: Option<u64>,
 }
 
+/// Whether a line holds nothing but white space (Unicode's, as `str::trim` has it).
+fn blank(l: &[u8]) -> bool {
+    if l.is_ascii() && !l.contains(&0x0b) {
+        l.trim_ascii().is_empty()
+    } else {
+        String::from_utf8_lossy(l).trim().is_empty()
+    }
+}
+
 impl LogStream {
     /// Opens the CSV log at `path` and reads its header (refused as `read_csv` refuses it).
     pub fn open(path: &Path) -> Result<LogStream> {
@@ -86,6 +97,7 @@ impl LogStream {
             n_fields: 0,
             line: 0,
             buf: Vec::with_capacity(256),
+            fields: Vec::with_capacity(64),
             ahead: VecDeque::new(),
             interval_checked: false,
             unwrap: Unwrap::default(),
@@ -171,22 +183,33 @@ impl LogStream {
     fn next_row(&mut self) -> Result<Option<RawRow>> {
         while let Some(ended) = self.read_line()? {
             let (ln, origin) = (self.line, &self.origin);
-            let text = String::from_utf8_lossy(&self.buf);
-            let l = text.trim_end_matches(['\n', '\r']);
-            if l.trim().is_empty() || l.starts_with('#') {
+            let mut l = self.buf.as_slice();
+            while let [rest @ .., b'\n' | b'\r'] = l {
+                l = rest;
+            }
+            if l.starts_with(b"#") || blank(l) {
                 continue;
             }
-            let fields: Vec<&str> = l.split(',').map(str::trim).collect();
-            if fields.len() != self.n_fields || !ended {
+            // The fields' places in the line (the buffer is reused: no allocation a row).
+            self.fields.clear();
+            let mut start = 0;
+            for (k, &b) in l.iter().enumerate() {
+                if b == b',' {
+                    self.fields.push(start..k);
+                    start = k + 1;
+                }
+            }
+            self.fields.push(start..l.len());
+            if self.fields.len() != self.n_fields || !ended {
                 let why = if ended {
-                    format!("{} fields, the header has {}", fields.len(), self.n_fields)
+                    format!("{} fields, the header has {}", self.fields.len(), self.n_fields)
                 } else {
                     "last line without its line end (cut while written?)".to_string()
                 };
                 self.problems.truncated_lines.add(1, || format!("{origin}:{ln}: {why}"));
                 continue;
             }
-            return Ok(Some(parse_row(&fields, &self.cols, ln, origin, &mut self.problems)));
+            return Ok(Some(parse_row(l, &self.fields, &self.cols, ln, origin, &mut self.problems)));
         }
         Ok(None)
     }
