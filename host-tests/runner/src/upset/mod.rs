@@ -290,9 +290,10 @@ pub struct StepCode {
     pub ranges: Vec<(u32, u32)>,
     /// The address range of the function it is inlined into (the main loop).
     pub caller: (u32, u32),
-    /// The first instruction of `FlightCore::background` (never inlined), which the main
-    /// loop calls right after the step: the traced path ends there. (The inlined step's
-    /// ranges interleave with the loop's own code, so leaving them does not end the step.)
+    /// The first instruction of `FlightCore::background`, which the main loop runs right
+    /// after the step (inlined there, or called): the traced path ends there. (The
+    /// inlined step's ranges interleave with the loop's own code, so leaving them does
+    /// not end the step.)
     pub end: u32,
 }
 
@@ -302,6 +303,10 @@ impl StepCode {
         pc == self.end
     }
 }
+
+/// An inlined instance: whether it is the step (else the background work), its entry
+/// and its address ranges.
+type Inlined = (bool, u32, Vec<(u32, u32)>);
 
 /// The step's code in `elf` ([`StepCode`]).
 pub fn step_code(elf: &Path) -> Result<StepCode> {
@@ -314,6 +319,8 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
     };
     let sections = gimli::DwarfSections::load(load)?;
     let dwarf = sections.borrow(|s| EndianSlice::new(s, RunTimeEndian::Little));
+    // Every inlined instance of FlightCore::step and FlightCore::background.
+    let mut found: Vec<Inlined> = Vec::new();
     let mut units = dwarf.units();
     while let Some(header) = units.next()? {
         let unit = dwarf.unit(header)?;
@@ -328,8 +335,10 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
                 origin = unit.entry(spec)?;
             }
             let Some(name) = origin.attr_value(gimli::DW_AT_linkage_name)? else { continue };
-            let name = dwarf.attr_string(&unit, name)?;
-            if !name.to_string_lossy().contains("10FlightCore4step17h") {
+            let name = dwarf.attr_string(&unit, name)?.to_string_lossy().into_owned();
+            let step = name.contains("10FlightCore4step17h");
+            let background = name.contains("FlightCore") && name.contains("10background17h");
+            if !(step || background) {
                 continue;
             }
             let mut ranges = Vec::new();
@@ -337,26 +346,34 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
             while let Some(r) = it.next()? {
                 ranges.push((r.begin as u32, r.end as u32));
             }
-            let low = ranges.iter().map(|r| r.0).min().context("the inlined FlightCore::step has no address range")?;
+            let Some(low) = ranges.iter().map(|r| r.0).min() else { continue };
             let entry = match e.attr_value(gimli::DW_AT_entry_pc)? {
                 Some(AttributeValue::Addr(a)) => a as u32,
                 _ => low,
             };
-            let caller = file
-                .symbols()
-                .map(|s| ((s.address() & !1) as u32, s.size() as u32))
-                .find(|&(a, size)| size > 0 && (a..a + size).contains(&entry))
-                .map(|(a, size)| (a, a + size))
-                .context("no function symbol around the step's code")?;
-            let end = file
-                .symbols()
-                .find(|s| s.name().is_ok_and(|n| n.contains("FlightCore") && n.contains("10background17h")))
-                .map(|s| (s.address() & !1) as u32)
-                .context("no FlightCore::background symbol (the step's end)")?;
-            return Ok(StepCode { entry, ranges, caller, end });
+            found.push((step, entry, ranges));
         }
     }
-    anyhow::bail!("{}: no inlined FlightCore::step in its debug information", elf.display())
+    let (_, entry, ranges) = found
+        .iter()
+        .find(|f| f.0)
+        .cloned()
+        .with_context(|| format!("{}: no inlined FlightCore::step in its debug information", elf.display()))?;
+    let caller = file
+        .symbols()
+        .map(|s| ((s.address() & !1) as u32, s.size() as u32))
+        .find(|&(a, size)| size > 0 && (a..a + size).contains(&entry))
+        .map(|(a, size)| (a, a + size))
+        .context("no function symbol around the step's code")?;
+    // The background work follows the step: inlined into the same loop, or called.
+    let inlined = found.iter().find(|f| !f.0 && (caller.0..caller.1).contains(&f.1)).map(|f| f.1);
+    let called = || {
+        file.symbols()
+            .find(|s| s.name().is_ok_and(|n| n.contains("FlightCore") && n.contains("10background17h")))
+            .map(|s| (s.address() & !1) as u32)
+    };
+    let end = inlined.or_else(called).context("no FlightCore::background (the step's end)")?;
+    Ok(StepCode { entry, ranges, caller, end })
 }
 
 /// The memory a RAM flip may hit: the stack's top and the statics' range.
