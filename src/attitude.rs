@@ -117,13 +117,27 @@ impl Attitude {
     }
 
     /// Rotation vector of the step for increment `dtheta_rad`, with the coning terms.
+    ///
+    /// The coning term is second order in the increments (|term| ≲ |Δθ_prev|·|Δθ|/10, a
+    /// millionth of |Δθ| at this unit's rates): one larger than the increment itself, or
+    /// not finite, can only come from a corrupted increment history (an upset between
+    /// the state guard's check and this use, issue 30), and is left out: the step
+    /// integrates the increment alone.
     pub fn rotation_vector(&self, dtheta_rad: &Vector3<f64>) -> Vector3<f64> {
-        match Coning::from_code(self.coning) {
-            Coning::None => *dtheta_rad,
+        let phi = match Coning::from_code(self.coning) {
+            Coning::None => return *dtheta_rad,
             Coning::TwoSample => dtheta_rad + self.prev1.cross(dtheta_rad) / 12.0,
             Coning::ThreeSample => {
                 dtheta_rad + self.prev1.cross(dtheta_rad) * (7.0 / 60.0) - self.prev2.cross(dtheta_rad) / 60.0
             }
+        };
+        // `!(a <= b)`: a NaN term fails the comparison and is left out too.
+        #[allow(clippy::neg_cmp_op_on_partial_ord)]
+        let implausible = !((phi - dtheta_rad).norm_squared() <= dtheta_rad.norm_squared());
+        if implausible {
+            *dtheta_rad
+        } else {
+            phi
         }
     }
 
@@ -166,6 +180,36 @@ impl Attitude {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// An exponent bit of a previous increment flipped (the QEMU campaign's silent flip:
+    /// bit 62 of `prev2.y`, between the guard's check and the step's use) makes the
+    /// coning term astronomically large: it is left out, and the step turns Λ by the
+    /// increment alone, as it would have to a few parts in 10⁶.
+    #[test]
+    fn a_corrupted_increment_history_does_not_turn_the_attitude() {
+        let dtheta = Vector3::new(2e-5, -1e-5, 3e-5);
+        let mut good = Attitude::new(Quaternion::identity(), Coning::ThreeSample);
+        good.step(&Vector3::new(1e-5, 2e-5, -1e-5));
+        good.step(&Vector3::new(1.5e-5, 2e-5, -0.5e-5));
+        let mut hit = good;
+        hit.prev2.y = f64::from_bits(hit.prev2.y.to_bits() ^ 1 << 62);
+        assert!(hit.prev2.y.abs() > 1e290, "{}", hit.prev2.y);
+        let (mut plain, q0) = (good, good.quaternion());
+        plain.coning = Coning::None.code();
+        good.step(&dtheta);
+        hit.step(&dtheta);
+        plain.step(&dtheta);
+        let angle = |a: &Attitude| 2.0_f64 * (a.quaternion() * q0.conjugate()).vector().norm();
+        assert!((angle(&hit) - angle(&plain)).abs() < 1e-15, "{} {}", angle(&hit), angle(&plain));
+        assert!((angle(&good) - dtheta.norm()).abs() < 1e-6 * dtheta.norm());
+        // A NaN in the history is left out the same way.
+        let mut nan = good;
+        nan.prev1.x = f64::NAN;
+        let before = nan.quaternion();
+        nan.step(&dtheta);
+        assert!(nan.quaternion().coords.iter().all(|c| c.is_finite()));
+        assert!((2.0_f64 * (nan.quaternion() * before.conjugate()).vector().norm() - dtheta.norm()).abs() < 1e-12);
+    }
 
     /// Λ after a constant rate about a fixed axis for `n` steps of `dtheta`: the coning
     /// terms vanish (parallel increments) and the exact step compounds to one rotation.

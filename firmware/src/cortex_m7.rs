@@ -48,6 +48,26 @@ pub fn guard_below_stack(base: u32, size_log2: u32) {
     cortex_m::asm::isb();
 }
 
+/// Image guard: MPU region 1 makes `[0, 2^size_log2)`, the code and constants in
+/// flash, read-only (executable), so a stray store there is a fault and a reset, not a
+/// rewritten instruction (QEMU's mps2 boards have RAM at address 0; an upset of a
+/// pointer the compiler keeps across steps sent the received bytes there, issue 30).
+/// `size_log2` in 5..=32; call after [`guard_below_stack`] (the MPU enabled).
+pub fn protect_image(size_log2: u32) {
+    let w = |a: usize, v: u32| {
+        // SAFETY: the Cortex-M7's MPU registers, always mapped; the region covers only
+        // the image, which the firmware never writes (the caller's contract).
+        unsafe { core::ptr::write_volatile(a as *mut u32, v) }
+    };
+    w(MPU_RNR, 1);
+    w(MPU_RBAR, 0);
+    // AP = read-only (privileged and unprivileged), executable, SIZE = 2^(field + 1)
+    // bytes, enabled.
+    w(MPU_RASR, 0b110 << 24 | (size_log2.clamp(5, 32) - 1) << 1 | 1);
+    cortex_m::asm::dsb();
+    cortex_m::asm::isb();
+}
+
 const PAINT: u32 = 0x5AFE_C0DE;
 
 /// The stack region `[bottom, top)` (`_stack_end`, `_stack_start`).

@@ -18,11 +18,12 @@
 //!
 //! Any bit pattern of the words is a value (no enum, no bool): a snapshot read back from
 //! RAM that a reset, an upset or a cold start left in any state is judged by its checks
-//! only. Not carried over: the attitude history (frames tagged before the resume are
-//! refused as late), a FOG isolated by the parity logic (isolated again if still
-//! faulty) and the mounting check (not run again once it had cleared the unit); a unit
-//! flying two FOGs swapped is not resumed (it aligns again and the check finds the swap
-//! again).
+//! only. Not carried over: the MEKF's star-tracker LFE states (they restart unknown, at
+//! their stationary covariance σ_c² I, ĉ = 0, uncorrelated with the rest), the attitude
+//! history (frames tagged before the resume are refused as late), a FOG isolated by the
+//! parity logic (isolated again if still faulty) and the mounting check (not run again
+//! once it had cleared the unit); a unit flying two FOGs swapped is not resumed (it
+//! aligns again and the check finds the swap again).
 
 use nalgebra::{Quaternion, Vector3};
 

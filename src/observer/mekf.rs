@@ -659,6 +659,29 @@ mod tests {
     }
 
     #[test]
+    fn a_resumed_mekf_restarts_its_lfe_at_the_prior_covariance() {
+        // A snapshot carries P_aa, P_ab, P_bb only: the LFE states come back unknown
+        // (σ_c² I, ĉ = 0, uncorrelated), never at zero covariance.
+        let cfg = ObserverConfig {
+            st_lfe_sigma_arcsec: 4.0,
+            st_lfe_tau_s: 300.0,
+            estimator: crate::calib::Estimator::Mekf,
+            ..ObserverConfig::PAPER
+        };
+        let st = steady_state(&cfg).unwrap();
+        let fig = Figures::new(st);
+        let mut f = crate::observer::Filter::of(&cfg, &st.gains);
+        f.align(&fig, 1e-12);
+        let words = f.cov_words();
+        let mut resumed = crate::observer::Filter::of(&cfg, &st.gains);
+        resumed.set_cov_words(&words, &fig);
+        let m = resumed.as_mekf().expect("the MEKF flies");
+        assert_eq!(m.cov, f.as_mekf().expect("the MEKF flies").cov);
+        assert_eq!(*m.lfe(), Lfe::unknown(st.lfe_var_rad2));
+        assert!(st.lfe_var_rad2 > 0.0);
+    }
+
+    #[test]
     fn the_inverse_of_an_spd_matrix_is_its_inverse() {
         let s = Matrix3::new(4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0);
         let inv = inverse_spd(&s).unwrap();

@@ -343,7 +343,9 @@ impl Filter {
         out
     }
 
-    /// The inverse of [`Filter::cov_words`] (a reset resumed); the 1σ roots start over.
+    /// The inverse of [`Filter::cov_words`] (a reset resumed); the 1σ roots start over,
+    /// and the MEKF's LFE states, which a snapshot does not carry, start unknown at
+    /// their stationary covariance σ_c² I ([`mekf::Mekf::retune`]).
     pub fn set_cov_words(&mut self, w: &[f64; 27], fig: &Figures) {
         match self.estimator() {
             Estimator::Luenberger => {
@@ -356,7 +358,11 @@ impl Filter {
             }
             Estimator::Mekf => {
                 let block = |k: usize| Matrix3::from_iterator(w.iter().skip(9 * k).take(9).copied());
-                self.mekf = mekf::Mekf::with_cov(mekf::MekfCov { paa: block(0), pab: block(1), pbb: block(2) });
+                // The LFE states are not in the snapshot: they restart at their prior
+                // (stationary) covariance, ĉ = 0, uncorrelated with the rest.
+                let mut m = mekf::Mekf::with_cov(mekf::MekfCov { paa: block(0), pab: block(1), pbb: block(2) });
+                m.retune(fig);
+                self.mekf = m;
             }
         }
     }

@@ -72,6 +72,8 @@ impl Gdb {
     /// packet in time).
     fn receive(&mut self, timeout: Duration) -> Result<Option<String>> {
         let t0 = Instant::now();
+        // A zero timeout still reads what has arrived (one read of at most 1 ms).
+        let mut read_once = false;
         loop {
             if let Some(i) = self.buf.iter().position(|&b| b == b'$') {
                 if let Some(j) = self.buf[i..].iter().position(|&b| b == b'#').map(|j| i + j) {
@@ -87,9 +89,10 @@ impl Gdb {
                 }
             }
             let left = timeout.saturating_sub(t0.elapsed());
-            if left.is_zero() {
+            if left.is_zero() && read_once {
                 return Ok(None);
             }
+            read_once = true;
             self.s.set_read_timeout(Some(left.max(Duration::from_millis(1))))?;
             let mut chunk = [0u8; 8192];
             match self.s.read(&mut chunk) {
@@ -169,6 +172,16 @@ impl Gdb {
     /// Resumes the guest (the stop reply comes later: [`Gdb::wait_stop`]).
     pub fn resume(&mut self) -> Result<()> {
         self.send("c")
+    }
+
+    /// Resumes a guest stopped at its breakpoint at `addr`: QEMU stops there again at
+    /// once unless the instruction is stepped over first (the breakpoint lifted for
+    /// one step, then set again).
+    pub fn resume_past(&mut self, addr: u32) -> Result<()> {
+        self.clear_breakpoint(addr)?;
+        self.step()?;
+        self.set_breakpoint(addr)?;
+        self.resume()
     }
 
     /// Waits up to `timeout` for a stop reply (`T…`/`S…`; `W`/`X`: the guest ended).

@@ -585,8 +585,11 @@ pub(crate) fn start_qemu(
     // an emulator the host does not schedule for two watchdog periods is reset for the
     // host's doing, not the unit's: the reset is then left to the log (`watchdog_warnings`)
     // and the runner's own bounded waits.
-    let on_watchdog = if icount.is_some() { "watchdog=poweroff" } else { "watchdog=none" };
-    cmd.args(["-action", on_watchdog]);
+    // Unless the caller chooses (the upset campaign follows a watchdog reset: `extra`).
+    if !extra.iter().any(|a| a == "-action") {
+        let on_watchdog = if icount.is_some() { "watchdog=poweroff" } else { "watchdog=none" };
+        cmd.args(["-action", on_watchdog]);
+    }
     for (i, p) in socks.iter().enumerate() {
         cmd.args(["-chardev", &format!("socket,id=u{i},path={}", p.display())]);
         cmd.args(["-serial", &format!("chardev:u{i}")]);
@@ -1074,6 +1077,17 @@ impl Unit {
             }
         }
         self.command(command::LOCKSTEP)?;
+        self.await_silence(take, || Ok(()))
+    }
+
+    /// After LOCKSTEP was sent: waits until the firmware has fallen silent, handing
+    /// `take` what it sends meanwhile and calling `idle` whenever nothing came for 20 ms
+    /// (the upset campaign lets the guest past its breakpoints there).
+    pub(crate) fn await_silence(
+        &mut self,
+        mut take: impl FnMut(usize, &[u8]),
+        mut idle: impl FnMut() -> Result<()>,
+    ) -> Result<()> {
         // Until the LOCKSTEP frame has arrived the firmware steps on its own tick; no
         // sensor byte may go out before that, or it would integrate a sample on a tick.
         // In lockstep it is silent between STEPs. Silence is counted in QEMU's processor
@@ -1090,6 +1104,7 @@ impl Unit {
                     quiet = self.patience(SILENCE_CPU_S);
                 }
                 Err(mpsc::RecvTimeoutError::Timeout) => {
+                    idle()?;
                     if quiet.exhausted().is_some() && quiet.wall() >= Duration::from_millis(100) {
                         return Ok(());
                     }

@@ -11,7 +11,7 @@ use clap::Parser;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin};
 use ssis_runner::qemu::{build_firmware, default_elf};
-use ssis_runner::upset::{run_campaign, UpsetOptions};
+use ssis_runner::upset::{run_campaign_jobs, UpsetOptions};
 use ssis_sim::scenario::Scenario;
 
 #[derive(Parser)]
@@ -48,6 +48,16 @@ struct Args {
     /// Share of flips into registers (core and FPU); the rest go into the RAM in use.
     #[arg(long, default_value_t = 0.25)]
     register_share: f64,
+    /// The estimator that flies, replacing the scenario's: `luenberger` or `mekf`.
+    #[arg(long, value_parser = ssis_sim::scenario::parse_estimator)]
+    estimator: Option<ssis::calib::Estimator>,
+    /// Campaigns side by side, each in its own QEMU (job j with seed + j).
+    #[arg(long, default_value_t = 1)]
+    jobs: usize,
+    /// Reset the unit at each drawn instruction instead of flipping a bit (the resume
+    /// measured in QEMU).
+    #[arg(long)]
+    forced_reset: bool,
     /// Make no new flip after this many minutes of wall time.
     #[arg(long)]
     max_minutes: Option<f64>,
@@ -79,6 +89,9 @@ fn campaign(args: &Args) -> Result<bool> {
     if let Some(d) = args.duration {
         sc.duration_s = d;
     }
+    if args.estimator.is_some() {
+        sc.table.estimator = args.estimator;
+    }
     let elf = match &args.elf {
         Some(e) => e.clone(),
         None => {
@@ -96,9 +109,10 @@ fn campaign(args: &Args) -> Result<bool> {
         gap_s: args.gap,
         register_share: args.register_share,
         max_wall_s: args.max_minutes.map(|m| m * 60.0),
+        forced_reset: args.forced_reset,
     };
     let mut k = 0;
-    let c = run_campaign(&sc, &o, |f| {
+    let c = run_campaign_jobs(&sc, &o, args.jobs, |f| {
         k += 1;
         if args.verbose || f.outcome.name() != "masked" {
             eprintln!(
@@ -109,8 +123,13 @@ fn campaign(args: &Args) -> Result<bool> {
                 f.target.describe(),
                 f.outcome.name(),
                 f.worst_arcsec,
-                match &f.outcome {
-                    ssis_runner::upset::Outcome::Crash(w) => format!("; {w}"),
+                match (&f.outcome, &f.reset_cause) {
+                    (ssis_runner::upset::Outcome::Crash(w), _) => format!("; {w}"),
+                    (_, Some(c)) => format!(
+                        "; reset: {c}, aligned after {:.2} s, within 2× the nominal 3σ after {:.2} s",
+                        f.reset_aligned_s.unwrap_or(f64::NAN),
+                        f.reset_nominal_s.unwrap_or(f64::NAN)
+                    ),
                     _ => String::new(),
                 }
             );

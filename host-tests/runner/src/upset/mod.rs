@@ -19,6 +19,16 @@
 //! the first flip time (`-incoming`). The caveat: a corruption that stays
 //! invisible for the quiet time and shows later is charged to a later flip of the same
 //! flight (the document counts how many disturbed flips had earlier flips before them).
+//!
+//! Resets: the runner keeps breakpoints on the firmware's `Reset`, `HardFault` and NMI
+//! (the watchdog's warning) entries and runs QEMU with `-action watchdog=reset`. A
+//! HardFault (its faulting instruction read from the exception frame) or a watchdog
+//! timeout resets the unit; at `Reset` the runner follows it back into lockstep
+//! ([`relock`]) and on with the flight [`RESET_DOWN_STEPS`] later, and the flip is classed
+//! "reset and recovered" with its recovery times (to aligned, to within twice the
+//! nominal 3σ) or, not back within the bound by the window's end, a crash. With
+//! [`UpsetOptions::forced_reset`] the "flip" is a reset itself: the resume measured in
+//! QEMU (tests/qemu_resume.rs).
 
 mod report;
 
@@ -63,6 +73,9 @@ pub struct UpsetOptions {
     pub register_share: f64,
     /// Stop making new flips after this much wall time, s.
     pub max_wall_s: Option<f64>,
+    /// Instead of flipping a bit, reset the unit there (QEMU's `system_reset`, what the
+    /// firmware's SYSRESETREQ does): the resume measured in QEMU.
+    pub forced_reset: bool,
 }
 
 /// Where a bit was flipped.
@@ -96,6 +109,8 @@ pub enum Target {
         /// Bit 0–63 (0–31 for FPSCR).
         bit: u8,
     },
+    /// No flip: the unit reset there ([`UpsetOptions::forced_reset`]).
+    Reset,
 }
 
 impl Target {
@@ -107,6 +122,7 @@ impl Target {
             Target::Core { reg: gdb::SP, .. } | Target::Core { reg: gdb::PC, .. } => "sp/pc",
             Target::Core { .. } => "core register",
             Target::Fpu { .. } => "FPU register",
+            Target::Reset => "forced reset",
         }
     }
 
@@ -119,6 +135,7 @@ impl Target {
             Target::Core { reg, bit } => format!("r{reg} bit {bit}"),
             Target::Fpu { reg: gdb::FPSCR, bit } => format!("fpscr bit {bit}"),
             Target::Fpu { reg, bit } => format!("d{} bit {bit}", reg - gdb::D0),
+            Target::Reset => "forced reset".to_string(),
         }
     }
 }
@@ -135,11 +152,14 @@ pub enum Outcome {
     DetectedRecovered,
     /// Beyond the bound, flagged, and not back by the window's end.
     DetectedNotRecovered,
-    /// The unit reset and came back (not possible yet: a reset ends the QEMU run).
+    /// The unit reset (HardFault, watchdog) and came back: resumed or aligned again, every
+    /// frame claiming a good attitude within the bound, and back within it by the
+    /// window's end (the runner follows the reset back into lockstep).
     ResetRecovered,
     /// A frame claiming a good attitude beyond the bound.
     Silent,
-    /// The firmware stopped: QEMU exited (HardFault, watchdog) or no output came.
+    /// The firmware stopped: QEMU exited, the guest hung (no output frame), or it reset
+    /// and was not back within the bound by the window's end.
     Crash(String),
 }
 
@@ -165,6 +185,8 @@ pub struct Flip {
     pub step: u64,
     /// Instructions executed in that step before the flip.
     pub instr: u32,
+    /// Where the guest was at the flip: the address and the function it lies in.
+    pub at: String,
     /// The bit.
     pub target: Target,
     /// The class.
@@ -175,6 +197,13 @@ pub struct Flip {
     pub silent_arcsec: f64,
     /// From the flip to the last frame beyond the bound (recovered flips), s.
     pub recovery_s: Option<f64>,
+    /// After a reset: what reset it (HardFault with the faulting instruction, watchdog).
+    pub reset_cause: Option<String>,
+    /// After a reset: from the step it reset in to the first frame that says aligned, s.
+    pub reset_aligned_s: Option<f64>,
+    /// After a reset: from the step it reset in to the frame from which every frame is
+    /// within twice the nominal 3σ on each axis, s.
+    pub reset_nominal_s: Option<f64>,
     /// Events the unit logged after the flip that the undisturbed run did not.
     pub events: Vec<String>,
     /// Flips made earlier in the same flight (classed masked or tolerated).
@@ -190,6 +219,9 @@ struct Flight {
     inputs: Vec<StepInput>,
     frames: Vec<Option<OutputFrame>>,
     events: Vec<EventRecord>,
+    /// The undisturbed flight's attitude error 3σ per axis (|mean| + 3 std after
+    /// settling), ″: "nominal" of the reset goals.
+    nominal_3sigma_arcsec: [f64; 3],
 }
 
 impl Flight {
@@ -216,7 +248,24 @@ impl Flight {
             frames.push(frame);
             inputs.push(input);
         }
-        Ok(Flight { table, profile, settle_s: sc.settle_s, inputs, frames, events })
+        let mut eval = Evaluator::for_unit(&table, &profile, sc.settle_s);
+        let mut errs = Vec::new();
+        for (input, f) in inputs.iter().zip(&frames) {
+            if let Some(t) = input.truth {
+                eval.push_truth(t);
+            }
+            let Some(f) = f else { continue };
+            if let Some(r) = eval.evaluate(&Observed::from(f)).filter(|r| r.t_s >= sc.settle_s) {
+                errs.push(r.att_err_arcsec);
+            }
+        }
+        let nominal_3sigma_arcsec = [0, 1, 2].map(|k| {
+            let n = errs.len().max(1) as f64;
+            let mean = errs.iter().map(|e| e[k]).sum::<f64>() / n;
+            let var = errs.iter().map(|e| (e[k] - mean).powi(2)).sum::<f64>() / n;
+            mean.abs() + 3.0 * var.sqrt()
+        });
+        Ok(Flight { table, profile, settle_s: sc.settle_s, inputs, frames, events, nominal_3sigma_arcsec })
     }
 }
 
@@ -241,15 +290,23 @@ pub struct StepCode {
     pub ranges: Vec<(u32, u32)>,
     /// The address range of the function it is inlined into (the main loop).
     pub caller: (u32, u32),
+    /// The first instruction of `FlightCore::background`, which the main loop runs right
+    /// after the step (inlined there, or called): the traced path ends there. (The
+    /// inlined step's ranges interleave with the loop's own code, so leaving them does
+    /// not end the step.)
+    pub end: u32,
 }
 
 impl StepCode {
-    /// Whether `pc` is back in the main loop after the step (in the caller, outside the
-    /// step's ranges).
+    /// Whether `pc` is past the step (at the call that follows it).
     fn after(&self, pc: u32) -> bool {
-        (self.caller.0..self.caller.1).contains(&pc) && !self.ranges.iter().any(|r| (r.0..r.1).contains(&pc))
+        pc == self.end
     }
 }
+
+/// An inlined instance: whether it is the step (else the background work), its entry
+/// and its address ranges.
+type Inlined = (bool, u32, Vec<(u32, u32)>);
 
 /// The step's code in `elf` ([`StepCode`]).
 pub fn step_code(elf: &Path) -> Result<StepCode> {
@@ -262,6 +319,8 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
     };
     let sections = gimli::DwarfSections::load(load)?;
     let dwarf = sections.borrow(|s| EndianSlice::new(s, RunTimeEndian::Little));
+    // Every inlined instance of FlightCore::step and FlightCore::background.
+    let mut found: Vec<Inlined> = Vec::new();
     let mut units = dwarf.units();
     while let Some(header) = units.next()? {
         let unit = dwarf.unit(header)?;
@@ -276,8 +335,10 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
                 origin = unit.entry(spec)?;
             }
             let Some(name) = origin.attr_value(gimli::DW_AT_linkage_name)? else { continue };
-            let name = dwarf.attr_string(&unit, name)?;
-            if !name.to_string_lossy().contains("10FlightCore4step17h") {
+            let name = dwarf.attr_string(&unit, name)?.to_string_lossy().into_owned();
+            let step = name.contains("10FlightCore4step17h");
+            let background = name.contains("FlightCore") && name.contains("10background17h");
+            if !(step || background) {
                 continue;
             }
             let mut ranges = Vec::new();
@@ -285,21 +346,34 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
             while let Some(r) = it.next()? {
                 ranges.push((r.begin as u32, r.end as u32));
             }
-            let low = ranges.iter().map(|r| r.0).min().context("the inlined FlightCore::step has no address range")?;
+            let Some(low) = ranges.iter().map(|r| r.0).min() else { continue };
             let entry = match e.attr_value(gimli::DW_AT_entry_pc)? {
                 Some(AttributeValue::Addr(a)) => a as u32,
                 _ => low,
             };
-            let caller = file
-                .symbols()
-                .map(|s| ((s.address() & !1) as u32, s.size() as u32))
-                .find(|&(a, size)| size > 0 && (a..a + size).contains(&entry))
-                .map(|(a, size)| (a, a + size))
-                .context("no function symbol around the step's code")?;
-            return Ok(StepCode { entry, ranges, caller });
+            found.push((step, entry, ranges));
         }
     }
-    anyhow::bail!("{}: no inlined FlightCore::step in its debug information", elf.display())
+    let (_, entry, ranges) = found
+        .iter()
+        .find(|f| f.0)
+        .cloned()
+        .with_context(|| format!("{}: no inlined FlightCore::step in its debug information", elf.display()))?;
+    let caller = file
+        .symbols()
+        .map(|s| ((s.address() & !1) as u32, s.size() as u32))
+        .find(|&(a, size)| size > 0 && (a..a + size).contains(&entry))
+        .map(|(a, size)| (a, a + size))
+        .context("no function symbol around the step's code")?;
+    // The background work follows the step: inlined into the same loop, or called.
+    let inlined = found.iter().find(|f| !f.0 && (caller.0..caller.1).contains(&f.1)).map(|f| f.1);
+    let called = || {
+        file.symbols()
+            .find(|s| s.name().is_ok_and(|n| n.contains("FlightCore") && n.contains("10background17h")))
+            .map(|s| (s.address() & !1) as u32)
+    };
+    let end = inlined.or_else(called).context("no FlightCore::background (the step's end)")?;
+    Ok(StepCode { entry, ranges, caller, end })
 }
 
 /// The memory a RAM flip may hit: the stack's top and the statics' range.
@@ -356,6 +430,7 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
             *byte ^= 1 << (bit % 8);
             g.write_register(reg, &v)
         }
+        Target::Reset => g.monitor("system_reset").map(|_| ()),
     }
 }
 
@@ -363,6 +438,7 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
 struct Watch {
     flip_step: u64,
     instr: u32,
+    at: String,
     target: Target,
     changed: bool,
     /// The last step whose frame differed from the undisturbed one.
@@ -372,6 +448,15 @@ struct Watch {
     last_bad: Option<u64>,
     last_n: u64,
     earlier: u32,
+    /// Twice the undisturbed flight's 3σ per axis, ″ (the reset goal's bound).
+    nominal2_arcsec: [f64; 3],
+    /// The reset, if the unit reset: the step it reset in and what reset it.
+    reset: Option<(u64, String)>,
+    /// Events the unit logged while it rebooted (before lockstep again).
+    reset_events: Vec<String>,
+    /// After the reset: the first step with a frame, the first saying aligned, the last
+    /// beyond twice the nominal 3σ.
+    after_reset: (Option<u64>, Option<u64>, Option<u64>),
 }
 
 impl Watch {
@@ -400,6 +485,16 @@ impl Watch {
             }
         }
         let err = e.iter().fold(0.0f64, |a, e| a.max(e.abs()));
+        if self.reset.is_some() {
+            let (first, aligned, beyond) = &mut self.after_reset;
+            first.get_or_insert(n);
+            if f.st_status & ssis::flight::st_status::ALIGNED != 0 {
+                aligned.get_or_insert(n);
+            }
+            if e.iter().zip(&self.nominal2_arcsec).any(|(e, b)| e.abs() > *b || !e.is_finite()) {
+                *beyond = Some(n);
+            }
+        }
         if bad || !claims {
             if bad && claims {
                 self.silent = self.silent.max(err);
@@ -420,6 +515,14 @@ impl Watch {
         }
         if self.silent > 0.0 {
             return Outcome::Silent;
+        }
+        if let Some((_, cause)) = &self.reset {
+            return match self.last_bad {
+                Some(b) if b >= self.last_n => {
+                    Outcome::Crash(format!("reset ({cause}), not back within the bound by the window's end"))
+                }
+                _ => Outcome::ResetRecovered,
+            };
         }
         match self.last_bad {
             None => Outcome::Tolerated,
@@ -446,6 +549,8 @@ struct Ctx<'a> {
     /// Flights that stopped after their flips had all been classed (masked, tolerated).
     latent: std::cell::RefCell<u32>,
     ram: Ram,
+    traps: Traps,
+    syms: Syms,
     started: Instant,
 }
 
@@ -498,19 +603,10 @@ impl Received {
 }
 
 impl Received {
-    /// Signs that the unit reset (a firmware with the reset path resumes on its own tick,
-    /// out of lockstep): more output frames than the `want` STEPs sent, or a `resumed` or
-    /// `snapshot_invalid` event. The runner does not re-enter lockstep after a reset, so
-    /// such a flip is a crash here, never "reset and recovered".
-    fn reset(&self, want: usize) -> Option<String> {
-        let (events, _) = ssis_common::downlink::records(&self.events);
-        let reset_event = events.iter().find(|e| matches!(e.event.name(), "resumed" | "snapshot_invalid"));
-        if let Some(e) = reset_event {
-            return Some(format!("the unit reset (event {}); the runner does not follow a reset yet", e.event.name()));
-        }
-        (self.frames.len() > want).then(|| {
-            "the unit reset (output frames without a STEP); the runner does not follow a reset yet".to_string()
-        })
+    /// More output frames than the `want` STEPs sent: the unit stepped on its own tick
+    /// (a reset the breakpoint at `Reset` did not catch).
+    fn unasked(&self, want: usize) -> Option<String> {
+        (self.frames.len() > want).then(|| "output frames without a STEP".to_string())
     }
 }
 
@@ -520,36 +616,223 @@ fn free_port() -> Result<u16> {
 }
 
 /// QEMU processor time without an output frame after which a flipped unit has hung, s.
-pub(crate) const HANG_CPU_S: f64 = 2.0;
+/// Long enough for the watchdog's reset (100 ms of virtual time) when the guest runs
+/// through code QEMU translates afresh at every instruction (a wild jump into zeros
+/// runs some ten million instructions a second of processor time).
+pub(crate) const HANG_CPU_S: f64 = 8.0;
 
-/// Waits for the output frame of the step just sent (`want` frames in all); `Some(why)`
-/// when the unit stopped instead: QEMU exited, the guest stopped for the debugger (a
-/// breakpoint instruction reached by a wild jump), no output for [`HANG_CPU_S`], or it
-/// reset ([`Received::reset`], checked for the frames before this step's).
-fn await_frame(unit: &mut Unit, g: &mut Gdb, rx: &mut Received, want: usize) -> Result<Option<String>> {
+/// Steps the unit is taken to be down after a reset (100 ms: reset, boot and the
+/// watchdog's two periods at most): their sensor frames are not sent, as if lost while
+/// the unit was not listening; the resume bridges them (`ssis::flight::snapshot`).
+pub const RESET_DOWN_STEPS: u64 = 20;
+
+/// The firmware's exception entries the runner keeps breakpoints on: a reset (the unit
+/// rebooting, followed back into lockstep), a HardFault (its faulting instruction read
+/// from the exception frame) and the watchdog's first timeout (NMI).
+#[derive(Debug, Clone, Copy)]
+struct Traps {
+    reset: u32,
+    hard_fault: u32,
+    nmi: u32,
+}
+
+impl Traps {
+    fn of(elf: &Path) -> Result<Traps> {
+        let s = |n: &str| symbol(elf, n).map(|a| (a & !1) as u32);
+        Ok(Traps { reset: s("Reset")?, hard_fault: s("HardFault")?, nmi: s("NonMaskableInt")? })
+    }
+
+    fn set(&self, g: &mut Gdb) -> Result<()> {
+        for a in [self.reset, self.hard_fault, self.nmi] {
+            g.set_breakpoint(a)?;
+        }
+        Ok(())
+    }
+}
+
+/// The ELF's functions, to name an address (a HardFault's instruction, a hang's).
+struct Syms(Vec<(u32, u32, String)>);
+
+impl Syms {
+    fn of(elf: &Path) -> Result<Syms> {
+        use object::{Object, ObjectSymbol};
+        let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+        let file = object::File::parse(&*data)?;
+        let mut v: Vec<(u32, u32, String)> = file
+            .symbols()
+            .filter(|s| s.kind() == object::SymbolKind::Text && s.size() > 0)
+            .filter_map(|s| Some(((s.address() & !1) as u32, s.size() as u32, demangle(s.name().ok()?))))
+            .collect();
+        v.sort_by_key(|s| s.0);
+        Ok(Syms(v))
+    }
+
+    /// `0x1234 (function)`, or the bare address outside every function.
+    fn name(&self, pc: u32) -> String {
+        let pc = pc & !1;
+        match self.0.iter().find(|(a, size, _)| (*a..a.saturating_add(*size)).contains(&pc)) {
+            Some((_, _, n)) => format!("{pc:#x} ({n})"),
+            None => format!("{pc:#x}"),
+        }
+    }
+}
+
+/// A legacy-mangled Rust name (`_ZN`, length-prefixed parts, `17h<hash>E`) as its path
+/// without the hash; any other name as it is.
+fn demangle(name: &str) -> String {
+    let Some(mut rest) = name.strip_prefix("_ZN") else { return name.to_string() };
+    let mut parts = Vec::new();
+    loop {
+        let digits = rest.bytes().take_while(u8::is_ascii_digit).count();
+        let Some(len) = rest.get(..digits).and_then(|d| d.parse::<usize>().ok()) else { break };
+        let Some(part) = rest.get(digits..digits + len) else { break };
+        let hash = part.len() == 17 && part.starts_with('h') && part.bytes().skip(1).all(|b| b.is_ascii_hexdigit());
+        if !hash {
+            let part = part.strip_prefix('_').filter(|p| p.starts_with('$')).unwrap_or(part);
+            let mut p = part.to_string();
+            for (from, to) in
+                [("$LT$", "<"), ("$GT$", ">"), ("$u20$", " "), ("$u7b$", "{"), ("$u7d$", "}"), ("..", "::")]
+            {
+                p = p.replace(from, to);
+            }
+            parts.push(p);
+        }
+        rest = rest.get(digits + len..).unwrap_or("");
+    }
+    parts.join("::")
+}
+
+/// What became of a step sent.
+enum Awaited {
+    /// Its output frame came.
+    Frame,
+    /// The unit reset (stopped at the `Reset` breakpoint), and what reset it.
+    Reset(String),
+    /// It stopped: QEMU exited, the guest hung or stopped for the debugger.
+    Stopped(String),
+}
+
+/// Waits for the output frame of the step just sent (`want` frames in all). On the way:
+/// a stop at the HardFault breakpoint notes the faulting instruction (the stacked PC)
+/// in `cause`, one at the NMI the watchdog's warning, and the guest runs on; a stop at
+/// `Reset` is the unit resetting ([`Awaited::Reset`], the guest left halted there).
+/// Otherwise stopped when QEMU exited, the guest stopped for the debugger (a
+/// breakpoint instruction reached by a wild jump), or no output for [`HANG_CPU_S`] (a
+/// hang: the guest halted and its PC and LR named).
+fn await_frame(
+    ctx: &Ctx<'_>,
+    unit: &mut Unit,
+    g: &mut Gdb,
+    rx: &mut Received,
+    want: usize,
+    cause: &mut Option<String>,
+) -> Result<Awaited> {
     let child = &unit.q.as_ref().context("no QEMU")?.child;
     let patience = crate::progress::Patience::new(child, HANG_CPU_S);
-    if let Some(why) = rx.reset(want) {
-        return Ok(Some(why));
+    if let Some(why) = rx.unasked(want) {
+        return Ok(Awaited::Stopped(why));
     }
     while rx.frames.len() < want {
         match unit.rx.recv_timeout(Duration::from_millis(20)) {
             Ok((_, b)) => rx.push(&b),
-            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => return Ok(Some("QEMU closed its UARTs".into())),
+            Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
+                return Ok(Awaited::Stopped("QEMU closed its UARTs".into()))
+            }
             Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {
                 if let Some(st) = unit.exited()? {
-                    return Ok(Some(format!("QEMU exited ({st})")));
+                    return Ok(Awaited::Stopped(format!("QEMU exited ({st})")));
                 }
                 if let Some(stop) = g.wait_stop(Duration::ZERO).ok().flatten() {
-                    return Ok(Some(format!("the guest stopped for the debugger ({stop})")));
+                    let pc = g.register_u32(gdb::PC)?;
+                    if pc == ctx.traps.hard_fault {
+                        // The exception frame: r0–r3, r12, lr, pc, xpsr from SP.
+                        // (Unreadable when the stack pointer itself was hit.)
+                        let sp = g.register_u32(gdb::SP)?;
+                        let at = g.read_memory(sp.wrapping_add(24), 4).ok();
+                        let at = at.and_then(|b| b.get(..4).and_then(|b| b.try_into().ok())).map(u32::from_le_bytes);
+                        cause.get_or_insert(match at {
+                            Some(at) => format!("HardFault at {}", ctx.syms.name(at)),
+                            None => format!("HardFault (no exception frame at SP {sp:#x})"),
+                        });
+                        g.resume_past(pc)?;
+                        continue;
+                    }
+                    if pc == ctx.traps.nmi {
+                        cause.get_or_insert("watchdog".to_string());
+                        g.resume_past(pc)?;
+                        continue;
+                    }
+                    if pc == ctx.traps.reset {
+                        let forced = ctx.o.forced_reset.then(|| "forced (system_reset)".to_string());
+                        return Ok(Awaited::Reset(
+                            cause.take().or(forced).unwrap_or_else(|| "reset request".to_string()),
+                        ));
+                    }
+                    return Ok(Awaited::Stopped(format!(
+                        "the guest stopped for the debugger ({stop}) at {}",
+                        ctx.syms.name(pc)
+                    )));
                 }
                 if let Some(why) = patience.exhausted() {
-                    return Ok(Some(format!("hang: {why}")));
+                    let at = match g.halt() {
+                        Ok(()) => {
+                            let (pc, lr) = (g.register_u32(gdb::PC)?, g.register_u32(14)?);
+                            // Halted just after a WFI: the main loop is idle, feeding the
+                            // watchdog, and never takes the STEP (its lockstep state hit).
+                            let idle = g.read_memory(pc.wrapping_sub(2), 2).is_ok_and(|b| b == [0x30, 0xbf]);
+                            let idle = if idle {
+                                " (idle after WFI: the loop runs, feeds the watchdog, takes no STEP)"
+                            } else {
+                                ""
+                            };
+                            format!("; at {}{idle}, lr {}", ctx.syms.name(pc), ctx.syms.name(lr))
+                        }
+                        Err(_) => String::new(),
+                    };
+                    return Ok(Awaited::Stopped(format!("hang: {why}{at}")));
                 }
             }
         }
     }
-    Ok(None)
+    Ok(Awaited::Frame)
+}
+
+/// Back into lockstep after a reset, the guest halted at `Reset`: LOCKSTEP goes out
+/// first (the firmware takes it from its first pass, so it steps on its own tick at most
+/// a few times), the guest runs, and once it is silent the output link starts afresh.
+/// While it boots the guest is let past its breakpoints: the NMI (QEMU's mps2 does not
+/// reset its watchdog with the machine, so the watchdog left running before the reset
+/// times out once before the firmware starts it again: noted in the returned list), a
+/// HardFault or a further reset (noted, and the boot goes on). Returns the notes and
+/// the events the unit logged while booting (a snapshot refused, for one).
+fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Result<Vec<String>> {
+    unit.command(command::LOCKSTEP)?;
+    g.resume_past(ctx.traps.reset)?;
+    let mut boot = Received::default();
+    let mut notes = Vec::new();
+    unit.await_silence(
+        |_, b| boot.push(b),
+        || {
+            if g.wait_stop(Duration::ZERO)?.is_some() {
+                let pc = g.register_u32(gdb::PC)?;
+                let note = if pc == ctx.traps.nmi {
+                    "boot: watchdog NMI"
+                } else if pc == ctx.traps.hard_fault {
+                    "boot: HardFault"
+                } else if pc == ctx.traps.reset {
+                    "boot: reset again"
+                } else {
+                    anyhow::bail!("the guest stopped for the debugger at {} while booting", ctx.syms.name(pc));
+                };
+                notes.push(note.to_string());
+                g.resume_past(pc)?;
+            }
+            Ok(())
+        },
+    )?;
+    rx.link = Downlink::new();
+    let (events, _) = ssis_common::downlink::records(&boot.events);
+    Ok(notes.into_iter().chain(events.iter().map(|e| e.event.name().to_string())).collect())
 }
 
 /// The path of one step: the address of every instruction it executed, in order, from
@@ -579,7 +862,7 @@ fn place_flip(
     g: &mut Gdb,
     rng: &mut ChaCha8Rng,
     step: &ControlFrame,
-) -> Result<(u32, Target)> {
+) -> Result<(u32, Target, u32)> {
     let t0 = Instant::now();
     let entry = ctx.code.entry;
     g.halt()?;
@@ -620,18 +903,20 @@ fn place_flip(
             g.clear_breakpoint(end)?;
         }
     }
+    let here_at_flip = g.register_u32(gdb::PC)?;
     let sp = g.register_u32(gdb::SP)?;
-    let target = pick_target(rng, ctx.ram, sp, ctx.o.register_share);
+    let target = if ctx.o.forced_reset { Target::Reset } else { pick_target(rng, ctx.ram, sp, ctx.o.register_share) };
     flip(g, target)?;
     g.resume()?;
     if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
         eprintln!(
-            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m})",
+            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
             t0.elapsed().as_secs_f64(),
-            path.len()
+            path.len(),
+            target.describe()
         );
     }
-    Ok((k as u32, target))
+    Ok((k as u32, target, here_at_flip))
 }
 
 /// One flight in QEMU: flips until one changes an output (followed for the window), no
@@ -645,7 +930,10 @@ fn run_flight(
     let (o, fl) = (ctx.o, ctx.flight);
     let port = free_port()?;
     let snap = *ctx.snapshot.borrow();
-    let mut extra = vec!["-gdb".to_string(), format!("tcp:127.0.0.1:{port}")];
+    // A watchdog timeout resets the unit (QEMU's `-action watchdog=reset`), which the
+    // runner follows, as it does a HardFault's reset.
+    let mut extra =
+        vec!["-gdb".to_string(), format!("tcp:127.0.0.1:{port}"), "-action".to_string(), "watchdog=reset".to_string()];
     if snap.is_some() {
         extra.extend(["-incoming".to_string(), format!("exec:cat {}", ctx.snapshot_path.display())]);
     }
@@ -661,6 +949,7 @@ fn run_flight(
             std::thread::sleep(Duration::from_millis(5));
         }
     }
+    ctx.traps.set(&mut g)?;
     g.resume()?;
     let (quiet, window, gap) = (ctx.steps(o.quiet_s), ctx.steps(o.window_s), ctx.steps(o.gap_s));
     let last_n = fl.inputs.last().map_or(0, |i| i.n);
@@ -674,9 +963,12 @@ fn run_flight(
     let mut crash = None;
     // STEP frames sent in this flight: one output frame each.
     let mut sent = 0usize;
+    // After a reset: the last step of the unit's down time (not sent).
+    let mut down_to = 0;
+    let mut cause = None;
     for input in &fl.inputs {
         let n = input.n;
-        if snap.is_some_and(|s| n <= s.n) {
+        if snap.is_some_and(|s| n <= s.n) || n <= down_to {
             if let Some(t) = input.truth {
                 eval.push_truth(t);
             }
@@ -704,10 +996,11 @@ fn run_flight(
         }
         let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
         if watch.is_none() && n == next_flip {
-            let (instr, target) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
+            let (instr, target, pc) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
             watch = Some(Watch {
                 flip_step: n,
                 instr,
+                at: ctx.syms.name(pc),
                 target,
                 changed: false,
                 last_diff: None,
@@ -716,14 +1009,38 @@ fn run_flight(
                 last_bad: None,
                 last_n: n,
                 earlier,
+                nominal2_arcsec: fl.nominal_3sigma_arcsec.map(|s| 2.0 * s),
+                reset: None,
+                reset_events: Vec::new(),
+                after_reset: (None, None, None),
             });
         } else {
             unit.control(&step)?;
         }
         sent += 1;
-        if let Some(why) = await_frame(&mut unit, &mut g, &mut rx, sent)? {
-            crash = Some(why);
-            break;
+        match await_frame(ctx, &mut unit, &mut g, &mut rx, sent, &mut cause)? {
+            Awaited::Frame => {}
+            Awaited::Stopped(why) => {
+                crash = Some(why);
+                break;
+            }
+            Awaited::Reset(why) => {
+                let Some(w) = watch.as_mut().filter(|w| w.reset.is_none()) else {
+                    crash = Some(format!("the unit reset ({why})"));
+                    break;
+                };
+                w.reset = Some((n, why.clone()));
+                (w.changed, w.last_diff, w.last_n) = (true, Some(n), n);
+                match relock(ctx, &mut unit, &mut g, &mut rx) {
+                    Ok(events) => w.reset_events = events,
+                    Err(e) => {
+                        crash = Some(format!("reset ({why}); not back in lockstep: {e}"));
+                        break;
+                    }
+                }
+                (sent, fog_total, st_total, down_to) = (rx.frames.len(), 0, 0, n + RESET_DOWN_STEPS);
+                continue;
+            }
         }
         let Some(w) = watch.as_mut() else { continue };
         if let Some(f) = rx.frames.last() {
@@ -736,8 +1053,10 @@ fn run_flight(
         // Changed within the bound, then identical again for the quiet time: tolerated, and
         // the flight goes on as after a masked flip (with the same caveat).
         let settled = w.last_bad.is_none() && w.last_diff.is_some_and(|d| n >= d + quiet);
-        if n >= end || settled {
-            let goes_on = !w.changed || settled;
+        // A silent frame decides the class: nothing later changes it.
+        let decided = w.silent > 0.0;
+        if n >= end || settled || decided {
+            let goes_on = (!w.changed || settled) && !decided;
             flips.push(finish(w, None, ctx, &rx));
             on_flip(flips.last().context("no flip")?);
             watch = None;
@@ -752,6 +1071,10 @@ fn run_flight(
         let why = crash.map(|c| {
             unit.kill();
             let log = unit.log(&o.elf);
+            let c = match qemu_stderr(&mut unit) {
+                Some(e) => format!("{c}; QEMU: {e}"),
+                None => c,
+            };
             match log.iter().rev().find(|l| !l.is_empty()) {
                 Some(l) => format!("{c}; firmware: {l}"),
                 None => c,
@@ -768,6 +1091,17 @@ fn run_flight(
     Ok(())
 }
 
+/// The first line QEMU wrote on its standard error (`qemu: fatal: Lockup: …` when the
+/// guest locked up: QEMU 7.2 ends the emulation there, where a Cortex-M7 stays locked
+/// up until its watchdog resets it), once QEMU has ended.
+fn qemu_stderr(unit: &mut Unit) -> Option<String> {
+    use std::io::Read;
+    let mut err = unit.q.as_mut()?.child.stderr.take()?;
+    let mut s = String::new();
+    let _ = err.read_to_string(&mut s);
+    s.lines().find(|l| !l.trim().is_empty()).map(|l| l.trim().to_string())
+}
+
 /// The flip's record: its outcome, errors, recovery time and the events the undisturbed
 /// run did not log.
 fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Flip {
@@ -776,24 +1110,39 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
     let reference: Vec<&EventRecord> =
         ctx.flight.events.iter().filter(|e| e.time_us >= t0 && e.time_us <= t1).collect();
     let (seen, _) = ssis_common::downlink::records(&rx.events);
-    let events = seen
+    let events: Vec<String> = seen
         .iter()
         .filter(|e| e.time_us >= t0 && !reference.iter().any(|r| r.event == e.event && r.time_us == e.time_us))
         .map(|e| e.event.name().to_string())
         .collect();
+    let events = events.into_iter().chain(w.reset_events.iter().cloned()).collect();
     let outcome = w.outcome(crash);
+    let dt_s = ctx.flight.profile.dt_s();
     let recovery_s = match (&outcome, w.last_bad) {
-        (Outcome::DetectedRecovered, Some(b)) => Some((b + 1 - w.flip_step) as f64 * ctx.flight.profile.dt_s()),
+        (Outcome::DetectedRecovered | Outcome::ResetRecovered, Some(b)) => Some((b + 1 - w.flip_step) as f64 * dt_s),
         _ => None,
     };
+    let (first, aligned, beyond) = w.after_reset;
+    let since_reset = |to: u64| w.reset.as_ref().map(|(r, _)| to.saturating_sub(*r) as f64 * dt_s);
+    let reset_aligned_s = aligned.and_then(since_reset);
+    let back = match beyond {
+        Some(b) if b >= w.last_n => None,
+        Some(b) => Some(b + 1),
+        None => first,
+    };
+    let reset_nominal_s = back.and_then(since_reset);
     Flip {
         step: w.flip_step,
         instr: w.instr,
+        at: w.at.clone(),
         target: w.target,
         outcome,
         worst_arcsec: w.worst,
         silent_arcsec: w.silent,
         recovery_s,
+        reset_cause: w.reset.as_ref().map(|(_, c)| c.clone()),
+        reset_aligned_s,
+        reset_nominal_s,
         events,
         earlier_in_flight: w.earlier,
     }
@@ -812,7 +1161,9 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
     let flight = Flight::record(sc)?;
     anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let code = step_code(&o.elf)?;
-    let snapshot_path = std::env::temp_dir().join(format!("ssis-upset-{}.state", std::process::id()));
+    static CAMPAIGN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let k = CAMPAIGN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let snapshot_path = std::env::temp_dir().join(format!("ssis-upset-{}-{k}.state", std::process::id()));
     let _remove = RemoveOnDrop(snapshot_path.clone());
     let ctx = Ctx {
         o,
@@ -823,6 +1174,8 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         snapshot_path,
         latent: Default::default(),
         ram: Ram::of(&o.elf)?,
+        traps: Traps::of(&o.elf)?,
+        syms: Syms::of(&o.elf)?,
         started,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
@@ -850,5 +1203,77 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         latent,
         stack_top: ctx.ram.stack_top,
         statics: ctx.ram.statics,
+        nominal_3sigma_arcsec: flight.nominal_3sigma_arcsec,
+        jobs: 1,
     })
+}
+
+/// [`run_campaign`] as `jobs` campaigns side by side, each in its own QEMU: job j makes
+/// its share of the flips with seed `o.seed + j`; the flips in job order, the flights
+/// and latent flights summed, the wall time the whole run's.
+pub fn run_campaign_jobs(
+    sc: &Scenario,
+    o: &UpsetOptions,
+    jobs: usize,
+    on_flip: impl FnMut(&Flip) + Send,
+) -> Result<Campaign> {
+    let jobs = jobs.clamp(1, o.flips.max(1));
+    if jobs == 1 {
+        return run_campaign(sc, o, on_flip);
+    }
+    let started = Instant::now();
+    let on_flip = std::sync::Mutex::new(on_flip);
+    let results: Vec<Result<Campaign>> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..jobs)
+            .map(|j| {
+                let o = UpsetOptions {
+                    flips: o.flips / jobs + usize::from(j < o.flips % jobs),
+                    seed: o.seed.wrapping_add(j as u64),
+                    ..o.clone()
+                };
+                let on_flip = &on_flip;
+                scope.spawn(move || {
+                    run_campaign(sc, &o, |f| {
+                        if let Ok(mut g) = on_flip.lock() {
+                            (*g)(f)
+                        }
+                    })
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap_or_else(|_| Err(anyhow::anyhow!("a job panicked")))).collect()
+    });
+    let mut all: Option<Campaign> = None;
+    for r in results {
+        let c = r?;
+        match all.as_mut() {
+            None => all = Some(c),
+            Some(a) => {
+                a.flips.extend(c.flips);
+                a.flights += c.flights;
+                a.latent += c.latent;
+                a.path_len = a.path_len.max(c.path_len);
+            }
+        }
+    }
+    let mut c = all.context("no job ran")?;
+    c.options = o.clone();
+    c.wall_s = started.elapsed().as_secs_f64();
+    c.jobs = jobs;
+    Ok(c)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::demangle;
+
+    #[test]
+    fn legacy_rust_names_lose_their_hash_and_escapes() {
+        assert_eq!(demangle("_ZN12ssis_fw_test8firmware3fly17h61a948d826c07518E"), "ssis_fw_test::firmware::fly");
+        assert_eq!(
+            demangle("_ZN4ssis6intake3fog9FogIntake7receive28_$u7b$$u7b$closure$u7d$$u7d$17h57d8c27ef99bbe14E"),
+            "ssis::intake::fog::FogIntake::receive::{{closure}}"
+        );
+        assert_eq!(demangle("HardFault"), "HardFault");
+    }
 }

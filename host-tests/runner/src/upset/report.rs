@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use ssis_common::cli::{json, Value};
 
-use super::{Flip, Outcome, UpsetOptions, BOUND_ARCSEC};
+use super::{Flip, Outcome, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
 
 /// A share with its 95 % Wilson score interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,6 +76,10 @@ pub struct Campaign {
     pub stack_top: u32,
     /// Statics' range.
     pub statics: (u32, u32),
+    /// The undisturbed flight's attitude error 3σ per axis after settling, ″.
+    pub nominal_3sigma_arcsec: [f64; 3],
+    /// Campaigns run side by side (`--jobs`), each in its own QEMU.
+    pub jobs: usize,
 }
 
 impl Campaign {
@@ -131,17 +135,20 @@ impl Campaign {
             .iter()
             .map(|f| {
                 json!({
-                    "step": f.step, "instr": f.instr, "target": f.target.describe(), "class": f.target.class(),
+                    "step": f.step, "instr": f.instr, "at": f.at, "target": f.target.describe(), "class": f.target.class(),
                     "outcome": f.outcome.name(),
                     "crash": match &f.outcome { Outcome::Crash(w) => Some(w.clone()), _ => None },
                     "worst_arcsec": f.worst_arcsec, "silent_arcsec": f.silent_arcsec,
                     "recovery_s": f.recovery_s, "events": f.events,
+                    "reset_cause": f.reset_cause, "reset_aligned_s": f.reset_aligned_s,
+                    "reset_nominal_s": f.reset_nominal_s,
                 })
             })
             .collect();
         json!({
             "scenario": self.name, "flips": n, "flights": self.flights, "wall_s": self.wall_s,
             "flips_per_hour": self.flips_per_hour(), "seed": self.options.seed, "latent_flights": self.latent,
+            "nominal_3sigma_arcsec": self.nominal_3sigma_arcsec.to_vec(),
             "outcomes": rows, "per_flip": flips,
         })
     }
@@ -187,19 +194,39 @@ impl Campaign {
              error within max({BOUND_ARCSEC}″, the unit's own 3σ) on each axis; **detected and \
              recovered** beyond that only in frames that do not claim a good attitude (a frame claims \
              one when it says converged, not degraded, no parity alarm) and back, claiming it, before \
-             the window ends ({} s after the flip); **silent** a claimed-good frame beyond the bound; \
-             **crash** QEMU exited (HardFault, watchdog), the guest stopped at a breakpoint \
-             instruction, or no output for {} s of QEMU's processor time. **Reset and recovered** \
-             needs the reset path of issue 30 (a watchdog or HardFault reset that resumes from a \
-             snapshot); until the firmware has it, a reset ends the run and counts as a crash.\n",
+             the window ends ({} s after the flip); **reset and recovered** the unit reset (a \
+             HardFault's reset, or the watchdog's: QEMU runs with `-action watchdog=reset`) and came \
+             back, every frame claiming a good attitude within the bound and the last frames back \
+             within it by the window's end; **silent** a claimed-good frame beyond the bound (the \
+             flip's run ends there); **crash** QEMU ended (a lockup: QEMU 7.2 ends the emulation \
+             where a Cortex-M7 would stay locked up until its watchdog reset it), the guest stopped \
+             at a breakpoint instruction, no output for {} s of QEMU's processor time (a hang: the \
+             firmware's loop runs on without a step, or the watchdog did not reset it), or a reset \
+             not back within the bound by the window's end.\n",
             o.quiet_s,
             o.window_s,
             super::HANG_CPU_S
         );
+        let [a, b, c] = self.nominal_3sigma_arcsec;
         let _ = writeln!(
             s,
-            "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time ({:.0} flips an hour on this \
-             host): a flip whose outputs stay identical costs its quiet time, and the next flip goes \
+            "Following a reset: the runner keeps breakpoints on the firmware's `Reset`, `HardFault` \
+             and `NonMaskableInt` (the watchdog's warning) entries. At `Reset` it sends LOCKSTEP \
+             before the guest runs on (the firmware takes it on its first pass), waits until the \
+             firmware is silent, and goes on with the flight {} steps later ({:.0} ms: the unit \
+             taken to be down, its sensor frames not sent; the resume bridges them), counting \
+             bytes afresh. Recovery is timed from the step the unit reset in: to the first frame \
+             that says aligned (goal ≤ 1 s), and to the frame from which every later one in the \
+             window is within twice the nominal 3σ on each axis (goal ≤ 10 s with the observer, \
+             2 s with the MEKF); nominal: the undisturbed flight's attitude error 3σ (|mean| + 3 \
+             std) after settling, {a:.2} / {b:.2} / {c:.2}″.\n",
+            RESET_DOWN_STEPS,
+            RESET_DOWN_STEPS as f64 * 5.0
+        );
+        let _ = writeln!(
+            s,
+            "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time with {} job(s) side by side \
+             (job j draws with seed + j) ({:.0} flips an hour on this host): a flip whose outputs stay identical costs its quiet time, and the next flip goes \
              into the same flight (so does one whose outputs changed within the bound and were \
              identical again for the quiet time: tolerated); any other flip is followed for the \
              window and ends its flight (the next one starts QEMU from the guest's state saved by the first flight \
@@ -210,6 +237,7 @@ impl Campaign {
              watched (every flip in them already classed masked or tolerated).\n",
             self.flights,
             self.wall_s,
+            self.jobs,
             self.flips_per_hour(),
             1000.0 / self.flips_per_hour().max(1e-9),
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
@@ -232,23 +260,30 @@ impl Campaign {
             let _ = writeln!(s, "No flip changed an output.");
         } else {
             let _ = writeln!(s, "Every flip that changed an output:\n");
-            let _ =
-                writeln!(s, "| step (s) | instruction | bit | outcome | worst error ″ | recovery s | events | cause |");
-            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|");
+            let _ = writeln!(
+                s,
+                "| step (s) | instruction | at | bit | outcome | worst error ″ | recovery s | reset: aligned s | reset: within 2× 3σ s | events | cause |"
+            );
+            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+            let opt = |v: Option<f64>| v.map_or(String::new(), |r| format!("{r:.2}"));
             for f in changed {
-                let cause = match &f.outcome {
-                    Outcome::Crash(w) => w.replace('|', "/"),
+                let cause = match (&f.outcome, &f.reset_cause) {
+                    (Outcome::Crash(w), _) => w.replace('|', "/"),
+                    (_, Some(c)) => c.replace('|', "/"),
                     _ => String::new(),
                 };
                 let _ = writeln!(
                     s,
-                    "| {:.3} | {} | {} | {} | {:.1} | {} | {} | {} |",
+                    "| {:.3} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
                     f.step as f64 * 0.005,
                     f.instr,
+                    f.at.replace('|', "/"),
                     f.target.describe(),
                     f.outcome.name(),
                     f.worst_arcsec,
-                    f.recovery_s.map_or(String::new(), |r| format!("{r:.2}")),
+                    opt(f.recovery_s),
+                    opt(f.reset_aligned_s),
+                    opt(f.reset_nominal_s),
                     f.events.join(", "),
                     cause
                 );
@@ -293,6 +328,39 @@ impl Campaign {
                 q(&r, 1.0)
             );
         }
+        let resets: Vec<&Flip> = self.flips.iter().filter(|f| f.reset_cause.is_some()).collect();
+        if !resets.is_empty() {
+            let mut causes: Vec<(String, usize)> = Vec::new();
+            for f in &resets {
+                let c = f.reset_cause.as_deref().unwrap_or("");
+                let c = if c.starts_with("HardFault") { "HardFault" } else { c };
+                match causes.iter_mut().find(|(n, _)| n == c) {
+                    Some((_, k)) => *k += 1,
+                    None => causes.push((c.to_string(), 1)),
+                }
+            }
+            let list: Vec<String> = causes.iter().map(|(n, k)| format!("{n} {k}")).collect();
+            let mut al: Vec<f64> = resets.iter().filter_map(|f| f.reset_aligned_s).collect();
+            let mut nom: Vec<f64> = resets.iter().filter_map(|f| f.reset_nominal_s).collect();
+            al.sort_by(f64::total_cmp);
+            nom.sort_by(f64::total_cmp);
+            let _ = writeln!(
+                s,
+                "Resets: {} flips reset the unit ({}). Aligned again after median {:.2} s, worst {:.2} s \
+                 ({} of {} aligned in the window); within twice the nominal 3σ after median {:.2} s, \
+                 worst {:.2} s ({} of {} back within it by the window's end).\n",
+                resets.len(),
+                list.join(", "),
+                q(&al, 0.5),
+                q(&al, 1.0),
+                al.len(),
+                resets.len(),
+                q(&nom, 0.5),
+                q(&nom, 1.0),
+                nom.len(),
+                resets.len()
+            );
+        }
         let mut events: Vec<(String, usize)> = Vec::new();
         for e in self.flips.iter().flat_map(|f| f.events.iter()) {
             match events.iter_mut().find(|(n, _)| n == e) {
@@ -309,8 +377,14 @@ impl Campaign {
         let mut causes: Vec<(&str, usize)> = Vec::new();
         for f in &self.flips {
             if let Outcome::Crash(w) = &f.outcome {
-                let c = if w.starts_with("hang") {
+                let c = if w.starts_with("hang") && w.contains("idle after WFI") {
+                    "no output: the loop idles, never taking the STEP (lockstep stalled)"
+                } else if w.starts_with("hang") {
                     "no output (hang)"
+                } else if w.contains("Lockup") {
+                    "lockup (QEMU ends)"
+                } else if w.starts_with("reset") {
+                    "reset, not back in the window"
                 } else if w.contains("hard fault") || w.contains("HardFault") {
                     "HardFault"
                 } else if w.contains("watchdog") {
