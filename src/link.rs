@@ -11,6 +11,7 @@
 
 use core::cell::RefCell;
 use core::convert::Infallible;
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use critical_section::Mutex;
 
@@ -296,15 +297,31 @@ impl<const N: usize> ByteFifo<N> {
     }
 }
 
+/// Borrows of a ring's state that failed since start ([`ring_faults`]).
+static RING_FAULTS: AtomicU32 = AtomicU32::new(0);
+
 /// Runs `f` on a ring's state inside a critical section. Only this function borrows the
-/// cell, one closure at a time with interrupts masked, so the borrow cannot fail; were it
-/// ever to, `f` is skipped and `otherwise` returned. (`borrow_ref_mut` would panic there:
-/// a panic path the release firmware may not link, README "No panics".)
+/// cell, one closure at a time with interrupts masked, so in a sound state the borrow
+/// cannot fail. It fails only when the cell's borrow flag is corrupted (a bit flipped in
+/// RAM, or in the register that writes the flag back), and then for good: the ring would
+/// take no byte again. So a failure skips `f`, returns `otherwise` and is counted in
+/// [`ring_faults`], for the main loop to reset the unit. (`borrow_ref_mut` would panic
+/// there: a panic path the release firmware may not link, README "No panics".)
 fn with_state<T, R>(m: &Mutex<RefCell<T>>, otherwise: R, f: impl FnOnce(&mut T) -> R) -> R {
     critical_section::with(|cs| match m.borrow(cs).try_borrow_mut() {
         Ok(mut s) => f(&mut s),
-        Err(_) => otherwise,
+        Err(_) => {
+            RING_FAULTS.fetch_add(1, Ordering::Relaxed);
+            otherwise
+        }
     })
+}
+
+/// Borrows of an [`RxRing`]'s or a [`TxRing`]'s state that failed since start: not zero
+/// only when a ring's borrow flag is corrupted, which nothing but a reset clears (the
+/// firmware's main loop resets the unit, which resumes from its snapshot).
+pub fn ring_faults() -> u32 {
+    RING_FAULTS.load(Ordering::Relaxed)
 }
 
 /// Receive buffer shared between a UART interrupt (producer) and the step (consumer).
@@ -572,6 +589,25 @@ mod tests {
         assert_eq!(ring.received(), 22);
         assert_eq!(drain_all(&ring, 100), [0, 1, 2, 3, 4, 5, 6, 7]);
         assert!(drain_all(&ring, 100).is_empty());
+    }
+
+    /// A borrow that fails (here: a push while the port holds the ring, the state a
+    /// corrupted borrow flag leaves for good) loses that byte and is counted for the main
+    /// loop, which resets the unit.
+    #[test]
+    fn a_failed_borrow_is_counted_not_ignored() {
+        let ring = RxRing::<8>::new();
+        ring.push(1);
+        let before = ring_faults();
+        let mut got = Vec::new();
+        ring.port().drain_into(8, &mut [], |s| {
+            got.extend_from_slice(s);
+            ring.push(2);
+        });
+        assert_eq!(got, [1]);
+        assert!(ring_faults() > before);
+        assert_eq!(ring.received(), 1);
+        assert!(drain_all(&ring, 8).is_empty());
     }
 
     /// The reader (embedded-io) and `drain` give the bytes in order, bounded by the

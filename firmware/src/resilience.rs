@@ -17,6 +17,8 @@
 //!   128 KiB image); a difference is logged (`code_corrupt` in the event
 //!   log, counted) and reported. On the target flash is not what an upset changes (the
 //!   CPU reads it through ECC and caches); a reset re-reads it.
+//! - **Rings** ([`reset_on_ring_fault`]): a corrupted borrow flag of a link's ring
+//!   (`ssis::link::ring_faults`) resets the unit after a snapshot.
 #![allow(unsafe_code)]
 
 use ssis::flight::snapshot::Snapshot;
@@ -61,6 +63,22 @@ pub fn resume(core: &mut FlightCore, snap: &mut Snapshot) {
         Err(e) => defmt::info!("no snapshot resumed ({}): aligning on the star tracker", e),
     }
     snap.invalidate();
+}
+
+/// A receive or transmit ring whose borrow flag is corrupted takes no byte again
+/// ([`ssis::link::ring_faults`]; the FOG intake or the output link lost for good): the
+/// main loop calls this on the first such fault, which logs it, runs `save` (the
+/// snapshot: the core's own state is intact and guarded) and resets the unit, whose rings
+/// start empty and which resumes from the snapshot.
+#[inline(never)]
+#[cold]
+pub fn reset_on_ring_fault(save: impl FnOnce()) -> ! {
+    defmt::error!(
+        "a ring's borrow flag is corrupted ({} failed borrows): snapshot and reset",
+        ssis::link::ring_faults()
+    );
+    save();
+    reset()
 }
 
 /// Resets the unit (SYSRESETREQ): the HardFault's way out, so an upset of the program

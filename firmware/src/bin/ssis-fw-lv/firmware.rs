@@ -54,6 +54,7 @@ use ssis::link::{NotFitted, RxRing, TxRing};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis_firmware::resilience;
 
 /// Watchdog period in steps (warning after one period, reset after two): 40 steps,
 /// 50 ms, the spacecraft unit's watchdog time (10 of its 5 ms steps). Ten 1.25 ms steps
@@ -190,6 +191,9 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     let period = mps2::ticks_per_step();
     let mut nav_steps = 0u32;
     loop {
+        if ssis::link::ring_faults() != 0 {
+            resilience::reset_on_ring_fault(|| {});
+        }
         // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
         // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
         let due = pacer.due(

@@ -129,6 +129,11 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     let mut warnings = 0;
     let mut steps = 0u32;
     loop {
+        if ssis::link::ring_faults() != 0 {
+            resilience::reset_on_ring_fault(|| {
+                core.snapshot_into(snap);
+            });
+        }
         let due = pacer.due(
             core,
             |c| {
