@@ -518,10 +518,11 @@ struct RawRow {
     acc_counter: [Option<u16>; N_ACCEL],
     accel: [Option<AccelSample>; N_ACCEL],
     st: Option<(f64, bool, [f64; 4])>,
-    /// A GNSS fix with its tag, s of log time (`time_us` not yet set).
-    gnss: Option<(f64, GnssSample)>,
+    /// A GNSS fix with its tag, s of log time (`time_us` not yet set); boxed, as is
+    /// `init`: both are rare (launch vehicle), and a row is moved several times.
+    gnss: Option<Box<(f64, GnssSample)>>,
     truth: Option<TruthRow>,
-    init: Option<NavState>,
+    init: Option<Box<NavState>>,
 }
 
 /// Column names in messages, spelt out once (a row's parse allocates none).
@@ -551,6 +552,10 @@ mod names {
 /// `trim_ascii` does not) as text, Unicode spaces trimmed; `Err` with the field's text
 /// when it is not a number.
 fn field_number(f: &[u8]) -> Result<Option<f64>, String> {
+    // A plain number parses whole as it is (only ASCII without spaces does): no scans first.
+    if let Ok(v) = fast_float2::parse::<f64, _>(f) {
+        return Ok(Some(v));
+    }
     if f.is_ascii() && !f.contains(&0x0b) {
         let f = f.trim_ascii();
         if f.is_empty() {
@@ -662,7 +667,18 @@ fn parse_row(
             pos_vel,
         })
     })();
-    RawRow { line: ln, t_s, counter, fog, acc_counter, accel, st, gnss, truth, init }
+    RawRow {
+        line: ln,
+        t_s,
+        counter,
+        fog,
+        acc_counter,
+        accel,
+        st,
+        gnss: gnss.map(Box::new),
+        truth,
+        init: init.map(Box::new),
+    }
 }
 
 /// Counts a sample counter that does not advance with the time (`name` in messages).
