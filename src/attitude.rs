@@ -119,8 +119,8 @@ impl Attitude {
     /// Rotation vector of the step for increment `dtheta_rad`, with the coning terms.
     ///
     /// The coning term is second order in the increments (|term| ≲ |Δθ_prev|·|Δθ|/10, a
-    /// millionth of |Δθ| at this unit's rates): one larger than the increment itself, or
-    /// not finite, can only come from a corrupted increment history (an upset between
+    /// millionth of |Δθ| at this unit's rates): a rotation vector more than twice the
+    /// increment, or not finite, can only come from a corrupted increment history (an upset between
     /// the state guard's check and this use, issue 30), and is left out: the step
     /// integrates the increment alone.
     pub fn rotation_vector(&self, dtheta_rad: &Vector3<f64>) -> Vector3<f64> {
@@ -131,13 +131,13 @@ impl Attitude {
                 dtheta_rad + self.prev1.cross(dtheta_rad) * (7.0 / 60.0) - self.prev2.cross(dtheta_rad) / 60.0
             }
         };
-        // `!(a <= b)`: a NaN term fails the comparison and is left out too.
-        #[allow(clippy::neg_cmp_op_on_partial_ord)]
-        let implausible = !((phi - dtheta_rad).norm_squared() <= dtheta_rad.norm_squared());
-        if implausible {
-            *dtheta_rad
-        } else {
+        // |φ| ≤ 2|Δθ| holds whenever the term is no larger than the increment (the
+        // triangle inequality), and is cheaper to test than the term itself; a NaN
+        // fails the comparison and is left out too.
+        if phi.norm_squared() <= 4.0 * dtheta_rad.norm_squared() {
             phi
+        } else {
+            *dtheta_rad
         }
     }
 
