@@ -393,11 +393,16 @@ fn sim_run_ctrl_c_prints_the_partial_summary_and_leaves_no_partial_file() {
         .stderr(std::process::Stdio::piped())
         .spawn()
         .expect("starts");
-    // Wait until the run is under way (its CSV's temporary file exists), then Ctrl-C.
+    // Wait until the run is under way (its CSV's temporary file `.day.csv.<pid>-<n>.partial`
+    // exists), then Ctrl-C.
+    let partial = || {
+        std::fs::read_dir(&s.0).expect("lists").flatten().any(|e| e.file_name().to_string_lossy().ends_with(".partial"))
+    };
     let t0 = std::time::Instant::now();
-    while !s.path("day.partial").exists() && t0.elapsed().as_secs() < 30 {
+    while !partial() && t0.elapsed().as_secs() < 10 {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
+    assert!(partial(), "no temporary file while the run writes its log");
     std::thread::sleep(std::time::Duration::from_millis(300));
     let kill = Command::new("kill").args(["-INT", &child.id().to_string()]).status().expect("kill runs");
     assert!(kill.success());
