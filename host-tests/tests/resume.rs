@@ -33,6 +33,13 @@ struct Flight {
 /// The scenario flown with `estimator`; `reset`: reset at [`RESET_S`], the snapshot
 /// passed through `spoil` before it is resumed.
 fn fly(estimator: Estimator, reset: Option<&dyn Fn(&mut Snapshot)>, down_steps: u64) -> Flight {
+    fly_idle(estimator, reset, down_steps, 0)
+}
+
+/// [`fly`], the unit booted `idle` steps before the end of the down time and stepping on
+/// its own tick meanwhile with nothing received (as the firmware does until the sensor
+/// frames come back).
+fn fly_idle(estimator: Estimator, reset: Option<&dyn Fn(&mut Snapshot)>, down_steps: u64, idle: u64) -> Flight {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.table.estimator = Some(estimator);
@@ -56,12 +63,25 @@ fn fly(estimator: Estimator, reset: Option<&dyn Fn(&mut Snapshot)>, down_steps: 
         }
         let n = input.n;
         if let Some(spoil) = reset.filter(|_| (reset_n..reset_n + down_steps).contains(&n)) {
-            if n == reset_n + down_steps - 1 {
+            if n == reset_n + down_steps - 1 - idle {
                 // Boot: a new core, empty receive buffers, the snapshot resumed.
                 core = new_core();
                 (fog, star, out) = fresh_links();
                 spoil(&mut snap);
                 let _ = core.resume(&snap);
+            } else if n >= reset_n + down_steps - idle {
+                // Booted: steps on its own tick, nothing received.
+                let mut nothing = input.clone();
+                nothing.st_bytes.clear();
+                let _ = step_on_mock_links(
+                    &mut core,
+                    &mut fog,
+                    &mut star,
+                    &mut out,
+                    &nothing,
+                    ssis::combination::FogSet(0),
+                );
+                out.bytes.clear();
             }
             continue;
         }
@@ -105,33 +125,40 @@ fn events(core: &FlightCore) -> Vec<(Event, u8, u16)> {
     core.events().pending().map(|r| (r.event, r.a, r.b)).collect()
 }
 
+/// Also with the unit booted a few steps early and stepping on its own tick with nothing
+/// received (as the firmware does until the sensor frames come back): the samples it
+/// bridges meanwhile must not stand for the first sample after the reset, whose counter
+/// tells the snapshot's age (they once did: the bridge over the reset lost its correction
+/// for the turn's acceleration, 10.7″ / 11.1″ worst, back within 2× after 13.5 s / 4.8 s).
 #[test]
 fn a_reset_in_the_slew_resumes_aligned_and_within_twice_the_nominal_3sigma() {
     for (estimator, within_s) in [(Estimator::Luenberger, 10.0), (Estimator::Mekf, 2.0)] {
         let nominal = fly(estimator, None, DOWN_STEPS);
         let sigma3 = nominal_3sigma(&nominal);
-        let reset = fly(estimator, Some(&|_| {}), DOWN_STEPS);
         let bound = sigma3.map(|s| 2.0 * s);
-        let (back_s, aligned_s) = recovery(&reset, bound);
-        let worst =
-            reset.rows.iter().filter(|r| r.0 >= RESET_S).fold(0.0f64, |m, r| m.max(r.1[0].max(r.1[1]).max(r.1[2])));
-        println!(
-            "{estimator:?}: nominal 3σ {:.2} {:.2} {:.2}″; after the reset aligned at +{aligned_s:.3} s, within 2× from +{back_s:.3} s, worst {worst:.2}″",
-            sigma3[0], sigma3[1], sigma3[2]
-        );
-        for at in [0.1, 0.5, 1.0, 2.0, 5.0, 10.0] {
-            if let Some(r) = reset.rows.iter().find(|r| r.0 >= RESET_S + at) {
-                println!("  +{at:>4} s: {:.2} {:.2} {:.2}″", r.1[0], r.1[1], r.1[2]);
+        for idle in [0, 5] {
+            let reset = fly_idle(estimator, Some(&|_| {}), DOWN_STEPS, idle);
+            let (back_s, aligned_s) = recovery(&reset, bound);
+            let worst =
+                reset.rows.iter().filter(|r| r.0 >= RESET_S).fold(0.0f64, |m, r| m.max(r.1[0].max(r.1[1]).max(r.1[2])));
+            println!(
+                "{estimator:?}, {idle} steps on its own first: nominal 3σ {:.2} {:.2} {:.2}″; after the reset aligned at +{aligned_s:.3} s, within 2× from +{back_s:.3} s, worst {worst:.2}″",
+                sigma3[0], sigma3[1], sigma3[2]
+            );
+            for at in [0.1, 0.5, 1.0, 2.0, 5.0, 10.0] {
+                if let Some(r) = reset.rows.iter().find(|r| r.0 >= RESET_S + at) {
+                    println!("  +{at:>4} s: {:.2} {:.2} {:.2}″", r.1[0], r.1[1], r.1[2]);
+                }
             }
+            assert!(aligned_s <= 1.0, "{estimator:?}, idle {idle}: aligned {aligned_s} s after the reset");
+            assert!(back_s <= within_s, "{estimator:?}, idle {idle}: back within 2× the nominal 3σ after {back_s} s");
+            assert_eq!(reset.core.counter(Counter::Resumes), 1);
+            let e = events(&reset.core);
+            let resumed = e.iter().find(|x| x.0 == Event::Resumed).expect("resumed logged");
+            let reset_n = (RESET_S / 0.005).round() as u64;
+            assert_eq!(u64::from(resumed.2), (reset_n - 1) % SNAP_STEPS + 1 + DOWN_STEPS, "idle {idle}: age in steps");
+            assert!(!e.iter().any(|x| x.0 == Event::SnapshotInvalid), "{e:?}");
         }
-        assert!(aligned_s <= 1.0, "{estimator:?}: aligned {aligned_s} s after the reset");
-        assert!(back_s <= within_s, "{estimator:?}: back within 2× the nominal 3σ after {back_s} s");
-        assert_eq!(reset.core.counter(Counter::Resumes), 1);
-        let e = events(&reset.core);
-        let resumed = e.iter().find(|x| x.0 == Event::Resumed).expect("resumed logged");
-        let reset_n = (RESET_S / 0.005).round() as u64;
-        assert_eq!(u64::from(resumed.2), (reset_n - 1) % SNAP_STEPS + 1 + DOWN_STEPS, "age in steps");
-        assert!(!e.iter().any(|x| x.0 == Event::SnapshotInvalid), "{e:?}");
     }
 }
 

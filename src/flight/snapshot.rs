@@ -312,11 +312,16 @@ impl FlightCore {
         self.events.log(self.last_output.time_us, Event::SnapshotInvalid, e as u8, 0);
     }
 
-    /// After a resume, at the end of the first step that integrated a sample: the age of
-    /// the snapshot (the samples bridged over the reset). Too old, the estimate restarts
-    /// and the next star-tracker frame aligns.
+    /// After a resume, at the end of a step that integrated a sample: at the first with
+    /// FOG data, the age of the snapshot (the samples bridged over the reset). Too old,
+    /// the estimate restarts and the next star-tracker frame aligns. A sample bridged
+    /// while nothing came (the unit stepping on its own before the FOGs' frames return)
+    /// does not confirm it: only a FOG counter tells the age.
     #[inline(never)]
     pub(super) fn confirm_resume(&mut self, taken_at: u64) {
+        if self.fog_intake.bridged() {
+            return;
+        }
         self.guard_touch();
         self.resumed_at = crate::state::Maybe::none();
         let age = self.fog_intake.index().saturating_sub(taken_at);
