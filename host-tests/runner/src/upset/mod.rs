@@ -831,6 +831,9 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
         },
     )?;
     rx.link = Downlink::new();
+    if !boot.frames.is_empty() {
+        notes.push(format!("boot: {} steps on its own tick", boot.frames.len()));
+    }
     let (events, _) = ssis_common::downlink::records(&boot.events);
     Ok(notes.into_iter().chain(events.iter().map(|e| e.event.name().to_string())).collect())
 }
