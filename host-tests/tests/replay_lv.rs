@@ -19,7 +19,7 @@ use ssis_sim::lv_replay::{
     pad_for, pad_init, replay_lv, write_log, AscentSensors, LogOptions, LvCore, LvFeed, LvScenario,
 };
 use ssis_sim::recorded::{self, LogUnit, Recorded};
-use ssis_sim::replay::Fnv;
+use ssis_sim::replay::OutputHash;
 
 fn example() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/lv-ascent/ascent-20s.csv")
@@ -96,13 +96,13 @@ fn a_log_written_from_the_scenario_replays_to_the_scenarios_own_output() {
     // The scenario itself, through the same unit.
     let mut sensors = AscentSensors::new(&sc);
     let mut unit = LvCore::new(&CalibrationTable::DEFAULT, &pad_init(sensors.initial())).expect("unit");
-    let mut h = Fnv::default();
+    let mut h = OutputHash::default();
     for n in 1..=steps {
         let p = unit.period(&sensors.step(n));
         h.write(&p.flight);
         h.write(&p.nav);
     }
-    assert_eq!(hash_of(&rec), h.0, "the log and the scenario give different output frames");
+    assert_eq!(hash_of(&rec), h.value(), "the log and the scenario give different output frames");
 }
 
 #[test]

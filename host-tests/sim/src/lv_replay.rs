@@ -43,7 +43,7 @@ use crate::gnss::GnssSpec;
 use crate::launch::{LaunchProfile, LaunchTruth};
 use crate::lv::{angle_between, filter_config};
 use crate::recorded::{LogUnit, Recorded};
-use crate::replay::Fnv;
+use crate::replay::OutputHash;
 
 /// The `kind` of a launch-vehicle ascent scenario file.
 pub const KIND: &str = "lv-ascent";
@@ -592,7 +592,7 @@ pub fn replay_lv<'a>(
     let mut flight_dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let mut nav_dec: StreamDecoder<NavOutputFrame, 256> = StreamDecoder::new();
     let mut flight_frames = 0u64;
-    let mut hash = Fnv::default();
+    let mut hash = OutputHash::default();
     while let Some(b) = feed.next_step() {
         let out = unit.period(&b);
         hash.write(&out.flight);
@@ -610,7 +610,7 @@ pub fn replay_lv<'a>(
         duration_s: feed.steps() as f64 * Profile::LAUNCH_VEHICLE.dt_s(),
         flight_frames,
         evidence,
-        hash: hash.0,
+        hash: hash.value(),
     })
 }
 

@@ -552,7 +552,12 @@ mod names {
 /// `trim_ascii` does not) as text, Unicode spaces trimmed; `Err` with the field's text
 /// when it is not a number.
 fn field_number(f: &[u8]) -> Result<Option<f64>, String> {
-    // A plain number parses whole as it is (only ASCII without spaces does): no scans first.
+    // An empty field (most of a compact log's: the star and truth columns between their
+    // rows) is absent at once; a plain number parses whole as it is (only ASCII without
+    // spaces does): no scans first.
+    if f.is_empty() {
+        return Ok(None);
+    }
     if let Ok(v) = fast_float2::parse::<f64, _>(f) {
         return Ok(Some(v));
     }

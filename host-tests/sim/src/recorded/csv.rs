@@ -27,12 +27,9 @@ pub const INTERVAL_ROWS: usize = 1001;
 pub struct LogStream {
     origin: String,
     reader: Box<dyn BufRead + Send>,
-    cols: Columns,
-    n_fields: usize,
+    rows: RowReader,
     line: usize,
     buf: Vec<u8>,
-    /// The current line's fields, as byte ranges of `buf`.
-    fields: Vec<std::ops::Range<usize>>,
     /// Rows with a time not yet placed (the interval check's look-ahead).
     ahead: VecDeque<(f64, RawRow)>,
     interval_checked: bool,
@@ -74,6 +71,10 @@ struct Placer {
 
 /// Whether a line holds nothing but white space (Unicode's, as `str::trim` has it).
 fn blank(l: &[u8]) -> bool {
+    // A line opening with a visible ASCII character (every data row) is not blank.
+    if l.first().is_some_and(u8::is_ascii_graphic) {
+        return false;
+    }
     if l.is_ascii() && !l.contains(&0x0b) {
         l.trim_ascii().is_empty()
     } else {
@@ -93,11 +94,9 @@ impl LogStream {
         let mut s = LogStream {
             origin,
             reader,
-            cols: Columns::default(),
-            n_fields: 0,
+            rows: RowReader { cols: Columns::default(), n_fields: 0, fields: Vec::with_capacity(64) },
             line: 0,
             buf: Vec::with_capacity(256),
-            fields: Vec::with_capacity(64),
             ahead: VecDeque::new(),
             interval_checked: false,
             unwrap: Unwrap::default(),
@@ -123,10 +122,10 @@ impl LogStream {
                 continue;
             }
             let cols = Columns::parse(l, &s.origin, s.line)?;
-            s.n_fields = l.split(',').count();
+            s.rows.n_fields = l.split(',').count();
             s.has_truth = cols.true_q[0].is_some();
             s.unit = cols.unit.unwrap_or(LogUnit::Spacecraft);
-            s.cols = cols;
+            s.rows.cols = cols;
             return Ok(s);
         }
     }
@@ -179,37 +178,30 @@ impl LogStream {
     }
 
     /// The next data row, parsed (a line with the wrong number of fields is counted and
-    /// skipped); `None` at the end of the file.
+    /// skipped); `None` at the end of the file. A line that lies whole in the reader's
+    /// buffer is parsed there, without a copy; one that crosses the buffer's end (and the
+    /// first, which may open with a byte-order mark) is read into `buf` first.
     fn next_row(&mut self) -> Result<Option<RawRow>> {
-        while let Some(ended) = self.read_line()? {
-            let (ln, origin) = (self.line, &self.origin);
-            let mut l = self.buf.as_slice();
-            while let [rest @ .., b'\n' | b'\r'] = l {
-                l = rest;
+        loop {
+            if self.line > 0 {
+                let avail = self.reader.fill_buf().with_context(|| format!("cannot read {}", self.origin))?;
+                if let Some(nl) = memchr::memchr(b'\n', avail) {
+                    self.line += 1;
+                    let line = avail.get(..=nl).unwrap_or_default();
+                    let row = self.rows.row(line, true, self.line, &self.origin, &mut self.problems);
+                    self.reader.consume(nl + 1);
+                    match row {
+                        Some(r) => return Ok(Some(r)),
+                        None => continue,
+                    }
+                }
             }
-            if l.starts_with(b"#") || blank(l) {
-                continue;
+            let Some(ended) = self.read_line()? else { return Ok(None) };
+            let row = self.rows.row(&self.buf, ended, self.line, &self.origin, &mut self.problems);
+            if let Some(r) = row {
+                return Ok(Some(r));
             }
-            // The fields' places in the line (the buffer is reused: no allocation a row).
-            self.fields.clear();
-            let mut start = 0;
-            for_each_comma(l, |k| {
-                self.fields.push(start..k);
-                start = k + 1;
-            });
-            self.fields.push(start..l.len());
-            if self.fields.len() != self.n_fields || !ended {
-                let why = if ended {
-                    format!("{} fields, the header has {}", self.fields.len(), self.n_fields)
-                } else {
-                    "last line without its line end (cut while written?)".to_string()
-                };
-                self.problems.truncated_lines.add(1, || format!("{origin}:{ln}: {why}"));
-                continue;
-            }
-            return Ok(Some(parse_row(l, &self.fields, &self.cols, ln, origin, &mut self.problems)));
         }
-        Ok(None)
     }
 
     /// The next row with a time (`t_s`, or the first FOG counter unwrapped); rows without
@@ -321,6 +313,47 @@ impl LogStream {
             unit: self.unit,
             init: self.place.init,
         })
+    }
+}
+
+/// A data row's reading: the header's columns and field count, and the fields' places
+/// in the current line (reused: no allocation a row).
+struct RowReader {
+    cols: Columns,
+    n_fields: usize,
+    fields: Vec<std::ops::Range<usize>>,
+}
+
+impl RowReader {
+    /// Line `ln` of `origin` (`line`, with its line end when `ended`) parsed as a data row;
+    /// `None` for a comment, a blank line, or a line with the wrong number of fields or cut
+    /// short (counted in `problems`).
+    fn row(&mut self, line: &[u8], ended: bool, ln: usize, origin: &str, problems: &mut Problems) -> Option<RawRow> {
+        let (fields, n_fields) = (&mut self.fields, self.n_fields);
+        let mut l = line;
+        while let [rest @ .., b'\n' | b'\r'] = l {
+            l = rest;
+        }
+        if l.starts_with(b"#") || blank(l) {
+            return None;
+        }
+        fields.clear();
+        let mut start = 0;
+        for_each_comma(l, |k| {
+            fields.push(start..k);
+            start = k + 1;
+        });
+        fields.push(start..l.len());
+        if fields.len() != n_fields || !ended {
+            let why = if ended {
+                format!("{} fields, the header has {}", fields.len(), n_fields)
+            } else {
+                "last line without its line end (cut while written?)".to_string()
+            };
+            problems.truncated_lines.add(1, || format!("{origin}:{ln}: {why}"));
+            return None;
+        }
+        Some(parse_row(l, fields, &self.cols, ln, origin, problems))
     }
 }
 
