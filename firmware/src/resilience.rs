@@ -24,11 +24,13 @@
 use ssis::flight::snapshot::Snapshot;
 use ssis::flight::FlightCore;
 
-/// Steps between two snapshots (200 ms at 5 ms): a snapshot costs about 1,000
-/// instructions (its 104 words written and checksummed), some 25 a step spread this
-/// thin (BENCHMARKS.md); the resume corrects the bridge over the snapshot's age by the
-/// turn's trend.
-pub const SNAPSHOT_STEPS: u32 = 40;
+/// Steps between two snapshots (400 ms at 5 ms): a snapshot costs about 1,200
+/// instructions (its 104 words written and checksummed, the mean increment since the
+/// one before), some 15 a step spread this thin (BENCHMARKS.md). The resume bridges
+/// the snapshot's age (up to this period and the time the unit was down) on that mean
+/// increment, corrected by the turn's trend, at the same accuracy at any phase of the
+/// period (`tests/resume.rs`).
+pub const SNAPSHOT_STEPS: u32 = 80;
 
 extern "C" {
     /// The SNAP region of the layout (`memory.x`): RAM no section is placed in.

@@ -58,6 +58,9 @@ const W_F64: usize = 12;
 const N_F64: usize = 45;
 /// Index of the increment's change per step among the f64 fields.
 const F_TREND: usize = 42;
+/// How far the interval's mean increment may be from the last sample, beyond a tenth of
+/// the increment, before the last sample is bridged on instead, rad.
+const MEAN_TOLERANCE_RAD: f64 = 1e-6;
 const W_CHECK: usize = SNAPSHOT_WORDS - 1;
 const _: () = assert!(W_F64 + 2 * N_F64 <= W_CHECK);
 
@@ -131,8 +134,8 @@ impl Snapshot {
     /// (a = Σ wᵢ, b = Σ a, both modulo 2³² − 1), folded to 32 bits. A flip of any one
     /// bit, or of any burst within one word, always changes it; any change of two words
     /// unless a and b both cancel. About 4 instructions a word, where a bytewise CRC-32
-    /// costs some 30: the snapshot is rewritten every 40 steps within the step's
-    /// budget. The sums are reduced once, at the end: over the 103 words a < 2³⁹ and
+    /// costs some 30: the snapshot is rewritten every few tens of steps within the
+    /// step's budget. The sums are reduced once, at the end: over the 103 words a < 2³⁹ and
     /// b < 2⁴⁶, far from overflowing 64 bits.
     pub fn checksum(&self) -> u32 {
         const _: () = assert!(W_CHECK < 1 << 16, "a and b stay below 2⁴⁸ and 2⁶⁴");
@@ -196,15 +199,45 @@ impl FlightCore {
         let (index, Some(expected)) = self.fog_intake.clock() else { return false };
         let Some(o) = self.observer.resume_state() else { return false };
         let q = self.attitude.quaternion();
-        let d = &self.last_body_dtheta;
         let map = self.fog_map.iter().enumerate().fold(0u32, |acc, (k, &a)| acc | ((a as u32 & 3) << (8 + 2 * k)));
         let cleared = self.mounting.as_ref().is_none_or(|m| !m.checking() || m.clear_to_report());
-        // The body increment's change per step since the snapshot before (the turn's
-        // angular acceleration): the bridge over the reset is corrected by it.
-        // Only the last increment of the snapshot before is read (fields 11..14).
-        let old_d: [f64; 3] = core::array::from_fn(|i| f64::from_bits(s.u64_at(W_F64 + 2 * (11 + i))));
+        // The increment a reset bridges on: the mean body increment since the snapshot
+        // before (its attitude, fields 0..3, turned to this one over `steps` samples, with
+        // the drift estimate added back), not the last sample alone, whose noise a bridge
+        // of 40–60 steps multiplies (one sample: up to 6″ at the first frame after the
+        // reset). With its change per step (the turn's angular acceleration, from the
+        // snapshot before's increment and change, fields 11..13 and F_TREND..) it
+        // corrects the bridge. A mean far from the last sample (the snapshot before
+        // corrupted, or a turn faster than the interval resolves) is not used: the last
+        // sample is, with no change per step.
+        let old = |k: usize| f64::from_bits(s.u64_at(W_F64 + 2 * k));
         let old_magic = s.word(W_MAGIC);
         let steps = index.wrapping_sub(s.index());
+        let follows = old_magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps);
+        let (d, trend) = if follows {
+            let n = steps as f64;
+            let turn =
+                crate::math::rotvec_from_quat(&(Quaternion::new(old(0), old(1), old(2), old(3)).conjugate() * q));
+            // The interval's mean is the rate at its middle, (n − 1) / 2 samples before
+            // this one: taken there from the mean before (its own middle, the same way),
+            // and carried to now by the change per step.
+            let mean = turn / n + Vector3::from(o.drift_rad_s) * self.profile.dt_s();
+            let lag = (n - 1.0) / 2.0;
+            let old_mean = Vector3::from_fn(|i, _| old(11 + i) - old(F_TREND + i) * lag);
+            let trend = (mean - old_mean) / n;
+            (mean + trend * lag, [trend.x, trend.y, trend.z])
+        } else {
+            (self.last_body_dtheta, [0.0; 3])
+        };
+        let last = &self.last_body_dtheta;
+        // Within 1 µrad (ten times a sample's noise) plus a tenth of the increment; false
+        // for a NaN.
+        let (d, trend) =
+            if (d - last).norm_squared() <= MEAN_TOLERANCE_RAD * MEAN_TOLERANCE_RAD + 0.01 * last.norm_squared() {
+                (d, trend)
+            } else {
+                (*last, [0.0; 3])
+            };
         s.set_word(W_MAGIC, MAGIC);
         s.set_word(W_TABLE_CRC, self.table_crc);
         s.set_word(W_FLAGS, map | if cleared { MOUNT_CLEARED } else { 0 });
@@ -215,12 +248,6 @@ impl FlightCore {
         s.set_u64(W_TAG_US, o.last_update_tag_us);
         let [dx, dy, dz] = o.drift_rad_s;
         let head = [q.w, q.i, q.j, q.k, o.last_q[0], o.last_q[1], o.last_q[2], o.last_q[3], dx, dy, dz, d.x, d.y, d.z];
-        let trend = if old_magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps) {
-            let k = 1.0 / steps as f64;
-            [0, 1, 2].map(|i| (head.get(11 + i).copied().unwrap_or(0.0) - old_d.get(i).copied().unwrap_or(0.0)) * k)
-        } else {
-            [0.0; 3]
-        };
         let values = head.iter().chain(core::iter::once(&o.innov_ms_rad2)).chain(o.cov.iter()).chain(trend.iter());
         // The f64 fields as word pairs, low word first (as `set_u64`), in one pass.
         if let Some(slots) = s.words.get_mut(W_F64..W_F64 + 2 * N_F64) {
