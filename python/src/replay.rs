@@ -35,6 +35,17 @@ struct Series {
 }
 
 impl Series {
+    /// Room for `n` more frames, so that a long replay's arrays are not copied as they
+    /// grow.
+    fn reserve(&mut self, n: usize) {
+        self.t_s.reserve(n);
+        self.flags.reserve(n);
+        self.q.reserve(4 * n);
+        for v in [&mut self.rate_rad_s, &mut self.drift_rad_s, &mut self.att_sigma_arcsec, &mut self.att_err_arcsec] {
+            v.reserve(3 * n);
+        }
+    }
+
     /// Output frame `f` and its record against truth.
     fn push(&mut self, f: &OutputFrame, r: Option<&Record>) {
         self.t_s.push(f.time_us as f64 * 1e-6);
@@ -85,6 +96,10 @@ fn replay<'py>(
     let (st, mut bar) = match streamed {
         Some((stream, total)) => {
             let mut bar = Progress::new(progress, total);
+            // The frames kept, from the log's size (an estimate: the arrays may still grow).
+            if let Some(n) = total.checked_div(every) {
+                s.reserve(usize::try_from(n + 1).unwrap_or(0));
+            }
             let st = streamed::replay_stream(
                 stream,
                 &table,
