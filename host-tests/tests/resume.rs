@@ -102,7 +102,7 @@ fn fly_at(
         }
         let o = step_on_mock_links(&mut core, &mut fog, &mut star, &mut out, &input, profile.fogs);
         out.bytes.clear();
-        if (n + phase) % SNAP_STEPS == 0 {
+        if (n + phase).is_multiple_of(SNAP_STEPS) {
             core.snapshot_into(&mut snap);
         }
         if let Some(r) = eval.evaluate(&Observed::from(&o)) {
