@@ -744,7 +744,8 @@ impl Fnv {
 
 /// A replay's output fingerprint (`output_hash`): XXH3-64 (seed 0) of the output bytes in
 /// order, streamed. The same bytes give the same value whatever the calls' boundaries,
-/// on every machine; the byte-serial FNV-1a it replaced cost 7 % of a replay's CPU.
+/// on every machine, eight bytes at a time (a byte-serial hash takes 7 % of a replay's
+/// CPU: BENCHMARKS.md).
 #[derive(Clone, Default)]
 pub struct OutputHash(xxhash_rust::xxh3::Xxh3Default);
 
