@@ -17,7 +17,26 @@ use ssis::frames::output::OutputFrame;
 use ssis_faults::{Fault, FaultKind};
 use ssis_sim::lv_replay::{pad_for, replay_lv};
 use ssis_sim::recorded;
-use ssis_sim::replay::{replay, Fnv};
+use ssis_sim::replay::replay;
+
+/// FNV-1a over bytes, a byte at a time: the pinned digests.
+#[derive(Debug, Clone, Copy)]
+struct Fnv(u64);
+
+impl Default for Fnv {
+    fn default() -> Self {
+        Fnv(0xcbf2_9ce4_8422_2325)
+    }
+}
+
+impl Fnv {
+    /// Adds bytes.
+    fn write(&mut self, bytes: &[u8]) {
+        for b in bytes {
+            self.0 = (self.0 ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
 
 /// Folds every output field into `h`.
 fn fold(h: &mut Fnv, o: &StepOutput) {

@@ -33,19 +33,14 @@ struct Flight {
 /// The scenario flown with `estimator`; `reset`: reset at [`RESET_S`], the snapshot
 /// passed through `spoil` before it is resumed.
 fn fly(estimator: Estimator, reset: Option<&dyn Fn(&mut Snapshot)>, down_steps: u64) -> Flight {
-    fly_idle(estimator, reset, down_steps, 0)
+    fly_at(estimator, reset, RESET_S, 0, down_steps, 0)
 }
 
-/// [`fly`], the unit booted `idle` steps before the end of the down time and stepping on
-/// its own tick meanwhile with nothing received (as the firmware does until the sensor
-/// frames come back).
-fn fly_idle(estimator: Estimator, reset: Option<&dyn Fn(&mut Snapshot)>, down_steps: u64, idle: u64) -> Flight {
-    fly_at(estimator, reset, RESET_S, 0, down_steps, idle)
-}
-
-/// [`fly_idle`] with the reset at `reset_s`, the snapshots taken at the steps `phase`
-/// before a multiple of [`SNAP_STEPS`], and statistics from the scenario's settling or
-/// a second before the reset, whichever is first.
+/// [`fly`] with the reset at `reset_s`, the snapshots taken at the steps `phase` before a
+/// multiple of [`SNAP_STEPS`], the unit booted `idle` steps before the end of the down
+/// time and stepping on its own tick meanwhile with nothing received (as the firmware
+/// does until the sensor frames come back), and statistics from the scenario's settling
+/// or a second before the reset, whichever is first.
 fn fly_at(
     estimator: Estimator,
     reset: Option<&dyn Fn(&mut Snapshot)>,
@@ -114,14 +109,9 @@ fn fly_at(
     Flight { rows, core }
 }
 
-/// Per axis 3σ (|mean| + 3 std) of the undisturbed flight `f` over the span after the
-/// reset (the rest of the slew).
-fn nominal_3sigma(f: &Flight) -> [f64; 3] {
-    nominal_3sigma_from(f, RESET_S)
-}
-
-fn nominal_3sigma_from(f: &Flight, reset_s: f64) -> [f64; 3] {
-    let before: Vec<[f64; 3]> = f.rows.iter().filter(|r| r.0 >= reset_s).map(|r| r.1).collect();
+/// Per axis 3σ (|mean| + 3 std) of the undisturbed flight `f` from `from_s` on.
+fn nominal_3sigma(f: &Flight, from_s: f64) -> [f64; 3] {
+    let before: Vec<[f64; 3]> = f.rows.iter().filter(|r| r.0 >= from_s).map(|r| r.1).collect();
     let n = before.len() as f64;
     [0, 1, 2].map(|k| {
         let mean = before.iter().map(|e| e[k]).sum::<f64>() / n;
@@ -130,13 +120,9 @@ fn nominal_3sigma_from(f: &Flight, reset_s: f64) -> [f64; 3] {
     })
 }
 
-/// Seconds after the reset until every later frame is within `bound` per axis; and the
-/// seconds until the first frame reports aligned.
-fn recovery(f: &Flight, bound: [f64; 3]) -> (f64, f64) {
-    recovery_from(f, bound, RESET_S)
-}
-
-fn recovery_from(f: &Flight, bound: [f64; 3], reset_s: f64) -> (f64, f64) {
+/// Seconds after the reset at `reset_s` until every later frame is within `bound` per
+/// axis; and the seconds until the first frame reports aligned.
+fn recovery(f: &Flight, bound: [f64; 3], reset_s: f64) -> (f64, f64) {
     let after: Vec<_> = f.rows.iter().filter(|r| r.0 >= reset_s).collect();
     let last_out = after.iter().rposition(|r| (0..3).any(|k| r.1[k] > bound[k]));
     let back = last_out.and_then(|i| after.get(i + 1)).map_or(0.0, |r| r.0 - reset_s);
@@ -156,11 +142,11 @@ fn events(core: &FlightCore) -> Vec<(Event, u8, u16)> {
 fn a_reset_in_the_slew_resumes_aligned_and_within_twice_the_nominal_3sigma() {
     for (estimator, within_s) in [(Estimator::Luenberger, 10.0), (Estimator::Mekf, 2.0)] {
         let nominal = fly(estimator, None, DOWN_STEPS);
-        let sigma3 = nominal_3sigma(&nominal);
+        let sigma3 = nominal_3sigma(&nominal, RESET_S);
         let bound = sigma3.map(|s| 2.0 * s);
         for idle in [0, 5] {
-            let reset = fly_idle(estimator, Some(&|_| {}), DOWN_STEPS, idle);
-            let (back_s, aligned_s) = recovery(&reset, bound);
+            let reset = fly_at(estimator, Some(&|_| {}), RESET_S, 0, DOWN_STEPS, idle);
+            let (back_s, aligned_s) = recovery(&reset, bound, RESET_S);
             let worst =
                 reset.rows.iter().filter(|r| r.0 >= RESET_S).fold(0.0f64, |m, r| m.max(r.1[0].max(r.1[1]).max(r.1[2])));
             println!(
@@ -193,12 +179,12 @@ fn a_reset_at_any_phase_of_the_snapshot_period_meets_the_goals() {
     let at = 12.505;
     for (estimator, within_s) in [(Estimator::Luenberger, 10.0), (Estimator::Mekf, 2.0)] {
         let nominal = fly_at(estimator, None, 60.0, 0, DOWN_STEPS, 0);
-        let bound = nominal_3sigma_from(&nominal, 30.0).map(|s| 2.0 * s);
+        let bound = nominal_3sigma(&nominal, 30.0).map(|s| 2.0 * s);
         let mut worst_back = (0.0f64, 0);
         let mut worst_err = (0.0f64, 0);
         for phase in 0..SNAP_STEPS {
             let reset = fly_at(estimator, Some(&|_| {}), at, phase, DOWN_STEPS, 0);
-            let (back_s, aligned_s) = recovery_from(&reset, bound, at);
+            let (back_s, aligned_s) = recovery(&reset, bound, at);
             let worst =
                 reset.rows.iter().filter(|r| r.0 >= at).fold(0.0f64, |m, r| m.max(r.1[0].max(r.1[1]).max(r.1[2])));
             assert!(aligned_s <= 1.0, "{estimator:?}, phase {phase}: aligned {aligned_s} s after the reset");
@@ -243,6 +229,6 @@ fn a_spoilt_or_old_snapshot_is_refused_and_the_unit_aligns_again() {
     let e = events(&f.core);
     assert!(e.contains(&(Event::SnapshotInvalid, SnapshotError::TooOld as u8, 0)), "{e:?}");
     assert!(e.iter().any(|x| x.0 == Event::Aligned), "aligned again on the tracker: {e:?}");
-    let (_, aligned_s) = recovery(&f, [f64::INFINITY; 3]);
+    let (_, aligned_s) = recovery(&f, [f64::INFINITY; 3], RESET_S);
     assert!(aligned_s > 0.0 && aligned_s < 2.0, "re-aligned {aligned_s} s after the reset");
 }

@@ -214,7 +214,8 @@ impl FlightCore {
         let old_magic = s.word(W_MAGIC);
         let steps = index.wrapping_sub(s.index());
         let follows = old_magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps);
-        let (d, trend) = if follows {
+        let last = self.last_body_dtheta;
+        let mean = follows.then(|| {
             let n = steps as f64;
             let turn =
                 crate::math::rotvec_from_quat(&(Quaternion::new(old(0), old(1), old(2), old(3)).conjugate() * q));
@@ -226,18 +227,13 @@ impl FlightCore {
             let old_mean = Vector3::from_fn(|i, _| old(11 + i) - old(F_TREND + i) * lag);
             let trend = (mean - old_mean) / n;
             (mean + trend * lag, [trend.x, trend.y, trend.z])
-        } else {
-            (self.last_body_dtheta, [0.0; 3])
-        };
-        let last = &self.last_body_dtheta;
+        });
         // Within 1 µrad (ten times a sample's noise) plus a tenth of the increment; false
         // for a NaN.
-        let (d, trend) =
-            if (d - last).norm_squared() <= MEAN_TOLERANCE_RAD * MEAN_TOLERANCE_RAD + 0.01 * last.norm_squared() {
-                (d, trend)
-            } else {
-                (*last, [0.0; 3])
-            };
+        let plausible = |d: &Vector3<f64>| {
+            (d - last).norm_squared() <= MEAN_TOLERANCE_RAD * MEAN_TOLERANCE_RAD + 0.01 * last.norm_squared()
+        };
+        let (d, trend) = mean.filter(|(d, _)| plausible(d)).unwrap_or((last, [0.0; 3]));
         s.set_word(W_MAGIC, MAGIC);
         s.set_word(W_TABLE_CRC, self.table_crc);
         s.set_word(W_FLAGS, map | if cleared { MOUNT_CLEARED } else { 0 });

@@ -723,25 +723,6 @@ impl Replayer {
     }
 }
 
-/// FNV-1a over bytes, a byte at a time: the pinned digests of `tests/golden.rs`.
-#[derive(Debug, Clone, Copy)]
-pub struct Fnv(pub u64);
-
-impl Default for Fnv {
-    fn default() -> Self {
-        Fnv(0xcbf2_9ce4_8422_2325)
-    }
-}
-
-impl Fnv {
-    /// Adds bytes.
-    pub fn write(&mut self, bytes: &[u8]) {
-        for b in bytes {
-            self.0 = (self.0 ^ u64::from(*b)).wrapping_mul(0x0100_0000_01b3);
-        }
-    }
-}
-
 /// A replay's output fingerprint (`output_hash`): XXH3-64 (seed 0) of the output bytes in
 /// order, streamed. The same bytes give the same value whatever the calls' boundaries,
 /// on every machine, eight bytes at a time (a byte-serial hash takes 7 % of a replay's
