@@ -122,21 +122,69 @@ impl<T> Survive<Lose> for T {
 ///         attitude: Attitude = Attitude::new(q0), map(Attitude::STATE_MAP), guard(Block::Step);
 ///         table: Table = *table, bits(Raw);
 ///         bias_rad: f64 = 0.0, guard(Block::Steady), reset(Keep);
+///         @shadows guard: Shadows;
 ///     }
-///     guard { shadows: guard: Shadows, blocks: Block, words: GUARD_WORDS, parts: CoreParts }
+///     guard { blocks: Block, words: GUARD_WORDS, parts: CoreParts }
 ///     snapshot { record: Survivors }
 ///     constructor pub fn new(table: &Table) -> Result<Self, Error> => Ok { let q0 = ...; }
 /// }
 /// ```
 ///
-/// The options come in that order: `bits`, `map`, `guard`, `reset`. The shadows field
-/// comes last in the struct, initialised by `Default`.
+/// The options come in that order: `bits`, `map`, `guard`, `reset`. The guard's shadows
+/// are one field, marked `@shadows` where it lies in the struct, initialised by
+/// `Default`.
 macro_rules! state_struct {
     (
         $(#[$sm:meta])*
         $svis:vis struct $name:ident {
             $(
-                $(#[$fm:meta])*
+                $(#[$afm:meta])*
+                $afield:ident : $afty:ty = $ainit:expr
+                $(, bits($abits:ident))?
+                $(, map($aparts:expr))?
+                $(, guard($agpat:pat))?
+                $(, reset($areset:ident))?
+                ;
+            )*
+            @shadows $(#[$gm:meta])* $sfield:ident : $sty:ty;
+            $(
+                $(#[$bfm:meta])*
+                $bfield:ident : $bfty:ty = $binit:expr
+                $(, bits($bbits:ident))?
+                $(, map($bparts:expr))?
+                $(, guard($bgpat:pat))?
+                $(, reset($breset:ident))?
+                ;
+            )*
+        }
+        $($rest:tt)*
+    ) => {
+        $(#[$sm])*
+        $svis struct $name {
+            $( $(#[$afm])* $afield: $afty, )*
+            $(#[$gm])* $sfield: $sty,
+            $( $(#[$bfm])* $bfield: $bfty, )*
+        }
+
+        $crate::state_map::state_struct! {
+            @items $name, $sfield: $sty;
+            fields {
+                $(
+                    $afield : $afty = $ainit
+                    $(, bits($abits))? $(, map($aparts))? $(, guard($agpat))? $(, reset($areset))?;
+                )*
+                $(
+                    $bfield : $bfty = $binit
+                    $(, bits($bbits))? $(, map($bparts))? $(, guard($bgpat))? $(, reset($breset))?;
+                )*
+            }
+            $($rest)*
+        }
+    };
+    (
+        @items $name:ident, $sfield:ident : $sty:ty;
+        fields {
+            $(
                 $field:ident : $fty:ty = $init:expr
                 $(, bits($bits:ident))?
                 $(, map($parts:expr))?
@@ -145,16 +193,10 @@ macro_rules! state_struct {
                 ;
             )*
         }
-        guard { shadows: $(#[$gm:meta])* $sfield:ident : $sty:ty, blocks: $bty:ty, words: $words:ident, parts: $pname:ident }
+        guard { blocks: $bty:ty, words: $words:ident, parts: $pname:ident }
         snapshot { $(#[$rm:meta])* record: $rec:ident }
         constructor $(#[$cm:meta])* $cvis:vis fn $new:ident ( $($args:tt)* ) -> $ret:ty => $wrap:path { $($body:tt)* }
     ) => {
-        $(#[$sm])*
-        $svis struct $name {
-            $( $(#[$fm])* $field: $fty, )*
-            $(#[$gm])* $sfield: $sty,
-        }
-
         const _: fn() = || {
             fn proof<T: $crate::state_map::Bits<M>, M>() {}
             $( proof::<$fty, $crate::state_map::state_struct!(@or AnyBits $($bits)?)>(); )*

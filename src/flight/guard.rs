@@ -307,14 +307,14 @@ fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
 }
 
 impl FlightCore {
-    /// Saves every block (the core built, or changed between steps).
+    /// Saves every block (the core built, or changed between steps). The step's mark
+    /// stays: what the step changes after this is saved at its end.
     #[inline(never)]
     #[cold]
     pub(super) fn guard_seal_all(&mut self) {
         for b in Block::ALL {
             save(self, b);
         }
-        self.guard.touched = 0;
         self.guard.sealed = SEALED;
         #[cfg(debug_assertions)]
         {
@@ -365,9 +365,6 @@ impl FlightCore {
         if !self.observer.filter().cov_plausible(MAX_ATT_VAR_RAD2, MAX_DRIFT_VAR_RAD2_S2) {
             self.implausible(Implausible::Covariance);
         }
-        // Marked again: a block derived again above was sealed (which clears the mark),
-        // and the change the caller is about to make must be saved at the step's end.
-        self.guard.touched |= 1;
     }
 
     /// End of a step: the `Step` block saved, and every other block if the step changed it.

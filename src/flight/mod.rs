@@ -227,6 +227,9 @@ state_struct! {
         /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
         /// mounting check found two FOGs swapped).
         fog_map: [usize; N_FOG] = IDENTITY_MAP;
+        @shadows
+        /// The shadows of the guarded state ([`guard`]).
+        guard: guard::Guard;
         /// The log of state changes not yet sent (rarely touched: last).
         events: EventLog = EventLog::new(), map(EventLog::STATE_MAP);
         /// Resumed from a reset's snapshot taken at this sample index, its age not yet
@@ -238,9 +241,6 @@ state_struct! {
         scrub: scrub::TableScrub = scrub::TableScrub::of(table);
     }
     guard {
-        shadows:
-        /// The shadows of the guarded state ([`guard`]).
-        guard: guard::Guard,
         blocks: Block,
         words: GUARD_WORDS,
         parts: Guarded
