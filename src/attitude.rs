@@ -98,15 +98,15 @@ impl Attitude {
         }
     }
 
-    /// Λ's words, for the state guard ([`crate::guard`]).
+    /// Λ's words, for the state guard ([`crate::shadow`]).
     #[inline(always)]
-    pub fn visit_q<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit_q<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.q.coords.as_mut_slice());
     }
 
     /// The two previous increments of the coning terms, for the state guard.
     #[inline(always)]
-    pub fn visit_increments<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit_increments<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.prev1.as_mut_slice());
         v.f64s(self.prev2.as_mut_slice());
     }

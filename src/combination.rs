@@ -141,9 +141,9 @@ impl Combiner {
     }
 
     /// The four-FOG solution and the parity vector (used every sample), for the state
-    /// guard ([`crate::guard`]).
+    /// guard ([`crate::shadow`]).
     #[inline(always)]
-    pub fn visit_nominal<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit_nominal<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.all.as_mut_slice());
         let mut solved = u64::from(self.solved);
         v.word(&mut solved);
@@ -155,7 +155,7 @@ impl Combiner {
 
     /// The solution without FOG `i` (used after an isolation), for the state guard.
     #[inline(always)]
-    pub fn visit_without<V: crate::guard::Visit>(&mut self, i: usize, v: &mut V) {
+    pub fn visit_without<V: crate::shadow::Visit>(&mut self, i: usize, v: &mut V) {
         if let Some(m) = self.without.get_mut(i) {
             v.f64s(m.as_mut_slice());
         }

@@ -15,6 +15,8 @@ pub struct StateField {
     pub offset: usize,
     /// Its size, bytes.
     pub size: usize,
+    /// Its alignment, bytes (the padding before it is less).
+    pub align: usize,
     /// The fields inside it, offsets from its own start (empty: not mapped further).
     pub parts: &'static [StateField],
 }
@@ -31,6 +33,7 @@ macro_rules! state_map {
             name: stringify!($field),
             offset: core::mem::offset_of!($ty, $field),
             size: core::mem::size_of::<$fty>(),
+            align: core::mem::align_of::<$fty>(),
             parts: $crate::state_map::state_map!(@parts $( $parts )?),
         }, )* ]
     }};
@@ -38,6 +41,284 @@ macro_rules! state_map {
     (@parts $parts:expr) => { $parts };
 }
 pub(crate) use state_map;
+
+/// A field's bits: every bit pattern is a value ([`bytemuck::AnyBitPattern`], the
+/// default of [`state_struct!`]).
+#[derive(Debug)]
+pub struct AnyBits;
+/// A field's bits: not every bit pattern is a value (the calibration table: enums and
+/// `Option`s; its owner names its bytes, which an upset test does not write).
+#[derive(Debug)]
+pub struct Raw;
+
+/// The proof [`state_struct!`] asks of each field's type: [`AnyBits`] holds for
+/// [`bytemuck::AnyBitPattern`] types only.
+pub trait Bits<M> {}
+impl<T: bytemuck::AnyBitPattern> Bits<AnyBits> for T {}
+impl<T> Bits<Raw> for T {}
+
+/// A field that survives a reset: copied into the snapshot record and back
+/// ([`state_struct!`]'s `reset(Keep)`).
+#[derive(Debug)]
+pub struct Keep;
+/// A field that a reset loses (the default): no room in the snapshot record.
+#[derive(Debug)]
+pub struct Lose;
+
+/// A field's slot in the snapshot record: the value itself ([`Keep`], a plain-old-data
+/// type) or nothing ([`Lose`]).
+pub trait Survive<M> {
+    /// What the record holds.
+    type Slot: bytemuck::Pod + core::fmt::Debug;
+    /// The field into its slot.
+    fn save(v: &Self, slot: &mut Self::Slot);
+    /// The slot back into the field.
+    fn load(v: &mut Self, slot: &Self::Slot);
+}
+
+impl<T: bytemuck::Pod + core::fmt::Debug> Survive<Keep> for T {
+    type Slot = T;
+    #[inline(always)]
+    fn save(v: &T, slot: &mut T) {
+        *slot = *v;
+    }
+    #[inline(always)]
+    fn load(v: &mut T, slot: &T) {
+        *v = *slot;
+    }
+}
+
+impl<T> Survive<Lose> for T {
+    type Slot = ();
+    #[inline(always)]
+    fn save(_: &T, _: &mut ()) {}
+    #[inline(always)]
+    fn load(_: &mut T, _: &()) {}
+}
+
+/// One declaration of a state struct: each field once, with its type, its initial value
+/// and what it is to the unit's protections. From it come
+///
+/// - the struct (`repr` and derives as given) and its constructor, which runs the given
+///   body and then builds the value in place from each field's initial value;
+/// - the proof that every field's type takes any bit pattern ([`Bits`]; `bits(Raw)`
+///   exempts a field, whose bytes its owner names);
+/// - the state map ([`StateField`], `STATE_MAP`; `map(Inner::STATE_MAP)` maps a field
+///   further);
+/// - the field's guard blocks (`guard(Block::Step | Block::Frame)`): the walk of every
+///   block's words in declaration order (`Parts::visit`), each block's word count (the
+///   shadows' sizes, a `const` array by block kind), and a compile-time check that the
+///   field's type holds words in each block it names and in no other
+///   ([`crate::shadow::Guarded`]); `GUARD_BLOCKS` lists each field's blocks;
+/// - whether it survives a reset (`reset(Keep)`): a slot in the snapshot record (a
+///   `repr(C)` [`bytemuck::Pod`] struct of the kept fields, [`Survive`]) and the copies
+///   into it and back (`save_survivors`, `load_survivors`).
+///
+/// ```text
+/// state_struct! {
+///     #[repr(C)]
+///     pub struct Core {
+///         /// Λ.
+///         attitude: Attitude = Attitude::new(q0), map(Attitude::STATE_MAP), guard(Block::Step);
+///         table: Table = *table, bits(Raw);
+///         bias_rad: f64 = 0.0, guard(Block::Steady), reset(Keep);
+///         @shadows guard: Shadows;
+///     }
+///     guard { blocks: Block, words: GUARD_WORDS, parts: CoreParts }
+///     snapshot { record: Survivors }
+///     constructor pub fn new(table: &Table) -> Result<Self, Error> => Ok { let q0 = ...; }
+/// }
+/// ```
+///
+/// The options come in that order: `bits`, `map`, `guard`, `reset`. The guard's shadows
+/// are one field, marked `@shadows` where it lies in the struct, initialised by
+/// `Default`.
+macro_rules! state_struct {
+    (
+        $(#[$sm:meta])*
+        $svis:vis struct $name:ident {
+            $(
+                $(#[$afm:meta])*
+                $afield:ident : $afty:ty = $ainit:expr
+                $(, bits($abits:ident))?
+                $(, map($aparts:expr))?
+                $(, guard($agpat:pat))?
+                $(, reset($areset:ident))?
+                ;
+            )*
+            @shadows $(#[$gm:meta])* $sfield:ident : $sty:ty;
+            $(
+                $(#[$bfm:meta])*
+                $bfield:ident : $bfty:ty = $binit:expr
+                $(, bits($bbits:ident))?
+                $(, map($bparts:expr))?
+                $(, guard($bgpat:pat))?
+                $(, reset($breset:ident))?
+                ;
+            )*
+        }
+        $($rest:tt)*
+    ) => {
+        $(#[$sm])*
+        $svis struct $name {
+            $( $(#[$afm])* $afield: $afty, )*
+            $(#[$gm])* $sfield: $sty,
+            $( $(#[$bfm])* $bfield: $bfty, )*
+        }
+
+        $crate::state_map::state_struct! {
+            @items $name, $sfield: $sty;
+            fields {
+                $(
+                    $afield : $afty = $ainit
+                    $(, bits($abits))? $(, map($aparts))? $(, guard($agpat))? $(, reset($areset))?;
+                )*
+                $(
+                    $bfield : $bfty = $binit
+                    $(, bits($bbits))? $(, map($bparts))? $(, guard($bgpat))? $(, reset($breset))?;
+                )*
+            }
+            $($rest)*
+        }
+    };
+    (
+        @items $name:ident, $sfield:ident : $sty:ty;
+        fields {
+            $(
+                $field:ident : $fty:ty = $init:expr
+                $(, bits($bits:ident))?
+                $(, map($parts:expr))?
+                $(, guard($gpat:pat))?
+                $(, reset($reset:ident))?
+                ;
+            )*
+        }
+        guard { blocks: $bty:ty, words: $words:ident, parts: $pname:ident }
+        snapshot { $(#[$rm:meta])* record: $rec:ident }
+        constructor $(#[$cm:meta])* $cvis:vis fn $new:ident ( $($args:tt)* ) -> $ret:ty => $wrap:path { $($body:tt)* }
+    ) => {
+        const _: fn() = || {
+            fn proof<T: $crate::state_map::Bits<M>, M>() {}
+            $( proof::<$fty, $crate::state_map::state_struct!(@or AnyBits $($bits)?)>(); )*
+            proof::<$sty, $crate::state_map::AnyBits>();
+        };
+
+        /// Words of each kind of guard block ([`crate::shadow::Blocks::KINDS`]): the
+        /// shadows' sizes. (Evaluated at compile time: an index out of range fails the build.)
+        #[allow(clippy::indexing_slicing)]
+        const $words: [usize; $crate::shadow::MAX_KINDS] = {
+            let kinds = <$bty as $crate::shadow::Blocks>::KINDS;
+            let mut w = [0; $crate::shadow::MAX_KINDS];
+            let mut k = 0;
+            while k < kinds.len() && k < $crate::shadow::MAX_KINDS {
+                $( $(
+                    let named = matches!(kinds[k], $gpat);
+                    let n = <$fty as $crate::shadow::Guarded<$bty>>::WORDS[k];
+                    if named {
+                        assert!(n > 0, concat!("`", stringify!($field), "` has no words in a block its guard names"));
+                    } else if !<$fty as $crate::shadow::Guarded<$bty>>::PLAIN {
+                        assert!(n == 0, concat!("`", stringify!($field), "` has words in a block its guard leaves out"));
+                    }
+                    if named {
+                        w[k] += n;
+                    }
+                )? )*
+                k += 1;
+            }
+            w
+        };
+
+        /// The fields of the struct borrowed apart from its guard's shadows.
+        #[allow(dead_code)]
+        struct $pname<'a> {
+            $( $field: &'a mut $fty, )*
+        }
+
+        impl $pname<'_> {
+            /// The guarded words of `block`, in declaration order.
+            #[inline(always)]
+            fn visit<V: $crate::shadow::Visit>(&mut self, block: $bty, v: &mut V) {
+                $( $(
+                    if matches!(block, $gpat) {
+                        $crate::shadow::Guarded::<$bty>::visit_block(&mut *self.$field, block, v);
+                    }
+                )? )*
+            }
+        }
+
+        $(#[$rm])*
+        #[repr(C)]
+        #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+        pub struct $rec {
+            $( $field: <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::Slot, )*
+        }
+
+        impl $name {
+            /// Where each field lies ([`crate::state_map`]): every field, in order.
+            const STATE_MAP: &'static [$crate::state_map::StateField] = &[
+                $( $crate::state_map::StateField {
+                    name: stringify!($field),
+                    offset: core::mem::offset_of!($name, $field),
+                    size: core::mem::size_of::<$fty>(),
+                    align: core::mem::align_of::<$fty>(),
+                    parts: $crate::state_map::state_map!(@parts $( $parts )?),
+                }, )*
+                $crate::state_map::StateField {
+                    name: stringify!($sfield),
+                    offset: core::mem::offset_of!($name, $sfield),
+                    size: core::mem::size_of::<$sty>(),
+                    align: core::mem::align_of::<$sty>(),
+                    parts: &[],
+                },
+            ];
+
+            /// Each field's guard blocks, by kind ([`crate::shadow::Blocks::KINDS`]).
+            #[allow(dead_code, clippy::indexing_slicing)]
+            const GUARD_BLOCKS: &'static [(&'static str, [bool; $crate::shadow::MAX_KINDS])] = &[
+                $( (stringify!($field), $crate::state_map::state_struct!(@kinds $bty $(, $gpat)?)), )*
+            ];
+
+            /// The guarded fields and the guard's shadows, borrowed apart.
+            #[inline(always)]
+            fn guard_split(&mut self) -> ($pname<'_>, &mut $sty) {
+                let $name { $( $field, )* $sfield } = self;
+                ($pname { $( $field, )* }, $sfield)
+            }
+
+            /// The fields that survive a reset, into their record.
+            #[inline(always)]
+            fn save_survivors(&self, r: &mut $rec) {
+                $( <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::save(&self.$field, &mut r.$field); )*
+            }
+
+            /// The fields that survive a reset, from their record.
+            #[inline(always)]
+            fn load_survivors(&mut self, r: &$rec) {
+                $( <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::load(&mut self.$field, &r.$field); )*
+            }
+
+            $(#[$cm])*
+            $cvis fn $new($($args)*) -> $ret {
+                $($body)*
+                $wrap($name { $( $field: $init, )* $sfield: Default::default() })
+            }
+        }
+    };
+    (@or $default:ident) => { $crate::state_map::$default };
+    (@or $default:ident $given:ident) => { $crate::state_map::$given };
+    (@kinds $bty:ty) => { [false; $crate::shadow::MAX_KINDS] };
+    (@kinds $bty:ty, $gpat:pat) => {{
+        let kinds = <$bty as $crate::shadow::Blocks>::KINDS;
+        let mut named = [false; $crate::shadow::MAX_KINDS];
+        let mut k = 0;
+        while k < kinds.len() && k < $crate::shadow::MAX_KINDS {
+            named[k] = matches!(kinds[k], $gpat);
+            k += 1;
+        }
+        named
+    }};
+}
+pub(crate) use state_struct;
 
 /// The innermost field holding byte `offset` of a value mapped by `map`, as the path of
 /// field names from the outside in, ending in `"(padding)"` for padding inside a mapped
@@ -83,9 +364,16 @@ mod tests {
         let map = FlightCore::state_map();
         let size = core::mem::size_of::<FlightCore>();
         check(map, size, "FlightCore");
-        let covered: usize = map.iter().map(|f| f.size).sum();
-        // Padding between fields is a few bytes per field at most (alignment 8).
-        assert!(covered <= size && size - covered < 8 * map.len(), "{covered} of {size} bytes mapped");
+        // Every byte no field covers is padding the layout needs: before a field, less than
+        // its alignment; at the end, less than the core's.
+        let mut v: Vec<_> = map.iter().collect();
+        v.sort_by_key(|f| f.offset);
+        let mut end = 0;
+        for f in &v {
+            assert!(f.offset - end < f.align, "{} unmapped bytes before {}", f.offset - end, f.name);
+            end = f.offset + f.size;
+        }
+        assert!(size - end < core::mem::align_of::<FlightCore>(), "{} unmapped bytes at the end", size - end);
     }
 
     #[test]

@@ -217,7 +217,7 @@ fn a_reset_at_any_phase_of_the_snapshot_period_meets_the_goals() {
 
 #[test]
 fn a_spoilt_or_old_snapshot_is_refused_and_the_unit_aligns_again() {
-    let flip: &dyn Fn(&mut Snapshot) = &|s| s.words[20] ^= 1 << 7;
+    let flip: &dyn Fn(&mut Snapshot) = &|s| s.bytes_mut()[80] ^= 1 << 7;
     let f = fly(Estimator::Luenberger, Some(flip), DOWN_STEPS);
     assert_eq!(f.core.counter(Counter::SnapshotsInvalid), 1);
     assert_eq!(f.core.counter(Counter::Resumes), 0);

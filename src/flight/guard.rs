@@ -1,10 +1,11 @@
 //! The state guard: the flight core's critical state checked every step against a shadow
-//! copy and its checksum ([`crate::guard`]), restored bit for bit on a mismatch, and its
+//! copy and its checksum ([`crate::shadow`]), restored bit for bit on a mismatch, and its
 //! plausibility checked; so a bit flipped in RAM (a single-event upset) between two
 //! steps never flies.
 //!
-//! Blocks, by when their words change and when they are read ([`Block`]; the one list of
-//! what is guarded is [`visit`]):
+//! Blocks, by when their words change and when they are read ([`Block`]; what is guarded
+//! is each field's `guard` in the core's one declaration, [`FlightCore`], in declaration
+//! order; each stage's words are its [`Guarded`] impl below):
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
@@ -18,7 +19,11 @@
 //! (at most one tracker period), never in the attitude or the drift estimate.
 //!
 //! A changed block is marked ([`FlightCore::guard_touch`], which first checks the `Frame`
-//! block, so what a step changes was good before) and saved at the end of the step.
+//! block, so what a step changes was good before) and saved at the end of the step. A
+//! step that changes a word of a block other than `Step` without marking it would see
+//! the change "restored" at the next check and logged as an upset: a debug build asserts
+//! at the end of every step that such blocks still match their checksums
+//! ([`FlightCore::guard_seal`]; compiled out of the flight build).
 //!
 //! On a mismatch the good copy is written back and the step proceeds exactly as without
 //! the flip: `state_restored` is logged (a: the block, b: 0 restored, 1 the shadow or
@@ -33,28 +38,26 @@
 //! next star-tracker frame (not aligned, not converged until it converges again), and
 //! `state_implausible` is logged (a: [`Implausible`]) and counted.
 
-use nalgebra::Quaternion;
-
-use super::{FlightCore, HISTORY};
+use super::{FlightCore, Guarded as Parts, ProfileState, GUARD_WORDS, HISTORY};
 use crate::attitude::Attitude;
 use crate::calib::N_FOG;
 use crate::combination::Combiner;
-use crate::guard::{Check, Pass, Shadow, Sum, Visit};
 use crate::intake::FogIntake;
 use crate::observer::Observer;
+use crate::shadow::{Blocks, Check, Guarded, Pass, Shadow, Sum, Visit, MAX_KINDS};
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
 
 use super::geometry::{checked_combiner, sample_noise_rad};
 
-/// Words of the `Step` block.
-const STEP_WORDS: usize = 11;
+/// Words of the `Step` block (from the core's declaration).
+const STEP_WORDS: usize = GUARD_WORDS[0];
 /// Words of the `Steady` block at most.
-const STEADY_WORDS: usize = 28;
+const STEADY_WORDS: usize = GUARD_WORDS[1];
 /// Words of the `Frame` block at most.
-const FRAME_WORDS: usize = 114;
+const FRAME_WORDS: usize = GUARD_WORDS[2];
 /// Words of a `Without` block at most.
-const WITHOUT_WORDS: usize = 12;
+const WITHOUT_WORDS: usize = GUARD_WORDS[3];
 
 /// |Λ|² − 1 beyond this is implausible: Λ is normalised every step (to ~1e-16).
 const Q_NORM2_TOL: f64 = 1e-9;
@@ -103,6 +106,77 @@ impl Block {
     ];
 }
 
+impl Blocks for Block {
+    const KINDS: &'static [Block] = &[Block::Step, Block::Steady, Block::Frame, Block::Without(0)];
+}
+
+/// Words of a stage in the blocks of kind `Step`, `Steady`, `Frame`, `Without`.
+const fn words(step: usize, steady: usize, frame: usize, without: usize) -> [usize; MAX_KINDS] {
+    [step, steady, frame, without]
+}
+
+impl Guarded<Block> for Attitude {
+    /// Λ (4) and the coning terms' two previous increments (6).
+    const WORDS: [usize; MAX_KINDS] = words(10, 0, 0, 0);
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
+        if let Block::Step = block {
+            self.visit_q(v);
+            self.visit_increments(v);
+        }
+    }
+}
+
+impl Guarded<Block> for FogIntake {
+    /// The sample clock's index.
+    const WORDS: [usize; MAX_KINDS] = words(1, 0, 0, 0);
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
+        if let Block::Step = block {
+            self.visit_clock(v);
+        }
+    }
+}
+
+impl Guarded<Block> for ProfileState {
+    /// The period, the FOGs fitted, the measuring range.
+    const WORDS: [usize; MAX_KINDS] = words(0, 3, 0, 0);
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
+        if let Block::Steady = block {
+            self.visit(v);
+        }
+    }
+}
+
+impl Guarded<Block> for Combiner {
+    /// The four-FOG solution (12), the FOGs it solves (1) and the parity vector (4); a
+    /// solution without one FOG (12).
+    const WORDS: [usize; MAX_KINDS] = words(0, 17, 0, 12);
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
+        match block {
+            Block::Steady => self.visit_nominal(v),
+            Block::Without(i) => self.visit_without(i, v),
+            _ => {}
+        }
+    }
+}
+
+impl Guarded<Block> for Observer<HISTORY> {
+    /// Δω (3), the last update's time (1) and the convergence state (3); what a frame
+    /// reads: 106 with the MEKF, fewer with the Luenberger observer (in acquisition too).
+    const WORDS: [usize; MAX_KINDS] = words(0, 7, 106, 0);
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
+        match block {
+            Block::Steady => self.visit_steady(v),
+            Block::Frame => self.visit_frame(v),
+            _ => {}
+        }
+    }
+}
+
 /// Which plausibility check failed (the `state_implausible` event's a).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
@@ -130,6 +204,11 @@ pub(super) struct Guard {
     /// [`SEALED`] once the shadows hold the state (the core is built without a save, so
     /// that it is built in place: the first check saves instead).
     sealed: u32,
+    /// Debug builds: each block's live checksum at the start of the step (or at its last
+    /// seal), which a step that marked nothing must leave as it found
+    /// ([`FlightCore::guard_seal`]).
+    #[cfg(debug_assertions)]
+    entry: [u64; 3 + N_FOG],
 }
 
 /// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
@@ -139,44 +218,16 @@ const SEALED: u32 = 0x5EA1_ED5A;
 /// [`Guard::touched`]: the combiner changed too.
 const COMBINER_TOUCHED: u32 = 2;
 
-/// The core's guarded fields, borrowed apart from the guard's shadows.
-struct Parts<'a> {
-    profile: &'a mut super::ProfileState,
-    attitude: &'a mut Attitude,
-    observer: &'a mut Observer<HISTORY>,
-    combiner: &'a mut Combiner,
-    mount: &'a mut Quaternion<f64>,
-    fog_intake: &'a mut FogIntake,
-}
-
 /// The guarded fields and the shadows of `core`.
 #[inline(always)]
 fn split(core: &mut FlightCore) -> (Parts<'_>, &mut Guard) {
-    let FlightCore { profile, attitude, observer, combiner, mount, fog_intake, guard, .. } = core;
-    (Parts { profile, attitude, observer, combiner, mount, fog_intake }, guard)
+    core.guard_split()
 }
 
-/// The one list of guarded state: the words of `block`, in order. A new state goes into
-/// the block whose row in the module's table fits it.
+/// The words of `block`, in the declaration's order.
 #[inline(always)]
 fn visit<V: Visit>(p: &mut Parts<'_>, block: Block, v: &mut V) {
-    match block {
-        Block::Step => {
-            p.attitude.visit_q(v);
-            p.attitude.visit_increments(v);
-            p.fog_intake.visit_clock(v);
-        }
-        Block::Steady => {
-            p.observer.visit_steady(v);
-            p.combiner.visit_nominal(v);
-            p.profile.visit(v);
-        }
-        Block::Frame => {
-            p.observer.visit_frame(v);
-            v.f64s(p.mount.coords.as_mut_slice());
-        }
-        Block::Without(i) => p.combiner.visit_without(i, v),
-    }
+    p.visit(block, v);
 }
 
 /// [`visit`] through a [`Pass`]: one compiled walk for the blocks checked rarely.
@@ -256,15 +307,19 @@ fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
 }
 
 impl FlightCore {
-    /// Saves every block (the core built, or changed between steps).
+    /// Saves every block (the core built, or changed between steps). The step's mark
+    /// stays: what the step changes after this is saved at its end.
     #[inline(never)]
     #[cold]
     pub(super) fn guard_seal_all(&mut self) {
         for b in Block::ALL {
             save(self, b);
         }
-        self.guard.touched = 0;
         self.guard.sealed = SEALED;
+        #[cfg(debug_assertions)]
+        {
+            self.guard.entry = self.guard_sums();
+        }
     }
 
     /// Start of a step: the `Step` and `Steady` blocks checked, then the plausibility of
@@ -276,6 +331,10 @@ impl FlightCore {
         }
         self.guard_check_block(Block::Step);
         self.guard_check_block(Block::Steady);
+        #[cfg(debug_assertions)]
+        {
+            self.guard.entry = self.guard_sums();
+        }
         let q = self.attitude.quaternion();
         if (q.norm_squared() - 1.0).abs() > Q_NORM2_TOL || q.norm_squared().is_nan() {
             self.implausible(Implausible::QuaternionNorm);
@@ -309,12 +368,45 @@ impl FlightCore {
     }
 
     /// End of a step: the `Step` block saved, and every other block if the step changed it.
+    /// A debug build first asserts that a step that marked nothing changed left every other
+    /// block as sealed.
     #[inline(always)]
     pub(super) fn guard_seal(&mut self) {
+        #[cfg(debug_assertions)]
+        self.guard_assert_unchanged();
         save_step(self);
         if self.guard.touched != 0 {
             self.guard_seal_changed();
         }
+    }
+
+    /// Debug builds: unless the step marked a change ([`FlightCore::guard_touch`]), the
+    /// blocks other than `Step` are as the step found them (an upset between two steps
+    /// included: the next check finds it). A change made without the mark would be taken
+    /// for an upset and undone at the next check.
+    #[cfg(debug_assertions)]
+    fn guard_assert_unchanged(&mut self) {
+        if self.guard.touched != 0 || self.guard.sealed != SEALED {
+            return;
+        }
+        let now = self.guard_sums();
+        for (k, block) in Block::ALL.iter().enumerate().skip(1) {
+            debug_assert_eq!(
+                now[k], self.guard.entry[k],
+                "{block:?} changed in a step without guard_touch: it would be undone as an upset"
+            );
+        }
+    }
+
+    /// Debug builds: the live checksum of every block ([`Block::ALL`]'s order).
+    #[cfg(debug_assertions)]
+    fn guard_sums(&mut self) -> [u64; 3 + N_FOG] {
+        let (mut p, _) = split(self);
+        Block::ALL.map(|block| {
+            let mut live = Sum::default();
+            visit(&mut p, block, &mut live);
+            live.0
+        })
     }
 
     #[inline(never)]
@@ -328,6 +420,12 @@ impl FlightCore {
             }
         }
         self.guard.touched = 0;
+    }
+
+    /// The guarded state changed between steps (a resume): saved again, unchecked, at the
+    /// next step's check.
+    pub(super) fn guard_unseal(&mut self) {
+        self.guard.sealed = 0;
     }
 
     /// The combiner is about to change ([`FlightCore::guard_touch`], and its `Without`
@@ -396,13 +494,13 @@ impl FlightCore {
     /// Flips bit `bit` of word `word` of `block` (tests: an upset between two steps).
     #[cfg(test)]
     pub(crate) fn flip_guarded(&mut self, block: Block, word: usize, bit: u32) {
-        visit(&mut split(self).0, block, &mut crate::guard::Flip::new(word, bit));
+        visit(&mut split(self).0, block, &mut crate::shadow::Flip::new(word, bit));
     }
 
     /// Words in `block` (tests).
     #[cfg(test)]
     pub(crate) fn guarded_words(&mut self, block: Block) -> usize {
-        let mut c = crate::guard::Count::default();
+        let mut c = crate::shadow::Count::default();
         visit(&mut split(self).0, block, &mut c);
         c.0
     }
@@ -419,7 +517,7 @@ mod tests {
     use crate::flight::{flags, FogLinks, Links, Profile, StepOutput};
     use crate::frames::fog::FogFrame;
     use crate::frames::star::{flags as st_flags, StarFrame};
-    use crate::guard::Visit;
+    use crate::shadow::Visit;
 
     /// A receive link holding one step's bytes.
     #[derive(Default)]
@@ -558,6 +656,79 @@ mod tests {
         }
     }
 
+    /// Each shadow holds exactly its block's words (for the larger estimator; the other
+    /// may hold fewer), so the stages' word counts ([`Guarded::WORDS`]) are neither short
+    /// (words left unsaved) nor long (RAM spent).
+    #[test]
+    fn every_shadow_fits_its_block_exactly() {
+        let mut most = [0; 3 + N_FOG];
+        for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
+            let mut table = CalibrationTable::DEFAULT;
+            table.observer.estimator = est;
+            let mut core = FlightCore::new(Profile::SPACECRAFT, &table, false).unwrap();
+            // Every state of the flight: before alignment, in acquisition, converged.
+            for n in 1..=2400 {
+                fly(&mut core, n);
+                for (k, block) in Block::ALL.into_iter().enumerate() {
+                    most[k] = most[k].max(core.guarded_words(block));
+                }
+            }
+        }
+        assert_eq!(
+            most,
+            [STEP_WORDS, STEADY_WORDS, FRAME_WORDS, WITHOUT_WORDS, WITHOUT_WORDS, WITHOUT_WORDS, WITHOUT_WORDS]
+        );
+    }
+
+    /// What the guard covers, as the module's table says: a field dropped from a block in
+    /// the core's declaration, or moved to another, shows here.
+    #[test]
+    fn the_guarded_fields_are_the_tables() {
+        let blocks = |name: &str| {
+            let (_, kinds) = FlightCore::GUARD_BLOCKS.iter().find(|(n, _)| *n == name).unwrap();
+            ["Step", "Steady", "Frame", "Without"]
+                .iter()
+                .zip(kinds)
+                .filter(|(_, k)| **k)
+                .map(|(b, _)| *b)
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(blocks("attitude"), ["Step"]);
+        assert_eq!(blocks("fog_intake"), ["Step"]);
+        assert_eq!(blocks("profile"), ["Steady"]);
+        assert_eq!(blocks("combiner"), ["Steady", "Without"]);
+        assert_eq!(blocks("observer"), ["Steady", "Frame"]);
+        assert_eq!(blocks("mount"), ["Frame"]);
+    }
+
+    /// A step that changes a guarded word outside the guard's path (no
+    /// [`FlightCore::guard_touch`]) fails the debug build's assertion at the step's end,
+    /// instead of being undone at the next step and logged as an upset.
+    #[test]
+    #[cfg(debug_assertions)]
+    #[should_panic(expected = "changed in a step without guard_touch")]
+    fn a_change_without_the_guard_fails_the_debug_build() {
+        let mut core = flown(crate::calib::Estimator::Luenberger, 200);
+        core.guard_check();
+        core.mount.i += 1e-9;
+        core.guard_seal();
+    }
+
+    /// The same change through the guard's path is sealed and stays.
+    #[test]
+    fn a_change_through_the_guard_is_sealed() {
+        let mut core = flown(crate::calib::Estimator::Luenberger, 200);
+        core.guard_check();
+        core.guard_touch();
+        core.mount.i += 1e-9;
+        let changed = core.mount;
+        core.guard_seal();
+        core.guard_check();
+        core.guard_touch();
+        assert_eq!(core.mount, changed);
+        assert_eq!(restored(&core), 0);
+    }
+
     /// After a flip the flight goes on exactly as without it: every output of the next
     /// steps identical, bit for bit.
     #[test]
@@ -592,10 +763,18 @@ mod tests {
     /// stops claiming its attitude, re-aligns on the next star-tracker frame and logs it.
     #[test]
     fn implausible_state_re_aligns() {
-        for (block, word, bit, what) in
-            [(Block::Step, 0, 61, Implausible::QuaternionNorm), (Block::Steady, 0, 62, Implausible::Drift)]
-        {
+        // Λ's w and the drift estimate's x, wherever the declaration puts them in their block.
+        let at = |block: Block, x: f64| {
             let mut core = flown(crate::calib::Estimator::Luenberger, 2400);
+            words(&mut core, block).iter().position(|w| *w == x.to_bits()).unwrap()
+        };
+        let core = flown(crate::calib::Estimator::Luenberger, 2400);
+        let (q_w, drift_x) = (core.attitude.quaternion().w, core.observer.drift_rad_s().x);
+        for (block, word, bit, what) in [
+            (Block::Step, at(Block::Step, q_w), 61, Implausible::QuaternionNorm),
+            (Block::Steady, at(Block::Steady, drift_x), 62, Implausible::Drift),
+        ] {
+            let mut core = core.clone();
             core.flip_guarded(block, word, bit);
             core.guard_seal_all();
             let o = fly(&mut core, 2401);

@@ -32,6 +32,7 @@ mod scrub;
 pub mod snapshot;
 mod star_aid;
 
+use guard::Block;
 use propagate::Integrated;
 
 pub use geometry::table_crc;
@@ -51,7 +52,7 @@ use crate::integrity::parity::ParityMonitor;
 use crate::link::{OutPort, RxPort, StarPort};
 use crate::observer::{GainError, Observer};
 use crate::state::{Flag, Maybe};
-use crate::state_map::{state_map, StateField};
+use crate::state_map::{state_struct, StateField};
 use crate::telemetry::events::{EventLog, StatusBits};
 use crate::telemetry::{page, Telemetry, WordAligned};
 
@@ -126,7 +127,7 @@ impl ProfileState {
     /// measuring range. (The star tracker's presence is not guarded: a flip that clears
     /// it reads as a tracker outage, flagged.)
     #[inline(always)]
-    fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub(super) fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.u32(&mut self.dt_us);
         let mut fogs = u64::from(self.fogs.0);
         v.word(&mut fogs);
@@ -177,132 +178,83 @@ impl From<GainError> for CoreError {
     }
 }
 
-/// The flight core: all state of one unit, stage by stage.
-///
-/// `repr(C)` in this order: the state every step touches first, the large stages last,
-/// so the hot fields sit within the M7's short load offsets of one base address.
-#[repr(C)]
-#[derive(Clone)]
-pub struct FlightCore {
-    profile: ProfileState,
-    last_body_dtheta: Vector3<f64>,
-    attitude: Attitude,
-    mount: Quaternion<f64>,
-    thermal: [ThermalTracker; N_FOG],
-    channel_monitors: [ChannelMonitor; N_FOG],
-    telemetry: Telemetry,
-    last_output: StepOutput,
-    /// Chunk buffer for draining the links (kept, so a step does not clear one).
-    rx_scratch: WordAligned<RX_CHUNK>,
-    fog_intake: FogIntake,
-    table: CalibrationTable,
-    combiner: Combiner,
-    /// Parity fault logic (`None` without four FOGs).
-    fdi: Maybe<ParityMonitor>,
-    star_intake: StarIntake,
-    /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
-    fixed_flags: u8,
-    /// FOGs whose temperature sensor has failed (bit i).
-    temp_failed_bits: u8,
-    observer: Observer<HISTORY>,
-    /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
-    /// step, so after the hot state).
-    table_crc: u32,
-    /// The mounting check from power-on (`None` without four FOGs, a star tracker and
-    /// the parity logic).
-    mounting: Maybe<MountCheck>,
-    /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
-    /// mounting check found two FOGs swapped).
-    fog_map: [usize; N_FOG],
-    /// The shadows of the guarded state ([`guard`]).
-    guard: guard::Guard,
-    /// The log of state changes not yet sent (rarely touched: last).
-    events: EventLog,
-    /// Resumed from a reset's snapshot taken at this sample index, its age not yet
-    /// checked ([`snapshot`]).
-    resumed_at: Maybe<u64>,
-    /// The snapshot's increment change per step, rad, until the resume is confirmed.
-    resume_trend: [f64; 3],
-    /// The background check of the table in use ([`FlightCore::background`]).
-    scrub: scrub::TableScrub,
-}
-
-// Every field's type but the table's takes any bit pattern as a valid value (issue 30,
-// crate::state); the calibration table (enum and `Option` fields) is the one exception,
-// its bytes [`FlightCore::TABLE_BYTES`].
-const _: fn() = || {
-    fn any_bit_pattern<T: bytemuck::AnyBitPattern>() {}
-    any_bit_pattern::<ProfileState>();
-    any_bit_pattern::<Vector3<f64>>();
-    any_bit_pattern::<Attitude>();
-    any_bit_pattern::<Quaternion<f64>>();
-    any_bit_pattern::<[ThermalTracker; N_FOG]>();
-    any_bit_pattern::<[ChannelMonitor; N_FOG]>();
-    any_bit_pattern::<Telemetry>();
-    any_bit_pattern::<StepOutput>();
-    any_bit_pattern::<WordAligned<RX_CHUNK>>();
-    any_bit_pattern::<FogIntake>();
-    any_bit_pattern::<Combiner>();
-    any_bit_pattern::<Maybe<ParityMonitor>>();
-    any_bit_pattern::<StarIntake>();
-    any_bit_pattern::<Observer<HISTORY>>();
-    any_bit_pattern::<Maybe<MountCheck>>();
-    any_bit_pattern::<[usize; N_FOG]>();
-    any_bit_pattern::<guard::Guard>();
-    any_bit_pattern::<EventLog>();
-    any_bit_pattern::<Maybe<u64>>();
-    any_bit_pattern::<[f64; 3]>();
-    any_bit_pattern::<scrub::TableScrub>();
-};
-
-impl FlightCore {
-    /// The bytes of the core that hold the calibration table in use (offset range in the
-    /// core): the part of the state that is not valid under every bit pattern (a test
-    /// that writes random bytes over the core leaves them).
-    pub const TABLE_BYTES: core::ops::Range<usize> = core::mem::offset_of!(FlightCore, table)
-        ..core::mem::offset_of!(FlightCore, table) + core::mem::size_of::<CalibrationTable>();
-}
-
-/// Where each field of the core lies ([`FlightCore::state_map`]).
-const STATE_MAP: &[StateField] = state_map!(FlightCore {
-    profile: ProfileState,
-    last_body_dtheta: Vector3<f64>,
-    attitude: Attitude => Attitude::STATE_MAP,
-    mount: Quaternion<f64>,
-    thermal: [ThermalTracker; N_FOG],
-    channel_monitors: [ChannelMonitor; N_FOG],
-    telemetry: Telemetry,
-    last_output: StepOutput,
-    rx_scratch: WordAligned<RX_CHUNK>,
-    fog_intake: FogIntake => FogIntake::STATE_MAP,
-    table: CalibrationTable,
-    combiner: Combiner => Combiner::STATE_MAP,
-    fdi: Maybe<ParityMonitor>,
-    star_intake: StarIntake => StarIntake::STATE_MAP,
-    fixed_flags: u8,
-    temp_failed_bits: u8,
-    observer: Observer<HISTORY> => Observer::<HISTORY>::STATE_MAP,
-    table_crc: u32,
-    mounting: Maybe<MountCheck>,
-    fog_map: [usize; N_FOG],
-    guard: guard::Guard,
-    events: EventLog => EventLog::STATE_MAP,
-    resumed_at: Maybe<u64>,
-    resume_trend: [f64; 3],
-    scrub: scrub::TableScrub,
-});
-
-impl FlightCore {
-    /// Where each field of the core lies in the value, down to the stages (and inside the
-    /// attitude and the observer): the upset campaign names the field a flipped bit
-    /// belongs to ([`crate::state_map`]). Nothing in a step reads it.
-    pub fn state_map() -> &'static [StateField] {
-        STATE_MAP
+state_struct! {
+    /// The flight core: all state of one unit, stage by stage.
+    ///
+    /// `repr(C)` in this order: the state every step touches first, the large stages last,
+    /// so the hot fields sit within the M7's short load offsets of one base address.
+    ///
+    /// Each field declared once ([`crate::state_map::state_struct!`]): its type, its value
+    /// when built, and what it is to the protections: every type takes any bit pattern
+    /// (issue-free upsets, [`crate::state`]) but the calibration table's (`bits(Raw)`,
+    /// [`FlightCore::TABLE_BYTES`]); `map`: mapped further ([`FlightCore::state_map`]);
+    /// `guard`: its blocks in the state guard ([`guard`]); `reset(Keep)`: carried over a
+    /// reset in the snapshot's record ([`snapshot`]).
+    #[repr(C)]
+    #[derive(Clone)]
+    pub struct FlightCore {
+        profile: ProfileState = ProfileState::of(profile), guard(Block::Steady);
+        last_body_dtheta: Vector3<f64> = Vector3::zeros();
+        attitude: Attitude = Attitude::new(Quaternion::identity(), Coning::ThreeSample),
+            map(Attitude::STATE_MAP), guard(Block::Step);
+        mount: Quaternion<f64> = table.st_mount(), guard(Block::Frame);
+        thermal: [ThermalTracker; N_FOG] = [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG];
+        channel_monitors: [ChannelMonitor; N_FOG] = [ChannelMonitor::new(noise_rad); N_FOG];
+        telemetry: Telemetry = Telemetry::new();
+        last_output: StepOutput = StepOutput::START;
+        /// Chunk buffer for draining the links (kept, so a step does not clear one).
+        rx_scratch: WordAligned<RX_CHUNK> = WordAligned([0; RX_CHUNK]);
+        fog_intake: FogIntake = FogIntake::new(profile.fogs), map(FogIntake::STATE_MAP), guard(Block::Step);
+        table: CalibrationTable = *table, bits(Raw);
+        combiner: Combiner = combiner,
+            map(Combiner::STATE_MAP), guard(Block::Steady | Block::Without(_));
+        /// Parity fault logic (`None` without four FOGs).
+        fdi: Maybe<ParityMonitor> = fdi.into();
+        star_intake: StarIntake = StarIntake::new(), map(StarIntake::STATE_MAP);
+        /// Flags that hold for the whole flight: star tracker in use, table defaulted, BIT failed.
+        fixed_flags: u8 = if profile.star_tracker { flags::ST_IN_USE } else { 0 }
+            | if table_defaulted { flags::TABLE_DEFAULTED } else { 0 };
+        /// FOGs whose temperature sensor has failed (bit i).
+        temp_failed_bits: u8 = 0;
+        observer: Observer<HISTORY> = observer,
+            map(Observer::<HISTORY>::STATE_MAP), guard(Block::Steady | Block::Frame);
+        /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
+        /// step, so after the hot state).
+        table_crc: u32 = table_crc(table);
+        /// The mounting check from power-on (`None` without four FOGs, a star tracker and
+        /// the parity logic).
+        mounting: Maybe<MountCheck> = mounting.into();
+        /// FOG channel k flies on the table's axis `fog_map[k]` (identity unless the
+        /// mounting check found two FOGs swapped).
+        fog_map: [usize; N_FOG] = IDENTITY_MAP;
+        @shadows
+        /// The shadows of the guarded state ([`guard`]).
+        guard: guard::Guard;
+        /// The log of state changes not yet sent (rarely touched: last).
+        events: EventLog = EventLog::new(), map(EventLog::STATE_MAP);
+        /// Resumed from a reset's snapshot taken at this sample index, its age not yet
+        /// checked ([`snapshot`]).
+        resumed_at: Maybe<u64> = Maybe::none();
+        /// The snapshot's increment change per step, rad, until the resume is confirmed.
+        resume_trend: [f64; 3] = [0.0; 3];
+        /// The background check of the table in use ([`FlightCore::background`]).
+        scrub: scrub::TableScrub = scrub::TableScrub::of(table);
     }
-
+    guard {
+        blocks: Block,
+        words: GUARD_WORDS,
+        parts: Guarded
+    }
+    snapshot {
+        /// The fields that survive a reset, as the snapshot carries them ([`snapshot`]).
+        record: Survivors
+    }
+    constructor
     /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
-    /// was invalid and `table` is the default; flagged in every output frame).
-    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
+    /// was invalid and `table` is the default; flagged in every output frame). Built in
+    /// the return value (a local moved into `Ok` would be one more copy of the core on
+    /// the boot stack); the guard seals the state on its first check.
+    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> => Ok {
         let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
         let mut observer = Observer::from_config(&table.observer)?;
         observer.set_noise(&flying_noise(&combiner, profile.fogs));
@@ -313,36 +265,21 @@ impl FlightCore {
             let st_sigma_rad = table.observer.st_sigma_arcsec * core::f64::consts::PI / 180.0 / 3600.0;
             MountCheck::new(table.axes(), st_sigma_rad, noise_rad, profile.dt_us)
         });
-        // Built in the return value (a local moved into `Ok` would be one more copy of
-        // the core on the boot stack); the guard seals the state on its first check.
-        Ok(FlightCore {
-            mounting: mounting.into(),
-            fog_map: IDENTITY_MAP,
-            profile: ProfileState::of(profile),
-            table: *table,
-            table_crc: table_crc(table),
-            fixed_flags: if profile.star_tracker { flags::ST_IN_USE } else { 0 }
-                | if table_defaulted { flags::TABLE_DEFAULTED } else { 0 },
-            rx_scratch: WordAligned([0; RX_CHUNK]),
-            fog_intake: FogIntake::new(profile.fogs),
-            star_intake: StarIntake::new(),
-            channel_monitors: [ChannelMonitor::new(noise_rad); N_FOG],
-            thermal: [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG],
-            fdi: fdi.into(),
-            temp_failed_bits: 0,
-            combiner,
-            last_body_dtheta: Vector3::zeros(),
-            attitude: Attitude::new(Quaternion::identity(), Coning::ThreeSample),
-            mount: table.st_mount(),
-            observer,
-            telemetry: Telemetry::new(),
-            last_output: StepOutput::START,
-            guard: guard::Guard::default(),
-            events: EventLog::new(),
-            resumed_at: Maybe::none(),
-            resume_trend: [0.0; 3],
-            scrub: scrub::TableScrub::of(table),
-        })
+    }
+}
+
+impl FlightCore {
+    /// The bytes of the core that hold the calibration table in use (offset range in the
+    /// core): the part of the state that is not valid under every bit pattern (a test
+    /// that writes random bytes over the core leaves them).
+    pub const TABLE_BYTES: core::ops::Range<usize> = core::mem::offset_of!(FlightCore, table)
+        ..core::mem::offset_of!(FlightCore, table) + core::mem::size_of::<CalibrationTable>();
+
+    /// Where each field of the core lies in the value, down to the stages (and inside the
+    /// attitude and the observer): the upset campaign names the field a flipped bit
+    /// belongs to ([`crate::state_map`]). Nothing in a step reads it.
+    pub fn state_map() -> &'static [StateField] {
+        Self::STATE_MAP
     }
 
     /// CRC-32 of the table in use (the last four bytes of its binary form).

@@ -2,11 +2,12 @@
 //! not align again from nothing.
 //!
 //! [`FlightCore::snapshot`] writes the state that takes minutes to rebuild into a
-//! [`Snapshot`] of plain 32-bit words, sealed with a check word (Fletcher's checksum
-//! on the words, [`Snapshot::checksum`]): the attitude Λ, the drift
-//! estimate Δω, unit time (the sample clock), the alignment and the estimator's
-//! convergence and covariance, the FOG assignment, the last body increment and the CRC
-//! of the table it was taken under. The board keeps it in RAM its reset does not clear
+//! [`Snapshot`], a `repr(C)` plain-old-data record sealed with a CRC-32C
+//! ([`Snapshot::checksum`]): the attitude Λ, the drift estimate Δω, unit time (the sample
+//! clock), the alignment and the estimator's convergence and covariance, the FOG
+//! assignment, the mean body increment and the CRC of the table it was taken under, and
+//! the fields the core's declaration keeps over a reset ([`super::Survivors`], copied
+//! as they are). The board keeps it in RAM its reset does not clear
 //! (`ssis-firmware`: the `.uninit` section) and, after a reset, hands it to
 //! [`FlightCore::resume`], which resumes only a snapshot that passes every check
 //! ([`SnapshotError`]): its check word, its format, the table in use, and plausibility (a unit
@@ -16,7 +17,7 @@
 //! estimate restarts and the next star-tracker frame aligns, as at power-on). Logged:
 //! `resumed` (with the age in steps) or `snapshot_invalid` (with the reason).
 //!
-//! Any bit pattern of the words is a value (no enum, no bool): a snapshot read back from
+//! Any bit pattern of the record is a value ([`bytemuck::Pod`]: no enum, no bool): a snapshot read back from
 //! RAM that a reset, an upset or a cold start left in any state is judged by its checks
 //! only. Not carried over: the MEKF's star-tracker LFE states (they restart unknown, at
 //! their stationary covariance σ_c² I, ĉ = 0, uncorrelated with the rest), the attitude
@@ -27,45 +28,30 @@
 
 use nalgebra::{Quaternion, Vector3};
 
-use super::FlightCore;
+use super::{FlightCore, Survivors};
 use crate::observer::ResumeState;
 use crate::telemetry::events::Event;
 use crate::telemetry::Counter;
 
-/// Words of a [`Snapshot`].
-pub const SNAPSHOT_WORDS: usize = 104;
-/// First word: "SNP" and the layout version 1.
-const MAGIC: u32 = u32::from_le_bytes(*b"SNP\x01");
+/// First word: "SNP" and the layout version 2.
+const MAGIC: u32 = u32::from_le_bytes(*b"SNP\x02");
 /// Largest drift estimate a snapshot may carry, rad/s (1 °/s: far beyond any FOG's bias).
 pub const MAX_DRIFT_RAD_S: f64 = 1.0 * core::f64::consts::PI / 180.0;
 /// Oldest snapshot resumed, in steps (1 s at 5 ms): older, the bridge over the reset on
 /// the last increment is not trusted.
 pub const MAX_AGE_STEPS: u64 = 200;
-
-// Word offsets.
-const W_MAGIC: usize = 0;
-const W_TABLE_CRC: usize = 1;
-/// Bit 0: the mounting check had cleared the unit; bits 8..16: the FOG assignment.
-const W_FLAGS: usize = 2;
-const W_EXPECTED: usize = 3;
-const W_UPDATES: usize = 4;
-const W_INDEX: usize = 6;
-const W_ALIGNED_US: usize = 8;
-const W_TAG_US: usize = 10;
-const W_F64: usize = 12;
-/// f64 fields from [`W_F64`]: q (4), last_q (4), drift (3), last increment (3), mean
-/// square mismatch (1), covariance (27), the increment's change per step (3).
-const N_F64: usize = 45;
-/// Index of the increment's change per step among the f64 fields.
-const F_TREND: usize = 42;
 /// How far the interval's mean increment may be from the last sample, beyond a tenth of
 /// the increment, before the last sample is bridged on instead, rad.
 const MEAN_TOLERANCE_RAD: f64 = 1e-6;
-const W_CHECK: usize = SNAPSHOT_WORDS - 1;
-const _: () = assert!(W_F64 + 2 * N_F64 <= W_CHECK);
+/// Room the boards keep for the snapshot in RAM their reset does not clear (the SNAP
+/// region of the firmware's memory layout), bytes.
+pub const SNAPSHOT_ROOM_BYTES: usize = 512;
+const _: () = assert!(core::mem::size_of::<Snapshot>() <= SNAPSHOT_ROOM_BYTES);
 
+/// [`Snapshot::flags`]: the mounting check had cleared the unit; bits 8..16: the FOG
+/// assignment.
 const MOUNT_CLEARED: u32 = 1;
-/// [`W_FLAGS`] of the identity FOG assignment (channel k on axis k, bits 8 + 2k).
+/// [`Snapshot::flags`] of the identity FOG assignment (channel k on axis k, bits 8 + 2k).
 const IDENTITY_FLAGS: u32 = 1 << 10 | 2 << 12 | 3 << 14;
 
 /// Why a snapshot was not resumed (the detail `a` of the `snapshot_invalid` event).
@@ -87,99 +73,92 @@ pub enum SnapshotError {
     TooOld = 5,
 }
 
-/// The snapshot: [`SNAPSHOT_WORDS`] plain words, the last one the check word of the
-/// others ([`Snapshot::checksum`]).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// The snapshot: a plain-old-data record, its last word the CRC-32C of the bytes before
+/// it ([`Snapshot::checksum`]).
+#[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct Snapshot {
-    /// The words (layout private to this module).
-    pub words: [u32; SNAPSHOT_WORDS],
+    /// [`MAGIC`]: "SNP" and the layout version.
+    magic: u32,
+    /// CRC-32 of the table it was taken under.
+    table_crc: u32,
+    /// Bit 0: the mounting check had cleared the unit; bits 8..16: the FOG assignment.
+    flags: u32,
+    /// The sample counter the sample clock expects next.
+    expected: u32,
+    /// Updates since alignment.
+    updates: u32,
+    /// Zero (the record has no padding).
+    reserved: u32,
+    /// Unit time it was taken at, in samples (the sample clock's index).
+    index: u64,
+    /// Unit time of the alignment, µs.
+    aligned_us: u64,
+    /// Time tag of the last frame that updated the estimate, µs.
+    last_update_tag_us: u64,
+    /// Λ (w x y z).
+    q: [f64; 4],
+    /// Λ(t_s) after the last update (w x y z).
+    last_q: [f64; 4],
+    /// Drift estimate Δω, rad/s.
+    drift_rad_s: [f64; 3],
+    /// The body increment a reset bridges on, rad.
+    dtheta_rad: [f64; 3],
+    /// Running mean-square mismatch per axis, rad².
+    innov_ms_rad2: f64,
+    /// The estimator's covariance.
+    cov: [f64; 27],
+    /// The increment's change per step, rad.
+    trend_rad: [f64; 3],
+    /// The fields the core's declaration keeps over a reset.
+    kept: Survivors,
+    /// Zero.
+    reserved_end: u32,
+    /// CRC-32C of every byte before it.
+    check: u32,
 }
 
 impl Default for Snapshot {
     fn default() -> Self {
-        Snapshot { words: [0; SNAPSHOT_WORDS] }
+        bytemuck::Zeroable::zeroed()
     }
 }
 
 impl Snapshot {
-    fn u64_at(&self, w: usize) -> u64 {
-        let lo = self.words.get(w).copied().unwrap_or(0);
-        let hi = self.words.get(w + 1).copied().unwrap_or(0);
-        u64::from(lo) | u64::from(hi) << 32
-    }
-
-    fn set_u64(&mut self, w: usize, v: u64) {
-        if let Some([lo, hi]) = self.words.get_mut(w..w + 2).and_then(|s| <&mut [u32; 2]>::try_from(s).ok()) {
-            *lo = v as u32;
-            *hi = (v >> 32) as u32;
-        }
-    }
-
-    fn f64s(&self) -> [f64; N_F64] {
-        core::array::from_fn(|k| f64::from_bits(self.u64_at(W_F64 + 2 * k)))
-    }
-
-    fn word(&self, w: usize) -> u32 {
-        self.words.get(w).copied().unwrap_or(0)
-    }
-
-    fn set_word(&mut self, w: usize, v: u32) {
-        if let Some(x) = self.words.get_mut(w) {
-            *x = v;
-        }
-    }
-
-    /// The check word of every word but the last: Fletcher's checksum on 32-bit words
-    /// (a = Σ wᵢ, b = Σ a, both modulo 2³² − 1), folded to 32 bits. A flip of any one
-    /// bit, or of any burst within one word, always changes it; any change of two words
-    /// unless a and b both cancel. About 4 instructions a word, where a bytewise CRC-32
-    /// costs some 30: the snapshot is rewritten every few tens of steps within the
-    /// step's budget. The sums are reduced once, at the end: over the 103 words a < 2³⁹ and
-    /// b < 2⁴⁶, far from overflowing 64 bits.
+    /// The check word of every byte before it: CRC-32C (the frames' polynomial, through
+    /// their table: [`crate::frames::crc32c_register`]). Over the record's 412 bytes
+    /// (3,296 bits) its Hamming distance is 6 (Koopman's tables: HD 6 up to 5,243 data
+    /// bits): every error of 1 to 5 bits is detected, and every burst up to 32 bits.
+    /// About 3 instructions a byte.
     pub fn checksum(&self) -> u32 {
-        const _: () = assert!(W_CHECK < 1 << 16, "a and b stay below 2⁴⁸ and 2⁶⁴");
-        let (mut a, mut b) = (0u64, 0u64);
-        for w in self.words.iter().take(W_CHECK) {
-            a += u64::from(*w);
-            b += a;
-        }
-        let (a, b) = (mod_m(a), mod_m(b));
-        (a ^ b.rotate_left(16) ^ (b >> 16)) as u32 ^ MAGIC
+        let bytes = bytemuck::bytes_of(self);
+        let body = bytes.get(..core::mem::offset_of!(Snapshot, check)).unwrap_or(bytes);
+        crate::frames::crc32c_register(crc::CRC_32_ISCSI.init, body) ^ crc::CRC_32_ISCSI.xorout
     }
 
     /// Whether its check word matches (the first check of [`FlightCore::resume`]).
     pub fn sealed(&self) -> bool {
-        self.word(W_CHECK) == self.checksum()
+        self.check == self.checksum()
     }
 
     /// Writes the check word (the last step of [`FlightCore::snapshot_into`]).
     pub fn seal(&mut self) {
-        let c = self.checksum();
-        self.set_word(W_CHECK, c);
+        self.check = self.checksum();
     }
 
     /// Unit time it was taken at, in samples (the sample clock's index).
     pub fn index(&self) -> u64 {
-        self.u64_at(W_INDEX)
+        self.index
     }
 
     /// Spoils the check word (the board after resuming: the same snapshot is not resumed twice).
     pub fn invalidate(&mut self) {
-        let c = self.word(W_CHECK);
-        self.set_word(W_CHECK, !c);
+        self.check = !self.check;
     }
-}
 
-/// `x` modulo 2³² − 1 by folding (2³² ≡ 1), without a 64-bit division.
-fn mod_m(x: u64) -> u64 {
-    const M: u64 = 0xFFFF_FFFF;
-    let x = (x & M) + (x >> 32);
-    let x = (x & M) + (x >> 32);
-    if x >= M {
-        x - M
-    } else {
-        x
+    /// Its bytes (tests: a bit flipped in RAM).
+    pub fn bytes_mut(&mut self) -> &mut [u8] {
+        bytemuck::bytes_of_mut(self)
     }
 }
 
@@ -202,29 +181,26 @@ impl FlightCore {
         let map = self.fog_map.iter().enumerate().fold(0u32, |acc, (k, &a)| acc | ((a as u32 & 3) << (8 + 2 * k)));
         let cleared = self.mounting.as_ref().is_none_or(|m| !m.checking() || m.clear_to_report());
         // The increment a reset bridges on: the mean body increment since the snapshot
-        // before (its attitude, fields 0..3, turned to this one over `steps` samples, with
-        // the drift estimate added back), not the last sample alone, whose noise a bridge
-        // of 40–60 steps multiplies (one sample: up to 6″ at the first frame after the
-        // reset). With its change per step (the turn's angular acceleration, from the
-        // snapshot before's increment and change, fields 11..13 and F_TREND..) it
-        // corrects the bridge. A mean far from the last sample (the snapshot before
+        // before (its attitude turned to this one over `steps` samples, with the drift
+        // estimate added back), not the last sample alone, whose noise a bridge of 40–60
+        // steps multiplies (one sample: up to 6″ at the first frame after the reset). With
+        // its change per step (the turn's angular acceleration, from the snapshot before's
+        // increment and change) it corrects the bridge. A mean far from the last sample (the snapshot before
         // corrupted, or a turn faster than the interval resolves) is not used: the last
         // sample is, with no change per step.
-        let old = |k: usize| f64::from_bits(s.u64_at(W_F64 + 2 * k));
-        let old_magic = s.word(W_MAGIC);
-        let steps = index.wrapping_sub(s.index());
-        let follows = old_magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps);
+        let steps = index.wrapping_sub(s.index);
+        let follows = s.magic == MAGIC && (1..=4 * MAX_AGE_STEPS).contains(&steps);
         let last = self.last_body_dtheta;
         let mean = follows.then(|| {
             let n = steps as f64;
-            let turn =
-                crate::math::rotvec_from_quat(&(Quaternion::new(old(0), old(1), old(2), old(3)).conjugate() * q));
+            let [w, i, j, k] = s.q;
+            let turn = crate::math::rotvec_from_quat(&(Quaternion::new(w, i, j, k).conjugate() * q));
             // The interval's mean is the rate at its middle, (n − 1) / 2 samples before
             // this one: taken there from the mean before (its own middle, the same way),
             // and carried to now by the change per step.
             let mean = turn / n + Vector3::from(o.drift_rad_s) * self.profile.dt_s();
             let lag = (n - 1.0) / 2.0;
-            let old_mean = Vector3::from_fn(|i, _| old(11 + i) - old(F_TREND + i) * lag);
+            let old_mean = Vector3::from(s.dtheta_rad) - Vector3::from(s.trend_rad) * lag;
             let trend = (mean - old_mean) / n;
             (mean + trend * lag, [trend.x, trend.y, trend.z])
         });
@@ -234,24 +210,25 @@ impl FlightCore {
             (d - last).norm_squared() <= MEAN_TOLERANCE_RAD * MEAN_TOLERANCE_RAD + 0.01 * last.norm_squared()
         };
         let (d, trend) = mean.filter(|(d, _)| plausible(d)).unwrap_or((last, [0.0; 3]));
-        s.set_word(W_MAGIC, MAGIC);
-        s.set_word(W_TABLE_CRC, self.table_crc);
-        s.set_word(W_FLAGS, map | if cleared { MOUNT_CLEARED } else { 0 });
-        s.set_word(W_EXPECTED, u32::from(expected));
-        s.set_word(W_UPDATES, o.updates);
-        s.set_u64(W_INDEX, index);
-        s.set_u64(W_ALIGNED_US, o.aligned_us);
-        s.set_u64(W_TAG_US, o.last_update_tag_us);
-        let [dx, dy, dz] = o.drift_rad_s;
-        let head = [q.w, q.i, q.j, q.k, o.last_q[0], o.last_q[1], o.last_q[2], o.last_q[3], dx, dy, dz, d.x, d.y, d.z];
-        let values = head.iter().chain(core::iter::once(&o.innov_ms_rad2)).chain(o.cov.iter()).chain(trend.iter());
-        // The f64 fields as word pairs, low word first (as `set_u64`), in one pass.
-        if let Some(slots) = s.words.get_mut(W_F64..W_F64 + 2 * N_F64) {
-            for ([lo, hi], v) in slots.as_chunks_mut::<2>().0.iter_mut().zip(values) {
-                let b = v.to_bits();
-                (*lo, *hi) = (b as u32, (b >> 32) as u32);
-            }
-        }
+        // Written in place (the board's copy), field by field.
+        s.magic = MAGIC;
+        s.table_crc = self.table_crc;
+        s.flags = map | if cleared { MOUNT_CLEARED } else { 0 };
+        s.expected = u32::from(expected);
+        s.updates = o.updates;
+        s.reserved = 0;
+        s.index = index;
+        s.aligned_us = o.aligned_us;
+        s.last_update_tag_us = o.last_update_tag_us;
+        s.q = [q.w, q.i, q.j, q.k];
+        s.last_q = o.last_q;
+        s.drift_rad_s = o.drift_rad_s;
+        s.dtheta_rad = [d.x, d.y, d.z];
+        s.innov_ms_rad2 = o.innov_ms_rad2;
+        s.cov = o.cov;
+        s.trend_rad = trend;
+        s.reserved_end = 0;
+        self.save_survivors(&mut s.kept);
         s.seal();
         true
     }
@@ -275,23 +252,23 @@ impl FlightCore {
     }
 
     fn check_snapshot(&self, s: &Snapshot) -> Result<(), SnapshotError> {
-        if s.word(W_MAGIC) != MAGIC {
+        if s.magic != MAGIC {
             return Err(SnapshotError::Absent);
         }
         if !s.sealed() {
             return Err(SnapshotError::BadCrc);
         }
-        if s.word(W_TABLE_CRC) != self.table_crc {
+        if s.table_crc != self.table_crc {
             return Err(SnapshotError::OtherTable);
         }
-        let f = s.f64s();
-        let norm2 = |k: usize| f.iter().skip(k).take(4).map(|v| v * v).sum::<f64>();
-        let drift2 = f.iter().skip(8).take(3).map(|v| v * v).sum::<f64>();
-        let plausible = f.iter().all(|v| v.is_finite())
-            && (norm2(0) - 1.0).abs() < 1e-6
-            && (norm2(4) - 1.0).abs() < 1e-6
+        let norm2 = |v: &[f64; 4]| v.iter().map(|x| x * x).sum::<f64>();
+        let drift2 = s.drift_rad_s.iter().map(|v| v * v).sum::<f64>();
+        let f64s = [&s.q[..], &s.last_q, &s.drift_rad_s, &s.dtheta_rad, &[s.innov_ms_rad2], &s.cov, &s.trend_rad];
+        let plausible = f64s.iter().all(|f| f.iter().all(|v| v.is_finite()))
+            && (norm2(&s.q) - 1.0).abs() < 1e-6
+            && (norm2(&s.last_q) - 1.0).abs() < 1e-6
             && drift2 <= MAX_DRIFT_RAD_S * MAX_DRIFT_RAD_S
-            && s.word(W_FLAGS) & !MOUNT_CLEARED == IDENTITY_FLAGS;
+            && s.flags & !MOUNT_CLEARED == IDENTITY_FLAGS;
         if plausible {
             Ok(())
         } else {
@@ -300,34 +277,31 @@ impl FlightCore {
     }
 
     fn apply_snapshot(&mut self, s: &Snapshot) {
-        let f = s.f64s();
-        let v = |k: usize| f.get(k).copied().unwrap_or(0.0);
-        let mut cov = [0.0; 27];
-        for (c, x) in cov.iter_mut().zip(f.iter().skip(15)) {
-            *c = *x;
-        }
         let state = ResumeState {
-            drift_rad_s: [v(8), v(9), v(10)],
-            aligned_us: s.u64_at(W_ALIGNED_US),
-            last_update_tag_us: s.u64_at(W_TAG_US),
-            last_q: [v(4), v(5), v(6), v(7)],
-            updates: s.word(W_UPDATES),
-            innov_ms_rad2: v(14),
-            cov,
+            drift_rad_s: s.drift_rad_s,
+            aligned_us: s.aligned_us,
+            last_update_tag_us: s.last_update_tag_us,
+            last_q: s.last_q,
+            updates: s.updates,
+            innov_ms_rad2: s.innov_ms_rad2,
+            cov: s.cov,
         };
-        if s.word(W_FLAGS) & MOUNT_CLEARED != 0 {
+        if s.flags & MOUNT_CLEARED != 0 {
             self.mounting = crate::state::Maybe::none();
         }
-        self.attitude.set_quaternion(Quaternion::new(v(0), v(1), v(2), v(3)));
-        self.last_body_dtheta = Vector3::new(v(11), v(12), v(13));
-        let index = s.index();
-        self.fog_intake.resume_clock(index, s.word(W_EXPECTED) as u16);
+        let [w, i, j, k] = s.q;
+        self.attitude.set_quaternion(Quaternion::new(w, i, j, k));
+        self.last_body_dtheta = Vector3::from(s.dtheta_rad);
+        self.fog_intake.resume_clock(s.index, s.expected as u16);
         self.observer.resume(&state);
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
         self.observer.record(now_us, self.attitude.quaternion());
         self.star_intake.used(now_us);
-        self.resumed_at = crate::state::Maybe::some(index);
-        self.resume_trend = [v(F_TREND), v(F_TREND + 1), v(F_TREND + 2)];
+        self.resumed_at = crate::state::Maybe::some(s.index);
+        self.resume_trend = s.trend_rad;
+        self.load_survivors(&s.kept);
+        // The guarded state changed between steps: saved again at the next check.
+        self.guard_unseal();
     }
 
     fn snapshot_refused(&mut self, e: SnapshotError) {
@@ -372,28 +346,49 @@ impl FlightCore {
 mod tests {
     use super::*;
 
-    /// The check word is Fletcher's checksum with both sums kept modulo 2³² − 1 after
-    /// every word: the sums reduced once at the end give the same word.
+    /// The check word is the CRC-32C of the bytes before it (the `crc` crate's, bytewise).
     #[test]
-    fn checksum_is_fletcher_modulo_2_32_minus_1() {
-        const M: u64 = 0xFFFF_FFFF;
+    fn check_word_is_crc32c_of_the_record() {
         let mut x = 0x9E37_79B9_7F4A_7C15u64;
-        for fill in [0u32, u32::MAX, 0x8000_0001] {
-            for round in 0..50 {
-                let mut s = Snapshot::default();
-                for w in s.words.iter_mut() {
-                    x ^= x << 13;
-                    x ^= x >> 7;
-                    x ^= x << 17;
-                    *w = if round % 2 == 0 { fill } else { x as u32 };
-                }
-                let (mut a, mut b) = (0u64, 0u64);
-                for w in s.words.iter().take(W_CHECK) {
-                    a = (a + u64::from(*w)) % M;
-                    b = (b + a) % M;
-                }
-                let want = (a ^ b.rotate_left(16) ^ (b >> 16)) as u32 ^ MAGIC;
-                assert_eq!(s.checksum(), want, "fill {fill:#x} round {round}");
+        for round in 0..20 {
+            let mut s = Snapshot::default();
+            for b in s.bytes_mut().iter_mut() {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                *b = if round == 0 { 0 } else { x as u8 };
+            }
+            let n = core::mem::offset_of!(Snapshot, check);
+            let want = crate::frames::CRC32C.checksum(&bytemuck::bytes_of(&s)[..n]);
+            assert_eq!(s.checksum(), want, "round {round}");
+            s.seal();
+            assert!(s.sealed());
+        }
+    }
+
+    /// Every error of up to three bits in the sealed bytes (the check word included) is
+    /// found: the single-bit syndromes of the CRC (its register change for one flipped bit,
+    /// linear in the flips) are all nonzero and distinct (distance ≥ 3), and no two of
+    /// them XOR to a third (≥ 4).
+    #[test]
+    fn the_check_word_finds_every_error_of_up_to_three_bits() {
+        let mut s = Snapshot::default();
+        s.seal();
+        let n = core::mem::offset_of!(Snapshot, check) + 4;
+        let good = s;
+        let syndrome = |byte: usize, bit: u32| {
+            let mut t = good;
+            t.bytes_mut()[byte] ^= 1 << bit;
+            t.checksum() ^ t.check ^ good.checksum() ^ good.check
+        };
+        let syn: Vec<u32> = (0..n).flat_map(|b| (0..8).map(move |k| (b, k))).map(|(b, k)| syndrome(b, k)).collect();
+        assert_eq!(syn.len(), 8 * n);
+        let set: std::collections::HashSet<u32> = syn.iter().copied().collect();
+        assert!(!set.contains(&0), "a single flip unseen");
+        assert_eq!(set.len(), syn.len(), "two flips unseen");
+        for (i, a) in syn.iter().enumerate() {
+            for b in &syn[i + 1..] {
+                assert!(!set.contains(&(a ^ b)), "three flips unseen");
             }
         }
     }

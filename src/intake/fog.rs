@@ -149,9 +149,9 @@ impl FogIntake {
         }
     }
 
-    /// The sample clock's index (unit time), for the state guard ([`crate::guard`]).
+    /// The sample clock's index (unit time), for the state guard ([`crate::shadow`]).
     #[inline(always)]
-    pub fn visit_clock<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit_clock<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.word(&mut self.clock.index);
     }
 

@@ -140,8 +140,8 @@ pub struct Figures {
 }
 
 impl Figures {
-    /// Its words, for the state guard ([`crate::guard`]).
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    /// Its words, for the state guard ([`crate::shadow`]).
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         let s = &mut self.steady;
         v.f64s(&mut s.gains.k_b);
         v.f64s(&mut s.gains.k_u_per_s);

@@ -104,8 +104,8 @@ impl Streak {
         Some(sum.norm_squared() / (n * n))
     }
 
-    /// Its words, for the state guard ([`crate::guard`]).
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    /// Its words, for the state guard ([`crate::shadow`]).
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.u32(&mut self.0.n);
         v.f64s(self.0.sum.as_mut_slice());
         v.f64(&mut self.0.sum_sq);
@@ -191,9 +191,9 @@ impl Convergence {
         self.sigma_st_rad = sigma_st_rad;
     }
 
-    /// Its words, for the state guard ([`crate::guard`]).
+    /// Its words, for the state guard ([`crate::shadow`]).
     #[inline(always)]
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.u32(&mut self.updates);
         v.f64(&mut self.innov_ms_rad2);
         v.f64(&mut self.sigma_st_rad);

@@ -134,9 +134,9 @@ impl Luenberger {
         self.roots = [0.0; 6];
     }
 
-    /// Its gains and covariance, for the state guard ([`crate::guard`]); the 1σ roots are
+    /// Its gains and covariance, for the state guard ([`crate::shadow`]); the 1σ roots are
     /// only a Newton step's start.
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         for c in self.cov.iter_mut() {
             v.f64s(c);
         }

@@ -152,9 +152,9 @@ impl Mekf {
         [0, 1, 2].map(|k| [at(&m.paa, k), at(&m.pab, k), at(&m.pbb, k)])
     }
 
-    /// Its covariance, for the state guard ([`crate::guard`]); the 1σ roots are only a
+    /// Its covariance, for the state guard ([`crate::shadow`]); the 1σ roots are only a
     /// Newton step's start.
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.cov.paa.as_mut_slice());
         v.f64s(self.cov.pab.as_mut_slice());
         v.f64s(self.cov.pbb.as_mut_slice());

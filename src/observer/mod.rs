@@ -289,8 +289,8 @@ impl Filter {
         }
     }
 
-    /// Its gains and covariance, for the state guard ([`crate::guard`]).
-    pub fn visit<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    /// Its gains and covariance, for the state guard ([`crate::shadow`]).
+    pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         match self.estimator() {
             Estimator::Luenberger => self.luenberger.visit(v),
             Estimator::Mekf => self.mekf.visit(v),
@@ -548,9 +548,9 @@ impl<const H: usize> Observer<H> {
 
     /// What every step reads: the drift estimate Δω, the last update's time and the
     /// convergence state, for the
-    /// state guard ([`crate::guard`]).
+    /// state guard ([`crate::shadow`]).
     #[inline(always)]
-    pub fn visit_steady<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    pub fn visit_steady<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.drift_rad_s.as_mut_slice());
         v.opt_u64(&mut self.last_update_tag_us);
         self.conv.visit(v);
@@ -558,8 +558,8 @@ impl<const H: usize> Observer<H> {
 
     /// What a star-tracker frame reads: the last update's Λ, the alignment time, the
     /// re-acquisition streak, the noise figures, the estimator's gains and covariance,
-    /// for the state guard ([`crate::guard`]).
-    pub fn visit_frame<V: crate::guard::Visit>(&mut self, v: &mut V) {
+    /// for the state guard ([`crate::shadow`]).
+    pub fn visit_frame<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.last_q.coords.as_mut_slice());
         v.opt_u64(&mut self.aligned_us);
         self.streak.visit(v);

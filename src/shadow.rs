@@ -1,8 +1,10 @@
-//! Guarded words: a shadow copy and a checksum of a block of state, so that a bit flipped
-//! in RAM (a single-event upset) is found and the block restored bit for bit.
+//! Shadowed words: a shadow copy and a checksum of a block of state, so that a bit
+//! flipped in RAM (a single-event upset) is found and the block restored bit for bit. The
+//! flight core's state guard (`flight::guard`) keeps its blocks this way.
 //!
 //! A block is a fixed sequence of words that a `visit` function walks in order (the
-//! state's owner lists its fields once, [`Visit`]); the same walk
+//! state's declaration names each field's blocks once, [`Guarded`],
+//! `state_map::state_struct!`); the same walk
 //!
 //! - saves: each word into the block's [`Shadow`] and into its checksum ([`Shadow::save`]),
 //! - checks: the checksum of the live words ([`Sum`]) against the stored one
@@ -15,6 +17,66 @@
 //! shadow's own checksum says which copy is good: the shadow (restore it), or the live
 //! words (the flip hit the stored checksum or the shadow: save again); when neither
 //! agrees the block is lost ([`Check::Lost`]) and its owner starts it again.
+
+use nalgebra::{Quaternion, Vector3};
+
+/// Kinds of block a state's guard has at most ([`Blocks::KINDS`]).
+pub const MAX_KINDS: usize = 4;
+
+/// A state's guard blocks: one value of each kind (blocks of one kind, as one per FOG
+/// slot, hold the same words of the same fields).
+pub trait Blocks: Copy + 'static {
+    /// One block of each kind, in kind order (at most [`MAX_KINDS`]).
+    const KINDS: &'static [Self];
+}
+
+/// A field type's words in the guard blocks of `B`: how many in each kind of block
+/// ([`Blocks::KINDS`], at most: a variant may hold fewer), and their walk.
+pub trait Guarded<B: Blocks> {
+    /// Words in each kind of block.
+    const WORDS: [usize; MAX_KINDS];
+    /// A plain value: its words go into whichever block its field's declaration names.
+    /// (A stage holds its own words in its own blocks, and none in the others.)
+    const PLAIN: bool = false;
+    /// Its words in `block`, in order.
+    fn visit_block<V: Visit>(&mut self, block: B, v: &mut V);
+}
+
+impl<B: Blocks> Guarded<B> for f64 {
+    const WORDS: [usize; MAX_KINDS] = [1; MAX_KINDS];
+    const PLAIN: bool = true;
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, _: B, v: &mut V) {
+        v.f64(self);
+    }
+}
+
+impl<B: Blocks, const N: usize> Guarded<B> for [f64; N] {
+    const WORDS: [usize; MAX_KINDS] = [N; MAX_KINDS];
+    const PLAIN: bool = true;
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, _: B, v: &mut V) {
+        v.f64s(self);
+    }
+}
+
+impl<B: Blocks> Guarded<B> for Vector3<f64> {
+    const WORDS: [usize; MAX_KINDS] = [3; MAX_KINDS];
+    const PLAIN: bool = true;
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, _: B, v: &mut V) {
+        v.f64s(self.as_mut_slice());
+    }
+}
+
+impl<B: Blocks> Guarded<B> for Quaternion<f64> {
+    const WORDS: [usize; MAX_KINDS] = [4; MAX_KINDS];
+    const PLAIN: bool = true;
+    #[inline(always)]
+    fn visit_block<V: Visit>(&mut self, _: B, v: &mut V) {
+        v.f64s(self.coords.as_mut_slice());
+    }
+}
 
 /// One pass over a block's words, in the block's fixed order.
 pub trait Visit {
