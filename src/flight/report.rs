@@ -179,14 +179,16 @@ impl FlightCore {
     /// (`acc`): aligned (star-tracker status: the estimator aligned and the mounting check
     /// clears the unit), converged (the estimate converged and the propagated attitude
     /// not in doubt), no parity alarm (a faulty FOG's error would be in the attitude and
-    /// not in its σ), the built-in test passed, every sample of the step on a usable gyro
-    /// set (a held increment's error is not in σ either), and no resume from a snapshot
+    /// not in its σ), the built-in test passed, a sample integrated in the step and every
+    /// one on a usable gyro set (a held increment's error is not in σ either; a step that
+    /// waits for an owed sample has propagated nothing), and no resume from a snapshot
     /// waiting for its confirmation. Degraded otherwise (three FOGs, a tracker outage)
     /// is not invalid: the reported σ grows with it.
     #[inline(always)]
     fn attitude_valid(&self, st: u8, status_flags: u8, acc: &Integrated) -> bool {
         st & st_status::ALIGNED != 0
             && status_flags & (flags::CONVERGED | flags::FDI_ALARM | flags::BIT_FAILED) == flags::CONVERGED
+            && acc.integrated > 0
             && !acc.held
             && self.resumed_at.get().is_none()
     }
