@@ -1,9 +1,12 @@
 //! The FOG channels of one sample: intake of each fitted FOG's frame, the channel checks
 //! (stuck output, temperature sensor, device fault, range), thermal tracking and
-//! compensation ([`FlightCore::take_sample`]); then the four-FOG parity check, which may
-//! drop a spike or the isolated FOG ([`FlightCore::check_parity`]).
+//! compensation ([`FlightCore::take_sample`]), and the lasting changes of the FOG set
+//! (a FOG lost, restored); then the four-FOG parity check, which may drop a spike or the
+//! isolated FOG ([`FlightCore::check_parity`]). Every cause of an isolation (the parity
+//! verdict, a channel refused during an alarm, the star tracker's verdict, the mounting
+//! check) goes through one routine, [`FlightCore::isolate`].
 
-use nalgebra::Vector4;
+use nalgebra::{Vector3, Vector4};
 
 use super::FlightCore;
 use crate::calib::{FogCal, N_FOG};
@@ -12,7 +15,40 @@ use crate::compensation::{compensate_increment, ThermalTracker};
 use crate::frames::fog::{status, FogFrame};
 use crate::integrity::channel::ChannelMonitor;
 use crate::integrity::parity::SampleVerdict;
-use crate::telemetry::{health, Counters, FogCounter};
+use crate::telemetry::events::Event;
+use crate::telemetry::{health, Counter, Counters, FogCounter, FogSetChange};
+
+/// Why a FOG is isolated (`isolated`, detail b).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) enum IsolationCause {
+    /// The parity check named it (its verdict on a sample of all four).
+    Parity,
+    /// Its own channel checks refused it while a parity alarm stood.
+    ChannelRefused,
+    /// The star tracker named it while a parity alarm stood: the fault's drift since the
+    /// alarm (ICS, rad/s) leaves the attitude.
+    StarAided {
+        /// Unit time of the alarm, µs.
+        since_us: u64,
+        /// The fault's attitude drift since then, rad/s.
+        drift_rad_s: Vector3<f64>,
+    },
+    /// The mounting check found it reversed, or alone at odds with the tracker: the
+    /// estimator starts again, so nothing of the wrong gyro stays in it.
+    Mounting,
+}
+
+impl IsolationCause {
+    /// Its code in the event (`docs/ICD.md`, event `isolated`).
+    fn code(&self) -> u16 {
+        match self {
+            IsolationCause::Parity => 1,
+            IsolationCause::ChannelRefused => 2,
+            IsolationCause::StarAided { .. } => 3,
+            IsolationCause::Mounting => 4,
+        }
+    }
+}
 
 /// What one FOG gave for one sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -88,7 +124,64 @@ impl FlightCore {
             }
         }
         self.fog_intake.end(FogSet(present));
+        if self.telemetry.fog_set.changing(FogSet(used)) {
+            self.watch_fog_set(FogSet(used), &health_bits);
+        }
         Sample { dtheta: Vector4::from(dtheta), used: FogSet(used), health: health_bits }
+    }
+
+    /// The FOG set changed in this sample, or a change is being counted: a FOG unusable
+    /// for [`crate::telemetry::FOG_SET_SAMPLES`] in a row is lost, a lost one usable as
+    /// long is restored; each recorded with its cause (`fog_lost`: the health bits of
+    /// its last sample). An isolated FOG is not watched (its isolation is recorded).
+    #[inline(never)]
+    fn watch_fog_set(&mut self, used: FogSet, health_bits: &[u8; N_FOG]) {
+        let now_us = self.fog_intake.time_us(self.profile.dt_us);
+        let watched = self.flying();
+        let (events, counters) = (&mut self.events, &mut self.telemetry.counters);
+        let mut watch = self.telemetry.fog_set;
+        watch.on_sample(used, watched, |c| {
+            let (event, i, why) = match c {
+                FogSetChange::Lost(i) => (Event::FogLost, i, health_bits.get(i).copied().unwrap_or(0)),
+                FogSetChange::Restored(i) => (Event::FogRestored, i, 0),
+            };
+            events.record(counters, now_us, event, u8::try_from(i + 1).unwrap_or(0), u16::from(why));
+        });
+        self.telemetry.fog_set = watch;
+    }
+
+    /// Isolates FOG `i` for `cause` at unit time `now_us`: the one routine every cause
+    /// calls. The parity logic's own verdicts have isolated it already; on the mounting
+    /// check's verdict it is isolated here (unless another FOG is). Then, once, whatever
+    /// the cause: counted and logged (`isolated`, with the cause), the estimate cleared
+    /// of what the gyro put in it (the fault's drift since the alarm on the star
+    /// tracker's verdict; the estimator started again on the mounting check's; else the
+    /// gyro's share of the drift estimate), and the estimators' noise that of the FOGs
+    /// flying from now on.
+    pub(super) fn isolate(&mut self, i: usize, cause: IsolationCause, now_us: u64) {
+        let Some(fdi) = self.fdi.as_mut() else { return };
+        let done = match cause {
+            IsolationCause::Mounting => fdi.isolate_mounted_wrong(i),
+            _ => fdi.isolated() == Some(i),
+        };
+        if !done {
+            return;
+        }
+        let counters = &mut self.telemetry.counters;
+        self.events.record(counters, now_us, Event::Isolated, u8::try_from(i + 1).unwrap_or(0), cause.code());
+        match cause {
+            IsolationCause::Mounting => {
+                counters.bump(Counter::MountIsolated);
+                self.guard_touch();
+                self.observer.restart();
+                self.observer.set_noise(&super::geometry::flying_noise(&self.combiner, self.flying()));
+            }
+            IsolationCause::StarAided { since_us, drift_rad_s } => {
+                self.observer.remove_drift(&mut self.attitude, now_us, since_us, &drift_rad_s);
+                self.on_isolation(i, now_us);
+            }
+            IsolationCause::Parity | IsolationCause::ChannelRefused => self.on_isolation(i, now_us),
+        }
     }
 
     /// Integrity, parity: checks a sample of all four FOGs and drops a spike, or the
@@ -99,6 +192,7 @@ impl FlightCore {
         let before = fdi.state();
         let was_isolated = fdi.isolated().is_some();
         let mut parity_rad = 0.0;
+        let mut cause = IsolationCause::Parity;
         let drop = match fdi.isolated() {
             Some(i) => Some(i),
             None if sample.used == FogSet::ALL => {
@@ -118,6 +212,7 @@ impl FlightCore {
                 if fdi.alarm() && refused.count_ones() == 1 {
                     let i = refused.trailing_zeros() as usize;
                     fdi.isolate_failed_channel(i);
+                    cause = IsolationCause::ChannelRefused;
                     Some(i)
                 } else {
                     None
@@ -128,7 +223,7 @@ impl FlightCore {
         let newly = if was_isolated { None } else { fdi.isolated() };
         if let Some(i) = newly {
             // Isolated in this sample: its share leaves the drift estimate too.
-            self.on_isolation(i, time_us);
+            self.isolate(i, cause, time_us);
         }
         if let Some(i) = drop {
             sample.used = sample.used.without(i);

@@ -25,6 +25,9 @@ pub(super) struct Integrated {
     pub(super) integrated: u32,
     /// Fewer FOGs than fitted, a parity alarm, or no sample.
     pub(super) degraded: bool,
+    /// No usable gyro set in a sample: the attitude turned on a held increment, an error
+    /// the estimator's σ does not hold.
+    pub(super) held: bool,
 }
 
 impl Integrated {
@@ -36,6 +39,7 @@ impl Integrated {
         rate_dtheta: Vector3::new(0.0, 0.0, 0.0),
         integrated: 0,
         degraded: false,
+        held: false,
     };
 }
 
@@ -70,6 +74,7 @@ impl FlightCore {
             Err(_) => {
                 // No usable gyro set in this sample: hold the last body increment.
                 acc.degraded = true;
+                acc.held = true;
                 self.last_body_dtheta
             }
         };

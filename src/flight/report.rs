@@ -26,8 +26,7 @@ impl FlightCore {
     /// The board's background check of the code in flash found its CRC changed: logged
     /// (`code_corrupt`) and counted.
     pub fn note_code_corrupt(&mut self) {
-        self.telemetry.counters.bump(Counter::CodeCorrupt);
-        self.events.log(self.last_output.time_us, Event::CodeCorrupt, 0, 0);
+        self.events.record(&mut self.telemetry.counters, self.last_output.time_us, Event::CodeCorrupt, 0, 0);
     }
 
     /// The board's SRAM ECC reported `corrected` single-bit and `uncorrected` double-bit
@@ -45,8 +44,7 @@ impl FlightCore {
     /// its record (`telecommand::CommandLink::check_key`): logged (`key_restored`) and
     /// counted.
     pub fn note_key_restored(&mut self) {
-        self.telemetry.counters.bump(Counter::KeysRestored);
-        self.events.log(self.last_output.time_us, Event::KeyRestored, 0, 0);
+        self.events.record(&mut self.telemetry.counters, self.last_output.time_us, Event::KeyRestored, 0, 0);
     }
 
     /// Board: the watchdog warned (the main loop missed a watchdog period).
@@ -132,11 +130,15 @@ impl FlightCore {
 
     /// Telemetry: the step's output at `now_us`, with star-tracker status `st`, from
     /// what the samples gave (`acc`); each stage's status bits assembled: the fixed
-    /// flags, the fault logic's, the temperature sensors', degraded, converged, and the
-    /// previous frame dropped.
+    /// flags, the fault logic's, the temperature sensors', degraded (and the timed hold
+    /// after a table restore), converged, the previous frame dropped, and the attitude's
+    /// validity derived from them ([`FlightCore::attitude_valid`]).
     #[inline(always)]
     pub(super) fn assemble_output(&mut self, now_us: u64, st: u8, acc: &Integrated, dt_s: f64) -> StepOutput {
         let mut status_flags = self.fixed_flags;
+        if self.scrub.degraded() {
+            status_flags |= flags::DEGRADED;
+        }
         let mut fdi_bits = 0u8;
         if let Some(fdi) = self.fdi.as_ref() {
             let (f, b) = fdi.status_bits();
@@ -154,6 +156,7 @@ impl FlightCore {
             status_flags |= flags::OUTPUT_DROPPED;
         }
         let (att_sigma_rad, drift_sigma_rad_s) = self.observer.sigmas(now_us);
+        let st = if self.attitude_valid(st, status_flags, acc) { st | st_status::VALID } else { st };
         StepOutput {
             time_us: now_us,
             q: self.attitude.quaternion(),
@@ -168,5 +171,25 @@ impl FlightCore {
             att_sigma_rad,
             drift_sigma_rad_s,
         }
+    }
+
+    /// The attitude is good to use (`st_status::VALID`, `docs/ICD.md` "Attitude
+    /// valid"): the one validity the unit states, derived here from the other status
+    /// bits of the same step (`st`, `status_flags`) and nothing else of the step
+    /// (`acc`): aligned (star-tracker status: the estimator aligned and the mounting check
+    /// clears the unit), converged (the estimate converged and the propagated attitude
+    /// not in doubt), no parity alarm (a faulty FOG's error would be in the attitude and
+    /// not in its σ), the built-in test passed, a sample integrated in the step and every
+    /// one on a usable gyro set (a held increment's error is not in σ either; a step that
+    /// waits for an owed sample has propagated nothing), and no resume from a snapshot
+    /// waiting for its confirmation. Degraded otherwise (three FOGs, a tracker outage)
+    /// is not invalid: the reported σ grows with it.
+    #[inline(always)]
+    fn attitude_valid(&self, st: u8, status_flags: u8, acc: &Integrated) -> bool {
+        st & st_status::ALIGNED != 0
+            && status_flags & (flags::CONVERGED | flags::FDI_ALARM | flags::BIT_FAILED) == flags::CONVERGED
+            && acc.integrated > 0
+            && !acc.held
+            && self.resumed_at.get().is_none()
     }
 }

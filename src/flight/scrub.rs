@@ -17,7 +17,8 @@ use crate::calib::binary::{self, TABLE_LEN};
 use crate::calib::{store, CalibrationTable};
 use crate::frames;
 use crate::telemetry::events::Event;
-use crate::telemetry::{flags, Counter};
+#[cfg(test)]
+use crate::telemetry::Counter;
 
 /// Bytes of the table's binary form the CRC covers.
 const BODY_LEN: usize = TABLE_LEN - 4;
@@ -64,6 +65,13 @@ pub(super) struct TableScrub {
 }
 
 impl TableScrub {
+    /// Whether the output is flagged degraded after a restore (the timed hold, or for
+    /// good); the flags that hold for the whole flight are the core's `fixed_flags`.
+    #[inline(always)]
+    pub(super) fn degraded(&self) -> bool {
+        self.hold != 0
+    }
+
     pub(super) fn new() -> Self {
         TableScrub { body: [0; BODY_LEN], partial: CRC_INIT, reference: 0, tick: 0, hold: 0 }
     }
@@ -109,9 +117,6 @@ impl FlightCore {
         let s = &mut self.scrub;
         if s.hold > 0 && s.hold != u16::MAX {
             s.hold -= 1;
-            if s.hold == 0 {
-                self.fixed_flags &= !flags::DEGRADED;
-            }
         }
         let s = &mut self.scrub;
         match usize::from(tick) {
@@ -141,12 +146,11 @@ impl FlightCore {
     fn restore_table(&mut self, calib_region: &[u8]) -> bool {
         let loaded = store::load(calib_region);
         let now_us = self.last_output.time_us;
-        self.telemetry.counters.bump(Counter::TablesRestored);
-        self.fixed_flags |= flags::DEGRADED;
         let restored = !loaded.defaulted() && self.install_table(&loaded.table).is_ok();
         let revision = u16::try_from(loaded.table.revision).unwrap_or(u16::MAX);
         self.scrub.hold = if restored { HOLD_STEPS } else { u16::MAX };
-        self.events.log(now_us, Event::TableRestored, u8::from(restored), if restored { revision } else { 0 });
+        let b = if restored { revision } else { 0 };
+        self.events.record(&mut self.telemetry.counters, now_us, Event::TableRestored, u8::from(restored), b);
         restored
     }
 }
@@ -166,7 +170,7 @@ mod tests {
         for _ in 0..3 * PASS_STEPS {
             assert!(!core.background(&region), "an intact table is left as it is");
         }
-        assert_eq!(core.fixed_flags & flags::DEGRADED, 0);
+        assert!(!core.scrub.degraded());
         // One bit of a FOG's misalignment: the combiner built from it changes too.
         core.table.misalignment.d12_rad = f64::from_bits(core.table.misalignment.d12_rad.to_bits() ^ (1 << 40));
         core.combiner = crate::combination::Combiner::new(&[nalgebra::Vector3::x(); 4]);
@@ -177,11 +181,11 @@ mod tests {
         assert_eq!(core.counter(Counter::TablesRestored), 1);
         let e = core.events.pending().last().unwrap();
         assert_eq!((e.event, e.a), (Event::TableRestored, 1));
-        assert_ne!(core.fixed_flags & flags::DEGRADED, 0, "degraded after the restore");
+        assert!(core.scrub.degraded(), "degraded after the restore");
         for _ in 0..HOLD_STEPS {
             assert!(!core.background(&region), "found once");
         }
-        assert_eq!(core.fixed_flags & flags::DEGRADED, 0, "and no longer after the hold");
+        assert!(!core.scrub.degraded(), "and no longer after the hold");
         for _ in 0..PASS_STEPS {
             assert!(!core.background(&region), "found once");
         }
@@ -194,6 +198,6 @@ mod tests {
         for _ in 0..3 * PASS_STEPS {
             core.background(&blank);
         }
-        assert_ne!(core.fixed_flags & flags::DEGRADED, 0);
+        assert!(core.scrub.degraded());
     }
 }

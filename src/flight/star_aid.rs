@@ -21,13 +21,27 @@ use crate::observer::UpdateError;
 use crate::telemetry::events::Event;
 use crate::telemetry::{flags, st_status, Counter};
 
+use super::fog::IsolationCause;
+
+/// Why the unit no longer reports aligned (`alignment_lost`, detail a).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub(super) enum AlignmentCause {
+    /// The estimator starts again (a mounting verdict, guarded state derived again).
+    EstimatorRestarted = 1,
+    /// The mounting check finds a FOG at odds with the tracker.
+    MountingAtOdds = 2,
+    /// The mounting check's evidence started again and has not spanned 2 s yet.
+    MountingEvidenceRestarted = 3,
+}
+
 impl FlightCore {
     /// The mounting check (from power-on) sees every sample of the four FOGs.
     #[inline]
     pub(super) fn mount_check_sample(&mut self, dtheta: &nalgebra::Vector4<f64>, used: FogSet, time_us: u64) {
         let isolated = self.fdi.as_ref().is_some_and(|m| m.isolated().is_some());
         if let Some(m) = self.mounting.as_mut().filter(|m| m.checking() && !isolated) {
-            m.on_sample(dtheta, used == FogSet::ALL, time_us);
+            m.on_sample(dtheta, used.0, time_us);
         }
     }
 
@@ -50,8 +64,24 @@ impl FlightCore {
         let aligned = self.observer.aligned();
         if aligned && self.mounting.as_ref().is_none_or(MountCheck::clear_to_report) {
             status |= st_status::ALIGNED;
+        } else if self.last_output.st_status & st_status::ALIGNED != 0 {
+            self.alignment_lost(now_us);
         }
         status | self.star_intake.outage(now_us, aligned, &mut self.telemetry.counters)
+    }
+
+    /// The unit reported aligned at the last step and does not now: recorded with the
+    /// cause (`alignment_lost`).
+    #[inline(never)]
+    pub(super) fn alignment_lost(&mut self, now_us: u64) {
+        let cause = if !self.observer.aligned() {
+            AlignmentCause::EstimatorRestarted
+        } else if self.mounting.as_ref().is_some_and(|m| m.faulty() != 0) {
+            AlignmentCause::MountingAtOdds
+        } else {
+            AlignmentCause::MountingEvidenceRestarted
+        };
+        self.events.record(&mut self.telemetry.counters, now_us, Event::AlignmentLost, cause as u8, 0);
     }
 
     /// One star-tracker frame into the observer (or, while a parity alarm stands, into
@@ -75,12 +105,18 @@ impl FlightCore {
             let verdict = m.on_frame(f.time_us, &(q * self.mount.conjugate()));
             match (before, m.state()) {
                 (MountState::Checking, MountState::Watching { unverified }) => {
-                    self.telemetry.counters.add(Counter::MountUnverified, unverified.count_ones());
-                    self.events.log(now_us, Event::MountUnverified, unverified, 0);
+                    let n = unverified.count_ones();
+                    self.events.record_n(
+                        &mut self.telemetry.counters,
+                        now_us,
+                        Event::MountUnverified,
+                        unverified,
+                        0,
+                        n,
+                    );
                 }
                 (_, MountState::Undecided { .. }) => {
-                    self.telemetry.counters.bump(Counter::MountUndecided);
-                    self.events.log(now_us, Event::MountUndecided, 0, 0);
+                    self.events.record(&mut self.telemetry.counters, now_us, Event::MountUndecided, 0, 0);
                 }
                 _ => {}
             }
@@ -102,8 +138,8 @@ impl FlightCore {
                     let isolation = fdi.on_mismatch(&m.e_rad, m.var_rad2);
                     counters.count_fdi(before, fdi.state());
                     if let Some(iso) = isolation {
-                        self.observer.remove_drift(&mut self.attitude, now_us, iso.since_us, &iso.drift_rad_s);
-                        self.on_isolation(iso.fog, now_us);
+                        let cause = IsolationCause::StarAided { since_us: iso.since_us, drift_rad_s: iso.drift_rad_s };
+                        self.isolate(iso.fog, cause, now_us);
                     }
                     st_status::LISTENED
                 }
@@ -118,10 +154,9 @@ impl FlightCore {
                 self.star_intake.used(now_us);
                 counters.bump(Counter::StFramesAccepted);
                 if u.realigned {
-                    counters.bump(Counter::Realigned);
                     let arcsec = u.e_rad.norm() * 180.0 / core::f64::consts::PI * 3600.0;
                     // `as` saturates (and takes NaN to 0).
-                    self.events.log(now_us, Event::Realigned, (arcsec / 3600.0) as u8, arcsec as u16);
+                    self.events.record(counters, now_us, Event::Realigned, (arcsec / 3600.0) as u8, arcsec as u16);
                 }
                 if u.reacquired {
                     counters.bump(Counter::StReacquired);
@@ -164,10 +199,7 @@ impl FlightCore {
         self.events.log(now_us, Event::MountVerdict, kind, fogs);
         match v {
             MountVerdict::Flipped(i) | MountVerdict::Unexplained(i) => {
-                if self.fdi.as_mut().is_some_and(|m| m.isolate_mounted_wrong(i)) {
-                    self.telemetry.counters.bump(Counter::MountIsolated);
-                    self.telemetry.counters.bump(Counter::FdiIsolations);
-                }
+                self.isolate(i, IsolationCause::Mounting, now_us);
             }
             MountVerdict::Swapped(i, j) => {
                 let mut map = self.fog_map;

@@ -48,7 +48,7 @@ use nalgebra::{Quaternion, Vector3, Vector4};
 
 use crate::calib::N_FOG;
 use crate::math;
-use crate::state::Maybe;
+use crate::state::{Flag, Maybe};
 
 /// Threshold on a FOG's evidence, in its own σ (noise of two star-tracker frames and the
 /// FOG's random walk): with four FOGs tested at every frame, a false "faulty" about once
@@ -67,6 +67,11 @@ pub const REPORT_SPAN_US: u64 = 2_000_000;
 pub const PASS_SPAN_US: u64 = 10_000_000;
 /// Span after which the check ends in any case, µs (60 s).
 pub const MAX_SPAN_US: u64 = 60_000_000;
+/// Samples in a row a FOG of the check must miss before it leaves the check (200 ms at
+/// 5 ms, as a lost FOG): a shorter gap only skips the interval between two frames.
+pub const LEAVE_SAMPLES: u16 = 40;
+/// Every FOG slot.
+const ALL_FOGS: u8 = (1 << N_FOG) - 1;
 
 /// What the check found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -204,6 +209,14 @@ pub struct MountCheck {
     phi_rad: Vector3<f64>,
     verified: u8,
     faulty: u8,
+    /// The FOGs the evidence is about (bit i): all at each start of the evidence, less a
+    /// FOG that missed [`LEAVE_SAMPLES`] in a row (lost: the others' evidence goes on).
+    fogs: u8,
+    /// A FOG of the check missed a sample since the last frame: the interval to the next
+    /// frame is no one's evidence.
+    broken: Flag,
+    /// Samples in a row that missed a FOG of the check.
+    missing_run: u16,
     /// The hypothesis that fitted at the last frame.
     pending: VerdictCode,
     state: StateCode,
@@ -228,6 +241,9 @@ impl MountCheck {
             phi_rad: Vector3::zeros(),
             verified: 0,
             faulty: 0,
+            fogs: ALL_FOGS,
+            broken: Flag::CLEAR,
+            missing_run: 0,
             pending: VerdictCode::of(None),
             state: StateCode::of(MountState::Checking),
         }
@@ -264,22 +280,42 @@ impl MountCheck {
         }
     }
 
+    /// FOGs at odds with the tracker at the last frame (bit i).
+    pub fn faulty(&self) -> u8 {
+        self.faulty
+    }
+
     /// FOGs verified so far (bit i).
     pub fn verified(&self) -> u8 {
         self.verified
     }
 
-    /// One sample: every FOG's compensated increment `m_rad` (`complete`: all four were
-    /// there and usable) ending at unit time `t_us`. An incomplete sample starts the
-    /// evidence again (a FOG's sum would miss it).
-    pub fn on_sample(&mut self, m_rad: &Vector4<f64>, complete: bool, t_us: u64) {
+    /// FOGs the evidence is about (bit i): a FOG lost meanwhile has left it.
+    pub fn fogs(&self) -> u8 {
+        self.fogs
+    }
+
+    /// One sample: every FOG's compensated increment `m_rad` (`used`: bit i, FOG i was
+    /// there and usable) ending at unit time `t_us`. A sample that misses a FOG of the
+    /// check makes the interval between the frames around it no one's evidence (a FOG's
+    /// sum would miss it, and Φ must span what the sums span); a FOG that misses
+    /// [`LEAVE_SAMPLES`] in a row leaves the check, so the others' evidence goes on.
+    pub fn on_sample(&mut self, m_rad: &Vector4<f64>, used: u8, t_us: u64) {
         if !self.checking() {
             return;
         }
-        if !complete {
-            self.anchor = Maybe::none();
-            return;
+        let missing = self.fogs & !used;
+        if missing != 0 {
+            self.missing_run = self.missing_run.saturating_add(1);
+            if self.missing_run < LEAVE_SAMPLES {
+                self.broken = Flag::SET;
+                return;
+            }
+            self.fogs &= used;
+            self.faulty &= used;
+            self.pending = VerdictCode::of(None);
         }
+        self.missing_run = 0;
         self.acc_rad += m_rad;
         self.last_rad = *m_rad;
         self.last_us = t_us;
@@ -306,6 +342,11 @@ impl MountCheck {
             self.anchor = Maybe::some(prev);
             return None;
         }
+        if self.broken.get() {
+            // A sample missed since the previous frame: this interval is skipped.
+            self.broken = Flag::CLEAR;
+            return None;
+        }
         self.phi_rad += math::rotvec_from_quat(&(prev.q.conjugate() * q_ics));
         self.s_rad += acc_rad - prev.acc_rad;
         // A start after now is a corrupted state (a flipped bit): the evidence starts again.
@@ -322,6 +363,8 @@ impl MountCheck {
     /// Evidence from the frame at `time_us` on.
     fn restart_evidence(&mut self, time_us: u64) {
         self.start_us = time_us;
+        self.fogs = ALL_FOGS;
+        self.broken = Flag::CLEAR;
         self.s_rad = Vector4::zeros();
         self.phi_rad = Vector3::zeros();
         self.faulty = 0;
@@ -346,6 +389,9 @@ impl MountCheck {
         let axes = self.axes;
         self.faulty = 0;
         for (i, a) in axes.iter().enumerate() {
+            if self.fogs & (1 << i) == 0 {
+                continue;
+            }
             if !self.consistent(i, a, tau) {
                 self.faulty |= 1 << i;
             } else if self.others_excluded(i, tau) {
@@ -359,7 +405,7 @@ impl MountCheck {
             self.state = StateCode::of(MountState::Found(v));
             return confirmed;
         }
-        let all = (1u8 << N_FOG) - 1;
+        let all = ALL_FOGS;
         if self.faulty == 0 && self.verified == all {
             self.state = StateCode::of(MountState::Passed { unverified: 0 });
         } else if self.faulty == 0 && span_us >= PASS_SPAN_US {

@@ -21,14 +21,27 @@ use crate::calib::N_FOG;
 use crate::frames::output::flags;
 use crate::state::Ring;
 use crate::state_map::{state_map, StateField};
+use crate::telemetry::counters::{page, Counter, Counters, PAGED};
 use crate::telemetry::st_status;
 
 /// Records the event log holds before the oldest gives way.
 pub const EVENT_LOG: usize = 32;
 
-/// The unit's events: `code Variant "name" "details",` per line.
+/// The counter an event declares (`[Counter]` after its name), or none.
+macro_rules! event_counter {
+    () => {
+        None
+    };
+    ($c:ident) => {
+        Some(Counter::$c)
+    };
+}
+
+/// The unit's events: `code Variant "name" [Counter] "details",` per line; `[Counter]`
+/// (optional) is the counter that counts the event: [`EventLog::record`] logs the event
+/// and counts it, so the two cannot part.
 macro_rules! declare_events {
-    ( $( $code:literal $var:ident $name:literal $detail:literal, )* ) => {
+    ( $( $code:literal $var:ident $name:literal $( [$counter:ident] )? $detail:literal, )* ) => {
         /// A state change of the unit (the event table of `docs/ICD.md`).
         #[derive(Debug, Clone, Copy, PartialEq, Eq)]
         #[cfg_attr(target_os = "none", derive(defmt::Format))]
@@ -67,6 +80,13 @@ macro_rules! declare_events {
                     $( Event::$var => $detail, )*
                 }
             }
+
+            /// The counter that counts it ([`EventLog::record`]), if it has one.
+            pub const fn counter(self) -> Option<Counter> {
+                match self {
+                    $( Event::$var => event_counter!($($counter)?), )*
+                }
+            }
         }
     };
 }
@@ -77,11 +97,11 @@ declare_events! {
     3 ConvergenceLost "convergence_lost" "the estimator no longer reports converged: restarted, or its error grew (a, b: 0)",
     4 ParityAlarm "parity_alarm" "the four-FOG parity check raised an alarm: a FOG is faulty, not yet isolated (a, b: 0)",
     5 AlarmCleared "alarm_cleared" "a parity alarm cleared without isolation: a transient (a, b: 0)",
-    6 Isolated "isolated" "a FOG was isolated: the unit flies on the other three (a: FOG channel, 1-based; b: 0)",
+    6 Isolated "isolated" [FdiIsolations] "a FOG was isolated: the unit flies on the other three (a: FOG channel, 1-based; b: the cause: 1 the parity check named it, 2 its own checks refused it during a parity alarm, 3 the star tracker named it during a parity alarm, 4 the mounting check found it reversed or alone at odds with the tracker)",
     7 TempSensorFailed "temp_sensor_failed" "a FOG's temperature sensor failed: its compensation holds the predicted temperature (a: FOG channel, 1-based; b: 0)",
     8 MountVerdict "mount_verdict" "the mounting check's verdict (a: 1 reversed, 2 swapped, 3 alone at odds with the tracker; b: the FOG channel, 1-based, and for a swap the second one times 16)",
-    9 MountUnverified "mount_unverified" "the mounting check could not verify some FOGs in its first 10 s and watches on (a: bit i for FOG channel i + 1; b: 0)",
-    10 MountUndecided "mount_undecided" "the mounting check ended with FOGs at odds with the tracker and no single flip or swap explaining them (a, b: 0)",
+    9 MountUnverified "mount_unverified" [MountUnverified] "the mounting check could not verify some FOGs in its first 10 s and watches on (a: bit i for FOG channel i + 1; b: 0)",
+    10 MountUndecided "mount_undecided" [MountUndecided] "the mounting check ended with FOGs at odds with the tracker and no single flip or swap explaining them (a, b: 0)",
     11 FogsRemapped "fogs_remapped" "the unit flies two FOGs on the corrected assignment (a: the table axis of channel k in bits 2k..2k+1; b: 0)",
     12 TableFallback "table_fallback" "the stored calibration table was invalid: the unit flies on the default table (a, b: 0)",
     13 BitFailed "bit_failed" "the power-on built-in test failed (a, b: 0)",
@@ -92,14 +112,17 @@ declare_events! {
     18 CommandAccepted "command_accepted" "a telecommand was authenticated and acted on (a: command code; b: its sequence number, low 16 bits)",
     19 CommandRefused "command_refused" "a decoded telecommand was refused (a: command code; b: the refusal code of the command report)",
     20 TableSwitched "table_switched" "the unit switched to a calibration table (a: 0; b: its revision, low 16 bits)",
-    21 StateRestored "state_restored" "guarded state changed between two steps (a bit flip) was restored (a: block, 1 attitude, 2 drift/convergence/combiner, 3 estimator and mount, 4+i combiner without FOG i+1; b: 0 from its good copy, 1 the copy took the flip, 2 neither: derived again, re-aligning)",
-    22 StateImplausible "state_implausible" "guarded state was implausible (a: 1 attitude norm, 2 drift beyond 1000 °/h, 3 covariance): the estimator re-aligns on the next star-tracker frame (b: 0)",
-    23 Realigned "realigned" "the star tracker and the propagated attitude disagreed on consecutive frames that agree with each other: the attitude was re-aligned on the tracker, not converged until the estimate converges again (a: the disagreement in whole degrees, saturating; b: in arcsec, saturating at 65,535)",
-    41 TableRestored "table_restored" "the background check found the calibration table in RAM differing from its CRC: restored from the two-copy store, combiner and gains rebuilt (a: 1 restored, 0 no good copy: flying on as it was, degraded; b: the restored table's revision, low 16 bits)",
-    42 KeyRestored "key_restored" "the background check found the command key in RAM differing from its protected record: restored from the record (a, b: 0)",
-    43 Resumed "resumed" "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
-    44 SnapshotInvalid "snapshot_invalid" "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
-    45 CodeCorrupt "code_corrupt" "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
+    21 StateRestored "state_restored" [StateRestored] "guarded state changed between two steps (a bit flip) was restored (a: block, 1 attitude, 2 drift/convergence/combiner, 3 estimator and mount, 4+i combiner without FOG i+1; b: 0 from its good copy, 1 the copy took the flip, 2 neither: derived again, re-aligning)",
+    22 StateImplausible "state_implausible" [StateImplausible] "guarded state was implausible (a: 1 attitude norm, 2 drift beyond 1000 °/h, 3 covariance): the estimator re-aligns on the next star-tracker frame (b: 0)",
+    23 Realigned "realigned" [Realigned] "the star tracker and the propagated attitude disagreed on consecutive frames that agree with each other: the attitude was re-aligned on the tracker, not converged until the estimate converges again (a: the disagreement in whole degrees, saturating; b: in arcsec, saturating at 65,535)",
+    24 FogLost "fog_lost" [FogsLost] "a FOG gave no usable sample for 40 in a row (200 ms; not isolated): the unit flies without it (a: FOG channel, 1-based; b: the health bits of its last sample, which say why: missing, device fault, out of range, stuck)",
+    25 FogRestored "fog_restored" [FogsRestored] "a lost FOG gave usable samples again, 40 in a row: flown again (a: FOG channel, 1-based; b: 0)",
+    26 AlignmentLost "alignment_lost" [AlignmentsLost] "the unit no longer reports aligned (a: the cause: 1 the estimator starts again (a mounting verdict, guarded state derived again), 2 the mounting check finds a FOG at odds with the tracker, 3 the mounting check's evidence starts again and has not yet spanned 2 s; b: 0)",
+    41 TableRestored "table_restored" [TablesRestored] "the background check found the calibration table in RAM differing from its CRC: restored from the two-copy store, combiner and gains rebuilt (a: 1 restored, 0 no good copy: flying on as it was, degraded; b: the restored table's revision, low 16 bits)",
+    42 KeyRestored "key_restored" [KeysRestored] "the background check found the command key in RAM differing from its protected record: restored from the record (a, b: 0)",
+    43 Resumed "resumed" [Resumes] "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
+    44 SnapshotInvalid "snapshot_invalid" [SnapshotsInvalid] "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
+    45 CodeCorrupt "code_corrupt" [CodeCorrupt] "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
     46 SramEcc "sram_ecc" "the board's SRAM ECC reported errors since the last step (a: uncorrected, saturating at 255; b: corrected, saturating)",
 }
 
@@ -207,8 +230,24 @@ impl EventLog {
         }
     }
 
+    /// Logs `event` at `time_us` with details `a`, `b` and counts it on its counter
+    /// ([`Event::counter`]): the one way the core logs an event that has a counter.
+    #[inline(never)]
+    pub fn record(&mut self, counters: &mut Counters, time_us: u64, event: Event, a: u8, b: u16) {
+        self.record_n(counters, time_us, event, a, b, 1);
+    }
+
+    /// [`EventLog::record`], adding `n` to its counter (an event about several FOGs
+    /// counts each).
+    pub fn record_n(&mut self, counters: &mut Counters, time_us: u64, event: Event, a: u8, b: u16, n: u32) {
+        if let Some(c) = event.counter() {
+            counters.add(c, n);
+        }
+        self.log(time_us, event, a, b);
+    }
+
     /// Logs the edges between the previous step's status and this one's, `now`
-    /// (alignment, convergence, parity alarm and isolation, temperature sensors, FOG
+    /// (alignment, convergence, parity alarm, temperature sensors, FOG
     /// remapping, fallback table, failed built-in test, re-acquisition, outage), at this
     /// step's unit time `time_us`. `fog_map`: the table axis each FOG channel flies on.
     /// One comparison a step when nothing changed.
@@ -251,9 +290,6 @@ impl EventLog {
             self.log(t, Event::AlarmCleared, 0, 0);
         }
         for i in 0..N_FOG as u8 {
-            if newly_isolated & (0x10 << i) != 0 {
-                self.log(t, Event::Isolated, i + 1, 0);
-            }
             if rose(prev.fdi, now.fdi, 1 << i) {
                 self.log(t, Event::TempSensorFailed, i + 1, 0);
             }
@@ -325,10 +361,18 @@ const ST_EDGES: u8 = st_status::ALIGNED | st_status::OUTAGE | st_status::REACQUI
 
 /// Writes the event table of `docs/ICD.md` (markdown rows `| code | event | details |`).
 pub fn write_event_table(w: &mut impl core::fmt::Write) -> core::fmt::Result {
-    writeln!(w, "| code | event | details |")?;
-    writeln!(w, "|---|---|---|")?;
+    writeln!(w, "| code | event | counter (page id) | details |")?;
+    writeln!(w, "|---|---|---|---|")?;
     for e in Event::ALL {
-        writeln!(w, "| {} | `{}` | {} |", e.code(), e.name(), e.detail())?;
+        write!(w, "| {} | `{}` | ", e.code(), e.name())?;
+        match e.counter() {
+            Some(c) => match PAGED.iter().position(|p| *p == c) {
+                Some(k) => write!(w, "`{:?}` ({})", c, usize::from(page::FOG_PAGES) + k)?,
+                None => write!(w, "`{:?}`", c)?,
+            },
+            None => write!(w, "—")?,
+        }
+        writeln!(w, " | {} |", e.detail())?;
     }
     Ok(())
 }
@@ -390,10 +434,14 @@ mod tests {
         step(&mut log, b, b, &map);
         let c = out(15_000, 0, st_status::ALIGNED, 0x20);
         step(&mut log, b, c, &map);
-        let got: [(u64, Event, u8); 3] =
+        let got: [(u64, Event, u8); 2] =
             core::array::from_fn(|_| log.pop().map_or((0, Event::BitFailed, 0), |r| (r.time_us, r.event, r.a)));
-        assert_eq!(got, [(10_000, Event::Aligned, 0), (10_000, Event::ParityAlarm, 0), (15_000, Event::Isolated, 2)]);
-        assert!(log.is_empty(), "a cleared alarm with an isolation is no transient; the power-on outage is no outage");
+        assert_eq!(got, [(10_000, Event::Aligned, 0), (10_000, Event::ParityAlarm, 0)]);
+        assert!(
+            log.is_empty(),
+            "a cleared alarm with an isolation is no transient (the isolation is recorded where it is decided, with \
+             its cause); the power-on outage is no outage"
+        );
     }
 
     #[test]
@@ -415,6 +463,20 @@ mod tests {
         let now = out(7, flags::FOGS_REMAPPED, 0, 0);
         step(&mut log, out(0, 0, 0, 0), now, &[1, 0, 2, 3]);
         assert_eq!(log.pop().map(|r| (r.event, r.a)), Some((Event::FogsRemapped, 0b11_10_00_01)));
+    }
+
+    /// An event that declares a counter is counted by [`EventLog::record`], by the
+    /// amount given; one without is only logged.
+    #[test]
+    fn recording_an_event_counts_it_on_its_counter() {
+        let mut log = EventLog::new();
+        let mut c = Counters::default();
+        log.record(&mut c, 1, Event::Isolated, 2, 1);
+        log.record_n(&mut c, 2, Event::MountUnverified, 0b101, 0, 2);
+        log.record(&mut c, 3, Event::Aligned, 0, 0);
+        assert_eq!((c.fdi_isolations, c.mount_unverified), (1, 2));
+        assert_eq!(Event::Aligned.counter(), None);
+        assert_eq!(log.len(), 3);
     }
 
     #[test]

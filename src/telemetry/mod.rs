@@ -54,6 +54,9 @@ pub mod st_status {
     pub const LISTENED: u8 = 1 << 5;
     /// The observer re-acquired: a streak of gated frames agreed with each other.
     pub const REACQUIRED: u8 = 1 << 6;
+    /// The attitude is good to use: the one validity the unit states, derived in one
+    /// place (`FlightCore::attitude_valid`; `docs/ICD.md`, "Attitude valid").
+    pub const VALID: u8 = 1 << 7;
 }
 
 /// Everything one step produced, in physical units (the output frame is its encoding).
@@ -122,6 +125,79 @@ pub struct Telemetry {
     output_dropped_last: Flag,
     /// The output frame's bytes (kept, so a step does not clear them).
     out_buf: WordAligned<{ OutputFrame::LEN }>,
+    /// Which fitted FOGs are lost (the lasting changes of the FOG set the unit reports).
+    pub(crate) fog_set: FogSetWatch,
+}
+
+/// Samples in a row that make a change of a FOG's availability lasting: a FOG with no
+/// usable sample for this many is lost, a lost one with usable samples for this many is
+/// restored (40 × 5 ms = 200 ms, the stuck check's span).
+pub const FOG_SET_SAMPLES: u16 = 40;
+
+/// A change of the FOG set ([`FogSetWatch::on_sample`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FogSetChange {
+    /// FOG i has had no usable sample for [`FOG_SET_SAMPLES`] in a row.
+    Lost(usize),
+    /// Lost FOG i has had usable samples for [`FOG_SET_SAMPLES`] in a row.
+    Restored(usize),
+}
+
+/// The lasting availability of each FOG: one comparison a sample while nothing is
+/// changing.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
+pub struct FogSetWatch {
+    /// The last sample's usable FOGs (bits 0..8) and whether a run is counting (bit 8):
+    /// a sample with the same FOGs and no run counting changes nothing.
+    key: u16,
+    /// FOGs lost (bit i).
+    lost: u8,
+    /// Per FOG, samples in a row towards a change (unusable while not lost, usable while
+    /// lost).
+    runs: [u16; N_FOG],
+}
+
+impl FogSetWatch {
+    /// Whether a sample with usable FOGs `used` needs [`FogSetWatch::on_sample`] (the
+    /// step's inline test).
+    #[inline(always)]
+    pub fn changing(&self, used: FogSet) -> bool {
+        u16::from(used.0) != self.key
+    }
+
+    /// FOGs lost (bit i).
+    pub fn lost(&self) -> u8 {
+        self.lost
+    }
+
+    /// One sample: `used` the FOGs whose sample is usable, `watched` the FOGs the set is
+    /// about (fitted, not isolated: an isolation is its own change). Calls `changed` for
+    /// each FOG lost or restored by this sample.
+    pub fn on_sample(&mut self, used: FogSet, watched: FogSet, mut changed: impl FnMut(FogSetChange)) {
+        let mut counting = false;
+        for (i, run) in self.runs.iter_mut().enumerate() {
+            let bit = 1u8 << i;
+            let lost = self.lost & bit != 0;
+            if !watched.contains(i) {
+                *run = 0;
+                self.lost &= !bit;
+                continue;
+            }
+            // Towards a change: unusable while available, usable while lost.
+            if used.contains(i) == lost {
+                *run = run.saturating_add(1);
+                if *run >= FOG_SET_SAMPLES {
+                    *run = 0;
+                    self.lost ^= bit;
+                    changed(if lost { FogSetChange::Restored(i) } else { FogSetChange::Lost(i) });
+                }
+            } else {
+                *run = 0;
+            }
+            counting |= *run != 0;
+        }
+        self.key = u16::from(used.0) | if counting { 1 << 8 } else { 0 };
+    }
 }
 
 impl Default for Telemetry {
@@ -139,6 +215,7 @@ impl Telemetry {
             step_ticks: 0,
             output_dropped_last: Flag::CLEAR,
             out_buf: WordAligned([0; OutputFrame::LEN]),
+            fog_set: FogSetWatch { key: u16::from(FogSet::ALL.0), lost: 0, runs: [0; N_FOG] },
         }
     }
 

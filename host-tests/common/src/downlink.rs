@@ -10,6 +10,7 @@ use ssis::frames::event::EventFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::telecommand::CommandReport;
 use ssis::telemetry::events::{Event, EventRecord};
+use ssis::telemetry::health;
 
 use crate::cli::{json, Value};
 
@@ -79,7 +80,38 @@ pub fn details(r: &EventRecord) -> String {
         v.join(" ")
     };
     match r.event {
-        Event::Isolated | Event::TempSensorFailed => format!("FOG{}", r.a),
+        Event::TempSensorFailed | Event::FogRestored => format!("FOG{}", r.a),
+        Event::Isolated => {
+            let why = match r.b {
+                1 => "by the parity check",
+                2 => "refused by its own checks during a parity alarm",
+                3 => "named by the star tracker during a parity alarm",
+                4 => "by the mounting check",
+                _ => "",
+            };
+            format!("FOG{} {why}", r.a)
+        }
+        Event::FogLost => {
+            let h = r.b as u8;
+            let why: Vec<&str> = [
+                (health::MISSING, "missing"),
+                (health::DEVICE_FAULT, "device fault"),
+                (health::OUT_OF_RANGE, "out of range"),
+                (health::STUCK, "stuck"),
+                (health::REJECTED, "frames rejected"),
+            ]
+            .iter()
+            .filter(|(bit, _)| h & bit != 0)
+            .map(|(_, w)| *w)
+            .collect();
+            format!("FOG{}: {}", r.a, why.join(", "))
+        }
+        Event::AlignmentLost => match r.a {
+            1 => "the estimator starts again".to_string(),
+            2 => "a FOG at odds with the star tracker (mounting check)".to_string(),
+            3 => "the mounting check's evidence starts again".to_string(),
+            k => format!("cause {k}"),
+        },
         Event::MountVerdict => match r.a {
             1 => format!("FOG{} reversed", r.b & 0xF),
             2 => format!("FOG{} and FOG{} swapped", r.b & 0xF, r.b >> 4),
