@@ -28,9 +28,10 @@ use crate::math;
 pub const N_ACCEL: usize = 3;
 
 /// Error terms of one accelerometer (units in the names).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
+#[repr(C)]
 pub struct AccelCal {
     /// Bias b, m/s².
     pub bias_m_s2: f64,
@@ -72,7 +73,7 @@ impl AccelCal {
 
 /// Sensitive-axis misalignment of the three accelerometers, rad (small angles, see the
 /// module documentation for the axes they build).
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct AccelMisalignment {
@@ -130,7 +131,7 @@ impl From<SectionError> for AccelTableError {
 }
 
 /// The accelerometer calibration section.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 #[cfg_attr(feature = "serde", serde(deny_unknown_fields))]
 pub struct AccelTable {
@@ -153,7 +154,7 @@ pub const TABLE_LEN: usize = section::section_len(N_F64);
 
 /// Compensated body velocity increments need the inverse of the axes matrix; it is
 /// computed once when the table is accepted ([`AccelTable::compensator`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct AccelCompensator {
     table: AccelTable,
     axes_inv: Matrix3<f64>,

@@ -41,7 +41,7 @@ pub mod status {
 }
 
 /// One accelerometer sample as carried on the link (raw counts).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct AccelFrame {
     /// Accelerometer id, 0..=2.

@@ -24,7 +24,7 @@ use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter,
 
 /// One GNSS position/velocity fix, ECEF, the physical content of a
 /// [`GnssFrame`]; the navigation applies it after the step it is valid at the end of.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct GnssFix {
     /// Position, m.
     pub r_e_m: Vector3<f64>,
@@ -62,7 +62,7 @@ pub mod status {
 }
 
 /// One GNSS fix as carried on the link (raw counts).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, bytemuck::AnyBitPattern)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 pub struct GnssFrame {
     /// Status bits ([`status`]).

@@ -36,17 +36,18 @@ use nalgebra::{Cholesky, Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 use super::{wgs84, Corrections, NavError, NavState, Strapdown};
 pub use crate::frames::gnss::GnssFix;
 use crate::math;
+use crate::state_map::{state_map, StateField};
 
 /// Error-state dimension.
 pub const N_X: usize = 15;
 /// Navigation steps per covariance propagation (80 × 1.25 ms = 0.1 s).
 pub const PROPAGATE_STEPS: u32 = 80;
 
-type MatX = SMatrix<f64, N_X, N_X>;
+pub(super) type MatX = SMatrix<f64, N_X, N_X>;
 type VecX = SVector<f64, N_X>;
 
 /// Filter tuning (1σ initial uncertainties and noise densities).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct GnssConfig {
     /// Initial attitude uncertainty, rad.
     pub init_att_rad: f64,
@@ -84,20 +85,22 @@ pub enum GnssError {
     Nav(NavError),
 }
 
-/// Strapdown navigation with loosely coupled GNSS aiding.
-#[derive(Debug, Clone, PartialEq)]
+/// Strapdown navigation with loosely coupled GNSS aiding. Every bit pattern of it is a
+/// value (`crate::state`); the reset snapshot ([`super::snapshot`]) reads and restores
+/// its fields.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct AidedNav {
-    nav: Strapdown,
-    cfg: GnssConfig,
-    p: MatX,
-    accel_bias_m_s2: Vector3<f64>,
-    gyro_bias_rad_s: Vector3<f64>,
+    pub(super) nav: Strapdown,
+    pub(super) cfg: GnssConfig,
+    pub(super) p: MatX,
+    pub(super) accel_bias_m_s2: Vector3<f64>,
+    pub(super) gyro_bias_rad_s: Vector3<f64>,
     /// Σ of the specific-force increments in ECEF since the last propagation, m/s.
-    sum_dv_e_m_s: Vector3<f64>,
+    pub(super) sum_dv_e_m_s: Vector3<f64>,
     /// Steps since the last propagation.
-    pending_steps: u32,
-    updates: u32,
-    refused: u32,
+    pub(super) pending_steps: u32,
+    pub(super) updates: u32,
+    pub(super) refused: u32,
 }
 
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -109,6 +112,19 @@ fn finite(v: &Vector3<f64>) -> bool {
 }
 
 impl AidedNav {
+    /// Where each field lies (`crate::state_map`).
+    pub const STATE_MAP: &'static [StateField] = state_map!(AidedNav {
+        nav: Strapdown => Strapdown::STATE_MAP,
+        cfg: GnssConfig,
+        p: MatX,
+        accel_bias_m_s2: Vector3<f64>,
+        gyro_bias_rad_s: Vector3<f64>,
+        sum_dv_e_m_s: Vector3<f64>,
+        pending_steps: u32,
+        updates: u32,
+        refused: u32,
+    });
+
     /// Starts from `state` with step `dt_s`.
     pub fn new(state: NavState, dt_s: f64, cfg: GnssConfig) -> Result<Self, NavError> {
         let nav = Strapdown::new(state, dt_s, Corrections::ALL)?;

@@ -49,6 +49,7 @@
 
 pub mod gnss;
 pub mod init;
+pub mod snapshot;
 pub mod unit;
 pub mod wgs84;
 
@@ -56,6 +57,8 @@ use nalgebra::{Quaternion, Vector3};
 
 pub use crate::frames::navout::NavState;
 use crate::math;
+use crate::state::Flag;
+use crate::state_map::{state_map, StateField};
 
 /// Why a navigation step or initialisation was refused (the state is unchanged).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -91,12 +94,27 @@ impl Corrections {
     pub const NONE: Corrections = Corrections { coning: false, rotation: false, sculling: false };
 }
 
+/// [`Corrections`] as the state stores it (every bit pattern a value: [`Flag`]s).
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+struct CorrectionFlags {
+    coning: Flag,
+    rotation: Flag,
+    sculling: Flag,
+}
+
+impl CorrectionFlags {
+    fn of(c: Corrections) -> Self {
+        CorrectionFlags { coning: c.coning.into(), rotation: c.rotation.into(), sculling: c.sculling.into() }
+    }
+}
+
 /// The strapdown mechanisation (see the module documentation for the equations).
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Every bit pattern of it is a value (`crate::state`).
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
 pub struct Strapdown {
     state: NavState,
     dt_s: f64,
-    corrections: Corrections,
+    corrections: CorrectionFlags,
     /// Previous step's angle increment α_{m−1}, rad.
     prev_dtheta_rad: Vector3<f64>,
     /// Previous step's velocity increment υ_{m−1}, m/s.
@@ -132,7 +150,7 @@ impl Strapdown {
         let mut s = Strapdown {
             state,
             dt_s,
-            corrections,
+            corrections: CorrectionFlags::of(corrections),
             prev_dtheta_rad: Vector3::zeros(),
             prev_dv_m_s: Vector3::zeros(),
             prev_gc_m_s2: Vector3::zeros(),
@@ -174,6 +192,32 @@ impl Strapdown {
         self.steps
     }
 
+    /// The previous step's increments α_{m−1} and υ_{m−1} (the coning and sculling
+    /// terms' history, [`snapshot`]).
+    pub(crate) fn history(&self) -> (Vector3<f64>, Vector3<f64>) {
+        (self.prev_dtheta_rad, self.prev_dv_m_s)
+    }
+
+    /// Restores the increment history and the step count ([`snapshot`]).
+    pub(crate) fn set_history(&mut self, dtheta_rad: Vector3<f64>, dv_m_s: Vector3<f64>, steps: u64) {
+        self.prev_dtheta_rad = dtheta_rad;
+        self.prev_dv_m_s = dv_m_s;
+        self.steps = steps;
+    }
+
+    /// Where each field lies (`crate::state_map`).
+    pub const STATE_MAP: &'static [StateField] = state_map!(Strapdown {
+        state: NavState,
+        dt_s: f64,
+        corrections: CorrectionFlags,
+        prev_dtheta_rad: Vector3<f64>,
+        prev_dv_m_s: Vector3<f64>,
+        prev_gc_m_s2: Vector3<f64>,
+        q_earth: Quaternion<f64>,
+        zeta_rad: f64,
+        steps: u64,
+    });
+
     /// Integrates one step of body increments: `dtheta_rad` = ∫ω_ib^b dt and
     /// `dv_m_s` = ∫f^b dt over the step. On error the state is unchanged.
     pub fn step(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
@@ -186,10 +230,10 @@ impl Strapdown {
 
         // Specific-force increment in body axes at the start of the step (Savage Part 2).
         let mut dv_b = *dv_m_s;
-        if c.rotation {
+        if c.rotation.get() {
             dv_b += dtheta_rad.cross(dv_m_s) * 0.5;
         }
-        if c.sculling {
+        if c.sculling.get() {
             dv_b += (self.prev_dtheta_rad.cross(dv_m_s) + self.prev_dv_m_s.cross(dtheta_rad)) / 12.0;
         }
         // To ECEF with the start-of-step attitude, then the nav-frame rotation [I − ½ζ×].
@@ -206,7 +250,7 @@ impl Strapdown {
         let r1 = s0.r_e_m + (s0.v_e_m_s + v1) * (0.5 * dt);
 
         // Attitude (Savage Part 1): body rotation with coning, then Earth rotation.
-        let phi = if c.coning { dtheta_rad + self.prev_dtheta_rad.cross(dtheta_rad) / 12.0 } else { *dtheta_rad };
+        let phi = if c.coning.get() { dtheta_rad + self.prev_dtheta_rad.cross(dtheta_rad) / 12.0 } else { *dtheta_rad };
         let mut q1 = self.q_earth * s0.q_eb * math::quat_from_rotvec(&phi);
         let q_ok = math::normalize(&mut q1);
 

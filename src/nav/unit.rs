@@ -44,7 +44,8 @@ use crate::frames::gnss::GnssFrame;
 use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
 use crate::link::{drain, write_frame, RxLink, TxLink};
-use crate::state::Ring;
+use crate::state::{Flag, Maybe, Ring};
+use crate::state_map::{state_map, StateField};
 
 /// Accelerometer samples a queue holds ahead of the step.
 pub const ACCEL_QUEUE: usize = 8;
@@ -77,24 +78,128 @@ pub struct NavStepOutput {
     pub state: NavState,
 }
 
-/// The navigation stage.
+/// Steps over which the running means of the increments ([`NavUnit::step`]) average:
+/// 256 × 1.25 ms = 0.32 s, many periods of the airframe's vibration (11–47 Hz, left in
+/// the mean at 2–5 % of its amplitude), short beside the thrust's and the pitch
+/// program's changes, so a reset's bridge ([`super::snapshot`]) extrapolates the
+/// motion, not one phase of a vibration.
+pub const MEAN_STEPS: f64 = 256.0;
+
+/// The three accelerometers' sample queues (an array of the state needs `Pod`
+/// elements, which a ring is not).
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
+struct AccelQueues {
+    x: Ring<AccelSlot, ACCEL_QUEUE>,
+    y: Ring<AccelSlot, ACCEL_QUEUE>,
+    z: Ring<AccelSlot, ACCEL_QUEUE>,
+}
+
+impl AccelQueues {
+    /// Accelerometer `i`'s queue, if `i < 3`.
+    #[inline(always)]
+    fn get_mut(&mut self, i: usize) -> Option<&mut Ring<AccelSlot, ACCEL_QUEUE>> {
+        match i {
+            0 => Some(&mut self.x),
+            1 => Some(&mut self.y),
+            2 => Some(&mut self.z),
+            _ => None,
+        }
+    }
+
+    /// The three in order, mutable.
+    #[inline(always)]
+    fn iter_mut(&mut self) -> core::array::IntoIter<&mut Ring<AccelSlot, ACCEL_QUEUE>, N_ACCEL> {
+        [&mut self.x, &mut self.y, &mut self.z].into_iter()
+    }
+}
+
+/// A fix held for the filter work, with the unit time of its step, µs.
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+struct PendingFix {
+    fix: GnssFix,
+    t_us: u64,
+}
+
+/// The navigation stage. Every bit pattern of it is a value (`crate::state`: the derive
+/// below is the proof); [`NavUnit::state_map`] names its fields for the upset campaigns.
+#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
 pub struct NavUnit {
-    nav: AidedNav,
+    pub(super) nav: AidedNav,
     comp: AccelCompensator,
     dt_s: f64,
     accel_dec: StreamDecoder<AccelFrame, 32>,
-    accel_q: [Ring<AccelSlot, ACCEL_QUEUE>; N_ACCEL],
+    accel_q: AccelQueues,
+    gnss_dec: StreamDecoder<GnssFrame, 64>,
+    pub(super) last_dv_m_s: Vector3<f64>,
+    last_fix_us: Maybe<u64>,
+    /// The newest valid fix not yet used.
+    pending_fix: Maybe<PendingFix>,
+    /// A fix has been applied since the last output frame.
+    updated_since_output: Flag,
+    rx_scratch: [u8; 64],
+    out_buf: [u8; NavOutputFrame::LEN],
+    pub(super) out_counter: u16,
+    counters: NavCounters,
+    /// The accelerometer sample counter of the last step (the first accelerometer's
+    /// frame taken, else the one before plus one; `None` until a frame is taken).
+    pub(super) accel_counter: Maybe<u16>,
+    /// Running mean of the body angle increment per step ([`MEAN_STEPS`]), rad.
+    pub(super) mean_dtheta_rad: Vector3<f64>,
+    /// Running mean of the compensated velocity increment per step, m/s.
+    pub(super) mean_dv_m_s: Vector3<f64>,
+    /// Running mean of |α − ᾱ|², rad² (the spread a bridge does not know).
+    pub(super) spread_dtheta_rad2: f64,
+    /// Running mean of |υ − ῡ|², (m/s)².
+    pub(super) spread_dv_m2_s2: f64,
+    /// Resumed from a snapshot whose last accelerometer sample had this counter; the
+    /// samples since are bridged at the first step that takes a frame.
+    pub(super) resume_from: Maybe<u16>,
+    /// Steps waited since the resume for an accelerometer frame.
+    pub(super) resume_wait: u32,
+    /// What the last resume bridged.
+    pub(super) bridged: Maybe<BridgeReport>,
+    /// The navigation is lost (a snapshot refused after a reset, or too old at its first
+    /// sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
+    /// initialisation builds the unit again ([`super::snapshot`]).
+    pub(super) lost: Flag,
+}
+
+/// Where each field of the unit lies ([`NavUnit::state_map`]).
+const STATE_MAP: &[StateField] = state_map!(NavUnit {
+    nav: AidedNav => AidedNav::STATE_MAP,
+    comp: AccelCompensator,
+    dt_s: f64,
+    accel_dec: StreamDecoder<AccelFrame, 32>,
+    accel_q: AccelQueues,
     gnss_dec: StreamDecoder<GnssFrame, 64>,
     last_dv_m_s: Vector3<f64>,
-    last_fix_us: Option<u64>,
-    /// The newest valid fix not yet used, with the unit time of its step, µs.
-    pending_fix: Option<(GnssFix, u64)>,
-    /// A fix has been applied since the last output frame.
-    updated_since_output: bool,
+    last_fix_us: Maybe<u64>,
+    pending_fix: Maybe<PendingFix>,
+    updated_since_output: Flag,
     rx_scratch: [u8; 64],
     out_buf: [u8; NavOutputFrame::LEN],
     out_counter: u16,
     counters: NavCounters,
+    accel_counter: Maybe<u16>,
+    mean_dtheta_rad: Vector3<f64>,
+    mean_dv_m_s: Vector3<f64>,
+    spread_dtheta_rad2: f64,
+    spread_dv_m2_s2: f64,
+    resume_from: Maybe<u16>,
+    resume_wait: u32,
+    bridged: Maybe<BridgeReport>,
+    lost: Flag,
+});
+
+/// What a resume's bridge over a reset did ([`super::snapshot`]).
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+pub struct BridgeReport {
+    /// Samples lost over the reset and bridged.
+    pub steps: u32,
+    /// The bridge's 1σ position error growth it added to the covariance (3-D), m.
+    pub sigma_pos_m: f64,
+    /// The bridge's 1σ velocity error growth (3-D), m/s.
+    pub sigma_vel_m_s: f64,
 }
 
 impl NavUnit {
@@ -105,17 +210,50 @@ impl NavUnit {
             comp,
             dt_s,
             accel_dec: StreamDecoder::new(),
-            accel_q: [Ring::new(), Ring::new(), Ring::new()],
+            accel_q: AccelQueues { x: Ring::new(), y: Ring::new(), z: Ring::new() },
             gnss_dec: StreamDecoder::new(),
             last_dv_m_s: Vector3::zeros(),
-            last_fix_us: None,
-            pending_fix: None,
-            updated_since_output: false,
+            last_fix_us: Maybe::none(),
+            pending_fix: Maybe::none(),
+            updated_since_output: Flag::CLEAR,
             rx_scratch: [0; 64],
             out_buf: [0; NavOutputFrame::LEN],
             out_counter: 0,
             counters: NavCounters::default(),
+            accel_counter: Maybe::none(),
+            mean_dtheta_rad: Vector3::zeros(),
+            mean_dv_m_s: Vector3::zeros(),
+            spread_dtheta_rad2: 0.0,
+            spread_dv_m2_s2: 0.0,
+            resume_from: Maybe::none(),
+            resume_wait: 0,
+            bridged: Maybe::none(),
+            lost: Flag::CLEAR,
         })
+    }
+
+    /// Where each field of the unit lies in the value, down to the filter and the
+    /// strapdown: the upset campaign names the field a flipped bit belongs to
+    /// ([`crate::state_map`]). Nothing in a step reads it.
+    pub fn state_map() -> &'static [StateField] {
+        STATE_MAP
+    }
+
+    /// Whether the navigation is lost (a refused or stale snapshot after a reset): the
+    /// state is held and every output frame carries [`flags::NAV_FAULT`] until the unit
+    /// is built again from a pad initialisation block.
+    pub fn lost(&self) -> bool {
+        self.lost.get()
+    }
+
+    /// Whether a resume waits for its first accelerometer sample to bridge the reset.
+    pub fn resume_pending(&self) -> bool {
+        self.resume_from.is_some()
+    }
+
+    /// What the last resume bridged (the samples lost over the reset), if one did.
+    pub fn bridged(&self) -> Option<BridgeReport> {
+        self.bridged.get()
     }
 
     /// Counters.
@@ -155,8 +293,13 @@ impl NavUnit {
         let mut raw = [0.0; N_ACCEL];
         let mut temps = [0.0; N_ACCEL];
         let mut complete = true;
+        let mut counter: Option<u16> = None;
         for ((q, r), t) in self.accel_q.iter_mut().zip(raw.iter_mut()).zip(temps.iter_mut()) {
-            match q.pop_front().map(AccelFrame::from) {
+            let f = q.pop_front().map(AccelFrame::from);
+            if let (None, Some(f)) = (counter, f) {
+                counter = Some(f.counter);
+            }
+            match f {
                 Some(f) if !f.device_fault() => {
                     *r = f.dv_m_s();
                     *t = f.temperature_degc();
@@ -164,6 +307,10 @@ impl NavUnit {
                 _ => complete = false,
             }
         }
+        let counter = counter.or_else(|| self.accel_counter.get().map(|c| c.wrapping_add(1)));
+        self.accel_counter.set(counter);
+        // After a resume: bridge the samples lost over the reset, or hold.
+        let navigating = self.settle_resume(counter);
         // 2. Compensation (or hold).
         let [x, y, z] = raw;
         let dv = if complete { self.comp.compensate(&Vector3::new(x, y, z), &temps, self.dt_s) } else { None };
@@ -179,9 +326,13 @@ impl NavUnit {
             }
         };
         // 3. Navigation (strapdown only; the covariance work is `filter_work`'s).
-        if self.nav.step_deferred(dtheta_body_rad, &dv).is_err() {
+        if !navigating {
+            fl |= flags::NAV_FAULT;
+        } else if self.nav.step_deferred(dtheta_body_rad, &dv).is_err() {
             fl |= flags::NAV_FAULT;
             self.counters.add(NavCounter::NavFaults, 1);
+        } else {
+            self.track_means(dtheta_body_rad, &dv);
         }
         // 4. GNSS: hold the newest valid fix for the filter work.
         let mut newest: Option<GnssFix> = None;
@@ -202,16 +353,19 @@ impl NavUnit {
         });
         self.counters.add(NavCounter::IoErrors, rep.io_errors);
         self.counters.add(NavCounter::GnssFramesRejected, rejected);
-        if let Some(fix) = newest {
-            if self.pending_fix.replace((fix, time_us)).is_some() {
+        // A fix is held only for a state it is valid for (not while the state waits for
+        // its bridge or is lost).
+        if let Some(fix) = newest.filter(|_| navigating) {
+            if self.pending_fix.take().is_some() {
                 superseded += 1;
             }
+            self.pending_fix = Maybe::some(PendingFix { fix, t_us: time_us });
         }
         self.counters.add(NavCounter::GnssFixesSuperseded, superseded);
-        if core::mem::take(&mut self.updated_since_output) {
+        if self.updated_since_output.take() {
             fl |= flags::GNSS_UPDATED;
         }
-        let outage = match self.last_fix_us {
+        let outage = match self.last_fix_us.get() {
             Some(t) => time_us.saturating_sub(t) > GNSS_OUTAGE_US,
             None => true,
         };
@@ -240,11 +394,14 @@ impl NavUnit {
     /// fix's update (which propagates the covariance first), else the covariance
     /// propagation when [`AidedNav::propagation_due`]; at most one of each per call.
     pub fn filter_work(&mut self) -> FilterWork {
-        if let Some((fix, t_us)) = self.pending_fix.take() {
+        if self.lost.get() || self.resume_from.is_some() {
+            return FilterWork::None;
+        }
+        if let Some(PendingFix { fix, t_us }) = self.pending_fix.take() {
             return match self.nav.gnss_update(&fix) {
                 Ok(()) => {
-                    self.updated_since_output = true;
-                    self.last_fix_us = Some(t_us);
+                    self.updated_since_output = Flag::SET;
+                    self.last_fix_us = Maybe::some(t_us);
                     FilterWork::Updated
                 }
                 Err(e) => FilterWork::Refused(e),
@@ -255,6 +412,19 @@ impl NavUnit {
             return FilterWork::Propagated;
         }
         FilterWork::None
+    }
+}
+
+impl NavUnit {
+    /// The running means and spreads of the increments ([`MEAN_STEPS`]).
+    #[inline(always)]
+    fn track_means(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) {
+        const W: f64 = 1.0 / MEAN_STEPS;
+        let (eth, ev) = (dtheta_rad - self.mean_dtheta_rad, dv_m_s - self.mean_dv_m_s);
+        self.mean_dtheta_rad += eth * W;
+        self.mean_dv_m_s += ev * W;
+        self.spread_dtheta_rad2 += (eth.norm_squared() - self.spread_dtheta_rad2) * W;
+        self.spread_dv_m2_s2 += (ev.norm_squared() - self.spread_dv_m2_s2) * W;
     }
 }
 

@@ -31,6 +31,7 @@ use ssis::link::NotFitted;
 use ssis::math::rotvec_from_quat;
 use ssis::nav::gnss::GnssFix;
 use ssis::nav::init::PadInit;
+use ssis::nav::snapshot::{NavResumeError, NavSnapshot};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 use ssis::nav::NavState;
 use ssis_common::mock::{MockLink, MockSink};
@@ -295,6 +296,22 @@ impl LvCore {
             links: Links { fog: FogLinks::Bus(MockLink::ideal()), star: NotFitted, out: MockSink::default() },
             nav_links: NavLinks { accel: MockLink::ideal(), gnss: MockLink::ideal(), out: MockSink::default() },
         })
+    }
+
+    /// The navigation stage.
+    pub fn nav(&self) -> &NavUnit {
+        &self.nav
+    }
+
+    /// The navigation's reset snapshot now, into `s` (`NavUnit::snapshot_into`).
+    pub fn snapshot_into(&self, s: &mut NavSnapshot) -> bool {
+        self.nav.snapshot_into(s)
+    }
+
+    /// After a reset (this unit just built, as at boot): the navigation resumed from
+    /// `s` (`NavUnit::resume`).
+    pub fn resume_nav(&mut self, s: &NavSnapshot) -> Result<(), NavResumeError> {
+        self.nav.resume(s)
     }
 
     /// One period on `b`'s bytes: the step (`FlightCore::step_with()`, `NavUnit::step()`

@@ -38,9 +38,16 @@
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
 //! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
-//! (128 KiB flash, 64 KiB RAM: 60 KiB of stack at the bottom, 4 KiB of statics above;
-//! FOG table, accelerometer section and pad initialisation block in their own regions,
-//! loaded separately).
+//! (128 KiB flash, 64 KiB RAM: 58 KiB of stack at the bottom, the navigation's reset
+//! snapshot in 2 KiB, 4 KiB of statics above; FOG table, accelerometer section and pad
+//! initialisation block in their own regions, loaded separately).
+//!
+//! Reset: the navigation's snapshot (`ssis::nav::snapshot`) is written every
+//! [`NAV_SNAPSHOT_STEPS`] periods into the NAVSNAP region and, at boot, resumed from if
+//! it passes its checks (the samples lost over the reset bridged at the first step); a
+//! refused or stale one leaves the navigation lost and flagged until the pad
+//! initialisation is loaded again. The flight core itself starts again from the pad
+//! attitude (its own snapshot is not wired into this loop).
 
 use core::convert::Infallible;
 
@@ -52,6 +59,7 @@ use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::navout::NavOutputFrame;
 use ssis::link::{NotFitted, RxRing, TxRing};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
+use ssis::nav::snapshot::NavSnapshot;
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
 use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
 use ssis_firmware::resilience;
@@ -66,6 +74,32 @@ const WATCHDOG_STEPS: u32 = 40;
 /// Offset of the pad initialisation block in the LVDATA region (the accelerometer
 /// section is at 0).
 const INIT_OFFSET: usize = 0x100;
+
+/// Periods between two navigation snapshots (100 ms at 1.25 ms): a reset resumes the
+/// navigation from the last one, bridging up to this many samples plus the time down
+/// (`ssis::nav::snapshot`).
+const NAV_SNAPSHOT_STEPS: u32 = 80;
+
+extern "C" {
+    /// The NAVSNAP region of the layout (`link/memory-lv.x`): RAM no section is placed in.
+    static mut _nav_snapshot_start: u64;
+    static _nav_snapshot_len: u8;
+}
+
+/// The navigation's reset snapshot in RAM the reset does not clear (the NAVSNAP region);
+/// `None` for a layout whose region is too small. Called once, by `fly`.
+#[allow(unsafe_code)]
+fn nav_snapshot() -> Option<&'static mut NavSnapshot> {
+    let len = core::ptr::addr_of!(_nav_snapshot_len) as usize;
+    if len < core::mem::size_of::<NavSnapshot>() {
+        return None;
+    }
+    // SAFETY: the NAVSNAP region is 8-byte-aligned RAM of at least
+    // `size_of::<NavSnapshot>()` bytes (checked), used by nothing else; `NavSnapshot` is
+    // `repr(C)` plain old data, valid for any bit pattern (its CRC judges it); `fly` takes
+    // this reference once and no interrupt touches it.
+    unsafe { Some(&mut *(core::ptr::addr_of_mut!(_nav_snapshot_start) as *mut NavSnapshot)) }
+}
 
 /// FOG bus receive buffer (three 18-byte frames per 1.25 ms step, nine steps of margin).
 static FOG_RX: RxRing<512> = RxRing::new();
@@ -167,6 +201,16 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
             mps2::exit(false)
         }
     };
+    // A reset resumes the navigation from its snapshot, if that passes; spoiled either
+    // way, so one snapshot is resumed at most once.
+    let mut snap = nav_snapshot();
+    if let Some(s) = snap.as_deref_mut() {
+        match nav.resume(s) {
+            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", s.accel_counter()),
+            Err(e) => defmt::info!("no navigation snapshot resumed ({}), lost: {}", e, nav.lost()),
+        }
+        s.invalidate();
+    }
     defmt::info!(
         "ssis-fw-lv up: table revision {}, defaulted {}, pad block revision {}, step {} us",
         core.table().revision,
@@ -190,9 +234,14 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
     let mut event_wait = 0u32;
     let period = mps2::ticks_per_step();
     let mut nav_steps = 0u32;
+    let mut periods = 0u32;
     loop {
         if ssis::link::ring_faults() != 0 {
-            resilience::reset_on_ring_fault(|| {});
+            resilience::reset_on_ring_fault(|| {
+                if let Some(s) = snap.as_deref_mut() {
+                    nav.snapshot_into(s);
+                }
+            });
         }
         // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
         // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
@@ -222,6 +271,10 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
                 mps2::pump_tx(&UARTS);
             }
             let work = nav.filter_work();
+            periods = periods.wrapping_add(1);
+            if let Some(s) = snap.as_deref_mut().filter(|_| periods.is_multiple_of(NAV_SNAPSHOT_STEPS)) {
+                nav.snapshot_into(s);
+            }
             let busy = t.ticks();
             if pacer.lockstep() && busy > period {
                 core.note_overrun();
