@@ -263,44 +263,49 @@ fn save(core: &mut FlightCore, block: Block) {
 /// shadow is the good copy.
 #[inline(always)]
 fn check(core: &mut FlightCore, block: Block) -> Check {
-    let (mut p, g) = split(core);
-    let live = match block {
-        Block::Step | Block::Steady => {
-            let mut live = Sum::default();
-            visit(&mut p, block, &mut live);
-            live
-        }
-        Block::Frame | Block::Without(_) => {
-            let mut pass = Pass::Sum(Sum::default());
-            visit_pass(&mut p, block, &mut pass);
-            match pass {
-                Pass::Sum(s) => s,
-                _ => Sum::default(),
+    // The borrow of the fields ends before the cold restore, which borrows them again: the
+    // step does not build the fields' references in memory for a call it rarely makes.
+    let c = {
+        let (mut p, g) = split(core);
+        let live = match block {
+            Block::Step | Block::Steady => {
+                let mut live = Sum::default();
+                visit(&mut p, block, &mut live);
+                live
             }
+            Block::Frame | Block::Without(_) => {
+                let mut pass = Pass::Sum(Sum::default());
+                visit_pass(&mut p, block, &mut pass);
+                match pass {
+                    Pass::Sum(s) => s,
+                    _ => Sum::default(),
+                }
+            }
+        };
+        match block {
+            Block::Step => g.step.check(live.0),
+            Block::Steady => g.steady.check(live.0),
+            Block::Frame => g.frame.check(live.0),
+            Block::Without(i) => g.without.get_mut(i).map_or(Check::Intact, |s| s.check(live.0)),
         }
-    };
-    let c = match block {
-        Block::Step => g.step.check(live.0),
-        Block::Steady => g.steady.check(live.0),
-        Block::Frame => g.frame.check(live.0),
-        Block::Without(i) => g.without.get_mut(i).map_or(Check::Intact, |s| s.check(live.0)),
     };
     if c == Check::Restore {
-        restore(&mut p, g, block);
+        restore(core, block);
     }
     c
 }
 
 #[inline(never)]
 #[cold]
-fn restore(p: &mut Parts<'_>, g: &Guard, block: Block) {
+fn restore(core: &mut FlightCore, block: Block) {
+    let (mut p, g) = split(core);
     match block {
-        Block::Step => g.step.restore_pass(|b| visit_pass(p, block, b)),
-        Block::Steady => g.steady.restore_pass(|b| visit_pass(p, block, b)),
-        Block::Frame => g.frame.restore_pass(|b| visit_pass(p, block, b)),
+        Block::Step => g.step.restore_pass(|b| visit_pass(&mut p, block, b)),
+        Block::Steady => g.steady.restore_pass(|b| visit_pass(&mut p, block, b)),
+        Block::Frame => g.frame.restore_pass(|b| visit_pass(&mut p, block, b)),
         Block::Without(i) => {
             if let Some(w) = g.without.get(i) {
-                w.restore_pass(|b| visit_pass(p, block, b));
+                w.restore_pass(|b| visit_pass(&mut p, block, b));
             }
         }
     }
