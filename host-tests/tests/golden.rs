@@ -166,7 +166,7 @@ fn fog_faults_and_their_isolation_are_unchanged() {
             "observer FOG1 dropout",
             fly(Estimator::Luenberger, FaultKind::FogDropout(0), 60.0),
             (0x40efbb458b2a03c5, 12000),
-            (0xbcdf560aed50b025, 12000),
+            (0xcc99f4f180789325, 12000),
         ),
     ]);
 }
@@ -196,7 +196,7 @@ fn star_tracker_faults_are_unchanged() {
             "observer bit errors",
             fly(Estimator::Luenberger, FaultKind::BitErrors(2e-5), 60.0),
             (0xa2bad4242fab0710, 12000),
-            (0xbcdf560aed50b025, 12000),
+            (0x5ddfb0f5b63df5a5, 12000),
         ),
     ]);
 }
