@@ -22,7 +22,7 @@ use std::cell::Cell;
 use std::path::Path;
 
 use proptest::prelude::*;
-use proptest::test_runner::{Config, TestRunner};
+use proptest::test_runner::{Config, RngAlgorithm, TestRng, TestRunner};
 
 use ssis::combination::FogSet;
 use ssis::flight::snapshot::Snapshot;
@@ -322,13 +322,12 @@ fn flight() -> impl Strategy<Value = (u64, f64, Vec<Window>)> {
 }
 
 #[test]
-#[ignore = "fails about once in 700-2,000 flights: after a reset the channel checks start \
-            afresh, and with one FOG silent a stuck FOG (no parity with three) is combined \
-            for 200 ms while the resumed attitude is valid (seed 3144: 38\u{2033}, 12.9 sigma)"]
 fn random_fault_sequences_keep_every_invariant() {
     let cases = std::env::var("VALIDITY_CASES").ok().and_then(|v| v.parse().ok()).unwrap_or(10_000);
-    let mut runner =
-        TestRunner::new(Config { cases, max_shrink_iters: 64, failure_persistence: None, ..Config::default() });
+    // A fixed stream of flights (the same 10,000 on every run); `VALIDITY_SEED` draws others.
+    let seed = std::env::var("VALIDITY_SEED").ok().and_then(|v| v.parse::<u8>().ok()).unwrap_or(0);
+    let config = Config { cases, max_shrink_iters: 64, failure_persistence: None, ..Config::default() };
+    let mut runner = TestRunner::new_with_rng(config, TestRng::from_seed(RngAlgorithm::ChaCha, &[seed; 32]));
     let (valid_steps, worst_k, flights) = (Cell::new(0u64), Cell::new(0f64), Cell::new(0u64));
     let worst_flight = std::cell::RefCell::new(String::new());
     let result = runner.run(&flight(), |(seed, duration_s, windows)| {

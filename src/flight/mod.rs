@@ -199,7 +199,7 @@ state_struct! {
             map(Attitude::STATE_MAP), guard(Block::Step);
         mount: Quaternion<f64> = table.st_mount(), guard(Block::Frame);
         thermal: [ThermalTracker; N_FOG] = [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG];
-        channel_monitors: [ChannelMonitor; N_FOG] = [ChannelMonitor::new(noise_rad); N_FOG];
+        channel_monitors: [ChannelMonitor; N_FOG] = [ChannelMonitor::new(noise_rad); N_FOG], reset(Keep);
         telemetry: Telemetry = Telemetry::new();
         last_output: StepOutput = StepOutput::START;
         /// Chunk buffer for draining the links (kept, so a step does not clear one).
