@@ -11,6 +11,8 @@
 //! - [`launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
 //!   vibration) with exact body increments.
 //! - [`scenario`]: scenarios as TOML files a user can write.
+//! - [`accuracy`]: the unit's output against truth (per step and over a run) and the
+//!   estimation limit of its sensors.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
 //! - [`json`]: the `--json` form of a run's summary (docs/JSON.md).
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
@@ -23,6 +25,7 @@
 //! - [`streamed`]: a spacecraft CSV log replayed while it is read, in bounded memory.
 
 pub mod accel;
+pub mod accuracy;
 pub mod check;
 pub mod conventions;
 pub mod corrupt;
