@@ -7,8 +7,6 @@
 
 use anyhow::Result;
 use nalgebra::{Quaternion, Vector4};
-use rand::SeedableRng;
-use rand_chacha::ChaCha20Rng;
 use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::combination::FogSet;
 use ssis::compensation::compensate_increment;
@@ -17,8 +15,8 @@ use ssis::frames::output::OutputFrame;
 use ssis::telemetry::events::EventRecord;
 
 pub use crate::accuracy::{Accuracy, Evaluator, Observed, Record, TruthSample, CSV_HEADER};
-use crate::fog::FogModel;
 use crate::scenario::Scenario;
+use crate::sensors::{SensorStep, Sensors};
 use crate::star::StarModel;
 use crate::truth::Truth;
 use ssis_common::downlink::{records, Down, Downlink};
@@ -51,23 +49,22 @@ pub struct Simulation {
     /// Steps in the scenario.
     pub steps: u64,
     truth: Truth,
-    fogs: FogModel,
-    star: StarModel,
-    rng: ChaCha20Rng,
+    sensors: Sensors,
     n: u64,
 }
 
 impl Simulation {
     /// Sets up the world of `sc`.
     pub fn new(sc: &Scenario) -> Result<Self> {
-        let mut rng = ChaCha20Rng::seed_from_u64(sc.seed);
         let profile = sc.profile.profile();
         let truth = Truth::new(sc.motion.clone());
-        let fogs = FogModel::new(&sc.fog, &mut rng);
-        let table = sc.unit_table(&fogs.truth)?;
-        let star = StarModel::new(&sc.star_tracker, profile.dt_us, table.st_mount());
+        let mut table = CalibrationTable::DEFAULT;
+        let sensors = Sensors::new(&sc.fog, sc.seed, |fogs| {
+            table = sc.unit_table(&fogs.truth)?;
+            anyhow::Ok(StarModel::new(&sc.star_tracker, profile.dt_us, table.st_mount()))
+        })?;
         let steps = (sc.duration_s / profile.dt_s()).round() as u64;
-        Ok(Simulation { sc: sc.clone(), profile, table, steps, truth, fogs, star, rng, n: 0 })
+        Ok(Simulation { sc: sc.clone(), profile, table, steps, truth, sensors, n: 0 })
     }
 
     /// Λ at t = 0 (for units aligned on the pad).
@@ -83,12 +80,12 @@ impl Simulation {
     /// Mounts the FOGs as `m` says (an integration error; from power-on when called
     /// before the first step).
     pub fn mount_fogs(&mut self, m: crate::fog::Mounting) {
-        self.fogs.mount(m);
+        self.sensors.fogs.mount(m);
     }
 
     /// Turn-on FOG biases drawn, rad/s.
     pub fn fog_random_bias_rad_s(&self) -> [f64; N_FOG] {
-        self.fogs.random_bias_rad_s()
+        self.sensors.fogs.random_bias_rad_s()
     }
 
     /// The next step's bytes and truth, or `None` at the end.
@@ -101,8 +98,7 @@ impl Simulation {
         let dt_s = self.profile.dt_s();
         let ts = self.truth.advance(dt_s);
         let now_us = n * u64::from(self.profile.dt_us);
-        let sample = self.fogs.sample(&ts.dtheta_rad, ts.t_s, dt_s, &mut self.rng);
-        let st_bytes = self.star.step(n, now_us, &ts.q, &ts.rate_rad_s, &mut self.rng);
+        let SensorStep { fog: sample, st_bytes } = self.sensors.step(n, now_us, dt_s, &ts);
         let table = &self.table;
         let m_sys = Vector4::from_fn(|i, _| {
             compensate_increment(&table.fog[i], sample.raw_sys_rad[i], dt_s, sample.t_degc, sample.g_degc_s)

@@ -7,6 +7,8 @@
 //! - [`fog`]: FOG error model with every term of the calibration table, the paper's triad
 //!   error form (eq. 4), angle random walk, random and wandering bias.
 //! - [`star`]: star tracker (eq. 5): noise, mounting misalignment, rate, latency.
+//! - [`sensors`]: the FOGs and the star tracker of a run on one random stream (the
+//!   harness's and the Python package's Basilisk module's).
 //! - [`accel`], [`gnss`]: accelerometers and GNSS fixes for the launch-vehicle navigation.
 //! - [`launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
 //!   vibration) with exact body increments.
@@ -40,6 +42,7 @@ pub mod recorded;
 pub mod replay;
 pub mod sc_record;
 pub mod scenario;
+pub mod sensors;
 pub mod star;
 pub mod streamed;
 pub mod truth;
