@@ -188,11 +188,9 @@ impl PySensors {
         if !(ts_dtheta.iter().chain(ts_rate.iter()).all(|v| v.is_finite())) {
             return Err(SsisError::new_err("dtheta_rad, rate_rad_s: not finite"));
         }
-        if !((ts_q.norm() - 1.0).abs() < 1e-6) {
-            return Err(SsisError::new_err(format!(
-                "q: norm {} is not 1 (a unit quaternion, scalar first)",
-                ts_q.norm()
-            )));
+        let norm = ts_q.norm();
+        if norm.is_nan() || (norm - 1.0).abs() >= 1e-6 {
+            return Err(SsisError::new_err(format!("q: norm {norm} is not 1 (a unit quaternion, scalar first)")));
         }
         self.n += 1;
         let now_us = self.n * u64::from(self.dt_us);
