@@ -23,6 +23,7 @@ mod core;
 mod lab;
 mod qemu;
 mod replay;
+mod sim;
 mod table;
 
 pyo3::create_exception!(
@@ -87,5 +88,6 @@ fn _ssis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     cal::register(m)?;
     lab::register(m)?;
     qemu::register(m)?;
+    sim::register(m)?;
     Ok(())
 }

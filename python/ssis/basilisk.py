@@ -7,7 +7,7 @@ increments from it (each FOG's sensitive axis from the unit's table, with turn-o
 bias random walk and angle random walk; or, with ``imuInMsg`` linked, from Basilisk's
 ``imuSensor``: its increments on the table's axes, with its own errors, so the skewed
 fourth FOG is the other three's projection and the parity check sees no fault of theirs),
-and the star tracker's solutions (its own model
+and the star tracker's solutions (the simulator's model
 at the table's period with a latency, or Basilisk's ``starTracker`` through
 ``stInMsg``), feeds them to the unit as frames, and publishes the unit's attitude and
 rate as Basilisk's navigation message (``attOutMsg``, ``NavAttMsg``) for the flight
@@ -29,74 +29,66 @@ Faults, to see what they do to pointing: ``st_outage=(t0_s, t1_s)`` (no star-tra
 solution reaches the unit in that window) and ``fog_failure=(t_s, fog, mode)`` with mode
 ``"dead"`` (its frames stop) or a number, a bias step in °/h.
 
-Until the unit reports itself aligned by the star tracker (its ``st_status`` bit; 2.1 s, 429
-steps, in examples/basilisk-closed-loop), the module passes the vehicle's motion through
-and counts those steps (``steps_before_aligned``): the flight software is not to control
-on an unaligned unit.
+The sensors are the simulator's (``ssis._ssis.Sensors``: ``ssis_sim::sensors``, the FOG
+model of ``fog.rs`` and the star tracker of ``star.rs`` on one random stream), so a seed
+gives the frames ``ssis-sim`` would send for the same truth; the quaternion products and
+rotation vectors are the flight code's (``ssis::math``), the MRP conversions Basilisk's.
+
+**The unit's step.** The module must run every 5 ms (the unit's step) from t = 0: on any
+other task period it raises ``ValueError`` naming the period (Basilisk reports it as a
+``RuntimeError`` from ``ExecuteSimulation``; the module keeps it in :attr:`UnitNav.error`).
+
+**Truth only before the first alignment.** Until the unit first reports itself aligned by
+the star tracker (its ``st_status`` bit; 2.1 s in examples/basilisk-closed-loop), the
+module passes the vehicle's motion through and counts those steps
+(``steps_before_aligned``, ``first_aligned_s``): the flight software is not to control on
+an unaligned unit. From then on it publishes the unit's output whatever the unit's
+status. Every later loss of status (ALIGNED, or the observer's CONVERGED flag) is
+reported: a :class:`UnitStatusWarning`, a count (``status_losses``, by kind in
+``losses``), and with ``strict=True`` a :class:`UnitStatusLost` raised instead; a status
+regained counts in ``realignments`` (ALIGNED) and ``reconvergences`` (CONVERGED).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections import deque
-from typing import Any, Optional, Tuple, Union
+from typing import Any, List, Optional, Tuple, Union
 
 import numpy as np
 
-from Basilisk.architecture import messaging, sysModel  # type: ignore
+from Basilisk.architecture import bskLogging, messaging, sysModel  # type: ignore
+from Basilisk.utilities import RigidBodyKinematics as rbk  # type: ignore
 
-from . import FlightCore, QemuUnit, Table
+from . import FlightCore, QemuUnit, Table, _ssis
 
-__all__ = ["UnitNav", "ST_ALIGNED"]
+__all__ = ["UnitNav", "UnitStatusLost", "UnitStatusWarning", "ST_ALIGNED", "CONVERGED"]
 
 DT_S = 0.005
-ARCSEC = math.pi / 180 / 3600
+STEP_NS = 5_000_000
 DEG_H = math.pi / 180 / 3600
 ST_ALIGNED = 1 << 2
 """Star-tracker status bit: the attitude has been aligned by the star tracker (docs/ICD.md)."""
+CONVERGED = 1 << 2
+"""Flag bit: the observer has converged (docs/ICD.md)."""
+
+
+class UnitStatusWarning(UserWarning):
+    """The unit lost a status (ALIGNED or CONVERGED) after its first alignment; the module
+    goes on publishing its output."""
+
+
+class UnitStatusLost(RuntimeError):
+    """Raised instead of :class:`UnitStatusWarning` by a ``strict`` :class:`UnitNav`."""
 
 
 def _mrp2ep(s: Any) -> np.ndarray:
-    s = np.asarray(s, dtype=float).reshape(3)
-    n2 = float(s @ s)
-    return np.concatenate(([(1 - n2) / (1 + n2)], 2 * s / (1 + n2)))
+    return np.asarray(rbk.MRP2EP(np.asarray(s, dtype=float).reshape(3)), dtype=float)
 
 
 def _ep2mrp(q: np.ndarray) -> list:
-    if q[0] < 0:
-        q = -q
-    return list(q[1:] / (1 + q[0]))
-
-
-def _qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    w1, x1, y1, z1 = a
-    w2, x2, y2, z2 = b
-    return np.array([
-        w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
-        w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-        w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-        w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
-    ])
-
-
-def _conj(q: np.ndarray) -> np.ndarray:
-    return np.array([q[0], -q[1], -q[2], -q[3]])
-
-
-def _rotvec(q: np.ndarray) -> np.ndarray:
-    if q[0] < 0:
-        q = -q
-    n = math.sqrt(q[1] ** 2 + q[2] ** 2 + q[3] ** 2)
-    if n < 1e-15:
-        return 2 * q[1:]
-    return q[1:] * (2 * math.atan2(n, q[0]) / n)
-
-
-def _qexp(v: np.ndarray) -> np.ndarray:
-    a = float(np.linalg.norm(v))
-    if a < 1e-12:
-        return np.array([1.0, v[0] / 2, v[1] / 2, v[2] / 2])
-    return np.concatenate(([math.cos(a / 2)], v * (math.sin(a / 2) / a)))
+    return list(rbk.EP2MRP(np.asarray(q, dtype=float)))
 
 
 class InProcess:
@@ -107,8 +99,9 @@ class InProcess:
     def __init__(self, table: Table) -> None:
         self.core = FlightCore(table)
 
-    def step(self, dtheta: np.ndarray, star: Optional[Tuple[float, np.ndarray]]) -> Any:
-        return self.core.step(dtheta, star)
+    def step(self, dtheta: np.ndarray, star: Optional[Tuple[float, np.ndarray]],
+             temperature_degc: Optional[np.ndarray] = None, star_valid: bool = True) -> Any:
+        return self.core.step(dtheta, star, temperature_degc, star_valid)
 
     def counters(self) -> dict:
         return self.core.counters()
@@ -123,8 +116,9 @@ class InQemu:
         self.unit = QemuUnit(table)
         self.report = ""
 
-    def step(self, dtheta: np.ndarray, star: Optional[Tuple[float, np.ndarray]]) -> Any:
-        return self.unit.step(dtheta, star)
+    def step(self, dtheta: np.ndarray, star: Optional[Tuple[float, np.ndarray]],
+             temperature_degc: Optional[np.ndarray] = None, star_valid: bool = True) -> Any:
+        return self.unit.step(dtheta, star, temperature_degc, star_valid)
 
     def counters(self) -> dict:
         return {}
@@ -135,7 +129,11 @@ class InQemu:
 
 
 class UnitNav(sysModel.SysModel):
-    """The unit as a Basilisk navigation source (module docstring)."""
+    """The unit as a Basilisk navigation source (module docstring).
+
+    A custom ``backend`` is an object with ``step(fog_dtheta_rad, star, temperature_degc,
+    star_valid)`` returning what :meth:`ssis.FlightCore.step` does, and ``counters()``.
+    """
 
     def __init__(
         self,
@@ -150,6 +148,7 @@ class UnitNav(sysModel.SysModel):
         st_outage: Optional[Tuple[float, float]] = None,
         fog_failure: Optional[Tuple[float, int, Union[str, float]]] = None,
         seed: int = 1,
+        strict: bool = False,
     ) -> None:
         super().__init__()
         self.ModelTag = "ssisUnitNav"
@@ -166,27 +165,51 @@ class UnitNav(sysModel.SysModel):
             raise ValueError(f"backend {backend!r}: 'in-process' or 'qemu'")
         self.backend = backend
         t = self.table
-        self.arw = t.get("observer.arw_deg_sqrt_h") if arw_deg_sqrt_h is None else arw_deg_sqrt_h
-        self.rrw = t.get("observer.rrw_deg_h_sqrt_h") if rrw_deg_h_sqrt_h is None else rrw_deg_h_sqrt_h
-        self.st_sigma = t.get("observer.st_sigma_arcsec") if st_sigma_arcsec is None else st_sigma_arcsec
-        self.st_period = t.get("observer.st_period_s") if st_period_s is None else st_period_s
+        st_sigma = t.get("observer.st_sigma_arcsec") if st_sigma_arcsec is None else st_sigma_arcsec
         self.st_latency = st_latency_s
         self.st_outage = st_outage
         self.fog_failure = fog_failure
+        self.strict = strict
         self.axes = np.array(t.axes())
-        self.st_mount = np.array([t.get(f"st_mount_q[{k}]") for k in range(4)])
-        self.rng = np.random.default_rng(seed)
-        self.bias_rad_s = self.rng.normal(0, turn_on_bias_deg_h * DEG_H, 4)
+        # The simulator's FOGs (turn-on bias 1σ given, 3σ taken) and star tracker; made
+        # again in Reset, when it is known whether Basilisk's tracker is linked instead.
+        self._sensor_args = dict(
+            table=t, seed=seed, arw_deg_sqrt_h=arw_deg_sqrt_h, rrw_deg_h_sqrt_h=rrw_deg_h_sqrt_h,
+            turn_on_bias_3sigma_deg_h=3 * turn_on_bias_deg_h, st_sigma_3sigma_arcsec=3 * st_sigma,
+            st_period_s=st_period_s, st_latency_s=st_latency_s,
+            st_outages=[tuple(st_outage)] if st_outage is not None else [],
+        )
+        self.sensors = _ssis.Sensors(**self._sensor_args)
+        self.error: Optional[Exception] = None
+        """The error the module raised in the simulation (Basilisk re-raises it as RuntimeError)."""
+        self._start()
+
+    def _start(self) -> None:
+        self.last: Any = None
         self.steps_before_aligned = 0
-        self.last = None
+        """Steps flown on truth before the unit's first alignment."""
+        self.first_aligned_s: Optional[float] = None
+        """When the unit first reported ALIGNED, s (None: never)."""
+        self.status_losses = 0
+        """Losses of ALIGNED or CONVERGED after the first alignment."""
+        self.losses: List[Tuple[float, str]] = []
+        """Each loss: (t_s, "aligned" or "converged")."""
+        self.realignments = 0
+        """ALIGNED regained after a loss."""
+        self.reconvergences = 0
+        """CONVERGED regained after a loss."""
+        self._had = {"aligned": False, "converged": False}
         self._q_prev: Optional[np.ndarray] = None
         self._pending: deque = deque()
-        self._next_st_s = 0.0
+        self._arrived: deque = deque()
         self._st_seen_ns = -1
+        self._last_ns: Optional[int] = None
 
     def Reset(self, CurrentSimNanos: int) -> None:
         if not self.scStateInMsg.isLinked():
-            self.bskLogger.bskLog(0, "UnitNav.scStateInMsg is not linked")  # BSK_ERROR
+            self.bskLogger.bskLog(bskLogging.BSK_ERROR, "UnitNav.scStateInMsg is not linked")
+        self._start()
+        self.sensors = _ssis.Sensors(**self._sensor_args, star_tracker=not self.stInMsg.isLinked())
         self.attOutMsg.write(messaging.NavAttMsgPayload(), CurrentSimNanos, self.moduleID)
 
     def _truth(self) -> Tuple[np.ndarray, np.ndarray]:
@@ -196,54 +219,96 @@ class UnitNav(sysModel.SysModel):
             q = -q
         return q, np.asarray(s.omega_BN_B, dtype=float)
 
-    def _star_due(self, t_s: float, q_true: np.ndarray) -> Optional[Tuple[float, np.ndarray]]:
-        """The star-tracker solution arriving in this step (its tag, Λ*), if any."""
-        if self.stInMsg.isLinked():
-            if self.stInMsg.isWritten() and self.stInMsg.timeWritten() != self._st_seen_ns:
-                self._st_seen_ns = self.stInMsg.timeWritten()
-                m = self.stInMsg()
-                q = np.asarray(m.qInrtl2Case, dtype=float)
-                self._pending.append((m.timeTag * 1e-9, q if q[0] >= 0 else -q))
-        elif t_s + 1e-9 >= self._next_st_s:
-            self._next_st_s += self.st_period
-            noise = _qexp(self.rng.normal(0, self.st_sigma * ARCSEC, 3))
-            q = _qmul(_qmul(q_true, _conj(self.st_mount)), noise)
-            self._pending.append((t_s, q if q[0] >= 0 else -q))
+    def _basilisk_star(self, t_s: float) -> Optional[Tuple[float, np.ndarray, bool]]:
+        """The solution of Basilisk's tracker arriving in this step (its tag, Λ*, valid), if any."""
+        if self.stInMsg.isWritten() and self.stInMsg.timeWritten() != self._st_seen_ns:
+            self._st_seen_ns = self.stInMsg.timeWritten()
+            m = self.stInMsg()
+            q = np.asarray(m.qInrtl2Case, dtype=float)
+            self._pending.append((m.timeTag * 1e-9, q if q[0] >= 0 else -q))
         if self._pending and self._pending[0][0] + self.st_latency <= t_s + 1e-9:
             tag, q = self._pending.popleft()
             if self.st_outage is not None and self.st_outage[0] <= tag < self.st_outage[1]:
                 return None
-            return (tag, q) if tag > 0 else None
+            return (tag, q, True) if tag > 0 else None
         return None
 
+    def _check_period(self, nanos: int) -> None:
+        """Refuses any period but the unit's step (and a start later than t = 0)."""
+        last, self._last_ns = self._last_ns, nanos
+        if last is None and nanos != 0:
+            msg = (f"UnitNav first ran at t = {nanos * 1e-9:g} s: the unit's clock is the simulation's "
+                   "(its step n ends at n × 5 ms), so it must run from t = 0")
+        elif last is not None and nanos - last != STEP_NS:
+            msg = (f"UnitNav runs every {(nanos - last) * 1e-6:g} ms: the unit steps every "
+                   f"{STEP_NS * 1e-6:g} ms (its clock is the simulation's); put it on a "
+                   "macros.sec2nano(0.005) task")
+        else:
+            return
+        self.error = ValueError(msg)
+        self.bskLogger.bskLog(bskLogging.BSK_ERROR, msg)
+        raise self.error
+
     def UpdateState(self, CurrentSimNanos: int) -> None:
+        self._check_period(CurrentSimNanos)
         t_s = CurrentSimNanos * 1e-9
         q, w = self._truth()
-        star = self._star_due(t_s, q)
         if self._q_prev is None:
             self._q_prev = q
             self._publish(CurrentSimNanos, q, w)
             return
-        body = _rotvec(_qmul(_conj(self._q_prev), q))
+        body = _ssis.rotation_vector(_ssis.quat_mul(_ssis.quat_conj(self._q_prev), q))
         self._q_prev = q
+        s = self.sensors.step(body, q, w)
+        temps: Optional[np.ndarray] = None
         if self.imuInMsg.isLinked():
             # Basilisk's IMU: its increment over (t - Δt, t] in its platform frame (taken as
             # the body frame), with its own errors; the fourth FOG is its projection.
             d = self.axes @ np.asarray(self.imuInMsg().DRFramePlatform, dtype=float)
         else:
-            sv = self.arw * math.pi / 180 / 60 * math.sqrt(DT_S)
-            self.bias_rad_s = self.bias_rad_s + self.rng.normal(0, self.rrw * DEG_H / 60 * math.sqrt(DT_S), 4)
-            d = self.axes @ body + self.bias_rad_s * DT_S + self.rng.normal(0, sv, 4)
+            d, temps = np.array(s["fog_dtheta_rad"]), s["temperature_degc"]
+        if self.stInMsg.isLinked():
+            star = self._basilisk_star(t_s)
+        else:
+            self._arrived.extend(s["stars"])
+            star = self._arrived.popleft() if self._arrived else None
         if self.fog_failure is not None and t_s >= self.fog_failure[0]:
             _, i, mode = self.fog_failure
             d[i] = math.nan if mode == "dead" else d[i] + float(mode) * DEG_H * DT_S
-        out = self.backend.step(d, star)
+        valid = True if star is None else bool(star[2])
+        out = self.backend.step(d, None if star is None else (star[0], star[1]), temps, valid)
         self.last = out
-        if not out.st_status & ST_ALIGNED:
-            self.steps_before_aligned += 1
-            self._publish(CurrentSimNanos, q, w)
-            return
+        aligned = bool(out.st_status & ST_ALIGNED)
+        if self.first_aligned_s is None:
+            if not aligned:
+                self.steps_before_aligned += 1
+                self._publish(CurrentSimNanos, q, w)
+                return
+            self.first_aligned_s = t_s
+            self.bskLogger.bskLog(bskLogging.BSK_INFORMATION, (
+                f"UnitNav: the unit aligned by the star tracker at {t_s:.3f} s; truth was published for "
+                f"the {self.steps_before_aligned} steps before, the unit's output from now on"))
+        self._watch(t_s, {"aligned": aligned, "converged": bool(out.flags & CONVERGED)})
         self._publish(CurrentSimNanos, np.asarray(out.q), np.asarray(out.rate_rad_s))
+
+    def _watch(self, t_s: float, now: dict) -> None:
+        """Counts each status the unit loses (a warning, or raised when strict) and regains."""
+        for kind, on in now.items():
+            had, self._had[kind] = self._had[kind], on
+            if on and not had and any(k == kind for _, k in self.losses):
+                if kind == "aligned":
+                    self.realignments += 1
+                else:
+                    self.reconvergences += 1
+            if had and not on:
+                self.status_losses += 1
+                self.losses.append((t_s, kind))
+                msg = (f"UnitNav: the unit lost {kind.upper()} at t = {t_s:.3f} s (loss {self.status_losses} "
+                       f"after its first alignment at {self.first_aligned_s:.3f} s); its output is still published")
+                if self.strict:
+                    self.error = UnitStatusLost(msg)
+                    raise self.error
+                warnings.warn(msg, UnitStatusWarning, stacklevel=2)
 
     def close(self) -> str:
         """Ends the backend's run; the QEMU backend's report (empty in-process)."""

@@ -4,7 +4,8 @@
 use ssis_common::cli::{json, Value};
 use ssis_common::DEG_H_PER_RAD_S;
 
-use super::harness::{Accuracy, Summary};
+use crate::accuracy::Accuracy;
+use crate::harness::Summary;
 
 /// The errors against truth after settling.
 pub fn accuracy(a: &Accuracy) -> Value {
@@ -79,10 +80,10 @@ pub fn evidence(e: &crate::replay::Evidence) -> Value {
     })
 }
 
-/// The estimation limits of a replay (`ssis_sim::replay::farrenkopf_1sigma_arcsec`) as
+/// The estimation limits of a replay (`ssis_sim::accuracy::farrenkopf_1sigma_arcsec`) as
 /// `/replay` keys, 3σ, and the log's damage: what `ssis-sim replay` and `ssis-qemu
 /// --replay` add to [`replay_summary`].
-pub fn add_limit_and_damage(v: &mut Value, limit: &crate::replay::Limit, p: &crate::recorded::Problems) {
+pub fn add_limit_and_damage(v: &mut Value, limit: &crate::accuracy::Limit, p: &crate::recorded::Problems) {
     v["farrenkopf_att_3sigma_arcsec"] = json!(limit.posterior_arcsec.map(|x| 3.0 * x));
     v["limit_period_mean_att_3sigma_arcsec"] = json!(limit.period_mean_arcsec.map(|x| 3.0 * x));
     v["limit_latency_mean_att_3sigma_arcsec"] = json!(limit.latency_mean_arcsec.map(|x| 3.0 * x));

@@ -7,10 +7,14 @@
 //! - [`fog`]: FOG error model with every term of the calibration table, the paper's triad
 //!   error form (eq. 4), angle random walk, random and wandering bias.
 //! - [`star`]: star tracker (eq. 5): noise, mounting misalignment, rate, latency.
+//! - [`sensors`]: the FOGs and the star tracker of a run on one random stream (the
+//!   harness's and the Python package's Basilisk module's).
 //! - [`accel`], [`gnss`]: accelerometers and GNSS fixes for the launch-vehicle navigation.
 //! - [`launch`]: launch-vehicle ascent truth (vertical rise, pitch program, stagings,
 //!   vibration) with exact body increments.
 //! - [`scenario`]: scenarios as TOML files a user can write.
+//! - [`accuracy`]: the unit's output against truth (per step and over a run) and the
+//!   estimation limit of its sensors.
 //! - [`harness`]: runs a scenario through the core and measures the errors.
 //! - [`json`]: the `--json` form of a run's summary (docs/JSON.md).
 //! - [`corrupt`]: frame corruption trials against the stream decoder.
@@ -23,6 +27,7 @@
 //! - [`streamed`]: a spacecraft CSV log replayed while it is read, in bounded memory.
 
 pub mod accel;
+pub mod accuracy;
 pub mod check;
 pub mod conventions;
 pub mod corrupt;
@@ -37,6 +42,7 @@ pub mod recorded;
 pub mod replay;
 pub mod sc_record;
 pub mod scenario;
+pub mod sensors;
 pub mod star;
 pub mod streamed;
 pub mod truth;

@@ -12,8 +12,8 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
-use nalgebra::{Matrix3, Quaternion, Vector3, Vector4};
-use ssis::calib::{CalibrationTable, ObserverConfig, ObserverGains, N_FOG};
+use nalgebra::{Quaternion, Vector3, Vector4};
+use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::combination::FogSet;
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::decoder::StreamDecoder;
@@ -23,7 +23,9 @@ use ssis::frames::star::{self, StarFrame};
 use ssis::math::{nlerp, rotvec_from_quat};
 use ssis::telemetry::events::EventRecord;
 
-use crate::harness::{Accuracy, Evaluator, Observed, Record, StepInput, TruthSample};
+pub use crate::accuracy::{farrenkopf_1sigma_arcsec, loop_1sigma_arcsec, Limit};
+use crate::accuracy::{Accuracy, Evaluator, Observed, Record, TruthSample};
+use crate::harness::StepInput;
 use crate::recorded::{LogStep, Recorded, StarSample};
 use ssis_common::downlink::records;
 use ssis_common::mock::{MockLink, MockSink};
@@ -318,199 +320,6 @@ impl Evidence {
         }
         s
     }
-}
-
-/// The estimation limit of a unit (Farrenkopf 1978): the steady-state per-axis Kalman
-/// filter of attitude and drift on the table's noise figures, star-tracker updates every
-/// `st_period_s`, propagated every `dt_s`; the FOGs' angle random walk per body axis is
-/// scaled by the least-squares combination of the table's axes (diag (SᵀS)⁻¹: 5/6 for
-/// three orthogonal gyros and one equally inclined). Returns the attitude error 1σ per
-/// axis, arcsec: right after an update (Farrenkopf's figure), averaged over the update
-/// period (as the harness samples it, every step), and averaged over the period when each
-/// solution arrives `latency_s` after the instant it holds (no estimator can use it before:
-/// the newest information is then latency_s to latency_s + period old).
-pub fn farrenkopf_1sigma_arcsec(
-    cfg: &ObserverConfig,
-    axes: &[Vector3<f64>; N_FOG],
-    dt_s: f64,
-    latency_s: f64,
-) -> Limit {
-    loop_1sigma_arcsec(cfg, axes, dt_s, latency_s, None)
-}
-
-/// The steady-state attitude error 1σ per axis, arcsec, of the per-axis loop of
-/// [`farrenkopf_1sigma_arcsec`] (the same figures: after an update, period mean, period
-/// mean with latency) with fixed `gains` (K_B, K_U of eq. (6), first axis's) instead of
-/// the Kalman gains: the update is the Joseph form
-/// P⁺ = (I − K H) P⁻ (I − K H)ᵀ + K R Kᵀ, K = [K_B, −K_U]ᵀ, H = [1 0], which is the
-/// covariance of a fixed-gain observer for any gains (and the Kalman filter's for its own).
-/// `None`: the Kalman gains, the limit itself.
-pub fn loop_1sigma_arcsec(
-    cfg: &ObserverConfig,
-    axes: &[Vector3<f64>; N_FOG],
-    dt_s: f64,
-    latency_s: f64,
-    gains: Option<ObserverGains>,
-) -> Limit {
-    let mut sts = Matrix3::zeros();
-    for s in axes {
-        sts += s * s.transpose();
-    }
-    let inv = sts.try_inverse().unwrap_or_else(Matrix3::identity);
-    let deg = std::f64::consts::PI / 180.0;
-    let su2 = (cfg.rrw_deg_h_sqrt_h * deg / 3600.0 / 60.0).powi(2);
-    let r = (cfg.st_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
-    let per_update = (cfg.st_period_s / dt_s).round().max(1.0) as usize;
-    let per_axis = [0, 1, 2].map(|k| {
-        let sv2 = (cfg.arw_deg_sqrt_h * deg / 60.0).powi(2) * inv[(k, k)];
-        // P = [[p11, p12], [p12, p22]] of (attitude, drift); θ̇ = −b + noise. Propagated
-        // over h: F = [[1, −h], [0, 1]], Q = [[σv²h + σu²h³/3, −σu²h²/2], [., σu²h]].
-        let prop = |(p11, p12, p22): (f64, f64, f64), h: f64| {
-            (
-                p11 - 2.0 * h * p12 + h * h * p22 + sv2 * h + su2 * h.powi(3) / 3.0,
-                p12 - h * p22 - su2 * h * h / 2.0,
-                p22 + su2 * h,
-            )
-        };
-        let update = |(p11, p12, p22): (f64, f64, f64)| match gains {
-            None => {
-                let s = p11 + r;
-                (p11 - p11 * p11 / s, p12 - p11 * p12 / s, p22 - p12 * p12 / s)
-            }
-            Some(g) => {
-                let (k1, k2) = (g.k_b[0], -g.k_u_per_s[0]);
-                (
-                    (1.0 - k1) * (1.0 - k1) * p11 + k1 * k1 * r,
-                    (1.0 - k1) * (p12 - k2 * p11) + k1 * k2 * r,
-                    p22 - 2.0 * k2 * p12 + k2 * k2 * (p11 + r),
-                )
-            }
-        };
-        // The drift's time constant is hours: iterate the update period until steady.
-        let t = per_update as f64 * dt_s;
-        let mut p = update((r, 0.0, su2 * 1e4));
-        for _ in 0..2_000_000 {
-            let next = update(prop(p, t));
-            let done = (next.0 - p.0).abs() <= 1e-15 * p.0 && (next.2 - p.2).abs() <= 1e-12 * p.2;
-            p = next;
-            if done {
-                break;
-            }
-        }
-        let post = p.0;
-        let mut sum = 0.0;
-        for j in 0..per_update {
-            p = prop(p, dt_s);
-            if j + 1 == per_update {
-                p = update(p);
-            }
-            sum += p.0;
-        }
-        let mean = sum / per_update as f64;
-        // With latency: the same period, every age moved by the latency.
-        let mut q = p;
-        for _ in 0..(latency_s.max(0.0) / dt_s).round().min(1e6) as usize {
-            q = prop(q, dt_s);
-        }
-        let mut late_sum = 0.0;
-        for _ in 0..per_update {
-            late_sum += q.0;
-            q = prop(q, dt_s);
-        }
-        let late = late_sum / per_update as f64;
-        (post.sqrt() * ARCSEC_PER_RAD, mean.sqrt() * ARCSEC_PER_RAD, late.sqrt() * ARCSEC_PER_RAD)
-    });
-    Limit {
-        posterior_arcsec: per_axis.map(|p| p.0),
-        period_mean_arcsec: per_axis.map(|p| p.1),
-        latency_mean_arcsec: per_axis.map(|p| p.2),
-        latency_s,
-        lfe: if gains.is_none() && cfg.lfe() { Some(lfe_1sigma_arcsec(cfg, &inv, dt_s, latency_s)) } else { None },
-    }
-}
-
-/// The estimation limit of [`farrenkopf_1sigma_arcsec`] when the star tracker has the
-/// table's low-frequency error (LFE) and the filter estimates it: the steady-state per-axis
-/// Kalman filter of x = (attitude error, drift error, LFE), the LFE a first-order
-/// Gauss–Markov process (1σ `st_lfe_sigma_arcsec`, correlation time `st_lfe_tau_s`) seen
-/// with the attitude, H = [1 0 1]: the model `ssis::observer::mekf` flies. `n` is
-/// (SᵀS)⁻¹ of the table's axes. Returns (after an update, period mean with latency), 1σ
-/// per axis, arcsec.
-fn lfe_1sigma_arcsec(cfg: &ObserverConfig, n: &Matrix3<f64>, dt_s: f64, latency_s: f64) -> ([f64; 3], [f64; 3]) {
-    let deg = std::f64::consts::PI / 180.0;
-    let su2 = (cfg.rrw_deg_h_sqrt_h * deg / 3600.0 / 60.0).powi(2);
-    let r = (cfg.st_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
-    let sc2 = (cfg.st_lfe_sigma_arcsec / ARCSEC_PER_RAD).powi(2);
-    let per_update = (cfg.st_period_s / dt_s).round().max(1.0) as usize;
-    let per_axis = [0, 1, 2].map(|k| {
-        let sv2 = (cfg.arw_deg_sqrt_h * deg / 60.0).powi(2) * n[(k, k)];
-        let prop = |p: &Matrix3<f64>, h: f64| {
-            let phi = (-h / cfg.st_lfe_tau_s).exp();
-            let f = Matrix3::new(1.0, -h, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, phi);
-            let q12 = -su2 * h * h / 2.0;
-            let q = Matrix3::new(
-                sv2 * h + su2 * h.powi(3) / 3.0,
-                q12,
-                0.0,
-                q12,
-                su2 * h,
-                0.0,
-                0.0,
-                0.0,
-                sc2 * (1.0 - phi * phi),
-            );
-            f * p * f.transpose() + q
-        };
-        let update = |p: &Matrix3<f64>| {
-            let h = Vector3::new(1.0, 0.0, 1.0);
-            let u = p * h;
-            let s = h.dot(&u) + r;
-            let post = p - u * u.transpose() / s;
-            (post + post.transpose()) * 0.5
-        };
-        let t = per_update as f64 * dt_s;
-        let mut p = update(&Matrix3::from_diagonal(&Vector3::new(r + sc2, su2 * 1e4, sc2)));
-        for _ in 0..2_000_000 {
-            let next = update(&prop(&p, t));
-            let done = (next[(0, 0)] - p[(0, 0)]).abs() <= 1e-15 * p[(0, 0)]
-                && (next[(1, 1)] - p[(1, 1)]).abs() <= 1e-12 * p[(1, 1)];
-            p = next;
-            if done {
-                break;
-            }
-        }
-        let post = p[(0, 0)];
-        let mut q = p;
-        for _ in 0..(latency_s.max(0.0) / dt_s).round().min(1e6) as usize {
-            q = prop(&q, dt_s);
-        }
-        let mut late_sum = 0.0;
-        for _ in 0..per_update {
-            late_sum += q[(0, 0)];
-            q = prop(&q, dt_s);
-        }
-        let late = late_sum / per_update as f64;
-        (post.sqrt() * ARCSEC_PER_RAD, late.sqrt() * ARCSEC_PER_RAD)
-    });
-    (per_axis.map(|p| p.0), per_axis.map(|p| p.1))
-}
-
-/// The estimation limit, attitude 1σ per axis.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Limit {
-    /// Right after a star-tracker update (Farrenkopf's steady-state figure), arcsec.
-    pub posterior_arcsec: [f64; 3],
-    /// Averaged over the update period, arcsec.
-    pub period_mean_arcsec: [f64; 3],
-    /// Averaged over the update period with the solutions' latency, arcsec: the bound for
-    /// an every-step statistic on these sensors.
-    pub latency_mean_arcsec: [f64; 3],
-    /// The star tracker's latency it was computed for, s.
-    pub latency_s: f64,
-    /// With the table's star-tracker low-frequency error estimated (the MEKF's 9 states):
-    /// the limit after an update and averaged over the period with the latency, arcsec;
-    /// `None` for a white tracker.
-    pub lfe: Option<([f64; 3], [f64; 3])>,
 }
 
 /// What a host replay found.

@@ -254,9 +254,9 @@ impl Scenario {
     /// The estimation limits for this scenario's sensors (its FOGs' noise, its star tracker's
     /// noise, rate, latency and low-frequency error; the nominal axes), when its star
     /// tracker has a low-frequency error: the white-tracker limit and the limit with the
-    /// error estimated ([`crate::replay::farrenkopf_1sigma_arcsec`]). `None` for a white
+    /// error estimated ([`crate::accuracy::farrenkopf_1sigma_arcsec`]). `None` for a white
     /// tracker.
-    pub fn lfe_limit(&self) -> Option<crate::replay::Limit> {
+    pub fn lfe_limit(&self) -> Option<crate::accuracy::Limit> {
         let st = &self.star_tracker;
         if !(st.lfe_sigma_arcsec > 0.0 && st.lfe_tau_s > 0.0) {
             return None;
@@ -272,7 +272,7 @@ impl Scenario {
             st_lfe_tau_s: st.lfe_tau_s,
             ..ObserverConfig::PAPER
         };
-        Some(crate::replay::farrenkopf_1sigma_arcsec(
+        Some(crate::accuracy::farrenkopf_1sigma_arcsec(
             &cfg,
             &CalibrationTable::DEFAULT.axes(),
             dt_s,

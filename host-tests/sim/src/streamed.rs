@@ -14,8 +14,8 @@ use ssis::calib::CalibrationTable;
 use ssis::flight::Profile;
 use ssis::frames::output::OutputFrame;
 
+use crate::accuracy::Record;
 use crate::conventions::{check_conventions, ConventionReport};
-use crate::harness::Record;
 use crate::recorded::{LogStep, LogStream, Problems, Recorded};
 use crate::replay::{LogInfo, OutputSide, ReplaySummary, Replayer, Sent, UnitSide};
 

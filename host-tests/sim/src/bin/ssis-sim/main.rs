@@ -14,7 +14,8 @@ use ssis::observer::steady_state_gains;
 use ssis_common::cli::{self, json};
 use ssis_common::output::{self, Origin};
 use ssis_common::table;
-use ssis_sim::harness::{run_until, CSV_HEADER};
+use ssis_sim::accuracy::CSV_HEADER;
+use ssis_sim::harness::run_until;
 use ssis_sim::scenario::Scenario;
 
 mod replay;

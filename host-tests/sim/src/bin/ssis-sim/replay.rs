@@ -11,11 +11,12 @@ use ssis::frames::output::OutputFrame;
 use ssis_common::cli;
 use ssis_common::output;
 use ssis_common::plot::{write_svg, write_svg_panels, PlotPoint};
-use ssis_sim::harness::Record;
-use ssis_sim::harness::CSV_HEADER;
+use ssis_sim::accuracy::farrenkopf_1sigma_arcsec;
+use ssis_sim::accuracy::Record;
+use ssis_sim::accuracy::CSV_HEADER;
 use ssis_sim::lv_replay::{replay_lv, LogOptions, LvScenario, LV_CSV_HEADER};
 use ssis_sim::recorded::{LogStream, LogUnit, Recorded};
-use ssis_sim::replay::{farrenkopf_1sigma_arcsec, replay, LogInfo, Rows};
+use ssis_sim::replay::{replay, LogInfo, Rows};
 use ssis_sim::streamed::{self, Streamed};
 use ssis_sim::{check, conventions, recorded};
 
