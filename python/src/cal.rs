@@ -6,12 +6,12 @@
 
 use std::path::PathBuf;
 
-use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use ssis::calib::{CalibrationTable, GAMMA_NOMINAL_RAD};
 use ssis_common::update;
 use ssis_methods::{allan, json, magnetic, misalign_sins, misalign_turns, orbital, thermal_anova};
 
+use crate::core::floats;
 use crate::lab::session_of;
 use crate::table::PyTable;
 use crate::{err, SsisError};
@@ -19,13 +19,16 @@ use crate::{err, SsisError};
 /// Allan deviation of `rate_rad_s` sampled every `dt_s`, 8 τ per decade, and its noise
 /// terms (the JSON of `ssis-cal allan`).
 #[pyfunction]
-fn allan_json(rate_rad_s: PyReadonlyArray1<'_, f64>, dt_s: f64) -> PyResult<String> {
-    let r = rate_rad_s.as_slice().map_err(|e| SsisError::new_err(format!("rate_rad_s: {e}")))?;
+fn allan_json(rate_rad_s: &Bound<'_, PyAny>, dt_s: f64) -> PyResult<String> {
+    let r = floats(rate_rad_s, "rate_rad_s", "a 1-D float array of rates, rad/s")?;
     if !(dt_s.is_finite() && dt_s > 0.0) {
         return Err(SsisError::new_err(format!("dt_s: {dt_s} is not a sampling interval (s > 0)")));
     }
-    let pts = allan::overlapping_adev(r, dt_s, 8).map_err(err)?;
-    let nt = allan::noise_terms(&pts).map_err(err)?;
+    if let Some(k) = r.iter().position(|w| !w.is_finite()) {
+        return Err(SsisError::new_err(format!("rate_rad_s: sample {k} is {} (every rate must be a number)", r[k])));
+    }
+    let pts = allan::overlapping_adev(&r, dt_s, 8).map_err(|e| err(e.context("rate_rad_s")))?;
+    let nt = allan::noise_terms(&pts).map_err(|e| err(e.context("rate_rad_s")))?;
     Ok(json::allan(&pts, &nt).to_string())
 }
 

@@ -6,8 +6,9 @@
 
 use std::path::PathBuf;
 
-use numpy::{IntoPyArray, PyArray1, PyReadonlyArray1};
+use numpy::{IntoPyArray, PyArray1};
 use pyo3::prelude::*;
+use pyo3::types::PyBytes;
 use ssis_common::update;
 use ssis_common::DEG_H_PER_RAD_S;
 use ssis_lab::diagnose::{candidate_terms, diagnose_digest, diagnose_with_progress, Options};
@@ -17,6 +18,7 @@ use ssis_lab::session::{read_session, session_from_columns, Session};
 use ssis_lab::stream::{digest, Source};
 use ssis_lab::{export, json, report};
 
+use crate::core::floats;
 use crate::table::PyTable;
 use crate::{err, SsisError};
 
@@ -33,6 +35,22 @@ pub struct PySession {
 
 #[pymethods]
 impl PySession {
+    /// `Session()`: an empty session (what an unpickled session starts from).
+    #[new]
+    fn new() -> Self {
+        let s = Session {
+            file: String::new(),
+            names: Vec::new(),
+            cols: Vec::new(),
+            roles: Vec::new(),
+            fogs: Vec::new(),
+            ref_rad_s: Vec::new(),
+            field_nt: None,
+            lines: Vec::new(),
+        };
+        PySession { s }
+    }
+
     /// Reads and checks a session file (errors name the file, line and column).
     #[staticmethod]
     fn read(path: PathBuf) -> PyResult<Self> {
@@ -43,11 +61,28 @@ impl PySession {
     /// checked as a file is (`name` stands for the file in messages).
     #[staticmethod]
     #[pyo3(signature = (names, columns, name = "(arrays)".to_string()))]
-    fn from_arrays(names: Vec<String>, columns: Vec<PyReadonlyArray1<'_, f64>>, name: String) -> PyResult<Self> {
+    fn from_arrays(names: Vec<String>, columns: Vec<Bound<'_, PyAny>>, name: String) -> PyResult<Self> {
+        if names.len() != columns.len() {
+            return Err(SsisError::new_err(format!(
+                "{name}: columns: {} names and {} columns (one column per name)",
+                names.len(),
+                columns.len()
+            )));
+        }
         let cols = columns
             .iter()
-            .map(|c| c.as_slice().map(<[f64]>::to_vec).map_err(|e| SsisError::new_err(format!("{name}: {e}"))))
+            .zip(&names)
+            .map(|(c, n)| floats(c, &format!("{name}: column `{n}`"), "a 1-D float array"))
             .collect::<PyResult<Vec<_>>>()?;
+        if let Some(k) = cols.iter().position(|c| c.len() != cols[0].len()) {
+            return Err(SsisError::new_err(format!(
+                "{name}: column `{}` has {} values and `{}` {}: every column needs one value per row",
+                names[k],
+                cols[k].len(),
+                names[0],
+                cols[0].len()
+            )));
+        }
         session_from_columns(&name, names, &cols)
             .map(|s| PySession { s })
             .map_err(|e| SsisError::new_err(e.to_string()))
@@ -86,6 +121,148 @@ impl PySession {
     /// The session's CSV text (what `write` writes).
     fn to_csv(&self) -> String {
         ssis_lab::session::session_csv(&self.s)
+    }
+
+    /// The pickled form: every column and derived series, exact.
+    fn __getstate__<'py>(&self, py: Python<'py>) -> Bound<'py, PyBytes> {
+        PyBytes::new(py, &session_state(&self.s))
+    }
+
+    fn __setstate__(&mut self, state: &[u8]) -> PyResult<()> {
+        self.s = session_from_state(state)
+            .ok_or_else(|| SsisError::new_err("state: not a pickled Session of this version of ssis"))??;
+        Ok(())
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    fn __repr__(&self) -> String {
+        let t = self.s.t_s();
+        format!(
+            "Session({:?}, rows={}, t_s={}…{}, columns={})",
+            self.s.file,
+            self.s.len(),
+            t.first().copied().unwrap_or(f64::NAN),
+            t.last().copied().unwrap_or(f64::NAN),
+            self.s.names.len()
+        )
+    }
+}
+
+/// A session's pickled form: its file name, names, columns and derived series, as
+/// length-prefixed little-endian words.
+fn session_state(s: &Session) -> Vec<u8> {
+    let mut b = Vec::new();
+    let put = |b: &mut Vec<u8>, v: u64| b.extend_from_slice(&v.to_le_bytes());
+    let text = |b: &mut Vec<u8>, t: &str| {
+        put(b, t.len() as u64);
+        b.extend_from_slice(t.as_bytes());
+    };
+    let floats = |b: &mut Vec<u8>, v: &[f64]| {
+        put(b, v.len() as u64);
+        for x in v {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+    };
+    b.extend_from_slice(b"SSISSE01");
+    text(&mut b, &s.file);
+    put(&mut b, s.names.len() as u64);
+    for (n, c) in s.names.iter().zip(&s.cols) {
+        text(&mut b, n);
+        floats(&mut b, c);
+    }
+    put(&mut b, s.fogs.len() as u64);
+    for f in &s.fogs {
+        floats(&mut b, &f.rate_rad_s);
+        put(&mut b, u64::from(f.t_degc.is_some()));
+        floats(&mut b, f.t_degc.as_deref().unwrap_or(&[]));
+    }
+    floats(&mut b, &s.ref_rad_s.iter().flatten().copied().collect::<Vec<_>>());
+    put(&mut b, u64::from(s.field_nt.is_some()));
+    floats(&mut b, &s.field_nt.iter().flatten().flatten().copied().collect::<Vec<_>>());
+    put(&mut b, s.lines.len() as u64);
+    for l in &s.lines {
+        put(&mut b, *l);
+    }
+    b
+}
+
+/// The session of [`session_state`]'s bytes (`None`: not such bytes; an error: the header
+/// no longer parses).
+fn session_from_state(b: &[u8]) -> Option<PyResult<Session>> {
+    let mut r = Reader { b, at: 0 };
+    if r.bytes(8)? != b"SSISSE01" {
+        return None;
+    }
+    let file = r.text()?;
+    let n = r.u64()? as usize;
+    let (mut names, mut cols) = (Vec::new(), Vec::new());
+    for _ in 0..n {
+        names.push(r.text()?);
+        cols.push(r.floats()?);
+    }
+    let nf = r.u64()? as usize;
+    let mut fogs = Vec::new();
+    for _ in 0..nf {
+        let rate_rad_s = r.floats()?;
+        let has_t = r.u64()? == 1;
+        let t = r.floats()?;
+        fogs.push(ssis_session::FogData { rate_rad_s, t_degc: has_t.then_some(t) });
+    }
+    let triples = |v: Vec<f64>| v.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect::<Vec<_>>();
+    let ref_rad_s = triples(r.floats()?);
+    let has_field = r.u64()? == 1;
+    let field = triples(r.floats()?);
+    let nl = r.u64()? as usize;
+    let lines = (0..nl).map(|_| r.u64()).collect::<Option<Vec<_>>>()?;
+    let header = match ssis_session::Header::parse(&file, names.clone(), 1) {
+        Ok(h) => h,
+        Err(e) => return Some(Err(SsisError::new_err(e.to_string()))),
+    };
+    Some(Ok(Session {
+        file,
+        names,
+        cols,
+        roles: header.roles,
+        fogs,
+        ref_rad_s,
+        field_nt: has_field.then_some(field),
+        lines,
+    }))
+}
+
+/// Reads [`session_state`]'s words.
+struct Reader<'a> {
+    b: &'a [u8],
+    at: usize,
+}
+
+impl Reader<'_> {
+    fn bytes(&mut self, n: usize) -> Option<&[u8]> {
+        let s = self.b.get(self.at..self.at.checked_add(n)?)?;
+        self.at += n;
+        Some(s)
+    }
+
+    fn u64(&mut self) -> Option<u64> {
+        self.bytes(8).map(|s| u64::from_le_bytes(std::array::from_fn(|i| s[i])))
+    }
+
+    fn text(&mut self) -> Option<String> {
+        let n = self.u64()? as usize;
+        self.bytes(n).and_then(|s| String::from_utf8(s.to_vec()).ok())
+    }
+
+    fn floats(&mut self) -> Option<Vec<f64>> {
+        let n = self.u64()? as usize;
+        let s = self.bytes(n.checked_mul(8)?)?;
+        Some(s.chunks_exact(8).map(|c| f64::from_le_bytes(std::array::from_fn(|i| c[i]))).collect())
     }
 }
 
@@ -136,11 +313,17 @@ pub struct PyModel {
 #[pymethods]
 impl PyModel {
     /// Version 1 with the given terms (catalog names, `sinusoid:F_HZ`, or expressions)
-    /// and no coefficients, as `ssis-lab init`.
+    /// and no coefficients, as `ssis-lab init`; a bare word close to a catalog name is a
+    /// typo, refused with the nearest name, not taken as an expression.
     #[staticmethod]
     #[pyo3(signature = (terms, t_ref_degc = 25.0, g_window_s = 0.0))]
     fn init(terms: Vec<String>, t_ref_degc: f64, g_window_s: f64) -> PyResult<Self> {
-        let kinds = terms.iter().map(|t| Kind::parse_arg(t.trim())).collect::<Result<Vec<_>, _>>().map_err(lab_err)?;
+        let kinds = terms.iter().map(|t| checked_term(t.trim())).collect::<PyResult<Vec<_>>>()?;
+        for (what, v) in [("t_ref_degc", t_ref_degc), ("g_window_s", g_window_s)] {
+            if !v.is_finite() || (what == "g_window_s" && v < 0.0) {
+                return Err(SsisError::new_err(format!("{what}: {v} is not a finite value (g_window_s ≥ 0)")));
+            }
+        }
         let mut m = Model::new(&kinds);
         m.t_ref_degc = t_ref_degc;
         m.g_window_s = g_window_s;
@@ -179,9 +362,68 @@ impl PyModel {
         self.m.kinds().iter().map(Kind::label).collect()
     }
 
-    fn __repr__(&self) -> String {
-        format!("Model(version={}, terms={:?})", self.m.version, self.terms())
+    /// `Model()`: version 1 with no terms (what an unpickled model starts from).
+    #[new]
+    fn new() -> Self {
+        PyModel { m: Model::new(&[]) }
     }
+
+    /// Whether the model has coefficients (fitted, or written in its file).
+    #[getter]
+    fn fitted(&self) -> bool {
+        has_coefficients(&self.m)
+    }
+
+    /// The pickled form: the model's TOML text (exact).
+    fn __getstate__(&self) -> String {
+        self.m.to_toml()
+    }
+
+    fn __setstate__(&mut self, state: &str) -> PyResult<()> {
+        self.m = Model::parse(state, "(pickled model)").map_err(lab_err)?;
+        Ok(())
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    fn __eq__(&self, o: &PyModel) -> bool {
+        self.m.to_toml() == o.m.to_toml()
+    }
+
+    fn __repr__(&self) -> String {
+        let fitted = if self.fitted() { "True" } else { "False" };
+        format!("Model(version={}, terms={:?}, fitted={fitted})", self.m.version, self.terms())
+    }
+}
+
+fn has_coefficients(m: &Model) -> bool {
+    m.fit.is_some() || m.terms.iter().any(|t| !t.coef.is_empty())
+}
+
+/// A term as `ssis-lab init` takes it: a bare word close to a catalog name is refused with
+/// the nearest name.
+fn checked_term(arg: &str) -> PyResult<Kind> {
+    let kind = Kind::parse_arg(arg).map_err(|e| SsisError::new_err(format!("terms: {e}")))?;
+    if let Kind::Expr(_) = &kind {
+        let catalog = ssis_lab::model::catalog_names();
+        let bare = !arg.is_empty() && arg.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        if bare && !ssis_lab::model::FOG_VARIABLES.contains(&arg) {
+            let hint = ssis_lab::model::did_you_mean(arg, catalog.split(", "));
+            if !hint.is_empty() {
+                return Err(SsisError::new_err(format!(
+                    "terms: `{arg}` is not a term of the catalog ({catalog}, sinusoid:F_HZ){hint} \
+                     (an expression over session columns is a term too)"
+                )));
+            }
+        }
+    }
+    Ok(kind)
 }
 
 /// A bar over the session file's bytes on standard error (the command line's; drawn only
@@ -242,12 +484,21 @@ fn diagnose_json(
 #[pyo3(signature = (model, term, session, blocks = DEFAULT_BLOCKS))]
 fn add_json(model: &PyModel, term: &str, session: &Bound<'_, PyAny>, blocks: usize) -> PyResult<(PyModel, String)> {
     let src = Src::of(session)?;
-    let kind = Kind::parse_arg(term).map_err(lab_err)?;
+    let kind = checked_term(term.trim())?;
     let mut out = ssis_lab::fit::add_term(&model.m, &kind, src.source(), blocks).map_err(lab_err)?;
     out.model.version = model.m.version + 1;
     out.model.note = format!("v{}: v{} + {}", out.model.version, model.m.version, kind.label());
     let v = json::added(&out, &kind, "");
     Ok((PyModel { m: out.model }, v.to_string()))
+}
+
+/// The model with every term fitted on every row of the session (what `compare` reports,
+/// as a model to export or write).
+#[pyfunction]
+fn fit(model: &PyModel, session: &Bound<'_, PyAny>) -> PyResult<PyModel> {
+    let src = Src::of(session)?;
+    let f = ssis_lab::fit::fit_model(&model.m, src.source()).map_err(lab_err)?;
+    Ok(PyModel { m: f.model })
 }
 
 /// Held-out RMS per FOG, °/h, of each model on the session (the history `ssis-lab add`
@@ -267,9 +518,10 @@ fn held_out_deg_h(models: Vec<PyModel>, session: &Bound<'_, PyAny>, blocks: usiz
 #[pyo3(signature = (model, base = None, model_name = "(model)".to_string()))]
 fn export_json(model: &PyModel, base: Option<&PyTable>, model_name: String) -> PyResult<(PyTable, String, String)> {
     let m = &model.m;
-    if m.fit.is_none() && m.terms.iter().all(|t| t.coef.is_empty()) {
+    if !has_coefficients(m) {
         return Err(SsisError::new_err(format!(
-            "{model_name}: the model has no coefficients: fit it first (ssis.lab.add or compare)"
+            "model: {model_name} has no coefficients: fit it first with ssis.lab.fit(model, session) (or \
+             ssis.lab.add); ssis.lab.compare reports a fit and leaves the model as it is"
         )));
     }
     let base_doc = base
@@ -343,6 +595,7 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(compare_json, m)?)?;
     m.add_function(wrap_pyfunction!(diagnose_json, m)?)?;
     m.add_function(wrap_pyfunction!(add_json, m)?)?;
+    m.add_function(wrap_pyfunction!(fit, m)?)?;
     m.add_function(wrap_pyfunction!(held_out_deg_h, m)?)?;
     m.add_function(wrap_pyfunction!(export_json, m)?)?;
     m.add_function(wrap_pyfunction!(report_html, m)?)?;

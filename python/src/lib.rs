@@ -82,6 +82,7 @@ impl<'py> Progress<'py> {
 #[pymodule]
 fn _ssis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("SsisError", m.py().get_type::<SsisError>())?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     table::register(m)?;
     core::register(m)?;
     replay::register(m)?;

@@ -12,7 +12,7 @@ use std::sync::{mpsc, Mutex};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
-use numpy::{IntoPyArray, PyReadonlyArray1};
+use numpy::IntoPyArray;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use ssis::flight::{health, Profile};
@@ -22,7 +22,7 @@ use ssis_common::ARCSEC_PER_RAD;
 use ssis_runner::qemu::{build_firmware, run_feed, Feed, QemuOptions, QemuSummary};
 use ssis_sim::harness::StepInput;
 
-use crate::core::{event_dicts, Encoder};
+use crate::core::{event_dicts, Encoder, StepIn};
 use crate::table::PyTable;
 use crate::{err, SsisError};
 
@@ -86,7 +86,7 @@ impl PyQemuUnit {
             };
             run_feed(feed, &QemuOptions::lockstep(elf), |_, _| {})
         });
-        Ok(PyQemuUnit { tx: Some(tx), rx: Mutex::new(rx), run: Some(run), enc: Encoder::new(table), report: None })
+        Ok(PyQemuUnit { tx: Some(tx), rx: Mutex::new(rx), run: Some(run), enc: Encoder::new(&table), report: None })
     }
 
     /// One step, as `FlightCore.step`; returns the firmware's output frame, decoded, and the
@@ -95,12 +95,12 @@ impl PyQemuUnit {
     fn step<'py>(
         &mut self,
         py: Python<'py>,
-        fog_dtheta_rad: PyReadonlyArray1<'py, f64>,
-        star: Option<(f64, PyReadonlyArray1<'py, f64>)>,
-        temperature_degc: Option<PyReadonlyArray1<'py, f64>>,
+        fog_dtheta_rad: &Bound<'py, PyAny>,
+        star: Option<&Bound<'py, PyAny>>,
+        temperature_degc: Option<&Bound<'py, PyAny>>,
         star_valid: bool,
     ) -> PyResult<Bound<'py, PyDict>> {
-        let input = self.enc.encode((&fog_dtheta_rad, star, temperature_degc), star_valid)?;
+        let input = self.enc.encode(&StepIn::parse(fog_dtheta_rad, star, temperature_degc, star_valid)?);
         let n = input.n;
         let sent = self.tx.as_ref().is_some_and(|tx| tx.send(input).is_ok());
         let rx = self.rx.lock().map_err(|_| SsisError::new_err("QEMU: the output channel is poisoned"))?;
@@ -120,7 +120,7 @@ impl PyQemuUnit {
         d.set_item("parity_rad", f.parity_rad())?;
         d.set_item("flags", f.flags)?;
         d.set_item("st_status", f.st_status)?;
-        d.set_item("fog_health", f.fog_health.to_vec())?;
+        d.set_item("fog_health", f.fog_health.map(u32::from).to_vec())?;
         let used =
             f.fog_health.iter().enumerate().filter(|(_, h)| *h & health::USED != 0).fold(0u8, |a, (i, _)| a | 1 << i);
         d.set_item("fogs_used", used)?;

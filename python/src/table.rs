@@ -31,10 +31,24 @@ fn field(name: &str) -> PyResult<ssis::calib::Field> {
 
 #[pymethods]
 impl PyTable {
+    /// `Table()`: the nominal table (as `Table.default()`).
+    #[new]
+    fn new() -> Self {
+        PyTable::default()
+    }
+
     /// The nominal table (nominal geometry, the paper's observer figures).
     #[staticmethod]
     fn default() -> Self {
         PyTable { doc: TableDoc::new(CalibrationTable::DEFAULT) }
+    }
+
+    /// A table from the text of a TOML table file (with its provenance), checked as a
+    /// file is; `origin` names it in messages.
+    #[staticmethod]
+    #[pyo3(signature = (text, origin = "(text)".to_string()))]
+    fn from_toml(text: &str, origin: String) -> PyResult<Self> {
+        table::parse_doc(text, &origin).map(|doc| PyTable { doc }).map_err(|e| err(e.into()))
     }
 
     /// Reads a table (.toml with its provenance, .bin or .img), checked as the unit checks it.
@@ -50,10 +64,18 @@ impl PyTable {
         table::doc_to_toml(&self.doc).map_err(|e| err(e.into()))
     }
 
-    /// Writes the table: `.bin` (binary), `.img` (flash image) or TOML; refuses an
-    /// existing file unless `force`.
+    /// Writes the table: `.toml` (with provenance), `.bin` (binary) or `.img` (flash
+    /// image), by the file's extension (another is refused); refuses an existing file
+    /// unless `force`.
     #[pyo3(signature = (path, force = false))]
     fn write(&self, path: PathBuf, force: bool) -> PyResult<()> {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        if !matches!(ext, "toml" | "bin" | "img") {
+            return Err(err(anyhow::anyhow!(
+                "path: {}: the extension names the format: .toml, .bin or .img (not `{ext}`)",
+                path.display()
+            )));
+        }
         if path.exists() && !force {
             return Err(err(anyhow::anyhow!("{}: exists (force=True replaces it)", path.display())));
         }
@@ -80,6 +102,9 @@ impl PyTable {
     /// Sets field `name` (SI unit); refused outside the field's plausible range.
     fn set(&mut self, name: &str, value: f64) -> PyResult<()> {
         let f = field(name)?;
+        if !value.is_finite() {
+            return Err(err(anyhow::anyhow!("value: field `{name}` set to {value}: a finite number is needed")));
+        }
         if !f.spec().admits(value) {
             let s = f.spec();
             return Err(err(anyhow::anyhow!(
@@ -130,6 +155,34 @@ impl PyTable {
     fn __eq__(&self, o: &PyTable) -> bool {
         ssis_common::update::diff(&self.doc.table, &o.doc.table).is_empty()
             && self.doc.table.revision == o.doc.table.revision
+    }
+
+    /// The pickled form: the TOML text with provenance (exact: each value in the shortest
+    /// form that reads back to the same `f64`).
+    fn __getstate__(&self) -> PyResult<String> {
+        self.to_toml()
+    }
+
+    fn __setstate__(&mut self, state: &str) -> PyResult<()> {
+        self.doc = table::parse_doc(state, "(pickled table)").map_err(|e| err(e.into()))?;
+        Ok(())
+    }
+
+    fn __copy__(&self) -> Self {
+        self.clone()
+    }
+
+    fn __deepcopy__(&self, _memo: &Bound<'_, PyAny>) -> Self {
+        self.clone()
+    }
+
+    fn _repr_html_(&self) -> String {
+        format!(
+            "<b>ssis.Table</b> revision {}, CRC-32 <code>0x{:08x}</code>, {} fields set by tools",
+            self.doc.table.revision,
+            ssis::flight::table_crc(&self.doc.table),
+            self.doc.provenance.len()
+        )
     }
 
     fn __repr__(&self) -> String {

@@ -13,27 +13,72 @@ same code the command lines run, so the numbers are the same:
 - :mod:`ssis.basilisk`: the unit in closed loop with Basilisk (``pip install bsk``).
 
 Errors are raised as :class:`SsisError` (a ``ValueError``) whose message names the file,
-line and field, as the command line's does.
+line and field, as the command line's does, or the argument and the shape it needs.
+
+``Table``, ``FlightCore``, ``lab.Session`` and ``lab.Model`` pickle and copy (a pickled
+core carries its whole state and continues bit for bit), so runs can be forked or sent to
+worker processes.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import copy as _copy
+import html as _html
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
 from . import _ssis
 from ._ssis import SsisError, Table
 
-__all__ = ["SsisError", "Table", "FlightCore", "QemuUnit", "Step", "Replay", "replay", "cal", "lab"]
+__all__ = ["SsisError", "Table", "FlightCore", "QemuUnit", "Step", "Run", "Replay", "replay", "cal", "lab", "__version__"]
+
+__version__: str = _ssis.__version__
+
+# Bits of the output frame's `flags` and `st_status` (docs/ICD.md).
+_FLAG_ST_IN_USE, _FLAG_DEGRADED, _FLAG_CONVERGED, _FLAG_FDI_ALARM = 1 << 0, 1 << 1, 1 << 2, 1 << 6
+_ST_ALIGNED, _ST_OUTAGE = 1 << 2, 1 << 4
+
+
+def _pandas() -> Any:
+    try:
+        import pandas  # type: ignore[import-untyped,unused-ignore]
+    except ImportError as e:  # pandas is optional
+        raise ImportError("to_pandas() needs pandas (pip install pandas)") from e
+    return pandas
+
+
+def _columns(arrays: Dict[str, np.ndarray], names: Mapping[str, Sequence[str]]) -> Dict[str, np.ndarray]:
+    """One column per scalar: an (n, k) array ``a`` becomes ``a_<name>`` for each of
+    ``names[a]`` (``q0`` … ``q3`` for the quaternion)."""
+    out: Dict[str, np.ndarray] = {}
+    for key, a in arrays.items():
+        if a.ndim == 1:
+            out[key] = a
+        else:
+            for j, suffix in enumerate(names[key]):
+                out[suffix if key == "q" else f"{key}_{suffix}"] = a[:, j]
+    return out
+
+
+_XYZ = ("x", "y", "z")
+_WIDE = {
+    "q": ("q0", "q1", "q2", "q3"),
+    "rate_rad_s": _XYZ,
+    "drift_rad_s": _XYZ,
+    "att_sigma_arcsec": _XYZ,
+    "att_err_arcsec": _XYZ,
+    "drift_sigma_rad_s": _XYZ,
+    "fog_health": ("fog0", "fog1", "fog2", "fog3"),
+}
 
 PathLike = Union[str, "os.PathLike[str]"]
 
 
-@dataclass
+@dataclass(repr=False)
 class Step:
     """What the unit output after one step (the output frame's content, unscaled)."""
 
@@ -49,20 +94,117 @@ class Step:
     """The estimator's attitude 1σ per axis, arcsec (inf before alignment)."""
     drift_sigma_rad_s: np.ndarray
     flags: int
-    """Flag bits (docs/ICD.md, output frame)."""
+    """Flag bits (docs/ICD.md, output frame); by name: :attr:`converged`, :attr:`degraded`,
+    :attr:`fdi_alarm`, :attr:`star_in_use`."""
     st_status: int
-    fog_health: list
+    """Star-tracker status bits (docs/ICD.md); by name: :attr:`aligned`, :attr:`st_outage`."""
+    fog_health: List[int]
+    """Per FOG, its health bits (docs/ICD.md, ``health``)."""
     fogs_used: int
     fdi: int
     parity_rad: float
-    events: list = field(default_factory=list)
+    events: List[Dict[str, Any]] = field(default_factory=list)
     """The unit's state changes sent after this step (its event log, as the event frames
     carry it, docs/ICD.md): dicts ``time_s``, ``seq``, ``event`` (e.g. ``"aligned"``,
     ``"isolated"``), ``a``, ``b``, ``details``. Both units give the same: :class:`QemuUnit`
     decodes the event frame the firmware sent after the step's output frame."""
-    counters_moved: list = field(default_factory=list)
+    counters_moved: List[Tuple[str, int]] = field(default_factory=list)
     """Counters that moved in this step, ``(name, increment)`` (e.g.
     ``("StFramesAccepted", 1)``). Empty from :class:`QemuUnit`."""
+
+    @property
+    def aligned(self) -> bool:
+        """``st_status`` bit 2: the attitude has been aligned by the star tracker and the
+        mounting check found no FOG at odds with the tracker (docs/ICD.md)."""
+        return bool(self.st_status & _ST_ALIGNED)
+
+    @property
+    def st_outage(self) -> bool:
+        """``st_status`` bit 4: no accepted star-tracker frame for more than 2 s."""
+        return bool(self.st_status & _ST_OUTAGE)
+
+    @property
+    def converged(self) -> bool:
+        """``flags`` bit 2: the observer has converged."""
+        return bool(self.flags & _FLAG_CONVERGED)
+
+    @property
+    def degraded(self) -> bool:
+        """``flags`` bit 1: degraded (fewer FOGs, or a fault being handled)."""
+        return bool(self.flags & _FLAG_DEGRADED)
+
+    @property
+    def fdi_alarm(self) -> bool:
+        """``flags`` bit 6: the parity check's alarm."""
+        return bool(self.flags & _FLAG_FDI_ALARM)
+
+    @property
+    def star_in_use(self) -> bool:
+        """``flags`` bit 0: the star tracker is in use."""
+        return bool(self.flags & _FLAG_ST_IN_USE)
+
+    def __repr__(self) -> str:
+        q = ", ".join(f"{v:.9f}" for v in self.q)
+        ev = f", events={[e['event'] for e in self.events]}" if self.events else ""
+        return (
+            f"Step(time_s={self.time_s:.3f}, q=[{q}], flags=0x{self.flags:02x}, "
+            f"st_status=0x{self.st_status:02x}, aligned={self.aligned}, converged={self.converged}, "
+            f"fogs_used=0b{self.fogs_used:04b}{ev})"
+        )
+
+    def _repr_html_(self) -> str:
+        return f"<code>{_html.escape(repr(self))}</code>"
+
+
+@dataclass(repr=False)
+class Run:
+    """What :meth:`FlightCore.run` returns: one row per step."""
+
+    time_s: np.ndarray
+    q: np.ndarray
+    """(n, 4), scalar first."""
+    rate_rad_s: np.ndarray
+    drift_rad_s: np.ndarray
+    att_sigma_arcsec: np.ndarray
+    drift_sigma_rad_s: np.ndarray
+    """(n, 3)."""
+    parity_rad: np.ndarray
+    flags: np.ndarray
+    st_status: np.ndarray
+    fog_health: np.ndarray
+    """(n, 4)."""
+    fogs_used: np.ndarray
+    fdi: np.ndarray
+    events: List[Dict[str, Any]]
+    """As :attr:`Step.events`, each with ``step``: its row."""
+
+    @property
+    def aligned(self) -> np.ndarray:
+        """Per step, ``st_status`` bit 2 (:attr:`Step.aligned`)."""
+        return np.asarray((self.st_status & _ST_ALIGNED) != 0)
+
+    @property
+    def converged(self) -> np.ndarray:
+        """Per step, ``flags`` bit 2 (:attr:`Step.converged`)."""
+        return np.asarray((self.flags & _FLAG_CONVERGED) != 0)
+
+    def arrays(self) -> Dict[str, np.ndarray]:
+        return {k: v for k, v in vars(self).items() if isinstance(v, np.ndarray)}
+
+    def to_pandas(self) -> Any:
+        """A ``pandas.DataFrame``, one column per scalar (``q0`` … ``q3``, ``rate_rad_s_x`` …;
+        pandas is optional)."""
+        return _pandas().DataFrame(_columns(self.arrays(), _WIDE))
+
+    def __len__(self) -> int:
+        return len(self.time_s)
+
+    def __repr__(self) -> str:
+        t = f"{self.time_s[0]:.3f}…{self.time_s[-1]:.3f} s" if len(self) else "empty"
+        return f"Run(steps={len(self)}, time_s={t}, aligned at end={bool(self.aligned[-1]) if len(self) else None}, events={len(self.events)})"
+
+    def _repr_html_(self) -> str:
+        return f"<code>{_html.escape(repr(self))}</code>"
 
 
 class _Unit:
@@ -72,18 +214,35 @@ class _Unit:
 
     def step(
         self,
-        fog_dtheta_rad: Sequence[float],
-        star: Optional[Tuple[float, Sequence[float]]] = None,
-        temperature_degc: Optional[Sequence[float]] = None,
+        fog_dtheta_rad: Any,
+        star: Optional[Tuple[float, Any]] = None,
+        temperature_degc: Optional[Any] = None,
         star_valid: bool = True,
     ) -> Step:
         """One step: the four FOGs' raw increments over the step, rad (NaN: the sample does
         not arrive); ``star`` = ``(tag_t_s, q)``, a star-tracker solution arriving in this
-        step (q the tracker's frame in the inertial frame, scalar first; ``tag_t_s`` the
-        instant it holds, in unit time: step n ends at n × 5 ms)."""
-        st = None if star is None else (float(star[0]), np.asarray(star[1], dtype=np.float64))
-        temps = None if temperature_degc is None else np.asarray(temperature_degc, dtype=np.float64)
-        return Step(**self._native.step(np.asarray(fog_dtheta_rad, dtype=np.float64), st, temps, star_valid))
+        step (q the tracker's frame in the inertial frame, scalar first, a unit quaternion;
+        ``tag_t_s`` the instant it holds, in unit time: step n ends at n × 5 ms)."""
+        st = None if star is None else _star(star)
+        return Step(**self._native.step(_f64(fog_dtheta_rad), st, _f64(temperature_degc), bool(star_valid)))
+
+
+def _f64(v: Any) -> Any:
+    """``v`` as a float64 array when it is numeric (ints, bools, floats), else as it is, for
+    the native side to refuse with the argument's name and the shape it needs."""
+    if v is None or isinstance(v, (str, bytes)):
+        return v
+    try:
+        a = np.asarray(v)
+    except Exception:
+        return v
+    return np.ascontiguousarray(a, dtype=np.float64) if a.dtype.kind in "biuf" else v
+
+
+def _star(star: Any) -> Any:
+    if isinstance(star, tuple) and len(star) == 2:
+        return (star[0], _f64(star[1]))
+    return star
 
 
 class FlightCore(_Unit):
@@ -92,6 +251,8 @@ class FlightCore(_Unit):
     Each :meth:`step` encodes the FOG increments and the star-tracker solution into their
     frames on mock links and runs ``FlightCore::step``, as the simulator and the replay do.
     """
+
+    _native: _ssis.FlightCore
 
     def __init__(self, table: Optional[Table] = None) -> None:
         self._native = _ssis.FlightCore(table)
@@ -105,13 +266,44 @@ class FlightCore(_Unit):
     def steps(self) -> int:
         return self._native.steps
 
-    def align(self, q: Sequence[float]) -> None:
-        """Sets the attitude to ``q`` (Λ, scalar first) and marks it aligned."""
-        self._native.align(np.asarray(q, dtype=np.float64))
+    def align(self, q: Any) -> None:
+        """Sets the attitude to ``q`` (Λ, scalar first, a unit quaternion) and marks it
+        aligned."""
+        self._native.align(_f64(q))
 
-    def counters(self) -> dict:
+    def counters(self) -> Dict[str, int]:
         """The unit's counters by name."""
         return dict(self._native.counters())
+
+    def run(
+        self,
+        fog_dtheta_rad: Any,
+        star_t_s: Optional[Any] = None,
+        star_q: Optional[Any] = None,
+        temperature_degc: Optional[Any] = None,
+        star_valid: Optional[Any] = None,
+    ) -> Run:
+        """N steps from arrays, stepped in Rust (what N calls of :meth:`step` give, bit for
+        bit): ``fog_dtheta_rad`` (N, 4) rad (NaN: the sample does not arrive); ``star_t_s``
+        (N,) the tag of a star-tracker solution arriving in step k (NaN: none) and ``star_q``
+        (N, 4) its quaternion; optional ``temperature_degc`` (N, 4) and ``star_valid`` (N,).
+        Every row is checked before the first step."""
+        d = self._native.run(_f64(fog_dtheta_rad), _f64(star_t_s), _f64(star_q), _f64(temperature_degc), _f64(star_valid))
+        return Run(**d)
+
+    def __copy__(self) -> "FlightCore":
+        c = FlightCore.__new__(FlightCore)
+        c._native = _copy.copy(self._native)
+        return c
+
+    def __deepcopy__(self, memo: Dict[int, Any]) -> "FlightCore":
+        return self.__copy__()
+
+    def __repr__(self) -> str:
+        return repr(self._native)
+
+    def _repr_html_(self) -> str:
+        return f"<code>{_html.escape(repr(self))}</code>"
 
 
 class QemuUnit(_Unit):
@@ -122,6 +314,8 @@ class QemuUnit(_Unit):
     Needs ``qemu-system-arm`` and the thumb toolchain (the firmware is built if out of
     date). ``events`` are the firmware's (its event frames); ``counters_moved`` is always
     empty here (the output frame pages one counter at a time)."""
+
+    _native: _ssis.QemuUnit
 
     def __init__(self, table: Optional[Table] = None, elf: Optional[PathLike] = None, steps: int = 0) -> None:
         self._native = _ssis.QemuUnit(table, None if elf is None else os.fspath(elf), steps)
@@ -139,7 +333,7 @@ class QemuUnit(_Unit):
         self.close()
 
 
-@dataclass
+@dataclass(repr=False)
 class Replay:
     """A replay's per-output series and its summary."""
 
@@ -153,12 +347,32 @@ class Replay:
     att_sigma_arcsec: np.ndarray
     att_err_arcsec: np.ndarray
     """(n, 3) against the log's truth; NaN where the log has none."""
-    summary: dict
+    summary: Dict[str, Any]
     """What ``ssis-sim replay --json`` prints under ``replay``."""
-    conventions: dict
+    conventions: Dict[str, Any]
     """What it prints under ``conventions``."""
     report: str
     """The text report the command prints."""
+
+    def arrays(self) -> Dict[str, np.ndarray]:
+        """The per-output series by name."""
+        return {k: v for k, v in vars(self).items() if isinstance(v, np.ndarray)}
+
+    def to_pandas(self) -> Any:
+        """The per-output series as a ``pandas.DataFrame``, one column per scalar: ``t_s``,
+        ``q0`` … ``q3``, ``rate_rad_s_x`` … ``att_err_arcsec_z``, ``flags`` (pandas is
+        optional)."""
+        return _pandas().DataFrame(_columns(self.arrays(), _WIDE))
+
+    def __repr__(self) -> str:
+        acc = self.summary.get("accuracy", {}) if isinstance(self.summary, dict) else {}
+        three = acc.get("attitude_error_3sigma_arcsec")
+        span = f"{self.t_s[0]:.3f}…{self.t_s[-1]:.3f} s" if len(self.t_s) else "no arrays kept"
+        return f"Replay(outputs={len(self.t_s)}, t_s={span}, steps={self.summary.get('steps')}, attitude 3σ={three} arcsec)"
+
+    def _repr_html_(self) -> str:
+        rows = "".join(f"<tr><td>{_html.escape(str(k))}</td><td>{_html.escape(str(v))}</td></tr>" for k, v in self.summary.items() if not isinstance(v, (dict, list)))
+        return f"<b>ssis.Replay</b> <code>{_html.escape(repr(self))}</code><table>{rows}</table>"
 
 
 def replay(

@@ -8,23 +8,24 @@ diagnosis's candidates also as :class:`Candidate` objects.
 
 from __future__ import annotations
 
+import html
 import json
 import os
 from dataclasses import dataclass
-from typing import Any, List, Optional, Sequence, Tuple
+from typing import Any, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 
-from . import _ssis
+from . import _f64, _pandas, _ssis
 from ._ssis import Table
 
-__all__ = ["Session", "Model", "Candidate", "Diagnosis", "compare", "diagnose", "add", "held_out", "export", "report", "simulate"]
+__all__ = ["Session", "Model", "Candidate", "Diagnosis", "compare", "diagnose", "add", "fit", "held_out", "export", "report", "simulate"]
 
 
 class Session:
     """A ground-test session (docs/SESSION-FORMAT.md) in memory."""
 
-    def __init__(self, native: Any) -> None:
+    def __init__(self, native: _ssis.Session) -> None:
         self._s = native
 
     @staticmethod
@@ -35,8 +36,10 @@ class Session:
     @staticmethod
     def from_arrays(columns: "dict[str, Any]", name: str = "(arrays)") -> "Session":
         """A session from named columns (``t_s``, ``fog0_rate_rad_s``, …, as in a file)."""
-        names = list(columns)
-        cols = [np.ascontiguousarray(columns[k], dtype=np.float64) for k in names]
+        if not isinstance(columns, dict):
+            raise _ssis.SsisError(f"columns: expected a dict of column name to 1-D array, got a `{type(columns).__name__}`")
+        names = [str(k) for k in columns]
+        cols = [_f64(columns[k]) for k in columns]
         return Session(_ssis.Session.from_arrays(names, cols, name))
 
     @property
@@ -60,11 +63,21 @@ class Session:
     def to_csv(self) -> str:
         return self._s.to_csv()
 
+    def to_pandas(self) -> Any:
+        """The columns as a ``pandas.DataFrame`` (pandas is optional)."""
+        return _pandas().DataFrame({n: self[n] for n in self.names})
+
+    def __repr__(self) -> str:
+        return repr(self._s)
+
+    def _repr_html_(self) -> str:
+        return f"<code>{html.escape(repr(self))}</code>"
+
 
 class Model:
     """The FOG error model (``ssis-error-model/1``)."""
 
-    def __init__(self, native: Any) -> None:
+    def __init__(self, native: _ssis.Model) -> None:
         self._m = native
 
     @staticmethod
@@ -91,8 +104,21 @@ class Model:
     def terms(self) -> List[str]:
         return self._m.terms
 
+    @property
+    def fitted(self) -> bool:
+        """Whether the model has coefficients (fitted, or written in its file)."""
+        return self._m.fitted
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, Model) and self._m == other._m
+
+    __hash__ = None  # type: ignore[assignment]
+
     def __repr__(self) -> str:
-        return repr(self._m)
+        return f"Model(version={self.version}, terms={self.terms}, fitted={self.fitted})"
+
+    def _repr_html_(self) -> str:
+        return f"<code>{html.escape(repr(self))}</code>"
 
 
 @dataclass
@@ -112,18 +138,32 @@ class Candidate:
 class Diagnosis:
     candidates: List[Candidate]
     most_significant: Optional[str]
-    json: dict
+    json: Dict[str, Any]
     """What ``ssis-lab diagnose --json`` prints under ``diagnosis``."""
+
+    def to_pandas(self) -> Any:
+        """One row per candidate: ``name``, ``p``, ``removed_deg_h``, ``significant``
+        (pandas is optional)."""
+        return _pandas().DataFrame([vars(c) for c in self.candidates], columns=["name", "p", "removed_deg_h", "significant"])
+
+
+def _json(text: str) -> Dict[str, Any]:
+    v: Dict[str, Any] = json.loads(text)
+    return v
 
 
 def _src(session: Any) -> Any:
-    return session._s if isinstance(session, Session) else os.fspath(session)
+    if isinstance(session, Session):
+        return session._s
+    if isinstance(session, (str, os.PathLike)):
+        return os.fspath(session)
+    raise _ssis.SsisError(f"session: expected a path or an ssis.lab.Session, got a `{type(session).__name__}`")
 
 
-def compare(model: Model, session: Any, evaluate: bool = False, blocks: int = 10, progress: bool = False) -> dict:
+def compare(model: Model, session: Any, evaluate: bool = False, blocks: int = 10, progress: bool = False) -> Dict[str, Any]:
     """``ssis-lab compare``: the model fitted (or evaluated) on the session, per FOG.
     ``progress``: the command line's bar over the file's bytes on standard error."""
-    return json.loads(_ssis.compare_json(model._m, _src(session), evaluate, blocks, progress))
+    return _json(_ssis.compare_json(model._m, _src(session), evaluate, blocks, progress))
 
 
 def diagnose(model: Model, session: Any, level: float = 0.01, blocks: int = 10, progress: bool = False) -> Diagnosis:
@@ -133,11 +173,18 @@ def diagnose(model: Model, session: Any, level: float = 0.01, blocks: int = 10, 
     return Diagnosis(c, v["most_significant"], v)
 
 
-def add(model: Model, term: str, session: Any, blocks: int = 10) -> Tuple[Model, dict]:
+def add(model: Model, term: str, session: Any, blocks: int = 10) -> Tuple[Model, Dict[str, Any]]:
     """``ssis-lab add``: the next version with ``term``, and its held-out gain (before/after
     per FOG). The new model is returned, not written."""
     m, v = _ssis.add_json(model._m, term, _src(session), blocks)
-    return Model(m), json.loads(v)
+    return Model(m), _json(v)
+
+
+def fit(model: Model, session: Any) -> Model:
+    """The model with every term fitted on every row of the session: what :func:`compare`
+    reports, as a model (``compare`` leaves ``model`` as it is). Export it with
+    :func:`export` or write it."""
+    return Model(_ssis.fit(model._m, _src(session)))
 
 
 def held_out(models: Sequence[Model], session: Any, blocks: int = 10) -> List[Tuple[float, List[float]]]:
@@ -145,12 +192,12 @@ def held_out(models: Sequence[Model], session: Any, blocks: int = 10) -> List[Tu
     return _ssis.held_out_deg_h([m._m for m in models], _src(session), blocks)
 
 
-def export(model: Model, base: Optional[Table] = None, model_name: str = "(model)") -> Tuple[Table, dict, str]:
+def export(model: Model, base: Optional[Table] = None, model_name: str = "(model)") -> Tuple[Table, Dict[str, Any], str]:
     """``ssis-lab export``: the calibration table from the model's onboard terms over ``base``
     (the nominal table by default), its revision + 1, with provenance; ``(table, json,
     text)``. Write it with ``table.write(path)``."""
     t, v, text = _ssis.export_json(model._m, base, model_name)
-    return t, json.loads(v), text
+    return t, _json(v), text
 
 
 def report(model: Model, session: Any, out: "os.PathLike[str] | str", versions: Optional[Sequence[Model]] = None, blocks: int = 10) -> None:

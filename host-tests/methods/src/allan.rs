@@ -1,6 +1,6 @@
 //! Overlapping Allan variance of a static session (IEEE Std 952-1997, annex C), and the
-//! noise terms read from it: angle random walk N (slope −1/2), bias instability B (flat
-//! part, B = min σ / 0.664) and rate random walk K (slope +1/2).
+//! noise terms read from it: angle random walk N (slope −1/2), bias instability B (the flat
+//! flicker floor, σ = 0.664 B) and rate random walk K (slope +1/2).
 //!
 //! With θ_k = Σ_{l≤k} ω_l τ0 the integrated angle, for τ = m τ0:
 //!
@@ -9,23 +9,31 @@
 //! ```
 //!
 //! **Confidence intervals.** Each σ(τ) carries a chi-square interval with the equivalent
-//! degrees of freedom of the non-overlapping estimate, edf = L/m − 1 (conservative: the
-//! overlapping estimate has more). The 1σ relative error is then about 1/√(2 edf)
-//! (IEEE 952: 1/√(2(L/m − 1))).
+//! degrees of freedom of the overlapping estimate for the noise that gives the fewest: the
+//! least of the white-FM, flicker-FM and random-walk-FM formulas (W. J. Riley, *Handbook of
+//! Frequency Stability Analysis*, NIST SP 1065, table 5). Which noise dominates at τ is what
+//! the fit is to find, so no point's interval assumes it is white noise; at τ = L/4 the
+//! random-walk edf is 2, where the white-noise one would be 4.
 //!
-//! **Fit.** σ²(τ) = N²/τ + C + K² τ/3 is fitted by weighted least squares (weights from
-//! the relative errors above, only over τ with edf ≥ 3); N and K come from the fit. Their
-//! 95 % intervals are the relative interval of the σ(τ) point where each term dominates
-//! most (the fit's own covariance ignores the strong correlation of overlapping points).
-//! B = min σ(τ)/0.664 over the computed τ (the flicker reading; when the data hold only
-//! white noise and rate random walk, this minimum is √(2NK/√3) at τ = √3 N/K).
+//! **Fit and intervals of the terms.** σ²(τ) = N²/τ + C + K² τ/3 (C = (0.664 B)², the
+//! flicker floor) is fitted by weighted least squares (weights from the points' relative
+//! errors). The fit gives the values; it does not give the intervals (the τ points are
+//! strongly correlated, and a free fit trades a negative C for a positive K²). The
+//! intervals are those of the set of non-negative (N², C, K²) consistent with *every*
+//! point's interval at once: each point at level 1 − 0.05/n (Bonferroni over the n points,
+//! so that the truth lies in the set with probability ≥ 95 % whatever the points'
+//! correlation). The least and greatest N², C and K² over that polytope (a linear
+//! program in three unknowns, solved at its vertices) bound each term.
 //!
-//! **What a session cannot resolve is a bound, not a value.** A term is resolved when its
-//! fitted variance is positive and it carries at least half of σ²(τ) at some computed τ.
-//! Otherwise (the fit clamps K² to 0 because the session is too short for the random walk
-//! to show, say) it is reported as a 95 % upper bound from the σ(τ) point that limits it
-//! best: N ≤ min √(σ²_hi τ), K ≤ min √(3 σ²_hi / τ); B, when σ still falls at the longest τ
-//! (no flat part reached), as B ≤ σ_hi(τ_max)/0.664. Never a zero-width interval.
+//! **What a session cannot resolve is a bound, not a value.** A term whose least value
+//! over the set is 0 is not shown by the session: the other terms explain every point
+//! without it. It is reported as a 95 % upper bound (its greatest value over the set),
+//! never as a value with an interval. B is read from C, so B is resolved only where the
+//! session shows a floor that white noise and a rate random walk cannot explain; a
+//! minimum of σ(τ) alone is not a flicker floor. When no non-negative combination of the
+//! three terms fits every point (another noise: quantisation, a sinusoid, a drift ramp),
+//! each term is bounded alone (a term is at most the whole σ²(τ) at every τ) and none is
+//! claimed resolved.
 //!
 //! **What a session must be** ([`static_rates`]): static (the reference rate constant to
 //! within the FOG's white noise per sample), equally spaced, and long enough for four τ
@@ -55,6 +63,12 @@ pub fn overlapping_adev(rate_rad_s: &[f64], tau0_s: f64, per_decade: usize) -> R
     if l < 16 {
         bail!("Allan variance: need at least 16 samples, have {l}");
     }
+    if let Some(k) = rate_rad_s.iter().position(|w| !w.is_finite()) {
+        bail!("Allan variance: rate sample {k} is {} (every sample must be a number)", rate_rad_s[k]);
+    }
+    if !(tau0_s.is_finite() && tau0_s > 0.0) {
+        bail!("Allan variance: sample interval {tau0_s} s is not a positive time");
+    }
     let mut theta = Vec::with_capacity(l + 1);
     theta.push(0.0);
     let mut acc = 0.0;
@@ -83,7 +97,7 @@ pub fn overlapping_adev(rate_rad_s: &[f64], tau0_s: f64, per_decade: usize) -> R
             s += d * d;
         }
         let avar = s / (2.0 * tau * tau * terms as f64);
-        let edf = (l as f64 / m as f64 - 1.0).max(1.0);
+        let edf = edf(l, m);
         let chi = ChiSquared::new(edf).map_err(|e| anyhow::anyhow!("chi-square({edf}): {e}"))?;
         let lo = avar * edf / chi.inverse_cdf(0.975);
         let hi = avar * edf / chi.inverse_cdf(0.025);
@@ -143,9 +157,89 @@ pub struct NoiseTerms {
 
 const DEG_H: f64 = std::f64::consts::PI / 180.0 / 3600.0;
 
+/// Equivalent degrees of freedom of the overlapping Allan variance at cluster size `m` of
+/// `l` rate samples (`l + 1` angle points): the least of the white-FM, flicker-FM and
+/// random-walk-FM formulas (module doc), at least 1.
+fn edf(l: usize, m: usize) -> f64 {
+    let (n, m) = (l as f64 + 1.0, m as f64);
+    let white = (3.0 * (n - 1.0) / (2.0 * m) - 2.0 * (n - 2.0) / n) * 4.0 * m * m / (4.0 * m * m + 5.0);
+    let flicker = if m < 1.5 { 2.0 * (n - 2.0) / (2.3 * n - 4.9) } else { 5.0 * n * n / (4.0 * m * (n + 3.0 * m)) };
+    let walk = (n - 2.0) / m * ((n - 1.0).powi(2) - 3.0 * m * (n - 1.0) + 4.0 * m * m) / (n - 3.0).powi(2);
+    white.min(flicker).min(walk).max(1.0)
+}
+
+/// The interval of σ²(τ) of `p` at two-sided level 1 − `alpha` (chi-square with its edf).
+fn avar_interval(p: &AdevPoint, alpha: f64) -> Result<(f64, f64)> {
+    let chi = ChiSquared::new(p.edf).map_err(|e| anyhow::anyhow!("chi-square({}): {e}", p.edf))?;
+    let avar = p.adev_rad_s * p.adev_rad_s;
+    Ok((avar * p.edf / chi.inverse_cdf(1.0 - alpha / 2.0), avar * p.edf / chi.inverse_cdf(alpha / 2.0)))
+}
+
+/// σ²(τ)'s three parts per unit coefficient: N²/τ, C, K²τ/3.
+fn basis(tau_s: f64) -> [f64; 3] {
+    [1.0 / tau_s, 1.0, tau_s / 3.0]
+}
+
+/// The least and greatest of each coefficient (N², C, K²) over the non-negative
+/// coefficients with `lo_p ≤ basis(τ_p)·x ≤ hi_p` at every point, or `None` when no
+/// non-negative x satisfies them all. `scale` puts the three unknowns at comparable size.
+/// The polytope is bounded (every point bounds a positive combination), so each extreme is
+/// at a vertex: the feasible intersections of three of its planes.
+fn coefficient_ranges(rows: &[([f64; 3], f64, f64)], scale: [f64; 3]) -> Option<[(f64, f64); 3]> {
+    // Planes a·y = b in scaled unknowns y (x = scale ⊙ y), each row divided by its upper end.
+    let mut planes: Vec<([f64; 3], f64)> = Vec::with_capacity(2 * rows.len() + 3);
+    let mut ineq: Vec<([f64; 3], f64, f64)> = Vec::with_capacity(rows.len());
+    for (r, lo, hi) in rows {
+        let a = [r[0] * scale[0] / hi, r[1] * scale[1] / hi, r[2] * scale[2] / hi];
+        planes.push((a, lo / hi));
+        planes.push((a, 1.0));
+        ineq.push((a, lo / hi, 1.0));
+    }
+    for k in 0..3 {
+        let mut a = [0.0; 3];
+        a[k] = 1.0;
+        planes.push((a, 0.0));
+    }
+    const TOL: f64 = 1e-9;
+    let feasible = |y: &[f64; 3]| {
+        y.iter().all(|v| *v >= -TOL)
+            && ineq.iter().all(|(a, lo, hi)| {
+                let v = a[0] * y[0] + a[1] * y[1] + a[2] * y[2];
+                v >= lo - TOL && v <= hi + TOL
+            })
+    };
+    let mut out: Option<[(f64, f64); 3]> = None;
+    let np = planes.len();
+    for i in 0..np {
+        for j in i + 1..np {
+            for k in j + 1..np {
+                let m = nalgebra::Matrix3::from_rows(&[
+                    nalgebra::RowVector3::from(planes[i].0),
+                    nalgebra::RowVector3::from(planes[j].0),
+                    nalgebra::RowVector3::from(planes[k].0),
+                ]);
+                if m.determinant().abs() < 1e-12 {
+                    continue;
+                }
+                let Some(inv) = m.try_inverse() else { continue };
+                let y = inv * nalgebra::Vector3::new(planes[i].1, planes[j].1, planes[k].1);
+                let y = [y[0].max(0.0), y[1].max(0.0), y[2].max(0.0)];
+                if !feasible(&y) {
+                    continue;
+                }
+                let r = out.get_or_insert([(f64::INFINITY, f64::NEG_INFINITY); 3]);
+                for (q, v) in r.iter_mut().zip(y) {
+                    *q = (q.0.min(v), q.1.max(v));
+                }
+            }
+        }
+    }
+    out.map(|r| std::array::from_fn(|k| (r[k].0 * scale[k], r[k].1 * scale[k])))
+}
+
 /// Fits the noise terms to an Allan deviation (module doc).
 pub fn noise_terms(points: &[AdevPoint]) -> Result<NoiseTerms> {
-    let use_: Vec<&AdevPoint> = points.iter().filter(|p| p.edf >= 3.0).collect();
+    let use_: Vec<&AdevPoint> = points.iter().filter(|p| p.adev_rad_s.is_finite() && p.tau_s > 0.0).collect();
     if use_.len() < 4 {
         bail!(
             "Allan fit: {} τ with at least 3 non-overlapping clusters, 4 needed: the session is too short \
@@ -153,63 +247,50 @@ pub fn noise_terms(points: &[AdevPoint]) -> Result<NoiseTerms> {
             use_.len()
         );
     }
+    if use_.iter().any(|p| p.adev_rad_s <= 0.0) {
+        bail!("Allan fit: σ(τ) = 0 at some τ: the rates are constant (no noise to read terms from)");
+    }
     // σ² = N²/τ + C + K² τ/3; weight 1/(σ² · rel), rel = √(2/edf).
     let n = use_.len();
     let a = DMatrix::from_fn(n, 3, |r, c| {
         let p = use_[r];
         let w = 1.0 / (p.adev_rad_s.powi(2) * (2.0 / p.edf).sqrt());
-        w * match c {
-            0 => 1.0 / p.tau_s,
-            1 => 1.0,
-            _ => p.tau_s / 3.0,
-        }
+        w * basis(p.tau_s)[c]
     });
     let b = DVector::from_iterator(n, use_.iter().map(|p| 1.0 / (2.0 / p.edf).sqrt()));
-    let (x, _) = super::lstsq(&a, &b)?;
-    // Intervals: the τ points are strongly correlated (overlapping clusters), so the fit's
-    // covariance would be far too narrow. Each term takes the relative 95 % interval of the
-    // single σ(τ) point where it dominates most: ARW the point with the largest share of
-    // N²/τ, RRW the one with the largest share of K²τ/3 (usually the longest τ).
-    let share = |p: &AdevPoint, k: usize| {
-        let parts = [x[0] / p.tau_s, x[1], x[2] * p.tau_s / 3.0];
-        parts[k] / parts.iter().map(|v| v.abs()).sum::<f64>()
-    };
-    let best = |k: usize| -> &AdevPoint {
-        use_.iter().copied().max_by(|a, b| share(a, k).total_cmp(&share(b, k))).expect("non-empty")
-    };
-    // basis(τ): N²/τ for k = 0, K²τ/3 for k = 2; the upper bound of the coefficient from σ²_hi.
-    let basis = |k: usize, tau: f64| if k == 0 { 1.0 / tau } else { tau / 3.0 };
+    let x = super::lstsq(&a, &b).map(|(x, _)| [x[0], x[1], x[2]]).unwrap_or([0.0; 3]);
+    // Every point's interval at 1 − 0.05/n (Bonferroni: all n hold at once with ≥ 95 %).
+    let alpha = 0.05 / n as f64;
+    let rows = use_
+        .iter()
+        .map(|p| avar_interval(p, alpha).map(|(lo, hi)| (basis(p.tau_s), lo, hi)))
+        .collect::<Result<Vec<_>>>()?;
+    // Each term alone: at most the whole σ²_hi at every τ.
+    let alone: [f64; 3] =
+        std::array::from_fn(|k| rows.iter().map(|(r, _, hi)| hi / r[k]).fold(f64::INFINITY, f64::min));
+    let (first, last) = (use_[0], use_[n - 1]);
+    let min_avar = use_.iter().map(|p| p.adev_rad_s.powi(2)).fold(f64::INFINITY, f64::min);
+    let scale = [first.adev_rad_s.powi(2) * first.tau_s, min_avar, 3.0 * last.adev_rad_s.powi(2) / last.tau_s];
+    let ranges = coefficient_ranges(&rows, scale);
+    // The coefficient k's estimate in the unit `conv` × √coefficient.
     let estimate = |k: usize, conv: f64| -> Estimate {
-        let p = best(k);
-        if x[k] > 0.0 && share(p, k) >= 0.5 {
-            let v = x[k].sqrt() * conv;
-            Estimate::Resolved {
-                value: v,
-                lo: v * p.ci95_rad_s.0 / p.adev_rad_s,
-                hi: v * p.ci95_rad_s.1 / p.adev_rad_s,
+        match ranges {
+            Some(r) if r[k].0 > 0.0 => {
+                let (lo, hi) = (r[k].0.sqrt() * conv, r[k].1.sqrt() * conv);
+                Estimate::Resolved { value: (x[k].max(0.0).sqrt() * conv).clamp(lo, hi), lo, hi }
             }
-        } else {
-            let ub =
-                use_.iter().map(|p| (p.ci95_rad_s.1.powi(2) / basis(k, p.tau_s)).sqrt()).fold(f64::INFINITY, f64::min);
-            Estimate::UpperBound(ub * conv)
+            Some(r) => Estimate::UpperBound(r[k].1.sqrt() * conv),
+            None => Estimate::UpperBound(alone[k].sqrt() * conv),
         }
     };
     // N in rad/√s → °/√h: × (180/π) × 60.
     let arw = estimate(0, 180.0 / std::f64::consts::PI * 60.0);
+    // C = (0.664 B)², B in °/h.
+    let bias_instability_deg_h = estimate(1, 1.0 / 0.664 / DEG_H);
     // K in rad/s/√s → °/h/√h: × (180/π) × 3600 × 60.
     let rrw = estimate(2, 180.0 / std::f64::consts::PI * 3600.0 * 60.0);
-    let min = points.iter().min_by(|a, b| a.adev_rad_s.total_cmp(&b.adev_rad_s)).expect("non-empty");
-    let tau_max_s = use_.iter().map(|p| p.tau_s).fold(0.0, f64::max);
-    let bias_instability_deg_h = if min.tau_s >= tau_max_s {
-        // Still falling at the longest τ: the flat part lies beyond this session.
-        Estimate::UpperBound(min.ci95_rad_s.1 / 0.664 / DEG_H)
-    } else {
-        Estimate::Resolved {
-            value: min.adev_rad_s / 0.664 / DEG_H,
-            lo: min.ci95_rad_s.0 / 0.664 / DEG_H,
-            hi: min.ci95_rad_s.1 / 0.664 / DEG_H,
-        }
-    };
+    let min = use_.iter().copied().min_by(|a, b| a.adev_rad_s.total_cmp(&b.adev_rad_s)).unwrap_or(first);
+    let tau_max_s = last.tau_s;
     Ok(NoiseTerms {
         arw_deg_sqrt_h: arw,
         bias_instability_deg_h,

@@ -78,6 +78,17 @@ impl Encoder {
         self.n
     }
 
+    /// The star-tracker frame counter of the last frame encoded.
+    pub fn st_counter(&self) -> u16 {
+        self.st_counter
+    }
+
+    /// An encoder that continues after `steps` steps whose last star-tracker frame had
+    /// counter `st_counter` (a run stopped and resumed elsewhere; no truth before it).
+    pub fn resumed(table: &CalibrationTable, dt_us: u32, steps: u64, st_counter: u16) -> Encoder {
+        Encoder { n: steps, st_counter, ..Encoder::new(table, dt_us) }
+    }
+
     /// The next step's bytes (FOG frames numbered from counter 1, star frames at their
     /// re-based tags) and its truth.
     pub fn encode(&mut self, step: &LogStep) -> StepInput {

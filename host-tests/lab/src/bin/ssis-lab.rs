@@ -21,7 +21,7 @@ use ssis_lab::export::to_table;
 use ssis_lab::fit::{
     add_term, compare, complete, fit_digest, held_out_many, history_files, pooled, spec_for, version_path,
 };
-use ssis_lab::model::{Kind, Model};
+use ssis_lab::model::{did_you_mean, Kind, Model, FOG_VARIABLES};
 use ssis_lab::plot::{history_svg, residual_svg, write_svg};
 use ssis_lab::replay::replay;
 use ssis_lab::session::{read_session, Session};
@@ -443,10 +443,6 @@ fn run(cmd: Cmd, force: bool) -> Result<()> {
     }
 }
 
-/// The per-FOG variables an expression may use besides the session's columns
-/// (`Kind::Expr`).
-const FOG_VARIABLES: [&str; 5] = ["rate_rad_s", "t_degc", "dt_degc", "g_degc_s", "fog"];
-
 /// The column names of a CSV session (its first line that is not a `#` comment); none for
 /// another format (a capture).
 fn session_columns(path: &Path) -> Vec<String> {
@@ -459,21 +455,6 @@ fn session_columns(path: &Path) -> Vec<String> {
         }
         _ => Vec::new(),
     }
-}
-
-/// The closest of `names` to `word` (case and `_` aside, at most 2 edits, or a name the
-/// word begins), as a "did you mean" clause.
-fn did_you_mean<'a>(word: &str, names: impl Iterator<Item = &'a str>) -> String {
-    let norm = |s: &str| s.to_lowercase().replace(['_', '-'], "");
-    names
-        .map(|n| {
-            let (w, m) = (norm(word), norm(n));
-            // A name the word begins (`chamber_rh` of `chamber_rh_pct`) counts as one edit.
-            (if w.len() >= 3 && m.starts_with(&w) && w != m { 1 } else { strsim::levenshtein(&w, &m) }, n)
-        })
-        .filter(|(d, _)| *d <= 2)
-        .min_by_key(|(d, _)| *d)
-        .map_or(String::new(), |(_, n)| format!("; did you mean `{n}`?"))
 }
 
 /// A command-line term, checked before any work: a name close to a catalog term is a typo
