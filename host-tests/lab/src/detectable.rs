@@ -217,7 +217,7 @@ impl TermLimit {
     /// The largest over the FOGs that can test it, in engineering units.
     pub fn worst_eng(&self) -> Option<f64> {
         let v = self.per_fog.iter().flatten().copied().fold(f64::NAN, f64::max);
-        v.is_finite().then(|| v * self.unit.1)
+        v.is_finite().then_some(v * self.unit.1)
     }
 }
 

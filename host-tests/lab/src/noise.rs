@@ -55,10 +55,6 @@ use super::stream::{trains, Bins, Digest, Sums};
 
 /// Iterations of the Whittle fit.
 const WHITTLE_ITER: usize = 300;
-/// Whether the white-only model may be chosen.
-const WHITE_SELECT: bool = false;
-/// Quantile of the likelihood-ratio statistic under which the bank is dropped.
-const WHITE_LEVEL: f64 = 0.5;
 
 /// What every test under the noise model needs of one FOG's rows: per bin the sum of the
 /// (shifted) basis vectors, and per block their Gram sums. A residual functional ℓ then
@@ -264,27 +260,6 @@ fn whittle(x: &[f64], rho: &[f64], init: Option<Vec<f64>>, iter: usize) -> Vec<f
                 *t *= (a / b).sqrt();
             }
         }
-    }
-    // White noise alone unless the Gauss–Markov bank earns its parameters: the multiplicative
-    // updates only approach a zero θ, so on a white residual the bank would keep some
-    // variance at long τ and take a slow effect's information away. Whittle's likelihood of
-    // the fit against white noise (θ₀ the mean of the periodogram), a likelihood-ratio test
-    // at 0.1 % with one degree of freedom per term of the bank.
-    let nll = |th: &[f64]| -> f64 {
-        (0..k_max)
-            .map(|k| {
-                let sk = th.iter().zip(&h).map(|(t, hj)| t * hj[k]).sum::<f64>().max(f64::MIN_POSITIVE);
-                sk.ln() + per[k] / sk
-            })
-            .sum()
-    };
-    let mut white = vec![0.0; theta.len()];
-    white[0] = per.iter().sum::<f64>() / k_max.max(1) as f64;
-    let lr = 2.0 * (nll(&white) - nll(&theta));
-    let crit = statrs::distribution::ChiSquared::new(rho.len().max(1) as f64)
-        .map_or(f64::INFINITY, |c| statrs::distribution::ContinuousCDF::inverse_cdf(&c, WHITE_LEVEL));
-    if white[0] > 0.0 && lr < crit && WHITE_SELECT {
-        return white;
     }
     theta
 }

@@ -330,21 +330,6 @@ pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
     super::write_atomic(path, svg.as_bytes())
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn fog_colours_are_readable_on_white() {
-        for (fog, c) in FOG_COLOURS.iter().enumerate() {
-            let r = contrast_on_white(*c);
-            assert!(r >= 3.0, "FOG{fog} colour {c:?}: contrast {r:.2} on white, under 3:1");
-        }
-        // The check can fail: plotters' Palette99 yellow (FOG2's former colour) is under it.
-        assert!(contrast_on_white((255, 225, 25)) < 3.0);
-    }
-}
-
 /// The minimum detectable sinusoid amplitude against period (log–log), as an SVG string.
 pub fn detectable_svg(c: &super::detectable::SinusoidCurve) -> LabResult<String> {
     let pts: Vec<(f64, f64)> = c
@@ -384,4 +369,19 @@ pub fn detectable_svg(c: &super::detectable::SinusoidCurve) -> LabResult<String>
         root.present().map_err(perr)?;
     }
     Ok(svg)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fog_colours_are_readable_on_white() {
+        for (fog, c) in FOG_COLOURS.iter().enumerate() {
+            let r = contrast_on_white(*c);
+            assert!(r >= 3.0, "FOG{fog} colour {c:?}: contrast {r:.2} on white, under 3:1");
+        }
+        // The check can fail: plotters' Palette99 yellow (FOG2's former colour) is under it.
+        assert!(contrast_on_white((255, 225, 25)) < 3.0);
+    }
 }

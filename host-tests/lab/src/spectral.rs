@@ -186,7 +186,7 @@ fn background(p: &[f64], f_min: f64, df: f64) -> Vec<f64> {
     let nf = p.len();
     let mut out = vec![0.0; nf];
     let mut win = Vec::new();
-    for k in 0..nf {
+    for (k, o) in out.iter_mut().enumerate() {
         let f = f_min + df * k as f64;
         let half = ((0.25 * f / df).round() as usize).clamp(15, 200);
         let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(nf));
@@ -194,7 +194,7 @@ fn background(p: &[f64], f_min: f64, df: f64) -> Vec<f64> {
         win.extend_from_slice(&p[lo..hi]);
         let mid = win.len() / 2;
         let (_, m, _) = win.select_nth_unstable_by(mid, f64::total_cmp);
-        out[k] = *m;
+        *o = *m;
     }
     out
 }
