@@ -1,7 +1,7 @@
 //! Which physical effect is the model missing?
 //!
 //! Candidates: every catalog term not in the model whose inputs the session has; a
-//! sinusoid at the strongest spectral line of the training residual; and each user column
+//! sinusoid at each line of the training residual ([`super::spectral`]); and each user column
 //! no term uses (a correlation with an unused column). Each candidate gets, per FOG:
 //!
 //! - a nested-model F-test on the **held-out** blocks only: the base model and the base model
@@ -31,10 +31,12 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
+use super::detectable::{lambda_required, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::noise::{held_out_gain, whitened, Binned, Gain, NoiseModel};
+use super::noise::{held_out_gain, whitened, Binned, NoiseModel};
+use super::spectral::{search, searchable_range, Line, Record};
 use super::stream::{digest, trains, Bins, Digest, Source, Sums};
 use super::LabResult;
 
@@ -53,7 +55,7 @@ pub struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { n_blocks: super::fit::DEFAULT_BLOCKS, fdr_level: 0.01, max_columns: 10, max_frequencies: 1000 }
+        Options { n_blocks: super::fit::DEFAULT_BLOCKS, fdr_level: 0.01, max_columns: 10, max_frequencies: 15_000 }
     }
 }
 
@@ -71,6 +73,8 @@ pub struct FogTest {
     pub p: f64,
     /// p-value of the GLS F-test alone.
     pub p_f: f64,
+    /// p-value of the held-out direction test alone (one-sided).
+    pub p_dir: f64,
     /// Held-out improvement: the drop of the mean-square residual per test row, (rad/s)²,
     /// with its 1σ under the noise model; p-value of "no improvement" (one-sided).
     pub gain_rad2_s2: (f64, f64, f64),
@@ -78,6 +82,11 @@ pub struct FogTest {
     pub before_rad_s: f64,
     /// Held-out RMS with the candidate, rad/s.
     pub after_rad_s: f64,
+    /// Information of the candidate's regressors on the test blocks under the noise model
+    /// (whitened, beside the base model): q × q, row-major, in 1/(coefficient unit)².
+    pub info: Vec<f64>,
+    /// Test rows.
+    pub n_test: usize,
 }
 
 impl FogTest {
@@ -150,6 +159,8 @@ pub struct Diagnosis {
     pub n_test: usize,
     /// What the figures do not say about the session (gaps in time).
     pub notes: Vec<String>,
+    /// What the session could have shown: each candidate's minimum detectable effect.
+    pub detectable: Detectable,
 }
 
 impl Candidate {
@@ -271,10 +282,8 @@ impl NoiseCtx<'_> {
 /// the candidate fitted on the test blocks would be missing from it):
 ///
 /// - the GLS F-test on the test blocks (both nested models fitted there);
-/// - the held-out improvement in the noise model's own metric: both models fitted by GLS on
-///   the training blocks, D = Σ (ũ₀² − ũ₁²) over the whitened test residuals, whose standard
-///   deviation given the training fit is 2 ‖δ̃‖ (δ̃ = ũ₀ − ũ₁; whitened noise has unit
-///   variance), one-sided p of D ≤ 0;
+/// - the held-out direction test ([`direction_p`]): the candidate's prediction fitted on the
+///   training blocks, tested as one regressor beside the base model on the test blocks;
 /// - the held-out RMS before and after (ordinary fits on the training blocks, what `add`
 ///   reports) and the drop of the mean square with its 1σ under the noise model
 ///   ([`held_out_gain`]).
@@ -291,31 +300,81 @@ fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], nz: &NoiseCtx) -> Option
     let df2 = ls1.n.checked_sub(ls1.p).filter(|&d| d > 0)?;
     let f = ((ls0.sse - ls1.sse).max(0.0) / q as f64) / (ls1.sse / df2 as f64);
     let p_f = f_sf(f, q, df2);
-    let p_w = whitened_gain(ws, &base.cols, &cols).p();
+    let p_d = direction_p(ws, base, cand, &cols, ls0.sse);
     let (before, tr0) = held_out(s, &base.cols);
     let (after, tr1) = held_out(s, &cols);
     let l0 = residual_functional(&base.cols, &tr0.coef);
     let l1 = residual_functional(&cols, &tr1.coef);
     let gain = held_out_gain(&nm, nz.bd, &l0, &l1);
     let (g, sd) = gain.per_row();
-    let p = if after < before { p_f.max(p_w) } else { 1.0 };
-    Some(FogTest { f, df1: q, df2, p, p_f, gain_rad2_s2: (g, sd, gain.p()), before_rad_s: before, after_rad_s: after })
+    let p = if after < before { p_f.max(p_d) } else { 1.0 };
+    let info = information(&ws.test, base, cand);
+    Some(FogTest {
+        f,
+        df1: q,
+        df2,
+        p,
+        p_f,
+        p_dir: p_d,
+        gain_rad2_s2: (g, sd, gain.p()),
+        before_rad_s: before,
+        after_rad_s: after,
+        info,
+        n_test: s.test.n,
+    })
 }
 
-/// The held-out improvement of design `cols1` over `cols0` (y last) in the whitened metric:
-/// both fitted by GLS on the training blocks, evaluated on the test blocks' whitened sums.
-fn whitened_gain(ws: &Sums, cols0: &[Vec<f64>], cols1: &[Vec<f64>]) -> Gain {
-    let f0 = lstsq_gram(&design_gram(&ws.train, cols0), ws.train.n);
-    let f1 = lstsq_gram(&design_gram(&ws.train, cols1), ws.train.n);
-    let l0 = residual_functional(cols0, &f0.coef);
-    let l1 = residual_functional(cols1, &f1.coef);
-    let g = ws.test.full();
-    let quad = |l: &[f64]| -> f64 {
-        let v = nalgebra::DVector::from_column_slice(l);
-        (v.transpose() * &g * &v)[(0, 0)].max(0.0)
+/// The held-out direction test: the candidate's prediction fitted by GLS on the training
+/// blocks, d = Σ ĉⱼ xⱼ, is one regressor on the test blocks beside the base model (GLS); the
+/// one-sided p-value of its coefficient being ≤ 0 (the test residual does not move the way
+/// the training fit predicts). Under the noise model it is exact given the training blocks,
+/// and for a one-regressor candidate it has the power of the F-test (half its p-value when
+/// the signs agree).
+fn direction_p(ws: &Sums, base: &Design, cand: &[Vec<f64>], cols: &[Vec<f64>], sse0: f64) -> f64 {
+    let k = base.k();
+    let tr = lstsq_gram(&design_gram(&ws.train, cols), ws.train.n);
+    let mut dir = vec![0.0; cols[0].len()];
+    for (j, x) in cand.iter().enumerate() {
+        let c = tr.coef[k + j];
+        dir.iter_mut().zip(x).for_each(|(a, b)| *a += c * b);
+    }
+    let ls = lstsq_gram(&design_gram(&ws.test, &base.with(&[dir])), ws.test.n);
+    let Some(df2) = ls.n.checked_sub(ls.p).filter(|&d| d > 0) else { return 1.0 };
+    if !ls.identified[k] {
+        return 1.0;
+    }
+    let fd = (sse0 - ls.sse).max(0.0) / (ls.sse / df2 as f64);
+    let two_sided = f_sf(fd, 1, df2);
+    if ls.coef[k] > 0.0 {
+        0.5 * two_sided
+    } else {
+        1.0 - 0.5 * two_sided
+    }
+}
+
+/// The information of the candidate's regressors on the test blocks beside the base model,
+/// in the whitened metric: Xcᵀ (I − H₀) Xc (q × q, row-major), by polarisation of the
+/// residual sums of squares of each regressor (and each pair's sum) on the base columns.
+fn information(g: &Gram, base: &Design, cand: &[Vec<f64>]) -> Vec<f64> {
+    let q = cand.len();
+    let k = base.k();
+    let resid = |x: &[f64]| -> f64 {
+        let mut cols = base.cols[..k].to_vec();
+        cols.push(x.to_vec());
+        lstsq_gram(&design_gram(g, &cols), g.n).sse
     };
-    let delta: Vec<f64> = l0.iter().zip(&l1).map(|(a, b)| a - b).collect();
-    Gain { d: quad(&l0) - quad(&l1), sd: 2.0 * quad(&delta).sqrt(), n: ws.test.n }
+    let diag: Vec<f64> = cand.iter().map(|x| resid(x)).collect();
+    let mut out = vec![0.0; q * q];
+    for a in 0..q {
+        out[a * q + a] = diag[a];
+        for b in a + 1..q {
+            let sum: Vec<f64> = cand[a].iter().zip(&cand[b]).map(|(u, v)| u + v).collect();
+            let v = 0.5 * (resid(&sum) - diag[a] - diag[b]);
+            out[a * q + b] = v;
+            out[b * q + a] = v;
+        }
+    }
+    out
 }
 
 /// Why a candidate (functionals `x`) cannot be identified next to the base design (`none`:
@@ -381,78 +440,16 @@ pub fn separating_experiment(kind: &Kind) -> &'static str {
     }
 }
 
-/// Strongest sinusoid in the training residuals at the kept rows (pooled over FOGs): Hz.
-fn spectral_peak(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Option<f64> {
+/// Lines of the training residuals at the kept training rows, at their real times
+/// ([`super::spectral::search`]).
+fn spectral_lines(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Vec<Line> {
     let train: Vec<usize> = (0..d.kept.rows.len()).filter(|&k| trains(d.kept.block[k])).collect();
-    let stride = train.len().div_ceil(20_000).max(1);
-    let rows: Vec<usize> = train.into_iter().step_by(stride).collect();
-    if rows.len() < 8 {
-        return None;
-    }
-    let t = &d.kept.t_s;
-    let span = d.t_span_s[1] - d.t_span_s[0];
-    let f_min = 1.5 / span;
-    let f_max = 0.5 / (d.dt_s * (stride * d.kept.stride) as f64);
-    if f_max <= f_min {
-        return None;
-    }
-    let nf = (((f_max - f_min) * 4.0 * span).ceil() as usize).clamp(2, max_f);
-    let df = (f_max - f_min) / (nf - 1) as f64;
-    // Per frequency k: Σs, Σc, Σs², Σsc, Σc² and per FOG Σrs, Σrc. Row by row, the phases of
-    // all frequencies by rotation: e^{i(w₀ + kΔw)t} = e^{iw₀t}·(e^{iΔwt})^k.
-    let n_res = train_res.len();
-    let mut acc = vec![[0.0f64; 5]; nf];
-    let mut rsc = vec![0.0f64; nf * 2 * n_res];
-    let mut sum_r = vec![0.0; n_res];
-    let two_pi = 2.0 * std::f64::consts::PI;
-    let mut r = vec![0.0; n_res];
-    for &j in &rows {
-        let (mut sn, mut cs) = (two_pi * f_min * t[j]).sin_cos();
-        let (ds, dc) = (two_pi * df * t[j]).sin_cos();
-        for (v, res) in r.iter_mut().zip(train_res) {
-            *v = res[j];
-        }
-        for (s, v) in sum_r.iter_mut().zip(&r) {
-            *s += v;
-        }
-        for (k, a) in acc.iter_mut().enumerate() {
-            a[0] += sn;
-            a[1] += cs;
-            a[2] += sn * sn;
-            a[3] += sn * cs;
-            a[4] += cs * cs;
-            let x = &mut rsc[k * 2 * n_res..(k + 1) * 2 * n_res];
-            for (i, v) in r.iter().enumerate() {
-                x[2 * i] += v * sn;
-                x[2 * i + 1] += v * cs;
-            }
-            (sn, cs) = (sn * dc + cs * ds, cs * dc - sn * ds);
-        }
-    }
-    let n = rows.len() as f64;
-    let mut best = (0.0, None);
-    for (k, a) in acc.iter().enumerate() {
-        let f = f_min + df * k as f64;
-        if exclude.iter().any(|&e| (f - e).abs() < 1.0 / span) {
-            continue;
-        }
-        // Regress each residual on (1, sin, cos): the drop in its sum of squares. The normal
-        // matrix is the same for every FOG.
-        let m = nalgebra::Matrix3::new(n, a[0], a[1], a[0], a[2], a[3], a[1], a[3], a[4]);
-        let lu = m.lu();
-        let mut power = 0.0;
-        for i in 0..n_res {
-            let b = nalgebra::Vector3::new(sum_r[i], rsc[k * 2 * n_res + 2 * i], rsc[k * 2 * n_res + 2 * i + 1]);
-            if let Some(sol) = lu.solve(&b) {
-                let mean = b[0] / n;
-                power += sol.dot(&b) - mean * b[0];
-            }
-        }
-        if power > best.0 {
-            best = (power, Some(f));
-        }
-    }
-    best.1
+    let t: Vec<f64> = train.iter().map(|&k| d.kept.t_s[k]).collect();
+    let block: Vec<usize> = train.iter().map(|&k| d.kept.block[k]).collect();
+    let res = train_res.iter().map(|r| train.iter().map(|&k| r[k]).collect()).collect();
+    let span_s = d.t_span_s[1] - d.t_span_s[0];
+    let rec = Record { t_s: &t, block: &block, res, dt_s: d.dt_s * d.kept.stride as f64, span_s };
+    search(&rec, max_f, exclude)
 }
 
 /// The kept rows of FOG `fog` with the basis extended by sin 2πft and cos 2πft (rows × (m + 2)),
@@ -553,9 +550,9 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     // The strongest spectral line of the training residual, tested on the kept rows.
     let existing_f: Vec<f64> =
         kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
-    if let Some(f) = spectral_peak(d, &base.train_res, opt.max_frequencies, &existing_f) {
-        let (per_fog, origin) = spectral_line(d, &base, f);
-        ranked.consider(Kind::Sinusoid(f), origin, per_fog, None, &base.base_ho);
+    for line in spectral_lines(d, &base.train_res, opt.max_frequencies, &existing_f) {
+        let (per_fog, origin) = spectral_line(d, &base, &line);
+        ranked.consider(Kind::Sinusoid(line.f_hz), origin, per_fog, None, &base.base_ho);
     }
     let Ranked { mut cands, skipped } = ranked;
     cands.sort_by(|a, b| a.p_value.total_cmp(&b.p_value).then(a.after_rad_s.total_cmp(&b.after_rad_s)));
@@ -566,7 +563,9 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     }
     let anova = (0..n_fog).filter_map(|fog| anova_fog(d, &base.bases[fog], &base.sums[fog], fog)).collect();
     let (n_train, n_test) = (base.sums[0].train.n, base.sums[0].test.n);
+    let detectable = limits(d, &base, &cands, &skipped, opt);
     Ok(Diagnosis {
+        detectable,
         candidates: cands,
         skipped,
         anova,
@@ -576,6 +575,48 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
         n_test,
         notes: d.notes(),
     })
+}
+
+/// Each candidate's minimum detectable effect on this session and a sinusoid's over the
+/// searched periods ([`super::detectable`]).
+fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, String)], opt: &Options) -> Detectable {
+    let n_fog = d.basis.n_fog.max(1);
+    let alpha = opt.fdr_level / (cands.len().max(1) * n_fog) as f64;
+    let mut terms = Vec::new();
+    for c in cands.iter().filter(|c| !matches!(c.kind, Kind::Sinusoid(_))) {
+        let per_fog = c
+            .per_fog
+            .iter()
+            .map(|t| {
+                let t = t.as_ref()?;
+                let q = (t.info.len() as f64).sqrt().round() as usize;
+                min_coef(&t.info, lambda_required(q, alpha, POWER))
+            })
+            .collect();
+        let unit = c.kind.eng_units(0).first().copied().unwrap_or(("SI", 1.0));
+        terms.push(TermLimit { term: c.kind.label(), unit, per_fog, not_identifiable: None });
+    }
+    for (label, why) in skipped {
+        let unit = Kind::parse_arg(label).ok().and_then(|k| k.eng_units(0).first().copied()).unwrap_or(("SI", 1.0));
+        terms.push(TermLimit {
+            term: label.clone(),
+            unit,
+            per_fog: vec![None; n_fog],
+            not_identifiable: Some(why.clone()),
+        });
+    }
+    let n_train = d.kept.block.iter().filter(|&&b| trains(b)).count();
+    let span_s = d.t_span_s[1] - d.t_span_s[0];
+    let dt_s = d.dt_s * d.kept.stride as f64;
+    let ld = LineDesign {
+        n_train,
+        n_test: d.kept.block.len() - n_train,
+        dt_s,
+        range_hz: searchable_range(span_s, dt_s, opt.max_frequencies),
+        span_s,
+    };
+    let sinusoid = (ld.range_hz.1 > ld.range_hz.0 && n_train > 16).then(|| sinusoid_curve(&base.noise, &ld, alpha, 48));
+    Detectable { alpha_per_fog: alpha, terms, sinusoid }
 }
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
@@ -670,8 +711,8 @@ fn candidate_list(d: &Digest, kinds: &[Kind], base: &BaseFit, opt: &Options) -> 
 }
 
 /// The spectral line at `f`, Hz, tested per FOG on the kept rows; the tests and the origin.
-fn spectral_line(d: &Digest, base: &BaseFit, f: f64) -> (Vec<Option<FogTest>>, String) {
-    let m = d.basis.m;
+fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest>>, String) {
+    let (m, f) = (d.basis.m, line.f_hz);
     let pad = |v: &Vec<f64>| {
         let mut w = v.clone();
         w.extend([0.0, 0.0]);
@@ -692,7 +733,16 @@ fn spectral_line(d: &Digest, base: &BaseFit, f: f64) -> (Vec<Option<FogTest>>, S
             test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)
         })
         .collect();
-    let mut origin = format!("spectral line of the training residual, period {:.4} h", 1.0 / f / 3600.0);
+    let mut origin = match line.harmonic_of {
+        None => format!(
+            "spectral line of the training residual, period {:.4} h, false-alarm probability {:.1e}",
+            1.0 / f / 3600.0,
+            line.fap
+        ),
+        Some((k, f0)) => {
+            format!("harmonic {k} of the line of period {:.4} h (training p {:.1e})", 1.0 / f0 / 3600.0, line.fap)
+        }
+    };
     if !d.all_kept() {
         origin.push_str(&format!(" (tested on the {} kept rows)", d.kept.rows.len()));
     }

@@ -94,7 +94,37 @@ pub fn diagnosis(d: &Diagnosis) -> Value {
             })
         })
         .collect();
+    let det = &d.detectable;
+    let terms: Vec<Value> = det
+        .terms
+        .iter()
+        .map(|t| {
+            json!({
+                "term": t.term,
+                "unit": t.unit.0,
+                "min_detectable": t.worst_eng(),
+                "per_fog": t.per_fog.iter().map(|v| v.map(|v| v * t.unit.1)).collect::<Vec<_>>(),
+                "not_identifiable": t.not_identifiable,
+            })
+        })
+        .collect();
+    let sinusoid = det.sinusoid.as_ref().map(|s| {
+        let sum = s.summary();
+        json!({
+            "period_s": s.period_s,
+            "amplitude_deg_h": s.amp_rad_s.iter().map(|&a| dh(a)).collect::<Vec<_>>(),
+            "searched_period_s": [s.searched_s.0, s.searched_s.1],
+            "min_detectable_deg_h": sum.map(|x| dh(x.0)),
+            "over_period_s": sum.map(|x| [x.1, x.2]),
+        })
+    });
     json!({
+        "detectable": {
+            "power": crate::detectable::POWER,
+            "alpha_per_fog": det.alpha_per_fog,
+            "terms": terms,
+            "sinusoid": sinusoid,
+        },
         "fdr_level": d.fdr_level,
         "train_samples": d.n_train,
         "test_samples": d.n_test,

@@ -31,6 +31,7 @@
 //! - [`replay`]: a session turned into FOG frames and replayed through the flight core
 //!   (`FlightCore::step`) with a calibration table: the round trip from the lab to flight.
 
+pub mod detectable;
 pub mod diagnose;
 pub mod export;
 pub mod fit;
@@ -44,6 +45,7 @@ pub mod plot;
 pub mod replay;
 pub mod report;
 pub mod simulate;
+pub mod spectral;
 pub mod stream;
 
 pub use ssis_session as session;

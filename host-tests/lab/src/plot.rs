@@ -330,6 +330,47 @@ pub fn write_svg(path: &Path, svg: &str) -> LabResult<()> {
     super::write_atomic(path, svg.as_bytes())
 }
 
+/// The minimum detectable sinusoid amplitude against period (log–log), as an SVG string.
+pub fn detectable_svg(c: &super::detectable::SinusoidCurve) -> LabResult<String> {
+    let pts: Vec<(f64, f64)> = c
+        .period_s
+        .iter()
+        .zip(&c.amp_rad_s)
+        .filter(|(p, a)| p.is_finite() && a.is_finite() && **p > 0.0 && **a > 0.0)
+        .map(|(p, a)| (*p, a * DEG_H_PER_RAD_S))
+        .collect();
+    let mut svg = String::new();
+    {
+        let root = SVGBackend::with_string(&mut svg, (900, 380)).into_drawing_area();
+        root.fill(&WHITE).map_err(perr)?;
+        if pts.len() >= 2 {
+            let (x0, x1) = (pts[0].0, pts[pts.len() - 1].0.max(pts[0].0 * 1.01));
+            let (lo, hi) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let (lo, hi) = (lo / 1.5, hi.max(lo * 1.01) * 1.5);
+            let mut chart = ChartBuilder::on(&root)
+                .margin(10)
+                .x_label_area_size(40)
+                .y_label_area_size(70)
+                .caption(
+                    "minimum detectable sinusoid amplitude (80 % detection, any one FOG) against period",
+                    ("sans-serif", 16),
+                )
+                .build_cartesian_2d((x0..x1).log_scale(), (lo..hi).log_scale())
+                .map_err(perr)?;
+            chart
+                .configure_mesh()
+                .x_desc("period, s")
+                .y_desc("amplitude, °/h")
+                .label_style(("sans-serif", 12))
+                .draw()
+                .map_err(perr)?;
+            chart.draw_series(LineSeries::new(pts.clone(), fog_colour(0).stroke_width(2))).map_err(perr)?;
+        }
+        root.present().map_err(perr)?;
+    }
+    Ok(svg)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -62,7 +62,7 @@ pub fn render(
         ));
     }
     h.push_str(&format!(
-        "<h2>Diagnosis</h2><p>Held-out tests under the fitted noise model (GLS F-test and held-out improvement; {} \
+        "<h2>Diagnosis</h2><p>Held-out tests under the fitted noise model (GLS F-test and held-out direction test; {} \
          training, {} test samples), Benjamini–Hochberg at {} %.</p>\n",
         diag.n_train,
         diag.n_test,
@@ -108,6 +108,30 @@ pub fn render(
             f("F_G", a.f_g),
             f("F_TG", a.f_tg)
         ));
+    }
+    h.push_str(&format!(
+        "<h2>What this session could have shown</h2><p>Minimum detectable effect: the size found significant \
+         with {:.0} % probability on any one FOG (α {:.1e} per candidate and FOG, under each FOG's noise model).</p>\n\
+         <table><tr><th>candidate</th><th>minimum detectable</th><th>unit</th></tr>\n",
+        100.0 * crate::detectable::POWER,
+        diag.detectable.alpha_per_fog
+    ));
+    for t in &diag.detectable.terms {
+        let (v, u) = match (t.worst_eng(), &t.not_identifiable) {
+            (Some(v), _) => (format!("{v:.3e}"), t.unit.0.to_string()),
+            (None, Some(why)) => ("not identifiable".into(), why.clone()),
+            (None, None) => ("not identifiable".into(), String::new()),
+        };
+        h.push_str(&format!(
+            "<tr><td class=\"l\">{}</td><td>{}</td><td class=\"l\">{}</td></tr>\n",
+            esc(&t.term),
+            esc(&v),
+            esc(&u)
+        ));
+    }
+    h.push_str("</table>\n");
+    if let Some(sc) = &diag.detectable.sinusoid {
+        h.push_str(&format!("<div>{}</div>\n", super::plot::detectable_svg(sc)?));
     }
     if history.len() > 1 {
         h.push_str("<h2>History</h2><table><tr><th>version</th><th>term added</th><th>held-out RMS, °/h</th></tr>\n");

@@ -677,3 +677,177 @@ pub fn drift_session(spec: &DriftSpec) -> DriftSession {
     };
     DriftSession { sim: SimSession { header, rows: out, truth }, coef, effect_rms_rad_s, wander }
 }
+
+/// The effect a [`PowerSpec`] session hides, on one FOG.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PowerEffect {
+    /// Nothing beyond bias and a1.
+    None,
+    /// g · G, g in rad/s per °C/s.
+    TempRate,
+    /// a1 · ΔT (the base model then lacks `thermal_t1`), rad/s per °C.
+    ThermalT1,
+    /// drift · hours, rad/s per hour.
+    Aging,
+    /// m_u · (u_i · B), rad/s per nT, the field turning in the unit's frame as in orbit.
+    Magnetic,
+    /// c · (supply_v − 28), rad/s per V (a user column).
+    Column,
+    /// A sin(2π t / period + φ), rad/s.
+    Sinusoid {
+        /// Period, s.
+        period_s: f64,
+    },
+}
+
+/// A session for the power study: static in the thermal chamber (the chamber profile of
+/// [`Thermal::Chamber`]), every FOG with a bias, a1 = 0.01–0.03 °/h per °C, angle random
+/// walk 0.005 °/√h and optionally a Gauss–Markov wander of 0.005–0.01 °/h (τ 0.5–2 h); the
+/// field turning in the unit's frame with a 95-min period (|B| 30–50 µT, as in orbit); a
+/// supply voltage in holds of 10–40 min; the effect on FOG `fog` only, of size `size`.
+/// The noise is drawn the same way whatever the effect and its size (a session's noise
+/// depends on its seed alone).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PowerSpec {
+    /// Random seed.
+    pub seed: u64,
+    /// Sample interval, s.
+    pub dt_s: f64,
+    /// Session length, h.
+    pub hours: f64,
+    /// The hidden effect.
+    pub effect: PowerEffect,
+    /// Its coefficient (SI, per the effect's unit) or amplitude (rad/s).
+    pub size: f64,
+    /// The FOG it is on (4 or more: every FOG, the same size).
+    pub fog: usize,
+    /// Whether the bias wanders (Gauss–Markov) besides the white noise.
+    pub wander: bool,
+}
+
+/// A [`PowerSpec`] session and the true design of its effect FOG (for the optimal test).
+#[derive(Debug, Clone)]
+pub struct PowerSession {
+    /// The session.
+    pub sim: SimSession,
+    /// Per row, the effect term's regressors on the effect FOG, without measurement noise
+    /// (the effect is `size` times the first).
+    pub regressors: Vec<Vec<f64>>,
+    /// Per row, the base model's true regressors there: 1 and ΔT (1 alone for `ThermalT1`).
+    pub base: Vec<Vec<f64>>,
+}
+
+/// Generates a [`PowerSpec`] session.
+pub fn power_session(spec: &PowerSpec) -> PowerSession {
+    let mut rng = ChaCha8Rng::seed_from_u64(spec.seed ^ 0x9e37_79b9_0070_7e40);
+    let n01 = Normal::new(0.0, 1.0).expect("unit normal");
+    let deg_h = 1.0 / DEG_H_PER_RAD_S;
+    let rows = (spec.hours * 3600.0 / spec.dt_s).round() as usize;
+    let white = ARW_DEG_SQRT_H * deg_h * 60.0 / spec.dt_s.sqrt();
+    let axes = Misalignment::default().axes(GAMMA_NOMINAL_RAD);
+    let planes: Vec<_> = (0..N_FOG).map(loop_plane).collect();
+    let omega = nalgebra::Vector3::from(earth_rate_ics(0.0, KHARKOV_LAT_RAD));
+    let bias: Vec<f64> = (0..N_FOG).map(|_| 0.1 * deg_h * n01.sample(&mut rng)).collect();
+    let a1: Vec<f64> = (0..N_FOG).map(|_| rng.random_range(0.01..0.03) * deg_h).collect();
+    let wander: Vec<(f64, f64)> =
+        (0..N_FOG).map(|_| (rng.random_range(0.005..0.01) * deg_h, rng.random_range(0.5..2.0) * 3600.0)).collect();
+    let phase = rng.random_range(0.0..std::f64::consts::TAU);
+    let mut state: Vec<f64> = wander.iter().map(|&(s, _)| s * n01.sample(&mut rng)).collect();
+    let knots = chamber_profile();
+    let t_offset: Vec<f64> = (0..N_FOG).map(|_| 0.3 * n01.sample(&mut rng)).collect();
+    let mut header = vec!["t_s".to_string()];
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_rad_s")));
+    header.extend((0..N_FOG).map(|i| format!("fog{i}_t_degc")));
+    header.extend(["psi_rad", "lat_rad", "b_x_nt", "b_y_nt", "b_z_nt", "supply_v"].map(String::from));
+    let (mut supply, mut hold_until) = (28.0, 0.0);
+    let mut out = Vec::with_capacity(rows);
+    let (mut regressors, mut base) = (Vec::with_capacity(rows), Vec::with_capacity(rows));
+    let two_pi = std::f64::consts::TAU;
+    for j in 0..rows {
+        let t_end = (j + 1) as f64 * spec.dt_s;
+        let t_mid = t_end - 0.5 * spec.dt_s;
+        if t_end > hold_until {
+            supply = rng.random_range(27.0..29.0);
+            hold_until = t_end + rng.random_range(600.0..2400.0);
+        }
+        // The field turning with the orbit (95 min) about a slowly precessing axis.
+        let (so, co) = (two_pi * t_mid / 5700.0).sin_cos();
+        let (sp, cp) = (two_pi * t_mid / 86_400.0 + 1.0).sin_cos();
+        let b = nalgebra::Vector3::new(40_000.0 * co, 30_000.0 * so * cp, 20_000.0 * so * sp + 10_000.0);
+        let mut row = vec![t_end];
+        let mut temps = Vec::new();
+        for i in 0..N_FOG {
+            let m = 16;
+            let (mut drift, mut tmean, mut gmean) = (0.0, 0.0, 0.0);
+            for l in 0..m {
+                let tau = t_end - spec.dt_s + (l as f64 + 0.5) * spec.dt_s / m as f64;
+                let (v, gr) = chamber(&knots, tau);
+                drift += a1[i] * (v + t_offset[i] - 25.0);
+                tmean += v + t_offset[i];
+                gmean += gr;
+            }
+            let (drift, tmean, gmean) = (drift / m as f64, tmean / m as f64, gmean / m as f64);
+            let effect = if i == spec.fog || (spec.fog >= N_FOG && i == 0) {
+                let x = match spec.effect {
+                    PowerEffect::None => vec![0.0],
+                    PowerEffect::TempRate => vec![gmean],
+                    PowerEffect::ThermalT1 => vec![tmean - 25.0],
+                    PowerEffect::Aging => vec![t_mid / 3600.0],
+                    PowerEffect::Magnetic => vec![planes[i][0].dot(&b), planes[i][1].dot(&b)],
+                    PowerEffect::Column => vec![supply - 28.0],
+                    PowerEffect::Sinusoid { period_s } => {
+                        let (sn, cs) = (two_pi * t_mid / period_s + phase).sin_cos();
+                        vec![sn, cs]
+                    }
+                };
+                let e = spec.size * x[0];
+                regressors.push(x);
+                base.push(if spec.effect == PowerEffect::ThermalT1 { vec![1.0] } else { vec![1.0, tmean - 25.0] });
+                e
+            } else if spec.fog >= N_FOG {
+                spec.size
+                    * match spec.effect {
+                        PowerEffect::Sinusoid { period_s } => (two_pi * t_mid / period_s + phase).sin(),
+                        PowerEffect::TempRate => gmean,
+                        PowerEffect::ThermalT1 => tmean - 25.0,
+                        PowerEffect::Aging => t_mid / 3600.0,
+                        PowerEffect::Magnetic => planes[i][0].dot(&b),
+                        PowerEffect::Column => supply - 28.0,
+                        PowerEffect::None => 0.0,
+                    }
+            } else {
+                0.0
+            };
+            // ThermalT1 is the effect: the base a1 is then left out of that FOG.
+            let drift = if spec.effect == PowerEffect::ThermalT1 { 0.0 } else { drift };
+            let mut wn = 0.0;
+            if spec.wander {
+                let (s, tau) = wander[i];
+                let phi = (-spec.dt_s / tau).exp();
+                state[i] = phi * state[i] + s * (1.0 - phi * phi).sqrt() * n01.sample(&mut rng);
+                wn = state[i];
+            }
+            row.push(axes[i].dot(&omega) + bias[i] + drift + effect + wn + white * n01.sample(&mut rng));
+            temps.push(tmean + 0.002 * n01.sample(&mut rng));
+        }
+        row.extend(temps);
+        row.extend([0.0, KHARKOV_LAT_RAD]);
+        row.extend(b.iter().map(|v| v + 5.0 * n01.sample(&mut rng)));
+        row.push(supply + 0.01 * n01.sample(&mut rng));
+        out.push(row);
+    }
+    let truth = Truth {
+        noise_rad_s: white,
+        bias_rad_s: bias,
+        k: vec![0.0; N_FOG],
+        misalignment: Misalignment::default(),
+        a_rad_s: a1.iter().map(|&a| [a, 0.0]).collect(),
+        g: vec![0.0; N_FOG],
+        h: vec![0.0; N_FOG],
+        k_asym: vec![0.0; N_FOG],
+        magnetic_rad_s_per_nt: vec![[0.0; 2]; N_FOG],
+        sin2psi_rad_s: vec![0.0; N_FOG],
+        t_ref_degc: 25.0,
+    };
+    PowerSession { sim: SimSession { header, rows: out, truth }, regressors, base }
+}

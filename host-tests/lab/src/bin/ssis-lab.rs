@@ -276,7 +276,7 @@ fn print_diagnosis(d: &Diagnosis) {
         );
     }
     println!(
-        "p: the larger of the GLS F-test's and the held-out improvement's under each FOG's noise model \
+        "p: the larger of the GLS F-test's and the held-out direction test's under each FOG's noise model \
          (white + Gauss-Markov, fitted on the test blocks' residual); removed: √(before² − after²)"
     );
     for (k, why) in &d.skipped {
@@ -316,6 +316,9 @@ fn print_diagnosis(d: &Diagnosis) {
         }
     }
     for line in anova_beside_main(d) {
+        println!("{line}");
+    }
+    for line in d.detectable.lines() {
         println!("{line}");
     }
 }
