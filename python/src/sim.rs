@@ -23,9 +23,14 @@ use ssis_sim::sensors::{SensorStep, Sensors};
 use ssis_sim::star::StarSpec;
 use ssis_sim::truth::TruthStep;
 
-use crate::core::slice;
 use crate::table::PyTable;
 use crate::{err, SsisError};
+
+/// The `N` values of a 1-D float64 array, or an error naming `what` and the count.
+fn slice<const N: usize>(a: &PyReadonlyArray1<'_, f64>, what: &str) -> PyResult<[f64; N]> {
+    let s = a.as_slice().map_err(|e| SsisError::new_err(format!("{what}: {e}")))?;
+    <[f64; N]>::try_from(s).map_err(|_| SsisError::new_err(format!("{what}: {} values, expected {N}", s.len())))
+}
 
 fn quat(a: &PyReadonlyArray1<'_, f64>, what: &str) -> PyResult<Quaternion<f64>> {
     let [w, x, y, z] = slice::<4>(a, what)?;

@@ -40,7 +40,7 @@ __version__: str = _ssis.__version__
 
 # Bits of the output frame's `flags` and `st_status` (docs/ICD.md).
 _FLAG_ST_IN_USE, _FLAG_DEGRADED, _FLAG_CONVERGED, _FLAG_FDI_ALARM = 1 << 0, 1 << 1, 1 << 2, 1 << 6
-_ST_ALIGNED, _ST_OUTAGE = 1 << 2, 1 << 4
+_ST_ALIGNED, _ST_OUTAGE, _ST_VALID = 1 << 2, 1 << 4, 1 << 7
 
 
 def _pandas() -> Any:
@@ -97,7 +97,7 @@ class Step:
     """Flag bits (docs/ICD.md, output frame); by name: :attr:`converged`, :attr:`degraded`,
     :attr:`fdi_alarm`, :attr:`star_in_use`."""
     st_status: int
-    """Star-tracker status bits (docs/ICD.md); by name: :attr:`aligned`, :attr:`st_outage`."""
+    """Star-tracker status bits (docs/ICD.md); by name: :attr:`aligned`, :attr:`attitude_valid`, :attr:`st_outage`."""
     fog_health: List[int]
     """Per FOG, its health bits (docs/ICD.md, ``health``)."""
     fogs_used: int
@@ -117,6 +117,13 @@ class Step:
         """``st_status`` bit 2: the attitude has been aligned by the star tracker and the
         mounting check found no FOG at odds with the tracker (docs/ICD.md)."""
         return bool(self.st_status & _ST_ALIGNED)
+
+    @property
+    def attitude_valid(self) -> bool:
+        """``st_status`` bit 7: the attitude is good to use, the unit's one derived validity
+        (aligned, converged, no parity alarm, built-in test passed, a sample integrated in
+        this step, no held increment, no resume awaiting confirmation; docs/ICD.md)."""
+        return bool(self.st_status & _ST_VALID)
 
     @property
     def st_outage(self) -> bool:
@@ -148,7 +155,7 @@ class Step:
         ev = f", events={[e['event'] for e in self.events]}" if self.events else ""
         return (
             f"Step(time_s={self.time_s:.3f}, q=[{q}], flags=0x{self.flags:02x}, "
-            f"st_status=0x{self.st_status:02x}, aligned={self.aligned}, converged={self.converged}, "
+            f"st_status=0x{self.st_status:02x}, aligned={self.aligned}, valid={self.attitude_valid}, converged={self.converged}, "
             f"fogs_used=0b{self.fogs_used:04b}{ev})"
         )
 
@@ -182,6 +189,11 @@ class Run:
     def aligned(self) -> np.ndarray:
         """Per step, ``st_status`` bit 2 (:attr:`Step.aligned`)."""
         return np.asarray((self.st_status & _ST_ALIGNED) != 0)
+
+    @property
+    def attitude_valid(self) -> np.ndarray:
+        """Per step, ``st_status`` bit 7 (:attr:`Step.attitude_valid`)."""
+        return np.asarray((self.st_status & _ST_VALID) != 0)
 
     @property
     def converged(self) -> np.ndarray:
