@@ -2,7 +2,10 @@
 //! board: three FOGs and three accelerometers, the flight core and the
 //! strapdown navigation with loosely coupled GNSS aiding, every 1.25 ms.
 //!
-//! Each period (a SysTick, or a STEP control frame in lockstep):
+//! The loop is the executive every board and mission share (`ssis::bsp::exec::run`,
+//! with the after-step work on its one schedule: table scrub, code check, snapshot);
+//! this file is the board setup and the mission ([`Ascent`]), whose hooks are the
+//! navigation. Each period (a SysTick, or a STEP control frame in lockstep):
 //!
 //! 1. the step: [`FlightCore::step_with`] (FOG bus → decoding, compensation,
 //!    combination, attitude, flight output frame on UART0), and from its hook, for each
@@ -38,23 +41,27 @@
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
 //! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
-//! (128 KiB flash, 64 KiB RAM: 60 KiB of stack at the bottom, 4 KiB of statics above;
-//! FOG table, accelerometer section and pad initialisation block in their own regions,
-//! loaded separately).
+//! (128 KiB flash, 64 KiB RAM: 56 KiB of stack at the bottom, 4 KiB of statics above,
+//! 4 KiB for the reset snapshot; FOG table, accelerometer section and pad
+//! initialisation block in their own regions, loaded separately). The navigation's own
+//! state does not survive a reset yet ([`Mission::save`] and [`Mission::resume`] keep
+//! their defaults): after a reset the core resumes from its snapshot and the
+//! navigation starts again from the pad block.
 
 use core::convert::Infallible;
 
 use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::exec::{self, LoopStats, Mission};
 use ssis::bsp::Board;
 use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
-use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::flight::{FlightCore, FogLinks, Links, Profile, StepOutput};
+use ssis::frames::control::ControlFrame;
 use ssis::frames::navout::NavOutputFrame;
-use ssis::link::{NotFitted, RxRing, TxRing};
+use ssis::link::{FramePort, NotFitted, RingPort, RxRing, RxRingReader, TxRing, TxRingWriter};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
-use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
-use ssis_firmware::resilience;
+use ssis_firmware::mps2::{self, Mps2, Mps2Unit, Times, Uart, UartMap};
 
 /// Watchdog period in steps (warning after one period, reset after two): 40 steps,
 /// 50 ms, the spacecraft unit's watchdog time (10 of its 5 ms steps). Ten 1.25 ms steps
@@ -107,6 +114,78 @@ fn kind(w: FilterWork) -> usize {
         FilterWork::Propagated => 1,
         FilterWork::Updated | FilterWork::Refused(_) => 2,
     }
+}
+
+/// The launch vehicle's mission in the executive: the core's step with the navigation
+/// on its increments, the filter work after the outputs, the event frames paced.
+struct Ascent<'a> {
+    links: Links<RingPort<'static, 512>, NotFitted, FramePort<'static, 256>>,
+    nav: &'a mut NavUnit,
+    nav_links: NavLinks<RxRingReader<'static, 512>, RxRingReader<'static, 256>, TxRingWriter<'static, 256>>,
+    /// The last filter work (the period's kind).
+    work: FilterWork,
+    event_wait: u32,
+    nav_steps: u32,
+    times: StepTimes,
+}
+
+impl Mission for Ascent<'_> {
+    #[inline(always)]
+    fn step(&mut self, core: &mut FlightCore) -> StepOutput {
+        let Ascent { links, nav, nav_links, nav_steps, .. } = self;
+        core.step_with(links, |t_us, body| {
+            nav.step(body, t_us, nav_links);
+            *nav_steps = nav_steps.wrapping_add(1);
+        })
+    }
+
+    fn after_outputs(&mut self, _core: &mut FlightCore) {
+        self.work = self.nav.filter_work();
+    }
+
+    fn send_events(&mut self, core: &mut FlightCore) {
+        // UART0 carries the output frames at 84 % of its rate (docs/ICD.md): an event
+        // frame at most every EVENT_EVERY steps, so the ring always has room for the
+        // next output frame.
+        self.event_wait = self.event_wait.saturating_sub(1);
+        if self.event_wait == 0 && core.send_events(&mut self.links.out) {
+            self.event_wait = EVENT_EVERY;
+        }
+    }
+
+    fn record(&mut self, step: u32, busy: u32, _out: &StepOutput) {
+        let k = kind(self.work);
+        if let Some(t) = self.times.step.get_mut(k) {
+            t.push(step);
+        }
+        if let Some(t) = self.times.period.get_mut(k) {
+            t.push(busy);
+        }
+    }
+
+    fn lockstep_began(&mut self) {
+        // The statistics cover the lockstep run only (not the empty steps on the timer
+        // before it).
+        self.times = StepTimes::default();
+    }
+
+    fn report(&self, _core: &FlightCore, _stats: &LoopStats) {
+        report_end(self.nav, &self.times, self.nav_steps);
+    }
+}
+
+/// Whether the bytes a STEP frame names have all arrived: in this unit its fields are
+/// the FOG bus total (`fog_bytes`), the accelerometer bus total (`st_bytes`) and the
+/// GNSS total modulo 2^16 (`arg`).
+fn arrived(c: &ControlFrame) -> bool {
+    FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+        && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+        && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
+}
+
+/// Bytes dropped by full receive rings.
+fn rx_overflows() -> u32 {
+    FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows())
 }
 
 #[cortex_m_rt::entry]
@@ -174,80 +253,32 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
         init.revision,
         profile.dt_us
     );
-    mps2::init(syst, profile.dt_us, &UARTS);
-    mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
-
-    let mut links = Links {
-        fog: FogLinks::Bus(FOG_RX.port()),
-        // No star tracker on the launch vehicle: the stage is compiled out.
-        star: NotFitted,
-        out: OUT_TX.frame_port(),
+    // No command link on the launch vehicle: the control line carries control frames only.
+    let mut unit = Mps2Unit::start(syst, profile.dt_us, WATCHDOG_STEPS, &UARTS, &CTL_RX, arrived, rx_overflows, ());
+    let mut mission = Ascent {
+        links: Links {
+            fog: FogLinks::Bus(FOG_RX.port()),
+            // No star tracker on the launch vehicle: the stage is compiled out.
+            star: NotFitted,
+            out: OUT_TX.frame_port(),
+        },
+        nav,
+        nav_links: NavLinks {
+            accel: ACCEL_RX.reader(),
+            gnss: GNSS_RX.reader(),
+            out: NAV_TX.frame_writer(NavOutputFrame::LEN),
+        },
+        work: FilterWork::None,
+        event_wait: 0,
+        nav_steps: 0,
+        times: StepTimes::default(),
     };
-    let mut nav_links =
-        NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };
-    let mut pacer = Pacer::new(&UARTS, &CTL_RX);
-    let mut times = StepTimes::default();
-    let mut event_wait = 0u32;
-    let period = mps2::ticks_per_step();
-    let mut nav_steps = 0u32;
-    loop {
-        if ssis::link::ring_faults() != 0 {
-            resilience::reset_on_ring_fault(|| {});
-        }
-        // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
-        // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
-        let due = pacer.due(
-            core,
-            |c| {
-                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
-                    && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
-                    && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
-            },
-            // No command link on the launch vehicle.
-            |_, _| {},
-        );
-        if pacer.lockstep_began() {
-            // The statistics cover the lockstep run only (not the empty steps on the
-            // timer before it).
-            times = StepTimes::default();
-        }
-        if due {
-            let t = Stopwatch::start();
-            core.step_with(&mut links, |t_us, body| {
-                nav.step(body, t_us, &mut nav_links);
-                nav_steps = nav_steps.wrapping_add(1);
-            });
-            let step_ticks = t.ticks();
-            if !pacer.lockstep() {
-                mps2::pump_tx(&UARTS);
-            }
-            let work = nav.filter_work();
-            let busy = t.ticks();
-            if pacer.lockstep() && busy > period {
-                core.note_overrun();
-            }
-            core.set_step_ticks(u16::try_from(busy).unwrap_or(u16::MAX));
-            // UART0 carries the output frames at 84 % of its rate (docs/ICD.md): an event
-            // frame at most every EVENT_EVERY steps, so the ring always has room for the
-            // next output frame.
-            event_wait = event_wait.saturating_sub(1);
-            if event_wait == 0 && core.send_events(&mut links.out) {
-                event_wait = EVENT_EVERY;
-            }
-            let k = kind(work);
-            if let Some(t) = times.step.get_mut(k) {
-                t.push(step_ticks);
-            }
-            if let Some(t) = times.period.get_mut(k) {
-                t.push(busy);
-            }
-        }
-        pacer.end_pass(due, || report_end(core, nav, &times, nav_steps));
-    }
+    exec::run(&mut unit, &mut mission, core)
 }
 
-/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads them).
-fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
+/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads
+/// them; the board's counters follow).
+fn report_end(nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
     for (k, name) in ["none", "propagation", "gnss_update"].into_iter().enumerate() {
         let (s, p) = (t.step.get(k).copied().unwrap_or_default(), t.period.get(k).copied().unwrap_or_default());
         defmt::info!(
@@ -260,8 +291,6 @@ fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
             p.max
         );
     }
-    let overflows = FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows());
-    mps2::report(core, overflows);
     let n = nav.counters();
     let (used, refused) = nav.nav().counts();
     defmt::info!(
