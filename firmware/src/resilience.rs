@@ -53,12 +53,7 @@ pub fn snapshot_extra() -> &'static mut [u32] {
     // SAFETY: the words after the core's snapshot inside the SNAP region (its length
     // from the layout), word-aligned RAM used by nothing else; any bit pattern is a
     // `u32`; taken once by the mission, disjoint from `snapshot`'s reference.
-    unsafe {
-        core::slice::from_raw_parts_mut(
-            (core::ptr::addr_of_mut!(_snapshot_start) as *mut u32).wrapping_add(core_words),
-            words,
-        )
-    }
+    unsafe { core::slice::from_raw_parts_mut(core::ptr::addr_of_mut!(_snapshot_start).wrapping_add(core_words), words) }
 }
 
 /// Resets the unit (SYSRESETREQ): the HardFault's way out, so an upset of the program
