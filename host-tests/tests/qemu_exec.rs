@@ -27,12 +27,17 @@ use ssis_sim::scenario::Scenario;
 const FLIGHT_S: f64 = 20.0;
 /// The fault, s (the observer converges at 10.05 s).
 const FAULT_S: f64 = 12.5;
+/// Errors after this time make the nominal 3σ, s.
+const SETTLE_S: f64 = 11.0;
 
 fn inject(fault: Target) {
     let elf = build_firmware().expect("firmware");
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = FLIGHT_S;
+    // The nominal 3σ over the undisturbed flight after convergence (the scenario's own
+    // settling time is longer than this flight).
+    sc.settle_s = SETTLE_S;
     let o = UpsetOptions {
         elf,
         flips: 1,
@@ -67,7 +72,14 @@ fn inject(fault: Target) {
     assert!(f.events.iter().any(|e| e == "resumed"), "{:?}", f.events);
 }
 
+/// Ignored: the write to SYST_CSR through QEMU's gdbstub did not take (measured: the
+/// fault classed masked, the unit stepping on); QEMU's gdbstub writes guest memory
+/// with `address_space_write_rom`, which writes RAM and ROM and skips device
+/// registers. The runner now refuses such a write (it reads SYST_CSR back). What
+/// remains to do: stop the tick from inside the guest (a test hook), or through
+/// QEMU's monitor.
 #[test]
+#[ignore = "QEMU's gdbstub does not write the SysTick's registers"]
 fn a_stopped_tick_is_reset_by_the_watchdog_and_the_unit_resumes() {
     inject(Target::TickStopped);
 }
