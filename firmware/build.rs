@@ -1,6 +1,9 @@
 //! Link scripts for the firmware binaries only (cortex-m-rt's link.x with the repository's
 //! top-level memory.x, and defmt's), so nested board packages keep their own.
 //!
+//! The spacecraft flight firmware (`ssis-fw`) is also linked with `link/flight-budget.x`,
+//! which fails the link when its image outgrows the MPU's 128 KiB read-only region.
+//!
 //! The launch-vehicle firmware (`ssis-fw-lv`, and the binaries tested in its layout:
 //! `ssis-fw-lv-test`, `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
 //! `link/memory-lv.x`. cortex-m-rt's link.x includes `memory.x`, which the linker looks
@@ -18,11 +21,15 @@ fn main() {
     println!("cargo:rustc-link-search={top}");
     println!("cargo:rerun-if-changed=../memory.x");
     println!("cargo:rerun-if-changed=link/memory-lv.x");
+    println!("cargo:rerun-if-changed=link/flight-budget.x");
     println!("cargo:rerun-if-changed=build.rs");
     if std::env::var("CARGO_CFG_TARGET_OS").as_deref() == Ok("none") {
         for bin in ["ssis-fw", "ssis-fw-test", "ssis-selftest", "ssis-stackcheck"] {
             println!("cargo:rustc-link-arg-bin={bin}=-Tlink.x");
         }
+        // The flight image within the MPU's read-only 128 KiB (link/flight-budget.x).
+        println!("cargo:rustc-link-arg-bin=ssis-fw=-L{dir}/link");
+        println!("cargo:rustc-link-arg-bin=ssis-fw=-Tflight-budget.x");
         match lv_link_script(Path::new(&dir)) {
             Ok(lv_dir) => {
                 // The navigation benchmark is launch-vehicle code: the LV budget (its

@@ -1,6 +1,6 @@
 //! Board: QEMU `mps2-an500` (Cortex-M7, FPv5-D16), for both flight firmwares (the
 //! spacecraft `ssis-fw` and the launch-vehicle `ssis-fw-lv`) and the on-target tests.
-//! A firmware brings its main loop, its [`UartMap`] and its memory budget (`memory.x` or
+//! A firmware brings its mission (`ssis::bsp::exec::Mission`), its [`UartMap`] and its memory budget (`memory.x` or
 //! `link/memory-lv.x`); everything that touches hardware is here, and the flight core
 //! knows only the link traits.
 //!
@@ -17,17 +17,18 @@
 //!   | 4 | 0x4000_9000 | 20 / 21 |
 //! - SysTick at 25 MHz: the step tick and the step-time measure ([`Stopwatch`]).
 //! - CMSDK APB watchdog (QEMU `hw/watchdog/cmsdk-apb-watchdog.c`, 0x4000_8000, clocked
-//!   at 25 MHz, interrupt wired to NMI): the main loop feeds it on every pass; after one
-//!   timeout without a feed the NMI logs a warning, after a second one the watchdog
+//!   at 25 MHz, interrupt wired to NMI): the executive feeds it only after a step
+//!   completed within its deadline (`ssis::bsp::exec`); after one timeout without a feed the NMI logs a warning, after a second one the watchdog
 //!   resets the unit (QEMU: its `-action watchdog=` choice).
 //! - Stack guard: both layouts put the stack at the bottom of RAM (0x2000_0000), and
-//!   [`start`] makes the 256 MiB below it no-access (`cortex_m7::guard_below_stack`):
+//!   [`start`] makes the 256 MiB below it no-access (`cortex_m7::protect_below_stack`):
 //!   QEMU's mps2-an500 does not fault there by itself (measured: a runaway recursion went
 //!   8 MiB below 0x2000_0000 unchecked).
 //! - Semihosting: the defmt log ([`semihosting_sink`]) and the exit code of a QEMU run
 //!   ([`exit`]).
-//! - The main loop's pacing ([`Pacer`]): the timer, or (test builds only) lockstep
-//!   driven by control frames.
+//! - The executive's board ([`Mps2Unit`], `ssis::bsp::exec::StepBoard`): the pacing
+//!   ([`Pacer`]: the timer, or, test builds only, lockstep driven by control frames),
+//!   the clock, the snapshot region and the code image (`crate::resilience`).
 #![allow(unsafe_code)]
 
 use core::cell::UnsafeCell;
@@ -38,7 +39,9 @@ use cortex_m::peripheral::{NVIC, SYST};
 use heapless::Deque;
 
 use crate::cortex_m7;
+use ssis::bsp::exec::{StepBoard, Wait};
 use ssis::bsp::Board;
+use ssis::flight::snapshot::Snapshot;
 use ssis::flight::FlightCore;
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
@@ -148,7 +151,7 @@ static TICKS: AtomicU32 = AtomicU32::new(0);
 /// image; both layouts put their written regions, calibration and key or LV data, at
 /// 0x2_0000 and above) and the stack painted for the high-water mark.
 pub fn start() {
-    cortex_m7::guard_below_stack(0x1000_0000, 28);
+    cortex_m7::protect_below_stack(0x1000_0000, 28);
     cortex_m7::protect_image(17);
     cortex_m7::paint_stack();
 }
@@ -248,6 +251,18 @@ pub fn ticks() -> u32 {
 /// Ticks of the step period (the SysTick reload + 1).
 pub fn ticks_per_step() -> u32 {
     SYST::get_reload() + 1
+}
+
+/// The board's clock ([`StepBoard::clock`]): SysTick ticks (40 ns) since start, wrapping;
+/// it stands still while the SysTick counter is disabled.
+pub fn clock() -> u32 {
+    let p = ticks_per_step();
+    let (mut n, mut c) = (ticks(), SYST::get_current());
+    // A tick between the two reads: read again (bounded: one retry).
+    if ticks() != n {
+        (n, c) = (ticks(), SYST::get_current());
+    }
+    n.wrapping_mul(p).wrapping_add(p.saturating_sub(1).saturating_sub(c))
 }
 
 /// A point in time for [`Stopwatch::ticks`]: SysTick interrupts and the counter value.
@@ -450,30 +465,8 @@ impl Board for Mps2 {
     }
 }
 
-/// Count, sum and worst of a time in SysTick ticks.
-#[derive(Default, Clone, Copy)]
-pub struct Times {
-    /// How many.
-    pub n: u32,
-    /// Their sum.
-    pub sum: u64,
-    /// The largest.
-    pub max: u32,
-}
-
-impl Times {
-    /// Adds one time.
-    pub fn push(&mut self, ticks: u32) {
-        self.n = self.n.saturating_add(1);
-        self.sum = self.sum.saturating_add(u64::from(ticks));
-        self.max = self.max.max(ticks);
-    }
-
-    /// Mean × 100 (0 when empty).
-    pub fn mean_x100(&self) -> u64 {
-        (self.sum * 100).checked_div(u64::from(self.n)).unwrap_or(0)
-    }
-}
+/// Count, sum and worst of a time in SysTick ticks (the executive's).
+pub use ssis::bsp::exec::Times;
 
 /// Bytes of the control line's receive ring (control frames and telecommands).
 pub const CTL_RX_LEN: usize = 256;
@@ -506,11 +499,12 @@ macro_rules! mps2_test_hooks {
     };
 }
 
-/// Paces the main loop: on the timer (one step per SysTick, a missed tick an overrun),
-/// or, in a test build ([`TEST_HOOKS`]), in lockstep (test equipment: one step per STEP
-/// control frame, once the bytes it names have arrived), ending the run on END. Control
-/// frames arrive on the UART whose RX feeds `ctl`; a flight build counts each one
-/// ([`Counter::ControlIgnored`](crate::telemetry::Counter::ControlIgnored)) and acts on
+/// Paces the executive's loop ([`ssis::bsp::exec`]): on the timer (one step per SysTick,
+/// a missed tick an overrun), or, in a test build ([`TEST_HOOKS`]), in lockstep (test
+/// equipment: one step per STEP control frame, once the bytes it names have arrived),
+/// ending the run on END. Control frames arrive on the UART whose RX feeds `ctl`; a
+/// flight build counts each one
+/// ([`Counter::ControlIgnored`](ssis::telemetry::Counter::ControlIgnored)) and acts on
 /// none, so it keeps stepping on its timer whatever arrives.
 pub struct Pacer {
     map: &'static UartMap,
@@ -519,10 +513,12 @@ pub struct Pacer {
     steps_due: Deque<ControlFrame, 8>,
     scratch: [u8; 128],
     lockstep: bool,
-    began: bool,
     end: bool,
     stall: bool,
+    /// The tick of the last step on the timer.
     handled: u32,
+    /// The tick seen at the last wait.
+    seen: u32,
 }
 
 impl Pacer {
@@ -539,28 +535,34 @@ impl Pacer {
             steps_due: Deque::new(),
             scratch: [0; 128],
             lockstep: false,
-            began: false,
             end: false,
             stall: false,
             handled: ticks(),
+            seen: ticks(),
         }
     }
 
-    /// Start of a pass: takes what the UARTs received and the control frames; whether a
-    /// step is due. In lockstep (test build), the next STEP frame once `arrived(frame)`
-    /// says its bytes are in; on the timer, a new tick (each tick missed since the last
-    /// step counts an overrun of `core`). A flight build counts every control frame in
-    /// `core` and ignores it. Every byte of the control line also goes to `on_line` (the
-    /// command link's telecommands share it), before the control frames it completes
-    /// are acted on.
-    pub fn due(
+    /// The executive's wait ([`StepBoard::wait`]): takes what the UARTs received and the
+    /// control frames, and says what is due. In lockstep (test build), the next STEP
+    /// frame once `arrived(frame)` says its bytes are in; on the timer, a new tick (with
+    /// the ticks missed since the last step). A flight build counts every control frame
+    /// in `core` and ignores it. Every byte of the control line also goes to `on_line`
+    /// (the command link's telecommands share it), before the control frames it
+    /// completes are acted on. With nothing due, sleeps until the next interrupt. In a
+    /// test build a STALL control frame stops the loop here (the fault being injected:
+    /// the watchdog, no longer fed, resets the unit); END, once every output ring is
+    /// empty, ends the run.
+    pub fn wait(
         &mut self,
         core: &mut FlightCore,
         arrived: impl Fn(&ControlFrame) -> bool,
         mut on_line: impl FnMut(&mut FlightCore, &[u8]),
-    ) -> bool {
+    ) -> Wait {
         poll_rx(self.map);
-        let Pacer { ctl, decoder, steps_due, scratch, lockstep, began, end, stall, .. } = self;
+        let now = ticks();
+        let tick = now != self.seen;
+        self.seen = now;
+        let Pacer { ctl, decoder, steps_due, scratch, lockstep, end, stall, .. } = self;
         let _ = drain(ctl, CTL_RX_LEN, scratch, |bytes| {
             on_line(core, bytes);
             decoder.push_slice(bytes, |r| {
@@ -570,10 +572,7 @@ impl Pacer {
                     return;
                 }
                 match c.command {
-                    command::LOCKSTEP => {
-                        *lockstep = true;
-                        *began = true;
-                    }
+                    command::LOCKSTEP => *lockstep = true,
                     command::STEP => {
                         let _ = steps_due.push_back(c);
                     }
@@ -583,58 +582,174 @@ impl Pacer {
                 }
             });
         });
-        if self.lockstep {
-            match self.steps_due.front() {
-                Some(c) if arrived(c) => {
-                    let _ = self.steps_due.pop_front();
-                    true
-                }
-                _ => false,
-            }
-        } else {
-            let t = ticks();
-            if t == self.handled {
-                return false;
-            }
-            for _ in 0..t.wrapping_sub(self.handled).saturating_sub(1).min(1000) {
-                core.note_overrun();
-            }
-            self.handled = t;
-            true
+        // A flight build never sets the three (`TEST_HOOKS` false above): testing
+        // `TEST_HOOKS` first leaves their code out of its image.
+        if TEST_HOOKS && self.stall {
+            stall_here();
         }
+        if TEST_HOOKS && self.lockstep {
+            if let Some(c) = self.steps_due.front() {
+                if arrived(c) {
+                    let _ = self.steps_due.pop_front();
+                    return Wait::Lockstep;
+                }
+            }
+        }
+        if TEST_HOOKS && self.end {
+            pump_tx(self.map);
+            return if tx_idle(self.map) { Wait::End } else { Wait::Idle { lockstep: true, tick } };
+        }
+        if !(TEST_HOOKS && self.lockstep) && now != self.handled {
+            let missed = now.wrapping_sub(self.handled).saturating_sub(1);
+            self.handled = now;
+            return Wait::Tick { missed };
+        }
+        cortex_m::asm::wfi();
+        Wait::Idle { lockstep: TEST_HOOKS && self.lockstep, tick }
     }
 
     /// Whether the runner switched to lockstep.
     pub fn lockstep(&self) -> bool {
         self.lockstep
     }
+}
 
-    /// Whether lockstep began since the last call (a firmware restarts its statistics).
-    pub fn lockstep_began(&mut self) -> bool {
-        core::mem::take(&mut self.began)
+/// The STALL test hook: the loop stops for good, feeding nothing.
+#[inline(never)]
+#[cold]
+fn stall_here() -> ! {
+    defmt::error!("test hook: main loop stalled on command");
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+/// What a firmware on this board does with its control line besides the control frames
+/// (the spacecraft's command link; nothing on the launch vehicle).
+pub trait ControlLine {
+    /// Bytes received on the control line, before the control frames they complete.
+    fn receive(&mut self, _core: &mut FlightCore, _bytes: &[u8]) {}
+
+    /// After a step: what the line has to send (a command report).
+    fn after_step(&mut self) {}
+
+    /// Checks the command key against its record; true when it was restored.
+    fn check_key(&mut self) -> bool {
+        false
     }
 
-    /// End of a pass: sends the output, feeds the watchdog, and once END has come (test
-    /// build) and every output ring is empty, calls `report` and ends the run with
-    /// success; sleeps until the next interrupt when no step was due. In a test build a
-    /// STALL control frame stops the loop here without feeding the watchdog (the fault
-    /// being injected: it ends only by the watchdog).
-    pub fn end_pass(&mut self, due: bool, report: impl FnOnce()) {
-        pump_tx(self.map);
-        if self.stall {
-            defmt::error!("test hook: main loop stalled on command");
-            loop {
-                cortex_m::asm::nop();
-            }
-        }
+    /// Its end-of-run figures (test builds, at END).
+    fn report(&self) {}
+}
+
+impl ControlLine for () {}
+
+/// The board in the executive's loop ([`ssis::bsp::exec::StepBoard`]): the pacing, the
+/// UARTs of `map`, the watchdog, the clock (SysTick), the layout's snapshot region and
+/// code image, and the firmware's control line `L`. The QEMU board has no memory-error
+/// source (its RAM has no ECC).
+pub struct Mps2Unit<L> {
+    pacer: Pacer,
+    map: &'static UartMap,
+    /// The firmware's control line.
+    pub line: L,
+    arrived: fn(&ControlFrame) -> bool,
+    rx_overflows: fn() -> u32,
+    snap: Option<&'static mut Snapshot>,
+}
+
+impl<L: ControlLine> Mps2Unit<L> {
+    /// The board with its UARTs `map` (brought up, with the step tick of `step_us`), its
+    /// control frames in `ctl`, `arrived` (whether a STEP frame's bytes are in), the
+    /// bytes its receive rings dropped (`rx_overflows`, for the end report), the line
+    /// `line` and the watchdog started at `watchdog_steps` steps a stage (warning, then
+    /// reset). Takes the snapshot region (call once).
+    #[allow(clippy::too_many_arguments)]
+    pub fn start(
+        syst: SYST,
+        step_us: u32,
+        watchdog_steps: u32,
+        map: &'static UartMap,
+        ctl: &'static RxRing<CTL_RX_LEN>,
+        arrived: fn(&ControlFrame) -> bool,
+        rx_overflows: fn() -> u32,
+        line: L,
+    ) -> Self {
+        let snap = crate::resilience::snapshot();
+        init(syst, step_us, map);
+        watchdog_start(watchdog_steps.saturating_mul(step_us));
+        Mps2Unit { pacer: Pacer::new(map, ctl), map, line, arrived, rx_overflows, snap }
+    }
+
+    /// Whether the runner switched to lockstep.
+    pub fn lockstep(&self) -> bool {
+        self.pacer.lockstep()
+    }
+}
+
+impl<L> Board for Mps2Unit<L> {
+    fn calib_area(&self) -> &[u8] {
+        calib_area()
+    }
+
+    fn feed_watchdog(&mut self) {
         watchdog_feed();
-        if self.end && tx_idle(self.map) {
-            report();
-            exit(true);
-        }
-        if !due && !self.end {
-            cortex_m::asm::wfi();
-        }
+    }
+
+    fn ticks(&self) -> u32 {
+        ticks()
+    }
+
+    fn stop(&mut self, ok: bool) -> ! {
+        exit(ok)
+    }
+}
+
+impl<L: ControlLine> StepBoard for Mps2Unit<L> {
+    fn wait(&mut self, core: &mut FlightCore) -> Wait {
+        let Mps2Unit { pacer, line, arrived, .. } = self;
+        pacer.wait(core, *arrived, |core, bytes| line.receive(core, bytes))
+    }
+
+    fn clock(&self) -> u32 {
+        clock()
+    }
+
+    fn period(&self) -> u32 {
+        ticks_per_step()
+    }
+
+    fn send(&mut self) {
+        pump_tx(self.map);
+    }
+
+    fn after_step(&mut self, _core: &mut FlightCore, _busy: u32) {
+        self.line.after_step();
+    }
+
+    fn snapshot(&mut self) -> Option<&mut Snapshot> {
+        self.snap.as_deref_mut()
+    }
+
+    fn code_image(&self) -> &'static [u8] {
+        crate::resilience::code_image()
+    }
+
+    fn check_key(&mut self) -> bool {
+        self.line.check_key()
+    }
+
+    fn watchdog_warnings(&self) -> u32 {
+        watchdog_warnings()
+    }
+
+    fn report(&mut self, core: &FlightCore) {
+        self.line.report();
+        report(core, (self.rx_overflows)());
+    }
+
+    fn reset(&mut self) -> ! {
+        crate::resilience::reset()
     }
 }
 

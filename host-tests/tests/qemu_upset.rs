@@ -53,7 +53,9 @@ fn upset_sample_in_qemu() {
             Target::Static { addr, .. } => assert!((c.statics.0..c.statics.1).contains(&addr), "{f:?}"),
             Target::Core { reg, bit } => assert!((reg < 16 || reg == 25) && bit < 32, "{f:?}"),
             Target::Fpu { reg, bit } => assert!((26..=42).contains(&reg) && bit < 64, "{f:?}"),
-            Target::Reset => panic!("no forced reset in a flip campaign: {f:?}"),
+            Target::Reset | Target::TickStopped | Target::Stall => {
+                panic!("no forced reset or loop fault in a flip campaign: {f:?}")
+            }
         }
         if f.outcome == Outcome::Masked {
             assert!(f.events.is_empty() && f.recovery_s.is_none(), "{f:?}");

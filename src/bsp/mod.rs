@@ -1,12 +1,18 @@
 //! The board seam: what a flight firmware needs of its board, and the policy every board
 //! shares.
 //!
-//! A firmware is its main loop plus one board. A board implements [`Board`] (the
+//! A firmware is one board plus one mission. A board implements [`Board`] (the
 //! calibration flash, the watchdog, the step tick, how the unit stops) and the firmware
 //! boots through [`boot::boot`], the one boot policy of every board: the two-copy table,
-//! the power-on built-in test, the flagged default, the flight core.
+//! the power-on built-in test, the flagged default, the flight core. It then flies in
+//! [`exec::run`], the one fixed-rate loop of every board and mission (the executive:
+//! wait, step, outputs, the after-step work on one schedule, overruns, the watchdog fed
+//! only by a step within its deadline), to which the board adds what differs
+//! ([`exec::StepBoard`]: its pacing, clock, memory areas, memory-error source, reset)
+//! and the mission its step ([`exec::Mission`]). The code check ([`code::CodeCheck`])
+//! is one of its after-step jobs.
 //!
-//! Why these two are here, in the portable core, and the board code is not: they are
+//! Why these are here, in the portable core, and the board code is not: they are
 //! safe, portable code whose behaviour matters (which table flies, what is flagged), so
 //! they are tested on the host (`host-tests/tests/boot.rs` boots on the STM32H7's flash
 //! layout; the unit tests beside the code). What touches the hardware (registers, linker
@@ -16,6 +22,8 @@
 //! crates (`boards/stm32h7`).
 
 pub mod boot;
+pub mod code;
+pub mod exec;
 
 /// What the boot policy and a main loop need of a board.
 pub trait Board {

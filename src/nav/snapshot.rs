@@ -195,6 +195,13 @@ impl NavSnapshot {
         bytemuck::try_pod_read_unaligned(bytes).ok()
     }
 
+    /// The record that starts `words` (a board's RAM the reset does not clear, as words):
+    /// `None` when the words are too few or not aligned for it.
+    pub fn in_words(words: &mut [u32]) -> Option<&mut Self> {
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(words);
+        bytemuck::try_from_bytes_mut(bytes.get_mut(..core::mem::size_of::<Self>())?).ok()
+    }
+
     /// The accelerometer sample counter of the step it was taken after.
     pub fn accel_counter(&self) -> u16 {
         self.accel_counter as u16

@@ -4,9 +4,9 @@
 //! reporting. [`enable`] turns on, in every monitor of the three RAMECC units, the
 //! latching of the failing address (ECCELEN) and the flags of single errors corrected
 //! (SEDCF), double errors detected (DEDF) and double errors on a byte write (DEBWDF), and
-//! their interrupt enables (the global GIE stays off: the flags are polled from the main
-//! loop, so an upset storm cannot starve the step). [`poll`] reads the flags once a step,
-//! clears them and returns the counts, which the main loop adds to the core's counters
+//! their interrupt enables (the global GIE stays off: the flags are polled by the
+//! executive, so an upset storm cannot starve the step). [`poll`] reads the flags once a step,
+//! clears them and returns the counts, which the executive adds to the core's counters
 //! (`sram_ecc_corrected`, `sram_ecc_uncorrected`, event `sram_ecc`).
 //!
 //! | unit | base | monitors (RM0433 Table 11) |

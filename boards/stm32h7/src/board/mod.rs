@@ -11,8 +11,8 @@
 //! | [`rtt`] | the panic-free RTT channel of the defmt log |
 //! | [`ecc`] | the SRAM ECC's error reporting (RAMECC), polled once a step |
 //!
-//! Here: the board's type ([`Stm32h7`], `ssis::bsp::Board`), its bring-up ([`init`]) and
-//! what can go wrong in it.
+//! Here: the board's type ([`Stm32h7`], `ssis::bsp::Board` and the executive's
+//! `ssis::bsp::exec::StepBoard`), its bring-up ([`init`]) and what can go wrong in it.
 #![allow(unsafe_code)]
 
 mod calib;
@@ -25,10 +25,14 @@ mod watchdog;
 
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{DWT, NVIC};
+use ssis::bsp::exec::{MemoryErrors, StepBoard, Wait};
+use ssis::flight::snapshot::Snapshot;
+use ssis::flight::FlightCore;
+use ssis_firmware::cortex_m7;
 use stm32h7::stm32h743v::{self as pac, Interrupt};
 
 pub use rtt::rtt_write;
-pub use tick::{cycles, ticks, wait_for_tick};
+pub use tick::{cycles, ticks};
 pub use uart::{start_tx, uart_errors, FOG_RX, OUT_TX, ST_RX};
 
 /// Longest wait for a ready flag other than the HSE's (supply, voltage scale, flash
@@ -88,6 +92,105 @@ pub struct Stm32h7 {
     pub timeout: Option<Timeout>,
     /// Why the MCU last reset.
     pub reset_reason: &'static str,
+    /// Core cycles in one step period.
+    period_cycles: u32,
+    /// The tick of the last step.
+    handled: u32,
+    /// The snapshot in the layout's SNAP region.
+    snap: Option<&'static mut Snapshot>,
+    /// Step times of the status log's window.
+    window: ssis::bsp::exec::Times,
+    /// Steps since start.
+    steps: u32,
+    /// Step period, µs.
+    step_us: u32,
+}
+
+/// Steps between two status logs (10 s of 5 ms steps).
+const LOG_EVERY_STEPS: u32 = 2_000;
+
+impl StepBoard for Stm32h7 {
+    fn wait(&mut self, _core: &mut FlightCore) -> Wait {
+        let now = tick::sleep_unless(self.handled);
+        if now == self.handled {
+            return Wait::Idle { lockstep: false, tick: false };
+        }
+        let missed = now.wrapping_sub(self.handled).saturating_sub(1);
+        self.handled = now;
+        Wait::Tick { missed }
+    }
+
+    fn clock(&self) -> u32 {
+        cycles()
+    }
+
+    fn period(&self) -> u32 {
+        self.period_cycles
+    }
+
+    fn to_ticks(&self, clock: u32) -> u32 {
+        clock.checked_div(self.cycles_per_tick).unwrap_or(clock)
+    }
+
+    fn send(&mut self) {
+        start_tx();
+    }
+
+    fn after_step(&mut self, core: &mut FlightCore, busy: u32) {
+        self.window.push(self.to_ticks(busy));
+        self.steps = self.steps.wrapping_add(1);
+        if self.steps.is_multiple_of(LOG_EVERY_STEPS) {
+            let uptime_s = self.handled.checked_div(1_000_000 / self.step_us.max(1)).unwrap_or(0);
+            log_status(core, uptime_s, &self.window);
+            self.window = ssis::bsp::exec::Times::default();
+        }
+    }
+
+    fn snapshot(&mut self) -> Option<&mut Snapshot> {
+        self.snap.as_deref_mut()
+    }
+
+    fn code_image(&self) -> &'static [u8] {
+        ssis_firmware::resilience::code_image()
+    }
+
+    fn memory_errors(&mut self) -> MemoryErrors {
+        let e = ecc::poll();
+        if e.corrected != 0 || e.uncorrected != 0 {
+            defmt::warn!("SRAM ECC: {}", e);
+        }
+        MemoryErrors { corrected: e.corrected, uncorrected: e.uncorrected }
+    }
+
+    fn reset(&mut self) -> ! {
+        ssis_firmware::resilience::reset()
+    }
+}
+
+/// The 10-second status line.
+fn log_status(core: &FlightCore, uptime_s: u32, w: &ssis::bsp::exec::Times) {
+    let c = core.counters();
+    let out = core.last_output();
+    defmt::info!(
+        "t {} s: step ticks mean {} max {} | overruns {} | fog rejected {} missing {} stale {} | st accepted {} rejected {} gated {} | out dropped {} io errors {} | rx overflow fog {} st {} uart errors {} | flags {=u8:#04x}",
+        uptime_s,
+        w.sum.checked_div(u64::from(w.n)).unwrap_or(0),
+        w.max,
+        c.overruns,
+        c.fog_frames_rejected,
+        c.fog_samples_missing,
+        c.fog_samples_stale,
+        c.st_frames_accepted,
+        c.st_frames_rejected,
+        c.st_updates_gated,
+        c.output_dropped,
+        c.io_errors,
+        FOG_RX.overflows(),
+        ST_RX.overflows(),
+        uart_errors(),
+        out.flags
+    );
+    defmt::info!("stack high-water {} bytes", cortex_m7::stack_high_water());
 }
 
 impl ssis::bsp::Board for Stm32h7 {
@@ -112,6 +215,12 @@ impl ssis::bsp::Board for Stm32h7 {
 /// Stops for good: the CPU parks (`crate::park`) until the watchdog resets the unit.
 pub fn halt(_ok: bool) -> ! {
     crate::park()
+}
+
+/// The HardFault's way out (logged first): a reset (SYSRESETREQ), after which the unit
+/// resumes from its snapshot.
+pub fn fault_reset(_ok: bool) -> ! {
+    ssis_firmware::resilience::reset()
 }
 
 /// Polls `ready` until it holds or [`READY_TIMEOUT_CYCLES`] core cycles have passed
@@ -183,6 +292,17 @@ pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
     syst.enable_interrupt();
     syst.enable_counter();
 
+    // The snapshot region survives a reset but not a power cycle: after a power-on or
+    // brown-out it holds no snapshot, and is written before it is read, so its ECC
+    // check bits are set (RAM with ECC read before any write may report errors).
+    let mut snap = ssis_firmware::resilience::snapshot();
+    if matches!(reset_reason, "power-on" | "brown-out") {
+        if let Some(s) = snap.as_deref_mut() {
+            *s = Snapshot::default();
+        }
+    }
+    ecc::enable();
+
     for irq in [Interrupt::USART1, Interrupt::USART2, Interrupt::USART3] {
         // SAFETY: the handlers touch only the rings, the atomics and their own
         // USART's registers (CR1 behind critical sections), all set up above.
@@ -195,6 +315,12 @@ pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
         clock,
         timeout,
         reset_reason,
+        period_cycles: reload.saturating_add(1),
+        handled: ticks(),
+        snap,
+        window: ssis::bsp::exec::Times::default(),
+        steps: 0,
+        step_us,
     })
 }
 

@@ -1,5 +1,5 @@
-//! The step tick (SysTick, one interrupt per step), the DWT cycle counter, and sleeping
-//! until the next tick.
+//! The step tick (SysTick, one interrupt per step), the DWT cycle counter (the
+//! executive's clock), and sleeping until the next tick.
 
 use core::sync::atomic::{AtomicU32, Ordering};
 
@@ -23,23 +23,19 @@ pub fn cycles() -> u32 {
     DWT::cycle_count()
 }
 
-/// Sleeps until the tick count differs from `handled`; returns the new count.
-pub fn wait_for_tick(handled: u32) -> u32 {
-    loop {
-        // Check and sleep with interrupts masked, so that a tick landing between the
-        // two is not slept through: WFI still wakes on the pending interrupt, whose
-        // handler runs as soon as `free` unmasks.
-        let now = free(|_| {
-            let now = TICKS.load(Ordering::Acquire);
-            if now == handled {
-                cortex_m::asm::wfi();
-            }
-            now
-        });
-        if now != handled {
-            return now;
+/// The tick count; when it is still `handled`, sleeps once until the next interrupt
+/// first (the executive's wait calls again).
+pub fn sleep_unless(handled: u32) -> u32 {
+    // Check and sleep with interrupts masked, so that a tick landing between the two is
+    // not slept through: WFI still wakes on the pending interrupt, whose handler runs as
+    // soon as `free` unmasks.
+    free(|_| {
+        let now = TICKS.load(Ordering::Acquire);
+        if now == handled {
+            cortex_m::asm::wfi();
         }
-    }
+    });
+    TICKS.load(Ordering::Acquire)
 }
 
 #[exception]

@@ -2,7 +2,10 @@
 //! board: three FOGs and three accelerometers, the flight core and the
 //! strapdown navigation with loosely coupled GNSS aiding, every 1.25 ms.
 //!
-//! Each period (a SysTick, or a STEP control frame in lockstep):
+//! The loop is the executive every board and mission share (`ssis::bsp::exec::run`,
+//! with the after-step work on its one schedule: table scrub, code check, snapshot);
+//! this file is the board setup and the mission ([`Ascent`]), whose hooks are the
+//! navigation. Each period (a SysTick, or a STEP control frame in lockstep):
 //!
 //! 1. the step: [`FlightCore::step_with`] (FOG bus → decoding, compensation,
 //!    combination, attitude, flight output frame on UART0), and from its hook, for each
@@ -38,30 +41,27 @@
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
 //! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
-//! (128 KiB flash, 64 KiB RAM: 58 KiB of stack at the bottom, the navigation's reset
-//! snapshot in 2 KiB, 4 KiB of statics above; FOG table, accelerometer section and pad
-//! initialisation block in their own regions, loaded separately).
-//!
-//! Reset: the navigation's snapshot (`ssis::nav::snapshot`) is written every
-//! [`NAV_SNAPSHOT_STEPS`] periods into the NAVSNAP region and, at boot, resumed from if
-//! it passes its checks (the samples lost over the reset bridged at the first step); a
-//! refused or stale one leaves the navigation lost and flagged until the pad
-//! initialisation is loaded again. The flight core itself starts again from the pad
-//! attitude (its own snapshot is not wired into this loop).
+//! (128 KiB flash, 64 KiB RAM: 56 KiB of stack at the bottom, 4 KiB of statics above,
+//! 4 KiB for the reset snapshot; FOG table, accelerometer section and pad
+//! initialisation block in their own regions, loaded separately). A reset resumes the
+//! core from its snapshot and the navigation from its own (`ssis::nav::snapshot`), which
+//! the executive writes with the core's ([`Mission::save`]) after it in the SNAP region.
 
 use core::convert::Infallible;
 
 use cortex_m::peripheral::SYST;
 use ssis::bsp::boot::{self, BootReport};
+use ssis::bsp::exec::{self, LoopStats, Mission};
 use ssis::bsp::Board;
 use ssis::calib::accel::{AccelCompensator, AccelTable, AccelTableError, TABLE_LEN as ACCEL_TABLE_LEN};
-use ssis::flight::{FlightCore, FogLinks, Links, Profile};
+use ssis::flight::{FlightCore, FogLinks, Links, Profile, StepOutput};
+use ssis::frames::control::ControlFrame;
 use ssis::frames::navout::NavOutputFrame;
-use ssis::link::{NotFitted, RxRing, TxRing};
+use ssis::link::{FramePort, NotFitted, RingPort, RxRing, RxRingReader, TxRing, TxRingWriter};
 use ssis::nav::init::{PadInit, BLOCK_LEN as INIT_BLOCK_LEN};
 use ssis::nav::snapshot::NavSnapshot;
 use ssis::nav::unit::{FilterWork, NavLinks, NavUnit};
-use ssis_firmware::mps2::{self, Mps2, Pacer, Stopwatch, Times, Uart, UartMap};
+use ssis_firmware::mps2::{self, Mps2, Mps2Unit, Times, Uart, UartMap};
 use ssis_firmware::resilience;
 
 /// Watchdog period in steps (warning after one period, reset after two): 40 steps,
@@ -74,32 +74,6 @@ const WATCHDOG_STEPS: u32 = 40;
 /// Offset of the pad initialisation block in the LVDATA region (the accelerometer
 /// section is at 0).
 const INIT_OFFSET: usize = 0x100;
-
-/// Periods between two navigation snapshots (100 ms at 1.25 ms): a reset resumes the
-/// navigation from the last one, bridging up to this many samples plus the time down
-/// (`ssis::nav::snapshot`).
-const NAV_SNAPSHOT_STEPS: u32 = 80;
-
-extern "C" {
-    /// The NAVSNAP region of the layout (`link/memory-lv.x`): RAM no section is placed in.
-    static mut _nav_snapshot_start: u64;
-    static _nav_snapshot_len: u8;
-}
-
-/// The navigation's reset snapshot in RAM the reset does not clear (the NAVSNAP region);
-/// `None` for a layout whose region is too small. Called once, by `fly`.
-#[allow(unsafe_code)]
-fn nav_snapshot() -> Option<&'static mut NavSnapshot> {
-    let len = core::ptr::addr_of!(_nav_snapshot_len) as usize;
-    if len < core::mem::size_of::<NavSnapshot>() {
-        return None;
-    }
-    // SAFETY: the NAVSNAP region is 8-byte-aligned RAM of at least
-    // `size_of::<NavSnapshot>()` bytes (checked), used by nothing else; `NavSnapshot` is
-    // `repr(C)` plain old data, valid for any bit pattern (its CRC judges it); `fly` takes
-    // this reference once and no interrupt touches it.
-    unsafe { Some(&mut *(core::ptr::addr_of_mut!(_nav_snapshot_start) as *mut NavSnapshot)) }
-}
 
 /// FOG bus receive buffer (three 18-byte frames per 1.25 ms step, nine steps of margin).
 static FOG_RX: RxRing<512> = RxRing::new();
@@ -141,6 +115,102 @@ fn kind(w: FilterWork) -> usize {
         FilterWork::Propagated => 1,
         FilterWork::Updated | FilterWork::Refused(_) => 2,
     }
+}
+
+/// The launch vehicle's mission in the executive: the core's step with the navigation
+/// on its increments, the filter work after the outputs, the event frames paced.
+struct Ascent<'a> {
+    links: Links<RingPort<'static, 512>, NotFitted, FramePort<'static, 256>>,
+    nav: &'a mut NavUnit,
+    nav_links: NavLinks<RxRingReader<'static, 512>, RxRingReader<'static, 256>, TxRingWriter<'static, 256>>,
+    /// The last filter work (the period's kind).
+    work: FilterWork,
+    /// The navigation's reset snapshot, after the core's in the SNAP region (`None` when
+    /// the region cannot hold it).
+    snap: Option<&'static mut NavSnapshot>,
+    event_wait: u32,
+    nav_steps: u32,
+    times: StepTimes,
+}
+
+impl Mission for Ascent<'_> {
+    #[inline(always)]
+    fn step(&mut self, core: &mut FlightCore) -> StepOutput {
+        let Ascent { links, nav, nav_links, nav_steps, .. } = self;
+        core.step_with(links, |t_us, body| {
+            nav.step(body, t_us, nav_links);
+            *nav_steps = nav_steps.wrapping_add(1);
+        })
+    }
+
+    fn after_outputs(&mut self, _core: &mut FlightCore) {
+        self.work = self.nav.filter_work();
+    }
+
+    fn send_events(&mut self, core: &mut FlightCore) {
+        // UART0 carries the output frames at 84 % of its rate (docs/ICD.md): an event
+        // frame at most every EVENT_EVERY steps, so the ring always has room for the
+        // next output frame.
+        self.event_wait = self.event_wait.saturating_sub(1);
+        if self.event_wait == 0 && core.send_events(&mut self.links.out) {
+            self.event_wait = EVENT_EVERY;
+        }
+    }
+
+    fn record(&mut self, step: u32, busy: u32, _out: &StepOutput) {
+        let k = kind(self.work);
+        if let Some(t) = self.times.step.get_mut(k) {
+            t.push(step);
+        }
+        if let Some(t) = self.times.period.get_mut(k) {
+            t.push(busy);
+        }
+    }
+
+    /// The navigation's snapshot, written with the core's.
+    fn save(&mut self) {
+        if let Some(s) = self.snap.as_deref_mut() {
+            self.nav.snapshot_into(s);
+        }
+    }
+
+    /// At boot: the navigation resumed from its snapshot if that passes its checks (the
+    /// samples lost over the reset bridged at the first step; a refused or stale one
+    /// leaves the navigation lost and flagged until the pad initialisation is loaded
+    /// again; none at all, a cold start, keeps the pad initialisation), then spoiled, so
+    /// one snapshot is resumed at most once.
+    fn resume(&mut self, _core: &mut FlightCore) {
+        let Some(s) = self.snap.as_deref_mut() else { return };
+        match self.nav.resume(s) {
+            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", s.accel_counter()),
+            Err(e) => defmt::info!("no navigation snapshot resumed ({}), lost: {}", e, self.nav.lost()),
+        }
+        s.invalidate();
+    }
+
+    fn lockstep_began(&mut self) {
+        // The statistics cover the lockstep run only (not the empty steps on the timer
+        // before it).
+        self.times = StepTimes::default();
+    }
+
+    fn report(&self, _core: &FlightCore, _stats: &LoopStats) {
+        report_end(self.nav, &self.times, self.nav_steps);
+    }
+}
+
+/// Whether the bytes a STEP frame names have all arrived: in this unit its fields are
+/// the FOG bus total (`fog_bytes`), the accelerometer bus total (`st_bytes`) and the
+/// GNSS total modulo 2^16 (`arg`).
+fn arrived(c: &ControlFrame) -> bool {
+    FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
+        && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
+        && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
+}
+
+/// Bytes dropped by full receive rings.
+fn rx_overflows() -> u32 {
+    FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows())
 }
 
 #[cortex_m_rt::entry]
@@ -201,16 +271,6 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
             mps2::exit(false)
         }
     };
-    // A reset resumes the navigation from its snapshot, if that passes; spoiled either
-    // way, so one snapshot is resumed at most once.
-    let mut snap = nav_snapshot();
-    if let Some(s) = snap.as_deref_mut() {
-        match nav.resume(s) {
-            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", s.accel_counter()),
-            Err(e) => defmt::info!("no navigation snapshot resumed ({}), lost: {}", e, nav.lost()),
-        }
-        s.invalidate();
-    }
     defmt::info!(
         "ssis-fw-lv up: table revision {}, defaulted {}, pad block revision {}, step {} us",
         core.table().revision,
@@ -218,89 +278,33 @@ fn fly(core: &mut FlightCore, report: &BootReport, syst: SYST, profile: Profile)
         init.revision,
         profile.dt_us
     );
-    mps2::init(syst, profile.dt_us, &UARTS);
-    mps2::watchdog_start(WATCHDOG_STEPS * profile.dt_us);
-
-    let mut links = Links {
-        fog: FogLinks::Bus(FOG_RX.port()),
-        // No star tracker on the launch vehicle: the stage is compiled out.
-        star: NotFitted,
-        out: OUT_TX.frame_port(),
+    // No command link on the launch vehicle: the control line carries control frames only.
+    let mut unit = Mps2Unit::start(syst, profile.dt_us, WATCHDOG_STEPS, &UARTS, &CTL_RX, arrived, rx_overflows, ());
+    let mut mission = Ascent {
+        links: Links {
+            fog: FogLinks::Bus(FOG_RX.port()),
+            // No star tracker on the launch vehicle: the stage is compiled out.
+            star: NotFitted,
+            out: OUT_TX.frame_port(),
+        },
+        nav,
+        nav_links: NavLinks {
+            accel: ACCEL_RX.reader(),
+            gnss: GNSS_RX.reader(),
+            out: NAV_TX.frame_writer(NavOutputFrame::LEN),
+        },
+        work: FilterWork::None,
+        snap: NavSnapshot::in_words(resilience::snapshot_extra()),
+        event_wait: 0,
+        nav_steps: 0,
+        times: StepTimes::default(),
     };
-    let mut nav_links =
-        NavLinks { accel: ACCEL_RX.reader(), gnss: GNSS_RX.reader(), out: NAV_TX.frame_writer(NavOutputFrame::LEN) };
-    let mut pacer = Pacer::new(&UARTS, &CTL_RX);
-    let mut times = StepTimes::default();
-    let mut event_wait = 0u32;
-    let period = mps2::ticks_per_step();
-    let mut nav_steps = 0u32;
-    let mut periods = 0u32;
-    loop {
-        if ssis::link::ring_faults() != 0 {
-            resilience::reset_on_ring_fault(|| {
-                if let Some(s) = snap.as_deref_mut() {
-                    nav.snapshot_into(s);
-                }
-            });
-        }
-        // In lockstep a STEP frame's fields are the FOG bus total (`fog_bytes`), the
-        // accelerometer bus total (`st_bytes`) and the GNSS total modulo 2^16 (`arg`).
-        let due = pacer.due(
-            core,
-            |c| {
-                FOG_RX.received().wrapping_sub(c.fog_bytes) < 0x8000_0000
-                    && ACCEL_RX.received().wrapping_sub(c.st_bytes) < 0x8000_0000
-                    && (GNSS_RX.received() as u16).wrapping_sub(c.arg) < 0x8000
-            },
-            // No command link on the launch vehicle.
-            |_, _| {},
-        );
-        if pacer.lockstep_began() {
-            // The statistics cover the lockstep run only (not the empty steps on the
-            // timer before it).
-            times = StepTimes::default();
-        }
-        if due {
-            let t = Stopwatch::start();
-            core.step_with(&mut links, |t_us, body| {
-                nav.step(body, t_us, &mut nav_links);
-                nav_steps = nav_steps.wrapping_add(1);
-            });
-            let step_ticks = t.ticks();
-            if !pacer.lockstep() {
-                mps2::pump_tx(&UARTS);
-            }
-            let work = nav.filter_work();
-            periods = periods.wrapping_add(1);
-            if let Some(s) = snap.as_deref_mut().filter(|_| periods.is_multiple_of(NAV_SNAPSHOT_STEPS)) {
-                nav.snapshot_into(s);
-            }
-            let busy = t.ticks();
-            if pacer.lockstep() && busy > period {
-                core.note_overrun();
-            }
-            core.set_step_ticks(u16::try_from(busy).unwrap_or(u16::MAX));
-            // UART0 carries the output frames at 84 % of its rate (docs/ICD.md): an event
-            // frame at most every EVENT_EVERY steps, so the ring always has room for the
-            // next output frame.
-            event_wait = event_wait.saturating_sub(1);
-            if event_wait == 0 && core.send_events(&mut links.out) {
-                event_wait = EVENT_EVERY;
-            }
-            let k = kind(work);
-            if let Some(t) = times.step.get_mut(k) {
-                t.push(step_ticks);
-            }
-            if let Some(t) = times.period.get_mut(k) {
-                t.push(busy);
-            }
-        }
-        pacer.end_pass(due, || report_end(core, nav, &times, nav_steps));
-    }
+    exec::run(&mut unit, &mut mission, core)
 }
 
-/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads them).
-fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
+/// The end-of-run figures, on the defmt log (`host-tests/runner/src/qemu_lv.rs` reads
+/// them; the board's counters follow).
+fn report_end(nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
     for (k, name) in ["none", "propagation", "gnss_update"].into_iter().enumerate() {
         let (s, p) = (t.step.get(k).copied().unwrap_or_default(), t.period.get(k).copied().unwrap_or_default());
         defmt::info!(
@@ -313,8 +317,6 @@ fn report_end(core: &FlightCore, nav: &NavUnit, t: &StepTimes, nav_steps: u32) {
             p.max
         );
     }
-    let overflows = FOG_RX.overflows().saturating_add(ACCEL_RX.overflows()).saturating_add(GNSS_RX.overflows());
-    mps2::report(core, overflows);
     let n = nav.counters();
     let (used, refused) = nav.nav().counts();
     defmt::info!(

@@ -28,7 +28,9 @@
 //! "reset and recovered" with its recovery times (to aligned, to within twice the
 //! nominal 3σ) or, not back within the bound by the window's end, a crash. With
 //! [`UpsetOptions::forced_reset`] the "flip" is a reset itself: the resume measured in
-//! QEMU (tests/qemu_resume.rs).
+//! QEMU (tests/qemu_resume.rs). With [`run_injection`] it is a fault of the loop itself
+//! ([`Target::TickStopped`]: the SysTick's enable bit cleared; [`Target::Stall`]: the test
+//! build's STALL): the watchdog must reset the unit (tests/qemu_exec.rs).
 
 mod report;
 
@@ -111,7 +113,16 @@ pub enum Target {
     },
     /// No flip: the unit reset there ([`UpsetOptions::forced_reset`]).
     Reset,
+    /// No flip: the SysTick's enable bit cleared ([`SYST_CSR`]), the step tick stopped
+    /// ([`run_injection`]).
+    TickStopped,
+    /// No flip: the test build's STALL control frame, the main loop stopped
+    /// ([`run_injection`]).
+    Stall,
 }
+
+/// The SysTick control and status register (ARMv7-M B3.3.3); bit 0 enables the counter.
+pub const SYST_CSR: u32 = 0xE000_E010;
 
 impl Target {
     /// The class of the target, for the tables.
@@ -123,6 +134,8 @@ impl Target {
             Target::Core { .. } => "core register",
             Target::Fpu { .. } => "FPU register",
             Target::Reset => "forced reset",
+            Target::TickStopped => "tick stopped",
+            Target::Stall => "loop stalled",
         }
     }
 
@@ -136,6 +149,8 @@ impl Target {
             Target::Fpu { reg: gdb::FPSCR, bit } => format!("fpscr bit {bit}"),
             Target::Fpu { reg, bit } => format!("d{} bit {bit}", reg - gdb::D0),
             Target::Reset => "forced reset".to_string(),
+            Target::TickStopped => "SysTick enable bit cleared".to_string(),
+            Target::Stall => "STALL control frame".to_string(),
         }
     }
 }
@@ -197,8 +212,12 @@ pub struct Flip {
     pub silent_arcsec: f64,
     /// From the flip to the last frame beyond the bound (recovered flips), s.
     pub recovery_s: Option<f64>,
-    /// After a reset: what reset it (HardFault with the faulting instruction, watchdog).
+    /// After a reset: what reset it (HardFault with the faulting instruction, watchdog;
+    /// "watchdog, N warnings" when the watchdog warned more than once before it).
     pub reset_cause: Option<String>,
+    /// After a reset: the runner's steps from the flip's to the one the unit reset in
+    /// (in lockstep the unit's virtual time is not the runner's), s.
+    pub reset_after_s: Option<f64>,
     /// After a reset: from the step it reset in to the first frame that says aligned, s.
     pub reset_aligned_s: Option<f64>,
     /// After a reset: from the step it reset in to the frame from which every frame is
@@ -431,6 +450,19 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
             g.write_register(reg, &v)
         }
         Target::Reset => g.monitor("system_reset").map(|_| ()),
+        Target::TickStopped => {
+            let csr = g.read_memory(SYST_CSR, 4)?;
+            let csr = u32::from_le_bytes(csr.get(..4).and_then(|b| b.try_into().ok()).context("SYST_CSR unread")?);
+            g.write_memory(SYST_CSR, &(csr & !1).to_le_bytes())?;
+            let back = g.read_memory(SYST_CSR, 4)?;
+            anyhow::ensure!(
+                back.first().is_some_and(|b| b & 1 == 0),
+                "SYST_CSR still {back:02x?} after the write: QEMU's gdbstub writes RAM and ROM only, not device registers"
+            );
+            Ok(())
+        }
+        // Sent on the control line once the guest runs ([`place_flip`]).
+        Target::Stall => Ok(()),
     }
 }
 
@@ -552,6 +584,8 @@ struct Ctx<'a> {
     traps: Traps,
     syms: Syms,
     started: Instant,
+    /// Not a flip but this fault of the loop ([`run_injection`]).
+    inject: Option<Target>,
 }
 
 impl Ctx<'_> {
@@ -758,7 +792,17 @@ fn await_frame(
                         continue;
                     }
                     if pc == ctx.traps.nmi {
-                        cause.get_or_insert("watchdog".to_string());
+                        // One warning, then the reset: "watchdog"; more warnings are
+                        // counted ("watchdog, N warnings": the loop fed it in between).
+                        let c = match cause.as_deref() {
+                            None => "watchdog".to_string(),
+                            Some("watchdog") => "watchdog, 2 warnings".to_string(),
+                            Some(c) => match c.strip_prefix("watchdog, ").and_then(|n| n.strip_suffix(" warnings")) {
+                                Some(n) => format!("watchdog, {} warnings", n.parse::<u32>().unwrap_or(0) + 1),
+                                None => c.to_string(),
+                            },
+                        };
+                        *cause = Some(c);
                         g.resume_past(pc)?;
                         continue;
                     }
@@ -908,9 +952,16 @@ fn place_flip(
     }
     let here_at_flip = g.register_u32(gdb::PC)?;
     let sp = g.register_u32(gdb::SP)?;
-    let target = if ctx.o.forced_reset { Target::Reset } else { pick_target(rng, ctx.ram, sp, ctx.o.register_share) };
+    let target = match ctx.inject {
+        Some(t) => t,
+        None if ctx.o.forced_reset => Target::Reset,
+        None => pick_target(rng, ctx.ram, sp, ctx.o.register_share),
+    };
     flip(g, target)?;
     g.resume()?;
+    if target == Target::Stall {
+        unit.command(command::STALL)?;
+    }
     if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
         eprintln!(
             "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
@@ -1144,6 +1195,7 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
         silent_arcsec: w.silent,
         recovery_s,
         reset_cause: w.reset.as_ref().map(|(_, c)| c.clone()),
+        reset_after_s: w.reset.as_ref().map(|(r, _)| r.saturating_sub(w.flip_step) as f64 * dt_s),
         reset_aligned_s,
         reset_nominal_s,
         events,
@@ -1153,7 +1205,28 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
 
 /// Runs the campaign on scenario `sc`: `o.flips` flips (fewer if `o.max_wall_s` ends it),
 /// `on_flip` told of each.
-pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+    campaign(sc, o, None, on_flip)
+}
+
+/// [`run_campaign`] with a fault of the loop in place of each flip: `fault` is
+/// [`Target::TickStopped`] or [`Target::Stall`] (any other target is refused). The
+/// watchdog's reset is followed as a flip's is, with its recovery times.
+pub fn run_injection(sc: &Scenario, o: &UpsetOptions, fault: Target, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+    anyhow::ensure!(
+        matches!(fault, Target::TickStopped | Target::Stall),
+        "{}: not a fault of the loop",
+        fault.describe()
+    );
+    campaign(sc, o, Some(fault), on_flip)
+}
+
+fn campaign(
+    sc: &Scenario,
+    o: &UpsetOptions,
+    inject: Option<Target>,
+    mut on_flip: impl FnMut(&Flip),
+) -> Result<Campaign> {
     crate::qemu::check_qemu_and_elf(&o.elf)?;
     anyhow::ensure!(
         crate::qemu::is_test_build(&o.elf)?,
@@ -1180,6 +1253,7 @@ pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, mut on_flip: impl FnMut(&Fl
         traps: Traps::of(&o.elf)?,
         syms: Syms::of(&o.elf)?,
         started,
+        inject,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
     let mut flips = Vec::with_capacity(o.flips);
