@@ -1,8 +1,8 @@
 //! Link scripts for the firmware binaries only (cortex-m-rt's link.x with the repository's
 //! top-level memory.x, and defmt's), so nested board packages keep their own.
 //!
-//! The spacecraft flight firmware (`ssis-fw`) is also linked with `link/flight-budget.x`,
-//! which fails the link when its image outgrows the MPU's 128 KiB read-only region.
+//! The flight firmwares (`ssis-fw`, `ssis-fw-lv`) are also linked with `link/flight-budget.x`,
+//! which fails the link when an image outgrows the MPU's 128 KiB read-only region.
 //!
 //! The launch-vehicle firmware (`ssis-fw-lv`, and the binaries tested in its layout:
 //! `ssis-fw-lv-test`, `ssis-navbench`, `ssis-stackcheck-lv`) has a memory budget of its own,
@@ -30,6 +30,8 @@ fn main() {
         // The flight image within the MPU's read-only 128 KiB (link/flight-budget.x).
         println!("cargo:rustc-link-arg-bin=ssis-fw=-L{dir}/link");
         println!("cargo:rustc-link-arg-bin=ssis-fw=-Tflight-budget.x");
+        println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-L{dir}/link");
+        println!("cargo:rustc-link-arg-bin=ssis-fw-lv=-Tflight-budget.x");
         match lv_link_script(Path::new(&dir)) {
             Ok(lv_dir) => {
                 // The navigation benchmark is launch-vehicle code: the LV budget (its
