@@ -148,10 +148,11 @@ fn f_report_renders_in_headless_chromium() {
     for bad in ["<script", "src=", "<link", "url(", "@import", "http://", "https://"] {
         assert!(!refs.contains(bad), "the report is not self-contained: it has `{bad}`");
     }
-    // Expected content: fit, diagnosis and history tables; the history plot, the residuals
-    // before and after the one `add` overlaid (a panel per FOG, with the noise floor) and one
+    // Expected content: fit, diagnosis, detectable-size and history tables; the detectable
+    // sinusoid amplitude against period (one curve), the history plot, the residuals before
+    // and after the one `add` overlaid (a panel per FOG, with the noise floor) and one
     // residual plot per FOG.
-    let (tables, svgs) = (3, 1 + 1 + 4);
+    let (tables, svgs) = (4, 1 + 1 + 1 + 4);
     let overlay = page.split("Residuals before and after each add").nth(1).and_then(|r| r.split("</svg>").next());
     let overlay = overlay.expect("the report has no overlay of the residuals before and after the add");
     for must in ["v1 → v2 (+temp_rate)", "FOG0", "FOG3", "floor ±", "v1", "v2"] {
@@ -203,12 +204,18 @@ fn f_report_renders_in_headless_chromium() {
         assert!(w > 100.0 && h > 20.0 && rows >= 2, "table not laid out or empty: {l:?}");
     }
     assert_eq!(t[0][4], "5", "fit table: header and one row per FOG");
-    for l in &s {
+    for (i, l) in s.iter().enumerate() {
         let (w, h, elems): (f64, f64, usize) = (l[2].parse().unwrap(), l[3].parse().unwrap(), l[4].parse().unwrap());
-        assert!(w >= 600.0 && h >= 300.0 && elems > 50 && l[5] == "true", "SVG not rendered as SVG: {l:?}");
+        // The detectable-size chart (the first) is one curve on a grid: fewer elements.
+        let least = if i == 0 { 30 } else { 50 };
+        assert!(w >= 600.0 && h >= 300.0 && elems > least && l[5] == "true", "SVG not rendered as SVG: {l:?}");
     }
+    assert!(page.contains("minimum detectable sinusoid amplitude"), "the detectable-size chart is missing");
     let h2 = check.lines().find_map(|l| l.strip_prefix("h2 ")).unwrap_or("");
-    assert_eq!(h2, "Fit|Diagnosis|History|Residuals before and after each add|Residuals", "sections");
+    assert_eq!(
+        h2, "Fit|Diagnosis|What this session could have shown|History|Residuals before and after each add|Residuals",
+        "sections"
+    );
 }
 
 /// `add` refuses a term that makes the held-out RMS worse (aging on a session without it),
