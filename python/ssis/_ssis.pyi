@@ -153,9 +153,10 @@ def simulate(preset: str, out: str, seed: int = 1, hidden: bool = True) -> float
 
 # python/src/sim.rs: the simulator's sensors (ssis_sim::sensors) and quaternion maths (ssis::math)
 
+@final
 class Sensors:
-    def __init__(
-        self,
+    def __new__(
+        cls,
         table: Optional[Table] = None,
         seed: int = 1,
         arw_deg_sqrt_h: Optional[float] = None,
@@ -167,7 +168,7 @@ class Sensors:
         st_outages: Sequence[Tuple[float, float]] = ...,
         st_max_rate_deg_s: float = 2.0,
         star_tracker: bool = True,
-    ) -> None: ...
+    ) -> Sensors: ...
     @property
     def dt_s(self) -> float: ...
     @property

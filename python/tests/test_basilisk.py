@@ -56,7 +56,7 @@ def test_qemu_unit_outputs_what_the_core_does(short_log, root):
     names = [e["event"] for e in events[1]]
     assert "parity_alarm" in names and "isolated" in names, names
     isolated = next(e for e in events[1] if e["event"] == "isolated")
-    assert isolated["a"] == 3 and isolated["details"] == "FOG3"
+    assert isolated["a"] == 3 and isolated["details"] == "FOG3 named by the star tracker during a parity alarm"
 
 
 def _fly_unit_nav(root, basilisk_star_tracker, basilisk_imu=False):
