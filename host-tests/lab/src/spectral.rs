@@ -292,20 +292,7 @@ pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> 
             let grouped = if g > 1 { runs(&Record { res: rows.y.clone(), ..r.clone() }, g) } else { runs_clone(&rows) };
             let p = grid_power(&grouped, sub_f, df, hi - lo);
             let pw = power_at(&rows.t, &rows.w, &rows.y, f);
-            let zh: f64 = p
-                .iter()
-                .zip(&pw)
-                .map(|(pf, (ph, _))| {
-                    let mut v = pf.clone();
-                    let mid = v.len() / 2;
-                    let med = *v.select_nth_unstable_by(mid, f64::total_cmp).1;
-                    if med > 0.0 {
-                        ln4 * ph / med
-                    } else {
-                        0.0
-                    }
-                })
-                .sum();
+            let zh = pooled_power(&p, &pw);
             let p_h = (3.0 * tail(zh)).min(1.0);
             if p_h <= LINE_FAP / 3.0 {
                 lines.push(Line { f_hz: f, fap: p_h, power: zh, harmonic_of: Some((h, f0)) });
@@ -316,22 +303,12 @@ pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> 
     lines
 }
 
-/// The normalised power at `f` pooled over FOGs against the background of the rows with the
-/// line at `f` taken out (the median of the grid's power within the usual window about f).
-fn line_free_power(rows: &Runs, r: &Record, g: usize, f: f64, f_min: f64, df: f64, nf: usize) -> f64 {
+/// Each FOG's power at a frequency `pw` over the median of its power on a grid window `p`
+/// (2 ln 2 × power / median: χ²₂-scaled), summed over the FOGs.
+fn pooled_power(p: &[Vec<f64>], pw: &[(f64, [f64; 3])]) -> f64 {
     let ln4 = 2.0 * std::f64::consts::LN_2;
-    let pw = power_at(&rows.t, &rows.w, &rows.y, f);
-    let mut clean = runs_clone(rows);
-    remove_line(&mut clean, f);
-    let k = ((f - f_min) / df).round().max(0.0) as usize;
-    let half = ((0.25 * f / df).round() as usize).clamp(40, 200);
-    let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(nf));
-    let (lo, hi) =
-        if hi - lo < 2 * half { (hi.saturating_sub(2 * half), (lo + 2 * half + 1).min(nf)) } else { (lo, hi) };
-    let grouped = if g > 1 { runs(&Record { res: clean.y.clone(), ..r.clone() }, g) } else { clean };
-    let p = grid_power(&grouped, f_min + df * lo as f64, df, hi - lo);
     p.iter()
-        .zip(&pw)
+        .zip(pw)
         .map(|(pf, (ph, _))| {
             let mut v = pf.clone();
             let mid = v.len() / 2;
@@ -343,6 +320,22 @@ fn line_free_power(rows: &Runs, r: &Record, g: usize, f: f64, f_min: f64, df: f6
             }
         })
         .sum()
+}
+
+/// The normalised power at `f` pooled over FOGs against the background of the rows with the
+/// line at `f` taken out (the median of the grid's power within the usual window about f).
+fn line_free_power(rows: &Runs, r: &Record, g: usize, f: f64, f_min: f64, df: f64, nf: usize) -> f64 {
+    let pw = power_at(&rows.t, &rows.w, &rows.y, f);
+    let mut clean = runs_clone(rows);
+    remove_line(&mut clean, f);
+    let k = ((f - f_min) / df).round().max(0.0) as usize;
+    let half = ((0.25 * f / df).round() as usize).clamp(40, 200);
+    let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(nf));
+    let (lo, hi) =
+        if hi - lo < 2 * half { (hi.saturating_sub(2 * half), (lo + 2 * half + 1).min(nf)) } else { (lo, hi) };
+    let grouped = if g > 1 { runs(&Record { res: clean.y.clone(), ..r.clone() }, g) } else { clean };
+    let p = grid_power(&grouped, f_min + df * lo as f64, df, hi - lo);
+    pooled_power(&p, &pw)
 }
 
 fn runs_clone(r: &Runs) -> Runs {
