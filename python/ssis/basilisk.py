@@ -18,7 +18,7 @@ Backends (``backend=``): ``"in-process"``, the flight core in this process
 loop (:class:`ssis.QemuUnit`: the runner's lockstep driver; every output frame is also
 compared with the in-process core, and :meth:`UnitNav.close` returns that report).
 
-Conventions (shared/NOTES.md, measured on 2.12.1): Basilisk's β_BN is numerically the
+Conventions (docs/REFERENCES.md, measured on 2.12.1): Basilisk's β_BN is numerically the
 unit's Λ (the instrument frame is the body frame B here; the table's star-tracker mount
 gives the tracker's frame); its MRP set switches, so the quaternion's sign is kept
 continuous; ``starTracker``'s ``timeTag`` is the instant its quaternion holds. The unit's

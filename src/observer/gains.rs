@@ -199,7 +199,7 @@ mod tests {
 
     #[test]
     fn four_hz_gains_are_the_notes_within_their_digits() {
-        // /work/shared/NOTES.md: the paper's sensors (ARW 0.005 °/√h, 20″ 3σ at 4 Hz,
+        // docs/REFERENCES.md (steady-state Kalman gains): the paper's sensors (ARW 0.005 °/√h, 20″ 3σ at 4 Hz,
         // RRW 0.01 °/h/√h) give K = [0.0224, −1.24e-5 /s]: three significant digits each.
         let g = steady_state_gains(&ObserverConfig::PAPER).unwrap();
         assert!((g.k_b[0] - 0.0224).abs() <= 0.00005, "K_B {}", g.k_b[0]);
