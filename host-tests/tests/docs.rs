@@ -1,5 +1,5 @@
 //! Executable documentation: every command block a user is meant to run in README.md,
-//! docs/TUTORIAL-CALIBRATION.md, docs/LAB.md and docs/RECORDED-LOG.md is run, in order,
+//! docs/TOOLS.md, docs/TUTORIAL-CALIBRATION.md, docs/LAB.md and docs/RECORDED-LOG.md is run, in order,
 //! in a scratch directory per document, and the output the text shows is checked against
 //! what the run prints.
 //!
@@ -50,7 +50,8 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The documents, each run in its own scratch directory.
-const DOCS: [&str; 4] = ["README.md", "docs/TUTORIAL-CALIBRATION.md", "docs/LAB.md", "docs/RECORDED-LOG.md"];
+const DOCS: [&str; 5] =
+    ["README.md", "docs/TOOLS.md", "docs/TUTORIAL-CALIBRATION.md", "docs/LAB.md", "docs/RECORDED-LOG.md"];
 
 /// One command of a console block and the output the text shows for it.
 #[derive(Debug)]
