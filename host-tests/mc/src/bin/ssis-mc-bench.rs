@@ -58,8 +58,9 @@ fn main() -> Result<()> {
         if a.quiet {
             println!("run {i:>6} digest {:016x}", r.digest());
         } else {
-            let f = |v: &[(String, f64)]| v.iter().map(|(k, x)| format!("{k}={x:.6}")).collect::<Vec<_>>().join(" ");
-            println!("run {i:>6} digest {:016x} | {} | {}", r.digest(), f(&r.indices), f(&r.params));
+            let f = |v: &[(String, f64)]| v.iter().map(|(k, x)| format!("{k}={x:.4}")).collect::<Vec<_>>().join(" ");
+            let p = r.params.iter().map(|(k, x)| format!("{k}={x:.4e}")).collect::<Vec<_>>().join(" ");
+            println!("run {i:>6} digest {:016x} | {} | {p}", r.digest(), f(&r.indices));
         }
     }
     let (cpu, wall) = (cpu_s() - cpu0, wall0.elapsed().as_secs_f64());
