@@ -12,7 +12,7 @@ use ssis_common::names::{did_you_mean, with_suggestion};
 use ssis_sim::harness::Simulation;
 use ssis_sim::scenario::Scenario;
 
-use crate::indices::{IndexKind, IndexSpec, Indices};
+use crate::indices::{Index, IndexForm as IndexFile, IndexKind, IndexSpec, Indices};
 
 /// The `format` line of every campaign file.
 pub const FORMAT: &str = "ssis-mc-campaign/1";
@@ -186,20 +186,6 @@ impl Default for IndicesFile {
     }
 }
 
-/// One `[[indices.index]]` as written.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IndexFile {
-    /// `AKE`, `RKE` or `KDE`.
-    pub kind: IndexKind,
-    /// RKE, KDE: the averaging window Δt, s.
-    #[serde(default)]
-    pub window_s: Option<f64>,
-    /// KDE: the time between the two windows' starts, s.
-    #[serde(default)]
-    pub separation_s: Option<f64>,
-}
-
 /// What a dispersion changes.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -306,6 +292,9 @@ pub struct Campaign {
     pub index_keys: Vec<String>,
     /// Steps of one run.
     pub steps_per_run: u64,
+    /// The flight core its runs start from, built once per table.
+    #[serde(skip)]
+    pub cores: crate::run::CoreCache,
 }
 
 /// The per-FOG term names a `table` dispersion may name (`fog.<term>`).
@@ -456,6 +445,7 @@ impl Campaign {
             params,
             index_keys,
             steps_per_run,
+            cores: Default::default(),
         })
     }
 
@@ -656,34 +646,29 @@ fn index_spec(f: &IndicesFile, sc: &Scenario) -> Result<IndexSpec> {
     for (k, x) in list.iter().enumerate() {
         let at = format!("indices.index[{k}]");
         let window = |v: Option<f64>, key: &str| -> Result<f64> {
-            let w = v.with_context(|| format!("field `{at}.{key}`: required for {:?}", x.kind))?;
+            let w = v.with_context(|| format!("field `{at}.{key}`: required for {}", x.kind.name()))?;
             ensure!(
                 w.is_finite() && w > 0.0 && w <= span,
                 "field `{at}.{key}` = {w}: must be in (0, duration_s − from_s = {span}]"
             );
             Ok(w)
         };
-        let kind = match x.kind {
-            IndexKind::Ake => {
-                ensure!(x.window_s.is_none() && x.separation_s.is_none(), "field `{at}`: AKE has no window");
-                crate::indices::Index::Ake
+        let index = Index::try_from(x.clone()).map_err(|e| anyhow::anyhow!("field `{at}`: {e}"))?;
+        match index {
+            Index::Ake => {}
+            Index::Rke { window_s } => {
+                window(Some(window_s), "window_s")?;
             }
-            IndexKind::Rke => {
-                ensure!(x.separation_s.is_none(), "field `{at}.separation_s`: only for KDE");
-                crate::indices::Index::Rke { window_s: window(x.window_s, "window_s")? }
-            }
-            IndexKind::Kde => {
-                let w = window(x.window_s, "window_s")?;
-                let s = window(x.separation_s, "separation_s")?;
+            Index::Kde { window_s, separation_s } => {
+                let (w, s) = (window(Some(window_s), "window_s")?, window(Some(separation_s), "separation_s")?);
                 ensure!(
                     w + s <= span,
                     "fields `{at}.window_s` + `separation_s` = {}: must be ≤ duration_s − from_s = {span}",
                     w + s
                 );
-                crate::indices::Index::Kde { window_s: w, separation_s: s }
             }
-        };
-        out.push(kind);
+        }
+        out.push(index);
     }
     let spec = IndexSpec { from_s, time_fraction: f.time_fraction, index: out };
     if let Some(n) = names_twice(spec.index.iter().map(|i| i.name()).collect::<Vec<_>>().iter().map(String::as_str)) {

@@ -29,9 +29,22 @@ pub enum IndexKind {
     Kde,
 }
 
-/// One index with its windows.
+impl IndexKind {
+    /// As a campaign file writes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            IndexKind::Ake => "AKE",
+            IndexKind::Rke => "RKE",
+            IndexKind::Kde => "KDE",
+        }
+    }
+}
+
+/// One index with its windows. Its serde form is [`IndexForm`]'s, `{"kind": "RKE",
+/// "window_s": 10.0}` (a plain struct: an internally tagged enum cannot be read back where
+/// serde_json's `arbitrary_precision` is on, as in the Python package).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "kind", rename_all = "UPPERCASE")]
+#[serde(try_from = "IndexForm", into = "IndexForm")]
 pub enum Index {
     /// Absolute knowledge error.
     Ake,
@@ -47,6 +60,55 @@ pub enum Index {
         /// Δt_s, s.
         separation_s: f64,
     },
+}
+
+/// An index as a campaign file's `[[indices.index]]` and the JSON spec write it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IndexForm {
+    /// `AKE`, `RKE` or `KDE`.
+    pub kind: IndexKind,
+    /// RKE, KDE: the averaging window Δt, s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub window_s: Option<f64>,
+    /// KDE: the time between the two windows' starts, s.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub separation_s: Option<f64>,
+}
+
+impl From<Index> for IndexForm {
+    fn from(i: Index) -> Self {
+        match i {
+            Index::Ake => IndexForm { kind: IndexKind::Ake, window_s: None, separation_s: None },
+            Index::Rke { window_s } => IndexForm { kind: IndexKind::Rke, window_s: Some(window_s), separation_s: None },
+            Index::Kde { window_s, separation_s } => {
+                IndexForm { kind: IndexKind::Kde, window_s: Some(window_s), separation_s: Some(separation_s) }
+            }
+        }
+    }
+}
+
+impl TryFrom<IndexForm> for Index {
+    type Error = String;
+
+    /// The index, when its kind has the windows it needs and no other (each > 0).
+    fn try_from(f: IndexForm) -> Result<Self, String> {
+        let positive = |v: Option<f64>, key: &str| match v {
+            Some(w) if w.is_finite() && w > 0.0 => Ok(w),
+            Some(w) => Err(format!("{}: `{key}` = {w}: must be > 0", f.kind.name())),
+            None => Err(format!("{}: `{key}` is required", f.kind.name())),
+        };
+        match f.kind {
+            IndexKind::Ake if f.window_s.is_none() && f.separation_s.is_none() => Ok(Index::Ake),
+            IndexKind::Ake => Err("AKE has no window".into()),
+            IndexKind::Rke if f.separation_s.is_some() => Err("RKE: `separation_s` is only for KDE".into()),
+            IndexKind::Rke => Ok(Index::Rke { window_s: positive(f.window_s, "window_s")? }),
+            IndexKind::Kde => Ok(Index::Kde {
+                window_s: positive(f.window_s, "window_s")?,
+                separation_s: positive(f.separation_s, "separation_s")?,
+            }),
+        }
+    }
 }
 
 impl Index {

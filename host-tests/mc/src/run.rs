@@ -212,6 +212,34 @@ impl RunOutput {
     }
 }
 
+/// A flight core as `FlightCore::new` builds it for one table, kept to be cloned: building
+/// one computes the observer's steady-state gains, a tenth of a 600-s run's time, and a
+/// clone of a new core is that core (so a run flies the same bits with or without it).
+#[derive(Clone, Default)]
+pub struct CoreCache(std::sync::Arc<std::sync::Mutex<Option<(CalibrationTable, FlightCore)>>>);
+
+impl std::fmt::Debug for CoreCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CoreCache")
+    }
+}
+
+impl CoreCache {
+    /// A new core of `profile` flying `table`: a clone of the kept one when it was built
+    /// for the same table, else built (and kept).
+    pub fn core(&self, profile: ssis::flight::Profile, table: &CalibrationTable) -> Result<FlightCore> {
+        let mut kept = self.0.lock().map_err(|_| anyhow!("core cache poisoned"))?;
+        if let Some((t, core)) = kept.as_ref() {
+            if t == table && core.profile() == profile {
+                return Ok(core.clone());
+            }
+        }
+        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow!("core: {e:?}"))?;
+        *kept = Some((*table, core.clone()));
+        Ok(core)
+    }
+}
+
 /// Steps between two snapshots when a run has a reset (the firmware's `SNAPSHOT_STEPS`).
 const SNAPSHOT_STEPS: u64 = 80;
 
@@ -224,14 +252,19 @@ pub fn run(c: &Campaign, i: u64, series_every: u64) -> Result<RunOutput> {
         c.origin
     );
     let d = draw(c, i)?;
-    let (t_s, err, out) = fly(&d, c.indices.from_s, series_every).with_context(|| format!("run {i}"))?;
+    let (t_s, err, out) = fly(&d, c.indices.from_s, series_every, &c.cores).with_context(|| format!("run {i}"))?;
     let indices = Indices::compute(&c.indices, &t_s, &err);
     Ok(RunOutput { run: i, params: d.params, indices, ..out })
 }
 
 /// The open-loop flight of a draw: the times and errors from `from_s` on, and the rest of
-/// the output (params and indices empty).
-pub fn fly(d: &Draw, from_s: f64, series_every: u64) -> Result<(Vec<f64>, Vec<[f64; 3]>, RunOutput)> {
+/// the output (params and indices empty); its cores come from `cores`.
+pub fn fly(
+    d: &Draw,
+    from_s: f64,
+    series_every: u64,
+    cores: &CoreCache,
+) -> Result<(Vec<f64>, Vec<[f64; 3]>, RunOutput)> {
     let sc = &d.scenario;
     let mut sim = Simulation::new(sc)?;
     sim.table = d.table;
@@ -239,7 +272,7 @@ pub fn fly(d: &Draw, from_s: f64, series_every: u64) -> Result<(Vec<f64>, Vec<[f
     let profile = sim.profile;
     let dt_s = profile.dt_s();
     let table = sim.table;
-    let new_core = || FlightCore::new(profile, &table, false).map_err(|e| anyhow!("core: {e:?}"));
+    let new_core = || cores.core(profile, &table);
     let mut core = new_core()?;
     if sim.needs_pad_alignment() {
         core.align(sim.initial_q());
