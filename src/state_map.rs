@@ -166,7 +166,8 @@ impl<T: KeepRecord> Survive<Part> for T {
 /// The options come in that order: `bits`, `map`, `guard`, `reset`. The guard's shadows
 /// are one field, marked `@shadows` where it lies in the struct, initialised by
 /// `Default`. A struct without a guard has neither the `@shadows` field nor the `guard`
-/// clause (nor `guard` options).
+/// clause (nor `guard` options); one that keeps nothing over a reset may leave out the
+/// `snapshot` clause (and `reset` options).
 macro_rules! state_struct {
     (
         $(#[$sm:meta])*
@@ -258,7 +259,7 @@ macro_rules! state_struct {
             )*
         }
         $( guard $guard:tt )?
-        snapshot { $(#[$rm:meta])* record: $rec:ident }
+        $( snapshot $snapshot:tt )?
         constructor $(#[$cm:meta])* $cvis:vis fn $new:ident ( $($args:tt)* ) -> $ret:ty => $wrap:path { $($body:tt)* }
     ) => {
         const _: fn() = || {
@@ -272,11 +273,9 @@ macro_rules! state_struct {
             fields { $( $field : $fty $(, guard($gpat))?; )* }
         }
 
-        $(#[$rm])*
-        #[repr(C, packed)]
-        #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-        pub struct $rec {
-            $( $( pub(crate) $field: <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::Slot, )? )*
+        $crate::state_map::state_struct! {
+            @snapshot $name; snapshot [$($snapshot)?];
+            fields { $( $field : $fty $(, reset($reset))?; )* }
         }
 
         impl $name {
@@ -298,38 +297,10 @@ macro_rules! state_struct {
                 }, )?
             ];
 
-            /// The fields that survive a reset, into their record.
-            #[allow(dead_code)]
-            #[inline(always)]
-            pub(crate) fn save_survivors(&self, r: &mut $rec) {
-                $( $( r.$field = <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::save(&self.$field); )? )*
-                let _ = r;
-            }
-
-            /// The fields that survive a reset, from their record.
-            #[allow(dead_code)]
-            #[inline(always)]
-            pub(crate) fn load_survivors(&mut self, r: &$rec) {
-                $( $( <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::load(&mut self.$field, r.$field); )? )*
-                let _ = r;
-            }
-
             $(#[$cm])*
             $cvis fn $new($($args)*) -> $ret {
                 $($body)*
                 $wrap($name { $( $field: $init, )* $( $sfield: Default::default() )? })
-            }
-        }
-
-        impl $crate::state_map::KeepRecord for $name {
-            type Record = $rec;
-            #[inline(always)]
-            fn save_survivors(&self, r: &mut $rec) {
-                $name::save_survivors(self, r)
-            }
-            #[inline(always)]
-            fn load_survivors(&mut self, r: &$rec) {
-                $name::load_survivors(self, r)
             }
         }
     };
@@ -397,6 +368,49 @@ macro_rules! state_struct {
         }
     };
     (@guard $name:ident; shadows []; guard []; fields { $($t:tt)* }) => {};
+    (
+        @snapshot $name:ident; snapshot [{ $(#[$rm:meta])* record: $rec:ident $(,)? }];
+        fields { $( $field:ident : $fty:ty $(, reset($reset:ident))?; )* }
+    ) => {
+        $(#[$rm])*
+        #[repr(C, packed)]
+        #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+        pub struct $rec {
+            $( $( pub(crate) $field: <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::Slot, )? )*
+        }
+
+        impl $name {
+            /// The fields that survive a reset, into their record.
+            #[allow(dead_code)]
+            #[inline(always)]
+            pub(crate) fn save_survivors(&self, r: &mut $rec) {
+                $( $( r.$field = <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::save(&self.$field); )? )*
+                let _ = r;
+            }
+
+            /// The fields that survive a reset, from their record.
+            #[allow(dead_code)]
+            #[inline(always)]
+            pub(crate) fn load_survivors(&mut self, r: &$rec) {
+                $( $( <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::load(&mut self.$field, r.$field); )? )*
+                let _ = r;
+            }
+        }
+
+        impl $crate::state_map::KeepRecord for $name {
+            type Record = $rec;
+            #[inline(always)]
+            fn save_survivors(&self, r: &mut $rec) {
+                $name::save_survivors(self, r)
+            }
+            #[inline(always)]
+            fn load_survivors(&mut self, r: &$rec) {
+                $name::load_survivors(self, r)
+            }
+        }
+    };
+    (@snapshot $name:ident; snapshot []; fields { $($t:tt)* }) => {};
+
     (@or $default:ident) => { $crate::state_map::$default };
     (@or $default:ident $given:ident) => { $crate::state_map::$given };
     (@kinds $bty:ty) => { [false; $crate::shadow::MAX_KINDS] };
