@@ -1,7 +1,7 @@
 //! The unit's counters, declared once.
 //!
 //! `declare_counters!` below, with the counters the events declare
-//! ([`crate::telemetry::events`]: an event's counter is declared on the event's line,
+//! ([`crate::telemetry::event_list`]: an event's counter is declared on the event's line,
 //! once), is the one list of what the unit counts. From it come the
 //! [`Counter`], [`FogCounter`] and [`NavCounter`] enums, the [`Counters`],
 //! [`FogCounters`] and [`NavCounters`] storage (named fields, saturating; the
@@ -14,7 +14,7 @@
 
 use crate::calib::N_FOG;
 use crate::integrity::parity::FdiState;
-use crate::telemetry::events::events_table;
+use crate::telemetry::event_list::events_table;
 
 /// One set of counters: the enum naming them, its storage with one named field per
 /// counter (plus `$extra` fields), `add` and `get`.
@@ -72,7 +72,7 @@ macro_rules! counter_set {
 }
 
 /// The unit's counters: per FOG, for the unit (those of the `unit` list, then those the
-/// events declare, [`crate::telemetry::events`]), which unit counters the page carries,
+/// events declare, [`crate::telemetry::event_list`]), which unit counters the page carries,
 /// and the navigation stage's.
 macro_rules! declare_counters {
     (
