@@ -65,35 +65,66 @@ pub struct Keep;
 #[derive(Debug)]
 pub struct Lose;
 
+/// A field that survives a reset in part: the fields its own declaration keeps, as its
+/// record ([`KeepRecord`]; a state struct inside another, declared by [`state_struct!`]).
+#[derive(Debug)]
+pub struct Part;
+
 /// A field's slot in the snapshot record: the value itself ([`Keep`], a plain-old-data
-/// type) or nothing ([`Lose`]).
+/// type), its own record ([`Part`]) or nothing ([`Lose`]). By value: the record is
+/// packed, its fields are not referenced.
 pub trait Survive<M> {
     /// What the record holds.
     type Slot: bytemuck::Pod + core::fmt::Debug;
-    /// The field into its slot.
-    fn save(v: &Self, slot: &mut Self::Slot);
+    /// The field's slot.
+    fn save(v: &Self) -> Self::Slot;
     /// The slot back into the field.
-    fn load(v: &mut Self, slot: &Self::Slot);
+    fn load(v: &mut Self, slot: Self::Slot);
 }
 
 impl<T: bytemuck::Pod + core::fmt::Debug> Survive<Keep> for T {
     type Slot = T;
     #[inline(always)]
-    fn save(v: &T, slot: &mut T) {
-        *slot = *v;
+    fn save(v: &T) -> T {
+        *v
     }
     #[inline(always)]
-    fn load(v: &mut T, slot: &T) {
-        *v = *slot;
+    fn load(v: &mut T, slot: T) {
+        *v = slot;
     }
 }
 
 impl<T> Survive<Lose> for T {
     type Slot = ();
     #[inline(always)]
-    fn save(_: &T, _: &mut ()) {}
+    fn save(_: &T) {}
     #[inline(always)]
-    fn load(_: &mut T, _: &()) {}
+    fn load(_: &mut T, _: ()) {}
+}
+
+/// A struct declared by [`state_struct!`]: its snapshot record and the copies into it and
+/// back.
+pub trait KeepRecord {
+    /// The record of the fields that survive a reset.
+    type Record: bytemuck::Pod + core::fmt::Debug;
+    /// The fields that survive a reset, into their record.
+    fn save_survivors(&self, r: &mut Self::Record);
+    /// The fields that survive a reset, from their record.
+    fn load_survivors(&mut self, r: &Self::Record);
+}
+
+impl<T: KeepRecord> Survive<Part> for T {
+    type Slot = T::Record;
+    #[inline(always)]
+    fn save(v: &T) -> T::Record {
+        let mut r = bytemuck::Zeroable::zeroed();
+        v.save_survivors(&mut r);
+        r
+    }
+    #[inline(always)]
+    fn load(v: &mut T, slot: T::Record) {
+        v.load_survivors(&slot);
+    }
 }
 
 /// One declaration of a state struct: each field once, with its type, its initial value
@@ -105,14 +136,16 @@ impl<T> Survive<Lose> for T {
 ///   exempts a field, whose bytes its owner names);
 /// - the state map ([`StateField`], `STATE_MAP`; `map(Inner::STATE_MAP)` maps a field
 ///   further);
-/// - the field's guard blocks (`guard(Block::Step | Block::Frame)`): the walk of every
-///   block's words in declaration order (`Parts::visit`), each block's word count (the
-///   shadows' sizes, a `const` array by block kind), and a compile-time check that the
-///   field's type holds words in each block it names and in no other
+/// - with a `guard` clause, the field's guard blocks (`guard(Block::Step | Block::Frame)`):
+///   the walk of every block's words in declaration order (`Parts::visit`), each block's
+///   word count (the shadows' sizes, a `const` array by block kind), and a compile-time
+///   check that the field's type holds words in each block it names and in no other
 ///   ([`crate::shadow::Guarded`]); `GUARD_BLOCKS` lists each field's blocks;
-/// - whether it survives a reset (`reset(Keep)`): a slot in the snapshot record (a
-///   `repr(C)` [`bytemuck::Pod`] struct of the kept fields, [`Survive`]) and the copies
-///   into it and back (`save_survivors`, `load_survivors`).
+/// - whether it survives a reset (`reset(Keep)`: the value; `reset(Part)`: the fields a
+///   state struct inside keeps, its own record): a slot in the snapshot record (a
+///   `repr(C, packed)` [`bytemuck::Pod`] struct of the kept fields in declaration
+///   order, [`Survive`]) and the copies into it and back (`save_survivors`,
+///   `load_survivors`, [`KeepRecord`]).
 ///
 /// ```text
 /// state_struct! {
@@ -132,7 +165,9 @@ impl<T> Survive<Lose> for T {
 ///
 /// The options come in that order: `bits`, `map`, `guard`, `reset`. The guard's shadows
 /// are one field, marked `@shadows` where it lies in the struct, initialised by
-/// `Default`.
+/// `Default`. A struct without a guard has neither the `@shadows` field nor the `guard`
+/// clause (nor `guard` options); one that keeps nothing over a reset may leave out the
+/// `snapshot` clause (and `reset` options).
 macro_rules! state_struct {
     (
         $(#[$sm:meta])*
@@ -167,7 +202,7 @@ macro_rules! state_struct {
         }
 
         $crate::state_map::state_struct! {
-            @items $name, $sfield: $sty;
+            @items $name, shadows [$sfield: $sty];
             fields {
                 $(
                     $afield : $afty = $ainit
@@ -182,7 +217,37 @@ macro_rules! state_struct {
         }
     };
     (
-        @items $name:ident, $sfield:ident : $sty:ty;
+        $(#[$sm:meta])*
+        $svis:vis struct $name:ident {
+            $(
+                $(#[$afm:meta])*
+                $afvis:vis $afield:ident : $afty:ty = $ainit:expr
+                $(, bits($abits:ident))?
+                $(, map($aparts:expr))?
+                $(, reset($areset:ident))?
+                ;
+            )*
+        }
+        $($rest:tt)*
+    ) => {
+        $(#[$sm])*
+        $svis struct $name {
+            $( $(#[$afm])* $afvis $afield: $afty, )*
+        }
+
+        $crate::state_map::state_struct! {
+            @items $name, shadows [];
+            fields {
+                $(
+                    $afield : $afty = $ainit
+                    $(, bits($abits))? $(, map($aparts))? $(, reset($areset))?;
+                )*
+            }
+            $($rest)*
+        }
+    };
+    (
+        @items $name:ident, shadows [$($sfield:ident : $sty:ty)?];
         fields {
             $(
                 $field:ident : $fty:ty = $init:expr
@@ -193,16 +258,57 @@ macro_rules! state_struct {
                 ;
             )*
         }
-        guard { blocks: $bty:ty, words: $words:ident, parts: $pname:ident }
-        snapshot { $(#[$rm:meta])* record: $rec:ident }
+        $( guard $guard:tt )?
+        $( snapshot $snapshot:tt )?
         constructor $(#[$cm:meta])* $cvis:vis fn $new:ident ( $($args:tt)* ) -> $ret:ty => $wrap:path { $($body:tt)* }
     ) => {
         const _: fn() = || {
             fn proof<T: $crate::state_map::Bits<M>, M>() {}
             $( proof::<$fty, $crate::state_map::state_struct!(@or AnyBits $($bits)?)>(); )*
-            proof::<$sty, $crate::state_map::AnyBits>();
+            $( proof::<$sty, $crate::state_map::AnyBits>(); )?
         };
 
+        $crate::state_map::state_struct! {
+            @guard $name; shadows [$($sfield: $sty)?]; guard [$($guard)?];
+            fields { $( $field : $fty $(, guard($gpat))?; )* }
+        }
+
+        $crate::state_map::state_struct! {
+            @snapshot $name; snapshot [$($snapshot)?];
+            fields { $( $field : $fty $(, reset($reset))?; )* }
+        }
+
+        impl $name {
+            /// Where each field lies ([`crate::state_map`]): every field, in order.
+            pub const STATE_MAP: &'static [$crate::state_map::StateField] = &[
+                $( $crate::state_map::StateField {
+                    name: stringify!($field),
+                    offset: core::mem::offset_of!($name, $field),
+                    size: core::mem::size_of::<$fty>(),
+                    align: core::mem::align_of::<$fty>(),
+                    parts: $crate::state_map::state_map!(@parts $( $parts )?),
+                }, )*
+                $( $crate::state_map::StateField {
+                    name: stringify!($sfield),
+                    offset: core::mem::offset_of!($name, $sfield),
+                    size: core::mem::size_of::<$sty>(),
+                    align: core::mem::align_of::<$sty>(),
+                    parts: &[],
+                }, )?
+            ];
+
+            $(#[$cm])*
+            $cvis fn $new($($args)*) -> $ret {
+                $($body)*
+                $wrap($name { $( $field: $init, )* $( $sfield: Default::default() )? })
+            }
+        }
+    };
+    (
+        @guard $name:ident; shadows [$sfield:ident : $sty:ty];
+        guard [{ blocks: $bty:ty, words: $words:ident, parts: $pname:ident $(,)? }];
+        fields { $( $field:ident : $fty:ty $(, guard($gpat:pat))?; )* }
+    ) => {
         /// Words of each kind of guard block ([`crate::shadow::Blocks::KINDS`]): the
         /// shadows' sizes. (Evaluated at compile time: an index out of range fails the build.)
         #[allow(clippy::indexing_slicing)]
@@ -246,32 +352,7 @@ macro_rules! state_struct {
             }
         }
 
-        $(#[$rm])*
-        #[repr(C)]
-        #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
-        pub struct $rec {
-            $( $field: <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::Slot, )*
-        }
-
         impl $name {
-            /// Where each field lies ([`crate::state_map`]): every field, in order.
-            const STATE_MAP: &'static [$crate::state_map::StateField] = &[
-                $( $crate::state_map::StateField {
-                    name: stringify!($field),
-                    offset: core::mem::offset_of!($name, $field),
-                    size: core::mem::size_of::<$fty>(),
-                    align: core::mem::align_of::<$fty>(),
-                    parts: $crate::state_map::state_map!(@parts $( $parts )?),
-                }, )*
-                $crate::state_map::StateField {
-                    name: stringify!($sfield),
-                    offset: core::mem::offset_of!($name, $sfield),
-                    size: core::mem::size_of::<$sty>(),
-                    align: core::mem::align_of::<$sty>(),
-                    parts: &[],
-                },
-            ];
-
             /// Each field's guard blocks, by kind ([`crate::shadow::Blocks::KINDS`]).
             #[allow(dead_code, clippy::indexing_slicing)]
             const GUARD_BLOCKS: &'static [(&'static str, [bool; $crate::shadow::MAX_KINDS])] = &[
@@ -284,26 +365,52 @@ macro_rules! state_struct {
                 let $name { $( $field, )* $sfield } = self;
                 ($pname { $( $field, )* }, $sfield)
             }
+        }
+    };
+    (@guard $name:ident; shadows []; guard []; fields { $($t:tt)* }) => {};
+    (
+        @snapshot $name:ident; snapshot [{ $(#[$rm:meta])* record: $rec:ident $(,)? }];
+        fields { $( $field:ident : $fty:ty $(, reset($reset:ident))?; )* }
+    ) => {
+        $(#[$rm])*
+        #[repr(C, packed)]
+        #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+        pub struct $rec {
+            $( $( pub(crate) $field: <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::Slot, )? )*
+        }
 
+        impl $name {
             /// The fields that survive a reset, into their record.
+            #[allow(dead_code)]
             #[inline(always)]
-            fn save_survivors(&self, r: &mut $rec) {
-                $( <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::save(&self.$field, &mut r.$field); )*
+            pub(crate) fn save_survivors(&self, r: &mut $rec) {
+                $( $( r.$field = <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::save(&self.$field); )? )*
+                let _ = r;
             }
 
             /// The fields that survive a reset, from their record.
+            #[allow(dead_code)]
+            #[inline(always)]
+            pub(crate) fn load_survivors(&mut self, r: &$rec) {
+                $( $( <$fty as $crate::state_map::Survive<$crate::state_map::$reset>>::load(&mut self.$field, r.$field); )? )*
+                let _ = r;
+            }
+        }
+
+        impl $crate::state_map::KeepRecord for $name {
+            type Record = $rec;
+            #[inline(always)]
+            fn save_survivors(&self, r: &mut $rec) {
+                $name::save_survivors(self, r)
+            }
             #[inline(always)]
             fn load_survivors(&mut self, r: &$rec) {
-                $( <$fty as $crate::state_map::Survive<$crate::state_map::state_struct!(@or Lose $($reset)?)>>::load(&mut self.$field, &r.$field); )*
-            }
-
-            $(#[$cm])*
-            $cvis fn $new($($args)*) -> $ret {
-                $($body)*
-                $wrap($name { $( $field: $init, )* $sfield: Default::default() })
+                $name::load_survivors(self, r)
             }
         }
     };
+    (@snapshot $name:ident; snapshot []; fields { $($t:tt)* }) => {};
+
     (@or $default:ident) => { $crate::state_map::$default };
     (@or $default:ident $given:ident) => { $crate::state_map::$given };
     (@kinds $bty:ty) => { [false; $crate::shadow::MAX_KINDS] };

@@ -26,7 +26,8 @@ use super::{counts_i32, counts_u16, kind, DecodeError, FieldReader, FieldWriter,
 
 /// Navigation state at the end of a step (what [`NavOutputFrame`] carries; the
 /// navigation, `crate::nav`, computes it).
-#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+#[derive(Debug, Clone, Copy, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub struct NavState {
     /// Attitude of the body frame in ECEF (unit quaternion).
     pub q_eb: Quaternion<f64>,

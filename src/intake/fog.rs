@@ -13,7 +13,7 @@ use crate::frames::decoder::StreamDecoder;
 use crate::frames::fog::{FogFrame, FogSlot};
 use crate::link::RxPort;
 use crate::state::{Flag, Maybe, Quad, Ring};
-use crate::state_map::{state_map, StateField};
+use crate::state_map::state_struct;
 use crate::telemetry::{health, Counter, Counters, FogCounter};
 
 /// Receive bytes read per link per step at most (four FOG frames' worth).
@@ -105,50 +105,29 @@ struct SampleClock {
     index: u64,
 }
 
-/// The FOG intake stage.
-#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
-pub struct FogIntake {
-    fitted: FogSet,
-    channels: Quad<FogChannel>,
-    bus_decoder: StreamDecoder<FogFrame, 32>,
-    clock: SampleClock,
-    /// FOGs that delivered the last sample taken.
-    last_present: FogSet,
-    /// Steps waited for the expected sample.
-    waited: u32,
-    /// Samples were lost before the next one taken.
-    gap: Flag,
-    /// Samples lost on every link just before the next one, not yet bridged.
-    lost: u16,
+state_struct! {
+    /// The FOG intake stage.
+    #[derive(Clone, Copy, bytemuck::AnyBitPattern)]
+    pub struct FogIntake {
+        fitted: FogSet = fitted;
+        channels: Quad<FogChannel> = Quad::splat(FogChannel::new());
+        bus_decoder: StreamDecoder<FogFrame, 32> = StreamDecoder::new();
+        clock: SampleClock = SampleClock { expected: Maybe::none(), index: 0 };
+        /// FOGs that delivered the last sample taken.
+        last_present: FogSet = fitted;
+        /// Steps waited for the expected sample.
+        waited: u32 = 0;
+        /// Samples were lost before the next one taken.
+        gap: Flag = Flag::CLEAR;
+        /// Samples lost on every link just before the next one, not yet bridged.
+        lost: u16 = 0;
+    }
+    constructor
+    /// An intake for the `fitted` FOGs; slots not fitted are never read.
+    pub fn new(fitted: FogSet) -> Self => core::convert::identity {}
 }
 
 impl FogIntake {
-    /// Where each field lies in the value ([`crate::state_map`]).
-    pub const STATE_MAP: &'static [StateField] = state_map!(FogIntake {
-        fitted: FogSet,
-        channels: Quad<FogChannel>,
-        bus_decoder: StreamDecoder<FogFrame, 32>,
-        clock: SampleClock,
-        last_present: FogSet,
-        waited: u32,
-        gap: Flag,
-        lost: u16,
-    });
-
-    /// An intake for the `fitted` FOGs; slots not fitted are never read.
-    pub fn new(fitted: FogSet) -> Self {
-        FogIntake {
-            fitted,
-            channels: Quad::splat(FogChannel::new()),
-            bus_decoder: StreamDecoder::new(),
-            clock: SampleClock { expected: Maybe::none(), index: 0 },
-            last_present: fitted,
-            waited: 0,
-            gap: Flag::CLEAR,
-            lost: 0,
-        }
-    }
-
     /// The sample clock's index (unit time), for the state guard ([`crate::shadow`]).
     #[inline(always)]
     pub fn visit_clock<V: crate::shadow::Visit>(&mut self, v: &mut V) {

@@ -36,7 +36,7 @@ use nalgebra::{Cholesky, Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 use super::{wgs84, Corrections, NavError, NavState, Strapdown};
 pub use crate::frames::gnss::GnssFix;
 use crate::math;
-use crate::state_map::{state_map, StateField};
+use crate::state_map::state_struct;
 
 /// Error-state dimension.
 pub const N_X: usize = 15;
@@ -85,22 +85,41 @@ pub enum GnssError {
     Nav(NavError),
 }
 
-/// Strapdown navigation with loosely coupled GNSS aiding. Every bit pattern of it is a
-/// value (`crate::state`); the reset snapshot ([`super::snapshot`]) reads and restores
-/// its fields.
-#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
-pub struct AidedNav {
-    pub(super) nav: Strapdown,
-    pub(super) cfg: GnssConfig,
-    pub(super) p: MatX,
-    pub(super) accel_bias_m_s2: Vector3<f64>,
-    pub(super) gyro_bias_rad_s: Vector3<f64>,
-    /// Σ of the specific-force increments in ECEF since the last propagation, m/s.
-    pub(super) sum_dv_e_m_s: Vector3<f64>,
-    /// Steps since the last propagation.
-    pub(super) pending_steps: u32,
-    pub(super) updates: u32,
-    pub(super) refused: u32,
+state_struct! {
+    /// Strapdown navigation with loosely coupled GNSS aiding. Every bit pattern of it is
+    /// a value (`crate::state`). Declared once ([`crate::state_map::state_struct!`]):
+    /// `reset(Keep)`/`reset(Part)` mark what the reset snapshot carries
+    /// ([`super::snapshot`]); the tuning is checked by the snapshot's setup digest.
+    #[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+    pub struct AidedNav {
+        pub(super) nav: Strapdown = nav, map(Strapdown::STATE_MAP), reset(Part);
+        pub(super) cfg: GnssConfig = cfg;
+        pub(super) p: MatX = MatX::from_diagonal(&d), reset(Keep);
+        pub(super) accel_bias_m_s2: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        pub(super) gyro_bias_rad_s: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Σ of the specific-force increments in ECEF since the last propagation, m/s.
+        pub(super) sum_dv_e_m_s: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Steps since the last propagation.
+        pub(super) pending_steps: u32 = 0, reset(Keep);
+        pub(super) updates: u32 = 0, reset(Keep);
+        pub(super) refused: u32 = 0, reset(Keep);
+    }
+    snapshot {
+        /// The filter's fields a reset snapshot carries ([`super::snapshot`]).
+        record: AidedNavKept
+    }
+    constructor
+    /// Starts from `state` with step `dt_s`.
+    pub fn new(state: NavState, dt_s: f64, cfg: GnssConfig) -> Result<Self, NavError> => Ok {
+        let nav = Strapdown::new(state, dt_s, Corrections::ALL)?;
+        let mut d = VecX::zeros();
+        let sig =
+            [cfg.init_att_rad, cfg.init_vel_m_s, cfg.init_pos_m, cfg.init_accel_bias_m_s2, cfg.init_gyro_bias_rad_s];
+        for (i, v) in d.iter_mut().enumerate() {
+            let s = sig.get(i / 3).copied().unwrap_or(0.0);
+            *v = s * s;
+        }
+    }
 }
 
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -112,42 +131,6 @@ fn finite(v: &Vector3<f64>) -> bool {
 }
 
 impl AidedNav {
-    /// Where each field lies (`crate::state_map`).
-    pub const STATE_MAP: &'static [StateField] = state_map!(AidedNav {
-        nav: Strapdown => Strapdown::STATE_MAP,
-        cfg: GnssConfig,
-        p: MatX,
-        accel_bias_m_s2: Vector3<f64>,
-        gyro_bias_rad_s: Vector3<f64>,
-        sum_dv_e_m_s: Vector3<f64>,
-        pending_steps: u32,
-        updates: u32,
-        refused: u32,
-    });
-
-    /// Starts from `state` with step `dt_s`.
-    pub fn new(state: NavState, dt_s: f64, cfg: GnssConfig) -> Result<Self, NavError> {
-        let nav = Strapdown::new(state, dt_s, Corrections::ALL)?;
-        let mut d = VecX::zeros();
-        let sig =
-            [cfg.init_att_rad, cfg.init_vel_m_s, cfg.init_pos_m, cfg.init_accel_bias_m_s2, cfg.init_gyro_bias_rad_s];
-        for (i, v) in d.iter_mut().enumerate() {
-            let s = sig.get(i / 3).copied().unwrap_or(0.0);
-            *v = s * s;
-        }
-        Ok(AidedNav {
-            nav,
-            cfg,
-            p: MatX::from_diagonal(&d),
-            accel_bias_m_s2: Vector3::zeros(),
-            gyro_bias_rad_s: Vector3::zeros(),
-            sum_dv_e_m_s: Vector3::zeros(),
-            pending_steps: 0,
-            updates: 0,
-            refused: 0,
-        })
-    }
-
     /// Navigation state.
     pub fn state(&self) -> &NavState {
         self.nav.state()

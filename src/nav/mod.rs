@@ -58,7 +58,7 @@ use nalgebra::{Quaternion, Vector3};
 pub use crate::frames::navout::NavState;
 use crate::math;
 use crate::state::Flag;
-use crate::state_map::{state_map, StateField};
+use crate::state_map::state_struct;
 
 /// Why a navigation step or initialisation was refused (the state is unchanged).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -108,24 +108,40 @@ impl CorrectionFlags {
     }
 }
 
-/// The strapdown mechanisation (see the module documentation for the equations).
-/// Every bit pattern of it is a value (`crate::state`).
-#[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
-pub struct Strapdown {
-    state: NavState,
-    dt_s: f64,
-    corrections: CorrectionFlags,
-    /// Previous step's angle increment α_{m−1}, rad.
-    prev_dtheta_rad: Vector3<f64>,
-    /// Previous step's velocity increment υ_{m−1}, m/s.
-    prev_dv_m_s: Vector3<f64>,
-    /// Previous step's gravity + Coriolis + centrifugal acceleration, m/s².
-    prev_gc_m_s2: Vector3<f64>,
-    /// Earth rotation over one step, as the quaternion q(−ω_ie Δt ẑ).
-    q_earth: Quaternion<f64>,
-    /// ζ = ω_ie Δt (about ẑ), rad.
-    zeta_rad: f64,
-    steps: u64,
+state_struct! {
+    /// The strapdown mechanisation (see the module documentation for the equations).
+    /// Every bit pattern of it is a value (`crate::state`). Declared once
+    /// ([`crate::state_map::state_struct!`]): `reset(Keep)` marks what the launch
+    /// vehicle's reset snapshot carries ([`snapshot`]); the rest is the setup, checked by
+    /// the snapshot's setup digest, or rebuilt from the state.
+    #[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
+    pub struct Strapdown {
+        state: NavState = state, reset(Keep);
+        dt_s: f64 = dt_s;
+        corrections: CorrectionFlags = CorrectionFlags::of(corrections);
+        /// Previous step's angle increment α_{m−1}, rad.
+        prev_dtheta_rad: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Previous step's velocity increment υ_{m−1}, m/s.
+        prev_dv_m_s: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Previous step's gravity + Coriolis + centrifugal acceleration, m/s² (rebuilt
+        /// from the state by [`Strapdown::set_state`]).
+        prev_gc_m_s2: Vector3<f64> = Vector3::zeros();
+        /// Earth rotation over one step, as the quaternion q(−ω_ie Δt ẑ).
+        q_earth: Quaternion<f64> = math::quat_from_rotvec(&Vector3::new(0.0, 0.0, -zeta_rad));
+        /// ζ = ω_ie Δt (about ẑ), rad.
+        zeta_rad: f64 = zeta_rad;
+        /// Steps integrated.
+        steps: u64 = 0, reset(Keep);
+    }
+    snapshot {
+        /// The strapdown's fields a reset snapshot carries ([`snapshot`]).
+        record: StrapdownKept
+    }
+    constructor
+    /// The strapdown as built, before its state is checked ([`Strapdown::new`]).
+    fn build(state: NavState, dt_s: f64, corrections: Corrections) -> Self => core::convert::identity {
+        let zeta_rad = wgs84::EARTH_RATE_RAD_S * dt_s;
+    }
 }
 
 /// Gravity and Coriolis acceleration in ECEF at (r, v):
@@ -146,18 +162,7 @@ impl Strapdown {
         if !(dt_s.is_finite() && dt_s > 0.0) {
             return Err(NavError::BadStep);
         }
-        let zeta_rad = wgs84::EARTH_RATE_RAD_S * dt_s;
-        let mut s = Strapdown {
-            state,
-            dt_s,
-            corrections: CorrectionFlags::of(corrections),
-            prev_dtheta_rad: Vector3::zeros(),
-            prev_dv_m_s: Vector3::zeros(),
-            prev_gc_m_s2: Vector3::zeros(),
-            q_earth: math::quat_from_rotvec(&Vector3::new(0.0, 0.0, -zeta_rad)),
-            zeta_rad,
-            steps: 0,
-        };
+        let mut s = Strapdown::build(state, dt_s, corrections);
         s.set_state(state)?;
         Ok(s)
     }
@@ -191,32 +196,6 @@ impl Strapdown {
     pub fn steps(&self) -> u64 {
         self.steps
     }
-
-    /// The previous step's increments α_{m−1} and υ_{m−1} (the coning and sculling
-    /// terms' history, [`snapshot`]).
-    pub(crate) fn history(&self) -> (Vector3<f64>, Vector3<f64>) {
-        (self.prev_dtheta_rad, self.prev_dv_m_s)
-    }
-
-    /// Restores the increment history and the step count ([`snapshot`]).
-    pub(crate) fn set_history(&mut self, dtheta_rad: Vector3<f64>, dv_m_s: Vector3<f64>, steps: u64) {
-        self.prev_dtheta_rad = dtheta_rad;
-        self.prev_dv_m_s = dv_m_s;
-        self.steps = steps;
-    }
-
-    /// Where each field lies (`crate::state_map`).
-    pub const STATE_MAP: &'static [StateField] = state_map!(Strapdown {
-        state: NavState,
-        dt_s: f64,
-        corrections: CorrectionFlags,
-        prev_dtheta_rad: Vector3<f64>,
-        prev_dv_m_s: Vector3<f64>,
-        prev_gc_m_s2: Vector3<f64>,
-        q_earth: Quaternion<f64>,
-        zeta_rad: f64,
-        steps: u64,
-    });
 
     /// Integrates one step of body increments: `dtheta_rad` = ∫ω_ib^b dt and
     /// `dv_m_s` = ∫f^b dt over the step. On error the state is unchanged.

@@ -2,15 +2,18 @@
 //! HardFault) resumes the navigation from mid-ascent, where the pad initialisation
 //! ([`super::init`]) is no longer the vehicle's state.
 //!
-//! [`NavUnit::snapshot_into`] writes a [`NavSnapshot`], a `#[repr(C)]` plain-old-data
-//! record (any bit pattern is a value: it is judged by its checks only), beside the
-//! flight core's own snapshot in RAM the reset does not clear: the navigation state
-//! (q_eb, v_e, r_e), the filter (its covariance's upper triangle, the bias estimates,
-//! the pending propagation, its counts), the strapdown's increment history, the running
-//! means and spreads of the increments ([`super::unit::MEAN_STEPS`]), the accelerometer
-//! sample counter of its last step and a digest of the step period and filter tuning it
-//! was taken under; sealed with CRC-32C (the `crc` crate's, [`crate::frames::CRC32C`])
-//! and its complement.
+//! [`NavUnit::snapshot_into`] writes a [`NavSnapshot`], a `#[repr(C, packed)]`
+//! plain-old-data record (any bit pattern is a value: it is judged by its checks only),
+//! beside the flight core's own snapshot in RAM the reset does not clear: a header (the
+//! accelerometer sample counter of its last step and a digest of the step period and
+//! filter tuning it was taken under) and the fields the stage's declaration marks
+//! `reset(Keep)` ([`NavKept`], derived from the declarations of [`NavUnit`],
+//! [`AidedNav`] and [`super::Strapdown`]: the navigation state (q_eb, v_e, r_e), the
+//! strapdown's increment history and step count, the filter's covariance, bias
+//! estimates, pending propagation and counts, the running means and spreads of the
+//! increments ([`super::unit::MEAN_STEPS`]) and the output frame counter); sealed with
+//! CRC-32C (the `crc` crate's, [`crate::frames::CRC32C`]) and its complement. A field
+//! marked there is carried over a reset with no other change here.
 //!
 //! **Writing** ([`NavUnit::snapshot_into`]): the complement is spoiled first, then the
 //! fields are written, then the CRC, then its complement, with compiler fences between
@@ -53,16 +56,15 @@
 use core::sync::atomic::{compiler_fence, Ordering};
 
 use bytemuck::{Pod, Zeroable};
-use nalgebra::{Quaternion, Vector3};
 
-use super::gnss::{AidedNav, N_X};
-use super::unit::{BridgeReport, NavUnit};
+use super::gnss::AidedNav;
+use super::unit::{BridgeReport, NavKept, NavUnit};
 use super::{wgs84, NavState};
 use crate::frames::CRC32C;
 use crate::state::{Flag, Maybe};
 
-/// First word: "NSN" and the layout version 1.
-const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x01");
+/// First word: "NSN" and the layout version 2.
+const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x02");
 /// Most samples a resume bridges (0.5 s at 1.25 ms): the snapshot period (80 steps in
 /// the firmware) plus a reset and boot, with margin; older, the snapshot is stale.
 pub const MAX_BRIDGE_STEPS: u16 = 400;
@@ -80,8 +82,6 @@ pub const MAX_GYRO_BIAS_RAD_S: f64 = core::f64::consts::PI / 180.0;
 pub const MAX_SPECIFIC_FORCE_M_S2: f64 = 150.0;
 /// Largest mean body rate, rad/s (the launch vehicle's ±100 °/s on each of three axes).
 pub const MAX_RATE_RAD_S: f64 = 175.0 * core::f64::consts::PI / 180.0;
-/// Elements of the covariance's upper triangle.
-const N_P: usize = N_X * (N_X + 1) / 2;
 
 /// Why a snapshot was not resumed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -99,38 +99,22 @@ pub enum NavResumeError {
 }
 
 /// The navigation's reset snapshot (module documentation). Plain old data: any bit
-/// pattern is a value.
-#[derive(Debug, Clone, Copy, PartialEq, Pod, Zeroable)]
-#[repr(C)]
+/// pattern is a value. Packed: the kept fields' record ([`NavKept`]) is, and the check
+/// words follow it.
+#[derive(Debug, Clone, Copy, Pod, Zeroable)]
+#[repr(C, packed)]
 pub struct NavSnapshot {
     magic: u32,
     /// `size_of::<NavSnapshot>()`.
     len: u32,
-    /// The accelerometer sample counter of the last step (u16).
+    /// The accelerometer sample counter of the last step (u16): what a resume bridges
+    /// from.
     accel_counter: u32,
-    /// The output frame counter (u16).
-    out_counter: u32,
-    updates: u32,
-    refused: u32,
-    pending_steps: u32,
     /// CRC-32C of the step period and the filter tuning.
     setup_crc: u32,
-    steps: u64,
-    q_eb: [f64; 4],
-    v_e_m_s: [f64; 3],
-    r_e_m: [f64; 3],
-    prev_dtheta_rad: [f64; 3],
-    prev_dv_m_s: [f64; 3],
-    accel_bias_m_s2: [f64; 3],
-    gyro_bias_rad_s: [f64; 3],
-    sum_dv_e_m_s: [f64; 3],
-    last_dv_m_s: [f64; 3],
-    mean_dtheta_rad: [f64; 3],
-    mean_dv_m_s: [f64; 3],
-    spread_dtheta_rad2: f64,
-    spread_dv_m2_s2: f64,
-    /// The covariance's upper triangle, row by row.
-    p_upper: [f64; N_P],
+    /// The fields the unit's declaration keeps over a reset ([`NavUnit`]'s `reset`
+    /// marks), down to the filter and the strapdown.
+    kept: NavKept,
     /// CRC-32C of every byte before it.
     check: u32,
     /// `!check`.
@@ -143,12 +127,15 @@ impl Default for NavSnapshot {
     }
 }
 
+impl PartialEq for NavSnapshot {
+    /// Bit for bit.
+    fn eq(&self, other: &Self) -> bool {
+        bytemuck::bytes_of(self) == bytemuck::bytes_of(other)
+    }
+}
+
 /// Bytes the CRC covers: all before `check`.
 const COVERED: usize = core::mem::offset_of!(NavSnapshot, check);
-
-fn arr3(v: &Vector3<f64>) -> [f64; 3] {
-    [v.x, v.y, v.z]
-}
 
 fn finite(v: &[f64]) -> bool {
     v.iter().all(|x| x.is_finite())
@@ -196,7 +183,7 @@ impl NavSnapshot {
     }
 
     /// The record that starts `words` (a board's RAM the reset does not clear, as words):
-    /// `None` when the words are too few or not aligned for it.
+    /// `None` when the words are too few.
     pub fn in_words(words: &mut [u32]) -> Option<&mut Self> {
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(words);
         bytemuck::try_from_bytes_mut(bytes.get_mut(..core::mem::size_of::<Self>())?).ok()
@@ -209,36 +196,8 @@ impl NavSnapshot {
 
     /// The navigation state it holds (unchecked).
     pub fn state(&self) -> NavState {
-        let [w, i, j, k] = self.q_eb;
-        NavState {
-            q_eb: Quaternion::new(w, i, j, k),
-            v_e_m_s: Vector3::from(self.v_e_m_s),
-            r_e_m: Vector3::from(self.r_e_m),
-        }
+        self.kept.nav.nav.state
     }
-
-    /// Every f64 of the record.
-    fn f64s(&self) -> impl Iterator<Item = &f64> {
-        self.q_eb
-            .iter()
-            .chain(&self.v_e_m_s)
-            .chain(&self.r_e_m)
-            .chain(&self.prev_dtheta_rad)
-            .chain(&self.prev_dv_m_s)
-            .chain(&self.accel_bias_m_s2)
-            .chain(&self.gyro_bias_rad_s)
-            .chain(&self.sum_dv_e_m_s)
-            .chain(&self.last_dv_m_s)
-            .chain(&self.mean_dtheta_rad)
-            .chain(&self.mean_dv_m_s)
-            .chain([&self.spread_dtheta_rad2, &self.spread_dv_m2_s2])
-            .chain(&self.p_upper)
-    }
-}
-
-/// The covariance's upper-triangle element k as (row, column).
-fn upper(k: usize) -> impl Iterator<Item = (usize, usize)> {
-    (0..N_X).flat_map(|i| (i..N_X).map(move |j| (i, j))).skip(k)
 }
 
 impl AidedNav {
@@ -308,34 +267,11 @@ impl NavUnit {
         // Spoiled first: a reset during the write leaves the check words disagreeing.
         s.check_inv = s.check;
         compiler_fence(Ordering::SeqCst);
-        let a = &self.nav;
-        let st = a.state();
-        let (prev_dtheta, prev_dv) = a.nav.history();
         s.magic = MAGIC;
         s.len = core::mem::size_of::<NavSnapshot>() as u32;
         s.accel_counter = u32::from(counter);
-        s.out_counter = u32::from(self.out_counter);
-        s.updates = a.updates;
-        s.refused = a.refused;
-        s.pending_steps = a.pending_steps;
-        s.setup_crc = a.setup_crc();
-        s.steps = a.nav.steps();
-        s.q_eb = [st.q_eb.w, st.q_eb.i, st.q_eb.j, st.q_eb.k];
-        s.v_e_m_s = arr3(&st.v_e_m_s);
-        s.r_e_m = arr3(&st.r_e_m);
-        s.prev_dtheta_rad = arr3(&prev_dtheta);
-        s.prev_dv_m_s = arr3(&prev_dv);
-        s.accel_bias_m_s2 = arr3(&a.accel_bias_m_s2);
-        s.gyro_bias_rad_s = arr3(&a.gyro_bias_rad_s);
-        s.sum_dv_e_m_s = arr3(&a.sum_dv_e_m_s);
-        s.last_dv_m_s = arr3(&self.last_dv_m_s);
-        s.mean_dtheta_rad = arr3(&self.mean_dtheta_rad);
-        s.mean_dv_m_s = arr3(&self.mean_dv_m_s);
-        s.spread_dtheta_rad2 = self.spread_dtheta_rad2;
-        s.spread_dv_m2_s2 = self.spread_dv_m2_s2;
-        for (slot, (i, j)) in s.p_upper.iter_mut().zip(upper(0)) {
-            *slot = a.p.get((i, j)).copied().unwrap_or(0.0);
-        }
+        s.setup_crc = self.nav.setup_crc();
+        self.save_survivors(&mut s.kept);
         compiler_fence(Ordering::SeqCst);
         let c = s.crc();
         s.check = c;
@@ -371,24 +307,33 @@ impl NavUnit {
             return Err(NavResumeError::OtherSetup);
         }
         let dt = self.nav.nav.dt_s();
-        let r2 = norm2(&s.r_e_m);
-        let diagonal_ok = upper(0).zip(&s.p_upper).filter(|((i, j), _)| i == j).all(|(_, v)| *v >= 0.0);
-        let plausible = s.f64s().all(|v| v.is_finite())
+        let k = &s.kept;
+        let (a, sd) = (k.nav, k.nav.nav);
+        let st = sd.state;
+        let q = [st.q_eb.w, st.q_eb.i, st.q_eb.j, st.q_eb.k];
+        let (v, r) = (st.v_e_m_s, st.r_e_m);
+        let (mean_dv, last_dv, mean_dtheta) = (k.mean_dv_m_s, k.last_dv_m_s, k.mean_dtheta_rad);
+        let (spread_dtheta, spread_dv) = (k.spread_dtheta_rad2, k.spread_dv_m2_s2);
+        let (prev_dtheta, prev_dv) = (sd.prev_dtheta_rad, sd.prev_dv_m_s);
+        let (accel_bias, gyro_bias, sum_dv, p) = (a.accel_bias_m_s2, a.gyro_bias_rad_s, a.sum_dv_e_m_s, a.p);
+        let vectors =
+            [&v, &r, &prev_dtheta, &prev_dv, &accel_bias, &gyro_bias, &sum_dv, &last_dv, &mean_dtheta, &mean_dv];
+        let plausible = finite(&q)
+            && vectors.iter().all(|x| finite(x.as_slice()))
+            && finite(&[spread_dtheta, spread_dv])
+            && finite(p.as_slice())
             && s.accel_counter <= u32::from(u16::MAX)
-            && s.out_counter <= u32::from(u16::MAX)
-            && (norm2(&s.q_eb) - 1.0).abs() < 1e-6
-            && (sq(wgs84::MIN_RADIUS_M)..=sq(MAX_RADIUS_M)).contains(&r2)
-            && norm2(&s.v_e_m_s) <= MAX_SPEED_M_S * MAX_SPEED_M_S
-            && norm2(&s.accel_bias_m_s2) <= MAX_ACCEL_BIAS_M_S2 * MAX_ACCEL_BIAS_M_S2
-            && norm2(&s.gyro_bias_rad_s) <= MAX_GYRO_BIAS_RAD_S * MAX_GYRO_BIAS_RAD_S
-            && [&s.mean_dv_m_s, &s.prev_dv_m_s, &s.last_dv_m_s]
-                .iter()
-                .all(|v| norm2(*v) <= sq(MAX_SPECIFIC_FORCE_M_S2 * dt))
-            && [&s.mean_dtheta_rad, &s.prev_dtheta_rad].iter().all(|v| norm2(*v) <= sq(MAX_RATE_RAD_S * dt))
-            && s.spread_dtheta_rad2 >= 0.0
-            && s.spread_dv_m2_s2 >= 0.0
-            && diagonal_ok;
-        if plausible && finite(&s.sum_dv_e_m_s) {
+            && (norm2(&q) - 1.0).abs() < 1e-6
+            && (sq(wgs84::MIN_RADIUS_M)..=sq(MAX_RADIUS_M)).contains(&r.norm_squared())
+            && v.norm_squared() <= MAX_SPEED_M_S * MAX_SPEED_M_S
+            && accel_bias.norm_squared() <= MAX_ACCEL_BIAS_M_S2 * MAX_ACCEL_BIAS_M_S2
+            && gyro_bias.norm_squared() <= MAX_GYRO_BIAS_RAD_S * MAX_GYRO_BIAS_RAD_S
+            && [mean_dv, prev_dv, last_dv].iter().all(|x| x.norm_squared() <= sq(MAX_SPECIFIC_FORCE_M_S2 * dt))
+            && [mean_dtheta, prev_dtheta].iter().all(|x| x.norm_squared() <= sq(MAX_RATE_RAD_S * dt))
+            && spread_dtheta >= 0.0
+            && spread_dv >= 0.0
+            && p.diagonal().iter().all(|d| *d >= 0.0);
+        if plausible {
             Ok(())
         } else {
             Err(NavResumeError::Implausible)
@@ -396,34 +341,14 @@ impl NavUnit {
     }
 
     fn apply_snapshot(&mut self, s: &NavSnapshot) {
-        let v3 = Vector3::from;
+        self.load_survivors(&s.kept);
+        // The state again through the strapdown's own check (it normalises the
+        // quaternion and rebuilds the gravity term); checked plausible above, a state it
+        // refuses all the same is lost.
         if self.nav.nav.set_state(s.state()).is_err() {
-            // Checked plausible above; a state the strapdown refuses all the same is lost.
             self.lost = Flag::SET;
             return;
         }
-        self.nav.nav.set_history(v3(s.prev_dtheta_rad), v3(s.prev_dv_m_s), s.steps);
-        let a = &mut self.nav;
-        for (v, (i, j)) in s.p_upper.iter().zip(upper(0)) {
-            if let Some(x) = a.p.get_mut((i, j)) {
-                *x = *v;
-            }
-            if let Some(x) = a.p.get_mut((j, i)) {
-                *x = *v;
-            }
-        }
-        a.accel_bias_m_s2 = v3(s.accel_bias_m_s2);
-        a.gyro_bias_rad_s = v3(s.gyro_bias_rad_s);
-        a.sum_dv_e_m_s = v3(s.sum_dv_e_m_s);
-        a.pending_steps = s.pending_steps;
-        a.updates = s.updates;
-        a.refused = s.refused;
-        self.last_dv_m_s = v3(s.last_dv_m_s);
-        self.mean_dtheta_rad = v3(s.mean_dtheta_rad);
-        self.mean_dv_m_s = v3(s.mean_dv_m_s);
-        self.spread_dtheta_rad2 = s.spread_dtheta_rad2;
-        self.spread_dv_m2_s2 = s.spread_dv_m2_s2;
-        self.out_counter = s.out_counter as u16;
         self.accel_counter = Maybe::none();
         self.resume_from = Maybe::some(s.accel_counter());
         self.resume_wait = 0;

@@ -45,7 +45,7 @@ use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
 use crate::link::{drain, write_frame, RxLink, TxLink};
 use crate::state::{Flag, Maybe, Ring};
-use crate::state_map::{state_map, StateField};
+use crate::state_map::{state_struct, StateField};
 
 /// Accelerometer samples a queue holds ahead of the step.
 pub const ACCEL_QUEUE: usize = 8;
@@ -120,76 +120,65 @@ struct PendingFix {
     t_us: u64,
 }
 
-/// The navigation stage. Every bit pattern of it is a value (`crate::state`: the derive
-/// below is the proof); [`NavUnit::state_map`] names its fields for the upset campaigns.
-#[derive(Clone, Copy, bytemuck::AnyBitPattern)]
-pub struct NavUnit {
-    pub(super) nav: AidedNav,
-    comp: AccelCompensator,
-    dt_s: f64,
-    accel_dec: StreamDecoder<AccelFrame, 32>,
-    accel_q: AccelQueues,
-    gnss_dec: StreamDecoder<GnssFrame, 64>,
-    pub(super) last_dv_m_s: Vector3<f64>,
-    last_fix_us: Maybe<u64>,
-    /// The newest valid fix not yet used.
-    pending_fix: Maybe<PendingFix>,
-    /// A fix has been applied since the last output frame.
-    updated_since_output: Flag,
-    rx_scratch: [u8; 64],
-    out_buf: [u8; NavOutputFrame::LEN],
-    pub(super) out_counter: u16,
-    counters: NavCounters,
-    /// The accelerometer sample counter of the last step (the first accelerometer's
-    /// frame taken, else the one before plus one; `None` until a frame is taken).
-    pub(super) accel_counter: Maybe<u16>,
-    /// Running mean of the body angle increment per step ([`MEAN_STEPS`]), rad.
-    pub(super) mean_dtheta_rad: Vector3<f64>,
-    /// Running mean of the compensated velocity increment per step, m/s.
-    pub(super) mean_dv_m_s: Vector3<f64>,
-    /// Running mean of |α − ᾱ|², rad² (the spread a bridge does not know).
-    pub(super) spread_dtheta_rad2: f64,
-    /// Running mean of |υ − ῡ|², (m/s)².
-    pub(super) spread_dv_m2_s2: f64,
-    /// Resumed from a snapshot whose last accelerometer sample had this counter; the
-    /// samples since are bridged at the first step that takes a frame.
-    pub(super) resume_from: Maybe<u16>,
-    /// Steps waited since the resume for an accelerometer frame.
-    pub(super) resume_wait: u32,
-    /// What the last resume bridged.
-    pub(super) bridged: Maybe<BridgeReport>,
-    /// The navigation is lost (a snapshot refused after a reset, or too old at its first
-    /// sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
-    /// initialisation builds the unit again ([`super::snapshot`]).
-    pub(super) lost: Flag,
+state_struct! {
+    /// The navigation stage. Every bit pattern of it is a value (`crate::state`: the
+    /// derive below and the declaration's proof); [`NavUnit::state_map`] names its fields
+    /// for the upset campaigns. Declared once ([`crate::state_map::state_struct!`]): a
+    /// field's `reset(Keep)` (or `reset(Part)`: the fields the stage inside keeps) puts
+    /// it in the reset snapshot's record ([`NavKept`], [`super::snapshot`]).
+    #[derive(Clone, Copy, bytemuck::AnyBitPattern)]
+    pub struct NavUnit {
+        pub(super) nav: AidedNav = AidedNav::new(state, dt_s, cfg)?, map(AidedNav::STATE_MAP), reset(Part);
+        comp: AccelCompensator = comp;
+        dt_s: f64 = dt_s;
+        accel_dec: StreamDecoder<AccelFrame, 32> = StreamDecoder::new();
+        accel_q: AccelQueues = AccelQueues { x: Ring::new(), y: Ring::new(), z: Ring::new() };
+        gnss_dec: StreamDecoder<GnssFrame, 64> = StreamDecoder::new();
+        /// The last compensated velocity increment (held over a missing sample), m/s.
+        pub(super) last_dv_m_s: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        last_fix_us: Maybe<u64> = Maybe::none();
+        /// The newest valid fix not yet used.
+        pending_fix: Maybe<PendingFix> = Maybe::none();
+        /// A fix has been applied since the last output frame.
+        updated_since_output: Flag = Flag::CLEAR;
+        rx_scratch: [u8; 64] = [0; 64];
+        out_buf: [u8; NavOutputFrame::LEN] = [0; NavOutputFrame::LEN];
+        /// The output frame counter (it goes on over a reset, past the lost samples).
+        pub(super) out_counter: u16 = 0, reset(Keep);
+        counters: NavCounters = NavCounters::default();
+        /// The accelerometer sample counter of the last step (the first accelerometer's
+        /// frame taken, else the one before plus one; `None` until a frame is taken). The
+        /// snapshot's header carries it: a resume bridges from it ([`NavUnit::resume`]).
+        pub(super) accel_counter: Maybe<u16> = Maybe::none();
+        /// Running mean of the body angle increment per step ([`MEAN_STEPS`]), rad.
+        pub(super) mean_dtheta_rad: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Running mean of the compensated velocity increment per step, m/s.
+        pub(super) mean_dv_m_s: Vector3<f64> = Vector3::zeros(), reset(Keep);
+        /// Running mean of |α − ᾱ|², rad² (the spread a bridge does not know).
+        pub(super) spread_dtheta_rad2: f64 = 0.0, reset(Keep);
+        /// Running mean of |υ − ῡ|², (m/s)².
+        pub(super) spread_dv_m2_s2: f64 = 0.0, reset(Keep);
+        /// Resumed from a snapshot whose last accelerometer sample had this counter; the
+        /// samples since are bridged at the first step that takes a frame.
+        pub(super) resume_from: Maybe<u16> = Maybe::none();
+        /// Steps waited since the resume for an accelerometer frame.
+        pub(super) resume_wait: u32 = 0;
+        /// What the last resume bridged.
+        pub(super) bridged: Maybe<BridgeReport> = Maybe::none();
+        /// The navigation is lost (a snapshot refused after a reset, or too old at its
+        /// first sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
+        /// initialisation builds the unit again ([`super::snapshot`]).
+        pub(super) lost: Flag = Flag::CLEAR;
+    }
+    snapshot {
+        /// The fields of the stage a reset snapshot carries ([`super::snapshot`]), in
+        /// declaration order down to the filter and the strapdown.
+        record: NavKept
+    }
+    constructor
+    /// A stage starting from `state` (pad alignment) with step `dt_s`.
+    pub fn new(state: NavState, dt_s: f64, comp: AccelCompensator, cfg: GnssConfig) -> Result<Self, NavError> => Ok {}
 }
-
-/// Where each field of the unit lies ([`NavUnit::state_map`]).
-const STATE_MAP: &[StateField] = state_map!(NavUnit {
-    nav: AidedNav => AidedNav::STATE_MAP,
-    comp: AccelCompensator,
-    dt_s: f64,
-    accel_dec: StreamDecoder<AccelFrame, 32>,
-    accel_q: AccelQueues,
-    gnss_dec: StreamDecoder<GnssFrame, 64>,
-    last_dv_m_s: Vector3<f64>,
-    last_fix_us: Maybe<u64>,
-    pending_fix: Maybe<PendingFix>,
-    updated_since_output: Flag,
-    rx_scratch: [u8; 64],
-    out_buf: [u8; NavOutputFrame::LEN],
-    out_counter: u16,
-    counters: NavCounters,
-    accel_counter: Maybe<u16>,
-    mean_dtheta_rad: Vector3<f64>,
-    mean_dv_m_s: Vector3<f64>,
-    spread_dtheta_rad2: f64,
-    spread_dv_m2_s2: f64,
-    resume_from: Maybe<u16>,
-    resume_wait: u32,
-    bridged: Maybe<BridgeReport>,
-    lost: Flag,
-});
 
 /// What a resume's bridge over a reset did ([`super::snapshot`]).
 #[derive(Debug, Clone, Copy, PartialEq, bytemuck::AnyBitPattern)]
@@ -203,40 +192,11 @@ pub struct BridgeReport {
 }
 
 impl NavUnit {
-    /// A stage starting from `state` (pad alignment) with step `dt_s`.
-    pub fn new(state: NavState, dt_s: f64, comp: AccelCompensator, cfg: GnssConfig) -> Result<Self, NavError> {
-        Ok(NavUnit {
-            nav: AidedNav::new(state, dt_s, cfg)?,
-            comp,
-            dt_s,
-            accel_dec: StreamDecoder::new(),
-            accel_q: AccelQueues { x: Ring::new(), y: Ring::new(), z: Ring::new() },
-            gnss_dec: StreamDecoder::new(),
-            last_dv_m_s: Vector3::zeros(),
-            last_fix_us: Maybe::none(),
-            pending_fix: Maybe::none(),
-            updated_since_output: Flag::CLEAR,
-            rx_scratch: [0; 64],
-            out_buf: [0; NavOutputFrame::LEN],
-            out_counter: 0,
-            counters: NavCounters::default(),
-            accel_counter: Maybe::none(),
-            mean_dtheta_rad: Vector3::zeros(),
-            mean_dv_m_s: Vector3::zeros(),
-            spread_dtheta_rad2: 0.0,
-            spread_dv_m2_s2: 0.0,
-            resume_from: Maybe::none(),
-            resume_wait: 0,
-            bridged: Maybe::none(),
-            lost: Flag::CLEAR,
-        })
-    }
-
     /// Where each field of the unit lies in the value, down to the filter and the
     /// strapdown: the upset campaign names the field a flipped bit belongs to
     /// ([`crate::state_map`]). Nothing in a step reads it.
     pub fn state_map() -> &'static [StateField] {
-        STATE_MAP
+        Self::STATE_MAP
     }
 
     /// Whether the navigation is lost (a refused or stale snapshot after a reset): the

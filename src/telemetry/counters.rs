@@ -1,6 +1,8 @@
 //! The unit's counters, declared once.
 //!
-//! `declare_counters!` below is the one list of what the unit counts. From it come the
+//! `declare_counters!` below, with the counters the events declare
+//! ([`crate::telemetry::event_list`]: an event's counter is declared on the event's line,
+//! once), is the one list of what the unit counts. From it come the
 //! [`Counter`], [`FogCounter`] and [`NavCounter`] enums, the [`Counters`],
 //! [`FogCounters`] and [`NavCounters`] storage (named fields, saturating; the
 //! navigation stage's, [`crate::nav::unit`], are reported by the launch-vehicle
@@ -12,6 +14,7 @@
 
 use crate::calib::N_FOG;
 use crate::integrity::parity::FdiState;
+use crate::telemetry::event_list::events_table;
 
 /// One set of counters: the enum naming them, its storage with one named field per
 /// counter (plus `$extra` fields), `add` and `get`.
@@ -68,13 +71,16 @@ macro_rules! counter_set {
     };
 }
 
-/// The unit's counters: per FOG, for the unit, and which unit counters the page carries.
+/// The unit's counters: per FOG, for the unit (those of the `unit` list, then those the
+/// events declare, [`crate::telemetry::event_list`]), which unit counters the page carries,
+/// and the navigation stage's.
 macro_rules! declare_counters {
     (
         fog { $( $fvar:ident $ffield:ident $fdesc:literal, )* }
         unit { $( $uvar:ident $ufield:ident $udesc:literal, )* }
         paged [ $( $pvar:ident, )* ]
         nav { $( $nvar:ident $nfield:ident $ndesc:literal, )* }
+        events { $( $code:literal $evar:ident $ename:literal $( [$cvar:ident $cfield:ident $cdesc:literal] )? $edetail:literal, )* }
     ) => {
         counter_set! {
             /// A per-FOG counter (one of each per FOG slot).
@@ -93,6 +99,7 @@ macro_rules! declare_counters {
                 fog: [FogCounters; N_FOG],
             }
             $( $uvar $ufield $udesc, )*
+            $( $( $cvar $cfield $cdesc, )? )*
         }
 
         /// The unit counters the page carries after the per-FOG ones, in page order.
@@ -108,7 +115,7 @@ macro_rules! declare_counters {
     };
 }
 
-declare_counters! {
+events_table!(declare_counters {
     fog {
         Rejected rejected "frames rejected (CRC, format, wrong id)",
         Missing missing "samples missing (not there in time)",
@@ -127,7 +134,6 @@ declare_counters! {
         Overruns overruns "steps that overran their deadline (reported by the board)",
         FdiAlarms fdi_alarms "parity alarms raised",
         FdiTransients fdi_transients "parity alarms that cleared without isolation (transients)",
-        FdiIsolations fdi_isolations "FOGs isolated",
         StFrozen st_frozen "star-tracker frames refused as frozen",
         StReacquired st_reacquired "star-tracker re-acquisitions",
         StOutages st_outages "star-tracker outages begun",
@@ -149,21 +155,8 @@ declare_counters! {
         TableCrcHigh table_crc_high "the active calibration table's CRC-32, high 16 bits",
         MountIsolated mount_isolated "FOGs isolated by the mounting check: reversed polarity against the star tracker's rotation, or alone at odds with it",
         MountSwapped mount_swapped "pairs of FOGs found swapped in their mounts by the mounting check (flown on the corrected assignment)",
-        MountUnverified mount_unverified "FOGs the mounting check could not verify in its first 10 s (no turn about their axes; watched on)",
-        MountUndecided mount_undecided "mounting checks that ended with FOGs at odds with the star tracker and no single flip or swap explaining them",
-        StateRestored state_restored "guarded state found changed between two steps (a bit flip) and restored from its good copy",
-        StateImplausible state_implausible "guarded state found implausible (attitude norm, drift, covariance): the estimator re-aligned on the star tracker",
-        Realigned realigned "re-alignments on the star tracker after a persistent disagreement with the propagated attitude (or a state found corrupted)",
-        TablesRestored tables_restored "calibration tables in RAM found corrupt by the background check and restored from the store",
-        KeysRestored keys_restored "command keys in RAM found corrupt by the background check and restored from the record",
-        Resumes resumes "resets resumed from the snapshot in RAM",
-        SnapshotsInvalid snapshots_invalid "snapshots not resumed after a reset (absent, corrupt, another table, implausible, too old)",
-        CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed",
         SramEccCorrected sram_ecc_corrected "single-bit errors the board's SRAM ECC corrected (STM32H7 RAMECC)",
         SramEccUncorrected sram_ecc_uncorrected "double-bit errors the board's SRAM ECC detected and could not correct (STM32H7 RAMECC)",
-        FogsLost fogs_lost "FOGs lost: no usable sample 40 in a row, not isolated (event fog_lost)",
-        FogsRestored fogs_restored "lost FOGs restored: usable samples again, 40 in a row (event fog_restored)",
-        AlignmentsLost alignments_lost "losses of the aligned status (event alignment_lost names the cause)",
     }
     paged [
         FdiAlarms,
@@ -202,7 +195,7 @@ declare_counters! {
         OutputDropped output_dropped "navigation output frames that could not be written",
         IoErrors io_errors "navigation link driver errors (accelerometer and GNSS links)",
     }
-}
+});
 
 impl Counters {
     /// Adds one to counter `c`, saturating.

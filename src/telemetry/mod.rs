@@ -3,6 +3,7 @@
 //! ([`events`]).
 
 pub mod counters;
+pub mod event_list;
 pub mod events;
 
 use nalgebra::{Quaternion, Vector3};
