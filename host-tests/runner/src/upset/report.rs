@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use ssis_common::cli::{json, Value};
 
-use super::{Flip, Outcome, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
+use super::{Flip, Mix, Outcome, PathKind, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
 
 /// A share with its 95 % Wilson score interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,6 +34,15 @@ impl Interval {
         let low = if k == 0.0 { 0.0 } else { (c - h).max(0.0) };
         let high = if k == n { 1.0 } else { (c + h).min(1.0) };
         Interval { share: p, low, high }
+    }
+
+    /// The exact (Clopper–Pearson) interval of `k` of `n` at 95 %.
+    pub fn clopper_pearson(k: usize, n: usize) -> Interval {
+        if n == 0 {
+            return Interval { share: 0.0, low: 0.0, high: 1.0 };
+        }
+        let (low, high) = ssis_faults::upset::clopper_pearson(k as u64, n as u64);
+        Interval { share: k as f64 / n as f64, low, high }
     }
 
     fn pct(&self) -> String {
@@ -67,8 +76,14 @@ pub struct Campaign {
     pub wall_s: f64,
     /// The step's entry (breakpoint) address.
     pub entry: u32,
-    /// Instructions in the traced path of a step.
+    /// Instructions in the traced path of a pass without a star update.
     pub path_len: usize,
+    /// Instructions in each traced path.
+    pub path_lens: Vec<(PathKind, usize)>,
+    /// The populations and their shares of the flips.
+    pub mix: Mix,
+    /// Flights dropped because the runner failed in them (a breakpoint never reached).
+    pub failed_flights: u32,
     /// Flights that stopped (crash) after every flip in them had been classed masked or
     /// tolerated: a latent effect of one of them.
     pub latent: u32,
@@ -103,15 +118,16 @@ impl Campaign {
         let n = self.flips.len();
         let _ = writeln!(
             s,
-            "upset campaign  {}  in QEMU: {n} flips in {} flights, wall {:.0} s ({:.0} flips/h)",
+            "upset campaign  {}  in QEMU: {n} flips in {} flights ({} dropped by the runner), wall {:.0} s ({:.0} flips/h)",
             self.name,
             self.flights,
+            self.failed_flights,
             self.wall_s,
             self.flips_per_hour()
         );
         for row in ROWS {
             let k = self.count(row, None);
-            let _ = writeln!(s, "  {row:<40} {k:>6}  {}", Interval::wilson(k, n).pct());
+            let _ = writeln!(s, "  {row:<40} {k:>6}  {}", Interval::clopper_pearson(k, n).pct());
         }
         if let Some(w) = self.flips.iter().filter(|f| f.silent_arcsec > 0.0).map(|f| f.silent_arcsec).reduce(f64::max) {
             let _ = writeln!(s, "  worst silent error {w:.0}″");
@@ -126,7 +142,7 @@ impl Campaign {
             .iter()
             .map(|r| {
                 let k = self.count(r, None);
-                let i = Interval::wilson(k, n);
+                let i = Interval::clopper_pearson(k, n);
                 json!({"outcome": r, "flips": k, "share": i.share, "ci95_low": i.low, "ci95_high": i.high})
             })
             .collect();
@@ -135,6 +151,7 @@ impl Campaign {
             .iter()
             .map(|f| {
                 json!({
+                    "population": f.population.name(), "star": f.star,
                     "step": f.step, "instr": f.instr, "at": f.at, "target": f.target.describe(), "class": f.target.class(),
                     "outcome": f.outcome.name(),
                     "crash": match &f.outcome { Outcome::Crash(w) => Some(w.clone()), _ => None },
@@ -243,17 +260,32 @@ impl Campaign {
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
             self.latent
         );
-        let classes = ["stack", "statics", "core register", "sp/pc", "FPU register"];
+        let classes: Vec<&str> = [
+            "stack",
+            "statics",
+            "core register",
+            "sp/pc",
+            "FPU register",
+            "double: adjacent bits",
+            "double: adjacent words",
+            "device register",
+            "snapshot, then reset",
+            "forced reset",
+        ]
+        .into_iter()
+        .filter(|c| self.flips.iter().any(|f| f.target.class() == *c))
+        .collect();
         let _ = writeln!(s, "| outcome | flips | share [95 % interval] | {} |", classes.join(" | "));
         let _ = writeln!(s, "|---|---|---|{}", "---|".repeat(classes.len()));
         for row in ROWS {
             let k = self.count(row, None);
             let per: Vec<String> = classes.iter().map(|c| self.count(row, Some(c)).to_string()).collect();
-            let _ = writeln!(s, "| {row} | {k} | {} | {} |", Interval::wilson(k, n).pct(), per.join(" | "));
+            let _ = writeln!(s, "| {row} | {k} | {} | {} |", Interval::clopper_pearson(k, n).pct(), per.join(" | "));
         }
         let totals: Vec<String> =
             classes.iter().map(|c| self.flips.iter().filter(|f| f.target.class() == *c).count().to_string()).collect();
         let _ = writeln!(s, "| all | {n} | | {} |\n", totals.join(" | "));
+        s.push_str(&self.populations());
         s.push_str(&self.details());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
         if changed.is_empty() {
@@ -294,6 +326,56 @@ impl Campaign {
 }
 
 impl Campaign {
+    /// The table per population (Markdown): its flips by outcome, silent and crash with
+    /// their exact 95 % intervals, and the traced paths' lengths.
+    fn populations(&self) -> String {
+        let mut s = String::new();
+        let pops: Vec<super::Population> =
+            super::Population::ALL.into_iter().filter(|p| self.flips.iter().any(|f| f.population == *p)).collect();
+        if pops.is_empty() {
+            return s;
+        }
+        let mix: Vec<String> = self.mix.0.iter().map(|(p, w)| format!("{} {w}", p.name())).collect();
+        let _ = writeln!(
+            s,
+            "Per population (drawn per flip with weights {}):
+",
+            mix.join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "| population | flips | masked | tolerated | detected | reset and recovered | silent [95 % CP] | crash [95 % CP] | in star-update steps |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+        for p in pops {
+            let of: Vec<&Flip> = self.flips.iter().filter(|f| f.population == p).collect();
+            let n = of.len();
+            let c = |row: &str| of.iter().filter(|f| f.outcome.name() == row).count();
+            let detected = c("detected and recovered") + c("detected, not recovered in the window");
+            let (silent, crash) = (c("silent"), c("crash"));
+            let _ = writeln!(
+                s,
+                "| {} | {n} | {} | {} | {detected} | {} | {silent}: {} | {crash}: {} | {} |",
+                p.name(),
+                c("masked"),
+                c("tolerated"),
+                c("reset and recovered"),
+                Interval::clopper_pearson(silent, n).pct(),
+                Interval::clopper_pearson(crash, n).pct(),
+                of.iter().filter(|f| f.star).count()
+            );
+        }
+        let lens: Vec<String> = self.path_lens.iter().map(|(k, l)| format!("{k:?} {l}")).collect();
+        let _ = writeln!(
+            s,
+            "
+Traced paths (instructions): {}.
+",
+            lens.join(", ")
+        );
+        s
+    }
+
     /// When the flips landed, the recovery times, the events logged and the crashes'
     /// causes (Markdown paragraphs).
     fn details(&self) -> String {
