@@ -181,27 +181,46 @@ impl Campaign {
         let _ = writeln!(
             s,
             "Written by `ssis-qemu-upset` (host-tests/runner/src/upset/); the host campaign on the \
-             flight core's state is docs/UPSET-CAMPAIGN.md. Issue 30, item 1. Command:\n\n```\n{command}\n```\n"
+             flight core's state is docs/UPSET-CAMPAIGN.md. Command:\n\n```\n{command}\n```\n"
         );
+        let share = if o.register_share < 0.0 {
+            "the bits of the RAM in use (the live stack from SP to {top}, the statics {s0}..{s1}) and of \
+             r0–r15, xPSR, d0–d15 and FPSCR, uniform over all of them (the registers' share in proportion \
+             to their bits, about 1 %)"
+                .to_string()
+        } else {
+            format!(
+                "the RAM in use (the live stack from SP to {{top}}, the statics {{s0}}..{{s1}}) or, for {:.0} % \
+                 of the flips, the bits of r0–r15, xPSR, d0–d15 and FPSCR",
+                100.0 * o.register_share
+            )
+        }
+        .replace("{top}", &format!("{:#x}", self.stack_top))
+        .replace("{s0}", &format!("{:#x}", self.statics.0))
+        .replace("{s1}", &format!("{:#x}", self.statics.1));
         let _ = writeln!(
             s,
-            "Scenario `{}` on `ssis-fw-test` in QEMU mps2-an500, lockstep, `-icount shift=0,sleep=off`. \
-             One bit per flip, through QEMU's gdbstub, at a random instruction inside a random step: the \
-             runner breaks at the first instruction of the inlined `FlightCore::step` ({:#x}, from the \
-             ELF's DWARF), draws an instruction uniformly over the path of a step (traced once by \
-             single-stepping) and runs to it through a breakpoint at its address (the m-th time it is \
-             reached, as in the traced path; a step that leaves the path stops at that address or at \
-             the step's end), then flips a bit chosen uniformly in the RAM in use (the live stack from SP to {:#x}, the statics \
-             {:#x}..{:#x}) or, for {:.0} % of the flips, uniformly over the bits of r0–r15, xPSR, d0–d15 \
-             and FPSCR. First flip at {} s (the observer converges at 10.05 s), seed {}.\n",
-            self.name,
-            self.entry,
-            self.stack_top,
-            self.statics.0,
-            self.statics.1,
-            100.0 * o.register_share,
-            o.first_s,
-            o.seed
+            "Scenario `{}` on `ssis-fw-test` in QEMU mps2-an500, lockstep, `-icount shift=0,sleep=off`, \
+             through QEMU's gdbstub. Each flip is drawn from one population (table \"Per population\"): \
+             **state** one bit of {share}; **double** two bits of the RAM in use, adjacent in a word or the \
+             same bit of two adjacent words; **device** one bit of a device or system register the unit \
+             depends on (SysTick CSR and RVR, VTOR, SHPR3, NVIC_ISER0, NVIC_IPR0–1, UART 0–2 CTRL and \
+             BAUDDIV, MPU_CTRL, region 0's RBAR and RASR, region 1's RASR, the watchdog's LOAD and CONTROL, \
+             written with the guest's own store since the gdbstub drops writes to device memory; PRIMASK \
+             and FAULTMASK set with `cpsid`); **snapshot-reset** one bit of the snapshot record in RAM, \
+             then a reset (QEMU's `system_reset`, as SYSRESETREQ); these four at a random instruction of \
+             a random pass: the runner breaks at the first instruction of the inlined `FlightCore::step` \
+             ({:#x}, from the ELF's DWARF) and draws an instruction uniformly over the pass's path (the \
+             step, its outputs and the after-step work up to the loop's next `wfi`, traced once by \
+             single-stepping for a step with a star update and once for one without, a pass taken in \
+             proportion to its path's length), then runs to it through a breakpoint at its address (the \
+             m-th time it is reached, as in the traced path; a pass that leaves the path stops at that \
+             address or at its end); **handler** one bit of the state at a random instruction of the \
+             UART receive interrupt (`DefaultHandler`, traced from its entry to its return); \
+             **snapshot-write** at a random instruction of `FlightCore::snapshot_into` on a step that \
+             writes the snapshot (every 80th), a reset there (half) or one bit of the state. First flip \
+             at {} s (the observer converges at 10.05 s), seed {}.\n",
+            self.name, self.entry, o.first_s, o.seed
         );
         let _ = writeln!(
             s,
