@@ -673,8 +673,10 @@ fn pick_double(rng: &mut ChaCha8Rng, ram: Ram, sp: u32) -> Target {
     let statics = (ram.statics.1 - ram.statics.0) / 4;
     let words = rng.random_bool(0.5);
     // The second word must be in use too.
-    let k = rng.random_range(0..(stack + statics).saturating_sub(1).max(1));
-    let addr = if k < stack.saturating_sub(1) { lo + 4 * k } else { (ram.statics.0 & !3) + 4 * (k - stack) };
+    // Word k and k + 1 both in the stack (k < stack − 1) or both in the statics.
+    let (in_stack, in_statics) = (stack.saturating_sub(1), statics.saturating_sub(1));
+    let k = rng.random_range(0..(in_stack + in_statics).max(1));
+    let addr = if k < in_stack { lo + 4 * k } else { (ram.statics.0 & !3) + 4 * (k - in_stack) };
     let bit = if words { rng.random_range(0..32u8) } else { rng.random_range(0..31u8) };
     Target::Double { addr, bit, words }
 }
@@ -1258,12 +1260,19 @@ fn trace(g: &mut Gdb, mut end: impl FnMut(&mut Gdb, u32) -> Result<bool>) -> Res
     loop {
         let pc = g.register_u32(gdb::PC)?;
         pcs.push(pc);
-        if end(g, pc)? || pcs.len() >= 200_000 {
+        if end(g, pc)? {
+            return Ok(pcs);
+        }
+        if pcs.len() >= TRACE_MAX {
+            eprintln!("a traced path reached {TRACE_MAX} instructions without its end: cut there");
             return Ok(pcs);
         }
         g.step()?;
     }
 }
+
+/// Most instructions of a traced path (a pass with a star update is some 15,000).
+const TRACE_MAX: usize = 40_000;
 
 /// Whether a traced path ends at this address ([`path_end`]).
 type PathEnd = Box<dyn FnMut(&mut Gdb, u32) -> Result<bool>>;
