@@ -14,6 +14,7 @@
 //! | [`cortex_m7`] | MPU stack guard, fault report, stack painting, the panic-free defmt logger, the link-time no-panic handler |
 //! | [`mps2`] | QEMU `mps2-an500`: UARTs, SysTick, watchdog, semihosting log and exit, the main loop's pacing |
 //! | [`harness`] | the one semihosting test runner of the on-target test binaries |
+//! | [`regcheck`] | the configuration registers a board depends on, declared once, checked and restored |
 //! | [`resilience`] | the reset snapshot in RAM the reset does not clear, the background CRC of the code in flash |
 //!
 //! The exception handlers, the panic handler and the defmt logger must be defined once in
@@ -28,4 +29,5 @@
 pub mod cortex_m7;
 pub mod harness;
 pub mod mps2;
+pub mod regcheck;
 pub mod resilience;

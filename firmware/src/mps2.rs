@@ -26,6 +26,9 @@
 //!   8 MiB below 0x2000_0000 unchecked).
 //! - Semihosting: the defmt log ([`semihosting_sink`]) and the exit code of a QEMU run
 //!   ([`exit`]).
+//! - Configuration registers (`crate::regcheck`): SysTick, the vector table, the UARTs
+//!   and their interrupts, the MPU, the watchdog, kept at start-up ([`Mps2Unit::start`])
+//!   and checked by the executive every `REGISTER_STEPS` and by the watchdog's NMI.
 //! - The executive's board ([`Mps2Unit`], `ssis::bsp::exec::StepBoard`): the pacing
 //!   ([`Pacer`]: the timer, or, test builds only, lockstep driven by control frames),
 //!   the clock, the snapshot region and the code image (`crate::resilience`).
@@ -329,6 +332,9 @@ pub fn watchdog_warnings() -> u32 {
 /// resets the unit at the second timeout.
 pub fn on_watchdog_warning() {
     WATCHDOG_WARNINGS.fetch_add(1, Ordering::Relaxed);
+    // A stopped step tick stops the steps and the executive's register check with them:
+    // restored from here (`regcheck`).
+    crate::regcheck::verify_in_nmi(&REGISTERS);
     defmt::warn!("watchdog: the main loop has not run for one watchdog period; reset at the next");
 }
 
@@ -678,6 +684,7 @@ impl<L: ControlLine> Mps2Unit<L> {
         let snap = crate::resilience::snapshot();
         init(syst, step_us, map);
         watchdog_start(watchdog_steps.saturating_mul(step_us));
+        crate::regcheck::build(&REGISTERS);
         Mps2Unit { pacer: Pacer::new(map, ctl), map, line, arrived, rx_overflows, snap }
     }
 
@@ -743,6 +750,10 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
         watchdog_warnings()
     }
 
+    fn check_registers(&mut self) -> ssis::bsp::exec::RegisterCheck {
+        crate::regcheck::verify(&REGISTERS)
+    }
+
     fn report(&mut self, core: &FlightCore) {
         self.line.report();
         report(core, (self.rx_overflows)());
@@ -752,6 +763,51 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
         crate::resilience::reset()
     }
 }
+
+/// The configuration registers the executive checks (`crate::regcheck`), as [`init`],
+/// [`start`] and [`watchdog_start`] leave them: SysTick, the vector table, the
+/// interrupt enables of UARTs 0–2 (all 32 bits: one enabled that should not be does
+/// not restore, and resets) and the priorities of the UARTs' interrupts, the five
+/// UARTs' control and baud divider (the unused ones off), then the MPU's two regions
+/// and control, then the watchdog (load, control; unlocked for the check and locked
+/// after). The same list for every firmware on the board.
+const REGISTERS: [crate::regcheck::Entry; 30] = {
+    let [b0, b1, b2, b3, b4] = UART_BASE;
+    use crate::regcheck::{mpu_region, select, CORE, MPU_CTRL, NVIC_IPR, NVIC_ISER};
+    let (r0, r1) = (mpu_region(0), mpu_region(1));
+    [
+        CORE[0],
+        CORE[1],
+        CORE[2],
+        CORE[3],
+        (NVIC_ISER, u32::MAX),
+        (NVIC_IPR, u32::MAX),
+        (NVIC_IPR + 4, u32::MAX),
+        (NVIC_IPR + 16, u32::MAX),
+        (NVIC_IPR + 20, u32::MAX),
+        ((b0 + CTRL) as u32, 0x7F),
+        ((b0 + BAUDDIV) as u32, 0x000F_FFFF),
+        ((b1 + CTRL) as u32, 0x7F),
+        ((b1 + BAUDDIV) as u32, 0x000F_FFFF),
+        ((b2 + CTRL) as u32, 0x7F),
+        ((b2 + BAUDDIV) as u32, 0x000F_FFFF),
+        ((b3 + CTRL) as u32, 0x7F),
+        ((b3 + BAUDDIV) as u32, 0x000F_FFFF),
+        ((b4 + CTRL) as u32, 0x7F),
+        ((b4 + BAUDDIV) as u32, 0x000F_FFFF),
+        r0[0],
+        r0[1],
+        r0[2],
+        r1[0],
+        r1[1],
+        r1[2],
+        (MPU_CTRL, 0b111),
+        select((WDOG_BASE + WDOG_LOCK) as u32, WDOG_UNLOCK_KEY),
+        ((WDOG_BASE + WDOG_LOAD) as u32, u32::MAX),
+        ((WDOG_BASE + WDOG_CONTROL) as u32, WDOG_INTEN | WDOG_RESEN),
+        select((WDOG_BASE + WDOG_LOCK) as u32, 0),
+    ]
+};
 
 /// The end-of-run figures every firmware logs after its own: stack, statics, watchdog,
 /// dropped log messages and the flight core's counters (`rx_overflows`: bytes dropped

@@ -1,15 +1,15 @@
 //! The upset campaign on the firmware in QEMU (`ssis_runner::upset`, `ssis-qemu-upset`):
-//! a small sample. Flips into registers and RAM of `ssis-fw-test` through QEMU's gdbstub
-//! at random instructions of random steps after convergence, each classed against truth
-//! and the in-process core's undisturbed frames. The full campaign and its figures are in
-//! docs/UPSET-CAMPAIGN-QEMU.md; this checks the machinery: the step's code is found, every
-//! flip lands in the RAM in use or a register, at an instruction of the step's path, and
-//! most are classed masked (their outputs identical to the undisturbed run's).
+//! a small sample of every population (the state, double-bit patterns, device and system
+//! registers, the snapshot before a reset, the receive interrupt, the snapshot write) in
+//! `ssis-fw-test` through QEMU's gdbstub at random instructions after convergence, each
+//! classed against truth and the in-process core's undisturbed frames. The full campaign
+//! and its figures are in docs/UPSET-CAMPAIGN-QEMU.md; this checks the machinery: the
+//! step's code is found, every flip lands where its population says, and none is silent.
 
 use std::path::Path;
 
 use ssis_runner::qemu::build_firmware;
-use ssis_runner::upset::{run_campaign, step_code, Outcome, Target, UpsetOptions};
+use ssis_runner::upset::{run_campaign_mix, step_code, Mix, Outcome, Target, UpsetOptions, DEVICE_REGS};
 use ssis_sim::scenario::Scenario;
 
 #[test]
@@ -24,21 +24,20 @@ fn upset_sample_in_qemu() {
     sc.duration_s = 15.0;
     let o = UpsetOptions {
         elf,
-        flips: 6,
+        flips: 8,
         seed: 3,
         first_s: 12.0,
         quiet_s: 0.25,
         window_s: 1.0,
         gap_s: 0.25,
-        register_share: 0.5,
+        register_share: -1.0,
         max_wall_s: None,
         forced_reset: false,
     };
-    let c = run_campaign(&sc, &o, |_| {}).expect("campaign");
-    assert_eq!(c.flips.len(), 6);
-    // None of the sample's flips is silent. One stops the unit in lockstep (r11 bit 24
-    // near the step's end: the main loop idles and never takes the next STEP): a crash
-    // must say where the guest was (docs/UPSET-CAMPAIGN-QEMU.md).
+    let c = run_campaign_mix(&sc, &o, &Mix::all(), |_| {}).expect("campaign");
+    assert_eq!(c.flips.len(), 8);
+    // None of the sample's flips is silent; a crash must say where the guest was
+    // (docs/UPSET-CAMPAIGN-QEMU.md).
     assert_eq!(c.silent(), 0, "{}", c.report());
     for f in &c.flips {
         if let Outcome::Crash(why) = &f.outcome {
@@ -47,20 +46,29 @@ fn upset_sample_in_qemu() {
     }
     for f in &c.flips {
         assert!(f.step >= 2400 && f.step as f64 * 0.005 <= 15.0, "{f:?}");
-        assert!((f.instr as usize) < c.path_len, "{f:?}");
+        let longest = c.path_lens.iter().map(|(_, l)| *l).max().unwrap_or(0);
+        assert!((f.instr as usize) < longest, "{f:?}");
         match f.target {
             Target::Stack { addr, .. } => assert!(addr < c.stack_top, "{f:?}"),
             Target::Static { addr, .. } => assert!((c.statics.0..c.statics.1).contains(&addr), "{f:?}"),
             Target::Core { reg, bit } => assert!((reg < 16 || reg == 25) && bit < 32, "{f:?}"),
             Target::Fpu { reg, bit } => assert!((26..=42).contains(&reg) && bit < 64, "{f:?}"),
-            Target::Reset | Target::TickStopped | Target::Stall => {
-                panic!("no forced reset or loop fault in a flip campaign: {f:?}")
+            Target::Double { addr, bit, words } => {
+                let end = addr + if words { 8 } else { 4 };
+                assert!(end <= c.stack_top || (c.statics.0..=c.statics.1).contains(&end), "{f:?}");
+                assert!(bit < if words { 32 } else { 31 }, "{f:?}");
             }
+            Target::Device { reg, bit } => {
+                let d = DEVICE_REGS.get(usize::from(reg)).expect("a listed register");
+                assert!(d.mask & (1 << bit) != 0, "{f:?}");
+            }
+            Target::SnapshotReset { .. } | Target::Reset => {}
+            Target::TickStopped | Target::Stall => panic!("no loop fault in a flip campaign: {f:?}"),
         }
         if f.outcome == Outcome::Masked {
             assert!(f.events.is_empty() && f.recovery_s.is_none(), "{f:?}");
         }
     }
     let doc = c.document("ssis-qemu-upset --flips 6");
-    assert!(doc.contains("| masked | ") && doc.contains("| silent | "), "{doc}");
+    assert!(doc.contains("| masked | ") && doc.contains("| silent | ") && doc.contains("| population |"), "{doc}");
 }

@@ -15,7 +15,11 @@
 //!    of the table scrub ([`FlightCore::background`]) every step, a slice of the code
 //!    check ([`CodeCheck`]) every [`CODE_STEPS`](super::code::CODE_STEPS), the memory-error
 //!    poll every step, the snapshot every [`SNAPSHOT_STEPS`] (with the mission's extra
-//!    state, [`Mission::save`]), the command key every [`KEY_CHECK_STEPS`].
+//!    state, [`Mission::save`]), the command key every [`KEY_CHECK_STEPS`], the board's
+//!    configuration registers every [`REGISTER_STEPS`] ([`StepBoard::check_registers`]:
+//!    restored and logged, `register_restored`; a restore that does not hold resets).
+//!    A code check that finds the image changed resets the unit (module doc of
+//!    [`super::code`]).
 //! 3. **Outputs**: handed to the links ([`StepBoard::send`]; on the timer at once, in
 //!    lockstep at the end of the pass), then the mission's work after the outputs
 //!    ([`Mission::after_outputs`]: the launch vehicle's navigation filter) and the event
@@ -32,7 +36,8 @@
 //!    are counted ([`LoopStats::awaited_ticks_max`]); an idle pass without a new tick
 //!    feeds nothing.
 //! 5. **Ring faults**: a link ring whose borrow flag is corrupted takes no byte again
-//!    ([`crate::link::ring_faults`]): snapshot and reset ([`StepBoard::reset`]).
+//!    ([`crate::link::ring_faults`]): snapshot and reset ([`StepBoard::reset`]), as for
+//!    a register whose restore does not hold and a code image found changed.
 //!
 //! At boot [`run`] resumes the core from the board's snapshot if it passes
 //! ([`FlightCore::resume`]) and spoils it, so one snapshot is resumed at most once, then
@@ -42,6 +47,7 @@ use super::code::CodeCheck;
 use super::Board;
 use crate::flight::snapshot::Snapshot;
 use crate::flight::{st_status, FlightCore, StepOutput};
+use crate::telemetry::events::Event;
 
 /// Steps between two snapshots (400 ms at 5 ms): a snapshot costs about 1,200
 /// instructions, some 15 a step spread this thin. The resume bridges the snapshot's
@@ -50,6 +56,22 @@ pub const SNAPSHOT_STEPS: u32 = 80;
 
 /// Steps between two checks of the command key against its record (10 s at 5 ms).
 pub const KEY_CHECK_STEPS: u32 = 2_000;
+
+/// Steps between two checks of the board's configuration registers
+/// ([`StepBoard::check_registers`]: 160 ms at 5 ms, 40 ms at 1.25 ms). A check reads
+/// some 25 registers (about 250 instructions), some 8 a step spread this thin.
+pub const REGISTER_STEPS: u32 = 32;
+
+/// What a check of the board's configuration registers found
+/// ([`StepBoard::check_registers`]).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RegisterCheck {
+    /// Registers found changed and restored (the restore read back as expected).
+    pub restored: u32,
+    /// Registers found changed whose restore did not hold, or a table of expected
+    /// values that fails its own check: the executive resets the unit.
+    pub failed: u32,
+}
 
 /// What the board's wait found ([`StepBoard::wait`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -120,6 +142,14 @@ pub trait StepBoard: Board {
     /// (returns true then); a board without a command link has no key.
     fn check_key(&mut self) -> bool {
         false
+    }
+
+    /// Checks the configuration registers the unit depends on (the step tick, the
+    /// interrupt enables and priorities, the links' control registers, the MPU, the
+    /// watchdog, the interrupt masks) against the values the board set at start-up,
+    /// restoring any that changed; run every [`REGISTER_STEPS`]. Nothing by default.
+    fn check_registers(&mut self) -> RegisterCheck {
+        RegisterCheck::default()
     }
 
     /// Memory errors since the last poll (a board with ECC RAM); none by default.
@@ -290,7 +320,7 @@ impl Executive {
     ) -> Option<bool> {
         self.stats.passes = self.stats.passes.wrapping_add(1);
         if crate::link::ring_faults() != 0 {
-            self.ring_fault(board, mission, core);
+            self.fault_reset(board, mission, core, Fault::Ring);
         }
         let lockstep = match board.wait(core) {
             Wait::End => {
@@ -343,7 +373,9 @@ impl Executive {
         // The after-step work, timed with the step: the table's slice first (the upset
         // campaign ends a step's traced path at it).
         core.background(board.calib_area());
-        let _ = self.code.step(core);
+        if self.code.step(core) == Some(false) {
+            self.fault_reset(board, mission, core, Fault::Code);
+        }
         let e = board.memory_errors();
         if e.corrected != 0 || e.uncorrected != 0 {
             core.note_sram_ecc(e.corrected, e.uncorrected);
@@ -358,6 +390,9 @@ impl Executive {
         }
         if steps.is_multiple_of(KEY_CHECK_STEPS) && board.check_key() {
             core.note_key_restored();
+        }
+        if steps.is_multiple_of(REGISTER_STEPS) {
+            self.registers(board, mission, core);
         }
         let step = board.clock().wrapping_sub(t0);
         if !lockstep {
@@ -390,26 +425,56 @@ impl Executive {
         }
     }
 
-    /// A ring whose borrow flag is corrupted: logged, snapshot, reset.
+    /// The board's configuration registers (module doc, step 2): restored ones logged;
+    /// a restore that did not hold resets the unit.
     #[inline(never)]
-    #[cold]
-    fn ring_fault<B: StepBoard + ?Sized, M: Mission + ?Sized>(
+    fn registers<B: StepBoard + ?Sized, M: Mission + ?Sized>(
         &mut self,
         board: &mut B,
         mission: &mut M,
         core: &mut FlightCore,
+    ) {
+        let r = board.check_registers();
+        if r.restored != 0 {
+            core.log_event(Event::RegisterRestored, u8::try_from(r.restored).unwrap_or(u8::MAX), 0);
+        }
+        if r.failed != 0 {
+            self.fault_reset(board, mission, core, Fault::Register);
+        }
+    }
+
+    /// A fault the unit recovers from by a reset (`why` logged): snapshot, reset.
+    #[inline(never)]
+    #[cold]
+    fn fault_reset<B: StepBoard + ?Sized, M: Mission + ?Sized>(
+        &mut self,
+        board: &mut B,
+        mission: &mut M,
+        core: &mut FlightCore,
+        why: Fault,
     ) -> ! {
         #[cfg(target_os = "none")]
-        defmt::error!(
-            "a ring's borrow flag is corrupted ({} failed borrows): snapshot and reset",
-            crate::link::ring_faults()
-        );
+        defmt::error!("{}: snapshot and reset", why);
+        #[cfg(not(target_os = "none"))]
+        let _ = why;
         if let Some(snap) = board.snapshot() {
             core.snapshot_into(snap);
         }
         mission.save();
         board.reset()
     }
+}
+
+/// Why the executive resets the unit ([`Executive`]'s fault path; logged).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(target_os = "none", derive(defmt::Format))]
+enum Fault {
+    /// A link ring's borrow flag is corrupted ([`crate::link::ring_faults`]).
+    Ring,
+    /// A configuration register whose restore did not hold.
+    Register,
+    /// The code check found the image in flash changed.
+    Code,
 }
 
 /// Runs the flight on the booted `core`: [`Executive::start`], then its passes until
@@ -501,6 +566,8 @@ mod tests {
         calib: std::vec::Vec<u8>,
         ecc: MemoryErrors,
         key_checks: u32,
+        regs: RegisterCheck,
+        reg_checks: u32,
     }
 
     static IMAGE: [u8; 300] = [0x5A; 300];
@@ -546,8 +613,12 @@ mod tests {
         fn memory_errors(&mut self) -> MemoryErrors {
             core::mem::take(&mut self.ecc)
         }
+        fn check_registers(&mut self) -> RegisterCheck {
+            self.reg_checks += 1;
+            core::mem::take(&mut self.regs)
+        }
         fn reset(&mut self) -> ! {
-            unreachable!("no ring fault in these tests")
+            panic!("the unit resets")
         }
     }
 
@@ -579,6 +650,16 @@ mod tests {
     /// Flies the script `waits` (then END) with steps of `cost` clock counts; the board,
     /// the mission and the loop's figures after.
     fn fly(waits: &[Wait], cost: u32, ecc: MemoryErrors) -> (Sim, Cost, LoopStats, FlightCore) {
+        fly_with(waits, cost, ecc, RegisterCheck::default())
+    }
+
+    /// As [`fly`], the first register check finding `regs`.
+    fn fly_with(
+        waits: &[Wait],
+        cost: u32,
+        ecc: MemoryErrors,
+        regs: RegisterCheck,
+    ) -> (Sim, Cost, LoopStats, FlightCore) {
         let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
         let clock = Rc::new(Cell::new(0));
         let mut sim = Sim {
@@ -589,6 +670,8 @@ mod tests {
             calib: std::vec![0xFF; store::REGION_LEN],
             ecc,
             key_checks: 0,
+            regs,
+            reg_checks: 0,
         };
         let mut m = Cost { clock, cost, steps: 0, began: 0, saves: 0 };
         let mut exec = Executive::start(&mut sim, &mut m, &mut core);
@@ -670,11 +753,30 @@ mod tests {
         assert_eq!(stats.steps, KEY_CHECK_STEPS);
         assert_eq!(m.saves, KEY_CHECK_STEPS / SNAPSHOT_STEPS, "the mission's state with every snapshot");
         assert_eq!(sim.key_checks, 1);
+        assert_eq!(sim.reg_checks, KEY_CHECK_STEPS / REGISTER_STEPS);
         assert_eq!((core.counter(Counter::SramEccCorrected), core.counter(Counter::SramEccUncorrected)), (2, 1));
         // Spoiled at the start (resumed at most once); the core is not aligned (no FOG
         // samples), so nothing was written after.
         let mut spoiled = Snapshot::default();
         spoiled.invalidate();
         assert_eq!(bytemuck::bytes_of(&sim.snap), bytemuck::bytes_of(&spoiled));
+    }
+
+    #[test]
+    fn a_restored_register_is_logged_and_the_unit_flies_on() {
+        let waits = std::vec![Wait::Tick { missed: 0 }; REGISTER_STEPS as usize + 1];
+        let regs = RegisterCheck { restored: 2, failed: 0 };
+        let (sim, m, _, core) = fly_with(&waits, 10, MemoryErrors::default(), regs);
+        assert_eq!((sim.reg_checks, m.steps), (1, REGISTER_STEPS + 1));
+        let logged: std::vec::Vec<_> = core.events().pending().collect();
+        assert!(logged.iter().any(|r| r.event == Event::RegisterRestored && r.a == 2), "{logged:?}");
+    }
+
+    #[test]
+    #[should_panic(expected = "the unit resets")]
+    fn a_register_whose_restore_does_not_hold_resets_the_unit() {
+        let waits = std::vec![Wait::Tick { missed: 0 }; REGISTER_STEPS as usize];
+        let regs = RegisterCheck { restored: 0, failed: 1 };
+        let _ = fly_with(&waits, 10, MemoryErrors::default(), regs);
     }
 }

@@ -43,8 +43,9 @@ macro_rules! events_table {
                 42 KeyRestored "key_restored" [KeysRestored keys_restored "command keys in RAM found corrupt by the background check and restored from the record"] "the background check found the command key in RAM differing from its protected record: restored from the record (a, b: 0)",
                 43 Resumed "resumed" [Resumes resumes "resets resumed from the snapshot in RAM"] "the unit resumed after a reset from its snapshot in RAM: attitude, drift, time, alignment (a: 0; b: the snapshot's age in steps)",
                 44 SnapshotInvalid "snapshot_invalid" [SnapshotsInvalid snapshots_invalid "snapshots not resumed after a reset (absent, corrupt, another table, implausible, too old)"] "after a reset the snapshot was not resumed: the unit aligns again on the star tracker (a: 1 absent, 2 CRC, 3 other table, 4 implausible, 5 too old; b: 0)",
-                45 CodeCorrupt "code_corrupt" [CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed"] "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); on the target a reset reloads it",
+                45 CodeCorrupt "code_corrupt" [CodeCorrupt code_corrupt "background checks of the code in flash that found its CRC changed"] "the background check of the code in flash found its CRC changed since boot (a: 0; b: 0); the unit resets (a reset reloads it)",
                 46 SramEcc "sram_ecc" "the board's SRAM ECC reported errors since the last step (a: uncorrected, saturating at 255; b: corrected, saturating)",
+                47 RegisterRestored "register_restored" "the board's check of its configuration registers (step tick, interrupt enables and priorities, UARTs, MPU, watchdog, interrupt masks) found some changed and restored them (a: registers restored, saturating; b: 0); a restore that does not hold resets the unit",
             }
         }
     };

@@ -8,6 +8,12 @@
 //! r0–r15 (numbers 0–15), xPSR (25), d0–d15 (26–41, 64 bits each) and FPSCR (42).
 //! Packets are acknowledged (`+`) both ways; the socket has Nagle's algorithm off, or each
 //! exchange waits for a delayed acknowledgement (about 40 ms).
+//!
+//! Device registers: QEMU's gdbstub writes guest memory as a debugger's ROM load
+//! (`address_space_write_rom`), which writes RAM and ROM and drops a write to a device
+//! (the SysTick's, a UART's): [`Gdb::write_memory`] cannot reach them.
+//! [`Gdb::write_device_u32`] and [`Gdb::read_device_u32`] make the guest's own CPU do the
+//! access, one `str`/`ldr` single-stepped at the halted PC.
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
@@ -25,6 +31,14 @@ pub const XPSR: u32 = 25;
 pub const D0: u32 = 26;
 /// Register number of FPSCR.
 pub const FPSCR: u32 = 42;
+
+/// Thumb `str r0, [r1]` (STR immediate, encoding T1, offset 0; ARMv7-M A7.7.158).
+const STR_R0_AT_R1: u16 = 0x6008;
+/// Thumb `ldr r0, [r1]` (LDR immediate, encoding T1, offset 0; ARMv7-M A7.7.42).
+const LDR_R0_AT_R1: u16 = 0x6808;
+/// xPSR's IT bits (EPSR ICI/IT[7:2] in 15:10, IT[1:0] in 26:25): cleared while the access
+/// is stepped, or an IT block the guest was halted in would make it conditional.
+const XPSR_IT_MASK: u32 = 0x0600_fc00;
 
 /// Largest memory block read or written in one packet, bytes (QEMU's packet is 4 KiB of
 /// hexadecimal).
@@ -246,9 +260,59 @@ impl Gdb {
         Ok(out)
     }
 
-    /// Writes `bytes` at `addr`.
+    /// Writes `bytes` at `addr` (RAM or ROM: a device register's write is dropped, see
+    /// [`Gdb::write_device_u32`]).
     pub fn write_memory(&mut self, addr: u32, bytes: &[u8]) -> Result<()> {
         self.ok(&format!("M{addr:x},{:x}:{}", bytes.len(), hex_encode(bytes)))
+    }
+
+    /// Writes the 32-bit word `value` to `addr` with the guest's own `str`, so that a
+    /// device register (the SysTick's, the NVIC's, a peripheral's) takes it, which
+    /// [`Gdb::write_memory`] cannot do ([`Gdb::guest_access`]). The guest must be halted
+    /// at an instruction (a breakpoint, a step, `-S`), not asleep in `wfi`.
+    pub fn write_device_u32(&mut self, addr: u32, value: u32) -> Result<()> {
+        self.guest_access(STR_R0_AT_R1, addr, value).map(|_| ())
+    }
+
+    /// The 32-bit word at `addr` read with the guest's own `ldr` (a device register as the
+    /// CPU sees it; [`Gdb::write_device_u32`]'s conditions).
+    pub fn read_device_u32(&mut self, addr: u32) -> Result<u32> {
+        self.guest_access(LDR_R0_AT_R1, addr, 0)
+    }
+
+    /// Runs the Thumb instruction `insn` (an access through r0 at [r1]) once in the halted
+    /// guest: saves r0, r1, SP, LR, PC, xPSR and the two bytes at PC; writes `insn` at PC,
+    /// r0 = `r0`, r1 = `addr`, xPSR without its IT bits; single-steps (interrupts held off,
+    /// QEMU's default); restores the bytes and the registers. Returns r0 after the step
+    /// (what an `ldr` read). An access that faults (PC not advanced by 2: the fault's
+    /// handler entered) is an error; the registers are restored, the fault's active state
+    /// is not.
+    fn guest_access(&mut self, insn: u16, addr: u32, r0: u32) -> Result<u32> {
+        let saved: Vec<(u32, Vec<u8>)> = [0, 1, SP, 14, PC, XPSR]
+            .into_iter()
+            .map(|n| self.read_register(n).map(|v| (n, v)))
+            .collect::<Result<_>>()?;
+        let pc = self.register_u32(PC)?;
+        let xpsr = self.register_u32(XPSR)?;
+        let code = self.read_memory(pc, 2)?;
+        self.write_memory(pc, &insn.to_le_bytes())?;
+        let stepped = (|| {
+            self.write_register(XPSR, &(xpsr & !XPSR_IT_MASK).to_le_bytes())?;
+            self.write_register(0, &r0.to_le_bytes())?;
+            self.write_register(1, &addr.to_le_bytes())?;
+            self.step()?;
+            Ok::<_, anyhow::Error>((self.register_u32(0)?, self.register_u32(PC)?))
+        })();
+        self.write_memory(pc, &code)?;
+        for (n, v) in &saved {
+            self.write_register(*n, v)?;
+        }
+        let (out, pc_after) = stepped?;
+        anyhow::ensure!(
+            pc_after == pc.wrapping_add(2),
+            "the guest's access at {addr:#x} from {pc:#x} faulted (PC then {pc_after:#x})"
+        );
+        Ok(out)
     }
 }
 

@@ -10,6 +10,7 @@
 //! | [`calib`] | the calibration flash sector |
 //! | [`rtt`] | the panic-free RTT channel of the defmt log |
 //! | [`ecc`] | the SRAM ECC's error reporting (RAMECC), polled once a step |
+//! | [`regs`] | the configuration registers the executive checks and restores |
 //!
 //! Here: the board's type ([`Stm32h7`], `ssis::bsp::Board` and the executive's
 //! `ssis::bsp::exec::StepBoard`), its bring-up ([`init`]) and what can go wrong in it.
@@ -18,6 +19,7 @@
 mod calib;
 mod clocks;
 pub mod ecc;
+mod regs;
 mod rtt;
 mod tick;
 mod uart;
@@ -152,6 +154,10 @@ impl StepBoard for Stm32h7 {
 
     fn code_image(&self) -> &'static [u8] {
         ssis_firmware::resilience::code_image()
+    }
+
+    fn check_registers(&mut self) -> ssis::bsp::exec::RegisterCheck {
+        ssis_firmware::regcheck::verify(&regs::REGISTERS)
     }
 
     fn memory_errors(&mut self) -> MemoryErrors {
@@ -308,6 +314,7 @@ pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
         // USART's registers (CR1 behind critical sections), all set up above.
         unsafe { NVIC::unmask(irq) };
     }
+    ssis_firmware::regcheck::build(&regs::REGISTERS);
     Ok(Stm32h7 {
         iwdg: dp.IWDG,
         cycles_per_tick: (core_hz / tick::STEP_TICK_HZ).max(1),

@@ -45,9 +45,15 @@ struct Args {
     /// Largest gap between one masked flip's quiet time and the next flip, s.
     #[arg(long, default_value_t = 0.5)]
     gap: f64,
-    /// Share of flips into registers (core and FPU); the rest go into the RAM in use.
-    #[arg(long, default_value_t = 0.25)]
+    /// Share of the state's flips into registers (core and FPU), the rest into the RAM in
+    /// use; negative (the default): in proportion to their bits.
+    #[arg(long, default_value_t = -1.0, allow_hyphen_values = true)]
     register_share: f64,
+    /// The populations and their shares: `all` (state 40 %, double 15 %, device 15 %,
+    /// snapshot-reset 10 %, handler 10 %, snapshot-write 10 %), `state`, or
+    /// `name=share,…` of state, double, device, snapshot-reset, handler, snapshot-write.
+    #[arg(long, default_value = "all", value_parser = ssis_runner::upset::Mix::parse)]
+    mix: ssis_runner::upset::Mix,
     /// The estimator that flies, replacing the scenario's: `luenberger` or `mekf`.
     #[arg(long, value_parser = ssis_sim::scenario::parse_estimator)]
     estimator: Option<ssis::calib::Estimator>,
@@ -112,13 +118,15 @@ fn campaign(args: &Args) -> Result<bool> {
         forced_reset: args.forced_reset,
     };
     let mut k = 0;
-    let c = run_campaign_jobs(&sc, &o, args.jobs, |f| {
+    let c = run_campaign_jobs(&sc, &o, &args.mix, args.jobs, |f: &ssis_runner::upset::Flip| {
         k += 1;
         if args.verbose || f.outcome.name() != "masked" {
             eprintln!(
-                "flip {k}/{}: step {} (+{} instr) {} -> {} (worst {:.1}″{})",
+                "flip {k}/{}: {} step {}{} (+{} instr) {} -> {} (worst {:.1}″{})",
                 o.flips,
+                f.population.name(),
                 f.step,
+                if f.star { " (star update)" } else { "" },
                 f.instr,
                 f.target.describe(),
                 f.outcome.name(),

@@ -71,7 +71,8 @@ pub struct UpsetOptions {
     pub window_s: f64,
     /// Largest gap between the end of one flip's quiet time and the next flip, s.
     pub gap_s: f64,
-    /// Share of flips into registers (the rest into RAM).
+    /// Share of the state's flips into registers (the rest into RAM); negative: in
+    /// proportion to their bits.
     pub register_share: f64,
     /// Stop making new flips after this much wall time, s.
     pub max_wall_s: Option<f64>,
@@ -111,6 +112,33 @@ pub enum Target {
         /// Bit 0–63 (0–31 for FPSCR).
         bit: u8,
     },
+    /// Two bits of the RAM in use ([`Population::Double`]): `bit` and `bit + 1` of the
+    /// word at `addr` (adjacent bits), or `bit` of the words at `addr` and `addr + 4`
+    /// (the same bit in adjacent words).
+    Double {
+        /// Word address.
+        addr: u32,
+        /// Bit 0–31 (0–30 for adjacent bits).
+        bit: u8,
+        /// The same bit in two adjacent words (else two adjacent bits of one word).
+        words: bool,
+    },
+    /// A bit of a device or system register ([`DEVICE_REGS`]), written with the guest's
+    /// own store ([`Gdb::write_device_u32`]); PRIMASK and FAULTMASK set with `cpsid`.
+    Device {
+        /// Index in [`DEVICE_REGS`].
+        reg: u8,
+        /// Bit 0–31.
+        bit: u8,
+    },
+    /// A bit of the snapshot record in RAM flipped, then the unit reset
+    /// ([`Population::SnapshotReset`]).
+    SnapshotReset {
+        /// Address.
+        addr: u32,
+        /// Bit 0–7.
+        bit: u8,
+    },
     /// No flip: the unit reset there ([`UpsetOptions::forced_reset`]).
     Reset,
     /// No flip: the SysTick's enable bit cleared ([`SYST_CSR`]), the step tick stopped
@@ -124,6 +152,186 @@ pub enum Target {
 /// The SysTick control and status register (ARMv7-M B3.3.3); bit 0 enables the counter.
 pub const SYST_CSR: u32 = 0xE000_E010;
 
+/// Where a flip is drawn from, and at which instructions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Population {
+    /// One bit of the state: the RAM in use (live stack, statics) and the core and FPU
+    /// registers, uniform over their bits (or with [`UpsetOptions::register_share`]), at a
+    /// random instruction of a random pass (the step, its outputs and the after-step work,
+    /// up to the loop's next `wfi`; steps with and without a star update).
+    State,
+    /// Two bits of the RAM in use: adjacent bits of a word, or the same bit of two
+    /// adjacent words (half each), at a random instruction of a random pass.
+    Double,
+    /// One bit of a device or system register the unit depends on ([`DEVICE_REGS`]), at a
+    /// random instruction of a random pass.
+    Device,
+    /// One bit of the snapshot record, then a reset, at a random instruction of a random
+    /// pass.
+    SnapshotReset,
+    /// One bit of the state at a random instruction of the UART receive interrupt
+    /// (`DefaultHandler`).
+    Handler,
+    /// At a random instruction of the snapshot write (`FlightCore::snapshot_into`, every
+    /// 80th step): a reset there (half), or one bit of the state.
+    SnapshotWrite,
+}
+
+impl Population {
+    /// Every population, in table order.
+    pub const ALL: [Population; 6] = [
+        Population::State,
+        Population::Double,
+        Population::Device,
+        Population::SnapshotReset,
+        Population::Handler,
+        Population::SnapshotWrite,
+    ];
+
+    /// Its name in the tables and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Population::State => "state",
+            Population::Double => "double",
+            Population::Device => "device",
+            Population::SnapshotReset => "snapshot-reset",
+            Population::Handler => "handler",
+            Population::SnapshotWrite => "snapshot-write",
+        }
+    }
+
+    /// The population named `s`.
+    pub fn parse(s: &str) -> Option<Population> {
+        Population::ALL.into_iter().find(|p| p.name() == s)
+    }
+}
+
+/// The campaign's populations and their shares of the flips (drawn per flip).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Mix(pub Vec<(Population, f64)>);
+
+impl Mix {
+    /// Only [`Population::State`] (the campaign as first written).
+    pub fn state() -> Mix {
+        Mix(vec![(Population::State, 1.0)])
+    }
+
+    /// Every population: state 40 %, double 15 %, device 15 %, snapshot-reset 10 %,
+    /// handler 10 %, snapshot-write 10 % (a stratified sample: the document weighs each
+    /// by its share of the cross-section).
+    pub fn all() -> Mix {
+        Mix(vec![
+            (Population::State, 0.40),
+            (Population::Double, 0.15),
+            (Population::Device, 0.15),
+            (Population::SnapshotReset, 0.10),
+            (Population::Handler, 0.10),
+            (Population::SnapshotWrite, 0.10),
+        ])
+    }
+
+    /// `name=share,…` (shares normalised), or `all`, or `state`.
+    pub fn parse(s: &str) -> Result<Mix> {
+        match s {
+            "all" => return Ok(Mix::all()),
+            "state" => return Ok(Mix::state()),
+            _ => {}
+        }
+        let mut v = Vec::new();
+        for part in s.split(',') {
+            let (name, share) = part.split_once('=').unwrap_or((part, "1"));
+            let p = Population::parse(name.trim()).with_context(|| format!("no population {name}"))?;
+            let w: f64 = share.trim().parse().with_context(|| format!("share {share}"))?;
+            anyhow::ensure!(w >= 0.0 && w.is_finite(), "share {share}");
+            v.push((p, w));
+        }
+        anyhow::ensure!(v.iter().any(|(_, w)| *w > 0.0), "no population with a share");
+        Ok(Mix(v))
+    }
+
+    fn draw(&self, rng: &mut ChaCha8Rng) -> Population {
+        let total: f64 = self.0.iter().map(|(_, w)| w).sum();
+        let mut x = rng.random_range(0.0..total.max(f64::MIN_POSITIVE));
+        for &(p, w) in &self.0 {
+            if x < w {
+                return p;
+            }
+            x -= w;
+        }
+        self.0.last().map_or(Population::State, |p| p.0)
+    }
+}
+
+/// How a device register's bit is flipped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum How {
+    /// Read, XOR, write.
+    Plain,
+    /// An NVIC set-enable register: a set bit cleared through its clear-enable twin
+    /// (0x80 above), a clear one set.
+    Enable,
+    /// An MPU region register: the region number selected first.
+    Mpu(u32),
+    /// A watchdog register: unlocked first, locked after.
+    Watchdog,
+    /// PRIMASK set (`cpsid i`).
+    Primask,
+    /// FAULTMASK set (`cpsid f`).
+    Faultmask,
+}
+
+/// One device or system register of the flip population: name, address, the bits it
+/// implements that the unit depends on, and how a bit of it is flipped.
+#[derive(Debug, Clone, Copy)]
+pub struct DeviceReg {
+    /// Its name.
+    pub name: &'static str,
+    /// Address.
+    pub addr: u32,
+    /// The bits drawn.
+    pub mask: u32,
+    /// How it is flipped.
+    pub how: How,
+}
+
+const fn dev(name: &'static str, addr: u32, mask: u32, how: How) -> DeviceReg {
+    DeviceReg { name, addr, mask, how }
+}
+
+/// The device and system registers of the QEMU mps2 board the spacecraft firmware
+/// configures (`ssis_firmware::mps2`'s list of checked registers): SysTick, the vector
+/// table, SysTick's priority, the NVIC's enables and the UARTs' priorities, UARTs 0–2's
+/// control and baud divider, the MPU's two regions and control, the watchdog's load and
+/// control, and the interrupt masks PRIMASK and FAULTMASK (one bit each, set).
+pub const DEVICE_REGS: [DeviceReg; 21] = [
+    dev("SYST_CSR", 0xE000_E010, 0b111, How::Plain),
+    dev("SYST_RVR", 0xE000_E014, 0x00FF_FFFF, How::Plain),
+    dev("VTOR", 0xE000_ED08, 0xFFFF_FF80, How::Plain),
+    dev("SHPR3", 0xE000_ED20, 0xFF00_0000, How::Plain),
+    dev("NVIC_ISER0", 0xE000_E100, u32::MAX, How::Enable),
+    dev("NVIC_IPR0", 0xE000_E400, u32::MAX, How::Plain),
+    dev("NVIC_IPR1", 0xE000_E404, u32::MAX, How::Plain),
+    dev("UART0_CTRL", 0x4000_4008, 0x7F, How::Plain),
+    dev("UART0_BAUDDIV", 0x4000_4010, 0x000F_FFFF, How::Plain),
+    dev("UART1_CTRL", 0x4000_5008, 0x7F, How::Plain),
+    dev("UART1_BAUDDIV", 0x4000_5010, 0x000F_FFFF, How::Plain),
+    dev("UART2_CTRL", 0x4000_6008, 0x7F, How::Plain),
+    dev("UART2_BAUDDIV", 0x4000_6010, 0x000F_FFFF, How::Plain),
+    dev("MPU_CTRL", 0xE000_ED94, 0b111, How::Plain),
+    dev("MPU_RBAR0", 0xE000_ED9C, 0xFFFF_FFE0, How::Mpu(0)),
+    dev("MPU_RASR0", 0xE000_EDA0, 0x1F3F_FF3F, How::Mpu(0)),
+    dev("MPU_RASR1", 0xE000_EDA0, 0x1F3F_FF3F, How::Mpu(1)),
+    dev("WDOG_LOAD", 0x4000_8000, u32::MAX, How::Watchdog),
+    dev("WDOG_CONTROL", 0x4000_8008, 0b11, How::Watchdog),
+    dev("PRIMASK", 0, 1, How::Primask),
+    dev("FAULTMASK", 0, 1, How::Faultmask),
+];
+
+/// The bits of [`DEVICE_REGS`] the device population draws from.
+pub fn device_bits() -> u32 {
+    DEVICE_REGS.iter().map(|d| d.mask.count_ones()).sum()
+}
+
 impl Target {
     /// The class of the target, for the tables.
     pub fn class(&self) -> &'static str {
@@ -133,6 +341,10 @@ impl Target {
             Target::Core { reg: gdb::SP, .. } | Target::Core { reg: gdb::PC, .. } => "sp/pc",
             Target::Core { .. } => "core register",
             Target::Fpu { .. } => "FPU register",
+            Target::Double { words: false, .. } => "double: adjacent bits",
+            Target::Double { words: true, .. } => "double: adjacent words",
+            Target::Device { .. } => "device register",
+            Target::SnapshotReset { .. } => "snapshot, then reset",
             Target::Reset => "forced reset",
             Target::TickStopped => "tick stopped",
             Target::Stall => "loop stalled",
@@ -148,6 +360,14 @@ impl Target {
             Target::Core { reg, bit } => format!("r{reg} bit {bit}"),
             Target::Fpu { reg: gdb::FPSCR, bit } => format!("fpscr bit {bit}"),
             Target::Fpu { reg, bit } => format!("d{} bit {bit}", reg - gdb::D0),
+            Target::Double { addr, bit, words: false } => format!("{addr:#010x} bits {bit}, {}", bit + 1),
+            Target::Double { addr, bit, words: true } => format!("{addr:#010x} and {:#010x} bit {bit}", addr + 4),
+            Target::Device { reg, bit } => match DEVICE_REGS.get(usize::from(reg)) {
+                Some(d) if d.how == How::Primask || d.how == How::Faultmask => format!("{} set", d.name),
+                Some(d) => format!("{} bit {bit}", d.name),
+                None => format!("device register {reg} bit {bit}"),
+            },
+            Target::SnapshotReset { addr, bit } => format!("snapshot {addr:#010x} bit {bit}, reset"),
             Target::Reset => "forced reset".to_string(),
             Target::TickStopped => "SysTick enable bit cleared".to_string(),
             Target::Stall => "STALL control frame".to_string(),
@@ -196,6 +416,10 @@ impl Outcome {
 /// One flip and what it did.
 #[derive(Debug, Clone)]
 pub struct Flip {
+    /// The population it was drawn from.
+    pub population: Population,
+    /// Its step took a star-tracker update.
+    pub star: bool,
     /// Step the flip was made in.
     pub step: u64,
     /// Instructions executed in that step before the flip.
@@ -316,13 +540,6 @@ pub struct StepCode {
     pub end: u32,
 }
 
-impl StepCode {
-    /// Whether `pc` is past the step (at the call that follows it).
-    fn after(&self, pc: u32) -> bool {
-        pc == self.end
-    }
-}
-
 /// An inlined instance: whether it is the step (else the background work), its entry
 /// and its address ranges.
 type Inlined = (bool, u32, Vec<(u32, u32)>);
@@ -436,9 +653,116 @@ fn pick_target(rng: &mut ChaCha8Rng, ram: Ram, sp: u32, reg_share: f64) -> Targe
     }
 }
 
+/// Bits of the core and FPU registers: r0–r15 and xPSR, d0–d15, FPSCR.
+const REGISTER_BITS: u32 = 17 * 32 + 16 * 64 + 32;
+
+/// A random target of the state: uniform over the bits of the registers and the RAM in
+/// use with the stack pointer at `sp`, or with a register share `reg_share` when given.
+fn pick_state(rng: &mut ChaCha8Rng, ram: Ram, sp: u32, reg_share: Option<f64>) -> Target {
+    let share = reg_share.unwrap_or_else(|| {
+        let ram_bits = 8.0 * f64::from(ram.stack_top.saturating_sub(sp) + ram.statics.1 - ram.statics.0);
+        f64::from(REGISTER_BITS) / (f64::from(REGISTER_BITS) + ram_bits)
+    });
+    pick_target(rng, ram, sp, share)
+}
+
+/// A random double-bit pattern in the RAM in use ([`Population::Double`]).
+fn pick_double(rng: &mut ChaCha8Rng, ram: Ram, sp: u32) -> Target {
+    let lo = sp & !3;
+    let stack = ram.stack_top.saturating_sub(lo) / 4;
+    let statics = (ram.statics.1 - ram.statics.0) / 4;
+    let words = rng.random_bool(0.5);
+    // The second word must be in use too.
+    // Word k and k + 1 both in the stack (k < stack − 1) or both in the statics.
+    let (in_stack, in_statics) = (stack.saturating_sub(1), statics.saturating_sub(1));
+    let k = rng.random_range(0..(in_stack + in_statics).max(1));
+    let addr = if k < in_stack { lo + 4 * k } else { (ram.statics.0 & !3) + 4 * (k - in_stack) };
+    let bit = if words { rng.random_range(0..32u8) } else { rng.random_range(0..31u8) };
+    Target::Double { addr, bit, words }
+}
+
+/// A random bit of [`DEVICE_REGS`], uniform over their bits.
+fn pick_device(rng: &mut ChaCha8Rng) -> Target {
+    let mut k = rng.random_range(0..device_bits());
+    for (i, d) in DEVICE_REGS.iter().enumerate() {
+        let n = d.mask.count_ones();
+        if k < n {
+            let bit = (0..32u8).filter(|b| d.mask & (1 << b) != 0).nth(k as usize).unwrap_or(0);
+            return Target::Device { reg: i as u8, bit };
+        }
+        k -= n;
+    }
+    Target::Device { reg: 0, bit: 0 }
+}
+
+/// MPU region number register.
+const MPU_RNR: u32 = 0xE000_ED98;
+/// The watchdog's lock register and its unlock key.
+const WDOG_LOCK: (u32, u32) = (0x4000_8C00, 0x1ACC_E551);
+
+/// Runs the 16-bit Thumb instruction `insn` once in the halted guest at its PC (which
+/// it does not move: the instruction there runs after), xPSR's IT bits held off; the
+/// code bytes, PC and xPSR restored.
+fn run_insn(g: &mut Gdb, insn: u16) -> Result<()> {
+    let (pc, xpsr) = (g.read_register(gdb::PC)?, g.register_u32(gdb::XPSR)?);
+    let at = u32::from_le_bytes(pc.get(..4).and_then(|b| b.try_into().ok()).context("PC unread")?);
+    let code = g.read_memory(at, 2)?;
+    g.write_memory(at, &insn.to_le_bytes())?;
+    g.write_register(gdb::XPSR, &(xpsr & !0x0600_FC00).to_le_bytes())?;
+    let stepped = g.step();
+    g.write_memory(at, &code)?;
+    g.write_register(gdb::PC, &pc)?;
+    g.write_register(gdb::XPSR, &xpsr.to_le_bytes())?;
+    stepped
+}
+
+/// Flips bit `bit` of device register `d` (its [`How`]).
+fn flip_device(g: &mut Gdb, d: &DeviceReg, bit: u8) -> Result<()> {
+    let b = 1u32 << bit;
+    match d.how {
+        How::Primask => return run_insn(g, 0xB672),
+        How::Faultmask => return run_insn(g, 0xB671),
+        How::Mpu(r) => g.write_device_u32(MPU_RNR, r)?,
+        How::Watchdog => g.write_device_u32(WDOG_LOCK.0, WDOG_LOCK.1)?,
+        How::Plain | How::Enable => {}
+    }
+    let v = g.read_device_u32(d.addr)?;
+    match d.how {
+        How::Enable if v & b != 0 => g.write_device_u32(d.addr + 0x80, b)?,
+        How::Enable => g.write_device_u32(d.addr, b)?,
+        _ => g.write_device_u32(d.addr, v ^ b)?,
+    }
+    if d.how == How::Watchdog {
+        g.write_device_u32(WDOG_LOCK.0, 0)?;
+    }
+    Ok(())
+}
+
 /// Flips the target's bit through the gdbstub.
 fn flip(g: &mut Gdb, t: Target) -> Result<()> {
     match t {
+        Target::Double { addr, bit, words } => {
+            let pairs: [(u32, u32); 2] = if words {
+                [(addr, bit.into()), (addr + 4, bit.into())]
+            } else {
+                [(addr, bit.into()), (addr, u32::from(bit) + 1)]
+            };
+            for (a, b) in pairs {
+                let byte = a + b / 8;
+                let v = g.read_memory(byte, 1)?;
+                g.write_memory(byte, &[v.first().copied().unwrap_or(0) ^ (1 << (b % 8))])?;
+            }
+            Ok(())
+        }
+        Target::Device { reg, bit } => {
+            let d = DEVICE_REGS.get(usize::from(reg)).context("no such device register")?;
+            flip_device(g, d, bit)
+        }
+        Target::SnapshotReset { addr, bit } => {
+            let b = g.read_memory(addr, 1)?;
+            g.write_memory(addr, &[b.first().copied().unwrap_or(0) ^ (1 << bit)])?;
+            g.monitor("system_reset").map(|_| ())
+        }
         Target::Stack { addr, bit } | Target::Static { addr, bit } => {
             let b = g.read_memory(addr, 1)?;
             g.write_memory(addr, &[b.first().copied().unwrap_or(0) ^ (1 << bit)])
@@ -468,6 +792,8 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
 
 /// What is being watched after a flip.
 struct Watch {
+    population: Population,
+    star: bool,
     flip_step: u64,
     instr: u32,
     at: String,
@@ -572,8 +898,22 @@ struct Ctx<'a> {
     o: &'a UpsetOptions,
     flight: &'a Flight,
     code: StepCode,
-    /// The traced path of one step (empty until the first flip).
-    path: std::cell::RefCell<Vec<u32>>,
+    /// The traced paths (empty until the first flip of their kind).
+    paths: std::cell::RefCell<std::collections::HashMap<PathKind, Vec<u32>>>,
+    /// The populations and their shares.
+    mix: Mix,
+    /// The snapshot record in RAM: its address and length.
+    snap_region: (u32, u32),
+    /// The UART receive interrupt's entry (`DefaultHandler`).
+    handler: u32,
+    /// `FlightCore::snapshot_into`'s entry.
+    snapshot_into: Option<u32>,
+    /// The runner's steps that write the snapshot: `n % SNAPSHOT_STEPS`, once seen.
+    snap_phase: std::cell::Cell<Option<u64>>,
+    /// The breakpoint that finds the phase, while set.
+    snap_trap: std::cell::Cell<Option<u32>>,
+    /// The step whose frame is awaited.
+    awaiting: std::cell::Cell<u64>,
     /// The guest's state before the first flip step, once saved.
     snapshot: std::cell::RefCell<Option<Snapshot>>,
     /// Where the snapshot is saved.
@@ -597,6 +937,20 @@ impl Ctx<'_> {
         (s / self.flight.profile.dt_s()).round().max(1.0) as u64
     }
 }
+
+/// Which traced path a flip's instruction is drawn from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum PathKind {
+    /// A pass whose step took a star-tracker update (`true`) or not.
+    Pass(bool),
+    /// The UART receive interrupt.
+    Handler,
+    /// The snapshot write.
+    SnapshotWrite,
+}
+
+/// Steps between two snapshots (`ssis::bsp::exec::SNAPSHOT_STEPS`).
+const SNAPSHOT_STEPS: u64 = ssis::bsp::exec::SNAPSHOT_STEPS as u64;
 
 /// The firmware's whole state after a step (QEMU's migration stream), and the runner's
 /// side of the links at that point: a flight restored from it starts at the next step.
@@ -682,6 +1036,13 @@ impl Traps {
         }
         Ok(())
     }
+}
+
+/// The entry of the function whose (demangled) name ends in `::name`, if the ELF has one.
+fn function_named(elf: &Path, name: &str) -> Result<Option<u32>> {
+    let syms = Syms::of(elf)?;
+    let tail = format!("::{name}");
+    Ok(syms.0.iter().find(|(_, _, n)| n.ends_with(&tail)).map(|(a, _, _)| *a))
 }
 
 /// The ELF's functions, to name an address (a HardFault's instruction, a hang's).
@@ -778,6 +1139,14 @@ fn await_frame(
                 }
                 if let Some(stop) = g.wait_stop(Duration::ZERO).ok().flatten() {
                     let pc = g.register_u32(gdb::PC)?;
+                    if Some(pc) == ctx.snap_trap.get() {
+                        // The snapshot write: its phase in the runner's steps.
+                        ctx.snap_phase.set(Some(ctx.awaiting.get() % SNAPSHOT_STEPS));
+                        ctx.snap_trap.set(None);
+                        g.clear_breakpoint(pc)?;
+                        g.resume()?;
+                        continue;
+                    }
                     if pc == ctx.traps.hard_fault {
                         // The exception frame: r0–r3, r12, lr, pc, xpsr from SP.
                         // (Unreadable when the stack pointer itself was hit.)
@@ -882,18 +1251,47 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
     Ok(notes.into_iter().chain(events.iter().map(|e| e.event.name().to_string())).collect())
 }
 
-/// The path of one step: the address of every instruction it executed, in order, from
-/// its entry to the first address back in the main loop (traced once, single-stepping).
-fn trace_step(g: &mut Gdb, code: &StepCode) -> Result<Vec<u32>> {
+/// The path from here: the address of every instruction executed, in order, up to the
+/// first for which `end` holds (traced once per [`PathKind`], single-stepping): for a
+/// pass the loop's next `wfi`, for the interrupt its return address, for the snapshot
+/// write its caller.
+fn trace(g: &mut Gdb, mut end: impl FnMut(&mut Gdb, u32) -> Result<bool>) -> Result<Vec<u32>> {
     let mut pcs = Vec::with_capacity(8192);
     loop {
         let pc = g.register_u32(gdb::PC)?;
         pcs.push(pc);
-        if code.after(pc) || pcs.len() >= 200_000 {
+        if end(g, pc)? {
+            return Ok(pcs);
+        }
+        if pcs.len() >= TRACE_MAX {
+            eprintln!("a traced path reached {TRACE_MAX} instructions without its end: cut there");
             return Ok(pcs);
         }
         g.step()?;
     }
+}
+
+/// Most instructions of a traced path (a pass with a star update is some 15,000).
+const TRACE_MAX: usize = 40_000;
+
+/// Whether a traced path ends at this address ([`path_end`]).
+type PathEnd = Box<dyn FnMut(&mut Gdb, u32) -> Result<bool>>;
+
+/// The traced path's end for `kind`, the guest halted at its entry.
+fn path_end(g: &mut Gdb, kind: PathKind) -> Result<PathEnd> {
+    Ok(match kind {
+        PathKind::Pass(_) => Box::new(|g: &mut Gdb, pc: u32| Ok(g.read_memory(pc, 2)? == [0x30, 0xbf])),
+        PathKind::Handler => {
+            let sp = g.register_u32(gdb::SP)?;
+            let ret = g.read_memory(sp.wrapping_add(24), 4)?;
+            let ret = u32::from_le_bytes(ret.get(..4).and_then(|b| b.try_into().ok()).context("no exception frame")?);
+            Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == ret & !1))
+        }
+        PathKind::SnapshotWrite => {
+            let lr = g.register_u32(14)? & !1;
+            Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == lr))
+        }
+    })
 }
 
 /// Places a flip inside step `n`: halts, breaks at the step's entry, sends `step`, runs
@@ -903,34 +1301,69 @@ fn trace_step(g: &mut Gdb, code: &StepCode) -> Result<Vec<u32>> {
 /// `path[k]` (m: its count in `path[..=k]`) through a breakpoint, so a step that follows
 /// the traced path stops exactly at its k-th instruction, and one that leaves it stops at
 /// that address or at the step's end, whichever comes first. Returns (k, target).
+#[allow(clippy::too_many_arguments)]
 fn place_flip(
     ctx: &Ctx<'_>,
     unit: &mut Unit,
     g: &mut Gdb,
     rng: &mut ChaCha8Rng,
     step: &ControlFrame,
-) -> Result<(u32, Target, u32)> {
+    pop: Population,
+    star: bool,
+) -> Result<(u32, Target, u32, Population)> {
     let t0 = Instant::now();
-    let entry = ctx.code.entry;
+    let kind = match pop {
+        Population::Handler => PathKind::Handler,
+        Population::SnapshotWrite => PathKind::SnapshotWrite,
+        _ => PathKind::Pass(star),
+    };
+    let entry = match kind {
+        PathKind::Handler => ctx.handler,
+        PathKind::SnapshotWrite => ctx.snapshot_into.unwrap_or(ctx.code.entry),
+        PathKind::Pass(_) => ctx.code.entry,
+    };
     g.halt()?;
     g.set_breakpoint(entry)?;
     g.resume()?;
     unit.control(step)?;
-    let stop = g.wait_stop(Duration::from_secs(60))?;
-    anyhow::ensure!(stop.is_some(), "the step's breakpoint at {entry:#x} was not reached");
+    let stop = g.wait_stop(Duration::from_secs(if kind == PathKind::SnapshotWrite { 5 } else { 20 }))?;
+    let mut pop = pop;
+    if stop.is_none() {
+        // The snapshot write did not come in this step (its phase moved): a state flip
+        // wherever the guest is.
+        anyhow::ensure!(kind == PathKind::SnapshotWrite, "the breakpoint at {entry:#x} was not reached");
+        g.halt()?;
+        pop = Population::State;
+    }
     g.clear_breakpoint(entry)?;
-    let mut path = ctx.path.borrow_mut();
-    let k = if path.is_empty() {
-        // The first flip traces its step and lands at the step's end.
-        *path = trace_step(g, &ctx.code)?;
-        path.len() - 1
-    } else {
-        rng.random_range(0..path.len())
+    let mut paths = ctx.paths.borrow_mut();
+    let placed = stop.is_some();
+    let k = match paths.get(&kind) {
+        _ if !placed => 0,
+        Some(path) if !path.is_empty() => rng.random_range(0..path.len()),
+        _ => {
+            // The first flip of its kind traces its path and lands at its end; a pass's
+            // end is the loop's `wfi`, where a reset is not seen at the runner's
+            // breakpoint on `Reset`: one instruction before.
+            let end = path_end(g, kind)?;
+            let path = trace(g, end)?;
+            let k = path.len() - 1;
+            paths.insert(kind, path);
+            k
+        }
     };
+    let resets = matches!(pop, Population::SnapshotReset | Population::SnapshotWrite) || ctx.o.forced_reset;
+    let k = if resets && matches!(kind, PathKind::Pass(_)) && k + 1 == paths.get(&kind).map_or(0, Vec::len) {
+        k.saturating_sub(1)
+    } else {
+        k
+    };
+    let empty = Vec::new();
+    let path = if placed { paths.get(&kind).unwrap_or(&empty) } else { &empty };
     let (pc, end) = (path.get(k).copied().unwrap_or(entry), path.last().copied().unwrap_or(entry));
     let m = path.get(..=k).map_or(1, |p| p.iter().filter(|&&a| a == pc).count());
     let here = g.register_u32(gdb::PC)?;
-    if !(k == 0 && here == pc) && here != end {
+    if placed && !(k == 0 && here == pc) && here != end {
         g.set_breakpoint(pc)?;
         if end != pc {
             g.set_breakpoint(end)?;
@@ -950,12 +1383,26 @@ fn place_flip(
             g.clear_breakpoint(end)?;
         }
     }
+    let path_len = path.len();
+    drop(paths);
     let here_at_flip = g.register_u32(gdb::PC)?;
     let sp = g.register_u32(gdb::SP)?;
+    // A negative share: in proportion to the bits.
+    let reg_share = (ctx.o.register_share >= 0.0).then_some(ctx.o.register_share);
     let target = match ctx.inject {
         Some(t) => t,
         None if ctx.o.forced_reset => Target::Reset,
-        None => pick_target(rng, ctx.ram, sp, ctx.o.register_share),
+        None => match pop {
+            Population::State | Population::Handler => pick_state(rng, ctx.ram, sp, reg_share),
+            Population::Double => pick_double(rng, ctx.ram, sp),
+            Population::Device => pick_device(rng),
+            Population::SnapshotReset => Target::SnapshotReset {
+                addr: ctx.snap_region.0 + rng.random_range(0..ctx.snap_region.1),
+                bit: rng.random_range(0..8),
+            },
+            Population::SnapshotWrite if rng.random_bool(0.5) => Target::Reset,
+            Population::SnapshotWrite => pick_state(rng, ctx.ram, sp, reg_share),
+        },
     };
     flip(g, target)?;
     g.resume()?;
@@ -964,13 +1411,45 @@ fn place_flip(
     }
     if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
         eprintln!(
-            "flip placed in {:.3} s (instruction {k} of {}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
+            "flip placed in {:.3} s ({} instruction {k} of {path_len}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
             t0.elapsed().as_secs_f64(),
-            path.len(),
+            pop.name(),
             target.describe()
         );
     }
-    Ok((k as u32, target, here_at_flip))
+    Ok((k as u32, target, here_at_flip, pop))
+}
+
+/// The next flip's population and step at or after `from`: a snapshot write's on the
+/// next step that writes the snapshot (once its phase is known; before, another
+/// population is drawn).
+fn schedule(ctx: &Ctx<'_>, rng: &mut ChaCha8Rng, from: u64) -> (u64, Population) {
+    // Bounded: a mix whose only population is the snapshot write falls back to the state.
+    for _ in 0..16 {
+        let pop = ctx.mix.draw(rng);
+        if pop != Population::SnapshotWrite {
+            return (from, pop);
+        }
+        if let (Some(ph), Some(_)) = (ctx.snap_phase.get(), ctx.snapshot_into) {
+            let n = from + (ph + SNAPSHOT_STEPS - from % SNAPSHOT_STEPS) % SNAPSHOT_STEPS;
+            return (n, pop);
+        }
+    }
+    (from, Population::State)
+}
+
+/// Whether a flip of `pop` goes into this pass (a star update's, or not): the passes'
+/// paths are weighed by their lengths once both are traced.
+fn keep(ctx: &Ctx<'_>, rng: &mut ChaCha8Rng, pop: Population, star: bool) -> bool {
+    if matches!(pop, Population::Handler | Population::SnapshotWrite) {
+        return true;
+    }
+    let paths = ctx.paths.borrow();
+    let len = |k: bool| paths.get(&PathKind::Pass(k)).map(Vec::len);
+    match (len(star), len(!star)) {
+        (Some(a), Some(b)) if a < b => rng.random_bool(a as f64 / b as f64),
+        _ => true,
+    }
 }
 
 /// One flight in QEMU: flips until one changes an output (followed for the window), no
@@ -1004,11 +1483,17 @@ fn run_flight(
         }
     }
     ctx.traps.set(&mut g)?;
+    let wants_phase = ctx.mix.0.iter().any(|(p, w)| *p == Population::SnapshotWrite && *w > 0.0);
+    if let (true, None, Some(at)) = (wants_phase, ctx.snap_phase.get(), ctx.snapshot_into) {
+        g.set_breakpoint(at)?;
+        ctx.snap_trap.set(Some(at));
+    }
     g.resume()?;
     let (quiet, window, gap) = (ctx.steps(o.quiet_s), ctx.steps(o.window_s), ctx.steps(o.gap_s));
     let last_n = fl.inputs.last().map_or(0, |i| i.n);
     let dt_us = u64::from(fl.profile.dt_us);
-    let mut next_flip = ctx.steps(o.first_s) + rng.random_range(0..=gap);
+    let first = ctx.steps(o.first_s) + rng.random_range(0..=gap);
+    let (mut next_flip, mut next_pop) = schedule(ctx, rng, first);
     let mut watch: Option<Watch> = None;
     let mut earlier = 0;
     let mut eval = Evaluator::for_unit(&fl.table, &fl.profile, fl.settle_s);
@@ -1049,9 +1534,24 @@ fn run_flight(
             eval.push_truth(t);
         }
         let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
+        let star = fl
+            .inputs
+            .iter()
+            .position(|i| i.n == n)
+            .and_then(|i| fl.frames.get(i))
+            .and_then(Option::as_ref)
+            .is_some_and(|f| f.st_status & ssis::flight::st_status::UPDATED != 0);
+        if watch.is_none() && n == next_flip && !keep(ctx, rng, next_pop, star) {
+            // Uniform over the instructions of all passes: a pass is taken in proportion
+            // to its path's length.
+            next_flip += 1;
+        }
+        ctx.awaiting.set(n);
         if watch.is_none() && n == next_flip {
-            let (instr, target, pc) = place_flip(ctx, &mut unit, &mut g, rng, &step)?;
+            let (instr, target, pc, population) = place_flip(ctx, &mut unit, &mut g, rng, &step, next_pop, star)?;
             watch = Some(Watch {
+                population,
+                star,
                 flip_step: n,
                 instr,
                 at: ctx.syms.name(pc),
@@ -1118,7 +1618,8 @@ fn run_flight(
                 break;
             }
             earlier += 1;
-            next_flip = n + 1 + rng.random_range(0..=gap);
+            let from = n + 1 + rng.random_range(0..=gap);
+            (next_flip, next_pop) = schedule(ctx, rng, from);
         }
     }
     if let Some(w) = watch.as_ref() {
@@ -1186,6 +1687,8 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
     };
     let reset_nominal_s = back.and_then(since_reset);
     Flip {
+        population: w.population,
+        star: w.star,
         step: w.flip_step,
         instr: w.instr,
         at: w.at.clone(),
@@ -1206,7 +1709,12 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
 /// Runs the campaign on scenario `sc`: `o.flips` flips (fewer if `o.max_wall_s` ends it),
 /// `on_flip` told of each.
 pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
-    campaign(sc, o, None, on_flip)
+    campaign(sc, o, &Mix::state(), None, on_flip)
+}
+
+/// [`run_campaign`] with the flips drawn from the populations of `mix`.
+pub fn run_campaign_mix(sc: &Scenario, o: &UpsetOptions, mix: &Mix, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+    campaign(sc, o, mix, None, on_flip)
 }
 
 /// [`run_campaign`] with a fault of the loop in place of each flip: `fault` is
@@ -1218,12 +1726,13 @@ pub fn run_injection(sc: &Scenario, o: &UpsetOptions, fault: Target, on_flip: im
         "{}: not a fault of the loop",
         fault.describe()
     );
-    campaign(sc, o, Some(fault), on_flip)
+    campaign(sc, o, &Mix::state(), Some(fault), on_flip)
 }
 
 fn campaign(
     sc: &Scenario,
     o: &UpsetOptions,
+    mix: &Mix,
     inject: Option<Target>,
     mut on_flip: impl FnMut(&Flip),
 ) -> Result<Campaign> {
@@ -1245,7 +1754,17 @@ fn campaign(
         o,
         flight: &flight,
         code,
-        path: Default::default(),
+        paths: Default::default(),
+        mix: mix.clone(),
+        snap_region: (
+            symbol(&o.elf, "_snapshot_start")? as u32,
+            std::mem::size_of::<ssis::flight::snapshot::Snapshot>() as u32,
+        ),
+        handler: (symbol(&o.elf, "DefaultHandler")? & !1) as u32,
+        snapshot_into: function_named(&o.elf, "snapshot_into")?,
+        snap_phase: Default::default(),
+        snap_trap: Default::default(),
+        awaiting: Default::default(),
         snapshot: Default::default(),
         snapshot_path,
         latent: Default::default(),
@@ -1258,16 +1777,31 @@ fn campaign(
     let mut rng = ChaCha8Rng::seed_from_u64(o.seed);
     let mut flips = Vec::with_capacity(o.flips);
     let mut flights = 0u32;
+    let (mut failed, mut failed_run) = (0u32, 0u32);
     while flips.len() < o.flips && !ctx.out_of_time() {
         let before = flips.len();
         if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
             eprintln!("flight {flights} at {:.1} s", started.elapsed().as_secs_f64());
         }
-        run_flight(&ctx, &mut rng, &mut flips, &mut on_flip)?;
+        if let Err(e) = run_flight(&ctx, &mut rng, &mut flips, &mut on_flip) {
+            // A runner-side failure (a breakpoint never reached): the flight is dropped,
+            // counted, and the campaign goes on; three in a row end it.
+            failed += 1;
+            eprintln!("flight {flights} failed in the runner: {e:#}");
+            anyhow::ensure!(failed_run < 2, "three flights in a row failed in the runner: {e:#}");
+            failed_run += 1;
+            flights += 1;
+            continue;
+        }
+        failed_run = 0;
         flights += 1;
         anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
     }
-    let path_len = ctx.path.borrow().len();
+    let paths = ctx.paths.borrow();
+    let path_len = paths.get(&PathKind::Pass(false)).map_or(0, Vec::len);
+    let mut path_lens: Vec<(PathKind, usize)> = paths.iter().map(|(k, v)| (*k, v.len())).collect();
+    path_lens.sort_by_key(|(k, _)| format!("{k:?}"));
+    drop(paths);
     let latent = *ctx.latent.borrow();
     Ok(Campaign {
         name: sc.name.clone(),
@@ -1277,6 +1811,9 @@ fn campaign(
         wall_s: started.elapsed().as_secs_f64(),
         entry: ctx.code.entry,
         path_len,
+        path_lens,
+        mix: mix.clone(),
+        failed_flights: failed,
         latent,
         stack_top: ctx.ram.stack_top,
         statics: ctx.ram.statics,
@@ -1285,18 +1822,19 @@ fn campaign(
     })
 }
 
-/// [`run_campaign`] as `jobs` campaigns side by side, each in its own QEMU: job j makes
-/// its share of the flips with seed `o.seed + j`; the flips in job order, the flights
-/// and latent flights summed, the wall time the whole run's.
+/// [`run_campaign_mix`] as `jobs` campaigns side by side, each in its own QEMU: job j
+/// makes its share of the flips with seed `o.seed + j`; the flips in job order, the
+/// flights and latent flights summed, the wall time the whole run's.
 pub fn run_campaign_jobs(
     sc: &Scenario,
     o: &UpsetOptions,
+    mix: &Mix,
     jobs: usize,
     on_flip: impl FnMut(&Flip) + Send,
 ) -> Result<Campaign> {
     let jobs = jobs.clamp(1, o.flips.max(1));
     if jobs == 1 {
-        return run_campaign(sc, o, on_flip);
+        return run_campaign_mix(sc, o, mix, on_flip);
     }
     let started = Instant::now();
     let on_flip = std::sync::Mutex::new(on_flip);
@@ -1310,7 +1848,7 @@ pub fn run_campaign_jobs(
                 };
                 let on_flip = &on_flip;
                 scope.spawn(move || {
-                    run_campaign(sc, &o, |f| {
+                    run_campaign_mix(sc, &o, mix, |f| {
                         if let Ok(mut g) = on_flip.lock() {
                             (*g)(f)
                         }
@@ -1328,8 +1866,14 @@ pub fn run_campaign_jobs(
             Some(a) => {
                 a.flips.extend(c.flips);
                 a.flights += c.flights;
+                a.failed_flights += c.failed_flights;
                 a.latent += c.latent;
                 a.path_len = a.path_len.max(c.path_len);
+                for (k, l) in c.path_lens {
+                    if !a.path_lens.iter().any(|(ak, _)| *ak == k) {
+                        a.path_lens.push((k, l));
+                    }
+                }
             }
         }
     }

@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use ssis_common::cli::{json, Value};
 
-use super::{Flip, Outcome, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
+use super::{Flip, Mix, Outcome, PathKind, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
 
 /// A share with its 95 % Wilson score interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -34,6 +34,15 @@ impl Interval {
         let low = if k == 0.0 { 0.0 } else { (c - h).max(0.0) };
         let high = if k == n { 1.0 } else { (c + h).min(1.0) };
         Interval { share: p, low, high }
+    }
+
+    /// The exact (Clopper–Pearson) interval of `k` of `n` at 95 %.
+    pub fn clopper_pearson(k: usize, n: usize) -> Interval {
+        if n == 0 {
+            return Interval { share: 0.0, low: 0.0, high: 1.0 };
+        }
+        let (low, high) = ssis_faults::upset::clopper_pearson(k as u64, n as u64);
+        Interval { share: k as f64 / n as f64, low, high }
     }
 
     fn pct(&self) -> String {
@@ -67,8 +76,14 @@ pub struct Campaign {
     pub wall_s: f64,
     /// The step's entry (breakpoint) address.
     pub entry: u32,
-    /// Instructions in the traced path of a step.
+    /// Instructions in the traced path of a pass without a star update.
     pub path_len: usize,
+    /// Instructions in each traced path.
+    pub path_lens: Vec<(PathKind, usize)>,
+    /// The populations and their shares of the flips.
+    pub mix: Mix,
+    /// Flights dropped because the runner failed in them (a breakpoint never reached).
+    pub failed_flights: u32,
     /// Flights that stopped (crash) after every flip in them had been classed masked or
     /// tolerated: a latent effect of one of them.
     pub latent: u32,
@@ -103,15 +118,16 @@ impl Campaign {
         let n = self.flips.len();
         let _ = writeln!(
             s,
-            "upset campaign  {}  in QEMU: {n} flips in {} flights, wall {:.0} s ({:.0} flips/h)",
+            "upset campaign  {}  in QEMU: {n} flips in {} flights ({} dropped by the runner), wall {:.0} s ({:.0} flips/h)",
             self.name,
             self.flights,
+            self.failed_flights,
             self.wall_s,
             self.flips_per_hour()
         );
         for row in ROWS {
             let k = self.count(row, None);
-            let _ = writeln!(s, "  {row:<40} {k:>6}  {}", Interval::wilson(k, n).pct());
+            let _ = writeln!(s, "  {row:<40} {k:>6}  {}", Interval::clopper_pearson(k, n).pct());
         }
         if let Some(w) = self.flips.iter().filter(|f| f.silent_arcsec > 0.0).map(|f| f.silent_arcsec).reduce(f64::max) {
             let _ = writeln!(s, "  worst silent error {w:.0}″");
@@ -126,7 +142,7 @@ impl Campaign {
             .iter()
             .map(|r| {
                 let k = self.count(r, None);
-                let i = Interval::wilson(k, n);
+                let i = Interval::clopper_pearson(k, n);
                 json!({"outcome": r, "flips": k, "share": i.share, "ci95_low": i.low, "ci95_high": i.high})
             })
             .collect();
@@ -135,6 +151,7 @@ impl Campaign {
             .iter()
             .map(|f| {
                 json!({
+                    "population": f.population.name(), "star": f.star,
                     "step": f.step, "instr": f.instr, "at": f.at, "target": f.target.describe(), "class": f.target.class(),
                     "outcome": f.outcome.name(),
                     "crash": match &f.outcome { Outcome::Crash(w) => Some(w.clone()), _ => None },
@@ -164,27 +181,46 @@ impl Campaign {
         let _ = writeln!(
             s,
             "Written by `ssis-qemu-upset` (host-tests/runner/src/upset/); the host campaign on the \
-             flight core's state is docs/UPSET-CAMPAIGN.md. Issue 30, item 1. Command:\n\n```\n{command}\n```\n"
+             flight core's state is docs/UPSET-CAMPAIGN.md. Command:\n\n```\n{command}\n```\n"
         );
+        let share = if o.register_share < 0.0 {
+            "the bits of the RAM in use (the live stack from SP to {top}, the statics {s0}..{s1}) and of \
+             r0–r15, xPSR, d0–d15 and FPSCR, uniform over all of them (the registers' share in proportion \
+             to their bits, about 1 %)"
+                .to_string()
+        } else {
+            format!(
+                "the RAM in use (the live stack from SP to {{top}}, the statics {{s0}}..{{s1}}) or, for {:.0} % \
+                 of the flips, the bits of r0–r15, xPSR, d0–d15 and FPSCR",
+                100.0 * o.register_share
+            )
+        }
+        .replace("{top}", &format!("{:#x}", self.stack_top))
+        .replace("{s0}", &format!("{:#x}", self.statics.0))
+        .replace("{s1}", &format!("{:#x}", self.statics.1));
         let _ = writeln!(
             s,
-            "Scenario `{}` on `ssis-fw-test` in QEMU mps2-an500, lockstep, `-icount shift=0,sleep=off`. \
-             One bit per flip, through QEMU's gdbstub, at a random instruction inside a random step: the \
-             runner breaks at the first instruction of the inlined `FlightCore::step` ({:#x}, from the \
-             ELF's DWARF), draws an instruction uniformly over the path of a step (traced once by \
-             single-stepping) and runs to it through a breakpoint at its address (the m-th time it is \
-             reached, as in the traced path; a step that leaves the path stops at that address or at \
-             the step's end), then flips a bit chosen uniformly in the RAM in use (the live stack from SP to {:#x}, the statics \
-             {:#x}..{:#x}) or, for {:.0} % of the flips, uniformly over the bits of r0–r15, xPSR, d0–d15 \
-             and FPSCR. First flip at {} s (the observer converges at 10.05 s), seed {}.\n",
-            self.name,
-            self.entry,
-            self.stack_top,
-            self.statics.0,
-            self.statics.1,
-            100.0 * o.register_share,
-            o.first_s,
-            o.seed
+            "Scenario `{}` on `ssis-fw-test` in QEMU mps2-an500, lockstep, `-icount shift=0,sleep=off`, \
+             through QEMU's gdbstub. Each flip is drawn from one population (table \"Per population\"): \
+             **state** one bit of {share}; **double** two bits of the RAM in use, adjacent in a word or the \
+             same bit of two adjacent words; **device** one bit of a device or system register the unit \
+             depends on (SysTick CSR and RVR, VTOR, SHPR3, NVIC_ISER0, NVIC_IPR0–1, UART 0–2 CTRL and \
+             BAUDDIV, MPU_CTRL, region 0's RBAR and RASR, region 1's RASR, the watchdog's LOAD and CONTROL, \
+             written with the guest's own store since the gdbstub drops writes to device memory; PRIMASK \
+             and FAULTMASK set with `cpsid`); **snapshot-reset** one bit of the snapshot record in RAM, \
+             then a reset (QEMU's `system_reset`, as SYSRESETREQ); these four at a random instruction of \
+             a random pass: the runner breaks at the first instruction of the inlined `FlightCore::step` \
+             ({:#x}, from the ELF's DWARF) and draws an instruction uniformly over the pass's path (the \
+             step, its outputs and the after-step work up to the loop's next `wfi`, traced once by \
+             single-stepping for a step with a star update and once for one without, a pass taken in \
+             proportion to its path's length), then runs to it through a breakpoint at its address (the \
+             m-th time it is reached, as in the traced path; a pass that leaves the path stops at that \
+             address or at its end); **handler** one bit of the state at a random instruction of the \
+             UART receive interrupt (`DefaultHandler`, traced from its entry to its return); \
+             **snapshot-write** at a random instruction of `FlightCore::snapshot_into` on a step that \
+             writes the snapshot (every 80th), a reset there (half) or one bit of the state. First flip \
+             at {} s (the observer converges at 10.05 s), seed {}.\n",
+            self.name, self.entry, o.first_s, o.seed
         );
         let _ = writeln!(
             s,
@@ -243,17 +279,32 @@ impl Campaign {
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
             self.latent
         );
-        let classes = ["stack", "statics", "core register", "sp/pc", "FPU register"];
+        let classes: Vec<&str> = [
+            "stack",
+            "statics",
+            "core register",
+            "sp/pc",
+            "FPU register",
+            "double: adjacent bits",
+            "double: adjacent words",
+            "device register",
+            "snapshot, then reset",
+            "forced reset",
+        ]
+        .into_iter()
+        .filter(|c| self.flips.iter().any(|f| f.target.class() == *c))
+        .collect();
         let _ = writeln!(s, "| outcome | flips | share [95 % interval] | {} |", classes.join(" | "));
         let _ = writeln!(s, "|---|---|---|{}", "---|".repeat(classes.len()));
         for row in ROWS {
             let k = self.count(row, None);
             let per: Vec<String> = classes.iter().map(|c| self.count(row, Some(c)).to_string()).collect();
-            let _ = writeln!(s, "| {row} | {k} | {} | {} |", Interval::wilson(k, n).pct(), per.join(" | "));
+            let _ = writeln!(s, "| {row} | {k} | {} | {} |", Interval::clopper_pearson(k, n).pct(), per.join(" | "));
         }
         let totals: Vec<String> =
             classes.iter().map(|c| self.flips.iter().filter(|f| f.target.class() == *c).count().to_string()).collect();
         let _ = writeln!(s, "| all | {n} | | {} |\n", totals.join(" | "));
+        s.push_str(&self.populations());
         s.push_str(&self.details());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
         if changed.is_empty() {
@@ -294,6 +345,56 @@ impl Campaign {
 }
 
 impl Campaign {
+    /// The table per population (Markdown): its flips by outcome, silent and crash with
+    /// their exact 95 % intervals, and the traced paths' lengths.
+    fn populations(&self) -> String {
+        let mut s = String::new();
+        let pops: Vec<super::Population> =
+            super::Population::ALL.into_iter().filter(|p| self.flips.iter().any(|f| f.population == *p)).collect();
+        if pops.is_empty() {
+            return s;
+        }
+        let mix: Vec<String> = self.mix.0.iter().map(|(p, w)| format!("{} {w}", p.name())).collect();
+        let _ = writeln!(
+            s,
+            "Per population (drawn per flip with weights {}):
+",
+            mix.join(", ")
+        );
+        let _ = writeln!(
+            s,
+            "| population | flips | masked | tolerated | detected | reset and recovered | silent [95 % CP] | crash [95 % CP] | in star-update steps |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|");
+        for p in pops {
+            let of: Vec<&Flip> = self.flips.iter().filter(|f| f.population == p).collect();
+            let n = of.len();
+            let c = |row: &str| of.iter().filter(|f| f.outcome.name() == row).count();
+            let detected = c("detected and recovered") + c("detected, not recovered in the window");
+            let (silent, crash) = (c("silent"), c("crash"));
+            let _ = writeln!(
+                s,
+                "| {} | {n} | {} | {} | {detected} | {} | {silent}: {} | {crash}: {} | {} |",
+                p.name(),
+                c("masked"),
+                c("tolerated"),
+                c("reset and recovered"),
+                Interval::clopper_pearson(silent, n).pct(),
+                Interval::clopper_pearson(crash, n).pct(),
+                of.iter().filter(|f| f.star).count()
+            );
+        }
+        let lens: Vec<String> = self.path_lens.iter().map(|(k, l)| format!("{k:?} {l}")).collect();
+        let _ = writeln!(
+            s,
+            "
+Traced paths (instructions): {}.
+",
+            lens.join(", ")
+        );
+        s
+    }
+
     /// When the flips landed, the recovery times, the events logged and the crashes'
     /// causes (Markdown paragraphs).
     fn details(&self) -> String {
