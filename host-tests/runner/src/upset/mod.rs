@@ -451,14 +451,11 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
         }
         Target::Reset => g.monitor("system_reset").map(|_| ()),
         Target::TickStopped => {
-            let csr = g.read_memory(SYST_CSR, 4)?;
-            let csr = u32::from_le_bytes(csr.get(..4).and_then(|b| b.try_into().ok()).context("SYST_CSR unread")?);
-            g.write_memory(SYST_CSR, &(csr & !1).to_le_bytes())?;
-            let back = g.read_memory(SYST_CSR, 4)?;
-            anyhow::ensure!(
-                back.first().is_some_and(|b| b & 1 == 0),
-                "SYST_CSR still {back:02x?} after the write: QEMU's gdbstub writes RAM and ROM only, not device registers"
-            );
+            // A device register: written by the guest's own `str` (the gdbstub drops it).
+            let csr = g.read_device_u32(SYST_CSR)?;
+            g.write_device_u32(SYST_CSR, csr & !1)?;
+            let back = g.read_device_u32(SYST_CSR)?;
+            anyhow::ensure!(back & 1 == 0, "SYST_CSR still {back:#x} after the write");
             Ok(())
         }
         // Sent on the control line once the guest runs ([`place_flip`]).
