@@ -698,28 +698,40 @@ impl Traps {
     /// and the SysTick stopped, QEMU warps to the second timeout before the NMI handler's
     /// first instruction). `None`: no sign of the watchdog.
     fn watchdog_cause(&self, g: &mut Gdb) -> Result<Option<String>> {
-        let word = |g: &mut Gdb, addr: u32| -> Result<u32> {
-            let b = g.read_memory(addr, 4)?;
-            Ok(b.get(..4).and_then(|b| b.try_into().ok()).map_or(0, u32::from_le_bytes))
-        };
-        let n = match self.warnings {
-            Some(addr) => word(g, addr)?,
-            None => 0,
-        };
-        Ok(match n {
-            0 if word(g, WDOG_RIS)? & 1 != 0 => Some("watchdog, warning not handled".to_string()),
-            0 => None,
-            1 => Some("watchdog".to_string()),
-            n => Some(format!("watchdog, {n} warnings")),
+        // The guest's own `ldr` at the stop reads the device; the breakpoint there is
+        // lifted for that step.
+        g.clear_breakpoint(self.reset)?;
+        let w = watchdog_at_reset(g, self.warnings);
+        g.set_breakpoint(self.reset)?;
+        Ok(match w? {
+            (0, true) => Some("watchdog, warning not handled".to_string()),
+            (0, false) => None,
+            (1, _) => Some("watchdog".to_string()),
+            (n, _) => Some(format!("watchdog, {n} warnings")),
         })
     }
+}
+
+/// At the unit's `Reset` (the guest halted there, no breakpoint at its PC): the firmware's
+/// count of watchdog warnings at `warnings` (`mps2::WATCHDOG_WARNINGS`; RAM survives the
+/// reset) and whether the watchdog's raw interrupt status is still set (a timeout that no
+/// feed cleared; read by the guest's `ldr`: the gdbstub reads the device as 0).
+pub(crate) fn watchdog_at_reset(g: &mut Gdb, warnings: Option<u32>) -> Result<(u32, bool)> {
+    let n = match warnings {
+        Some(addr) => {
+            let b = g.read_memory(addr, 4)?;
+            b.get(..4).and_then(|b| b.try_into().ok()).map_or(0, u32::from_le_bytes)
+        }
+        None => 0,
+    };
+    Ok((n, g.read_device_u32(WDOG_RIS)? & 1 != 0))
 }
 
 /// The CMSDK watchdog's raw interrupt status (mps2: the watchdog at 0x4000_8000, WDOGRIS).
 const WDOG_RIS: u32 = 0x4000_8010;
 
 /// The address of the data symbol whose demangled path is `path`, if the ELF has one.
-fn data_symbol(elf: &Path, path: &str) -> Result<Option<u32>> {
+pub(crate) fn data_symbol(elf: &Path, path: &str) -> Result<Option<u32>> {
     use object::{Object, ObjectSymbol};
     let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
     let file = object::File::parse(&*data)?;
