@@ -1,7 +1,7 @@
 //! The flight build (`ssis-fw`, paced on its own SysTick, no lockstep) under a fault of its
 //! loop in QEMU (`ssis_runner::flight_build::loop_fault_on_flight_build`: `-icount`, the
 //! gdbstub, `-action watchdog=reset`; the calibration table loaded, no sensor input): the
-//! SysTick's enable bit cleared, or the loop stalled in a branch to itself. The loop must
+//! SysTick's enable bit cleared, the loop stalled in a branch to itself, or PRIMASK set. The loop must
 //! stop stepping, the watchdog reset the unit (its raw interrupt status still set at the
 //! reset: a timeout that no feed followed), and the unit step again after the reset. A
 //! firmware that restores the SysTick's control word itself (a register check) passes
@@ -46,4 +46,9 @@ fn a_flight_build_with_its_tick_stopped_is_reset_by_the_watchdog() {
 #[test]
 fn a_flight_build_whose_loop_stalls_is_reset_by_the_watchdog() {
     fault(LoopFault::Stall);
+}
+
+#[test]
+fn a_flight_build_with_its_interrupts_masked_is_reset_by_the_watchdog() {
+    fault(LoopFault::InterruptsMasked);
 }

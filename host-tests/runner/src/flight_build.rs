@@ -189,6 +189,8 @@ pub enum LoopFault {
     TickStopped,
     /// The instruction at the halted PC replaced by a branch to itself (`b .`).
     Stall,
+    /// PRIMASK set (the guest's own `cpsid i`): the tick's interrupt is never taken.
+    InterruptsMasked,
 }
 
 /// What the flight build did after a loop fault.
@@ -279,6 +281,7 @@ pub fn loop_fault_on_flight_build(
             let pc = g.register_u32(PC)?;
             g.write_memory(pc & !1, &[0xfe, 0xe7])?;
         }
+        LoopFault::InterruptsMasked => g.mask_interrupts()?,
     }
     g.resume()?;
     let mut faulted = Vec::new();
