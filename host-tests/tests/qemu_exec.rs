@@ -16,6 +16,10 @@
 //! the first timeout, the reset at the second: 2 × 45 ms = 90 ms of the unit's virtual
 //! time after the last feed, which came no later than the end of the step the fault
 //! was injected in); a second warning would mean the loop fed it after the fault.
+//! With the tick stopped the CPU sleeps between steps and QEMU (`-icount …,sleep=off`)
+//! warps its virtual time from timer deadline to timer deadline, the watchdog's being
+//! the only one: the warning's handler then runs once, twice or not before the reset,
+//! so for that fault only the cause (the watchdog) is checked.
 
 use std::path::Path;
 
@@ -66,20 +70,25 @@ fn inject(fault: Target) {
     );
     assert_eq!(f.target, fault);
     assert_eq!(f.outcome, Outcome::ResetRecovered, "{}", c.report());
-    assert_eq!(f.reset_cause.as_deref(), Some("watchdog"), "one warning, then the reset at the second timeout");
+    // With the tick stopped the CPU sleeps, and under `-icount …,sleep=off` QEMU warps
+    // from one watchdog timeout to the next around it: the warning's NMI handler may not
+    // run before the reset ("watchdog, warning not handled": the raw interrupt status
+    // still set at the reset, `upset::Traps::watchdog_cause`), or run twice (QEMU 7.2's
+    // NVIC pends the NMI again at the second timeout, taken before the reset request is
+    // served: "watchdog, 2 warnings"). There the count does not tell a feed between, so
+    // only the cause is checked: the watchdog.
+    let c = f.reset_cause.as_deref().unwrap_or("");
+    if fault == Target::TickStopped {
+        assert!(c.starts_with("watchdog"), "reset by the watchdog: {c:?}");
+    } else {
+        assert_eq!(c, "watchdog", "one warning, then the reset at the second timeout");
+    }
     let back_s = f.reset_nominal_s.expect("back within twice the nominal 3σ");
     assert!(back_s <= 2.0, "within 2× the nominal 3σ after {back_s} s");
     assert!(f.events.iter().any(|e| e == "resumed"), "{:?}", f.events);
 }
 
-/// Ignored: the write to SYST_CSR through QEMU's gdbstub did not take (measured: the
-/// fault classed masked, the unit stepping on); QEMU's gdbstub writes guest memory
-/// with `address_space_write_rom`, which writes RAM and ROM and skips device
-/// registers. The runner now refuses such a write (it reads SYST_CSR back). What
-/// remains to do: stop the tick from inside the guest (a test hook), or through
-/// QEMU's monitor.
 #[test]
-#[ignore = "QEMU's gdbstub does not write the SysTick's registers"]
 fn a_stopped_tick_is_reset_by_the_watchdog_and_the_unit_resumes() {
     inject(Target::TickStopped);
 }

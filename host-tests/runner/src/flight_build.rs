@@ -15,7 +15,7 @@ use std::io::Write;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use ssis::calib::{store, CalibrationTable};
 use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
@@ -179,5 +179,148 @@ fn compare(bytes: &[u8], split: usize, table: &CalibrationTable) -> Result<Contr
             c.differing += 1;
         }
     }
+    Ok(c)
+}
+
+/// A fault of the flight build's loop ([`loop_fault_on_flight_build`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LoopFault {
+    /// The SysTick's enable bit cleared (the guest's own `str`, [`crate::gdb::Gdb::write_device_u32`]).
+    TickStopped,
+    /// The instruction at the halted PC replaced by a branch to itself (`b .`).
+    Stall,
+    /// PRIMASK set (the guest's own `cpsid i`): the tick's interrupt is never taken.
+    InterruptsMasked,
+}
+
+/// What the flight build did after a loop fault.
+#[derive(Debug, Clone, Default)]
+pub struct LoopFaultCheck {
+    /// Output frames before the fault.
+    pub frames_before: u64,
+    /// Output frames between the fault and the reset.
+    pub frames_faulted: u64,
+    /// The unit reset (stopped at `Reset`).
+    pub reset: bool,
+    /// No reset, but [`RESTORED_FRAMES`] frames after the fault and the SysTick enabled
+    /// again (restored by the firmware).
+    pub tick_restored: bool,
+    /// At the reset: the firmware's count of watchdog warnings.
+    pub warnings: u32,
+    /// At the reset: the watchdog's raw interrupt status (a timeout not fed since).
+    pub watchdog_pending: bool,
+    /// Output frames after the reset, within the wait.
+    pub frames_after: u64,
+    /// The firmware's defmt log.
+    pub log: Vec<String>,
+}
+
+/// Output frames after a fault without a reset that end the wait for one.
+pub const RESTORED_FRAMES: u64 = 20;
+
+/// Output frames in `bytes`.
+fn count_frames(bytes: &[u8]) -> u64 {
+    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut n = 0;
+    dec.push_slice(bytes, |r| n += u64::from(r.is_ok()));
+    n
+}
+
+/// Runs the flight build `elf` (its own timer, no lockstep, no sensor input) with `table`
+/// loaded under `-icount` (virtual time the instruction count; an idle guest's jumps to
+/// its next timer deadline) and QEMU's gdbstub, `-action watchdog=reset`: after `before`
+/// output frames it halts the guest, injects `fault`, and waits for the reset (a
+/// breakpoint on `Reset`, bounded by QEMU's processor time), then for `after` frames.
+pub fn loop_fault_on_flight_build(
+    elf: &Path,
+    table: &CalibrationTable,
+    fault: LoopFault,
+    before: u64,
+    after: u64,
+) -> Result<LoopFaultCheck> {
+    use crate::gdb::{Gdb, PC};
+    crate::qemu::check_qemu_and_elf(elf)?;
+    let calib = crate::qemu::symbol(elf, "_calib_start")?;
+    let reset_at = (crate::qemu::symbol(elf, "Reset")? & !1) as u32;
+    let image = store::image(table);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let extra =
+        ["-gdb".to_string(), format!("tcp:127.0.0.1:{port}"), "-action".to_string(), "watchdog=reset".to_string()];
+    let mut unit = Unit::start(
+        elf,
+        3,
+        Some(crate::progress::ICOUNT_LOCKSTEP),
+        &[("table.img", &image, calib)],
+        &[0],
+        crate::transport::Transport::Sockets,
+        &extra,
+    )?;
+    let mut g = Gdb::connect(port, Duration::from_secs(10))?;
+    g.set_breakpoint(reset_at)?;
+    g.resume()?;
+    let mut c = LoopFaultCheck::default();
+    let mut bytes = Vec::new();
+    let patience = crate::progress::Patience::new(&unit.q.as_ref().context("no QEMU")?.child, 20.0);
+    while count_frames(&bytes) < before {
+        if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(20)) {
+            bytes.extend_from_slice(&b);
+        }
+        anyhow::ensure!(patience.exhausted().is_none(), "the flight build sent no {before} frames");
+    }
+    g.halt()?;
+    while let Ok((_, b)) = unit.rx.try_recv() {
+        bytes.extend_from_slice(&b);
+    }
+    c.frames_before = count_frames(&bytes);
+    match fault {
+        LoopFault::TickStopped => {
+            let csr = g.read_device_u32(crate::upset::SYST_CSR)?;
+            g.write_device_u32(crate::upset::SYST_CSR, csr & !1)?;
+        }
+        LoopFault::Stall => {
+            let pc = g.register_u32(PC)?;
+            g.write_memory(pc & !1, &[0xfe, 0xe7])?;
+        }
+        LoopFault::InterruptsMasked => g.mask_interrupts()?,
+    }
+    g.resume()?;
+    let mut faulted = Vec::new();
+    let patience = crate::progress::Patience::new(&unit.q.as_ref().context("no QEMU")?.child, 20.0);
+    loop {
+        if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(20)) {
+            faulted.extend_from_slice(&b);
+        }
+        if g.wait_stop(Duration::ZERO)?.is_some() {
+            c.reset = g.register_u32(PC)? == reset_at;
+            break;
+        }
+        // Stepping again without a reset: the tick restored (a register check) or the
+        // fault without effect; SYST_CSR says which.
+        if count_frames(&faulted) >= RESTORED_FRAMES {
+            g.halt()?;
+            c.tick_restored = g.read_device_u32(crate::upset::SYST_CSR)? & 1 != 0;
+            break;
+        }
+        if patience.exhausted().is_some() || unit.exited()?.is_some() {
+            break;
+        }
+    }
+    c.frames_faulted = count_frames(&faulted);
+    if c.reset {
+        g.clear_breakpoint(reset_at)?;
+        let warnings = crate::upset::data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?;
+        (c.warnings, c.watchdog_pending) = crate::upset::watchdog_at_reset(&mut g, warnings)?;
+        g.resume()?;
+        let mut back = Vec::new();
+        let patience = crate::progress::Patience::new(&unit.q.as_ref().context("no QEMU")?.child, 20.0);
+        while count_frames(&back) < after && patience.exhausted().is_none() {
+            if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(20)) {
+                back.extend_from_slice(&b);
+            }
+        }
+        c.frames_after = count_frames(&back);
+    }
+    unit.kill();
+    c.log = unit.log(elf);
     Ok(c)
 }

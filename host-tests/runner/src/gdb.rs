@@ -36,6 +36,8 @@ pub const FPSCR: u32 = 42;
 const STR_R0_AT_R1: u16 = 0x6008;
 /// Thumb `ldr r0, [r1]` (LDR immediate, encoding T1, offset 0; ARMv7-M A7.7.42).
 const LDR_R0_AT_R1: u16 = 0x6808;
+/// Thumb `cpsid i` (CPS, encoding T1; ARMv7-M B5.2.1): PRIMASK set.
+const CPSID_I: u16 = 0xb672;
 /// xPSR's IT bits (EPSR ICI/IT[7:2] in 15:10, IT[1:0] in 26:25): cleared while the access
 /// is stepped, or an IT block the guest was halted in would make it conditional.
 const XPSR_IT_MASK: u32 = 0x0600_fc00;
@@ -278,6 +280,12 @@ impl Gdb {
     /// CPU sees it; [`Gdb::write_device_u32`]'s conditions).
     pub fn read_device_u32(&mut self, addr: u32) -> Result<u32> {
         self.guest_access(LDR_R0_AT_R1, addr, 0)
+    }
+
+    /// Sets PRIMASK with the guest's own `cpsid i` (interrupts of configurable priority
+    /// masked; the NMI and HardFault are not); [`Gdb::write_device_u32`]'s conditions.
+    pub fn mask_interrupts(&mut self) -> Result<()> {
+        self.guest_access(CPSID_I, 0, 0).map(|_| ())
     }
 
     /// Runs the Thumb instruction `insn` (an access through r0 at [r1]) once in the halted

@@ -36,7 +36,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use ssis::calib::accel::AccelTable;
 use ssis::calib::{store, CalibrationTable};
 use ssis::flight::Profile;
@@ -49,7 +49,9 @@ use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::OutputFrame;
 use ssis::frames::Frame;
 use ssis::nav::init::PadInit;
+use ssis::nav::snapshot::NavSnapshot;
 use ssis::nav::unit::FilterWork;
+use ssis::nav::NavState;
 
 use crate::qemu::{check_qemu_and_elf, masked, progress_bar, symbol, Unit, INSTR_PER_TICK};
 use ssis_common::downlink::{Down, Downlink};
@@ -311,14 +313,96 @@ pub fn run_qemu_lv(sc: &LvScenario, opts: &LvOptions) -> Result<LvSummary> {
 /// Runs `run` on the launch-vehicle firmware in QEMU, in lockstep, every output frame
 /// compared with the in-process [`LvCore`]'s; `on_nav` sees every navigation output frame
 /// of the firmware.
-pub fn run_lv(mut run: LvRun<'_>, opts: &LvOptions, mut on_nav: impl FnMut(&NavOutputFrame)) -> Result<LvSummary> {
+pub fn run_lv(run: LvRun<'_>, opts: &LvOptions, on_nav: impl FnMut(&NavOutputFrame)) -> Result<LvSummary> {
+    fly(run, opts, None, on_nav).map(|(s, _)| s)
+}
+
+/// A forced reset in a run ([`run_lv_reset`]).
+#[derive(Debug, Clone, Copy)]
+pub struct LvReset {
+    /// The unit is reset (QEMU's `system_reset`, what its SYSRESETREQ does) after this
+    /// step's output.
+    pub after_step: u64,
+    /// Steps whose bytes are lost while it is down (generated, not sent).
+    pub down_steps: u64,
+    /// Steps recorded after it is back ([`LvResetSeen::after`]).
+    pub record_steps: u64,
+}
+
+/// One step after a forced reset: the firmware's navigation state and the uninterrupted
+/// in-process unit's (each its last navigation frame of the step), and truth.
+#[derive(Debug, Clone, Copy)]
+pub struct LvStepAfter {
+    /// Step.
+    pub n: u64,
+    /// The firmware's state.
+    pub firmware: NavState,
+    /// The uninterrupted unit's state ([`LvCore`] fed every step).
+    pub uninterrupted: NavState,
+    /// Truth, if the feed has it.
+    pub truth: Option<NavState>,
+}
+
+/// What a run with a forced reset saw.
+#[derive(Debug, Clone)]
+pub struct LvResetSeen {
+    /// The navigation snapshot in the SNAP region (after the core's) when the unit was
+    /// reset, read through the gdbstub.
+    pub snapshot: Option<NavSnapshot>,
+    /// The steps after the unit came back, from the first sent.
+    pub after: Vec<LvStepAfter>,
+}
+
+/// Runs `run` as [`run_lv`] with the unit reset as `reset` says, through QEMU's gdbstub;
+/// after the reset the runner follows the unit back into lockstep (its byte counts
+/// start afresh) and goes on with the step after the lost ones. The in-process unit is
+/// not reset: frames after the reset are compared with the uninterrupted flight's (they
+/// differ by the resume), and the navigation states are recorded against it.
+pub fn run_lv_reset(run: LvRun<'_>, opts: &LvOptions, reset: LvReset) -> Result<(LvSummary, LvResetSeen)> {
+    let (s, seen) = fly(run, opts, Some(reset), |_| {})?;
+    Ok((s, seen.unwrap_or(LvResetSeen { snapshot: None, after: Vec::new() })))
+}
+
+/// Where the navigation's snapshot lies: after the core's in the SNAP region
+/// (`resilience::snapshot_extra`).
+fn nav_snapshot_addr(elf: &std::path::Path) -> Result<u32> {
+    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4);
+    Ok(symbol(elf, "_snapshot_start")? as u32 + 4 * core_words as u32)
+}
+
+fn fly(
+    mut run: LvRun<'_>,
+    opts: &LvOptions,
+    reset: Option<LvReset>,
+    mut on_nav: impl FnMut(&NavOutputFrame),
+) -> Result<(LvSummary, Option<LvResetSeen>)> {
     check_qemu_and_elf(&opts.elf)?;
     let profile = Profile::LAUNCH_VEHICLE;
     let table = run.table;
     let init = run.init;
     init.validate().map_err(|e| anyhow::anyhow!("pad block: {e:?}"))?;
     let mut replay = LvCore::new(&table, &init)?;
-    let mut unit = boot(opts, &table, &init)?;
+    // A forced reset goes through the gdbstub; a watchdog timeout then resets too (the
+    // machine's watchdog is not reset with it and may time out once while the unit boots).
+    let port = match reset {
+        Some(_) => Some(std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port()),
+        None => None,
+    };
+    let extra: Vec<String> = match port {
+        Some(p) => vec!["-gdb".into(), format!("tcp:127.0.0.1:{p}"), "-action".into(), "watchdog=reset".into()],
+        None => Vec::new(),
+    };
+    let mut unit = boot(opts, &table, &init, &extra)?;
+    let mut gdb = match port {
+        Some(p) => {
+            // QEMU halts the guest when the client connects.
+            let mut g = crate::gdb::Gdb::connect(p, std::time::Duration::from_secs(10))?;
+            g.resume()?;
+            Some(g)
+        }
+        None => None,
+    };
+    let mut seen = reset.map(|_| LvResetSeen { snapshot: None, after: Vec::new() });
 
     let started = Instant::now();
     let steps = run.steps;
@@ -345,14 +429,48 @@ pub fn run_lv(mut run: LvRun<'_>, opts: &LvOptions, mut on_nav: impl FnMut(&NavO
             s.steps = n - 1;
             break;
         };
+        if let Some(r) = reset.filter(|r| n > r.after_step && n <= r.after_step + r.down_steps) {
+            // The unit is down: the step's bytes are lost; the uninterrupted unit goes on.
+            replay.period(&b);
+            if n == r.after_step + r.down_steps {
+                unit.enter_lockstep(|_, _| {})?;
+                out = LvOutputs::default();
+                sender = LvSender::default();
+            }
+            continue;
+        }
         let step = sender.send(&mut unit, &b, &mut s)?;
         let period = replay.period(&b);
         unit.control(&step)?;
         let want_nav = period.nav.len() / NavOutputFrame::LEN;
         let done = |o: &LvOutputs| !o.flight.is_empty() && o.nav.len() >= want_nav;
         unit.await_output(n, &opts.elf, &mut out, |o, i, b| o.take(i, b), done)?;
-        out.check(&mut s, &period.flight, &period.nav, b.truth.as_ref(), prev_work, &mut on_nav);
+        let mut last_nav = None;
+        out.check(&mut s, &period.flight, &period.nav, b.truth.as_ref(), prev_work, &mut |f: &NavOutputFrame| {
+            last_nav = Some(f.state());
+            on_nav(f);
+        });
         prev_work = Some(work_kind(period.work));
+        if let (Some(r), Some(seen)) = (reset, seen.as_mut()) {
+            if n > r.after_step + r.down_steps && n <= r.after_step + r.down_steps + r.record_steps {
+                // Both as their last navigation frame of the step (sent before the
+                // filter work that follows the outputs).
+                let uninterrupted = period.nav.chunks_exact(NavOutputFrame::LEN).last();
+                let uninterrupted = uninterrupted.and_then(|f| NavOutputFrame::decode(f).ok()).map(|f| f.state());
+                if let (Some(firmware), Some(uninterrupted)) = (last_nav, uninterrupted) {
+                    seen.after.push(LvStepAfter { n, firmware, uninterrupted, truth: b.truth });
+                }
+            }
+            if n == r.after_step {
+                let g = gdb.as_mut().context("no gdbstub")?;
+                g.halt()?;
+                let addr = nav_snapshot_addr(&opts.elf)?;
+                let bytes = g.read_memory(addr, std::mem::size_of::<NavSnapshot>())?;
+                seen.snapshot = NavSnapshot::from_bytes(&bytes);
+                g.monitor("system_reset")?;
+                g.resume()?;
+            }
+        }
         if let Some(bar) = &bar {
             if n.is_multiple_of(800) {
                 bar.set_position(n);
@@ -365,13 +483,13 @@ pub fn run_lv(mut run: LvRun<'_>, opts: &LvOptions, mut on_nav: impl FnMut(&NavO
     (s.exit_code, s.log) = unit.finish(status, bar, &opts.elf);
     s.firmware_times = firmware_times(&s.log);
     s.wall_s = started.elapsed().as_secs_f64();
-    Ok(s)
+    Ok((s, seen))
 }
 
 /// Starts QEMU on the launch-vehicle firmware with the FOG table (two copies) and the
 /// LVDATA region (accelerometer table, pad initialisation block) at the addresses the
 /// ELF names; reads the flight (UART0) and navigation (UART2) outputs.
-fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit) -> Result<Unit> {
+fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit, extra: &[String]) -> Result<Unit> {
     let mut lvdata = vec![0xFFu8; INIT_OFFSET + ssis::nav::init::BLOCK_LEN];
     lvdata[..ssis::calib::accel::TABLE_LEN].copy_from_slice(&AccelTable::IDEAL.to_bytes());
     lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());
@@ -383,7 +501,7 @@ fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit) -> Result<Un
     let icount = Some(crate::progress::ICOUNT_LOCKSTEP);
     let images: [(&str, &[u8], u64); 2] =
         [("table.img", &store::image(table), calib_addr), ("lvdata.img", &lvdata, lvdata_addr)];
-    Unit::start(&opts.elf, 5, icount, &images, &[0, 2], crate::transport::Transport::Sockets, &[])
+    Unit::start(&opts.elf, 5, icount, &images, &[0, 2], crate::transport::Transport::Sockets, extra)
 }
 
 /// The sensor links as the runner writes them (UART1 FOG bus, UART3 accelerometer bus,

@@ -20,8 +20,9 @@
 //! invisible for the quiet time and shows later is charged to a later flip of the same
 //! flight (the document counts how many disturbed flips had earlier flips before them).
 //!
-//! Resets: the runner keeps breakpoints on the firmware's `Reset`, `HardFault` and NMI
-//! (the watchdog's warning) entries and runs QEMU with `-action watchdog=reset`. A
+//! Resets: the runner keeps breakpoints on the firmware's `Reset` and `HardFault` entries
+//! (the watchdog's warnings are read from the firmware's count at `Reset`) and runs QEMU
+//! with `-action watchdog=reset`. A
 //! HardFault (its faulting instruction read from the exception frame) or a watchdog
 //! timeout resets the unit; at `Reset` the runner follows it back into lockstep
 //! ([`relock`]) and on with the flight [`RESET_DOWN_STEPS`] later, and the flip is classed
@@ -775,14 +776,11 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
         }
         Target::Reset => g.monitor("system_reset").map(|_| ()),
         Target::TickStopped => {
-            let csr = g.read_memory(SYST_CSR, 4)?;
-            let csr = u32::from_le_bytes(csr.get(..4).and_then(|b| b.try_into().ok()).context("SYST_CSR unread")?);
-            g.write_memory(SYST_CSR, &(csr & !1).to_le_bytes())?;
-            let back = g.read_memory(SYST_CSR, 4)?;
-            anyhow::ensure!(
-                back.first().is_some_and(|b| b & 1 == 0),
-                "SYST_CSR still {back:02x?} after the write: QEMU's gdbstub writes RAM and ROM only, not device registers"
-            );
+            // A device register: written by the guest's own `str` (the gdbstub drops it).
+            let csr = g.read_device_u32(SYST_CSR)?;
+            g.write_device_u32(SYST_CSR, csr & !1)?;
+            let back = g.read_device_u32(SYST_CSR)?;
+            anyhow::ensure!(back & 1 == 0, "SYST_CSR still {back:#x} after the write");
             Ok(())
         }
         // Sent on the control line once the guest runs ([`place_flip`]).
@@ -1015,27 +1013,83 @@ pub(crate) const HANG_CPU_S: f64 = 8.0;
 pub const RESET_DOWN_STEPS: u64 = 20;
 
 /// The firmware's exception entries the runner keeps breakpoints on: a reset (the unit
-/// rebooting, followed back into lockstep), a HardFault (its faulting instruction read
-/// from the exception frame) and the watchdog's first timeout (NMI).
+/// rebooting, followed back into lockstep) and a HardFault (its faulting instruction read
+/// from the exception frame). The watchdog's first timeout (NMI) is read from the
+/// firmware's count of warnings when the unit resets, not caught at a breakpoint: under
+/// `-icount …,sleep=off` every stop for the debugger lets QEMU warp virtual time to the
+/// next timer deadline (the CPU is stopped before the machine is), and with the SysTick
+/// stopped that deadline is the watchdog's second timeout, which resets the unit before
+/// the NMI handler's first instruction (measured with `-d int` and
+/// `-trace nvic_set_pending`).
 #[derive(Debug, Clone, Copy)]
 struct Traps {
     reset: u32,
     hard_fault: u32,
-    nmi: u32,
+    /// The firmware's count of watchdog warnings since its boot (`mps2::WATCHDOG_WARNINGS`).
+    warnings: Option<u32>,
 }
 
 impl Traps {
     fn of(elf: &Path) -> Result<Traps> {
         let s = |n: &str| symbol(elf, n).map(|a| (a & !1) as u32);
-        Ok(Traps { reset: s("Reset")?, hard_fault: s("HardFault")?, nmi: s("NonMaskableInt")? })
+        let warnings = data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?;
+        Ok(Traps { reset: s("Reset")?, hard_fault: s("HardFault")?, warnings })
     }
 
     fn set(&self, g: &mut Gdb) -> Result<()> {
-        for a in [self.reset, self.hard_fault, self.nmi] {
+        for a in [self.reset, self.hard_fault] {
             g.set_breakpoint(a)?;
         }
         Ok(())
     }
+
+    /// At a stop on `Reset`: the watchdog's warnings before it ("watchdog": one warning,
+    /// then the reset at the second timeout; "watchdog, N warnings": the loop fed it in
+    /// between), read from the firmware's count (RAM survives the reset). With none
+    /// counted, the watchdog's raw interrupt status (WDOGRIS, not cleared by the machine's
+    /// reset in QEMU) still set says that it timed out unfed and was never cleared:
+    /// "watchdog, warning not handled" (under `-icount …,sleep=off` with the CPU asleep
+    /// and the SysTick stopped, QEMU warps to the second timeout before the NMI handler's
+    /// first instruction). `None`: no sign of the watchdog.
+    fn watchdog_cause(&self, g: &mut Gdb) -> Result<Option<String>> {
+        // The guest's own `ldr` at the stop reads the device; the breakpoint there is
+        // lifted for that step.
+        g.clear_breakpoint(self.reset)?;
+        let w = watchdog_at_reset(g, self.warnings);
+        g.set_breakpoint(self.reset)?;
+        Ok(match w? {
+            (0, true) => Some("watchdog, warning not handled".to_string()),
+            (0, false) => None,
+            (1, _) => Some("watchdog".to_string()),
+            (n, _) => Some(format!("watchdog, {n} warnings")),
+        })
+    }
+}
+
+/// At the unit's `Reset` (the guest halted there, no breakpoint at its PC): the firmware's
+/// count of watchdog warnings at `warnings` (`mps2::WATCHDOG_WARNINGS`; RAM survives the
+/// reset) and whether the watchdog's raw interrupt status is still set (a timeout that no
+/// feed cleared; read by the guest's `ldr`: the gdbstub reads the device as 0).
+pub(crate) fn watchdog_at_reset(g: &mut Gdb, warnings: Option<u32>) -> Result<(u32, bool)> {
+    let n = match warnings {
+        Some(addr) => {
+            let b = g.read_memory(addr, 4)?;
+            b.get(..4).and_then(|b| b.try_into().ok()).map_or(0, u32::from_le_bytes)
+        }
+        None => 0,
+    };
+    Ok((n, g.read_device_u32(WDOG_RIS)? & 1 != 0))
+}
+
+/// The CMSDK watchdog's raw interrupt status (mps2: the watchdog at 0x4000_8000, WDOGRIS).
+const WDOG_RIS: u32 = 0x4000_8010;
+
+/// The address of the data symbol whose demangled path is `path`, if the ELF has one.
+pub(crate) fn data_symbol(elf: &Path, path: &str) -> Result<Option<u32>> {
+    use object::{Object, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    Ok(file.symbols().find(|s| s.name().is_ok_and(|n| demangle(n) == path)).map(|s| s.address() as u32))
 }
 
 /// The entry of the function whose (demangled) name ends in `::name`, if the ELF has one.
@@ -1109,8 +1163,9 @@ enum Awaited {
 
 /// Waits for the output frame of the step just sent (`want` frames in all). On the way:
 /// a stop at the HardFault breakpoint notes the faulting instruction (the stacked PC)
-/// in `cause`, one at the NMI the watchdog's warning, and the guest runs on; a stop at
-/// `Reset` is the unit resetting ([`Awaited::Reset`], the guest left halted there).
+/// in `cause` and the guest runs on; a stop at `Reset` is the unit resetting
+/// ([`Awaited::Reset`], the guest left halted there; a watchdog's warnings before it
+/// read from the firmware's count).
 /// Otherwise stopped when QEMU exited, the guest stopped for the debugger (a
 /// breakpoint instruction reached by a wild jump), or no output for [`HANG_CPU_S`] (a
 /// hang: the guest halted and its PC and LR named).
@@ -1160,25 +1215,11 @@ fn await_frame(
                         g.resume_past(pc)?;
                         continue;
                     }
-                    if pc == ctx.traps.nmi {
-                        // One warning, then the reset: "watchdog"; more warnings are
-                        // counted ("watchdog, N warnings": the loop fed it in between).
-                        let c = match cause.as_deref() {
-                            None => "watchdog".to_string(),
-                            Some("watchdog") => "watchdog, 2 warnings".to_string(),
-                            Some(c) => match c.strip_prefix("watchdog, ").and_then(|n| n.strip_suffix(" warnings")) {
-                                Some(n) => format!("watchdog, {} warnings", n.parse::<u32>().unwrap_or(0) + 1),
-                                None => c.to_string(),
-                            },
-                        };
-                        *cause = Some(c);
-                        g.resume_past(pc)?;
-                        continue;
-                    }
                     if pc == ctx.traps.reset {
                         let forced = ctx.o.forced_reset.then(|| "forced (system_reset)".to_string());
+                        let watchdog = ctx.traps.watchdog_cause(g)?;
                         return Ok(Awaited::Reset(
-                            cause.take().or(forced).unwrap_or_else(|| "reset request".to_string()),
+                            cause.take().or(forced).or(watchdog).unwrap_or_else(|| "reset request".to_string()),
                         ));
                     }
                     return Ok(Awaited::Stopped(format!(
@@ -1213,10 +1254,8 @@ fn await_frame(
 /// Back into lockstep after a reset, the guest halted at `Reset`: LOCKSTEP goes out
 /// first (the firmware takes it from its first pass, so it steps on its own tick at most
 /// a few times), the guest runs, and once it is silent the output link starts afresh.
-/// While it boots the guest is let past its breakpoints: the NMI (QEMU's mps2 does not
-/// reset its watchdog with the machine, so the watchdog left running before the reset
-/// times out once before the firmware starts it again: noted in the returned list), a
-/// HardFault or a further reset (noted, and the boot goes on). Returns the notes and
+/// While it boots the guest is let past its breakpoints: a HardFault or a further reset
+/// (noted in the returned list, and the boot goes on). Returns the notes and
 /// the events the unit logged while booting (a snapshot refused, for one).
 fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Result<Vec<String>> {
     unit.command(command::LOCKSTEP)?;
@@ -1228,9 +1267,7 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
         || {
             if g.wait_stop(Duration::ZERO)?.is_some() {
                 let pc = g.register_u32(gdb::PC)?;
-                let note = if pc == ctx.traps.nmi {
-                    "boot: watchdog NMI"
-                } else if pc == ctx.traps.hard_fault {
+                let note = if pc == ctx.traps.hard_fault {
                     "boot: HardFault"
                 } else if pc == ctx.traps.reset {
                     "boot: reset again"

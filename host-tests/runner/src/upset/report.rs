@@ -247,7 +247,9 @@ impl Campaign {
         let _ = writeln!(
             s,
             "Following a reset: the runner keeps breakpoints on the firmware's `Reset`, `HardFault` \
-             and `NonMaskableInt` (the watchdog's warning) entries. At `Reset` it sends LOCKSTEP \
+             entries, and reads the watchdog's warnings at `Reset` (the firmware's count; with none, \
+             the watchdog's raw interrupt status: a stop under `-icount …,sleep=off` warps virtual \
+             time to the next timer deadline, so it does not stop at the NMI). At `Reset` it sends LOCKSTEP \
              before the guest runs on (the firmware takes it on its first pass), waits until the \
              firmware is silent, and goes on with the flight {} steps later ({:.0} ms: the unit \
              taken to be down, its sensor frames not sent; the resume bridges them), counting \
