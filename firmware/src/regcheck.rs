@@ -174,7 +174,9 @@ fn table() -> &'static Table {
 /// the NMI made since the last call are added.
 pub fn verify(list: &[Entry]) -> RegisterCheck {
     let mut out = table().verify(list, false);
-    if cortex_m::register::primask::read().is_inactive() {
+    // cortex-m names PRIMASK and FAULTMASK by the exceptions: `Active` is the bit
+    // clear (exceptions taken), `Inactive` the bit set (masked).
+    if cortex_m::register::primask::read().is_active() {
         // Expected: between steps interrupts are enabled.
     } else {
         // SAFETY: the main loop is outside every critical section here.
@@ -186,7 +188,7 @@ pub fn verify(list: &[Entry]) -> RegisterCheck {
         unsafe { cortex_m::register::basepri::write(0) };
         out.restored += 1;
     }
-    if cortex_m::register::faultmask::read().is_active() {
+    if cortex_m::register::faultmask::read().is_inactive() {
         // SAFETY: no code of the firmware sets FAULTMASK; clearing it only unmasks.
         unsafe { core::arch::asm!("cpsie f", options(nomem, nostack, preserves_flags)) };
         out.restored += 1;
