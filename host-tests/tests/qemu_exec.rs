@@ -10,7 +10,10 @@
 //!   so none feeds the watchdog, and no idle pass sees a new tick;
 //! - a stall of the main loop (the test build's STALL control frame).
 //!
-//! Goals: the unit resets within 100 ms, and is back within twice its nominal 3σ (the
+//! A stopped tick is put back by the watchdog's warning (the NMI runs the board's
+//! register check) before the second timeout, so the unit does not reset: then no
+//! frame may leave twice the nominal 3σ, and the warning and the restore are logged.
+//! Goals otherwise: the unit resets within 100 ms, and is back within twice its nominal 3σ (the
 //! undisturbed flight's, after settling) within 2 s. The reset's time is the
 //! watchdog's: its cause must be the watchdog after exactly one warning (the NMI at
 //! the first timeout, the reset at the second: 2 × 45 ms = 90 ms of the unit's virtual
@@ -69,6 +72,18 @@ fn inject(fault: Target) {
         f.events
     );
     assert_eq!(f.target, fault);
+    if fault == Target::TickStopped && f.reset_cause.is_none() {
+        // The watchdog's warning (its first timeout, 45 ms after the last feed) ran the
+        // register check (`ssis_firmware::regcheck::verify_in_nmi`): the tick restored,
+        // the steps went on before the second timeout, and no frame left the bound.
+        assert!(matches!(f.outcome, Outcome::Masked | Outcome::Tolerated), "{}", c.report());
+        for e in ["watchdog_warning", "register_restored"] {
+            assert!(f.events.iter().any(|x| x == e), "{e} in {:?}", f.events);
+        }
+        let bound = 2.0 * c.nominal_3sigma_arcsec.iter().fold(0.0_f64, |a, &b| a.max(b));
+        assert!(f.worst_arcsec <= bound, "worst {:.2}″ within 2× the nominal 3σ {bound:.2}″", f.worst_arcsec);
+        return;
+    }
     assert_eq!(f.outcome, Outcome::ResetRecovered, "{}", c.report());
     // With the tick stopped the CPU sleeps, and under `-icount …,sleep=off` QEMU warps
     // from one watchdog timeout to the next around it: the warning's NMI handler may not
@@ -89,7 +104,7 @@ fn inject(fault: Target) {
 }
 
 #[test]
-fn a_stopped_tick_is_reset_by_the_watchdog_and_the_unit_resumes() {
+fn a_stopped_tick_is_restored_or_reset_and_the_unit_flies_on() {
     inject(Target::TickStopped);
 }
 
