@@ -171,7 +171,7 @@ class _Writer:
             self.flush()
 
     def flush(self) -> None:
-        import pandas as pd
+        import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
         self.last = time.monotonic()
         if not self.rows:
@@ -198,7 +198,7 @@ def _parts(out: Path, what: str) -> List[Path]:
 
 def load(out: PathLike) -> Any:
     """The results under ``out/`` as a ``pandas.DataFrame``, one row per run, by run."""
-    import pandas as pd
+    import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
     parts = _parts(Path(out), "runs")
     if not parts:
@@ -209,7 +209,7 @@ def load(out: PathLike) -> Any:
 
 def load_series(out: PathLike, run_index: Optional[int] = None) -> Any:
     """The decimated time series under ``out/series/`` (long format: ``run``, ``t_s``, …)."""
-    import pandas as pd
+    import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
     parts = _parts(Path(out), "series")
     if not parts:
@@ -220,7 +220,7 @@ def load_series(out: PathLike, run_index: Optional[int] = None) -> Any:
 
 def done_runs(out: PathLike) -> set:
     """The runs already written under ``out/``."""
-    import pyarrow.parquet as pq
+    import pyarrow.parquet as pq  # type: ignore[import-untyped,unused-ignore]
 
     done: set = set()
     for p in _parts(Path(out), "runs"):
@@ -420,7 +420,7 @@ def _dask(c: Campaign, todo: List[int], scheduler: Optional[str], workers: Optio
         o.workers = sum(client.nthreads().values()) or 1
         width = window or max(4, 2 * o.workers)
         tag = f"ssis-mc-{c.digest[:10]}-{uuid.uuid4().hex[:6]}"
-        which: Dict[str, int] = {}
+        which: Dict[Any, int] = {}
         ac = as_completed()
         pending: Iterator[int] = iter(todo)
 

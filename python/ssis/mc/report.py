@@ -110,7 +110,7 @@ def _param_columns(df: Any) -> List[str]:
 
 def budget(df: Any) -> Any:
     """One row per index column: n, and per level the value, its 95 % interval and upper bound."""
-    import pandas as pd
+    import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
     rows = []
     for col in _index_columns(df):
@@ -135,7 +135,7 @@ def sensitivity(df: Any) -> Any:
     effect: a larger scale factor, a larger error) and its magnitude ``|name|`` (a
     zero-mean dispersion whose either sign hurts, as a bias's does, correlates with the
     index only through its size)."""
-    import pandas as pd
+    import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
     params, idx = _param_columns(df), _index_columns(df)
     cols = {c[len(PARAM):]: df[c].astype(float) for c in params}
