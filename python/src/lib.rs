@@ -9,7 +9,8 @@
 //!   summary `ssis-sim replay --json` prints (from the same `ssis_sim::json` functions);
 //! - [`cal`]: the calibration methods of `ssis-cal` (Allan deviation on arrays or a
 //!   session, turns, SINS), their `--json` values;
-//! - [`lab`]: the model lab (`ssis-lab` init, compare, diagnose, add, export, report).
+//! - [`lab`]: the model lab (`ssis-lab` init, compare, diagnose, add, export, report);
+//! - [`mc`]: Monte Carlo campaigns (`ssis_mc`): validate, draw and fly run i, the indices.
 //!
 //! Summaries cross as JSON text (the tools' `--json` form, docs/JSON.md), parsed on the
 //! Python side; per-step series cross as numpy arrays. Every error is raised as
@@ -21,6 +22,7 @@ use pyo3::prelude::*;
 mod cal;
 mod core;
 mod lab;
+mod mc;
 mod qemu;
 mod replay;
 mod sim;
@@ -88,6 +90,7 @@ fn _ssis(m: &Bound<'_, PyModule>) -> PyResult<()> {
     replay::register(m)?;
     cal::register(m)?;
     lab::register(m)?;
+    mc::register(m)?;
     qemu::register(m)?;
     sim::register(m)?;
     Ok(())

@@ -12,11 +12,13 @@
 //! - [`output`]: every file a tool writes: never onto an input, never half-written.
 //! - [`downlink`]: the output link's frame kinds decoded from one stream; the event timeline.
 //! - [`cli`]: a tool's process: closed pipes, Ctrl-C, `--json`, the exit status.
+//! - [`names`]: "did you mean" for a mistyped name or key.
 
 pub mod cli;
 pub mod downlink;
 pub mod keyfile;
 pub mod mock;
+pub mod names;
 pub mod output;
 pub mod plot;
 pub mod stats;

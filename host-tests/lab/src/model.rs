@@ -328,20 +328,7 @@ pub const MISALIGNMENT_ANGLES: [[&str; 2]; 4] = [["d12", "d13"], ["d21", "d23"],
 /// (`Kind::Expr`).
 pub const FOG_VARIABLES: [&str; 5] = ["rate_rad_s", "t_degc", "dt_degc", "g_degc_s", "fog"];
 
-/// The closest of `names` to `word` (case and `_` aside, at most 2 edits, or a name the
-/// word begins), as a "did you mean" clause.
-pub fn did_you_mean<'a>(word: &str, names: impl Iterator<Item = &'a str>) -> String {
-    let norm = |s: &str| s.to_lowercase().replace(['_', '-'], "");
-    names
-        .map(|n| {
-            let (w, m) = (norm(word), norm(n));
-            // A name the word begins (`chamber_rh` of `chamber_rh_pct`) counts as one edit.
-            (if w.len() >= 3 && m.starts_with(&w) && w != m { 1 } else { strsim::levenshtein(&w, &m) }, n)
-        })
-        .filter(|(d, _)| *d <= 2)
-        .min_by_key(|(d, _)| *d)
-        .map_or(String::new(), |(_, n)| format!("; did you mean `{n}`?"))
-}
+pub use ssis_common::names::did_you_mean;
 
 /// The catalog names, comma separated.
 pub fn catalog_names() -> String {
