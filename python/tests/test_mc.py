@@ -75,9 +75,9 @@ separation_s = {duration_s * 0.3}
 
 
 def same_bits(a: Any, b: Any) -> None:
-    """Two results frames hold the same runs with the same bits (wall time aside)."""
-    cols = [c for c in a.columns if c != "wall_s"]
-    assert sorted(cols) == sorted(c for c in b.columns if c != "wall_s")
+    """Two results frames hold the same runs with the same bits (wall and CPU times aside)."""
+    cols = [c for c in a.columns if c not in ("wall_s", "cpu_s")]
+    assert sorted(cols) == sorted(c for c in b.columns if c not in ("wall_s", "cpu_s"))
     a, b = a.sort_values("run").reset_index(drop=True), b.sort_values("run").reset_index(drop=True)
     assert list(a["run"]) == list(b["run"])
     for c in cols:

@@ -85,8 +85,9 @@ def _campaign(c: Union[Campaign, PathLike]) -> Campaign:
 
 def run_one(text: str, origin: str, i: int, series_every: int = 0) -> Dict[str, Any]:
     """Run ``i`` of the campaign: ``run``, ``params``, ``indices``, optional ``series``,
-    and the wall time it took (``wall_s``). What each worker calls."""
-    t0 = time.perf_counter()
+    and the wall and CPU time it took on its worker's thread (``wall_s``, ``cpu_s``). What
+    each worker calls."""
+    t0, c0 = time.perf_counter(), time.thread_time()
     if _loop_of(text, origin) == "closed":
         from . import closed
 
@@ -94,6 +95,7 @@ def run_one(text: str, origin: str, i: int, series_every: int = 0) -> Dict[str, 
     else:
         r = dict(_ssis.mc_run(text, origin, i, series_every))
     r["wall_s"] = time.perf_counter() - t0
+    r["cpu_s"] = time.thread_time() - c0
     return r
 
 
@@ -247,6 +249,8 @@ class Outcome:
     """Unit steps flown by the runs completed in this session."""
     run_wall_s: float = 0.0
     """The completed runs' wall times on their workers, summed."""
+    run_cpu_s: float = 0.0
+    """The completed runs' CPU times on their workers' threads, summed."""
 
     @property
     def steps_per_s(self) -> float:
@@ -258,7 +262,8 @@ class Outcome:
              f"({self.done_before} already done), {len(self.errors)} failed; results in {self.out}")
         if self.steps:
             s += (f"\n{self.steps} unit steps: {self.steps_per_s / 1e6:.3f} M steps/s end to end, "
-                  f"{self.steps / max(self.run_wall_s, 1e-9) / 1e6:.3f} M steps/s per worker in the runs")
+                  f"{self.steps / max(self.run_wall_s, 1e-9) / 1e6:.3f} M steps/s per worker in the runs, "
+                  f"{self.steps / max(self.run_cpu_s, 1e-9) / 1e6:.3f} M per CPU second")
         for e in self.errors[:10]:
             s += f"\n  run {e['run']}: {e['error']}"
         return s
@@ -379,6 +384,7 @@ def run(
             o.completed += 1
             o.steps += int(r.get("steps", 0))
             o.run_wall_s += float(r.get("wall_s", 0.0))
+            o.run_cpu_s += float(r.get("cpu_s", 0.0))
             if on_result is not None:
                 on_result(r)
         bar.update(len(o.errors))

@@ -87,7 +87,8 @@ def _main(a: argparse.Namespace) -> int:
         if a.json:
             print(json.dumps({"out": str(o.out), "completed": o.completed, "done_before": o.done_before,
                               "errors": o.errors, "wall_s": o.wall_s, "workers": o.workers, "steps": o.steps,
-                              "steps_per_s": o.steps_per_s, "run_wall_s": o.run_wall_s}))
+                              "steps_per_s": o.steps_per_s, "run_wall_s": o.run_wall_s,
+                              "run_cpu_s": o.run_cpu_s}))
         else:
             print(o)
         return 1 if o.errors else 0

@@ -36,8 +36,8 @@ PERFORMANCE = {"AKE": "APE", "RKE": "RPE", "KDE": "PDE"}
 """The name of a knowledge index's statistic on the performance error."""
 
 
-_SCENARIO_FIELDS = ("star_tracker.latency_ms",)
-"""The scenario numbers a closed-loop campaign may disperse (what UnitNav takes)."""
+_SCENARIO_FIELDS = ("star_tracker.latency_ms", "star_tracker.misalignment_arcsec")
+"""The scenario numbers a closed-loop campaign may disperse (what UnitNav models)."""
 
 
 def _toml(text: str) -> Dict[str, Any]:
@@ -48,22 +48,38 @@ def _toml(text: str) -> Dict[str, Any]:
     return tomllib.loads(text)
 
 
+def _rotvec_quat(v: np.ndarray) -> np.ndarray:
+    a = float(np.linalg.norm(v))
+    if a == 0.0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(a / 2)], np.sin(a / 2) * v / a])
+
+
 def setup(info: Dict[str, Any], draw: Dict[str, Any], table: Table) -> Dict[str, Any]:
     """UnitNav's arguments for a draw: the unit flies ``table``; its sensors' truth is
-    ``table`` plus each table quantity's δ; the tracker's latency the dispersed
-    scenario's; the noise seed the run's; a FOG lost, a tracker outage."""
-    truth = None
+    ``table`` plus each table quantity's δ, with the tracker mounted off the table's mount
+    by the dispersed scenario's ``star_tracker.misalignment_arcsec`` (as the simulator
+    mounts it); the FOG noise, turn-on bias and the tracker's noise, period and latency
+    are the dispersed scenario's, the noise seed the run's; a FOG lost, a tracker outage.
+    A reset is not flown in closed loop (UnitNav has none): a run that draws one fails."""
+    truth = copy.copy(table)
     params = draw["params"]
     for q in info["quantities"]:
         target = q["target"]
         if "table" in target:
-            truth = truth if truth is not None else copy.copy(table)
             for name in target["table"]:
                 truth.set(name, truth.get(name) + float(params[q["name"]]))
-        elif target.get("scenario") not in _SCENARIO_FIELDS:
+        elif str(target.get("scenario")).split("[")[0] not in _SCENARIO_FIELDS:
             raise ValueError(f"{q['name']}: a closed-loop campaign disperses table fields and "
                              f"{', '.join(_SCENARIO_FIELDS)} (what UnitNav models)")
     sc = _toml(draw["scenario_toml"])
+    st, fog = sc.get("star_tracker", {}), sc.get("fog", {})
+    mis = np.asarray(st.get("misalignment_arcsec", [0.0, 0.0, 0.0]), dtype=float) / (180 / np.pi * 3600)
+    if mis.any():
+        mount = np.array([truth.get(f"st_mount_q[{k}]") for k in range(4)])
+        q = _ssis.quat_mul(mount, _rotvec_quat(mis))
+        for k in range(4):
+            truth.set(f"st_mount_q[{k}]", float(q[k]))
     outage: Optional[Tuple[float, float]] = None
     fog_failure = None
     for f in draw["faults"]:
@@ -78,15 +94,27 @@ def setup(info: Dict[str, Any], draw: Dict[str, Any], table: Table) -> Dict[str,
         else:
             raise ValueError(f"run {draw['run']}: a `{f['kind']}` fault is not flown in closed loop "
                              "(fog-lost, star-outage)")
-    return dict(table=table, truth=truth, seed=int(sc["seed"]),
-                st_latency_s=float(sc.get("star_tracker", {}).get("latency_ms", 50.0)) * 1e-3,
-                st_outage=outage, fog_failure=fog_failure)
+    kw: Dict[str, Any] = dict(table=table, truth=truth, seed=int(sc["seed"]), st_outage=outage,
+                              fog_failure=fog_failure, st_latency_s=float(st.get("latency_ms", 50.0)) * 1e-3)
+    if "arw_deg_sqrt_h" in fog:
+        kw["arw_deg_sqrt_h"] = float(fog["arw_deg_sqrt_h"])
+    if "rrw_deg_h_sqrt_h" in fog:
+        kw["rrw_deg_h_sqrt_h"] = float(fog["rrw_deg_h_sqrt_h"])
+    if "random_bias_3sigma_deg_h" in fog:
+        kw["turn_on_bias_deg_h"] = float(fog["random_bias_3sigma_deg_h"]) / 3
+    if "sigma_3sigma_arcsec" in st:
+        kw["st_sigma_arcsec"] = float(st["sigma_3sigma_arcsec"]) / 3
+    if st.get("rate_hz"):
+        kw["st_period_s"] = 1.0 / float(st["rate_hz"])
+    return kw
 
 
 def _table(info: Dict[str, Any]) -> Table:
-    """The unit's table: the campaign's scenario's (its ``table`` file), else the default."""
-    path = info.get("table_path") or info.get("scenario", {}).get("table_path")
-    return Table.read(path) if path else Table.default()
+    """The unit's table: the scenario's ``[table] file`` (relative to the scenario), else the default."""
+    t = info.get("scenario", {}).get("table", {})
+    if isinstance(t, dict) and t.get("file"):
+        return Table.read(os.path.join(os.path.dirname(info["scenario_path"]), t["file"]))
+    return Table.default()
 
 
 def run(text: str, origin: str, i: int, series_every: int = 0) -> Dict[str, Any]:

@@ -134,7 +134,8 @@ def sensitivity(df: Any) -> Any:
     (columns). A parameter of both signs enters twice: its drawn value δ (a monotonic
     effect: a larger scale factor, a larger error) and its magnitude ``|name|`` (a
     zero-mean dispersion whose either sign hurts, as a bias's does, correlates with the
-    index only through its size)."""
+    index only through its size). A parameter defined in fewer than half the runs (a
+    fault's time or FOG, NaN when it does not occur) gets no ρ (its ``.occurs`` has one)."""
     import pandas as pd  # type: ignore[import-untyped,unused-ignore]
 
     params, idx = _param_columns(df), _index_columns(df)
@@ -145,7 +146,9 @@ def sensitivity(df: Any) -> Any:
             cols[f"|{c[len(PARAM):]}|"] = v.abs()
     frame = pd.DataFrame({**cols, **{c[len(INDEX):]: df[c].astype(float) for c in idx}})
     names = list(cols)
-    return frame.rank(method="average").corr(method="pearson").loc[names, [c[len(INDEX):] for c in idx]]
+    least = max(3, len(df) // 2)
+    corr = frame.rank(method="average").corr(method="pearson", min_periods=least)
+    return corr.loc[names, [c[len(INDEX):] for c in idx]]
 
 
 def drivers(corr: Any, top: int = 3) -> Dict[str, List[Tuple[str, float]]]:
