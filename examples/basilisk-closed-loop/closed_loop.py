@@ -44,39 +44,17 @@ import argparse
 import json
 import math
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from Basilisk.architecture import messaging
-from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback
-from Basilisk.simulation import extForceTorque, simpleNav, spacecraft
-from Basilisk.utilities import RigidBodyKinematics as rbk
-from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody
-
 import ssis
-from ssis.basilisk import UnitNav
+from ssis.basilisk import UnitNav, fly_leo
 
 DT = 0.005
-ARCSEC_PER_RAD = 180 / math.pi * 3600
 HERE = Path(__file__).resolve().parent
 # the lines of the QEMU runner's report worth printing beside each flight
 KEEP = ("host/QEMU equivalence", "step time, instructions", "unit counters", "QEMU exit")
-INERTIA = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
-
-
-def slew_events(duration_s: float) -> list:
-    """(t_s, principal rotation vector or None = back to nadir) in time order."""
-    ev = []
-    for p in range(int(math.ceil(duration_s / 180.0))):
-        b = 180.0 * p
-        if p > 0:
-            ev.append((b, None))
-        ev += [(b + 40.0, np.array([1.0, 0, 0]) * math.radians(15)),
-               (b + 110.0, np.array([0, 0.6, 0.8]) * math.radians(-20)),
-               (b + 145.0, np.array([-1.0, 0, 0]) * math.radians(15))]
-    return [e for e in ev if e[0] < duration_s]
 
 
 DEFAULT_OUTAGE_S = (30.0, 90.0)
@@ -120,37 +98,9 @@ def place_faults(a: argparse.Namespace, kinds: list) -> list:
 
 
 def fly(kind: str, a: argparse.Namespace) -> dict:
-    """One flight; returns its pointing-error series and what the unit did."""
-    sim = SimulationBaseClass.SimBaseClass()
-    proc = sim.CreateNewProcess("p")
-    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(a.task_ms * 1e-3)))
-    sc = spacecraft.Spacecraft()
-    sc.ModelTag = "leo"
-    sc.hub.mHub = 750.0
-    sc.hub.IHubPntBc_B = [INERTIA[0:3], INERTIA[3:6], INERTIA[6:9]]
-    grav = simIncludeGravBody.gravBodyFactory()
-    earth = grav.createEarth()
-    earth.isCentralBody = True
-    grav.addBodiesTo(sc)
-    oe = orbitalMotion.ClassicElements()
-    oe.a, oe.e, oe.i = earth.radEquator + 500e3, 0.0, math.radians(51.6)
-    oe.Omega, oe.omega, oe.f = math.radians(48.2), 0.0, math.radians(85.3)
-    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
-    sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = r_n, v_n
-    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
-    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
-    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(np.array([r_hat, np.cross(h_hat, r_hat), h_hat]))]
-    sc.hub.omega_BN_BInit = [[0.0], [0.0], [np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)]]
-    # Within the task, higher priority runs first: dynamics, then the sensors, then the
-    # flight software on what they published at this instant.
-    sim.AddModelToTask("t", sc, 100)
-    truth_nav = simpleNav.SimpleNav()
-    truth_nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-    sim.AddModelToTask("t", truth_nav, 90)
+    """One flight (ssis.basilisk.fly_leo); returns its pointing-error series and what the unit did."""
     unit = None
-    if kind == "truth":
-        att_msg = truth_nav.attOutMsg
-    else:
+    if kind != "truth":
         table = ssis.Table.read(HERE.parent / "basilisk" / "table.toml")
         unit = UnitNav(
             table,
@@ -160,63 +110,8 @@ def fly(kind: str, a: argparse.Namespace) -> dict:
             backend=a.backend,
             strict=a.strict,
         )
-        unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-        sim.AddModelToTask("t", unit, 80)
-        att_msg = unit.attOutMsg
-    hill = hillPoint.hillPoint()
-    hill.transNavInMsg.subscribeTo(truth_nav.transOutMsg)
-    sim.AddModelToTask("t", hill, 70)
-    err = attTrackingError.attTrackingError()
-    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
-    err.attNavInMsg.subscribeTo(att_msg)
-    sim.AddModelToTask("t", err, 60)
-    meas = attTrackingError.attTrackingError()  # the true pointing error, for the score only
-    meas.attRefInMsg.subscribeTo(hill.attRefOutMsg)
-    meas.attNavInMsg.subscribeTo(truth_nav.attOutMsg)
-    sim.AddModelToTask("t", meas, 60)
-    vc = messaging.VehicleConfigMsgPayload()
-    vc.ISCPntB_B = INERTIA
-    vc_msg = messaging.VehicleConfigMsg().write(vc)
-    ctl = mrpFeedback.mrpFeedback()
-    ctl.K, ctl.P, ctl.Ki = 36.0, 160.0, -1.0
-    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
-    ctl.vehConfigInMsg.subscribeTo(vc_msg)
-    sim.AddModelToTask("t", ctl, 50)
-    ext = extForceTorque.ExtForceTorque()
-    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
-    sc.addDynamicEffector(ext)
-    sim.AddModelToTask("t", ext, 40)
-    rec = meas.attGuidOutMsg.recorder()
-    sim.AddModelToTask("t", rec)
-    st_rec = truth_nav.attOutMsg.recorder()
-    nav_rec = att_msg.recorder()
-    sim.AddModelToTask("t", st_rec)
-    sim.AddModelToTask("t", nav_rec)
-    sim.InitializeSimulation()
-    offset = np.zeros(3)
-    wall = time.perf_counter()
-    def run_to(t_s: float) -> None:
-        sim.ConfigureStopTime(macros.sec2nano(t_s))
-        try:
-            sim.ExecuteSimulation()
-        except RuntimeError:
-            # Basilisk reports a Python module's exception as its own; UnitNav keeps it
-            if unit is not None and unit.error is not None:
-                raise unit.error from None
-            raise
-
-    for t0, prv in slew_events(a.duration):
-        run_to(t0)
-        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
-        err.sigma_R0R = list(offset)
-        meas.sigma_R0R = list(offset)
-    run_to(a.duration)
-    wall = time.perf_counter() - wall
-    t = np.asarray(rec.times()) * 1e-9
-    point = 4 * np.arctan(np.asarray(rec.sigma_BR)) * ARCSEC_PER_RAD  # small-angle per axis
-    # the unit's own attitude error: its message against truth, per axis
-    nav_err = np.array([rbk.subMRP(n, s) for n, s in zip(nav_rec.sigma_BN, st_rec.sigma_BN)]) * 4 * ARCSEC_PER_RAD
-    out = {"kind": kind, "t_s": t, "pointing_arcsec": point, "nav_err_arcsec": nav_err, "wall_s": wall}
+    out = fly_leo(unit, a.duration, a.task_ms)
+    out["kind"] = kind
     if unit is not None:
         out["backend_report"] = unit.close()
         out["steps_before_aligned"] = unit.steps_before_aligned

@@ -7,6 +7,7 @@
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
+use ssis_mc::indices::Index;
 use ssis_mc::run::{FaultEvent, RunOutput};
 use ssis_mc::{Campaign, IndexSpec, Indices};
 
@@ -119,6 +120,29 @@ fn mc_runs<'py>(
     Ok(out)
 }
 
+/// `spec_json` as an [`IndexSpec`], read through `serde_json::Value`: this build has
+/// serde_json's `arbitrary_precision` (defmt-decoder turns it on), under which the numbers
+/// of an internally tagged enum ([`Index`]) arrive as maps and its derived `Deserialize`
+/// refuses them ("invalid type: map, expected f64").
+fn index_spec(spec_json: &str) -> PyResult<IndexSpec> {
+    use serde_json::Value;
+    let bad = |what: String| SsisError::new_err(format!("spec_json: {what}"));
+    let v: Value = serde_json::from_str(spec_json).map_err(|e| bad(e.to_string()))?;
+    let num =
+        |o: &Value, k: &str| o.get(k).and_then(Value::as_f64).ok_or_else(|| bad(format!("`{k}`: expected a number")));
+    let list = v.get("index").and_then(Value::as_array).ok_or_else(|| bad("`index`: expected a list".into()))?;
+    let mut index = Vec::with_capacity(list.len());
+    for x in list {
+        index.push(match x.get("kind").and_then(Value::as_str) {
+            Some("AKE") => Index::Ake,
+            Some("RKE") => Index::Rke { window_s: num(x, "window_s")? },
+            Some("KDE") => Index::Kde { window_s: num(x, "window_s")?, separation_s: num(x, "separation_s")? },
+            k => return Err(bad(format!("index kind {k:?}: AKE, RKE or KDE"))),
+        });
+    }
+    Ok(IndexSpec { from_s: num(&v, "from_s")?, time_fraction: num(&v, "time_fraction")?, index })
+}
+
 /// The indices of an error series with the spec `spec_json` (the `indices` member of
 /// `mc_validate`'s JSON): `t_s` (N,) increasing, `err_arcsec` (N, 3); key → arcsec.
 #[pyfunction]
@@ -128,7 +152,7 @@ fn mc_indices<'py>(
     err_arcsec: &Bound<'py, PyAny>,
     spec_json: &str,
 ) -> PyResult<Bound<'py, PyDict>> {
-    let spec: IndexSpec = serde_json::from_str(spec_json).map_err(|e| SsisError::new_err(format!("spec_json: {e}")))?;
+    let spec = index_spec(spec_json)?;
     let t = t_s
         .extract::<PyReadonlyArray1<'_, f64>>()
         .map_err(|_| SsisError::new_err("t_s: expected a 1-D float64 array"))?;

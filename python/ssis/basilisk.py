@@ -52,6 +52,7 @@ regained counts in ``realignments`` (ALIGNED) and ``reconvergences`` (CONVERGED)
 from __future__ import annotations
 
 import math
+import time
 import warnings
 from collections import deque
 from typing import Any, List, Optional, Tuple, Union
@@ -63,7 +64,7 @@ from Basilisk.utilities import RigidBodyKinematics as rbk  # type: ignore
 
 from . import FlightCore, QemuUnit, Table, _ssis
 
-__all__ = ["UnitNav", "UnitStatusLost", "UnitStatusWarning", "ST_ALIGNED", "CONVERGED"]
+__all__ = ["UnitNav", "UnitStatusLost", "UnitStatusWarning", "ST_ALIGNED", "CONVERGED", "fly_leo", "slew_events"]
 
 DT_S = 0.005
 STEP_NS = 5_000_000
@@ -131,6 +132,10 @@ class InQemu:
 class UnitNav(sysModel.SysModel):
     """The unit as a Basilisk navigation source (module docstring).
 
+    ``truth``: the table of the sensors' true errors (the FOGs' bias, scale factor and
+    misalignment, the tracker's mount), when they differ from the unit's ``table`` (a
+    calibration that is not perfect, e.g. dispersed in a Monte Carlo campaign).
+
     A custom ``backend`` is an object with ``step(fog_dtheta_rad, star, temperature_degc,
     star_valid)`` returning what :meth:`ssis.FlightCore.step` does, and ``counters()``.
     """
@@ -149,6 +154,7 @@ class UnitNav(sysModel.SysModel):
         fog_failure: Optional[Tuple[float, int, Union[str, float]]] = None,
         seed: int = 1,
         strict: bool = False,
+        truth: Optional[Table] = None,
     ) -> None:
         super().__init__()
         self.ModelTag = "ssisUnitNav"
@@ -174,7 +180,7 @@ class UnitNav(sysModel.SysModel):
         # The simulator's FOGs (turn-on bias 1σ given, 3σ taken) and star tracker; made
         # again in Reset, when it is known whether Basilisk's tracker is linked instead.
         self._sensor_args = dict(
-            table=t, seed=seed, arw_deg_sqrt_h=arw_deg_sqrt_h, rrw_deg_h_sqrt_h=rrw_deg_h_sqrt_h,
+            table=t if truth is None else truth, seed=seed, arw_deg_sqrt_h=arw_deg_sqrt_h, rrw_deg_h_sqrt_h=rrw_deg_h_sqrt_h,
             turn_on_bias_3sigma_deg_h=3 * turn_on_bias_deg_h, st_sigma_3sigma_arcsec=3 * st_sigma,
             st_period_s=st_period_s, st_latency_s=st_latency_s,
             st_outages=[tuple(st_outage)] if st_outage is not None else [],
@@ -321,3 +327,129 @@ class UnitNav(sysModel.SysModel):
         p.sigma_BN = _ep2mrp(q)
         p.omega_BN_B = list(w)
         self.attOutMsg.write(p, nanos, self.moduleID)
+
+
+# ---------------------------------------------------------------------------------------
+# The LEO spacecraft of examples/basilisk-closed-loop, flown on a navigation source.
+
+ARCSEC_PER_RAD = 180 / math.pi * 3600
+INERTIA_KG_M2 = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
+"""The vehicle's inertia about its centre of mass, row-major, kg m²."""
+
+
+def slew_events(duration_s: float) -> list:
+    """(t_s, principal rotation vector or None = back to nadir) in time order."""
+    ev: list = []
+    for p in range(int(math.ceil(duration_s / 180.0))):
+        b = 180.0 * p
+        if p > 0:
+            ev.append((b, None))
+        ev += [(b + 40.0, np.array([1.0, 0, 0]) * math.radians(15)),
+               (b + 110.0, np.array([0, 0.6, 0.8]) * math.radians(-20)),
+               (b + 145.0, np.array([-1.0, 0, 0]) * math.radians(15))]
+    return [e for e in ev if e[0] < duration_s]
+
+
+def fly_leo(unit: Optional["UnitNav"], duration_s: float, task_ms: float = DT_S * 1e3) -> dict:
+    """One flight of the LEO spacecraft (Basilisk: ``spacecraft``, 750 kg, inertia
+    :data:`INERTIA_KG_M2`, a 500-km circular orbit at 51.6°, point-mass Earth) holding
+    nadir (``hillPoint``) with the slews of :func:`slew_events` as steps of
+    ``attTrackingError``'s reference offset, under ``mrpFeedback`` (K = 36, P = 160)
+    commanding ``extForceTorque``; the flight software navigates on ``unit`` (a
+    :class:`UnitNav`, added to the task after the spacecraft) or, with ``None``, on truth
+    (``simpleNav`` without noise).
+
+    Returns ``t_s``, ``pointing_arcsec`` (the true attitude against the reference, per
+    axis, small-angle), ``nav_err_arcsec`` (the navigation message against truth, per
+    axis) and ``wall_s``."""
+    from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback  # type: ignore
+    from Basilisk.simulation import extForceTorque, simpleNav, spacecraft  # type: ignore
+    from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody  # type: ignore
+
+    sim = SimulationBaseClass.SimBaseClass()
+    proc = sim.CreateNewProcess("p")
+    proc.addTask(sim.CreateNewTask("t", macros.sec2nano(task_ms * 1e-3)))
+    sc = spacecraft.Spacecraft()
+    sc.ModelTag = "leo"
+    sc.hub.mHub = 750.0
+    inertia = INERTIA_KG_M2
+    sc.hub.IHubPntBc_B = [inertia[0:3], inertia[3:6], inertia[6:9]]
+    grav = simIncludeGravBody.gravBodyFactory()
+    earth = grav.createEarth()
+    earth.isCentralBody = True
+    grav.addBodiesTo(sc)
+    oe = orbitalMotion.ClassicElements()
+    oe.a, oe.e, oe.i = earth.radEquator + 500e3, 0.0, math.radians(51.6)
+    oe.Omega, oe.omega, oe.f = math.radians(48.2), 0.0, math.radians(85.3)
+    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
+    sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = r_n, v_n
+    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
+    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
+    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(np.array([r_hat, np.cross(h_hat, r_hat), h_hat]))]
+    sc.hub.omega_BN_BInit = [[0.0], [0.0], [np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)]]
+    # Within the task, higher priority runs first: dynamics, then the sensors, then the
+    # flight software on what they published at this instant.
+    sim.AddModelToTask("t", sc, 100)
+    truth_nav = simpleNav.SimpleNav()
+    truth_nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    sim.AddModelToTask("t", truth_nav, 90)
+    if unit is None:
+        att_msg = truth_nav.attOutMsg
+    else:
+        unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+        sim.AddModelToTask("t", unit, 80)
+        att_msg = unit.attOutMsg
+    hill = hillPoint.hillPoint()
+    hill.transNavInMsg.subscribeTo(truth_nav.transOutMsg)
+    sim.AddModelToTask("t", hill, 70)
+    err = attTrackingError.attTrackingError()
+    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
+    err.attNavInMsg.subscribeTo(att_msg)
+    sim.AddModelToTask("t", err, 60)
+    meas = attTrackingError.attTrackingError()  # the true pointing error, for the score only
+    meas.attRefInMsg.subscribeTo(hill.attRefOutMsg)
+    meas.attNavInMsg.subscribeTo(truth_nav.attOutMsg)
+    sim.AddModelToTask("t", meas, 60)
+    vc = messaging.VehicleConfigMsgPayload()
+    vc.ISCPntB_B = inertia
+    vc_msg = messaging.VehicleConfigMsg().write(vc)
+    ctl = mrpFeedback.mrpFeedback()
+    ctl.K, ctl.P, ctl.Ki = 36.0, 160.0, -1.0
+    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
+    ctl.vehConfigInMsg.subscribeTo(vc_msg)
+    sim.AddModelToTask("t", ctl, 50)
+    ext = extForceTorque.ExtForceTorque()
+    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
+    sc.addDynamicEffector(ext)
+    sim.AddModelToTask("t", ext, 40)
+    rec = meas.attGuidOutMsg.recorder()
+    sim.AddModelToTask("t", rec)
+    st_rec = truth_nav.attOutMsg.recorder()
+    nav_rec = att_msg.recorder()
+    sim.AddModelToTask("t", st_rec)
+    sim.AddModelToTask("t", nav_rec)
+    sim.InitializeSimulation()
+    offset = np.zeros(3)
+    wall = time.perf_counter()
+
+    def run_to(t_s: float) -> None:
+        sim.ConfigureStopTime(macros.sec2nano(t_s))
+        try:
+            sim.ExecuteSimulation()
+        except RuntimeError:
+            # Basilisk reports a Python module's exception as its own; UnitNav keeps it
+            if unit is not None and unit.error is not None:
+                raise unit.error from None
+            raise
+
+    for t0, prv in slew_events(duration_s):
+        run_to(t0)
+        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
+        err.sigma_R0R = list(offset)
+        meas.sigma_R0R = list(offset)
+    run_to(duration_s)
+    wall = time.perf_counter() - wall
+    t = np.asarray(rec.times()) * 1e-9
+    point = 4 * np.arctan(np.asarray(rec.sigma_BR)) * ARCSEC_PER_RAD  # small-angle per axis
+    nav_err = np.array([rbk.subMRP(n, s) for n, s in zip(nav_rec.sigma_BN, st_rec.sigma_BN)]) * 4 * ARCSEC_PER_RAD
+    return {"t_s": t, "pointing_arcsec": point, "nav_err_arcsec": nav_err, "wall_s": wall}
