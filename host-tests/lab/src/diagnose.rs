@@ -36,7 +36,7 @@ use super::detectable::{lambda_required, min_coef, sinusoid_curve, Detectable, L
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::noise::{held_out_gain, whitened, Binned, NoiseModel};
+use super::noise::{held_out_gain, whitened, Binned, Cross, NoiseModel};
 use super::spectral::{search, searchable_range, Line, Record};
 use super::stream::{digest, trains, Bins, Digest, Source, Sums};
 use super::LabResult;
@@ -266,21 +266,20 @@ struct NoiseCtx<'a> {
 }
 
 impl NoiseCtx<'_> {
-    /// The noise model of the test blocks' residual of `cols` (y last) fitted on the training
-    /// blocks, and the GLS sums under it.
+    /// The noise model of the cross-fitted residual of `cols` (y last, [`Cross`]), and the GLS
+    /// sums under it.
     fn under(&self, s: &Sums, cols: &[Vec<f64>]) -> (NoiseModel, Sums) {
-        let fit = lstsq_gram(&design_gram(&s.train, cols), s.train.n);
-        let l = residual_functional(cols, &fit.coef);
-        let nm = NoiseModel::fit_from(self.bd, &l, Some(self.base));
+        let nm = NoiseModel::fit_from(self.bd, &Cross::of(s, cols), Some(self.base));
         let ws = whitened(&nm, self.bd);
         (nm, ws)
     }
 }
 
 /// Tests one candidate (functionals `cand`) on one FOG against the base design `base` (y
-/// last), under the noise model of the test blocks' residual of base + candidate fitted on
-/// the training blocks (a real effect left in the residual would be taken for noise; noise
-/// the candidate fitted on the test blocks would be missing from it):
+/// last), under the noise model of the cross-fitted residual of base + candidate ([`Cross`]:
+/// each half's residual of the fit on the other half, so a real effect left in the residual
+/// is not taken for noise, and neither a slow effect nor the wander is fitted away where the
+/// noise model looks at it):
 ///
 /// - the GLS F-test on the test blocks (both nested models fitted there);
 /// - the held-out direction test ([`direction_p`]): the candidate's prediction fitted on the
@@ -632,7 +631,7 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
 /// fit's coefficients and its residual on the kept rows; the binned sums of every row and
-/// the noise model of the test blocks' residual of the training fit; the bins of the kept
+/// the noise model of its cross-fitted residual; the bins of the kept
 /// rows (for the spectral line, tested on them).
 struct BaseFit<'a> {
     bases: Vec<Design>,
@@ -662,7 +661,7 @@ impl<'a> BaseFit<'a> {
             let s = Sums::of(d, fog);
             let (ho, tr) = held_out(&s, &des.cols);
             let bd = Binned::of_digest(d, fog);
-            let nm = NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            let nm = NoiseModel::fit(&bd, &Cross::of(&s, &des.cols));
             f.binned.push(bd);
             f.noise.push(nm);
             f.base_ho.push(ho);
