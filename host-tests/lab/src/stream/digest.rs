@@ -74,7 +74,7 @@ impl RunSum {
     /// Adds row `j` of block `block` (values `v`); `Some(mean)` when it closes a run of
     /// `stride` rows in one block.
     fn add(&mut self, j: usize, block: usize, stride: usize, v: impl Iterator<Item = f64>) -> Option<Vec<f64>> {
-        if j % stride == 0 {
+        if j.is_multiple_of(stride) {
             self.sum.clear();
             (self.block, self.whole) = (block, true);
         } else if block != self.block {
@@ -86,7 +86,7 @@ impl RunSum {
             self.sum.iter_mut().zip(v).for_each(|(a, b)| *a += b);
         }
         let n = stride as f64;
-        ((j + 1) % stride == 0 && self.whole).then(|| self.sum.iter().map(|a| a / n).collect())
+        ((j + 1).is_multiple_of(stride) && self.whole).then(|| self.sum.iter().map(|a| a / n).collect())
     }
 }
 
