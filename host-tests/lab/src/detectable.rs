@@ -100,7 +100,14 @@ pub fn min_coef(info: &[f64], lambda: f64) -> Option<f64> {
 /// The residual's spectral density per row at `f_hz` under a noise model, (rad/s)² (a white
 /// residual of row variance σ² has σ²), for rows every `dt_s`.
 pub fn row_spectrum(nm: &NoiseModel, f_hz: f64, dt_s: f64) -> f64 {
-    let white = if nm.bin_rows > 1 { nm.white_row_var } else { nm.white_bin_var };
+    row_spectrum_of_means(nm, f_hz, dt_s, 1)
+}
+
+/// [`row_spectrum`] of rows that are each the mean of `averaged` consecutive rows of the
+/// session (their white part is `averaged` times smaller; the wander's, at `f_hz` well below
+/// their rate, the same).
+pub fn row_spectrum_of_means(nm: &NoiseModel, f_hz: f64, dt_s: f64, averaged: usize) -> f64 {
+    let white = if nm.bin_rows > 1 { nm.white_row_var } else { nm.white_bin_var } / averaged.max(1) as f64;
     // Rows per bin of this spacing (kept rows may be a sample of every row).
     let rows_per_bin = (nm.bin_dt_s / dt_s).max(1.0);
     let w = 2.0 * std::f64::consts::PI * f_hz * dt_s;
@@ -139,6 +146,8 @@ pub struct LineDesign {
     pub range_hz: (f64, f64),
     /// Session span, s.
     pub span_s: f64,
+    /// Session rows each of those rows is the mean of.
+    pub rows_averaged: usize,
 }
 
 /// Minimum detectable sinusoid amplitude over `points` periods log-spaced across the
@@ -161,7 +170,7 @@ pub fn sinusoid_curve(noise: &[NoiseModel], ld: &LineDesign, alpha: f64, points:
         let a = noise
             .iter()
             .map(|nm| {
-                let s = row_spectrum(nm, f, ld.dt_s);
+                let s = row_spectrum_of_means(nm, f, ld.dt_s, ld.rows_averaged);
                 let test = (2.0 * s * lam_test / ld.n_test.max(1) as f64).sqrt();
                 let search = (2.0 * s * lam_search / ld.n_train.max(1) as f64).sqrt();
                 test.max(search)

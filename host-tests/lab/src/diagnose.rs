@@ -24,9 +24,10 @@
 //! Everything comes from one pass over the session ([`super::stream::digest`]): the F-tests,
 //! predicted drops and column correlations from the per-block sums, exactly. What needs
 //! rows (the spectral search, the spectral candidate's own test, the ANOVA) uses the rows
-//! the pass kept: every row of a session up to [`super::stream::DEFAULT_KEEP`] samples, a
-//! systematic sample of a longer one (then the spectral candidate is tested on the kept
-//! rows of the test blocks, and its origin says so).
+//! the pass kept: every row of a session up to [`super::stream::DEFAULT_KEEP`] samples; of a
+//! longer one, the spectral search and the line's test use the means of runs of consecutive
+//! rows (every row counts: a line slower than a run loses nothing, and the origin says so),
+//! the ANOVA a systematic sample.
 
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
@@ -35,7 +36,7 @@ use super::detectable::{lambda_required, min_coef, sinusoid_curve, Detectable, L
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
-use super::noise::{held_out_gain, whitened, Binned, NoiseModel};
+use super::noise::{held_out_gain, whitened, Binned, Cross, NoiseModel};
 use super::spectral::{search, searchable_range, Line, Record};
 use super::stream::{digest, trains, Bins, Digest, Source, Sums};
 use super::LabResult;
@@ -265,21 +266,20 @@ struct NoiseCtx<'a> {
 }
 
 impl NoiseCtx<'_> {
-    /// The noise model of the test blocks' residual of `cols` (y last) fitted on the training
-    /// blocks, and the GLS sums under it.
+    /// The noise model of the cross-fitted residual of `cols` (y last, [`Cross`]), and the GLS
+    /// sums under it.
     fn under(&self, s: &Sums, cols: &[Vec<f64>]) -> (NoiseModel, Sums) {
-        let fit = lstsq_gram(&design_gram(&s.train, cols), s.train.n);
-        let l = residual_functional(cols, &fit.coef);
-        let nm = NoiseModel::fit_from(self.bd, &l, Some(self.base));
+        let nm = NoiseModel::fit_from(self.bd, &Cross::of(s, cols), Some(self.base));
         let ws = whitened(&nm, self.bd);
         (nm, ws)
     }
 }
 
 /// Tests one candidate (functionals `cand`) on one FOG against the base design `base` (y
-/// last), under the noise model of the test blocks' residual of base + candidate fitted on
-/// the training blocks (a real effect left in the residual would be taken for noise; noise
-/// the candidate fitted on the test blocks would be missing from it):
+/// last), under the noise model of the cross-fitted residual of base + candidate ([`Cross`]:
+/// each half's residual of the fit on the other half, so a real effect left in the residual
+/// is not taken for noise, and neither a slow effect nor the wander is fitted away where the
+/// noise model looks at it):
 ///
 /// - the GLS F-test on the test blocks (both nested models fitted there);
 /// - the held-out direction test ([`direction_p`]): the candidate's prediction fitted on the
@@ -443,28 +443,36 @@ pub fn separating_experiment(kind: &Kind) -> &'static str {
 /// Lines of the training residuals at the kept training rows, at their real times
 /// ([`super::spectral::search`]).
 fn spectral_lines(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Vec<Line> {
-    let train: Vec<usize> = (0..d.kept.rows.len()).filter(|&k| trains(d.kept.block[k])).collect();
-    let t: Vec<f64> = train.iter().map(|&k| d.kept.t_s[k]).collect();
-    let block: Vec<usize> = train.iter().map(|&k| d.kept.block[k]).collect();
+    let (t_s, blocks, _) = d.kept.line_rows();
+    let train: Vec<usize> = (0..blocks.len()).filter(|&k| trains(blocks[k])).collect();
+    let t: Vec<f64> = train.iter().map(|&k| t_s[k]).collect();
+    let block: Vec<usize> = train.iter().map(|&k| blocks[k]).collect();
     let res = train_res.iter().map(|r| train.iter().map(|&k| r[k]).collect()).collect();
     let span_s = d.t_span_s[1] - d.t_span_s[0];
     let rec = Record { t_s: &t, block: &block, res, dt_s: d.dt_s * d.kept.stride as f64, span_s };
     search(&rec, max_f, exclude)
 }
 
-/// The kept rows of FOG `fog` with the basis extended by sin 2πft and cos 2πft (rows × (m + 2)),
+/// Residual y − Σ c x of FOG `fog` at the rows a line is searched on ([`super::stream::Kept::line_rows`]).
+fn line_residual(d: &Digest, fog: usize, cols: &[Vec<f64>], coef: &[f64]) -> Vec<f64> {
+    let l = residual_functional(cols, coef);
+    d.kept.line_rows().2[fog].chunks_exact(d.basis.m).map(|z| z.iter().zip(&l).map(|(a, b)| a * b).sum()).collect()
+}
+
+/// The line rows ([`super::stream::Kept::line_rows`]) of FOG `fog` with the basis extended by sin 2πft and cos 2πft (rows × (m + 2)),
 /// and their sums.
 fn kept_with_sinusoid(d: &Digest, fog: usize, f_hz: f64) -> (Vec<f64>, Sums) {
     let m = d.basis.m;
     let mut s = Sums { all: Gram::new(m + 2), train: Gram::new(m + 2), test: Gram::new(m + 2) };
-    let mut out = Vec::with_capacity(d.kept.rows.len() * (m + 2));
-    for (k, zk) in d.kept.z[fog].chunks_exact(m).enumerate() {
-        let (sn, cs) = (2.0 * std::f64::consts::PI * f_hz * d.kept.t_s[k]).sin_cos();
+    let (t_s, blocks, z) = d.kept.line_rows();
+    let mut out = Vec::with_capacity(t_s.len() * (m + 2));
+    for (k, zk) in z[fog].chunks_exact(m).enumerate() {
+        let (sn, cs) = (2.0 * std::f64::consts::PI * f_hz * t_s[k]).sin_cos();
         let at = out.len();
         out.extend_from_slice(zk);
         out.extend([sn, cs]);
         let z = &out[at..];
-        let g = if trains(d.kept.block[k]) { &mut s.train } else { &mut s.test };
+        let g = if trains(blocks[k]) { &mut s.train } else { &mut s.test };
         for a in 0..m + 2 {
             for b in a..m + 2 {
                 g.upper[a * (m + 2) + b] += z[a] * z[b];
@@ -605,12 +613,14 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
             not_identifiable: Some(why.clone()),
         });
     }
-    let n_train = d.kept.block.iter().filter(|&&b| trains(b)).count();
+    let line_blocks = d.kept.line_rows().1;
+    let n_train = line_blocks.iter().filter(|&&b| trains(b)).count();
     let span_s = d.t_span_s[1] - d.t_span_s[0];
     let dt_s = d.dt_s * d.kept.stride as f64;
     let ld = LineDesign {
         n_train,
-        n_test: d.kept.block.len() - n_train,
+        n_test: line_blocks.len() - n_train,
+        rows_averaged: d.kept.stride.max(1),
         dt_s,
         range_hz: searchable_range(span_s, dt_s, opt.max_frequencies),
         span_s,
@@ -621,7 +631,7 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
 /// fit's coefficients and its residual on the kept rows; the binned sums of every row and
-/// the noise model of the test blocks' residual of the training fit; the bins of the kept
+/// the noise model of its cross-fitted residual; the bins of the kept
 /// rows (for the spectral line, tested on them).
 struct BaseFit<'a> {
     bases: Vec<Design>,
@@ -643,7 +653,7 @@ impl<'a> BaseFit<'a> {
             train_coef: Vec::new(),
             base_ho: Vec::new(),
             binned: Vec::new(),
-            kept_bins: Bins::of_kept(d),
+            kept_bins: Bins::of_line_rows(d),
             noise: Vec::new(),
         };
         for fog in 0..d.basis.n_fog {
@@ -651,11 +661,11 @@ impl<'a> BaseFit<'a> {
             let s = Sums::of(d, fog);
             let (ho, tr) = held_out(&s, &des.cols);
             let bd = Binned::of_digest(d, fog);
-            let nm = NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            let nm = NoiseModel::fit(&bd, &Cross::of(&s, &des.cols));
             f.binned.push(bd);
             f.noise.push(nm);
             f.base_ho.push(ho);
-            f.train_res.push(kept_residual(d, fog, &des.cols, &tr.coef));
+            f.train_res.push(line_residual(d, fog, &des.cols, &tr.coef));
             f.train_coef.push(tr.coef);
             f.bases.push(des);
             f.sums.push(s);
@@ -730,7 +740,15 @@ fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest
             let design = Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() };
             let bd = Binned::of_rows(&base.kept_bins, &z, m + 2, d.n_blocks);
             let ctx = NoiseCtx { base: &base.noise[fog], bd: &bd };
-            test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)
+            let mut t = test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)?;
+            if d.kept.stride > 1 {
+                // On means of runs the white part is smaller; the line's systematic drop of the
+                // mean square (a line slower than a run) is what it removes from every row.
+                let drop = t.before_rad_s.powi(2) - t.after_rad_s.powi(2);
+                t.before_rad_s = base.base_ho[fog];
+                t.after_rad_s = (t.before_rad_s.powi(2) - drop).max(0.0).sqrt();
+            }
+            Some(t)
         })
         .collect();
     let mut origin = match line.harmonic_of {
@@ -744,7 +762,11 @@ fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest
         }
     };
     if !d.all_kept() {
-        origin.push_str(&format!(" (tested on the {} kept rows)", d.kept.rows.len()));
+        origin.push_str(&format!(
+            " (searched and tested on {} means of {} rows)",
+            d.kept.line_rows().0.len(),
+            d.kept.stride
+        ));
     }
     (per_fog, origin)
 }

@@ -469,17 +469,15 @@ pub fn residuals(model: &Model, session: &Session) -> LabResult<Vec<Vec<f64>>> {
 }
 
 /// The 1σ of every coefficient of `kinds` per FOG (design order, SI; 0 where not
-/// identified) under the noise model of the training fit's residual on the test blocks
-/// ([`super::noise`]): the generalised least-squares covariance (XᵀΣ⁻¹X)⁻¹ over every block,
+/// identified) under the noise model of the cross-fitted residual ([`super::noise::Cross`]): the generalised least-squares covariance (XᵀΣ⁻¹X)⁻¹ over every block,
 /// scaled by the whitened residual's variance.
 pub fn coef_sigma(d: &Digest, kinds: &[Kind]) -> LabResult<Vec<Vec<f64>>> {
     (0..d.basis.n_fog)
         .map(|fog| {
             let des = design(d, kinds, fog)?;
             let s = Sums::of(d, fog);
-            let tr = lstsq_gram(&design_gram(&s.train, &des.cols), s.train.n);
             let bd = super::noise::Binned::of_digest(d, fog);
-            let nm = super::noise::NoiseModel::fit(&bd, &residual_functional(&des.cols, &tr.coef));
+            let nm = super::noise::NoiseModel::fit(&bd, &super::noise::Cross::of(&s, &des.cols));
             let ws = super::noise::whitened(&nm, &bd);
             let a = design_gram(&ws.all, &des.cols);
             let ls = lstsq_gram(&a, ws.all.n);

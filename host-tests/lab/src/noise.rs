@@ -19,8 +19,10 @@
 //! ```
 //!
 //! with τ_j = 1, 2, 4, … bins up to the session's length (a fixed bank; θ ≥ 0). The θ are
-//! fitted to the periodogram of the bin means of the baseline model's residual by Whittle's
-//! likelihood, with the multiplicative updates of Itakura–Saito NMF (exponent ½, which never
+//! fitted to the periodogram of the bin means of every block, in time order, of the model's
+//! cross-fitted residual ([`Cross`]: on each half the residual of the fit on the other half,
+//! so that neither a real effect nor a slow wander is fitted away where the model looks) by
+//! Whittle's likelihood, with the multiplicative updates of Itakura–Saito NMF (exponent ½, which never
 //! lowers the likelihood; Févotte & Idier 2011). The autocovariance of the bin means is then
 //! γ(k) = θ₀ δ_k + Σ θ_j ρ_j^|k|.
 //!
@@ -50,7 +52,7 @@ use std::borrow::Cow;
 
 use nalgebra::DMatrix;
 
-use super::lsq::Gram;
+use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::stream::{trains, Bins, Digest, Sums};
 
 /// Iterations of the Whittle fit.
@@ -107,12 +109,52 @@ impl<'a> Binned<'a> {
         self.gram.iter().enumerate().filter(|(blk, _)| !trains(*blk)).map(|(_, g)| quad(g, a, c)).sum()
     }
 
+    /// Σ over every block of ℓᵀ G ℓ, ℓ the block's residual functional (`cross`).
+    fn all_quad(&self, cross: &Cross) -> f64 {
+        self.gram.iter().enumerate().map(|(blk, g)| quad(g, cross.at(blk), cross.at(blk))).sum()
+    }
+
+    /// Every bin, in time order: (index, rows, ℓ · Σ z), ℓ its block's residual functional.
+    fn all_bins(&self, cross: &Cross) -> Vec<(usize, usize, f64)> {
+        (0..self.bins.len()).map(|b| (b, self.bins.count(b), self.dot(b, cross.at(self.bins.block[b])))).collect()
+    }
+
     /// Test bins: (index, rows, ℓ · Σ z).
     fn test_bins(&self, l: &[f64]) -> Vec<(usize, usize, f64)> {
         (0..self.bins.len())
             .filter(|&b| !trains(self.bins.block[b]))
             .map(|b| (b, self.bins.count(b), self.dot(b, l)))
             .collect()
+    }
+}
+
+/// A design's cross-fitted residual functionals: on the test blocks the residual of its fit
+/// on the training blocks, on the training blocks the residual of its fit on the test blocks.
+/// Every bin's residual is then out of sample: a slow effect or wander is not fitted away
+/// where the noise model looks at it, and the model sees the whole session in time order.
+#[derive(Debug, Clone)]
+pub struct Cross {
+    /// Functional on the training blocks (the test blocks' fit).
+    pub on_train: Vec<f64>,
+    /// Functional on the test blocks (the training blocks' fit).
+    pub on_test: Vec<f64>,
+}
+
+impl Cross {
+    /// Of the design `cols` (y last) on the sums `s`.
+    pub fn of(s: &Sums, cols: &[Vec<f64>]) -> Cross {
+        let tr = lstsq_gram(&design_gram(&s.train, cols), s.train.n);
+        let te = lstsq_gram(&design_gram(&s.test, cols), s.test.n);
+        Cross { on_train: residual_functional(cols, &te.coef), on_test: residual_functional(cols, &tr.coef) }
+    }
+
+    /// The functional of block `blk`.
+    fn at(&self, blk: usize) -> &[f64] {
+        if trains(blk) {
+            &self.on_train
+        } else {
+            &self.on_test
+        }
     }
 }
 
@@ -145,19 +187,18 @@ pub struct NoiseModel {
 }
 
 impl NoiseModel {
-    /// The model of the residual ℓ·z (`l` a residual functional of the basis) on the bins of
-    /// the test blocks (concatenated in time order).
-    pub fn fit(bd: &Binned, l: &[f64]) -> NoiseModel {
-        NoiseModel::fit_from(bd, l, None)
+    /// The model of a design's cross-fitted residual ([`Cross`]) on every bin, in time order.
+    pub fn fit(bd: &Binned, cross: &Cross) -> NoiseModel {
+        NoiseModel::fit_from(bd, cross, None)
     }
 
     /// [`NoiseModel::fit`] starting from another fit on the same bins (fewer iterations).
-    pub fn fit_from(bd: &Binned, l: &[f64], start: Option<&NoiseModel>) -> NoiseModel {
-        let tb = bd.test_bins(l);
+    pub fn fit_from(bd: &Binned, cross: &Cross, start: Option<&NoiseModel>) -> NoiseModel {
+        let tb = bd.all_bins(cross);
         let means: Vec<f64> = tb.iter().map(|&(_, n, s)| s / n.max(1) as f64).collect();
         let between: f64 = tb.iter().map(|&(_, n, s)| s * s / n.max(1) as f64).sum();
         let dof: usize = tb.iter().map(|&(_, n, _)| n.saturating_sub(1)).sum();
-        let within = (bd.test_quad(l, l) - between).max(0.0);
+        let within = (bd.all_quad(cross) - between).max(0.0);
         let white_row_var = if dof > 0 { within / dof as f64 } else { 0.0 };
         let mut taus = Vec::new();
         let mut tau = 1.0;

@@ -277,7 +277,7 @@ fn print_diagnosis(d: &Diagnosis) {
     }
     println!(
         "p: the larger of the GLS F-test's and the held-out direction test's under each FOG's noise model \
-         (white + Gauss-Markov, fitted on the test blocks' residual); removed: √(before² − after²)"
+         (white + Gauss-Markov, fitted on the cross-fitted residual of every block); removed: √(before² − after²)"
     );
     for (k, why) in &d.skipped {
         println!("      {k:<34} not tested: {why}");

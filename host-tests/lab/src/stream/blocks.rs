@@ -75,6 +75,11 @@ impl Bins {
         Bins::group(&d.kept.block, d.dt_s * d.kept.stride.max(1) as f64)
     }
 
+    /// The bins of the rows a line is searched and tested on ([`super::Kept::line_rows`]).
+    pub fn of_line_rows(d: &Digest) -> Bins {
+        Bins::group(d.kept.line_rows().1, d.dt_s * d.kept.stride.max(1) as f64)
+    }
+
     /// Rows with blocks `blocks`, `dt_s` apart, in bins of at most n / [`MAX_BINS`] rows.
     fn group(blocks: &[usize], dt_s: f64) -> Bins {
         let n = blocks.len();

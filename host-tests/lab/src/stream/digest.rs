@@ -52,9 +52,57 @@ pub struct Kept {
     pub temp: Vec<Option<(Vec<f64>, Vec<f64>)>>,
     /// Per FOG, the shifted basis vectors, row-major (rows × m).
     pub z: Vec<Vec<f64>>,
+    /// When `stride` > 1, the means of each run of `stride` consecutive rows inside one block
+    /// (every row counted; a run across two blocks and the last, shorter run are left out):
+    /// their times, s. What a line is searched and tested on ([`Kept::line_rows`]).
+    pub mean_t_s: Vec<f64>,
+    /// Their blocks.
+    pub mean_block: Vec<usize>,
+    /// Per FOG, their mean shifted basis vectors, row-major.
+    pub mean_z: Vec<Vec<f64>>,
+}
+
+/// The running sum of one run of `stride` rows for [`Kept`]'s means.
+#[derive(Debug, Clone, Default)]
+struct RunSum {
+    sum: Vec<f64>,
+    block: usize,
+    whole: bool,
+}
+
+impl RunSum {
+    /// Adds row `j` of block `block` (values `v`); `Some(mean)` when it closes a run of
+    /// `stride` rows in one block.
+    fn add(&mut self, j: usize, block: usize, stride: usize, v: impl Iterator<Item = f64>) -> Option<Vec<f64>> {
+        if j.is_multiple_of(stride) {
+            self.sum.clear();
+            (self.block, self.whole) = (block, true);
+        } else if block != self.block {
+            self.whole = false;
+        }
+        if self.sum.is_empty() {
+            self.sum.extend(v);
+        } else {
+            self.sum.iter_mut().zip(v).for_each(|(a, b)| *a += b);
+        }
+        let n = stride as f64;
+        ((j + 1).is_multiple_of(stride) && self.whole).then(|| self.sum.iter().map(|a| a / n).collect())
+    }
 }
 
 impl Kept {
+    /// The rows a spectral line is searched and tested on: (times, s; blocks; per FOG the
+    /// shifted basis vectors). Every row of a session kept whole; of a longer one, the means of
+    /// runs of `stride` rows, so that every row's information about a line slower than the
+    /// run is used (a systematic sample would give up all but one row in `stride`).
+    pub fn line_rows(&self) -> (&[f64], &[usize], &[Vec<f64>]) {
+        if self.stride > 1 {
+            (&self.mean_t_s, &self.mean_block, &self.mean_z)
+        } else {
+            (&self.t_s, &self.block, &self.z)
+        }
+    }
+
     /// Keeps row `j` of block `block`: sample `s`, its G per FOG `g`, its azimuth from
     /// column `psi_col` (the basis vectors are kept by the pass).
     fn push_row(&mut self, j: usize, block: usize, s: &SampleRef, g: &[f64], psi_col: Option<usize>) {
@@ -253,8 +301,12 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
         field_nt: basis.has_field.then(Vec::new),
         temp: basis.has_temp.iter().map(|&t| t.then(|| (Vec::new(), Vec::new()))).collect(),
         z: vec![Vec::new(); n_fog],
+        mean_z: vec![Vec::new(); n_fog],
         ..Kept::default()
     };
+    // The runs of the kept means: the time's, and each FOG's basis vectors'.
+    let mut run_t = RunSum::default();
+    let mut run_z = vec![RunSum::default(); n_fog];
     let mut gram = vec![vec![Gram::new(m); nb]; n_fog];
     let bins = Bins::every_row(n, nb, shape.dt_s);
     let mut bin_acc = BinAcc { sum: vec![vec![0.0; bins.len() * m]; n_fog], bins, at: 0 };
@@ -288,6 +340,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                  staged: &Staged,
                  kept_at: &mut Vec<usize>,
                  kept_z: &mut [Vec<f64>],
+                 mean_z: &mut [Vec<f64>],
+                 run_z: &mut [RunSum],
                  bin_acc: &mut BinAcc,
                  j0: usize| {
         if rows == 0 {
@@ -298,6 +352,14 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 basis.fill_batch(fog, staged, rows, &shift[fog], b);
                 for &i in kept_at.iter() {
                     kz.extend((0..m).map(|a| b[a * COL + i]));
+                }
+                if stride > 1 {
+                    for i in 0..rows {
+                        let col = (0..m).map(|a| b[a * COL + i]);
+                        if let Some(mean) = run_z[fog].add(j0 + i, block, stride, col) {
+                            mean_z[fog].extend(mean);
+                        }
+                    }
                 }
             }
             kept_at.clear();
@@ -327,6 +389,8 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 &staged,
                 &mut kept_at,
                 &mut kept.z,
+                &mut kept.mean_z,
+                &mut run_z,
                 &mut bin_acc,
                 $j0,
             )
@@ -369,6 +433,12 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
             next_keep += stride;
             kept.push_row(j, block, s, g, psi_col);
         }
+        if stride > 1 {
+            if let Some(t) = run_t.add(j, block, stride, std::iter::once(s.t_s)) {
+                kept.mean_t_s.extend(t);
+                kept.mean_block.push(block);
+            }
+        }
         if shift.len() < n_fog {
             // The first row: the shift is its basis vector (slot 0 stays 1).
             for _ in 0..n_fog {
@@ -393,6 +463,11 @@ pub fn digest(source: Source, spec: &DigestSpec, progress: Option<&ProgressBar>)
                 }
                 if keep {
                     kept.z[fog].extend_from_slice(&z);
+                }
+                if stride > 1 {
+                    if let Some(mean) = run_z[fog].add(j, block, stride, z.iter().copied()) {
+                        kept.mean_z[fog].extend(mean);
+                    }
                 }
             }
         }
