@@ -450,25 +450,34 @@ pub fn lvdata(offset: usize, len: usize) -> &'static [u8] {
     unsafe { core::slice::from_raw_parts(core::ptr::addr_of!(_lvdata_start).wrapping_add(offset), len) }
 }
 
+/// The [`Board`] methods every mps2 board value shares: its table area, watchdog,
+/// tick and way out, the same for the boot policy's [`Mps2`] and the flight's
+/// [`Mps2Unit`].
+macro_rules! mps2_board {
+    () => {
+        fn calib_area(&self) -> &[u8] {
+            calib_area()
+        }
+
+        fn feed_watchdog(&mut self) {
+            watchdog_feed();
+        }
+
+        fn ticks(&self) -> u32 {
+            ticks()
+        }
+
+        fn stop(&mut self, ok: bool) -> ! {
+            exit(ok)
+        }
+    };
+}
+
 /// The board as the boot policy and main loop see it.
 pub struct Mps2;
 
 impl Board for Mps2 {
-    fn calib_area(&self) -> &[u8] {
-        calib_area()
-    }
-
-    fn feed_watchdog(&mut self) {
-        watchdog_feed();
-    }
-
-    fn ticks(&self) -> u32 {
-        ticks()
-    }
-
-    fn stop(&mut self, ok: bool) -> ! {
-        exit(ok)
-    }
+    mps2_board!();
 }
 
 /// Count, sum and worst of a time in SysTick ticks (the executive's).
@@ -695,21 +704,7 @@ impl<L: ControlLine> Mps2Unit<L> {
 }
 
 impl<L> Board for Mps2Unit<L> {
-    fn calib_area(&self) -> &[u8] {
-        calib_area()
-    }
-
-    fn feed_watchdog(&mut self) {
-        watchdog_feed();
-    }
-
-    fn ticks(&self) -> u32 {
-        ticks()
-    }
-
-    fn stop(&mut self, ok: bool) -> ! {
-        exit(ok)
-    }
+    mps2_board!();
 }
 
 impl<L: ControlLine> StepBoard for Mps2Unit<L> {

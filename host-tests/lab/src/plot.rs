@@ -90,6 +90,40 @@ pub fn residual_svg(file: &str, fitted: &Fitted, fog: usize) -> LabResult<String
     Ok(svg)
 }
 
+/// A chart by model version: versions `v0..=v1` on x (`x_axis`: its description and
+/// how many labels, each from `label`), held-out residual RMS 0..`vmax` °/h on y.
+fn version_chart<'a, 'b>(
+    root: &'a DrawingArea<SVGBackend<'b>, plotters::coord::Shift>,
+    title: &str,
+    (v0, v1): (u32, u32),
+    vmax: f64,
+    x_axis: (&str, usize),
+    label: &dyn Fn(&f64) -> String,
+) -> LabResult<
+    ChartContext<
+        'a,
+        SVGBackend<'b>,
+        Cartesian2d<plotters::coord::types::RangedCoordf64, plotters::coord::types::RangedCoordf64>,
+    >,
+> {
+    let mut chart = ChartBuilder::on(root)
+        .margin(14)
+        .caption(title, ("sans-serif", 16))
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d((f64::from(v0) - 0.5)..(f64::from(v1) + 0.5), 0.0..vmax)
+        .map_err(perr)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_axis.0)
+        .y_desc("held-out residual RMS, °/h")
+        .x_labels(x_axis.1)
+        .x_label_formatter(label)
+        .draw()
+        .map_err(perr)?;
+    Ok(chart)
+}
+
 /// Held-out RMS (pooled over FOGs, °/h) per model version, as an SVG string.
 pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
     let mut svg = String::new();
@@ -98,27 +132,8 @@ pub fn history_svg(title: &str, points: &[(u32, f64)]) -> LabResult<String> {
         root.fill(&WHITE).map_err(perr)?;
         let vmax = points.iter().fold(1e-9f64, |m, p| m.max(p.1)) * 1.1;
         let (v0, v1) = (points.first().map_or(1, |p| p.0), points.last().map_or(1, |p| p.0));
-        let mut chart = ChartBuilder::on(&root)
-            .margin(12)
-            .caption(title, ("sans-serif", 16))
-            .x_label_area_size(35)
-            .y_label_area_size(60)
-            .build_cartesian_2d((v0 as f64 - 0.5)..(v1 as f64 + 0.5), 0.0..vmax)
-            .map_err(perr)?;
-        chart
-            .configure_mesh()
-            .x_desc("model version")
-            .y_desc("held-out residual RMS, °/h")
-            .x_labels(points.len().max(2))
-            .x_label_formatter(&|x| {
-                if (x - x.round()).abs() < 1e-6 {
-                    format!("v{}", x.round())
-                } else {
-                    String::new()
-                }
-            })
-            .draw()
-            .map_err(perr)?;
+        let label = |x: &f64| if (x - x.round()).abs() < 1e-6 { format!("v{}", x.round()) } else { String::new() };
+        let mut chart = version_chart(&root, title, (v0, v1), vmax, ("model version", points.len().max(2)), &label)?;
         chart.draw_series(LineSeries::new(points.iter().map(|p| (p.0 as f64, p.1)), &RED)).map_err(perr)?;
         chart.draw_series(points.iter().map(|p| Circle::new((p.0 as f64, p.1), 4, RED.filled()))).map_err(perr)?;
         root.present().map_err(perr)?;
@@ -195,21 +210,8 @@ pub fn history_fogs_svg(title: &str, rows: &[(u32, Vec<f64>, String)], floor_deg
                 .find(|r| r.0 == v && (x - v as f64).abs() < 1e-6)
                 .map_or(String::new(), |r| format!("v{v} {}", r.2))
         };
-        let mut chart = ChartBuilder::on(&root)
-            .margin(14)
-            .caption(title, ("sans-serif", 16))
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d((v0 as f64 - 0.5)..(v1 as f64 + 0.5), 0.0..vmax)
-            .map_err(perr)?;
-        chart
-            .configure_mesh()
-            .x_desc("model version, term added")
-            .y_desc("held-out residual RMS, °/h")
-            .x_labels(2 * (rows.len() + 1))
-            .x_label_formatter(&label)
-            .draw()
-            .map_err(perr)?;
+        let mut chart =
+            version_chart(&root, title, (v0, v1), vmax, ("model version, term added", 2 * (rows.len() + 1)), &label)?;
         let n_fog = rows.iter().map(|r| r.1.len()).max().unwrap_or(0);
         for fog in 0..n_fog {
             let c = fog_colour(fog).to_rgba();
