@@ -58,9 +58,9 @@ pub const SNAPSHOT_STEPS: u32 = 80;
 pub const KEY_CHECK_STEPS: u32 = 2_000;
 
 /// Steps between two checks of the board's configuration registers
-/// ([`StepBoard::check_registers`]: 160 ms at 5 ms, 40 ms at 1.25 ms). A check reads
-/// some 25 registers (about 250 instructions), some 8 a step spread this thin.
-pub const REGISTER_STEPS: u32 = 32;
+/// ([`StepBoard::check_registers`]: 320 ms at 5 ms, 80 ms at 1.25 ms). A check reads
+/// some 25 registers (about 250 instructions), some 4 a step spread this thin.
+pub const REGISTER_STEPS: u32 = 64;
 
 /// What a check of the board's configuration registers found
 /// ([`StepBoard::check_registers`]).
