@@ -121,7 +121,7 @@ impl Attitude {
     /// The coning term is second order in the increments (|term| ≲ |Δθ_prev|·|Δθ|/10, a
     /// millionth of |Δθ| at this unit's rates): a rotation vector more than twice the
     /// increment, or not finite, can only come from a corrupted increment history (an upset between
-    /// the state guard's check and this use, issue 30), and is left out: the step
+    /// the state guard's check and this use), and is left out: the step
     /// integrates the increment alone.
     pub fn rotation_vector(&self, dtheta_rad: &Vector3<f64>) -> Vector3<f64> {
         let phi = match Coning::from_code(self.coning) {

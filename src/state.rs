@@ -1,5 +1,5 @@
 //! State types every bit pattern of which is a valid value, handled without reading
-//! outside a buffer (issue 30: a single-event upset flips bits of the state in RAM).
+//! outside a buffer (a single-event upset flips bits of the state in RAM).
 //!
 //! The flight core's state ([`crate::flight::FlightCore`]) is built from these and from
 //! plain numbers only, and the compiler checks it: the state derives

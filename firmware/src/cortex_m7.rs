@@ -51,7 +51,7 @@ pub fn protect_below_stack(base: u32, size_log2: u32) {
 /// Image guard: MPU region 1 makes `[0, 2^size_log2)`, the code and constants in
 /// flash, read-only (executable), so a stray store there is a fault and a reset, not a
 /// rewritten instruction (QEMU's mps2 boards have RAM at address 0; an upset of a
-/// pointer the compiler keeps across steps sent the received bytes there, issue 30).
+/// pointer the compiler keeps across steps sent the received bytes there).
 /// `size_log2` in 5..=32; call after [`protect_below_stack`] (the MPU enabled).
 pub fn protect_image(size_log2: u32) {
     let w = |a: usize, v: u32| {

@@ -160,7 +160,7 @@ fn side_by_side(path: &str, seeds: &[u64], flown: &[Flown]) -> (Vec<[f64; 3]>, [
     (pooled, limit)
 }
 
-/// Issue 20's done-when: the two estimators' mean 3σ within 10 % of each other and
+/// The goal: the two estimators' mean 3σ within 10 % of each other and
 /// each ≤ 1.1 × the limit, per axis.
 fn assert_side_by_side(what: &str, lu: [f64; 3], mk: [f64; 3], limit: [f64; 3]) {
     for k in 0..3 {

@@ -1,4 +1,4 @@
-//! The unit under bursts of late and missing samples (issue 21, part 3): the bytes of
+//! The unit under bursts of late and missing samples: the bytes of
 //! whole stretches of steps held back and then delivered at once (a host or link that
 //! fell behind), and stretches of samples lost on every link. The FOG sample clock
 //! decides what is integrated; these tests pin down what the unit does with the star

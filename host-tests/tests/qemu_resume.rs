@@ -1,4 +1,4 @@
-//! A reset of the firmware in QEMU resumed from its snapshot (issue 30), with each
+//! A reset of the firmware in QEMU resumed from its snapshot, with each
 //! estimator: `ssis-fw-test` flies the two-minute QEMU scenario in lockstep, is reset
 //! (QEMU's `system_reset`, what its SYSRESETREQ does) at the end of the step at
 //! [`RESET_S`] (the first placement traces the step and lands at its last instruction),

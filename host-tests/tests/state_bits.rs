@@ -1,4 +1,4 @@
-//! Issue 30: no bit pattern of the flight core's state makes the core read outside a
+//! No bit pattern of the flight core's state makes the core read outside a
 //! buffer or take an invalid enum or bool as valid. The state's types are checked at
 //! compile time (`bytemuck::AnyBitPattern`, src/flight/mod.rs); this test writes random
 //! bytes over a converged core (all of it but the calibration table,

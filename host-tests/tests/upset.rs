@@ -1,7 +1,7 @@
 //! The upset campaign (`ssis_faults::upset`, `ssis-upset`, docs/UPSET-CAMPAIGN.md) on a
 //! small sample: every flip classed, the same seed giving the same flips and verdicts,
 //! and flips whose fate is known classed as it must be. The campaign's verdict on the
-//! unit (0 silent, 0 crashes) is asserted here once the mitigations of issue 30 fly;
+//! unit (0 silent, 0 crashes) is asserted here once the state's mitigations fly;
 //! until then this checks the campaign's accounting.
 
 use ssis_faults::upset::{self, draw_flips, field_span, run_flips, Flip, Outcome, Reference, Settings};
@@ -80,7 +80,7 @@ fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_is_restored(
     }
 }
 
-/// Issue 30's verdict on a sample: no silent flip and no crash (the 20,000-flip
+/// The verdict on a sample: no silent flip and no crash (the 20,000-flip
 /// campaign of docs/UPSET-CAMPAIGN.md is the benchmark; before the mitigations 2,000
 /// flips gave 5 silent and 23 crashes). The flight build wraps integer arithmetic
 /// (`overflow-checks = false`, as the firmware flies); a debug build's overflow checks

@@ -1,4 +1,4 @@
-//! `ssis-qemu-upset`: the upset campaign on the firmware in QEMU (issue 30): single bit
+//! `ssis-qemu-upset`: the upset campaign on the firmware in QEMU: single bit
 //! flips into the RAM in use and the registers through QEMU's gdbstub, at random
 //! instructions inside random steps after convergence, classed against truth and the
 //! undisturbed run (`ssis_runner::upset`). `--help` for options.

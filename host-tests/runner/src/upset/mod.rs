@@ -1,4 +1,4 @@
-//! The upset campaign on the firmware in QEMU (issue 30): single bit flips into the RAM
+//! The upset campaign on the firmware in QEMU: single bit flips into the RAM
 //! the firmware uses (the live stack, from SP to the stack's top, and its statics) and
 //! into its core and FPU registers, through QEMU's gdbstub ([`crate::gdb`]), each at a
 //! random instruction inside a random step after convergence, classed against truth and
