@@ -38,3 +38,25 @@ def test_closed_loop_runs_match_basilisks_controller(tmp_path: Path) -> None:
         row = df[df["run"] == r["run"]].iloc[0]
         for k, v in r["indices"].items():
             assert np.float64(v).view(np.int64) == np.float64(row[mc.INDEX + k]).view(np.int64), (r["run"], k)
+
+
+def test_performance_error_is_what_the_unit_adds(tmp_path: Path) -> None:
+    """APE/RPE/PDE take the pointing error less the truth-navigation flight's. UnitNav
+    publishes truth until the unit's first alignment, so until then the two flights are the
+    same and the added error is exactly zero; after it the unit's navigation error moves
+    the vehicle and the added error is not zero. Were the two series misaligned in time, or
+    the truth flight not the same vehicle, the first part would not be zero."""
+    c = campaign(tmp_path, 1, 40.0, name="added")
+    c.write_text(c.read_text().replace('duration_s = 40.0\n', 'duration_s = 40.0\nloop = "closed"\n', 1))
+    camp = mc.Campaign.read(c)
+    r = closed.run(camp.text, camp.origin, 0, series_every=1)
+    added = np.asarray(r["series"]["added_arcsec"])
+    point = np.asarray(r["series"]["pointing_arcsec"])
+    t = np.asarray(r["series"]["t_s"])
+    assert added.shape == point.shape == (len(t), 3)
+    before = t < 1.0  # the tracker's first solution is after 1 s at its 10-Hz rate and latency
+    assert before.sum() > 100 and np.all(added[before] == 0.0)
+    assert np.abs(added[~before]).max() > 0.0
+    # the truth flight's own error (slew transients) is not in it
+    truth = closed.truth_pointing_arcsec(40.0)
+    assert np.array_equal(point - truth, added)

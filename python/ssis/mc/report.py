@@ -31,7 +31,7 @@ import numpy as np
 from . import INDEX, PARAM, load
 
 __all__ = ["LEVELS", "CONFIDENCE", "Quantile", "quantile", "runs_needed", "binom_cdf", "budget", "sensitivity",
-           "worst", "Report", "report"]
+           "chance_rho", "drivers", "worst", "Report", "report"]
 
 LEVELS = (0.683, 0.954, 0.9973)
 """The probability levels of the budget (ECSS-E-ST-60-10C: 1σ, 2σ, 3σ of a normal law)."""
@@ -151,6 +151,13 @@ def sensitivity(df: Any) -> Any:
     return corr.loc[names, [c[len(INDEX):] for c in idx]]
 
 
+def chance_rho(n: int) -> float:
+    """The |ρ| that n runs of independent parameter and index exceed with probability 5 %
+    (two-sided): about 1.96/√(n − 1), the normal approximation of Spearman's ρ under
+    independence. A driver below it is not told apart from no driver at all."""
+    return 1.96 / math.sqrt(max(n - 1, 1))
+
+
 def drivers(corr: Any, top: int = 3) -> Dict[str, List[Tuple[str, float]]]:
     """Per index, its ``top`` parameters by |ρ| (largest first; a parameter and its
     magnitude count once, by the larger)."""
@@ -209,9 +216,12 @@ class Report:
         if n < need:
             lines.append(f"(a 95 % upper bound on the 99.73 % value needs ≥ {need} runs; this campaign has {n})")
         if len(self.sensitivity.index):
-            lines.append("drivers (Spearman ρ, largest |ρ| first):")
+            floor = chance_rho(n)
+            lines.append(f"drivers (Spearman ρ, largest |ρ| first; |ρ| < {floor:.2f} is within chance "
+                         f"at 95 % over {n} runs, marked ~):")
             for k, v in drivers(self.sensitivity).items():
-                lines.append(f"  {k:<18} " + ", ".join(f"{p} {r:+.2f}" for p, r in v))
+                lines.append(f"  {k:<18} " + ", ".join(f"{p} {r:+.2f}{'' if abs(r) >= floor else '~'}"
+                                                       for p, r in v))
         return "\n".join(lines)
 
     def html(self) -> str:
@@ -319,7 +329,7 @@ def _html_page(r: Report) -> str:
         out.append("<p>No parameter varies over the runs: nothing to rank.</p>")
     else:
         out.append("<p><small>Spearman rank correlation ρ of each dispersed parameter with each index over the "
-                   f"{n} runs (|ρ| above about {2 / math.sqrt(max(n - 1, 1)):.2f} is beyond chance at 95 %). "
+                   f"{n} runs (|ρ| above {chance_rho(n):.2f} is beyond chance at 95 %). "
                    "The drivers of an index are its parameters of largest |ρ|; <code>|name|</code> is the size of a "
                    "parameter's offset, the driver of an index when either sign of it hurts.</small></p>")
         out.append("<table><tr><th class=l>index</th><th class=l>drivers (ρ)</th></tr>")
