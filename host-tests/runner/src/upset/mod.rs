@@ -1382,7 +1382,16 @@ fn place_flip(
             // The first flip of its kind traces its path and lands at its end; a pass's
             // end is the loop's `wfi`, where a reset is not seen at the runner's
             // breakpoint on `Reset`: one instruction before.
-            let end = path_end(g, kind)?;
+            // A forced reset (the resume measured, not a flip) lands inside the step, up
+            // to the background work: the runner does not yet follow a reset late in the
+            // pass, after the outputs went out.
+            let end = match kind {
+                PathKind::Pass(_) if ctx.o.forced_reset => {
+                    let e = ctx.code.end;
+                    Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == e)) as PathEnd
+                }
+                _ => path_end(g, kind)?,
+            };
             let path = trace(g, end)?;
             let k = path.len() - 1;
             paths.insert(kind, path);
