@@ -1,8 +1,8 @@
 //! A reset of the firmware in QEMU resumed from its snapshot, with each
 //! estimator: `ssis-fw-test` flies the two-minute QEMU scenario in lockstep, is reset
-//! (QEMU's `system_reset`, what its SYSRESETREQ does) at the end of the step at
-//! [`RESET_S`] (the first placement traces the step and lands at its last instruction),
-//! after convergence, and the runner follows it back into lockstep
+//! (QEMU's `system_reset`, what its SYSRESETREQ does) at a random instruction of the pass
+//! at [`RESET_S`] (anywhere from the step's entry to the loop's `wfi`, after the outputs
+//! went out too), after convergence, and the runner follows it back into lockstep
 //! (`ssis_runner::upset`, the unit down for `RESET_DOWN_STEPS`). The goals:
 //! aligned again within 1 s, and within twice the nominal 3σ (the undisturbed flight's,
 //! after settling) within 10 s with the observer, 2 s with the MEKF; never a frame

@@ -29,10 +29,14 @@
 //! "reset and recovered" with its recovery times (to aligned, to within twice the
 //! nominal 3σ) or, not back within the bound by the window's end, a crash. With
 //! [`UpsetOptions::forced_reset`] the "flip" is a reset itself: the resume measured in
-//! QEMU (tests/qemu_resume.rs). With [`run_injection`] it is a fault of the loop itself
+//! QEMU (tests/qemu_resume.rs). A reset the runner makes (a forced one, the snapshot
+//! population's) is followed at once, wherever in the pass it lands; one that comes after
+//! the last step's outputs went out is found at the next step's start, before its bytes
+//! go out (`on_stop`). With [`run_injection`] it is a fault of the loop itself
 //! ([`Target::TickStopped`]: the SysTick's enable bit cleared; [`Target::Stall`]: the test
 //! build's STALL): the watchdog must reset the unit (tests/qemu_exec.rs).
 
+mod place;
 mod report;
 
 use std::io::Write;
@@ -334,6 +338,11 @@ pub fn device_bits() -> u32 {
 }
 
 impl Target {
+    /// The runner resets the unit with this target (QEMU's `system_reset`).
+    pub fn resets(&self) -> bool {
+        matches!(self, Target::Reset | Target::SnapshotReset { .. })
+    }
+
     /// The class of the target, for the tables.
     pub fn class(&self) -> &'static str {
         match self {
@@ -810,6 +819,9 @@ struct Watch {
     reset: Option<(u64, String)>,
     /// Events the unit logged while it rebooted (before lockstep again).
     reset_events: Vec<String>,
+    /// Event frames received when the events were last compared with the undisturbed
+    /// run's.
+    events_seen: usize,
     /// After the reset: the first step with a frame, the first saying aligned, the last
     /// beyond twice the nominal 3σ.
     after_reset: (Option<u64>, Option<u64>, Option<u64>),
@@ -897,7 +909,9 @@ struct Ctx<'a> {
     flight: &'a Flight,
     code: StepCode,
     /// The traced paths (empty until the first flip of their kind).
-    paths: std::cell::RefCell<std::collections::HashMap<PathKind, Vec<u32>>>,
+    paths: std::cell::RefCell<std::collections::HashMap<PathKind, place::Traced>>,
+    /// The ELF's hash, the key of the paths kept on disk.
+    elf_hash: u64,
     /// The populations and their shares.
     mix: Mix,
     /// The snapshot record in RAM: its address and length.
@@ -1193,39 +1207,10 @@ fn await_frame(
                     return Ok(Awaited::Stopped(format!("QEMU exited ({st})")));
                 }
                 if let Some(stop) = g.wait_stop(Duration::ZERO).ok().flatten() {
-                    let pc = g.register_u32(gdb::PC)?;
-                    if Some(pc) == ctx.snap_trap.get() {
-                        // The snapshot write: its phase in the runner's steps.
-                        ctx.snap_phase.set(Some(ctx.awaiting.get() % SNAPSHOT_STEPS));
-                        ctx.snap_trap.set(None);
-                        g.clear_breakpoint(pc)?;
-                        g.resume()?;
-                        continue;
+                    match on_stop(ctx, g, &stop, cause)? {
+                        Some(a) => return Ok(a),
+                        None => continue,
                     }
-                    if pc == ctx.traps.hard_fault {
-                        // The exception frame: r0–r3, r12, lr, pc, xpsr from SP.
-                        // (Unreadable when the stack pointer itself was hit.)
-                        let sp = g.register_u32(gdb::SP)?;
-                        let at = g.read_memory(sp.wrapping_add(24), 4).ok();
-                        let at = at.and_then(|b| b.get(..4).and_then(|b| b.try_into().ok())).map(u32::from_le_bytes);
-                        cause.get_or_insert(match at {
-                            Some(at) => format!("HardFault at {}", ctx.syms.name(at)),
-                            None => format!("HardFault (no exception frame at SP {sp:#x})"),
-                        });
-                        g.resume_past(pc)?;
-                        continue;
-                    }
-                    if pc == ctx.traps.reset {
-                        let forced = ctx.o.forced_reset.then(|| "forced (system_reset)".to_string());
-                        let watchdog = ctx.traps.watchdog_cause(g)?;
-                        return Ok(Awaited::Reset(
-                            cause.take().or(forced).or(watchdog).unwrap_or_else(|| "reset request".to_string()),
-                        ));
-                    }
-                    return Ok(Awaited::Stopped(format!(
-                        "the guest stopped for the debugger ({stop}) at {}",
-                        ctx.syms.name(pc)
-                    )));
                 }
                 if let Some(why) = patience.exhausted() {
                     let at = match g.halt() {
@@ -1249,6 +1234,41 @@ fn await_frame(
         }
     }
     Ok(Awaited::Frame)
+}
+
+/// A stop of the guest while a step is awaited: at the snapshot write's breakpoint (its
+/// phase noted) or a `HardFault` (its faulting instruction noted in `cause`) the guest runs
+/// on (`None`); at `Reset` the unit resets ([`Awaited::Reset`], the guest left halted
+/// there; a watchdog's warnings before it read from the firmware's count); anywhere else
+/// it stopped for the debugger.
+fn on_stop(ctx: &Ctx<'_>, g: &mut Gdb, stop: &str, cause: &mut Option<String>) -> Result<Option<Awaited>> {
+    let pc = g.register_u32(gdb::PC)?;
+    if Some(pc) == ctx.snap_trap.get() {
+        // The snapshot write: its phase in the runner's steps.
+        ctx.snap_phase.set(Some(ctx.awaiting.get() % SNAPSHOT_STEPS));
+        ctx.snap_trap.set(None);
+        g.clear_breakpoint(pc)?;
+        g.resume()?;
+        return Ok(None);
+    }
+    if pc == ctx.traps.hard_fault {
+        // The exception frame: r0–r3, r12, lr, pc, xpsr from SP.
+        // (Unreadable when the stack pointer itself was hit.)
+        let sp = g.register_u32(gdb::SP)?;
+        let at = g.read_memory(sp.wrapping_add(24), 4).ok();
+        let at = at.and_then(|b| b.get(..4).and_then(|b| b.try_into().ok())).map(u32::from_le_bytes);
+        cause.get_or_insert(match at {
+            Some(at) => format!("HardFault at {}", ctx.syms.name(at)),
+            None => format!("HardFault (no exception frame at SP {sp:#x})"),
+        });
+        g.resume_past(pc)?;
+        return Ok(None);
+    }
+    if pc == ctx.traps.reset {
+        let watchdog = ctx.traps.watchdog_cause(g)?;
+        return Ok(Some(Awaited::Reset(cause.take().or(watchdog).unwrap_or_else(|| "reset request".to_string()))));
+    }
+    Ok(Some(Awaited::Stopped(format!("the guest stopped for the debugger ({stop}) at {}", ctx.syms.name(pc)))))
 }
 
 /// Back into lockstep after a reset, the guest halted at `Reset`: LOCKSTEP goes out
@@ -1288,184 +1308,6 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
     Ok(notes.into_iter().chain(events.iter().map(|e| e.event.name().to_string())).collect())
 }
 
-/// The path from here: the address of every instruction executed, in order, up to the
-/// first for which `end` holds (traced once per [`PathKind`], single-stepping): for a
-/// pass the loop's next `wfi`, for the interrupt its return address, for the snapshot
-/// write its caller.
-fn trace(g: &mut Gdb, mut end: impl FnMut(&mut Gdb, u32) -> Result<bool>) -> Result<Vec<u32>> {
-    let mut pcs = Vec::with_capacity(8192);
-    loop {
-        let pc = g.register_u32(gdb::PC)?;
-        pcs.push(pc);
-        if end(g, pc)? {
-            return Ok(pcs);
-        }
-        if pcs.len() >= TRACE_MAX {
-            eprintln!("a traced path reached {TRACE_MAX} instructions without its end: cut there");
-            return Ok(pcs);
-        }
-        g.step()?;
-    }
-}
-
-/// Most instructions of a traced path (a pass with a star update is some 15,000).
-const TRACE_MAX: usize = 40_000;
-
-/// Whether a traced path ends at this address ([`path_end`]).
-type PathEnd = Box<dyn FnMut(&mut Gdb, u32) -> Result<bool>>;
-
-/// The traced path's end for `kind`, the guest halted at its entry.
-fn path_end(g: &mut Gdb, kind: PathKind) -> Result<PathEnd> {
-    Ok(match kind {
-        PathKind::Pass(_) => Box::new(|g: &mut Gdb, pc: u32| Ok(g.read_memory(pc, 2)? == [0x30, 0xbf])),
-        PathKind::Handler => {
-            let sp = g.register_u32(gdb::SP)?;
-            let ret = g.read_memory(sp.wrapping_add(24), 4)?;
-            let ret = u32::from_le_bytes(ret.get(..4).and_then(|b| b.try_into().ok()).context("no exception frame")?);
-            Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == ret & !1))
-        }
-        PathKind::SnapshotWrite => {
-            let lr = g.register_u32(14)? & !1;
-            Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == lr))
-        }
-    })
-}
-
-/// Places a flip inside step `n`: halts, breaks at the step's entry, sends `step`, runs
-/// to a random instruction of the step and flips a random bit; the guest runs on. The
-/// instruction: index `k` drawn uniformly over the traced path of a step
-/// ([`trace_step`], the first time); the guest runs to the m-th execution of the address
-/// `path[k]` (m: its count in `path[..=k]`) through a breakpoint, so a step that follows
-/// the traced path stops exactly at its k-th instruction, and one that leaves it stops at
-/// that address or at the step's end, whichever comes first. Returns (k, target).
-#[allow(clippy::too_many_arguments)]
-fn place_flip(
-    ctx: &Ctx<'_>,
-    unit: &mut Unit,
-    g: &mut Gdb,
-    rng: &mut ChaCha8Rng,
-    step: &ControlFrame,
-    pop: Population,
-    star: bool,
-) -> Result<(u32, Target, u32, Population)> {
-    let t0 = Instant::now();
-    let kind = match pop {
-        Population::Handler => PathKind::Handler,
-        Population::SnapshotWrite => PathKind::SnapshotWrite,
-        _ => PathKind::Pass(star),
-    };
-    let entry = match kind {
-        PathKind::Handler => ctx.handler,
-        PathKind::SnapshotWrite => ctx.snapshot_into.unwrap_or(ctx.code.entry),
-        PathKind::Pass(_) => ctx.code.entry,
-    };
-    g.halt()?;
-    g.set_breakpoint(entry)?;
-    g.resume()?;
-    unit.control(step)?;
-    let stop = g.wait_stop(Duration::from_secs(if kind == PathKind::SnapshotWrite { 5 } else { 20 }))?;
-    let mut pop = pop;
-    if stop.is_none() {
-        // The snapshot write did not come in this step (its phase moved): a state flip
-        // wherever the guest is.
-        anyhow::ensure!(kind == PathKind::SnapshotWrite, "the breakpoint at {entry:#x} was not reached");
-        g.halt()?;
-        pop = Population::State;
-    }
-    g.clear_breakpoint(entry)?;
-    let mut paths = ctx.paths.borrow_mut();
-    let placed = stop.is_some();
-    let k = match paths.get(&kind) {
-        _ if !placed => 0,
-        Some(path) if !path.is_empty() => rng.random_range(0..path.len()),
-        _ => {
-            // The first flip of its kind traces its path and lands at its end; a pass's
-            // end is the loop's `wfi`, where a reset is not seen at the runner's
-            // breakpoint on `Reset`: one instruction before.
-            // A forced reset (the resume measured, not a flip) lands inside the step, up
-            // to the background work: the runner does not yet follow a reset late in the
-            // pass, after the outputs went out.
-            let end = match kind {
-                PathKind::Pass(_) if ctx.o.forced_reset => {
-                    let e = ctx.code.end;
-                    Box::new(move |_: &mut Gdb, pc: u32| Ok(pc == e)) as PathEnd
-                }
-                _ => path_end(g, kind)?,
-            };
-            let path = trace(g, end)?;
-            let k = path.len() - 1;
-            paths.insert(kind, path);
-            k
-        }
-    };
-    let resets = matches!(pop, Population::SnapshotReset | Population::SnapshotWrite) || ctx.o.forced_reset;
-    let k = if resets && matches!(kind, PathKind::Pass(_)) && k + 1 == paths.get(&kind).map_or(0, Vec::len) {
-        k.saturating_sub(1)
-    } else {
-        k
-    };
-    let empty = Vec::new();
-    let path = if placed { paths.get(&kind).unwrap_or(&empty) } else { &empty };
-    let (pc, end) = (path.get(k).copied().unwrap_or(entry), path.last().copied().unwrap_or(entry));
-    let m = path.get(..=k).map_or(1, |p| p.iter().filter(|&&a| a == pc).count());
-    let here = g.register_u32(gdb::PC)?;
-    if placed && !(k == 0 && here == pc) && here != end {
-        g.set_breakpoint(pc)?;
-        if end != pc {
-            g.set_breakpoint(end)?;
-        }
-        let mut hits = 0;
-        loop {
-            g.resume()?;
-            g.wait_stop(Duration::from_secs(60))?.context("a breakpoint inside the step was not reached")?;
-            let at = g.register_u32(gdb::PC)?;
-            hits += usize::from(at == pc);
-            if hits >= m || at == end && at != pc {
-                break;
-            }
-        }
-        g.clear_breakpoint(pc)?;
-        if end != pc {
-            g.clear_breakpoint(end)?;
-        }
-    }
-    let path_len = path.len();
-    drop(paths);
-    let here_at_flip = g.register_u32(gdb::PC)?;
-    let sp = g.register_u32(gdb::SP)?;
-    // A negative share: in proportion to the bits.
-    let reg_share = (ctx.o.register_share >= 0.0).then_some(ctx.o.register_share);
-    let target = match ctx.inject {
-        Some(t) => t,
-        None if ctx.o.forced_reset => Target::Reset,
-        None => match pop {
-            Population::State | Population::Handler => pick_state(rng, ctx.ram, sp, reg_share),
-            Population::Double => pick_double(rng, ctx.ram, sp),
-            Population::Device => pick_device(rng),
-            Population::SnapshotReset => Target::SnapshotReset {
-                addr: ctx.snap_region.0 + rng.random_range(0..ctx.snap_region.1),
-                bit: rng.random_range(0..8),
-            },
-            Population::SnapshotWrite if rng.random_bool(0.5) => Target::Reset,
-            Population::SnapshotWrite => pick_state(rng, ctx.ram, sp, reg_share),
-        },
-    };
-    flip(g, target)?;
-    g.resume()?;
-    if target == Target::Stall {
-        unit.command(command::STALL)?;
-    }
-    if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
-        eprintln!(
-            "flip placed in {:.3} s ({} instruction {k} of {path_len}, pc {pc:#x}, hit {m}, sp {sp:#x}, {})",
-            t0.elapsed().as_secs_f64(),
-            pop.name(),
-            target.describe()
-        );
-    }
-    Ok((k as u32, target, here_at_flip, pop))
-}
-
 /// The next flip's population and step at or after `from`: a snapshot write's on the
 /// next step that writes the snapshot (once its phase is known; before, another
 /// population is drawn).
@@ -1491,7 +1333,7 @@ fn keep(ctx: &Ctx<'_>, rng: &mut ChaCha8Rng, pop: Population, star: bool) -> boo
         return true;
     }
     let paths = ctx.paths.borrow();
-    let len = |k: bool| paths.get(&PathKind::Pass(k)).map(Vec::len);
+    let len = |k: bool| paths.get(&PathKind::Pass(k)).map(place::Traced::len);
     match (len(star), len(!star)) {
         (Some(a), Some(b)) if a < b => rng.random_bool(a as f64 / b as f64),
         _ => true,
@@ -1569,56 +1411,101 @@ fn run_flight(
         if watch.is_none() && done {
             break;
         }
-        let fb = fog_bytes(input, &fl.profile);
-        if let Err(e) = unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes)) {
-            crash = Some(format!("the unit's links closed ({e})"));
-            break;
-        }
-        fog_total = fog_total.wrapping_add(fb.len() as u32);
-        st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
+        // A reset after the last step's outputs went out (a fault late in the pass, or
+        // while idle): followed before this step's bytes go to a unit that is not
+        // listening.
+        let pending = match watch.is_some() {
+            true => match g.wait_stop(Duration::ZERO)? {
+                Some(stop) => on_stop(ctx, &mut g, &stop, &mut cause)?,
+                None => None,
+            },
+            false => None,
+        };
         if let Some(t) = input.truth {
             eval.push_truth(t);
         }
-        let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
-        let star = fl
-            .inputs
-            .iter()
-            .position(|i| i.n == n)
-            .and_then(|i| fl.frames.get(i))
-            .and_then(Option::as_ref)
-            .is_some_and(|f| f.st_status & ssis::flight::st_status::UPDATED != 0);
-        if watch.is_none() && n == next_flip && !keep(ctx, rng, next_pop, star) {
-            // Uniform over the instructions of all passes: a pass is taken in proportion
-            // to its path's length.
-            next_flip += 1;
-        }
-        ctx.awaiting.set(n);
-        if watch.is_none() && n == next_flip {
-            let (instr, target, pc, population) = place_flip(ctx, &mut unit, &mut g, rng, &step, next_pop, star)?;
-            watch = Some(Watch {
-                population,
-                star,
-                flip_step: n,
-                instr,
-                at: ctx.syms.name(pc),
-                target,
-                changed: false,
-                last_diff: None,
-                worst: 0.0,
-                silent: 0.0,
-                last_bad: None,
-                last_n: n,
-                earlier,
-                nominal2_arcsec: fl.nominal_3sigma_arcsec.map(|s| 2.0 * s),
-                reset: None,
-                reset_events: Vec::new(),
-                after_reset: (None, None, None),
-            });
-        } else {
-            unit.control(&step)?;
-        }
-        sent += 1;
-        match await_frame(ctx, &mut unit, &mut g, &mut rx, sent, &mut cause)? {
+        let awaited = match pending {
+            Some(a) => a,
+            None => {
+                let fb = fog_bytes(input, &fl.profile);
+                if let Err(e) = unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes)) {
+                    crash = Some(format!("the unit's links closed ({e})"));
+                    break;
+                }
+                fog_total = fog_total.wrapping_add(fb.len() as u32);
+                st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
+                let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
+                let star = fl
+                    .inputs
+                    .iter()
+                    .position(|i| i.n == n)
+                    .and_then(|i| fl.frames.get(i))
+                    .and_then(Option::as_ref)
+                    .is_some_and(|f| f.st_status & ssis::flight::st_status::UPDATED != 0);
+                if watch.is_none() && n == next_flip && !keep(ctx, rng, next_pop, star) {
+                    // Uniform over the instructions of all passes: a pass is taken in proportion
+                    // to its path's length.
+                    next_flip += 1;
+                }
+                ctx.awaiting.set(n);
+                if watch.is_none() && n == next_flip {
+                    let (instr, target, pc, population) =
+                        match place::place_flip(ctx, &mut unit, &mut g, rng, &step, next_pop, star)? {
+                            place::Placed::Flip { instr, target, pc, population } => (instr, target, pc, population),
+                            place::Placed::Traced => {
+                                // The path traced in this step: the flip in the next (a snapshot
+                                // write's in the next step that writes the snapshot).
+                                next_flip += if next_pop == Population::SnapshotWrite { SNAPSHOT_STEPS } else { 1 };
+                                sent += 1;
+                                match await_frame(ctx, &mut unit, &mut g, &mut rx, sent, &mut cause)? {
+                                    Awaited::Frame => continue,
+                                    Awaited::Stopped(why) | Awaited::Reset(why) => {
+                                        crash = Some(why);
+                                        break;
+                                    }
+                                }
+                            }
+                            place::Placed::Stopped(why) => {
+                                crash = Some(why);
+                                break;
+                            }
+                        };
+                    watch = Some(Watch {
+                        population,
+                        star,
+                        flip_step: n,
+                        instr,
+                        at: ctx.syms.name(pc),
+                        target,
+                        changed: false,
+                        last_diff: None,
+                        worst: 0.0,
+                        silent: 0.0,
+                        last_bad: None,
+                        last_n: n,
+                        earlier,
+                        nominal2_arcsec: fl.nominal_3sigma_arcsec.map(|s| 2.0 * s),
+                        reset: None,
+                        reset_events: Vec::new(),
+                        events_seen: rx.events.len(),
+                        after_reset: (None, None, None),
+                    });
+                    sent += 1;
+                    if target.resets() {
+                        // Reset by the runner: followed at once, wherever in the pass (the
+                        // outputs may have gone out already).
+                        Awaited::Reset("forced (system_reset)".to_string())
+                    } else {
+                        await_frame(ctx, &mut unit, &mut g, &mut rx, sent, &mut cause)?
+                    }
+                } else {
+                    unit.control(&step)?;
+                    sent += 1;
+                    await_frame(ctx, &mut unit, &mut g, &mut rx, sent, &mut cause)?
+                }
+            }
+        };
+        match awaited {
             Awaited::Frame => {}
             Awaited::Stopped(why) => {
                 crash = Some(why);
@@ -1644,10 +1531,20 @@ fn run_flight(
         }
         let Some(w) = watch.as_mut() else { continue };
         if let Some(f) = rx.frames.last() {
+            if n == w.flip_step && std::env::var_os("SSIS_UPSET_TIMES").is_some() {
+                eprintln!("the flip's step took {} ticks on the unit's clock", f.counters.step_ticks);
+            }
             let k = (f.time_us / dt_us) as usize;
             let reference = k.checked_sub(1).and_then(|i| fl.frames.get(i)).and_then(Option::as_ref);
             let err = eval.evaluate(&Observed::from(f)).map(|r| r.att_err_arcsec);
             w.frame(n, f, reference, err);
+        }
+        if rx.events.len() > w.events_seen {
+            // Event frames are outputs too: one the undisturbed run did not send is a change.
+            w.events_seen = rx.events.len();
+            if !new_events(ctx, w.flip_step, w.last_n, &rx).is_empty() {
+                (w.changed, w.last_diff) = (true, Some(n));
+            }
         }
         let end = if w.changed { w.flip_step + window } else { w.flip_step + quiet };
         // Changed within the bound, then identical again for the quiet time: tolerated, and
@@ -1703,19 +1600,24 @@ fn qemu_stderr(unit: &mut Unit) -> Option<String> {
     s.lines().find(|l| !l.trim().is_empty()).map(|l| l.trim().to_string())
 }
 
-/// The flip's record: its outcome, errors, recovery time and the events the undisturbed
-/// run did not log.
-fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Flip {
+/// The events the unit logged from step `from` (the flip's) to step `to` that the
+/// undisturbed run did not.
+fn new_events(ctx: &Ctx<'_>, from: u64, to: u64, rx: &Received) -> Vec<String> {
     let dt_us = u64::from(ctx.flight.profile.dt_us);
-    let (t0, t1) = (w.flip_step.saturating_sub(1) * dt_us, w.last_n * dt_us);
+    let (t0, t1) = (from.saturating_sub(1) * dt_us, to * dt_us);
     let reference: Vec<&EventRecord> =
         ctx.flight.events.iter().filter(|e| e.time_us >= t0 && e.time_us <= t1).collect();
     let (seen, _) = ssis_common::downlink::records(&rx.events);
-    let events: Vec<String> = seen
-        .iter()
+    seen.iter()
         .filter(|e| e.time_us >= t0 && !reference.iter().any(|r| r.event == e.event && r.time_us == e.time_us))
         .map(|e| e.event.name().to_string())
-        .collect();
+        .collect()
+}
+
+/// The flip's record: its outcome, errors, recovery time and the events the undisturbed
+/// run did not log.
+fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Flip {
+    let events = new_events(ctx, w.flip_step, w.last_n, rx);
     let events = events.into_iter().chain(w.reset_events.iter().cloned()).collect();
     let outcome = w.outcome(crash);
     let dt_s = ctx.flight.profile.dt_s();
@@ -1792,6 +1694,7 @@ fn campaign(
     let flight = Flight::record(sc)?;
     anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
     let code = step_code(&o.elf)?;
+    let elf_hash = place::elf_hash(&o.elf)?;
     static CAMPAIGN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let k = CAMPAIGN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let snapshot_path = std::env::temp_dir().join(format!("ssis-upset-{}-{k}.state", std::process::id()));
@@ -1800,7 +1703,13 @@ fn campaign(
         o,
         flight: &flight,
         code,
-        paths: Default::default(),
+        paths: std::cell::RefCell::new(
+            [PathKind::Pass(false), PathKind::Pass(true), PathKind::Handler, PathKind::SnapshotWrite]
+                .into_iter()
+                .filter_map(|k| place::Traced::load(elf_hash, k).map(|p| (k, p)))
+                .collect(),
+        ),
+        elf_hash,
         mix: mix.clone(),
         snap_region: (
             symbol(&o.elf, "_snapshot_start")? as u32,
@@ -1844,7 +1753,7 @@ fn campaign(
         anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
     }
     let paths = ctx.paths.borrow();
-    let path_len = paths.get(&PathKind::Pass(false)).map_or(0, Vec::len);
+    let path_len = paths.get(&PathKind::Pass(false)).map_or(0, place::Traced::len);
     let mut path_lens: Vec<(PathKind, usize)> = paths.iter().map(|(k, v)| (*k, v.len())).collect();
     path_lens.sort_by_key(|(k, _)| format!("{k:?}"));
     drop(paths);

@@ -212,10 +212,13 @@ impl Campaign {
              a random pass: the runner breaks at the first instruction of the inlined `FlightCore::step` \
              ({:#x}, from the ELF's DWARF) and draws an instruction uniformly over the pass's path (the \
              step, its outputs and the after-step work up to the loop's next `wfi`, traced once by \
-             single-stepping for a step with a star update and once for one without, a pass taken in \
-             proportion to its path's length), then runs to it through a breakpoint at its address (the \
-             m-th time it is reached, as in the traced path; a pass that leaves the path stops at that \
-             address or at its end); **handler** one bit of the state at a random instruction of the \
+             single-stepping, in a step of its own, for a step with a star update and once for one \
+             without, kept under the ELF's hash for later campaigns; a pass taken in proportion to its \
+             path's length), then runs to it: a breakpoint at the last instruction before it whose \
+             address occurs there for the first time, then single steps (a breakpoint hit more than \
+             once can let QEMU warp its virtual clock to the next timer deadline: ten hits in the \
+             pass's wait loop reset the unit by its watchdog; single steps hold QEMU's timers); \
+             **handler** one bit of the state at a random instruction of the \
              UART receive interrupt (`DefaultHandler`, traced from its entry to its return); \
              **snapshot-write** at a random instruction of `FlightCore::snapshot_into` on a step that \
              writes the snapshot (every 80th), a reset there (half) or one bit of the state. First flip \
@@ -226,7 +229,7 @@ impl Campaign {
             s,
             "Classes (the host campaign's): **masked** every output frame identical to the undisturbed \
              run's (the in-process core on the same bytes; the board's step time and overrun counters \
-             set aside) for {} s after the flip; **tolerated** outputs changed, every frame's attitude \
+             set aside) and no event the undisturbed run did not log for {} s after the flip; **tolerated** outputs changed, every frame's attitude \
              error within max({BOUND_ARCSEC}″, the unit's own 3σ) on each axis; **detected and \
              recovered** beyond that only in frames that do not claim a good attitude (a frame claims \
              one when it says converged, not degraded, no parity alarm) and back, claiming it, before \
@@ -269,7 +272,7 @@ impl Campaign {
              identical again for the quiet time: tolerated); any other flip is followed for the \
              window and ends its flight (the next one starts QEMU from the guest's state saved by the first flight \
              before the first flip time, `-incoming`, instead of booting and converging again). \
-             Placing a flip costs tens of milliseconds. 1,000 flips at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
+             Placing a flip costs a few milliseconds in straight-line code and up to some tenths of a second deep in a pass's loops (the single steps). 1,000 flips at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
              later is charged to a later flip of the same flight: of the changed flips below, {} had \
              earlier flips before them in their flight; {} flights stopped with no flip being \
              watched (every flip in them already classed masked or tolerated).\n",
