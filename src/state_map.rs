@@ -163,6 +163,9 @@ impl<T: KeepRecord> Survive<Part> for T {
 /// }
 /// ```
 ///
+/// The struct may take const generics (`pub struct History<const H: usize> { .. }`); such
+/// a struct has neither a guard nor a snapshot clause.
+///
 /// The options come in that order: `bits`, `map`, `guard`, `reset`. The guard's shadows
 /// are one field, marked `@shadows` where it lies in the struct, initialised by
 /// `Default`. A struct without a guard has neither the `@shadows` field nor the `guard`
@@ -171,7 +174,7 @@ impl<T: KeepRecord> Survive<Part> for T {
 macro_rules! state_struct {
     (
         $(#[$sm:meta])*
-        $svis:vis struct $name:ident {
+        $svis:vis struct $name:ident $(< $(const $cg:ident : $cgty:ty),+ $(,)? >)? {
             $(
                 $(#[$afm:meta])*
                 $afield:ident : $afty:ty = $ainit:expr
@@ -195,14 +198,14 @@ macro_rules! state_struct {
         $($rest:tt)*
     ) => {
         $(#[$sm])*
-        $svis struct $name {
+        $svis struct $name $(< $(const $cg: $cgty),+ >)? {
             $( $(#[$afm])* $afield: $afty, )*
             $(#[$gm])* $sfield: $sty,
             $( $(#[$bfm])* $bfield: $bfty, )*
         }
 
         $crate::state_map::state_struct! {
-            @items $name, shadows [$sfield: $sty];
+            @items $name [$($(const $cg: $cgty),+)?], shadows [$sfield: $sty];
             fields {
                 $(
                     $afield : $afty = $ainit
@@ -218,7 +221,7 @@ macro_rules! state_struct {
     };
     (
         $(#[$sm:meta])*
-        $svis:vis struct $name:ident {
+        $svis:vis struct $name:ident $(< $(const $cg:ident : $cgty:ty),+ $(,)? >)? {
             $(
                 $(#[$afm:meta])*
                 $afvis:vis $afield:ident : $afty:ty = $ainit:expr
@@ -231,12 +234,12 @@ macro_rules! state_struct {
         $($rest:tt)*
     ) => {
         $(#[$sm])*
-        $svis struct $name {
+        $svis struct $name $(< $(const $cg: $cgty),+ >)? {
             $( $(#[$afm])* $afvis $afield: $afty, )*
         }
 
         $crate::state_map::state_struct! {
-            @items $name, shadows [];
+            @items $name [$($(const $cg: $cgty),+)?], shadows [];
             fields {
                 $(
                     $afield : $afty = $ainit
@@ -247,7 +250,7 @@ macro_rules! state_struct {
         }
     };
     (
-        @items $name:ident, shadows [$($sfield:ident : $sty:ty)?];
+        @items $name:ident [$(const $cg:ident : $cgty:ty),*], shadows [$($sfield:ident : $sty:ty)?];
         fields {
             $(
                 $field:ident : $fty:ty = $init:expr
@@ -262,35 +265,38 @@ macro_rules! state_struct {
         $( snapshot $snapshot:tt )?
         constructor $(#[$cm:meta])* $cvis:vis fn $new:ident ( $($args:tt)* ) -> $ret:ty => $wrap:path { $($body:tt)* }
     ) => {
-        const _: fn() = || {
-            fn proof<T: $crate::state_map::Bits<M>, M>() {}
-            $( proof::<$fty, $crate::state_map::state_struct!(@or AnyBits $($bits)?)>(); )*
-            $( proof::<$sty, $crate::state_map::AnyBits>(); )?
-        };
-
         $crate::state_map::state_struct! {
-            @guard $name; shadows [$($sfield: $sty)?]; guard [$($guard)?];
+            @guard $name [$(const $cg: $cgty),*]; shadows [$($sfield: $sty)?]; guard [$($guard)?];
             fields { $( $field : $fty $(, guard($gpat))?; )* }
         }
 
         $crate::state_map::state_struct! {
-            @snapshot $name; snapshot [$($snapshot)?];
+            @snapshot $name [$(const $cg: $cgty),*]; snapshot [$($snapshot)?];
             fields { $( $field : $fty $(, reset($reset))?; )* }
         }
 
-        impl $name {
+        impl<$(const $cg: $cgty),*> $name<$($cg),*> {
+            /// The proof that every field's type takes any bit pattern ([`Bits`]; checked
+            /// when the crate compiles, never called).
+            #[allow(dead_code)]
+            fn bits_proof() {
+                fn proof<T: $crate::state_map::Bits<M>, M>() {}
+                $( proof::<$fty, $crate::state_map::state_struct!(@or AnyBits $($bits)?)>(); )*
+                $( proof::<$sty, $crate::state_map::AnyBits>(); )?
+            }
+
             /// Where each field lies ([`crate::state_map`]): every field, in order.
             pub const STATE_MAP: &'static [$crate::state_map::StateField] = &[
                 $( $crate::state_map::StateField {
                     name: stringify!($field),
-                    offset: core::mem::offset_of!($name, $field),
+                    offset: core::mem::offset_of!(Self, $field),
                     size: core::mem::size_of::<$fty>(),
                     align: core::mem::align_of::<$fty>(),
                     parts: $crate::state_map::state_map!(@parts $( $parts )?),
                 }, )*
                 $( $crate::state_map::StateField {
                     name: stringify!($sfield),
-                    offset: core::mem::offset_of!($name, $sfield),
+                    offset: core::mem::offset_of!(Self, $sfield),
                     size: core::mem::size_of::<$sty>(),
                     align: core::mem::align_of::<$sty>(),
                     parts: &[],
@@ -305,7 +311,7 @@ macro_rules! state_struct {
         }
     };
     (
-        @guard $name:ident; shadows [$sfield:ident : $sty:ty];
+        @guard $name:ident []; shadows [$sfield:ident : $sty:ty];
         guard [{ blocks: $bty:ty, words: $words:ident, parts: $pname:ident $(,)? }];
         fields { $( $field:ident : $fty:ty $(, guard($gpat:pat))?; )* }
     ) => {
@@ -367,9 +373,9 @@ macro_rules! state_struct {
             }
         }
     };
-    (@guard $name:ident; shadows []; guard []; fields { $($t:tt)* }) => {};
+    (@guard $name:ident [$($g:tt)*]; shadows []; guard []; fields { $($t:tt)* }) => {};
     (
-        @snapshot $name:ident; snapshot [{ $(#[$rm:meta])* record: $rec:ident $(,)? }];
+        @snapshot $name:ident []; snapshot [{ $(#[$rm:meta])* record: $rec:ident $(,)? }];
         fields { $( $field:ident : $fty:ty $(, reset($reset:ident))?; )* }
     ) => {
         $(#[$rm])*
@@ -409,7 +415,7 @@ macro_rules! state_struct {
             }
         }
     };
-    (@snapshot $name:ident; snapshot []; fields { $($t:tt)* }) => {};
+    (@snapshot $name:ident [$($g:tt)*]; snapshot []; fields { $($t:tt)* }) => {};
 
     (@or $default:ident) => { $crate::state_map::$default };
     (@or $default:ident $given:ident) => { $crate::state_map::$given };
@@ -453,34 +459,31 @@ mod tests {
     use super::*;
     use crate::flight::FlightCore;
 
-    /// Every level of `map` lies within `size` bytes, without overlaps.
-    fn check(map: &[StateField], size: usize, path: &str) {
+    /// Every level of `map` lies within `size` bytes, without overlaps, and every byte no
+    /// field covers is padding the layout needs: before a field, less than its alignment;
+    /// at the end, less than the value's (`align`).
+    fn check(map: &[StateField], size: usize, align: usize, path: &str) {
         let mut v: Vec<_> = map.iter().collect();
         v.sort_by_key(|f| f.offset);
         for w in v.windows(2) {
             assert!(w[0].offset + w[0].size <= w[1].offset, "{path}: {} overlaps {}", w[0].name, w[1].name);
         }
+        let mut end = 0;
         for f in &v {
             assert!(f.offset + f.size <= size, "{path}.{} beyond the struct", f.name);
-            check(f.parts, f.size, &format!("{path}.{}", f.name));
+            assert!(f.offset - end < f.align, "{path}: {} unmapped bytes before {}", f.offset - end, f.name);
+            end = f.offset + f.size;
+            check(f.parts, f.size, f.align, &format!("{path}.{}", f.name));
+        }
+        if !v.is_empty() {
+            assert!(size - end < align, "{path}: {} unmapped bytes at the end", size - end);
         }
     }
 
     #[test]
-    fn the_core_map_covers_its_fields_without_overlap() {
+    fn the_core_map_covers_every_byte_without_overlap() {
         let map = FlightCore::state_map();
-        let size = core::mem::size_of::<FlightCore>();
-        check(map, size, "FlightCore");
-        // Every byte no field covers is padding the layout needs: before a field, less than
-        // its alignment; at the end, less than the core's.
-        let mut v: Vec<_> = map.iter().collect();
-        v.sort_by_key(|f| f.offset);
-        let mut end = 0;
-        for f in &v {
-            assert!(f.offset - end < f.align, "{} unmapped bytes before {}", f.offset - end, f.name);
-            end = f.offset + f.size;
-        }
-        assert!(size - end < core::mem::align_of::<FlightCore>(), "{} unmapped bytes at the end", size - end);
+        check(map, core::mem::size_of::<FlightCore>(), core::mem::align_of::<FlightCore>(), "FlightCore");
     }
 
     #[test]

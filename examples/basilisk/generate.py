@@ -6,8 +6,9 @@ truth, for `ssis-sim replay` and `ssis-qemu --replay`.
 Two back ends make the truth and the sensors:
 
   --backend numpy      (default) the motion and sensor models below, numpy only;
-  --backend basilisk   Basilisk (AVS Lab, `pip install bsk`): spacecraft, nadir pointing
-                       and slews under its own attitude guidance, `starTracker`, and the
+  --backend basilisk   Basilisk (AVS Lab, `pip install bsk ./python`): the package's LEO
+                       spacecraft (`ssis.basilisk.Leo`), nadir pointing and slews under
+                       its own attitude guidance, `starTracker`, and the
                        FOG model below applied to Basilisk's truth (its `imuSensor` has
                        one error state per axis and no skewed fourth gyro).
 
@@ -104,12 +105,14 @@ def numpy_truth(n, args, rng):
 
 
 def basilisk_truth(n, args, rng):
-    """Truth and star-tracker solutions from Basilisk 2.12.1 (`pip install bsk`).
+    """Truth and star-tracker solutions from Basilisk 2.12.1 (`pip install bsk`) on the
+    package's LEO spacecraft (`ssis.basilisk.Leo`, `pip install ./python`).
 
     A rigid spacecraft (`spacecraft`, 750 kg, inertia diag(900, 800, 600) kg m^2) in a
     500-km circular orbit (inclination 51.6 deg) about a point-mass Earth; nadir pointing
-    from `hillPoint` (Hill frame: x radial, y along track, z orbit normal), the slews as
-    steps of `attTrackingError`'s reference offset sigma_R0R (MRP-step guidance), and
+    from `hillPoint` (Hill frame: x radial, y along track, z orbit normal), the slews
+    (`ssis.basilisk.slew_events`, the ones `--backend numpy` turns) as steps of
+    `attTrackingError`'s reference offset sigma_R0R (MRP-step guidance), and
     `mrpFeedback` commanding `extForceTorque`; `simpleNav` (no noise) closes the loop.
     `starTracker` (noise matrix set explicitly: its default is zero; white noise, A = 0)
     at the tracker's rate on its own task (after the dynamics at the same instant).
@@ -117,74 +120,21 @@ def basilisk_truth(n, args, rng):
     Returns Λ at each sample end (n + 1, β_BN from sigma_BN: numerically our Λ, signs made
     continuous across the MRP switch), the body rate at each sample's end, and the
     tracker's solutions (time tag, β_CN with q0 >= 0)."""
-    from Basilisk.architecture import messaging
-    from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback
-    from Basilisk.simulation import extForceTorque, simpleNav, spacecraft, starTracker
+    from Basilisk.simulation import starTracker
     from Basilisk.utilities import RigidBodyKinematics as rbk
-    from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody
+    from Basilisk.utilities import SimulationBaseClass, macros
+
+    from ssis.basilisk import Leo
 
     h = DT / SUB
     sim = SimulationBaseClass.SimBaseClass()
     proc = sim.CreateNewProcess("p")
     proc.addTask(sim.CreateNewTask("dyn", macros.sec2nano(h)), 100)
     proc.addTask(sim.CreateNewTask("st", macros.sec2nano(1.0 / args.st_rate)), 50)
-
-    sc = spacecraft.Spacecraft()
-    sc.ModelTag = "ssis-leo"
-    sc.hub.mHub = 750.0
-    inertia = [900.0, 0.0, 0.0, 0.0, 800.0, 0.0, 0.0, 0.0, 600.0]
-    sc.hub.IHubPntBc_B = [inertia[0:3], inertia[3:6], inertia[6:9]]
-    grav = simIncludeGravBody.gravBodyFactory()
-    earth = grav.createEarth()
-    earth.isCentralBody = True
-    grav.addBodiesTo(sc)
-    oe = orbitalMotion.ClassicElements()
-    oe.a = earth.radEquator + 500e3
-    oe.e = 0.0
-    oe.i = math.radians(51.6)
-    oe.Omega = math.radians(48.2)
-    oe.omega = 0.0
-    oe.f = math.radians(85.3)
-    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
-    sc.hub.r_CN_NInit = r_n
-    sc.hub.v_CN_NInit = v_n
-    # Start on the reference: body = Hill frame, turning at the orbital rate.
-    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
-    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
-    dcm_hn = np.array([r_hat, np.cross(h_hat, r_hat), h_hat])
-    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(dcm_hn)]
-    n_orbit = np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)
-    sc.hub.omega_BN_BInit = [[0.0], [0.0], [n_orbit]]
-    sim.AddModelToTask("dyn", sc)
-
-    nav = simpleNav.SimpleNav()
-    nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-    sim.AddModelToTask("dyn", nav)
-    hill = hillPoint.hillPoint()
-    hill.transNavInMsg.subscribeTo(nav.transOutMsg)
-    sim.AddModelToTask("dyn", hill)
-    err = attTrackingError.attTrackingError()
-    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
-    err.attNavInMsg.subscribeTo(nav.attOutMsg)
-    sim.AddModelToTask("dyn", err)
-    vc = messaging.VehicleConfigMsgPayload()
-    vc.ISCPntB_B = inertia
-    vc_msg = messaging.VehicleConfigMsg().write(vc)
-    ctl = mrpFeedback.mrpFeedback()
-    # Natural frequency about 0.1 rad/s on the largest inertia, damping about 0.9.
-    ctl.K = 36.0
-    ctl.P = 160.0
-    ctl.Ki = -1.0
-    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
-    ctl.vehConfigInMsg.subscribeTo(vc_msg)
-    sim.AddModelToTask("dyn", ctl)
-    ext = extForceTorque.ExtForceTorque()
-    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
-    sc.addDynamicEffector(ext)
-    sim.AddModelToTask("dyn", ext)
+    leo = Leo(sim, "dyn")
 
     st = starTracker.StarTracker()
-    st.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+    st.scStateInMsg.subscribeTo(leo.sc.scStateOutMsg)
     st.dcm_CB = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     # Measured on 2.12.1 (2,000 solutions): the error per axis has the standard deviation
     # of the PMatrix diagonal in radians (not 4x it, as an MRP error set would).
@@ -195,26 +145,13 @@ def basilisk_truth(n, args, rng):
     st.RNGSeed = int(rng.integers(1, 2**31 - 1))
     sim.AddModelToTask("st", st)
 
-    rec = sc.scStateOutMsg.recorder(macros.sec2nano(DT))
+    rec = leo.sc.scStateOutMsg.recorder(macros.sec2nano(DT))
     sim.AddModelToTask("dyn", rec)
     st_rec = st.sensorOutMsg.recorder()
     sim.AddModelToTask("st", st_rec)
 
     sim.InitializeSimulation()
-    # Slews: steps of the reference offset, each composed with the offset before; back
-    # to nadir at the start of every 180 s after the first.
-    events = [(t0, np.asarray(axis, dtype=float) * angle) for t0, _dur, axis, angle in args.slews]
-    events += [(180.0 * p, None) for p in range(1, int(math.ceil(n * DT / 180.0)))]
-    offset = np.zeros(3)
-    for t0, prv in sorted(events, key=lambda e: e[0]):
-        if t0 >= n * DT:
-            break
-        sim.ConfigureStopTime(macros.sec2nano(t0))
-        sim.ExecuteSimulation()
-        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
-        err.sigma_R0R = list(offset)
-    sim.ConfigureStopTime(macros.sec2nano(n * DT))
-    sim.ExecuteSimulation()
+    leo.fly(n * DT)
 
     qs = []
     for sigma in rec.sigma_BN[: n + 1]:

@@ -84,9 +84,26 @@ pub(crate) struct StepIn {
     pub(crate) star_valid: bool,
 }
 
+/// A step's arguments as the package's `step` passes them to either unit: the tuple
+/// `(fog_dtheta_rad, star, temperature_degc, star_valid)`.
+impl<'a, 'py> FromPyObject<'a, 'py> for StepIn {
+    type Error = PyErr;
+
+    fn extract(args: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
+        type Args<'py> = (Bound<'py, PyAny>, Option<Bound<'py, PyAny>>, Option<Bound<'py, PyAny>>, bool);
+        let (dtheta, star, temps, star_valid) = args.extract::<Args<'py>>().map_err(|_| {
+            SsisError::new_err(format!(
+                "step: expected (fog_dtheta_rad, star, temperature_degc, star_valid), got {}",
+                describe(&args)
+            ))
+        })?;
+        StepIn::parse(&dtheta, star.as_ref(), temps.as_ref(), star_valid)
+    }
+}
+
 impl StepIn {
-    /// A step's arguments as Python passes them: increments, `(tag_t_s, q)`, temperatures.
-    pub(crate) fn parse(
+    /// A step's arguments: increments, `(tag_t_s, q)`, temperatures.
+    fn parse(
         dtheta: &Bound<'_, PyAny>,
         star: Option<&Bound<'_, PyAny>>,
         temps: Option<&Bound<'_, PyAny>>,
@@ -373,21 +390,13 @@ impl PyFlightCore {
         Ok(())
     }
 
-    /// One step: `fog_dtheta_rad` the four FOGs' raw increments over the step (NaN: the
-    /// sample does not arrive), `star` = `(tag_t_s, q)` a star-tracker solution arriving
-    /// in this step (q = Λ*, scalar first, the instant `tag_t_s` of unit time), optional
-    /// `temperature_degc` per FOG (default: each FOG's reference temperature).
-    #[pyo3(signature = (fog_dtheta_rad, star = None, temperature_degc = None, star_valid = true))]
-    fn step<'py>(
-        &mut self,
-        py: Python<'py>,
-        fog_dtheta_rad: &Bound<'py, PyAny>,
-        star: Option<&Bound<'py, PyAny>>,
-        temperature_degc: Option<&Bound<'py, PyAny>>,
-        star_valid: bool,
-    ) -> PyResult<Bound<'py, PyDict>> {
-        let s = StepIn::parse(fog_dtheta_rad, star, temperature_degc, star_valid)?;
-        let input = self.enc.encode(&s);
+    /// One step from `(fog_dtheta_rad, star, temperature_degc, star_valid)` ([`StepIn`]):
+    /// the four FOGs' raw increments over the step (NaN: the sample does not arrive), a
+    /// star-tracker solution `(tag_t_s, q)` arriving in this step or `None` (q = Λ*, scalar
+    /// first, the instant `tag_t_s` of unit time), the temperature per FOG or `None` (each
+    /// FOG's reference temperature), whether the tracker flags its solution valid.
+    fn step<'py>(&mut self, py: Python<'py>, args: StepIn) -> PyResult<Bound<'py, PyDict>> {
+        let input = self.enc.encode(&args);
         let (o, frames) = self.step_input(&input);
         let events = event_dicts(py, &frames)?;
         let now = self.core.counters();

@@ -91,16 +91,8 @@ impl PyQemuUnit {
 
     /// One step, as `FlightCore.step`; returns the firmware's output frame, decoded, and the
     /// events of the event frame it sent after it (`events`, as `FlightCore.step`'s).
-    #[pyo3(signature = (fog_dtheta_rad, star = None, temperature_degc = None, star_valid = true))]
-    fn step<'py>(
-        &mut self,
-        py: Python<'py>,
-        fog_dtheta_rad: &Bound<'py, PyAny>,
-        star: Option<&Bound<'py, PyAny>>,
-        temperature_degc: Option<&Bound<'py, PyAny>>,
-        star_valid: bool,
-    ) -> PyResult<Bound<'py, PyDict>> {
-        let input = self.enc.encode(&StepIn::parse(fog_dtheta_rad, star, temperature_degc, star_valid)?);
+    fn step<'py>(&mut self, py: Python<'py>, args: StepIn) -> PyResult<Bound<'py, PyDict>> {
+        let input = self.enc.encode(&args);
         let n = input.n;
         let sent = self.tx.as_ref().is_some_and(|tx| tx.send(input).is_ok());
         let rx = self.rx.lock().map_err(|_| SsisError::new_err("QEMU: the output channel is poisoned"))?;

@@ -236,7 +236,7 @@ class _Unit:
         step (q the tracker's frame in the inertial frame, scalar first, a unit quaternion;
         ``tag_t_s`` the instant it holds, in unit time: step n ends at n × 5 ms)."""
         st = None if star is None else _star(star)
-        return Step(**self._native.step(_f64(fog_dtheta_rad), st, _f64(temperature_degc), bool(star_valid)))
+        return Step(**self._native.step((_f64(fog_dtheta_rad), st, _f64(temperature_degc), bool(star_valid))))
 
 
 def _f64(v: Any) -> Any:

@@ -11,6 +11,8 @@ import numpy.typing as npt
 
 _Path = Union[str, PathLike[str]]
 _F64 = npt.NDArray[np.float64]
+# a step's (fog_dtheta_rad, star, temperature_degc, star_valid), as ssis.FlightCore.step passes them
+_StepArgs = Tuple[Any, Optional[Any], Optional[Any], bool]
 
 __version__: str
 
@@ -51,13 +53,7 @@ class FlightCore:
     @property
     def steps(self) -> int: ...
     def align(self, q: Any) -> None: ...
-    def step(
-        self,
-        fog_dtheta_rad: Any,
-        star: Optional[Any] = None,
-        temperature_degc: Optional[Any] = None,
-        star_valid: bool = True,
-    ) -> Dict[str, Any]: ...
+    def step(self, args: _StepArgs) -> Dict[str, Any]: ...
     def run(
         self,
         fog_dtheta_rad: Any,
@@ -75,13 +71,7 @@ class FlightCore:
 @final
 class QemuUnit:
     def __new__(cls, table: Optional[Table] = None, elf: Optional[str] = None, steps: int = 0) -> QemuUnit: ...
-    def step(
-        self,
-        fog_dtheta_rad: Any,
-        star: Optional[Any] = None,
-        temperature_degc: Optional[Any] = None,
-        star_valid: bool = True,
-    ) -> Dict[str, Any]: ...
+    def step(self, args: _StepArgs) -> Dict[str, Any]: ...
     def close(self) -> str: ...
 
 def replay(

@@ -64,7 +64,7 @@ from Basilisk.utilities import RigidBodyKinematics as rbk  # type: ignore
 
 from . import FlightCore, QemuUnit, Table, _ssis
 
-__all__ = ["UnitNav", "UnitStatusLost", "UnitStatusWarning", "ST_ALIGNED", "CONVERGED", "fly_leo", "slew_events"]
+__all__ = ["UnitNav", "UnitStatusLost", "UnitStatusWarning", "ST_ALIGNED", "CONVERGED", "Leo", "fly_leo", "slew_events"]
 
 DT_S = 0.005
 STEP_NS = 5_000_000
@@ -350,104 +350,137 @@ def slew_events(duration_s: float) -> list:
     return [e for e in ev if e[0] < duration_s]
 
 
+class Leo:
+    """The LEO spacecraft in ``sim``'s task ``task`` (Basilisk: ``spacecraft``, 750 kg,
+    inertia :data:`INERTIA_KG_M2`, a 500-km circular orbit at 51.6°, point-mass Earth,
+    starting on the Hill frame and turning with it) holding nadir (``hillPoint``) under
+    ``mrpFeedback`` (K = 36, P = 160) commanding ``extForceTorque``; the flight software
+    navigates on ``unit`` (a :class:`UnitNav`, after the spacecraft) or, with ``None``, on
+    truth (``simpleNav`` without noise). Within the task, higher priority runs first:
+    dynamics, then the sensors, then the flight software on what they published at this
+    instant. :meth:`fly` steps the reference offset at each of :func:`slew_events`.
+
+    ``sc`` (the spacecraft), ``truth_nav`` (``simpleNav`` on truth), ``att_msg`` (the
+    navigation message the flight software flies on), ``hill`` and ``err`` (its guidance)
+    are there to link more modules to."""
+
+    def __init__(self, sim: Any, task: str, unit: Optional["UnitNav"] = None) -> None:
+        from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback  # type: ignore
+        from Basilisk.simulation import extForceTorque, simpleNav, spacecraft  # type: ignore
+        from Basilisk.utilities import orbitalMotion, simIncludeGravBody  # type: ignore
+
+        self.sim, self.unit = sim, unit
+        sc = spacecraft.Spacecraft()
+        sc.ModelTag = "leo"
+        sc.hub.mHub = 750.0
+        inertia = INERTIA_KG_M2
+        sc.hub.IHubPntBc_B = [inertia[0:3], inertia[3:6], inertia[6:9]]
+        grav = simIncludeGravBody.gravBodyFactory()
+        earth = grav.createEarth()
+        earth.isCentralBody = True
+        grav.addBodiesTo(sc)
+        oe = orbitalMotion.ClassicElements()
+        oe.a, oe.e, oe.i = earth.radEquator + 500e3, 0.0, math.radians(51.6)
+        oe.Omega, oe.omega, oe.f = math.radians(48.2), 0.0, math.radians(85.3)
+        r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
+        sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = r_n, v_n
+        r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
+        h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
+        sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(np.array([r_hat, np.cross(h_hat, r_hat), h_hat]))]
+        sc.hub.omega_BN_BInit = [[0.0], [0.0], [np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)]]
+        sim.AddModelToTask(task, sc, 100)
+        self.sc = sc
+        self.truth_nav = simpleNav.SimpleNav()
+        self.truth_nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+        sim.AddModelToTask(task, self.truth_nav, 90)
+        if unit is None:
+            self.att_msg = self.truth_nav.attOutMsg
+        else:
+            unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
+            sim.AddModelToTask(task, unit, 80)
+            self.att_msg = unit.attOutMsg
+        self.hill = hillPoint.hillPoint()
+        self.hill.transNavInMsg.subscribeTo(self.truth_nav.transOutMsg)
+        sim.AddModelToTask(task, self.hill, 70)
+        self.err = attTrackingError.attTrackingError()
+        self.err.attRefInMsg.subscribeTo(self.hill.attRefOutMsg)
+        self.err.attNavInMsg.subscribeTo(self.att_msg)
+        sim.AddModelToTask(task, self.err, 60)
+        self._errs = [self.err]
+        vc = messaging.VehicleConfigMsgPayload()
+        vc.ISCPntB_B = inertia
+        self._vc_msg = messaging.VehicleConfigMsg().write(vc)
+        ctl = mrpFeedback.mrpFeedback()
+        ctl.K, ctl.P, ctl.Ki = 36.0, 160.0, -1.0
+        ctl.guidInMsg.subscribeTo(self.err.attGuidOutMsg)
+        ctl.vehConfigInMsg.subscribeTo(self._vc_msg)
+        sim.AddModelToTask(task, ctl, 50)
+        ext = extForceTorque.ExtForceTorque()
+        ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
+        sc.addDynamicEffector(ext)
+        sim.AddModelToTask(task, ext, 40)
+        self._ctl, self._ext, self._task = ctl, ext, task
+
+    def true_pointing(self) -> Any:
+        """An ``attTrackingError`` of the true attitude against the same reference (offsets
+        and all), after the flight software's in the task: the true pointing error, for a
+        score only."""
+        from Basilisk.fswAlgorithms import attTrackingError  # type: ignore
+
+        meas = attTrackingError.attTrackingError()
+        meas.attRefInMsg.subscribeTo(self.hill.attRefOutMsg)
+        meas.attNavInMsg.subscribeTo(self.truth_nav.attOutMsg)
+        self.sim.AddModelToTask(self._task, meas, 60)
+        self._errs.append(meas)
+        return meas
+
+    def fly(self, duration_s: float) -> None:
+        """Runs the initialised simulation to ``duration_s``, stepping the reference offset
+        (σ_R0R, each slew composed with the offset before) at each of :func:`slew_events`."""
+        from Basilisk.utilities import macros  # type: ignore
+
+        def run_to(t_s: float) -> None:
+            self.sim.ConfigureStopTime(macros.sec2nano(t_s))
+            try:
+                self.sim.ExecuteSimulation()
+            except RuntimeError:
+                # Basilisk reports a Python module's exception as its own; UnitNav keeps it
+                if self.unit is not None and self.unit.error is not None:
+                    raise self.unit.error from None
+                raise
+
+        offset = np.zeros(3)
+        for t0, prv in slew_events(duration_s):
+            run_to(t0)
+            offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
+            for e in self._errs:
+                e.sigma_R0R = list(offset)
+        run_to(duration_s)
+
+
 def fly_leo(unit: Optional["UnitNav"], duration_s: float, task_ms: float = DT_S * 1e3) -> dict:
-    """One flight of the LEO spacecraft (Basilisk: ``spacecraft``, 750 kg, inertia
-    :data:`INERTIA_KG_M2`, a 500-km circular orbit at 51.6°, point-mass Earth) holding
-    nadir (``hillPoint``) with the slews of :func:`slew_events` as steps of
-    ``attTrackingError``'s reference offset, under ``mrpFeedback`` (K = 36, P = 160)
-    commanding ``extForceTorque``; the flight software navigates on ``unit`` (a
-    :class:`UnitNav`, added to the task after the spacecraft) or, with ``None``, on truth
-    (``simpleNav`` without noise).
+    """One flight of the LEO spacecraft (:class:`Leo`) with the slews of
+    :func:`slew_events`, on a task of ``task_ms``.
 
     Returns ``t_s``, ``pointing_arcsec`` (the true attitude against the reference, per
     axis, small-angle), ``nav_err_arcsec`` (the navigation message against truth, per
     axis) and ``wall_s``."""
-    from Basilisk.fswAlgorithms import attTrackingError, hillPoint, mrpFeedback  # type: ignore
-    from Basilisk.simulation import extForceTorque, simpleNav, spacecraft  # type: ignore
-    from Basilisk.utilities import SimulationBaseClass, macros, orbitalMotion, simIncludeGravBody  # type: ignore
+    from Basilisk.utilities import SimulationBaseClass, macros  # type: ignore
 
     sim = SimulationBaseClass.SimBaseClass()
     proc = sim.CreateNewProcess("p")
     proc.addTask(sim.CreateNewTask("t", macros.sec2nano(task_ms * 1e-3)))
-    sc = spacecraft.Spacecraft()
-    sc.ModelTag = "leo"
-    sc.hub.mHub = 750.0
-    inertia = INERTIA_KG_M2
-    sc.hub.IHubPntBc_B = [inertia[0:3], inertia[3:6], inertia[6:9]]
-    grav = simIncludeGravBody.gravBodyFactory()
-    earth = grav.createEarth()
-    earth.isCentralBody = True
-    grav.addBodiesTo(sc)
-    oe = orbitalMotion.ClassicElements()
-    oe.a, oe.e, oe.i = earth.radEquator + 500e3, 0.0, math.radians(51.6)
-    oe.Omega, oe.omega, oe.f = math.radians(48.2), 0.0, math.radians(85.3)
-    r_n, v_n = orbitalMotion.elem2rv(earth.mu, oe)
-    sc.hub.r_CN_NInit, sc.hub.v_CN_NInit = r_n, v_n
-    r_hat = np.asarray(r_n) / np.linalg.norm(r_n)
-    h_hat = np.cross(r_n, v_n) / np.linalg.norm(np.cross(r_n, v_n))
-    sc.hub.sigma_BNInit = [[c] for c in rbk.C2MRP(np.array([r_hat, np.cross(h_hat, r_hat), h_hat]))]
-    sc.hub.omega_BN_BInit = [[0.0], [0.0], [np.linalg.norm(np.cross(r_n, v_n)) / np.dot(r_n, r_n)]]
-    # Within the task, higher priority runs first: dynamics, then the sensors, then the
-    # flight software on what they published at this instant.
-    sim.AddModelToTask("t", sc, 100)
-    truth_nav = simpleNav.SimpleNav()
-    truth_nav.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-    sim.AddModelToTask("t", truth_nav, 90)
-    if unit is None:
-        att_msg = truth_nav.attOutMsg
-    else:
-        unit.scStateInMsg.subscribeTo(sc.scStateOutMsg)
-        sim.AddModelToTask("t", unit, 80)
-        att_msg = unit.attOutMsg
-    hill = hillPoint.hillPoint()
-    hill.transNavInMsg.subscribeTo(truth_nav.transOutMsg)
-    sim.AddModelToTask("t", hill, 70)
-    err = attTrackingError.attTrackingError()
-    err.attRefInMsg.subscribeTo(hill.attRefOutMsg)
-    err.attNavInMsg.subscribeTo(att_msg)
-    sim.AddModelToTask("t", err, 60)
-    meas = attTrackingError.attTrackingError()  # the true pointing error, for the score only
-    meas.attRefInMsg.subscribeTo(hill.attRefOutMsg)
-    meas.attNavInMsg.subscribeTo(truth_nav.attOutMsg)
-    sim.AddModelToTask("t", meas, 60)
-    vc = messaging.VehicleConfigMsgPayload()
-    vc.ISCPntB_B = inertia
-    vc_msg = messaging.VehicleConfigMsg().write(vc)
-    ctl = mrpFeedback.mrpFeedback()
-    ctl.K, ctl.P, ctl.Ki = 36.0, 160.0, -1.0
-    ctl.guidInMsg.subscribeTo(err.attGuidOutMsg)
-    ctl.vehConfigInMsg.subscribeTo(vc_msg)
-    sim.AddModelToTask("t", ctl, 50)
-    ext = extForceTorque.ExtForceTorque()
-    ext.cmdTorqueInMsg.subscribeTo(ctl.cmdTorqueOutMsg)
-    sc.addDynamicEffector(ext)
-    sim.AddModelToTask("t", ext, 40)
+    leo = Leo(sim, "t", unit)
+    meas = leo.true_pointing()
     rec = meas.attGuidOutMsg.recorder()
     sim.AddModelToTask("t", rec)
-    st_rec = truth_nav.attOutMsg.recorder()
-    nav_rec = att_msg.recorder()
+    st_rec = leo.truth_nav.attOutMsg.recorder()
+    nav_rec = leo.att_msg.recorder()
     sim.AddModelToTask("t", st_rec)
     sim.AddModelToTask("t", nav_rec)
     sim.InitializeSimulation()
-    offset = np.zeros(3)
     wall = time.perf_counter()
-
-    def run_to(t_s: float) -> None:
-        sim.ConfigureStopTime(macros.sec2nano(t_s))
-        try:
-            sim.ExecuteSimulation()
-        except RuntimeError:
-            # Basilisk reports a Python module's exception as its own; UnitNav keeps it
-            if unit is not None and unit.error is not None:
-                raise unit.error from None
-            raise
-
-    for t0, prv in slew_events(duration_s):
-        run_to(t0)
-        offset = np.zeros(3) if prv is None else np.asarray(rbk.addMRP(offset, rbk.PRV2MRP(prv)))
-        err.sigma_R0R = list(offset)
-        meas.sigma_R0R = list(offset)
-    run_to(duration_s)
+    leo.fly(duration_s)
     wall = time.perf_counter() - wall
     t = np.asarray(rec.times()) * 1e-9
     point = 4 * np.arctan(np.asarray(rec.sigma_BR)) * ARCSEC_PER_RAD  # small-angle per axis

@@ -1,4 +1,5 @@
-"""Fixtures: the command-line tools the package is compared with.
+"""Fixtures: the command-line tools the package is compared with, the test campaign of
+the Monte Carlo tests.
 
 The tools are the host workspace's release binaries: ``SSIS_BIN_DIR`` names their folder
 (default: host-tests/target/<host>/release of this checkout). Without them the comparisons
@@ -11,6 +12,7 @@ import json
 import os
 import subprocess
 from pathlib import Path
+from typing import Callable
 
 import pytest
 
@@ -72,3 +74,75 @@ def short_log(tmp_path_factory: pytest.TempPathFactory) -> Path:
                     break
             g.write(line)
     return out
+
+
+CAMPAIGN = """format = "ssis-mc-campaign/1"
+name = "{name}"
+scenario = "{scenario}"
+runs = {runs}
+seed = 11
+duration_s = {duration_s}
+loop = "{loop}"
+
+[[disperse]]
+table = "fog.bias_rad_s"
+dist = "normal"
+
+[[disperse]]
+scenario = "star_tracker.latency_ms"
+dist = "uniform"
+low = -10.0
+high = 10.0
+
+[[fault]]
+kind = "fog-lost"
+probability = 0.2
+window_s = [{fault_from_s}, {fault_to_s}]
+
+[indices]
+from_s = {from_s}
+time_fraction = 0.99
+
+[[indices.index]]
+kind = "AKE"
+
+[[indices.index]]
+kind = "RKE"
+window_s = {window_s}
+
+[[indices.index]]
+kind = "KDE"
+window_s = {window_s}
+separation_s = {separation_s}
+"""
+
+
+def campaign_text(runs: int, duration_s: float, name: str = "c", loop: str = "open") -> str:
+    """The Monte Carlo tests' campaign over host-tests/scenarios/qemu-flight.toml: the FOG
+    biases and the tracker's latency (±10 ms) dispersed, a FOG lost with probability 0.2
+    between 30 % and 60 % of the flight, the knowledge indices from 20 % of it (RKE and
+    KDE over a tenth of it, KDE's separation 30 %), each run's the 0.99 quantile over time."""
+    return CAMPAIGN.format(
+        name=name, scenario=ROOT / "host-tests/scenarios/qemu-flight.toml", runs=runs, duration_s=duration_s,
+        loop=loop, fault_from_s=duration_s * 0.3, fault_to_s=duration_s * 0.6, from_s=duration_s * 0.2,
+        window_s=duration_s * 0.1, separation_s=duration_s * 0.3,
+    )
+
+
+@pytest.fixture
+def campaign(tmp_path: Path) -> Callable[..., Path]:
+    """Writes :func:`campaign_text` (the same arguments) to ``<name>.toml`` in the test's
+    folder and returns its path."""
+
+    def write(runs: int, duration_s: float, name: str = "c", loop: str = "open") -> Path:
+        p = tmp_path / f"{name}.toml"
+        p.write_text(campaign_text(runs, duration_s, name, loop))
+        return p
+
+    return write
+
+
+@pytest.fixture(name="campaign_text")
+def campaign_text_fixture() -> Callable[..., str]:
+    """:func:`campaign_text`, for tests that hand the text to the native module."""
+    return campaign_text

@@ -4,6 +4,7 @@ firmware in QEMU outputs what the in-process core does on the same steps."""
 import math
 import os
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -144,38 +145,6 @@ def test_unit_nav_on_basilisks_imu(root):
     assert unit.backend.counters()["StFramesAccepted"] > 50
 
 
-SCENARIO = """
-name = "sensors-both-paths"
-profile = "spacecraft"
-duration_s = 10
-seed = {seed}
-settle_s = 1
-
-[motion]
-base_rate_deg_s = [0.02, -0.0638, 0.01]
-
-[[motion.slews]]
-start_s = 2
-duration_s = 3
-axis = [0.6, 0.0, 0.8]
-angle_deg = 2
-
-[fog]
-arw_deg_sqrt_h = 0.005
-rrw_deg_h_sqrt_h = 0.01
-random_bias_3sigma_deg_h = 0.15
-
-[star_tracker]
-rate_hz = 10
-sigma_3sigma_arcsec = 20
-latency_ms = 50
-outages = [[4.0, 5.0]]
-
-[table]
-source = "nominal"
-"""
-
-
 @pytest.mark.parametrize("seed", [3, 11])
 def test_sensors_give_the_simulators_frames(tmp_path, seed):
     """The sensors ssis.basilisk flies (ssis._ssis.Sensors) and the simulator's harness
@@ -184,7 +153,7 @@ def test_sensors_give_the_simulators_frames(tmp_path, seed):
     from ssis import _ssis
 
     sc = tmp_path / "sc.toml"
-    sc.write_text(SCENARIO.format(seed=seed))
+    sc.write_text(f"seed = {seed}\n" + (Path(__file__).parent / "sensors-both-paths.toml").read_text())
     steps = _ssis.scenario_steps(sc, 2000)
     assert len(steps) == 2000
     sensors = _ssis.Sensors(

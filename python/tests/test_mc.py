@@ -12,7 +12,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Any, List
+from typing import Any, Callable, List
 
 import numpy as np
 import pytest
@@ -26,52 +26,6 @@ from ssis.mc import report as mcr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
-
-
-def campaign(tmp: Path, runs: int, duration_s: float, extra: str = "", name: str = "c") -> Path:
-    """A campaign over the examples/basilisk scenario: the FOG biases and the tracker's
-    latency dispersed, a FOG-loss fault, short flights."""
-    scenario = ROOT / "host-tests/scenarios/qemu-flight.toml"
-    text = f"""format = "ssis-mc-campaign/1"
-name = "{name}"
-scenario = "{scenario}"
-runs = {runs}
-seed = 11
-duration_s = {duration_s}
-
-[[disperse]]
-table = "fog.bias_rad_s"
-dist = "normal"
-
-[[disperse]]
-scenario = "star_tracker.latency_ms"
-dist = "uniform"
-low = -10.0
-high = 10.0
-
-[[fault]]
-kind = "fog-lost"
-probability = 0.2
-window_s = [{duration_s * 0.3}, {duration_s * 0.6}]
-
-[indices]
-from_s = {duration_s * 0.2}
-
-[[indices.index]]
-kind = "AKE"
-
-[[indices.index]]
-kind = "RKE"
-window_s = {duration_s * 0.1}
-
-[[indices.index]]
-kind = "KDE"
-window_s = {duration_s * 0.1}
-separation_s = {duration_s * 0.3}
-{extra}"""
-    p = tmp / f"{name}.toml"
-    p.write_text(text)
-    return p
 
 
 def same_bits(a: Any, b: Any) -> None:
@@ -103,12 +57,12 @@ class Proc:
         self.log.close()
 
 
-def test_real_cluster_worker_killed_and_restarted(tmp_path: Path) -> None:
+def test_real_cluster_worker_killed_and_restarted(tmp_path: Path, campaign: Callable[..., Path]) -> None:
     """`dask scheduler` and two `dask worker` processes on localhost; 200 runs; one worker
     killed (its whole process group, SIGKILL) once 60 runs are in, and started again:
     every run is in the Parquet exactly once, with the bits of the same campaign run in
     one local process."""
-    c = campaign(tmp_path, 200, 40.0)
+    c = campaign(200, 40.0)
     sched_file = tmp_path / "scheduler.json"
     procs: List[Proc] = []
     try:
@@ -151,11 +105,11 @@ def test_real_cluster_worker_killed_and_restarted(tmp_path: Path) -> None:
             p.kill()
 
 
-def test_resume_after_driver_killed(tmp_path: Path) -> None:
+def test_resume_after_driver_killed(tmp_path: Path, campaign: Callable[..., Path]) -> None:
     """The driver (`ssis-mc run` on a local cluster) killed with SIGKILL mid-campaign, then
     started again: it skips the runs written, and every run is there exactly once, with the
     bits of an uninterrupted campaign."""
-    c = campaign(tmp_path, 120, 40.0)
+    c = campaign(120, 40.0)
     out = tmp_path / "out"
     cmd = [str(BIN / "ssis-mc"), "run", str(c), "--out", str(out), "--workers", "2", "--flush-rows", "8",
            "--no-progress", "--json"]
@@ -182,8 +136,8 @@ def test_resume_after_driver_killed(tmp_path: Path) -> None:
     same_bits(mc.load(out), mc.load(tmp_path / "whole"))
 
 
-def test_replay_gives_the_runs_bits(tmp_path: Path) -> None:
-    c = campaign(tmp_path, 6, 40.0)
+def test_replay_gives_the_runs_bits(tmp_path: Path, campaign: Callable[..., Path]) -> None:
+    c = campaign(6, 40.0)
     mc.run(c, tmp_path / "out", scheduler="serial", progress=False)
     df = mc.load(tmp_path / "out")
     r = mc.replay(c, 4)
@@ -195,10 +149,10 @@ def test_replay_gives_the_runs_bits(tmp_path: Path) -> None:
     assert q.returncode == 0 and "the same bits" in q.stderr, q.stderr
 
 
-def test_another_campaign_in_the_same_folder_is_refused(tmp_path: Path) -> None:
-    mc.run(campaign(tmp_path, 2, 40.0, name="a"), tmp_path / "out", scheduler="serial", progress=False)
+def test_another_campaign_in_the_same_folder_is_refused(tmp_path: Path, campaign: Callable[..., Path]) -> None:
+    mc.run(campaign(2, 40.0, name="a"), tmp_path / "out", scheduler="serial", progress=False)
     with pytest.raises(ValueError, match="another campaign"):
-        mc.run(campaign(tmp_path, 2, 40.0, name="b"), tmp_path / "out", scheduler="serial", progress=False)
+        mc.run(campaign(2, 40.0, name="b"), tmp_path / "out", scheduler="serial", progress=False)
 
 
 def test_order_statistic_bounds() -> None:
@@ -223,10 +177,10 @@ def test_order_statistic_bounds() -> None:
 CHROMIUM = Path("/usr/bin/chromium")
 
 
-def test_report_renders_in_chromium(tmp_path: Path) -> None:
+def test_report_renders_in_chromium(tmp_path: Path, campaign: Callable[..., Path]) -> None:
     """The report of a small campaign: self-contained (no script, no external reference),
     and in headless Chromium every table and SVG laid out with a size, no console message."""
-    c = campaign(tmp_path, 40, 40.0)
+    c = campaign(40, 40.0)
     mc.run(c, tmp_path / "out", scheduler="serial", progress=False)
     page_path = tmp_path / "report.html"
     q = subprocess.run([str(BIN / "ssis-mc"), "report", str(tmp_path / "out"), "--html", str(page_path)],

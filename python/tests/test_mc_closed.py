@@ -4,6 +4,7 @@ through Basilisk's own MonteCarlo.Controller give the same indices."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import pytest
@@ -15,15 +16,13 @@ pytest.importorskip("pyarrow")
 import ssis.mc as mc  # noqa: E402
 from ssis.mc import closed  # noqa: E402
 
-from test_mc import campaign  # noqa: E402
 
 
-def test_closed_loop_runs_match_basilisks_controller(tmp_path: Path) -> None:
+def test_closed_loop_runs_match_basilisks_controller(tmp_path: Path, campaign: Callable[..., Path]) -> None:
     """Three 40-s closed-loop runs on a local cluster of two workers and through
     ``MonteCarlo.Controller`` (two processes): the same indices, bit for bit; the
     performance indices (APE, RPE, PDE) beside the knowledge ones."""
-    c = campaign(tmp_path, 3, 40.0, name="closed")
-    c.write_text(c.read_text().replace('duration_s = 40.0\n', 'duration_s = 40.0\nloop = "closed"\n', 1))
+    c = campaign(3, 40.0, name="closed", loop="closed")
     o = mc.run(c, tmp_path / "out", workers=2, progress=False)
     assert o.errors == [], o.errors
     df = mc.load(tmp_path / "out")
@@ -40,14 +39,13 @@ def test_closed_loop_runs_match_basilisks_controller(tmp_path: Path) -> None:
             assert np.float64(v).view(np.int64) == np.float64(row[mc.INDEX + k]).view(np.int64), (r["run"], k)
 
 
-def test_performance_error_is_what_the_unit_adds(tmp_path: Path) -> None:
+def test_performance_error_is_what_the_unit_adds(campaign: Callable[..., Path]) -> None:
     """APE/RPE/PDE take the pointing error less the truth-navigation flight's. UnitNav
     publishes truth until the unit's first alignment, so until then the two flights are the
     same and the added error is exactly zero; after it the unit's navigation error moves
     the vehicle and the added error is not zero. Were the two series misaligned in time, or
     the truth flight not the same vehicle, the first part would not be zero."""
-    c = campaign(tmp_path, 1, 40.0, name="added")
-    c.write_text(c.read_text().replace('duration_s = 40.0\n', 'duration_s = 40.0\nloop = "closed"\n', 1))
+    c = campaign(1, 40.0, name="added", loop="closed")
     camp = mc.Campaign.read(c)
     r = closed.run(camp.text, camp.origin, 0, series_every=1)
     added = np.asarray(r["series"]["added_arcsec"])

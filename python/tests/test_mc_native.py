@@ -14,46 +14,13 @@ from ssis import _ssis
 
 ORIGIN = str(Path(__file__).resolve().parents[2] / "host-tests" / "scenarios" / "mc-pytest.toml")
 
-CAMPAIGN = """
-format = "ssis-mc-campaign/1"
-name = "pytest"
-scenario = "qemu-flight.toml"
-runs = 4
-seed = 3
-duration_s = 60
+RUNS, DURATION_S = 4, 60.0
 
-[[disperse]]
-table = "fog.bias_rad_s"
-dist = "normal"
 
-[[disperse]]
-scenario = "star_tracker.latency_ms"
-dist = "uniform"
-low = -5
-high = 5
-
-[[fault]]
-kind = "star-outage"
-probability = 0.5
-window_s = [35, 45]
-duration_s = 5
-
-[indices]
-from_s = 30
-time_fraction = 0.99
-
-[[indices.index]]
-kind = "AKE"
-
-[[indices.index]]
-kind = "RKE"
-window_s = 5
-
-[[indices.index]]
-kind = "KDE"
-window_s = 2
-separation_s = 10
-"""
+@pytest.fixture
+def text(campaign_text):
+    """The Monte Carlo tests' campaign (conftest.py): four 60-s runs."""
+    return campaign_text(RUNS, DURATION_S, name="pytest")
 
 
 def same(a, b):
@@ -61,22 +28,22 @@ def same(a, b):
     return list(a) == list(b) and np.array_equal(list(a.values()), list(b.values()), equal_nan=True)
 
 
-def test_validate_normalises_and_names_what_is_wrong():
-    c = json.loads(_ssis.mc_validate(CAMPAIGN, ORIGIN))
-    assert c["runs"] == 4 and c["loop"] == "open"
+def test_validate_normalises_and_names_what_is_wrong(text):
+    c = json.loads(_ssis.mc_validate(text, ORIGIN))
+    assert c["runs"] == RUNS and c["loop"] == "open"
     assert c["params"][:2] == ["table.fog[0].bias_rad_s", "table.fog[1].bias_rad_s"]
-    assert c["params"][-2:] == ["fault[0].star-outage.occurs", "fault[0].star-outage.t_s"]
-    assert c["index_keys"][-1] == "KDE_2s_10s_z"
+    assert c["params"][-3:] == ["fault[0].fog-lost.occurs", "fault[0].fog-lost.t_s", "fault[0].fog-lost.fog"]
+    assert c["index_keys"][-1] == "KDE_6s_18s_z"
     with pytest.raises(ssis.SsisError, match="did you mean `runs`"):
-        _ssis.mc_validate(CAMPAIGN.replace("runs = 4", "rnus = 4"), ORIGIN)
+        _ssis.mc_validate(text.replace(f"runs = {RUNS}", f"rnus = {RUNS}"), ORIGIN)
     with pytest.raises(ssis.SsisError, match=r"mc-pytest\.toml.*disperse\[1\]\.low"):
-        _ssis.mc_validate(CAMPAIGN.replace("low = -5", "low = 6"), ORIGIN)
+        _ssis.mc_validate(text.replace("low = -10.0", "low = 11.0"), ORIGIN)
 
 
-def test_a_run_is_the_same_alone_and_in_a_batch_and_its_indices_are_mc_indices():
-    c = json.loads(_ssis.mc_validate(CAMPAIGN, ORIGIN))
-    alone = _ssis.mc_run(CAMPAIGN, ORIGIN, 2, series_every=1)
-    batch = _ssis.mc_runs(CAMPAIGN, ORIGIN, [3, 2, 0])
+def test_a_run_is_the_same_alone_and_in_a_batch_and_its_indices_are_mc_indices(text):
+    c = json.loads(_ssis.mc_validate(text, ORIGIN))
+    alone = _ssis.mc_run(text, ORIGIN, 2, series_every=1)
+    batch = _ssis.mc_runs(text, ORIGIN, [3, 2, 0])
     assert batch[1]["run"] == 2
     assert same(batch[1]["indices"], alone["indices"]) and same(batch[1]["params"], alone["params"])
     assert list(alone["indices"]) == c["index_keys"] and list(alone["params"]) == c["params"]
@@ -90,9 +57,9 @@ def test_a_run_is_the_same_alone_and_in_a_batch_and_its_indices_are_mc_indices()
         _ssis.mc_indices(s["t_s"], np.zeros((3, 3)), json.dumps(c["indices"]))
 
 
-def test_draw_gives_the_params_and_the_scenario_a_closed_loop_flies():
-    d = _ssis.mc_draw(CAMPAIGN, ORIGIN, 1)
-    r = _ssis.mc_run(CAMPAIGN, ORIGIN, 1)
+def test_draw_gives_the_params_and_the_scenario_a_closed_loop_flies(text):
+    d = _ssis.mc_draw(text, ORIGIN, 1)
+    r = _ssis.mc_run(text, ORIGIN, 1)
     assert same(d["params"], r["params"])
     assert "latency_ms" in d["scenario_toml"]
-    assert len(d["faults"]) == int(d["params"]["fault[0].star-outage.occurs"])
+    assert len(d["faults"]) == int(d["params"]["fault[0].fog-lost.occurs"])

@@ -57,7 +57,7 @@ use crate::attitude::Attitude;
 use crate::calib::{Estimator, ObserverConfig, ObserverGains};
 use crate::math;
 use crate::state::{Flag, Maybe};
-use crate::state_map::{state_map, StateField};
+use crate::state_map::state_struct;
 use gains::{initial_drift_var_rad2_s2, Figures, ARCSEC_RAD};
 use gate::{Convergence, Monitor, Streak};
 use luenberger::Luenberger;
@@ -404,74 +404,43 @@ pub struct ResumeState {
     pub cov: [f64; 27],
 }
 
-/// The estimate from star-tracker frames: the attitude history, alignment, the drift
-/// estimate, and the estimator that flies ([`Filter`]). `H` attitudes of history bound
-/// the star-tracker latency it can absorb (H × step: 64 × 5 ms = 320 ms).
-#[derive(Debug, Clone, Copy, bytemuck::AnyBitPattern)]
-pub struct Observer<const H: usize> {
-    history: History<H>,
-    drift_rad_s: Vector3<f64>,
-    aligned: Flag,
-    /// Unit time of the alignment, µs.
-    aligned_us: Maybe<u64>,
-    /// Time tag of the last frame that updated the observer, µs.
-    last_update_tag_us: Maybe<u64>,
-    /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
-    last_q: Quaternion<f64>,
-    conv: Convergence,
-    streak: Streak,
-    /// The consistency monitor between the tracker and the propagated attitude.
-    monitor: Monitor,
-    fig: Figures,
-    /// Each FOG's drift variance at alignment, (rad/s)² (the table's initial drift 1σ
-    /// squared).
-    initial_drift_var_rad2_s2: f64,
-    /// The body drift's covariance at alignment, σ_b² N, (rad/s)² ([`mekf::MekfCov::remove_share`]).
-    drift_cov0: Matrix3<f64>,
-    filter: Filter,
+state_struct! {
+    /// The estimate from star-tracker frames: the attitude history, alignment, the drift
+    /// estimate, and the estimator that flies ([`Filter`]). `H` attitudes of history bound
+    /// the star-tracker latency it can absorb (H × step: 64 × 5 ms = 320 ms).
+    #[derive(Debug, Clone, Copy, bytemuck::AnyBitPattern)]
+    pub struct Observer<const H: usize> {
+        history: History<H> = History::default(), map(History::<H>::STATE_MAP);
+        drift_rad_s: Vector3<f64> = Vector3::zeros();
+        aligned: Flag = Flag::CLEAR;
+        /// Unit time of the alignment, µs.
+        aligned_us: Maybe<u64> = Maybe::none();
+        /// Time tag of the last frame that updated the observer, µs.
+        last_update_tag_us: Maybe<u64> = Maybe::none();
+        /// Λ(t_s) after the last update (the MEKF's start of the body's turn to the next).
+        last_q: Quaternion<f64> = Quaternion::identity();
+        conv: Convergence = Convergence::new(sigma_st_rad);
+        streak: Streak = Streak::default();
+        /// The consistency monitor between the tracker and the propagated attitude.
+        monitor: Monitor = Monitor::default();
+        fig: Figures = Figures::new(steady);
+        /// Each FOG's drift variance at alignment, (rad/s)² (the table's initial drift 1σ
+        /// squared).
+        initial_drift_var_rad2_s2: f64 = 0.0;
+        /// The body drift's covariance at alignment, σ_b² N, (rad/s)² ([`mekf::MekfCov::remove_share`]).
+        drift_cov0: Matrix3<f64> = Matrix3::zeros();
+        filter: Filter = filter;
+    }
+    constructor
+    /// An observer flying `filter`.
+    fn with_filter(filter: Filter, sigma_st_rad: f64, steady: SteadyState) -> Self => core::convert::identity {}
 }
 
 impl<const H: usize> Observer<H> {
-    /// Where each field lies in the value ([`crate::state_map`]).
-    pub const STATE_MAP: &'static [StateField] = state_map!(Observer<H> {
-        history: History<H> => History::<H>::STATE_MAP,
-        drift_rad_s: Vector3<f64>,
-        aligned: Flag,
-        aligned_us: Maybe<u64>,
-        last_update_tag_us: Maybe<u64>,
-        last_q: Quaternion<f64>,
-        conv: Convergence,
-        streak: Streak,
-        monitor: Monitor,
-        fig: Figures,
-        initial_drift_var_rad2_s2: f64,
-        drift_cov0: Matrix3<f64>,
-        filter: Filter,
-    });
-
     /// A new observer of eq. (6) with `gains`, expecting star-tracker noise `sigma_st_rad`
     /// (1σ), gating with the noise figures of `steady`.
     pub fn new(gains: ObserverGains, sigma_st_rad: f64, steady: SteadyState) -> Self {
         Self::with_filter(Filter::luenberger(Luenberger::new(gains)), sigma_st_rad, steady)
-    }
-
-    /// An observer flying `filter`.
-    fn with_filter(filter: Filter, sigma_st_rad: f64, steady: SteadyState) -> Self {
-        Observer {
-            history: History::default(),
-            drift_rad_s: Vector3::zeros(),
-            aligned: Flag::CLEAR,
-            aligned_us: Maybe::none(),
-            last_update_tag_us: Maybe::none(),
-            last_q: Quaternion::identity(),
-            conv: Convergence::new(sigma_st_rad),
-            streak: Streak::default(),
-            monitor: Monitor::default(),
-            fig: Figures::new(steady),
-            initial_drift_var_rad2_s2: 0.0,
-            drift_cov0: Matrix3::zeros(),
-            filter,
-        }
     }
 
     /// From the table: the estimator it selects; for eq. (6) its override gains if

@@ -8,6 +8,7 @@ use anyhow::{bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 use ssis::calib::field::{Field, FogTerm};
 use ssis::calib::N_FOG;
+use ssis::flight::FlightCore;
 use ssis_common::names::{did_you_mean, with_suggestion};
 use ssis_sim::harness::Simulation;
 use ssis_sim::scenario::Scenario;
@@ -294,7 +295,35 @@ pub struct Campaign {
     pub steps_per_run: u64,
     /// The flight core its runs start from, built once per table.
     #[serde(skip)]
-    pub cores: crate::run::CoreCache,
+    pub cores: CoreCache,
+}
+
+/// A flight core as `FlightCore::new` builds it for one table, kept to be cloned: building
+/// one computes the observer's steady-state gains, a tenth of a 600-s run's time, and a
+/// clone of a new core is that core (so a run flies the same bits with or without it).
+#[derive(Clone, Default)]
+pub struct CoreCache(std::sync::Arc<std::sync::Mutex<Option<(ssis::calib::CalibrationTable, FlightCore)>>>);
+
+impl std::fmt::Debug for CoreCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("CoreCache")
+    }
+}
+
+impl CoreCache {
+    /// A new core of `profile` flying `table`: a clone of the kept one when it was built
+    /// for the same table, else built (and kept).
+    pub fn core(&self, profile: ssis::flight::Profile, table: &ssis::calib::CalibrationTable) -> Result<FlightCore> {
+        let mut kept = self.0.lock().map_err(|_| anyhow::anyhow!("core cache poisoned"))?;
+        if let Some((t, core)) = kept.as_ref() {
+            if t == table && core.profile() == profile {
+                return Ok(core.clone());
+            }
+        }
+        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow::anyhow!("core: {e:?}"))?;
+        *kept = Some((*table, core.clone()));
+        Ok(core)
+    }
 }
 
 /// The per-FOG term names a `table` dispersion may name (`fog.<term>`).

@@ -25,7 +25,7 @@ use ssis_sim::fog::TrueErrors;
 use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation};
 use ssis_sim::scenario::Scenario;
 
-use crate::campaign::{set_scenario_number, Campaign, Dist, FaultKind, Loop, Noise, Target};
+use crate::campaign::{set_scenario_number, Campaign, CoreCache, Dist, FaultKind, Loop, Noise, Target};
 use crate::indices::Indices;
 
 /// The random stream of quantity `name` in run `run` of a campaign seeded `seed`.
@@ -209,34 +209,6 @@ impl RunOutput {
         b.extend_from_slice(&self.steps.to_le_bytes());
         b.extend_from_slice(&self.evaluated.to_le_bytes());
         xxhash_rust::xxh3::xxh3_64(&b)
-    }
-}
-
-/// A flight core as `FlightCore::new` builds it for one table, kept to be cloned: building
-/// one computes the observer's steady-state gains, a tenth of a 600-s run's time, and a
-/// clone of a new core is that core (so a run flies the same bits with or without it).
-#[derive(Clone, Default)]
-pub struct CoreCache(std::sync::Arc<std::sync::Mutex<Option<(CalibrationTable, FlightCore)>>>);
-
-impl std::fmt::Debug for CoreCache {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("CoreCache")
-    }
-}
-
-impl CoreCache {
-    /// A new core of `profile` flying `table`: a clone of the kept one when it was built
-    /// for the same table, else built (and kept).
-    pub fn core(&self, profile: ssis::flight::Profile, table: &CalibrationTable) -> Result<FlightCore> {
-        let mut kept = self.0.lock().map_err(|_| anyhow!("core cache poisoned"))?;
-        if let Some((t, core)) = kept.as_ref() {
-            if t == table && core.profile() == profile {
-                return Ok(core.clone());
-            }
-        }
-        let core = FlightCore::new(profile, table, false).map_err(|e| anyhow!("core: {e:?}"))?;
-        *kept = Some((*table, core.clone()));
-        Ok(core)
     }
 }
 

@@ -19,31 +19,48 @@
 
 /// Each RAMECC unit: base address and number of monitors.
 const UNITS: [(usize, usize); 3] = [(0x5200_9000, 5), (0x4802_3000, 5), (0x5802_7000, 2)];
-/// Monitor m's registers (m from 1): control, status, failing address.
-const fn mcr(base: usize, m: usize) -> usize {
-    base + 0x20 * m
-}
-const MSR: usize = 0x04;
-const MFAR: usize = 0x08;
-/// MxCR: interrupt enables for SEDC, DED, DEBW; error latching.
-const ECCSEIE: u32 = 1 << 2;
-const ECCDEIE: u32 = 1 << 3;
-const ECCDEBWIE: u32 = 1 << 4;
-const ECCELEN: u32 = 1 << 5;
-/// MxSR: single error detected and corrected, double error detected, double error on a
-/// byte write (cleared by writing 0).
-const SEDCF: u32 = 1 << 0;
-const DEDF: u32 = 1 << 1;
-const DEBWDF: u32 = 1 << 2;
 
-fn read(addr: usize) -> u32 {
+/// One monitor's registers (RM0433 §3.4.4): 0x20 bytes each, monitor m (from 1) at
+/// 0x20 × m from its unit's base (the unit's interrupt enable takes the first 0x20).
+#[repr(C)]
+struct Monitor {
+    /// MxCR: interrupt enables for SEDC (bit 2), DED (3), DEBW (4); error latching,
+    /// ECCELEN (5).
+    cr: u32,
+    /// MxSR: single error detected and corrected (bit 0), double error detected (1),
+    /// double error on a byte write (2); cleared by writing 0.
+    sr: u32,
+    /// MxFAR: the failing address.
+    far: u32,
+    /// MxFDRL, MxFDRH, MxFECR, reserved.
+    _rest: [u32; 5],
+}
+const _: () = assert!(core::mem::size_of::<Monitor>() == 0x20);
+
+/// What [`enable`] writes to every MxCR: ECCELEN | ECCDEBWIE | ECCDEIE | ECCSEIE.
+const CR_ENABLE: u32 = 0b1111 << 2;
+/// MxSR's SEDCF.
+const SR_CORRECTED: u32 = 1 << 0;
+/// MxSR's DEDF | DEBWDF.
+const SR_UNCORRECTED: u32 = 0b11 << 1;
+
+/// Register `field` (its offset in [`Monitor`]) of monitor `m` (from 1) of the unit at
+/// `base`.
+const fn reg(base: usize, m: usize, field: usize) -> *mut u32 {
+    (base + core::mem::size_of::<Monitor>() * m + field) as *mut u32
+}
+const CR: usize = core::mem::offset_of!(Monitor, cr);
+const SR: usize = core::mem::offset_of!(Monitor, sr);
+const FAR: usize = core::mem::offset_of!(Monitor, far);
+
+fn read(reg: *const u32) -> u32 {
     // SAFETY: a RAMECC register of the STM32H743 (RM0433 memory map), always mapped.
-    unsafe { core::ptr::read_volatile(addr as *const u32) }
+    unsafe { core::ptr::read_volatile(reg) }
 }
 
-fn write(addr: usize, v: u32) {
+fn write(reg: *mut u32, v: u32) {
     // SAFETY: as in `read`; writes only the RAMECC's own control and status bits.
-    unsafe { core::ptr::write_volatile(addr as *mut u32, v) }
+    unsafe { core::ptr::write_volatile(reg, v) }
 }
 
 /// ECC errors found by one [`poll`].
@@ -61,8 +78,8 @@ pub struct EccErrors {
 pub fn enable() {
     for (base, monitors) in UNITS {
         for m in 1..=monitors {
-            write(mcr(base, m), ECCELEN | ECCSEIE | ECCDEIE | ECCDEBWIE);
-            write(mcr(base, m) + MSR, 0);
+            write(reg(base, m, CR), CR_ENABLE);
+            write(reg(base, m, SR), 0);
         }
     }
 }
@@ -72,16 +89,16 @@ pub fn poll() -> EccErrors {
     let mut e = EccErrors::default();
     for (base, monitors) in UNITS {
         for m in 1..=monitors {
-            let sr = read(mcr(base, m) + MSR);
-            if sr & (SEDCF | DEDF | DEBWDF) == 0 {
+            let sr = read(reg(base, m, SR));
+            if sr & (SR_CORRECTED | SR_UNCORRECTED) == 0 {
                 continue;
             }
-            e.address = read(mcr(base, m) + MFAR);
-            write(mcr(base, m) + MSR, 0);
-            if sr & SEDCF != 0 {
+            e.address = read(reg(base, m, FAR));
+            write(reg(base, m, SR), 0);
+            if sr & SR_CORRECTED != 0 {
                 e.corrected = e.corrected.saturating_add(1);
             }
-            if sr & (DEDF | DEBWDF) != 0 {
+            if sr & SR_UNCORRECTED != 0 {
                 e.uncorrected = e.uncorrected.saturating_add(1);
             }
         }
