@@ -1,6 +1,6 @@
 //! Run i of a campaign, a pure function of (campaign, i): the draw of its dispersions and
 //! faults ([`draw`]), the open-loop flight through the simulator and the flight core
-//! ([`run`]: the harness's `Simulation`, mock links and `FlightCore::step`, as `ssis-sim
+//! ([`run`]: the harness's `Simulation`, mock links and [`FlightCore::step`](ssis::flight::FlightCore::step), as `ssis-sim
 //! run` flies them), and its indices.
 //!
 //! **Random streams.** Every drawn quantity has its own ChaCha20 stream: the key is the
@@ -19,7 +19,6 @@ use serde::{Deserialize, Serialize};
 use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::combination::FogSet;
 use ssis::flight::snapshot::Snapshot;
-use ssis::flight::FlightCore;
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_sim::fog::TrueErrors;
 use ssis_sim::harness::{step_on_mock_links, Evaluator, Observed, Simulation};
