@@ -18,12 +18,19 @@
 //!   √(λ*/μ_min), μ_min the smallest eigenvalue of I (any direction of that norm is
 //!   detected): for a one-regressor term, √(λ*/I).
 //! - **A sinusoid** of amplitude A at frequency f is found when two things happen: the
-//!   search picks its frequency on the training blocks (its pooled normalised power beats
-//!   the largest of the M independent frequencies searched: χ²₂(λ_train) against the
-//!   χ²₂ quantile at 1 − ln 2 / M, for a line on one FOG), and its test on the test blocks
-//!   rejects (λ*(2, α)). With S(f) the residual's spectrum per row under the noise model (the
-//!   white part plus each Gauss–Markov term's Lorentzian), λ = A² n / (2 S(f)) for n rows;
-//!   the minimum detectable amplitude is the larger of the two requirements.
+//!   search picks its frequency on the training blocks, and its test on the test blocks
+//!   rejects. With S(f) the residual's spectrum per row under the noise model (the white part
+//!   plus each Gauss–Markov term's Lorentzian), the line on one FOG adds a non-central
+//!   χ²₂(λ_train) to the search's pooled normalised power (χ²_ν, ν = 2 × FOGs, at every
+//!   other frequency), λ_train = A² n_train / (2 S(f)) for n_train training rows; it is picked
+//!   when that power beats the maximum of the rest of the band, whose distribution is the
+//!   search's own false-alarm law ([`super::spectral::max_tail`], Rice's formula):
+//!   P_search(λ) = ∫ P(χ²_ν(λ) > u) dF_max(u). The test's χ²₂ then rejects at level α with
+//!   P_test = P(χ²₂(λ_test) > χ²₂,α), λ_test = A² n_test / (2 S(f)). The two happen on
+//!   disjoint rows, so the probability of finding the line is their product, and the
+//!   minimum detectable amplitude is the one at which the product reaches [`POWER`]. The
+//!   non-centrality that does it is the same at every period (only S(f) changes), so it is
+//!   solved for once.
 //!
 //! The power study (`host-tests/lab/tests/power.rs`) measures the detection rate at the
 //! stated size and at half of it.
@@ -31,6 +38,7 @@
 use statrs::distribution::{ChiSquared, ContinuousCDF, Discrete, Poisson};
 
 use super::noise::NoiseModel;
+use super::spectral::max_tail;
 
 /// Detection probability the minimum detectable effect is stated at.
 pub const POWER: f64 = 0.8;
@@ -136,31 +144,75 @@ pub struct SinusoidCurve {
 /// Inputs of [`sinusoid_curve`].
 #[derive(Debug, Clone, Copy)]
 pub struct LineDesign {
-    /// Kept training rows and kept test rows (the line is searched and tested on them).
+    /// Kept training rows (the line is searched on them).
     pub n_train: usize,
-    /// Kept test rows.
+    /// Kept test rows (the line is tested on them).
     pub n_test: usize,
     /// Interval of the kept rows, s.
     pub dt_s: f64,
     /// Frequencies searched: (f_min, f_max), Hz.
     pub range_hz: (f64, f64),
-    /// Session span, s.
-    pub span_s: f64,
+    /// Standard deviation of the training rows' times, s.
+    pub t_sd_s: f64,
+    /// FOGs the search pools.
+    pub n_fog: usize,
     /// Session rows each of those rows is the mean of.
     pub rows_averaged: usize,
+}
+
+/// Probability that the search picks a line of non-centrality `lambda` on one FOG (see the
+/// module text).
+pub fn search_power(lambda: f64, ld: &LineDesign) -> f64 {
+    let nu = 2.0 * ld.n_fog.max(1) as f64;
+    let band = ld.range_hz.1 - ld.range_hz.0;
+    let cdf_max = |u: f64| 1.0 - max_tail(u, nu, band, ld.t_sd_s);
+    // ∫ P(χ²_ν(λ) > u) dF_max(u) over the steps of u where F_max moves.
+    let du = 0.25;
+    let mut p = 0.0;
+    let mut prev = cdf_max(0.0);
+    let mut u = 0.0;
+    while prev < 1.0 - 1e-9 && u < 2000.0 {
+        u += du;
+        let next = cdf_max(u);
+        let w = next - prev;
+        if w > 1e-10 {
+            p += w * ncx2_sf(u - 0.5 * du, nu, lambda);
+        }
+        prev = next;
+    }
+    p.clamp(0.0, 1.0)
+}
+
+/// The training non-centrality λ_train at which a line on one FOG is found (picked and
+/// significant) with probability `power`; the test's is λ_train × n_test / n_train.
+pub fn line_lambda(ld: &LineDesign, alpha: f64, power: f64) -> f64 {
+    let crit = ChiSquared::new(2.0).map_or(f64::INFINITY, |c| c.inverse_cdf(1.0 - alpha.clamp(1e-300, 0.5)));
+    let ratio = ld.n_test as f64 / ld.n_train.max(1) as f64;
+    let found = |l: f64| search_power(l, ld) * ncx2_sf(crit, 2.0, l * ratio);
+    let (mut lo, mut hi) = (0.0f64, 8.0f64);
+    while found(hi) < power {
+        lo = hi;
+        hi *= 2.0;
+        if hi > 1e7 {
+            return f64::INFINITY;
+        }
+    }
+    while hi - lo > 1e-3 * hi {
+        let mid = 0.5 * (lo + hi);
+        if found(mid) < power {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    hi
 }
 
 /// Minimum detectable sinusoid amplitude over `points` periods log-spaced across the
 /// searched range (see the module text), the largest over the FOGs' noise models.
 pub fn sinusoid_curve(noise: &[NoiseModel], ld: &LineDesign, alpha: f64, points: usize) -> SinusoidCurve {
     let (f_min, f_max) = ld.range_hz;
-    let lam_test = lambda_required(2, alpha, POWER);
-    let m_indep = ((f_max - f_min) * ld.span_s).max(1.0);
-    let n_fog = noise.len().max(1) as f64;
-    let lam_search = ChiSquared::new(2.0 * n_fog).map_or(f64::INFINITY, |c| {
-        let crit = c.inverse_cdf(1.0 - (std::f64::consts::LN_2 / m_indep).min(0.5));
-        lambda_to_beat(crit, 2.0 * n_fog, POWER)
-    });
+    let lam = line_lambda(ld, alpha, POWER);
     let (p_lo, p_hi) = (1.0 / f_max, 1.0 / f_min);
     let mut period_s = Vec::new();
     let mut amp_rad_s = Vec::new();
@@ -171,9 +223,7 @@ pub fn sinusoid_curve(noise: &[NoiseModel], ld: &LineDesign, alpha: f64, points:
             .iter()
             .map(|nm| {
                 let s = row_spectrum_of_means(nm, f, ld.dt_s, ld.rows_averaged);
-                let test = (2.0 * s * lam_test / ld.n_test.max(1) as f64).sqrt();
-                let search = (2.0 * s * lam_search / ld.n_train.max(1) as f64).sqrt();
-                test.max(search)
+                (2.0 * s * lam / ld.n_train.max(1) as f64).sqrt()
             })
             .fold(0.0, f64::max);
         period_s.push(p);

@@ -37,7 +37,7 @@ use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
 use super::noise::{held_out_gain, whitened, Binned, Cross, NoiseModel};
-use super::spectral::{search, searchable_range, Line, Record};
+use super::spectral::{search_refit, searchable_range, time_spread_s, Line, Record};
 use super::stream::{digest, trains, Bins, Digest, Source, Sums};
 use super::LabResult;
 
@@ -442,15 +442,52 @@ pub fn separating_experiment(kind: &Kind) -> &'static str {
 
 /// Lines of the training residuals at the kept training rows, at their real times
 /// ([`super::spectral::search`]).
-fn spectral_lines(d: &Digest, train_res: &[Vec<f64>], max_f: usize, exclude: &[f64]) -> Vec<Line> {
+fn spectral_lines(d: &Digest, base: &BaseFit, max_f: usize, exclude: &[f64]) -> Vec<Line> {
+    let train_res = &base.train_res;
     let (t_s, blocks, _) = d.kept.line_rows();
     let train: Vec<usize> = (0..blocks.len()).filter(|&k| trains(blocks[k])).collect();
     let t: Vec<f64> = train.iter().map(|&k| t_s[k]).collect();
     let block: Vec<usize> = train.iter().map(|&k| blocks[k]).collect();
     let res = train_res.iter().map(|r| train.iter().map(|&k| r[k]).collect()).collect();
     let span_s = d.t_span_s[1] - d.t_span_s[0];
-    let rec = Record { t_s: &t, block: &block, res, dt_s: d.dt_s * d.kept.stride as f64, span_s };
-    search(&rec, max_f, exclude)
+    let rec = Record {
+        t_s: &t,
+        block: &block,
+        res,
+        dt_s: d.dt_s * d.kept.stride as f64,
+        span_s,
+        noise: Some(&base.noise),
+        rows_averaged: d.kept.stride.max(1),
+    };
+    // The noise model of each FOG's residual with a line at f taken out (on the line rows).
+    let refit = |f: f64| -> Option<Vec<NoiseModel>> {
+        (0..d.basis.n_fog)
+            .map(|fog| {
+                let m = d.basis.m;
+                let (z, s) = kept_with_sinusoid(d, fog, f);
+                let b = &base.bases[fog];
+                let mut cols: Vec<Vec<f64>> = b
+                    .cols
+                    .iter()
+                    .map(|c| {
+                        let mut w = c.clone();
+                        w.extend([0.0, 0.0]);
+                        w
+                    })
+                    .collect();
+                let y = cols.pop()?;
+                for k in [m, m + 1] {
+                    let mut w = vec![0.0; m + 2];
+                    w[k] = 1.0;
+                    cols.push(w);
+                }
+                cols.push(y);
+                let bd = Binned::of_rows(&base.kept_bins, &z, m + 2, d.n_blocks);
+                Some(NoiseModel::fit_from(&bd, &Cross::of(&s, &cols), Some(&base.noise[fog])))
+            })
+            .collect()
+    };
+    search_refit(&rec, max_f, exclude, Some(&refit))
 }
 
 /// Residual y − Σ c x of FOG `fog` at the rows a line is searched on ([`super::stream::Kept::line_rows`]).
@@ -558,7 +595,7 @@ pub fn diagnose_digest(model: &Model, d: &Digest, opt: &Options) -> LabResult<Di
     // The strongest spectral line of the training residual, tested on the kept rows.
     let existing_f: Vec<f64> =
         kinds.iter().filter_map(|k| if let Kind::Sinusoid(f) = k { Some(*f) } else { None }).collect();
-    for line in spectral_lines(d, &base.train_res, opt.max_frequencies, &existing_f) {
+    for line in spectral_lines(d, &base, opt.max_frequencies, &existing_f) {
         let (per_fog, origin) = spectral_line(d, &base, &line);
         ranked.consider(Kind::Sinusoid(line.f_hz), origin, per_fog, None, &base.base_ho);
     }
@@ -613,8 +650,9 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
             not_identifiable: Some(why.clone()),
         });
     }
-    let line_blocks = d.kept.line_rows().1;
-    let n_train = line_blocks.iter().filter(|&&b| trains(b)).count();
+    let (line_t, line_blocks, _) = d.kept.line_rows();
+    let train_t: Vec<f64> = line_t.iter().zip(line_blocks).filter(|(_, &b)| trains(b)).map(|(t, _)| *t).collect();
+    let n_train = train_t.len();
     let span_s = d.t_span_s[1] - d.t_span_s[0];
     let dt_s = d.dt_s * d.kept.stride as f64;
     let ld = LineDesign {
@@ -623,7 +661,8 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
         rows_averaged: d.kept.stride.max(1),
         dt_s,
         range_hz: searchable_range(span_s, dt_s, opt.max_frequencies),
-        span_s,
+        t_sd_s: time_spread_s(&train_t, &vec![1.0; n_train]),
+        n_fog,
     };
     let sinusoid = (ld.range_hz.1 > ld.range_hz.0 && n_train > 16).then(|| sinusoid_curve(&base.noise, &ld, alpha, 48));
     Detectable { alpha_per_fog: alpha, terms, sinusoid }

@@ -12,16 +12,24 @@
 //!    pass `max_frequencies`), are fitted by (1, sin 2πft, cos 2πft) at frequencies from
 //!    1.5/span to the runs' Nyquist frequency, spaced 1/(3 span): the drop in the weighted
 //!    sum of squares is each FOG's power P(f).
-//! 2. **Background.** Each FOG's power is divided by its local background, the median of P
-//!    over the grid frequencies within a factor 1.25 of f (at least ±15 and at most ±200
-//!    grid points), times 2 ln 2: a line stands against the residual's own spectrum, red
-//!    (bias wander) or white, and the normalised power of a FOG without a line is about
-//!    χ²₂. The FOGs' normalised powers add (χ² with 2 × FOGs degrees of freedom).
-//! 3. **Peak.** The largest normalised power, refined by nonlinear least squares in the
-//!    frequency (amplitude and phase profiled out: golden-section search of the exact power
-//!    of every training row at its real time, over one grid step either side).
-//! 4. **False-alarm probability.** The tail of the χ² at the peak, corrected for the
-//!    (f_max − f_min) × span independent frequencies searched: 1 − (1 − p)^M.
+//! 2. **Background.** Each FOG's power is divided by its background: the residual's spectrum
+//!    under the FOG's noise model (white plus its Gauss–Markov Lorentzians,
+//!    [`super::detectable::row_spectrum_of_means`]; flat without one) times the median over
+//!    the whole grid of the power over that spectrum, times 2 ln 2. The median of hundreds of
+//!    independent frequencies is known to a few per cent, so the normalised power of a FOG
+//!    without a line is χ²₂ far into its tail (a median over a few tens of neighbours, off by
+//!    a third, would multiply the tail at the search's threshold by orders of magnitude).
+//!    The FOGs' normalised powers add (χ² with ν = 2 × FOGs degrees of freedom).
+//! 3. **Peak.** The largest normalised powers of the grid, each refined by nonlinear least
+//!    squares in the frequency (amplitude and phase profiled out: golden-section search of
+//!    the exact power of every training row at its real time, over one grid step either
+//!    side); the largest refined power is the peak.
+//! 4. **False-alarm probability.** The maximum of a χ²_ν process over a band B of
+//!    frequencies, not of B × span independent ones: by Rice's formula the expected number
+//!    of upcrossings of a level u is B · 2√π σ_t · u^((ν−1)/2) e^(−u/2) / (2^((ν−2)/2) Γ(ν/2)),
+//!    σ_t the spread of the training rows' times (the rate at which the periodogram
+//!    decorrelates in frequency), and the probability that the maximum passes u is
+//!    1 − exp(−(tail_ν(u) + upcrossings)) ([`max_tail`]).
 //! 5. **More lines.** The line's fit is taken out of the training residual and the search
 //!    repeated, while the false-alarm probability stays below [`LINE_FAP`] (at most
 //!    [`MAX_LINES`] lines); then, for each line found, its harmonics 2f … 4f (an orbital
@@ -32,13 +40,19 @@
 //! false-alarm probability): the test blocks judge it, as they judge every candidate.
 
 use statrs::distribution::{ChiSquared, ContinuousCDF};
+use statrs::function::gamma::ln_gamma;
+
+use super::detectable::row_spectrum_of_means;
+use super::noise::NoiseModel;
 
 /// Largest false-alarm probability of a line after the first (and of a harmonic, ×3).
 pub const LINE_FAP: f64 = 0.01;
 /// At most this many lines are searched for.
 pub const MAX_LINES: usize = 4;
-/// Local maxima of the grid judged against the background without them, per line.
+/// Local maxima of the grid refined, per line.
 const PEAKS_JUDGED: usize = 6;
+/// Local maxima against a flat background added to those (first line, with a refit).
+const PEAKS_REFIT: usize = 2;
 
 /// A line found in the training residual.
 #[derive(Debug, Clone, PartialEq)]
@@ -67,6 +81,40 @@ pub struct Record<'a> {
     pub dt_s: f64,
     /// The session's span, s.
     pub span_s: f64,
+    /// Per FOG, the noise model of the residual (the background's shape); `None`: white.
+    pub noise: Option<&'a [NoiseModel]>,
+    /// Session rows each of the rows is the mean of.
+    pub rows_averaged: usize,
+}
+
+/// Probability that the maximum over a band of `band_hz` of the pooled normalised power
+/// (χ² with `nu` degrees of freedom at each frequency) of a record whose times spread
+/// `t_sd_s` (standard deviation) passes `u`: 1 − exp(−(tail_ν(u) + expected upcrossings of
+/// u)), Rice's formula (see the module text), for u above ν − 1 (below, its value at ν − 1).
+pub fn max_tail(u: f64, nu: f64, band_hz: f64, t_sd_s: f64) -> f64 {
+    let Ok(chi) = ChiSquared::new(nu) else { return 1.0 };
+    if u <= 0.0 {
+        return 1.0;
+    }
+    // The upcrossing rate peaks at u = ν − 1; below, the tail's bound is its value there.
+    let uu = u.max(nu - 1.0);
+    let ln_up = (band_hz * 2.0 * std::f64::consts::PI.sqrt() * t_sd_s).max(f64::MIN_POSITIVE).ln()
+        + 0.5 * (nu - 1.0) * uu.ln()
+        - 0.5 * uu
+        - 0.5 * (nu - 2.0) * std::f64::consts::LN_2
+        - ln_gamma(0.5 * nu);
+    let e = chi.sf(u) + ln_up.exp();
+    (-(-e).exp_m1()).clamp(0.0, 1.0)
+}
+
+/// Weighted standard deviation of times `t` (weights `w`), s.
+pub fn time_spread_s(t: &[f64], w: &[f64]) -> f64 {
+    let sw: f64 = w.iter().sum();
+    if sw <= 0.0 {
+        return 0.0;
+    }
+    let m = t.iter().zip(w).map(|(t, w)| t * w).sum::<f64>() / sw;
+    (t.iter().zip(w).map(|(t, w)| w * (t - m) * (t - m)).sum::<f64>() / sw).sqrt()
 }
 
 /// Frequencies the search covers on a session of `span_s` sampled every `dt_s`, with at
@@ -181,27 +229,31 @@ fn power_at(t: &[f64], w: &[f64], y: &[Vec<f64>], f: f64) -> Vec<(f64, [f64; 3])
         .collect()
 }
 
-/// Running local median of `p` (see the module text): the background per grid point.
-fn background(p: &[f64], f_min: f64, df: f64) -> Vec<f64> {
-    let nf = p.len();
-    let mut out = vec![0.0; nf];
-    let mut win = Vec::new();
-    for (k, o) in out.iter_mut().enumerate() {
-        let f = f_min + df * k as f64;
-        let half = ((0.25 * f / df).round() as usize).clamp(15, 200);
-        let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(nf));
-        win.clear();
-        win.extend_from_slice(&p[lo..hi]);
-        let mid = win.len() / 2;
-        let (_, m, _) = win.select_nth_unstable_by(mid, f64::total_cmp);
-        *o = *m;
-    }
-    out
+/// The background of one FOG's power `p` on the grid f_min + k df (see the module text):
+/// the shape `shape(f)` times the median over the grid of p / shape.
+fn background(p: &[f64], f_min: f64, df: f64, shape: &impl Fn(f64) -> f64) -> (Vec<f64>, f64) {
+    let sh: Vec<f64> = (0..p.len()).map(|k| shape(f_min + df * k as f64)).collect();
+    let mut ratio: Vec<f64> = p.iter().zip(&sh).map(|(p, s)| if *s > 0.0 { p / s } else { 0.0 }).collect();
+    let mid = ratio.len() / 2;
+    let med = if ratio.is_empty() { 0.0 } else { *ratio.select_nth_unstable_by(mid, f64::total_cmp).1 };
+    (sh.iter().map(|s| s * med).collect(), med)
 }
 
 /// Lines in the training residual (see the module text), strongest first; frequencies within
 /// 1/span of one in `exclude` (lines the model already has) are not searched.
 pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> {
+    search_refit(r, max_frequencies, exclude, None)
+}
+
+/// Per FOG, the noise model of the residual with a line at a frequency (Hz) taken out, on the
+/// rows searched (each row its own: no averaging); `None` where it cannot be fitted.
+pub type Refit<'a> = &'a dyn Fn(f64) -> Option<Vec<NoiseModel>>;
+
+/// [`search`] where each peak is judged against the background shape of the noise model of
+/// the residual without it (`refit`): a line in the residual is partly taken up by the noise
+/// model's Gauss–Markov terms (a bump of the background under the line, which lowers its
+/// normalised power); the residual without the line has none.
+pub fn search_refit(r: &Record, max_frequencies: usize, exclude: &[f64], refit: Option<Refit>) -> Vec<Line> {
     let n_fog = r.res.len();
     if r.t_s.len() < 16 || n_fog == 0 || r.span_s <= 0.0 {
         return Vec::new();
@@ -216,58 +268,104 @@ pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> 
     if nf < 8 {
         return Vec::new();
     }
-    let m_indep = ((f_max - f_min) * r.span_s).max(1.0);
-    let chi = ChiSquared::new(2.0 * n_fog as f64).ok();
+    let nu = 2.0 * n_fog as f64;
+    let chi = ChiSquared::new(nu).ok();
     let tail = |z: f64| chi.as_ref().map_or(1.0, |c| c.sf(z));
     let ln4 = 2.0 * std::f64::consts::LN_2;
+    let shape = |i: usize, f: f64| -> f64 {
+        r.noise.and_then(|nm| nm.get(i)).map_or(1.0, |nm| row_spectrum_of_means(nm, f, r.dt_s, r.rows_averaged))
+    };
     let mut rows = runs(r, 1);
+    let t_sd = time_spread_s(&rows.t, &rows.w);
     let mut lines: Vec<Line> = Vec::new();
-    let mut scale = vec![1.0; n_fog];
     for _ in 0..MAX_LINES {
         let grouped = if g > 1 { runs(&Record { res: rows.y.clone(), ..r.clone() }, g) } else { runs_clone(&rows) };
         let p = grid_power(&grouped, f_min, df, nf);
-        let bg: Vec<Vec<f64>> = p.iter().map(|pf| background(pf, f_min, df)).collect();
+        let bgm: Vec<(Vec<f64>, f64)> =
+            p.iter().enumerate().map(|(i, pf)| background(pf, f_min, df, &|f| shape(i, f))).collect();
         let z = |k: usize| -> f64 {
-            (0..n_fog).map(|i| if bg[i][k] > 0.0 { ln4 * p[i][k] / bg[i][k] } else { 0.0 }).sum::<f64>()
+            (0..n_fog).map(|i| if bgm[i].0[k] > 0.0 { ln4 * p[i][k] / bgm[i].0[k] } else { 0.0 }).sum::<f64>()
         };
-        // The strongest local maxima of the normalised power (a strong line's sidelobes
-        // raise the local median around it: each is judged again against the background of
-        // the residual without it).
-        let mut peaks: Vec<(usize, f64)> = Vec::new();
-        for k in 0..nf {
-            let f = f_min + df * k as f64;
-            let near = |e: &f64| (f - e).abs() < 1.0 / r.span_s;
-            if exclude.iter().any(near) || lines.iter().any(|l| near(&l.f_hz)) {
-                continue;
+        // The exact pooled normalised power at any frequency.
+        let exact = |rows: &Runs, f: f64| -> f64 {
+            power_at(&rows.t, &rows.w, &rows.y, f)
+                .iter()
+                .enumerate()
+                .map(|(i, (pw, _))| {
+                    let b = shape(i, f) * bgm[i].1;
+                    if b > 0.0 {
+                        ln4 * pw / b
+                    } else {
+                        0.0
+                    }
+                })
+                .sum()
+        };
+        // The strongest local maxima of the grid's normalised power, each refined; with a
+        // refit, also those against a flat background (a line the noise model took up in part
+        // may rank low against its shape).
+        let flat_med: Vec<f64> = p.iter().map(|pf| background(pf, f_min, df, &|_| 1.0).1).collect();
+        let z_flat = |k: usize| -> f64 {
+            (0..n_fog).map(|i| if flat_med[i] > 0.0 { ln4 * p[i][k] / flat_med[i] } else { 0.0 }).sum::<f64>()
+        };
+        let top = |zf: &dyn Fn(usize) -> f64, count: usize| -> Vec<usize> {
+            let mut peaks: Vec<(usize, f64)> = Vec::new();
+            for k in 0..nf {
+                let f = f_min + df * k as f64;
+                let near = |e: &f64| (f - e).abs() < 1.0 / r.span_s;
+                if exclude.iter().any(near) || lines.iter().any(|l| near(&l.f_hz)) {
+                    continue;
+                }
+                let zk = zf(k);
+                let left = k == 0 || zf(k - 1) <= zk;
+                let right = k + 1 >= nf || zf(k + 1) < zk;
+                if left && right {
+                    peaks.push((k, zk));
+                }
             }
-            let zk = z(k);
-            let left = k == 0 || z(k - 1) <= zk;
-            let right = k + 1 >= nf || z(k + 1) < zk;
-            if left && right {
-                peaks.push((k, zk));
+            peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
+            peaks.into_iter().take(count).map(|(k, _)| k).collect()
+        };
+        let use_refit = refit.is_some() && lines.is_empty();
+        let mut peaks = top(&z, PEAKS_JUDGED);
+        if use_refit {
+            for k in top(&z_flat, PEAKS_REFIT) {
+                if !peaks.contains(&k) {
+                    peaks.push(k);
+                }
             }
         }
-        peaks.sort_by(|a, b| b.1.total_cmp(&a.1));
-        peaks.truncate(PEAKS_JUDGED);
-        let mut best: Option<(f64, f64)> = None;
-        for &(k, _) in &peaks {
-            for (i, s) in scale.iter_mut().enumerate() {
-                *s = if bg[i][k] > 0.0 { ln4 / bg[i][k] } else { 0.0 };
-            }
-            // Refine on every training row at its own time (amplitude and phase profiled out).
-            let f0 = f_min + df * k as f64;
-            let exact = |f: f64| -> f64 {
-                power_at(&rows.t, &rows.w, &rows.y, f).iter().zip(&scale).map(|((p, _), s)| p * s).sum()
-            };
-            let f = golden_max(&exact, (f0 - df).max(0.5 * f_min), f0 + df, 1e-6 * df);
-            let zf = line_free_power(&rows, r, g, f, f_min, df, nf);
-            if best.is_none_or(|b| zf > b.1) {
-                best = Some((f, zf));
+        // Refine on every training row at its own time (amplitude and phase profiled out).
+        let mut refined: Vec<(f64, f64)> = peaks
+            .iter()
+            .map(|&k| {
+                let f0 = f_min + df * k as f64;
+                let f = golden_max(&|f| exact(&rows, f), (f0 - df).max(0.5 * f_min), f0 + df, 1e-6 * df);
+                (f, exact(&rows, f))
+            })
+            .collect();
+        // Each judged again against the noise model of the residual without it.
+        if let Some(rf) = refit.filter(|_| use_refit) {
+            for (f, zf) in refined.iter_mut() {
+                let Some(nms) = rf(*f) else { continue };
+                let pw = power_at(&rows.t, &rows.w, &rows.y, *f);
+                *zf = (0..n_fog)
+                    .map(|i| {
+                        let Some(nm) = nms.get(i) else { return 0.0 };
+                        let sh = |f: f64| row_spectrum_of_means(nm, f, r.dt_s, 1);
+                        let b = sh(*f) * background(&p[i], f_min, df, &sh).1;
+                        if b > 0.0 {
+                            ln4 * pw[i].0 / b
+                        } else {
+                            0.0
+                        }
+                    })
+                    .sum();
             }
         }
+        let best = refined.iter().copied().max_by(|a, b| a.1.total_cmp(&b.1));
         let Some((f, pz)) = best else { break };
-        let fap = 1.0 - (1.0 - tail(pz)).powf(m_indep);
-        let fap = if fap.is_finite() { fap.clamp(0.0, 1.0) } else { 1.0 };
+        let fap = max_tail(pz, nu, f_max - f_min, t_sd);
         if !lines.is_empty() && fap > LINE_FAP {
             break;
         }
@@ -277,22 +375,34 @@ pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> 
         }
         remove_line(&mut rows, f);
     }
-    // Harmonics of each significant line, at their exact frequencies.
+    // Harmonics of each significant line, at their exact frequencies, against the background
+    // of the residual without the lines found.
     let fundamentals: Vec<f64> = lines.iter().filter(|l| l.fap <= LINE_FAP).map(|l| l.f_hz).collect();
+    let meds: Vec<f64> = if fundamentals.is_empty() {
+        Vec::new()
+    } else {
+        let grouped = if g > 1 { runs(&Record { res: rows.y.clone(), ..r.clone() }, g) } else { runs_clone(&rows) };
+        let p = grid_power(&grouped, f_min, df, nf);
+        p.iter().enumerate().map(|(i, pf)| background(pf, f_min, df, &|f| shape(i, f)).1).collect()
+    };
     for f0 in fundamentals {
         for h in 2..=4usize {
             let f = h as f64 * f0;
             if f > f_max || lines.iter().any(|l| (l.f_hz - f).abs() < 1.0 / r.span_s) {
                 continue;
             }
-            // Background at the harmonic from the grid's neighbourhood of the current residual.
-            let k0 = ((f - f_min) / df).round().max(0.0) as usize;
-            let (lo, hi) = (k0.saturating_sub(60), (k0 + 61).min(nf));
-            let sub_f = f_min + df * lo as f64;
-            let grouped = if g > 1 { runs(&Record { res: rows.y.clone(), ..r.clone() }, g) } else { runs_clone(&rows) };
-            let p = grid_power(&grouped, sub_f, df, hi - lo);
-            let pw = power_at(&rows.t, &rows.w, &rows.y, f);
-            let zh = pooled_power(&p, &pw);
+            let zh: f64 = power_at(&rows.t, &rows.w, &rows.y, f)
+                .iter()
+                .enumerate()
+                .map(|(i, (pw, _))| {
+                    let b = shape(i, f) * meds[i];
+                    if b > 0.0 {
+                        ln4 * pw / b
+                    } else {
+                        0.0
+                    }
+                })
+                .sum();
             let p_h = (3.0 * tail(zh)).min(1.0);
             if p_h <= LINE_FAP / 3.0 {
                 lines.push(Line { f_hz: f, fap: p_h, power: zh, harmonic_of: Some((h, f0)) });
@@ -301,41 +411,6 @@ pub fn search(r: &Record, max_frequencies: usize, exclude: &[f64]) -> Vec<Line> 
         }
     }
     lines
-}
-
-/// Each FOG's power at a frequency `pw` over the median of its power on a grid window `p`
-/// (2 ln 2 × power / median: χ²₂-scaled), summed over the FOGs.
-fn pooled_power(p: &[Vec<f64>], pw: &[(f64, [f64; 3])]) -> f64 {
-    let ln4 = 2.0 * std::f64::consts::LN_2;
-    p.iter()
-        .zip(pw)
-        .map(|(pf, (ph, _))| {
-            let mut v = pf.clone();
-            let mid = v.len() / 2;
-            let med = *v.select_nth_unstable_by(mid, f64::total_cmp).1;
-            if med > 0.0 {
-                ln4 * ph / med
-            } else {
-                0.0
-            }
-        })
-        .sum()
-}
-
-/// The normalised power at `f` pooled over FOGs against the background of the rows with the
-/// line at `f` taken out (the median of the grid's power within the usual window about f).
-fn line_free_power(rows: &Runs, r: &Record, g: usize, f: f64, f_min: f64, df: f64, nf: usize) -> f64 {
-    let pw = power_at(&rows.t, &rows.w, &rows.y, f);
-    let mut clean = runs_clone(rows);
-    remove_line(&mut clean, f);
-    let k = ((f - f_min) / df).round().max(0.0) as usize;
-    let half = ((0.25 * f / df).round() as usize).clamp(40, 200);
-    let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(nf));
-    let (lo, hi) =
-        if hi - lo < 2 * half { (hi.saturating_sub(2 * half), (lo + 2 * half + 1).min(nf)) } else { (lo, hi) };
-    let grouped = if g > 1 { runs(&Record { res: clean.y.clone(), ..r.clone() }, g) } else { clean };
-    let p = grid_power(&grouped, f_min + df * lo as f64, df, hi - lo);
-    pooled_power(&p, &pw)
 }
 
 fn runs_clone(r: &Runs) -> Runs {
@@ -408,7 +483,7 @@ mod tests {
                 y.push(0.05 * (2.0 * std::f64::consts::PI * f_true * tj).sin() + n01.sample(&mut rng));
             }
         }
-        let r = Record { t_s: &t, block: &block, res, dt_s: dt, span_s: n as f64 * dt };
+        let r = Record { t_s: &t, block: &block, res, dt_s: dt, span_s: n as f64 * dt, noise: None, rows_averaged: 1 };
         let lines = search(&r, 15_000, &[]);
         assert!(!lines.is_empty());
         assert!((lines[0].f_hz / f_true - 1.0).abs() < 0.01, "{lines:?}");

@@ -15,7 +15,9 @@
 //!
 //! `cargo test --release -p ssis-lab --test power -- --nocapture` runs a reduced study;
 //! `… --test power -- --ignored --nocapture` the full sweep (effect size, period, session
-//! length and sample rate; figures in BENCHMARKS.md).
+//! length and sample rate; figures in BENCHMARKS.md), or a part of it: `POWER_CONFIGS=0,3`
+//! (indices into its configurations), `POWER_EFFECTS=sinusoid,magnetic` (labels containing
+//! a word), `POWER_SEEDS=12`.
 
 use ssis_lab::detectable::{lambda_required, min_coef, POWER};
 use ssis_lab::diagnose::{diagnose, Diagnosis, Options};
@@ -58,9 +60,14 @@ fn stated(d: &Diagnosis, e: PowerEffect, fog: usize) -> Option<f64> {
     }
 }
 
-fn found(d: &Diagnosis, e: PowerEffect) -> bool {
+/// Whether the diagnosis finds the effect: its candidate significant; a sinusoid's, a
+/// significant line within 1 % of its frequency or, where 1 % is finer than the session
+/// resolves (periods beyond 1 % of the span), within half its resolution 1/(2 span).
+fn found(d: &Diagnosis, e: PowerEffect, span_s: f64) -> bool {
     d.significant().any(|c| match (e, &c.kind) {
-        (PowerEffect::Sinusoid { period_s }, Kind::Sinusoid(f)) => (f * period_s - 1.0).abs() < 0.01,
+        (PowerEffect::Sinusoid { period_s }, Kind::Sinusoid(f)) => {
+            (f - 1.0 / period_s).abs() < (0.01 / period_s).max(0.5 / span_s)
+        }
         (PowerEffect::Sinusoid { .. }, _) => false,
         _ => c.kind.label() == label(e),
     })
@@ -150,7 +157,7 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
         let with = |size: f64| {
             let p = power_session(&PowerSpec { size, ..spec });
             let d = diagnose(&model(e), &session(&p), &opt).unwrap();
-            found(&d, e)
+            found(&d, e, hours * 3600.0)
         };
         cell.at_stated.add(with(mde));
         cell.at_half.add(with(0.5 * mde));
@@ -189,8 +196,12 @@ fn study(configs: &[(f64, f64, bool)], periods: &[f64], seeds: u64, opt_mult: &[
         "{:<20} {:>6} {:>6} {:<8} {:>11} {:>15} {:>15} {:>11}  optimal test's MDE, detection at multiples",
         "effect", "dt s", "hours", "noise", "stated MDE", "at stated", "at half", "null flagged"
     );
+    // A subset: POWER_EFFECTS (labels containing any of its comma-separated words).
+    let only: Vec<String> =
+        std::env::var("POWER_EFFECTS").map(|v| v.split(',').map(str::to_string).collect()).unwrap_or_default();
     for &(dt, hours, wander) in configs {
-        for e in effects(periods) {
+        for e in effects(periods).into_iter().filter(|e| only.is_empty() || only.iter().any(|w| label(*e).contains(w)))
+        {
             let c = run_cell(e, dt, hours, wander, seeds, opt_mult);
             let opt_txt = if c.opt_eng.is_empty() {
                 String::new()
@@ -242,7 +253,9 @@ fn stated_sizes_hold() {
 #[test]
 #[ignore]
 fn full_sweep() {
-    let configs = [
+    // POWER_CONFIGS: comma-separated indices of the configurations below (all by default);
+    // POWER_SEEDS: seeds per cell (12).
+    let all = [
         (60.0, 24.0, false),
         (60.0, 24.0, true),
         (60.0, 48.0, false),
@@ -250,5 +263,10 @@ fn full_sweep() {
         (5.0, 6.0, false),
         (10.0, 10.0, true),
     ];
-    study(&configs, &[600.0, 2400.0, 9000.0], 12, &[1.0, 1.3]);
+    let configs: Vec<(f64, f64, bool)> = match std::env::var("POWER_CONFIGS") {
+        Ok(v) => v.split(',').filter_map(|i| all.get(i.trim().parse::<usize>().ok()?).copied()).collect(),
+        Err(_) => all.to_vec(),
+    };
+    let seeds = std::env::var("POWER_SEEDS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
+    study(&configs, &[600.0, 2400.0, 9000.0], seeds, &[1.0, 1.3]);
 }
