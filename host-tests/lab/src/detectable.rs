@@ -73,23 +73,38 @@ pub fn lambda_required(q: usize, alpha: f64, power: f64) -> f64 {
 
 /// The non-centrality at which χ²_q(λ) exceeds `crit` with probability `power`.
 fn lambda_to_beat(crit: f64, q: f64, power: f64) -> f64 {
-    let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    while ncx2_sf(crit, q, hi) < power {
+    first_reached(|l| ncx2_sf(crit, q, l) < power, 1.0, 1e9, |_, _, k| k < 60)
+        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
+}
+
+/// The bracket `(lo, hi)` of the point where a criterion stops falling `short` as its
+/// argument grows: `hi` doubles from `start` while short (`None` once `hi` passes `cap`),
+/// then the bracket is halved while `narrow(lo, hi, halvings so far)` asks for more.
+pub(crate) fn first_reached(
+    short: impl Fn(f64) -> bool,
+    start: f64,
+    cap: f64,
+    narrow: impl Fn(f64, f64, usize) -> bool,
+) -> Option<(f64, f64)> {
+    let (mut lo, mut hi) = (0.0f64, start);
+    while short(hi) {
         lo = hi;
         hi *= 2.0;
-        if hi > 1e9 {
-            return f64::INFINITY;
+        if hi > cap {
+            return None;
         }
     }
-    for _ in 0..60 {
+    let mut k = 0;
+    while narrow(lo, hi, k) {
         let mid = 0.5 * (lo + hi);
-        if ncx2_sf(crit, q, mid) < power {
+        if short(mid) {
             lo = mid;
         } else {
             hi = mid;
         }
+        k += 1;
     }
-    0.5 * (lo + hi)
+    Some((lo, hi))
 }
 
 /// Minimum detectable coefficient norm from a candidate's information `info` (q × q,
@@ -189,23 +204,7 @@ pub fn line_lambda(ld: &LineDesign, alpha: f64, power: f64) -> f64 {
     let crit = ChiSquared::new(2.0).map_or(f64::INFINITY, |c| c.inverse_cdf(1.0 - alpha.clamp(1e-300, 0.5)));
     let ratio = ld.n_test as f64 / ld.n_train.max(1) as f64;
     let found = |l: f64| search_power(l, ld) * ncx2_sf(crit, 2.0, l * ratio);
-    let (mut lo, mut hi) = (0.0f64, 8.0f64);
-    while found(hi) < power {
-        lo = hi;
-        hi *= 2.0;
-        if hi > 1e7 {
-            return f64::INFINITY;
-        }
-    }
-    while hi - lo > 1e-3 * hi {
-        let mid = 0.5 * (lo + hi);
-        if found(mid) < power {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    hi
+    first_reached(|l| found(l) < power, 8.0, 1e7, |lo, hi, _| hi - lo > 1e-3 * hi).map_or(f64::INFINITY, |(_, hi)| hi)
 }
 
 /// Minimum detectable sinusoid amplitude over `points` periods log-spaced across the

@@ -32,7 +32,9 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::detectable::{lambda_required, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER};
+use super::detectable::{
+    first_reached, lambda_required, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER,
+};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
@@ -202,23 +204,8 @@ pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
         return f64::NAN;
     }
     let Ok(dist) = FisherSnedecor::new(d1 as f64, d2 as f64) else { return f64::NAN };
-    let (mut lo, mut hi) = (0.0f64, 1.0f64);
-    while dist.sf(hi) > q {
-        lo = hi;
-        hi *= 2.0;
-        if hi > 1e300 {
-            return f64::INFINITY;
-        }
-    }
-    while hi - lo > 1e-13 * hi {
-        let mid = 0.5 * (lo + hi);
-        if dist.sf(mid) > q {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    0.5 * (lo + hi)
+    first_reached(|x| dist.sf(x) > q, 1.0, 1e300, |lo, hi, _| hi - lo > 1e-13 * hi)
+        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
 }
 
 /// The paper's ANOVA beside the main test, per FOG: for G (F_G against the candidate
