@@ -3,6 +3,9 @@ through Basilisk's own MonteCarlo.Controller give the same indices."""
 
 from __future__ import annotations
 
+import json
+import subprocess
+import sys
 from pathlib import Path
 from typing import Callable
 
@@ -16,6 +19,7 @@ pytest.importorskip("pyarrow")
 import ssis.mc as mc  # noqa: E402
 from ssis.mc import closed  # noqa: E402
 
+BIN = Path(sys.executable).parent
 
 
 def test_closed_loop_runs_match_basilisks_controller(tmp_path: Path, campaign: Callable[..., Path]) -> None:
@@ -58,3 +62,19 @@ def test_performance_error_is_what_the_unit_adds(campaign: Callable[..., Path]) 
     # the truth flight's own error (slew transients) is not in it
     truth = closed.truth_pointing_arcsec(40.0)
     assert np.array_equal(point - truth, added)
+
+
+def test_json_output_is_one_document(tmp_path: Path, campaign: Callable[..., Path]) -> None:
+    """``ssis-mc run … --json`` and ``replay … --json`` on a closed-loop campaign: Basilisk
+    logs (BSK_INFORMATION) while it flies, yet standard output is the one JSON document and
+    the log lines are on standard error."""
+    c = campaign(1, 40.0, name="json", loop="closed")
+    q = subprocess.run([str(BIN / "ssis-mc"), "run", str(c), "--out", str(tmp_path / "out"), "--scheduler", "serial",
+                        "--no-progress", "--json"], capture_output=True, text=True, timeout=300)
+    assert q.returncode == 0, q.stderr
+    assert json.loads(q.stdout)["completed"] == 1
+    assert "BSK_INFORMATION" in q.stderr, "Basilisk logged nothing: the test would not show a mixed output"
+    r = subprocess.run([str(BIN / "ssis-mc"), "replay", str(c), "--run", "0", "--json"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert set(json.loads(r.stdout)["indices"]) and "BSK_INFORMATION" in r.stderr

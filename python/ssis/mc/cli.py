@@ -9,13 +9,34 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
+import os
 import sys
 from pathlib import Path
-from typing import List, Optional, Sequence, Union
+from typing import Iterator, List, Optional, Sequence, Union
 
 from .. import SsisError
+
+
+@contextlib.contextmanager
+def _stdout_to_stderr(on: bool) -> Iterator[None]:
+    """With ``--json``, standard output carries the one JSON document only: what the runs
+    print meanwhile (Basilisk's log lines, from C++ and from the Dask workers this process
+    starts, which inherit its descriptors) goes to standard error."""
+    if not on:
+        yield
+        return
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        os.dup2(2, 1)
+        yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _runs(s: Optional[str]) -> Union[None, int, range]:
@@ -81,9 +102,10 @@ def _main(a: argparse.Namespace) -> int:
         print(json.dumps(c.info, indent=1))
         return 0
     if a.cmd == "run":
-        o = run(a.campaign, a.out, scheduler=a.scheduler, workers=a.workers, memory_limit=a.memory_limit,
-                runs=_runs(a.runs), series_every=a.series_every, retries=a.retries, window=a.window,
-                flush_rows=a.flush_rows, progress=not a.no_progress)
+        with _stdout_to_stderr(a.json):
+            o = run(a.campaign, a.out, scheduler=a.scheduler, workers=a.workers, memory_limit=a.memory_limit,
+                    runs=_runs(a.runs), series_every=a.series_every, retries=a.retries, window=a.window,
+                    flush_rows=a.flush_rows, progress=not a.no_progress)
         if a.json:
             print(json.dumps({"out": str(o.out), "completed": o.completed, "done_before": o.done_before,
                               "errors": o.errors, "wall_s": o.wall_s, "workers": o.workers, "steps": o.steps,
@@ -105,7 +127,8 @@ def _main(a: argparse.Namespace) -> int:
             print(f"wrote {a.html}", file=sys.stderr)
         return 0
     if a.cmd == "replay":
-        res = replay(a.campaign, a.run, a.series_every)
+        with _stdout_to_stderr(a.json):
+            res = replay(a.campaign, a.run, a.series_every)
         if a.json:
             res = {k: (v if k != "series" else {s: list(x) for s, x in v.items()}) for k, v in res.items()}
             print(json.dumps(res))
