@@ -6,7 +6,7 @@
 
 use numpy::{IntoPyArray, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyBytes, PyDict};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 use ssis::calib::{CalibrationTable, N_FOG};
 use ssis::flight::{Counter, Counters, FlightCore, FogLinks, Links, Profile, StepOutput};
 use ssis::frames::fog::FogFrame;
@@ -29,8 +29,12 @@ pub(crate) fn describe(o: &Bound<'_, PyAny>) -> String {
     if let (Ok(shape), Ok(dtype)) = (o.getattr("shape"), o.getattr("dtype")) {
         return format!("an array of shape {shape} and dtype {dtype}");
     }
+    let n = match o.len() {
+        Ok(n) if o.is_instance_of::<PyTuple>() || o.is_instance_of::<PyList>() => format!(" of {n} items"),
+        _ => String::new(),
+    };
     match o.get_type().name() {
-        Ok(n) => format!("a `{n}`"),
+        Ok(t) => format!("a `{t}`{n}"),
         Err(_) => "a value of another type".into(),
     }
 }
@@ -90,13 +94,16 @@ impl<'a, 'py> FromPyObject<'a, 'py> for StepIn {
     type Error = PyErr;
 
     fn extract(args: Borrowed<'a, 'py, PyAny>) -> PyResult<Self> {
-        type Args<'py> = (Bound<'py, PyAny>, Option<Bound<'py, PyAny>>, Option<Bound<'py, PyAny>>, bool);
+        type Args<'py> = (Bound<'py, PyAny>, Option<Bound<'py, PyAny>>, Option<Bound<'py, PyAny>>, Bound<'py, PyAny>);
         let (dtheta, star, temps, star_valid) = args.extract::<Args<'py>>().map_err(|_| {
             SsisError::new_err(format!(
-                "step: expected (fog_dtheta_rad, star, temperature_degc, star_valid), got {}",
+                "step: expected a tuple of 4 (fog_dtheta_rad, star, temperature_degc, star_valid), got {}",
                 describe(&args)
             ))
         })?;
+        let star_valid = star_valid
+            .extract::<bool>()
+            .map_err(|_| SsisError::new_err(format!("star_valid: expected a bool, got {}", describe(&star_valid))))?;
         StepIn::parse(&dtheta, star.as_ref(), temps.as_ref(), star_valid)
     }
 }

@@ -57,6 +57,12 @@ def test_steps_refuse_bad_shapes_tags_and_quaternions():
     _refused(lambda: core.step(np.zeros(4), star=(math.nan, Q1)), "star")
     _refused(lambda: core.step(np.zeros(4), temperature_degc=[20.0, math.nan, 20, 20]), "temperature_degc")
     _refused(lambda: core.align([2, 0, 0, 0]), "q")
+    # the native entry point itself, called with the wrong tuple: its length and the item named
+    native = core._native
+    msg = _refused(lambda: native.step((np.zeros(4), None, None)), "star_valid")
+    assert "tuple of 4" in msg and "of 3 items" in msg, msg
+    msg = _refused(lambda: native.step((np.zeros(4), None, None, "yes")), "star_valid")
+    assert "a `str`" in msg, msg
     _refused(lambda: core.align([math.nan, 0, 0, 0]), "q")
     assert core.steps == 0, "a refused step is not taken"
     core.align(Q1)
