@@ -17,7 +17,9 @@
 //! `… --test power -- --ignored --nocapture` the full sweep (effect size, period, session
 //! length and sample rate; figures in BENCHMARKS.md), or a part of it: `POWER_CONFIGS=0,3`
 //! (indices into its configurations), `POWER_EFFECTS=sinusoid,magnetic` (labels containing
-//! a word), `POWER_SEEDS=12`.
+//! a word), `POWER_SEEDS=12`, `POWER_SEED0=0` (the first seed), `POWER_PERIODS=600,2400`,
+//! `POWER_OPT=1,1.3` (multiples of the optimal test's MDE tried; empty: none),
+//! `POWER_VERBOSE=1` (each miss's lines).
 
 use ssis_lab::detectable::{lambda_required, min_coef, POWER};
 use ssis_lab::diagnose::{diagnose, Diagnosis, Options};
@@ -146,7 +148,10 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
         PowerEffect::Sinusoid { .. } => Kind::Sinusoid(1.0).eng_units(0)[0].1,
         _ => Kind::parse_arg(label(e).trim_start_matches("expr:")).map(|k| k.eng_units(0)[0].1).unwrap_or(1.0),
     };
-    for seed in 0..seeds {
+    // POWER_SEED0: the first seed (a fresh set of draws); POWER_VERBOSE: each miss's lines.
+    let seed0: u64 = std::env::var("POWER_SEED0").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let verbose = std::env::var("POWER_VERBOSE").is_ok();
+    for seed in seed0..seed0 + seeds {
         let fog = (seed % 4) as usize;
         let spec = PowerSpec { seed: 1000 + seed, dt_s, hours, effect: e, size: 0.0, fog, wander };
         let null = power_session(&spec);
@@ -157,7 +162,25 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
         let with = |size: f64| {
             let p = power_session(&PowerSpec { size, ..spec });
             let d = diagnose(&model(e), &session(&p), &opt).unwrap();
-            found(&d, e, hours * 3600.0)
+            let hit = found(&d, e, hours * 3600.0);
+            if verbose && !hit {
+                let lines: Vec<String> = d
+                    .candidates
+                    .iter()
+                    .filter(|c| matches!(c.kind, Kind::Sinusoid(_)) || c.significant)
+                    .map(|c| {
+                        format!(
+                            "{} p {:.1e}{} ({})",
+                            c.kind.label(),
+                            c.p_value,
+                            if c.significant { " *" } else { "" },
+                            c.origin
+                        )
+                    })
+                    .collect();
+                println!("  miss seed {seed} size {size:.3e}: {}", lines.join("; "));
+            }
+            hit
         };
         cell.at_stated.add(with(mde));
         cell.at_half.add(with(0.5 * mde));
@@ -268,5 +291,10 @@ fn full_sweep() {
         Err(_) => all.to_vec(),
     };
     let seeds = std::env::var("POWER_SEEDS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
-    study(&configs, &[600.0, 2400.0, 9000.0], seeds, &[1.0, 1.3]);
+    // POWER_PERIODS: the sinusoid's periods, s; POWER_OPT: multiples of the optimal test's
+    // MDE tried on white data (empty: none).
+    let list = |var: &str, default: &[f64]| -> Vec<f64> {
+        std::env::var(var).map_or(default.to_vec(), |v| v.split(',').filter_map(|x| x.trim().parse().ok()).collect())
+    };
+    study(&configs, &list("POWER_PERIODS", &[600.0, 2400.0, 9000.0]), seeds, &list("POWER_OPT", &[1.0, 1.3]));
 }
