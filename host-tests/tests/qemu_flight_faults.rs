@@ -6,11 +6,16 @@
 //! reset: a timeout that no feed followed), and the unit step again after the reset. A
 //! firmware that restores the SysTick's control word itself (a register check) passes
 //! the stopped tick without a reset if it steps again with the tick enabled.
-//! Not covered here: the attitude after the reset (no sensor frames are fed).
+//! Not covered here: the attitude after the reset (no sensor frames are fed). The fed
+//! version (`in_flight`, ignored: it does not meet its goals yet, see
+//! docs/benchmarks-history.md "flight37") flies the scenario with its bytes put into the
+//! receive rings at the loop's `wfi` (`ssis_runner::flight_build::loop_fault_in_flight`) and
+//! asserts the goals: reset within 100 ms of virtual time, every frame claiming a good
+//! attitude within twice the nominal 3σ, back within it 2 s after the fault.
 
 use std::path::Path;
 
-use ssis_runner::flight_build::{loop_fault_on_flight_build, LoopFault};
+use ssis_runner::flight_build::{loop_fault_in_flight, loop_fault_on_flight_build, LoopFault};
 use ssis_sim::scenario::Scenario;
 
 fn fault(f: LoopFault) {
@@ -51,4 +56,71 @@ fn a_flight_build_whose_loop_stalls_is_reset_by_the_watchdog() {
 #[test]
 fn a_flight_build_with_its_interrupts_masked_is_reset_by_the_watchdog() {
     fault(LoopFault::InterruptsMasked);
+}
+
+/// The fed flight, s.
+const FLIGHT_S: f64 = 20.0;
+/// The fault, s of the unit's time (the observer converges at 10.05 s).
+const FAULT_S: f64 = 12.5;
+/// Errors after this time make the nominal 3σ, s.
+const SETTLE_S: f64 = 11.0;
+/// Followed after the fault, s.
+const WATCH_S: f64 = 4.0;
+
+fn in_flight(f: LoopFault) {
+    let elf = ssis_runner::qemu::build_flight_firmware().expect("flight firmware builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = FLIGHT_S;
+    sc.settle_s = SETTLE_S;
+    let c = loop_fault_in_flight(&elf, &sc, f, FAULT_S, WATCH_S).expect("run");
+    println!(
+        "{f:?} at {:.3} s: frames before {} ({} equal to the in-process core's); reset {:?} s later (warnings {}, \
+         watchdog pending {}), tick back {:?} s, output back {:?} s, within 2× the nominal 3σ {:.2?}″ after {:?} s; \
+         frames claiming good {} ({} beyond, worst {:.2} of the bound); frames after {}",
+        c.fault_s,
+        c.frames_before,
+        c.equal_before,
+        c.reset_after_s,
+        c.warnings,
+        c.watchdog_pending,
+        c.tick_back_after_s,
+        c.output_back_after_s,
+        c.nominal_3sigma_arcsec,
+        c.back_after_s,
+        c.claimed,
+        c.claimed_beyond,
+        c.worst_claimed_share,
+        c.frames_after
+    );
+    assert_eq!(c.equal_before, c.frames_before, "the feed on time: every frame before the fault as in-process");
+    match (c.reset_after_s, c.tick_back_after_s) {
+        (Some(r), _) => {
+            assert!(r <= 0.1, "reset {r} s after the fault");
+            assert!(c.watchdog_pending, "reset by the watchdog");
+        }
+        (None, Some(t)) => assert!(f == LoopFault::TickStopped && t <= 0.1, "tick restored {t} s after the fault"),
+        (None, None) => panic!("neither reset nor restored"),
+    }
+    assert_eq!(c.claimed_beyond, 0, "frames claiming a good attitude beyond 2× the nominal 3σ");
+    let back = c.back_after_s.expect("back within 2× the nominal 3σ");
+    assert!(back <= 2.0, "back within 2× the nominal 3σ {back} s after the fault");
+}
+
+#[test]
+#[ignore = "the fed flight does not meet its goals yet (docs/benchmarks-history.md, flight37)"]
+fn in_flight_a_stopped_tick_is_recovered_within_its_goals() {
+    in_flight(LoopFault::TickStopped);
+}
+
+#[test]
+#[ignore = "the fed flight does not meet its goals yet (docs/benchmarks-history.md, flight37)"]
+fn in_flight_a_stalled_loop_is_recovered_within_its_goals() {
+    in_flight(LoopFault::Stall);
+}
+
+#[test]
+#[ignore = "the fed flight does not meet its goals yet (docs/benchmarks-history.md, flight37)"]
+fn in_flight_masked_interrupts_are_recovered_within_their_goals() {
+    in_flight(LoopFault::InterruptsMasked);
 }

@@ -21,10 +21,12 @@ use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
-use ssis::frames::output::OutputFrame;
+use ssis::frames::output::{flags, OutputFrame};
 use ssis::frames::Frame;
 use ssis::telemetry::{page, Counter, PAGED};
 use ssis_common::mock::{MockLink, MockSink};
+use ssis_sim::harness::{Evaluator, Observed, Simulation, StepInput};
+use ssis_sim::scenario::Scenario;
 
 use crate::qemu::{masked, Unit};
 
@@ -320,6 +322,500 @@ pub fn loop_fault_on_flight_build(
         }
         c.frames_after = count_frames(&back);
     }
+    unit.kill();
+    c.log = unit.log(elf);
+    Ok(c)
+}
+
+/// A loop fault of the flight build flown on its scenario, fed on time
+/// ([`loop_fault_in_flight`]).
+#[derive(Debug, Clone, Default)]
+pub struct FlightFaultCheck {
+    /// The undisturbed flight's attitude error 3σ per axis (|mean| + 3 std after
+    /// settling, the in-process core on the same scenario), ″.
+    pub nominal_3sigma_arcsec: [f64; 3],
+    /// The fault, s of the unit's virtual time since its first tick.
+    pub fault_s: f64,
+    /// Output frames before the fault.
+    pub frames_before: u64,
+    /// Of those, frames equal to the in-process core's on the same bytes in the same steps
+    /// (masked as [`masked`]): the feed was on time.
+    pub equal_before: u64,
+    /// From the fault to the watchdog's action, s of virtual time (`None`: no reset).
+    pub reset_after_s: Option<f64>,
+    /// No reset: from the fault to the first tick after it, s of virtual time (the tick
+    /// restored by the firmware), if the tick came back.
+    pub tick_back_after_s: Option<f64>,
+    /// At the watchdog's action: the firmware's count of watchdog warnings.
+    pub warnings: u32,
+    /// At the watchdog's action: its raw interrupt status (a timeout not fed since).
+    pub watchdog_pending: bool,
+    /// Output frames between the fault and the reset (or the end, without one).
+    pub frames_faulted: u64,
+    /// From the fault to the first output frame after the reset, s of virtual time.
+    pub output_back_after_s: Option<f64>,
+    /// From the fault to the frame from which every frame to the end is judged against
+    /// truth and within twice the nominal 3σ on each axis, s of virtual time.
+    pub back_after_s: Option<f64>,
+    /// Frames after settling that claim a good attitude (converged, not degraded, no
+    /// parity alarm) with an error beyond twice the nominal 3σ on an axis.
+    pub claimed_beyond: u64,
+    /// Frames after settling that claim a good attitude.
+    pub claimed: u64,
+    /// The largest error of a frame that claims a good attitude, after settling, as a
+    /// share of twice the nominal 3σ of its axis (1: on the bound).
+    pub worst_claimed_share: f64,
+    /// Output frames after the fault (or the reset).
+    pub frames_after: u64,
+    /// Virtual time flown, s.
+    pub flown_s: f64,
+    /// The firmware's defmt log.
+    pub log: Vec<String>,
+}
+
+/// QEMU's `-icount` for the fed flight: virtual time the instruction count while busy,
+/// the host's time while idle (`sleep=on`), stopped while the runner holds the guest.
+const FED_ICOUNT: &str = "shift=0,sleep=off";
+
+/// The CMSDK timer the runner keeps as its clock of the guest's virtual time (mps2 TIMER0,
+/// unused by the firmware): CTRL, VALUE, RELOAD; it counts down at the 25 MHz system clock.
+const CLOCK_TIMER: u32 = 0x4000_0000;
+/// The system clock, Hz.
+const SYSCLK_HZ: f64 = 25e6;
+/// The CMSDK watchdog's raw interrupt status (WDOGRIS).
+const WDOG_RIS: u32 = 0x4000_8010;
+
+/// The runner's clock of the unit's virtual time: a CMSDK timer it starts itself
+/// (restarted after a reset, which stops it), plus the time before that restart.
+struct GuestClock {
+    /// Virtual time at the last (re)start, s.
+    base_s: f64,
+}
+
+impl GuestClock {
+    /// Starts the timer from its top (the guest halted at an instruction).
+    fn start(g: &mut crate::gdb::Gdb, base_s: f64) -> Result<GuestClock> {
+        g.write_device_u32(CLOCK_TIMER + 8, u32::MAX)?;
+        g.write_device_u32(CLOCK_TIMER + 4, u32::MAX)?;
+        g.write_device_u32(CLOCK_TIMER, 1)?;
+        Ok(GuestClock { base_s })
+    }
+
+    /// Virtual time now, s (the gdbstub's read of the counter: one packet).
+    fn now_s(&self, g: &mut crate::gdb::Gdb) -> Result<f64> {
+        let b = g.read_memory(CLOCK_TIMER + 4, 4)?;
+        let v = u32::from_le_bytes(b.as_slice().try_into()?);
+        Ok(self.base_s + f64::from(u32::MAX - v) / SYSCLK_HZ)
+    }
+}
+
+/// Where a receive ring (`ssis::link::RxRing`) of the firmware lies, and its fields, from
+/// the ELF's debug information: the runner puts a step's bytes into it as the UART
+/// interrupt would ([`RxRingAt::push`]).
+#[derive(Debug, Clone, Copy)]
+struct RxRingAt {
+    addr: u32,
+    size: usize,
+    /// The `RefCell`'s borrow flag.
+    borrow: usize,
+    buf: usize,
+    capacity: usize,
+    head: usize,
+    len: usize,
+    overflows: usize,
+    received: usize,
+}
+
+impl RxRingAt {
+    /// The ring the static `name` of `elf` is (its DWARF variable's name).
+    fn find(elf: &Path, name: &str) -> Result<RxRingAt> {
+        use gimli::{AttributeValue, EndianSlice, RunTimeEndian};
+        use object::{Object, ObjectSection};
+        let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+        let file = object::File::parse(&*data)?;
+        let load = |id: gimli::SectionId| -> Result<std::borrow::Cow<'_, [u8]>, gimli::Error> {
+            Ok(file.section_by_name(id.name()).and_then(|s| s.uncompressed_data().ok()).unwrap_or_default())
+        };
+        let sections = gimli::DwarfSections::load(load)?;
+        let dwarf = sections.borrow(|s| EndianSlice::new(s, RunTimeEndian::Little));
+        let mut units = dwarf.units();
+        while let Some(header) = units.next()? {
+            let unit = dwarf.unit(header)?;
+            let mut entries = unit.entries();
+            while let Some((_, e)) = entries.next_dfs()? {
+                if e.tag() != gimli::DW_TAG_variable {
+                    continue;
+                }
+                let Some(n) = e.attr_value(gimli::DW_AT_name)? else { continue };
+                if dwarf.attr_string(&unit, n)?.to_string_lossy() != name {
+                    continue;
+                }
+                let Some(AttributeValue::Exprloc(loc)) = e.attr_value(gimli::DW_AT_location)? else { continue };
+                let mut ops = loc.operations(unit.encoding());
+                let Some(gimli::Operation::Address { address }) = ops.next()? else { continue };
+                let Some(AttributeValue::UnitRef(ty)) = e.attr_value(gimli::DW_AT_type)? else { continue };
+                let size = match unit.entry(ty)?.attr_value(gimli::DW_AT_byte_size)? {
+                    Some(v) => v.udata_value().context("ring size")? as usize,
+                    None => bail_size(name)?,
+                };
+                let mut fields = Vec::new();
+                members(&dwarf, &unit, ty, 0, 0, &mut fields)?;
+                let at = |f: &str| -> Result<&(String, usize, usize)> {
+                    let mut it = fields.iter().filter(|(n, _, _)| n == f);
+                    let first = it.next().with_context(|| format!("{name}: no field {f} in its type"))?;
+                    anyhow::ensure!(it.next().is_none(), "{name}: two fields named {f}");
+                    Ok(first)
+                };
+                let buf = at("buf")?;
+                return Ok(RxRingAt {
+                    addr: address as u32,
+                    size,
+                    borrow: at("borrow")?.1,
+                    buf: buf.1,
+                    capacity: buf.2,
+                    head: at("head")?.1,
+                    len: at("len")?.1,
+                    overflows: at("overflows")?.1,
+                    received: at("received")?.1,
+                });
+            }
+        }
+        anyhow::bail!("{}: no static {name} in its debug information", elf.display())
+    }
+
+    /// Pushes `bytes` into the ring as `RxRing::push` does byte by byte (counted as
+    /// received; a full ring drops and counts an overflow). The guest must be halted
+    /// outside the ring's critical section (on entry to an interrupt handler it is: the
+    /// section masks interrupts).
+    fn push(&self, g: &mut crate::gdb::Gdb, bytes: &[u8]) -> Result<()> {
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let mut m = g.read_memory(self.addr, self.size)?;
+        let word = |m: &[u8], o: usize| -> Result<u32> {
+            Ok(u32::from_le_bytes(m.get(o..o + 4).context("ring field")?.try_into()?))
+        };
+        anyhow::ensure!(word(&m, self.borrow)? == 0, "the ring at {:#x} is borrowed", self.addr);
+        let (head, mut len) = (word(&m, self.head)? as usize, word(&m, self.len)? as usize);
+        let (mut received, mut overflows) = (word(&m, self.received)?, word(&m, self.overflows)?);
+        for &b in bytes {
+            received = received.wrapping_add(1);
+            if len >= self.capacity {
+                overflows = overflows.saturating_add(1);
+                continue;
+            }
+            let i = (head + len) % self.capacity;
+            *m.get_mut(self.buf + i).context("ring slot")? = b;
+            len += 1;
+        }
+        for (o, v) in [(self.len, len as u32), (self.received, received), (self.overflows, overflows)] {
+            m.get_mut(o..o + 4).context("ring field")?.copy_from_slice(&v.to_le_bytes());
+        }
+        g.write_memory(self.addr, &m)
+    }
+}
+
+/// The address of the main loop's `wfi` (where it sleeps until its next tick): the one
+/// `wfi` in `ssis_fw::firmware::fly` of `elf`.
+fn loop_wfi(elf: &Path) -> Result<u32> {
+    use object::{Object, ObjectSection, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    let sym = file
+        .symbols()
+        .find(|s| s.name().is_ok_and(|n| n.contains("7ssis_fw8firmware3fly17h")))
+        .context("no ssis_fw::firmware::fly")?;
+    let start = sym.address() & !1;
+    let text = file.section_by_name(".text").context("no .text")?;
+    let code = text.data_range(start, sym.size())?.context("fly outside .text")?;
+    let at: Vec<u64> = code
+        .chunks_exact(2)
+        .enumerate()
+        .filter(|(_, h)| h == &[0x30, 0xbf])
+        .map(|(i, _)| start + 2 * i as u64)
+        .collect();
+    match at.as_slice() {
+        [a] => Ok(*a as u32),
+        _ => anyhow::bail!("{} wfi in ssis_fw::firmware::fly, not one", at.len()),
+    }
+}
+
+fn bail_size(name: &str) -> Result<usize> {
+    anyhow::bail!("{name}: its type has no size")
+}
+
+/// Every member reachable from the structure type at `ty` (offset `base`): (name, byte
+/// offset, element count of an array member, else 0).
+fn members<R: gimli::Reader<Offset = usize>>(
+    dwarf: &gimli::Dwarf<R>,
+    unit: &gimli::Unit<R>,
+    ty: gimli::UnitOffset,
+    base: usize,
+    depth: u32,
+    out: &mut Vec<(String, usize, usize)>,
+) -> Result<()> {
+    use gimli::AttributeValue;
+    anyhow::ensure!(depth < 16, "the ring's type nests too deep");
+    let mut tree = unit.entries_tree(Some(ty))?;
+    let root = tree.root()?;
+    let mut children = root.children();
+    while let Some(child) = children.next()? {
+        let e = child.entry();
+        if e.tag() != gimli::DW_TAG_member {
+            continue;
+        }
+        let Some(n) = e.attr_value(gimli::DW_AT_name)? else { continue };
+        let name = dwarf.attr_string(unit, n)?.to_string_lossy()?.into_owned();
+        let off =
+            base + e.attr_value(gimli::DW_AT_data_member_location)?.and_then(|v| v.udata_value()).unwrap_or(0) as usize;
+        let Some(AttributeValue::UnitRef(t)) = e.attr_value(gimli::DW_AT_type)? else { continue };
+        let te = unit.entry(t)?;
+        let mut count = 0;
+        if te.tag() == gimli::DW_TAG_array_type {
+            let mut at = unit.entries_tree(Some(t))?;
+            let r = at.root()?;
+            let mut sub = r.children();
+            while let Some(s) = sub.next()? {
+                if let Some(c) = s.entry().attr_value(gimli::DW_AT_count)?.and_then(|v| v.udata_value()) {
+                    count = c as usize;
+                }
+            }
+        }
+        out.push((name, off, count));
+        if te.tag() == gimli::DW_TAG_structure_type {
+            members(dwarf, unit, t, off, depth + 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// The FOG bus bytes of one step (the profile's FOGs that sent a frame).
+fn bus_bytes(input: &StepInput, profile: &Profile) -> Vec<u8> {
+    let fitted =
+        input.fog_frames.iter().enumerate().filter(|(i, _)| profile.fogs.contains(*i) && input.present.contains(*i));
+    fitted.flat_map(|(_, f)| f.iter().copied()).collect()
+}
+
+/// Whether a frame claims a good attitude: converged, not degraded, no parity alarm.
+fn claims_good(f: &OutputFrame) -> bool {
+    f.flags & flags::CONVERGED != 0 && f.flags & (flags::DEGRADED | flags::FDI_ALARM) == 0
+}
+
+/// Flies the flight build `elf` (its own SysTick, no lockstep) on scenario `sc` with its
+/// sensor bytes on time in the unit's virtual time, injects `fault` at `fault_s` (after
+/// convergence), and follows the unit for `watch_s` after it.
+///
+/// QEMU runs with `-icount shift=0,sleep=off` (virtual time the instruction count, idle
+/// time skipped), started halted (`-S`), its gdbstub driven by the runner, and
+/// `-action watchdog=pause`. A breakpoint on the SysTick handler stops the guest at every
+/// tick, before the step that tick starts: the runner reads its clock of virtual time (a
+/// CMSDK timer it keeps, [`GuestClock`]) and puts the bytes of every scenario step due by
+/// then into the firmware's FOG and star-tracker receive rings ([`RxRingAt::push`]),
+/// as the UART interrupts would have by then, and resumes. The step of tick n so takes
+/// the scenario's step n, as in lockstep, with no host in the timing: the frames before
+/// the fault must equal the in-process core's on the same bytes.
+///
+/// At the first tick at or after `fault_s` the runner injects the fault. The watchdog's
+/// action pauses the guest: that instant is the reset's time; the runner then resets the
+/// machine (`system_reset`, what `-action watchdog=reset` does) and starts its clock again
+/// at the reset vector. Sensor bytes due while the unit was down are lost; the first tick
+/// after the reset takes the step then due. Every output frame is judged against truth by
+/// its time tag ([`Evaluator`]).
+pub fn loop_fault_in_flight(
+    elf: &Path,
+    sc: &Scenario,
+    fault: LoopFault,
+    fault_s: f64,
+    watch_s: f64,
+) -> Result<FlightFaultCheck> {
+    use crate::gdb::{Gdb, PC};
+    crate::qemu::check_qemu_and_elf(elf)?;
+    let mut sim = Simulation::new(sc)?;
+    let (table, profile) = (sim.table, sim.profile);
+    let dt_s = profile.dt_s();
+    let inputs: Vec<StepInput> = std::iter::from_fn(|| sim.next_step()).collect();
+    let nominal = ssis_sim::harness::run(sc, |_| {})?.accuracy.att.three_sigma();
+    let bound = nominal.map(|s| 2.0 * s);
+    let calib = crate::qemu::symbol(elf, "_calib_start")?;
+    let reset_at = (crate::qemu::symbol(elf, "Reset")? & !1) as u32;
+    let wfi = loop_wfi(elf)?;
+    let warnings_at = crate::upset::data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?;
+    let (fog_ring, st_ring) = (RxRingAt::find(elf, "FOG_RX")?, RxRingAt::find(elf, "ST_RX")?);
+    let image = store::image(&table);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let extra = ["-S", "-gdb", &format!("tcp:127.0.0.1:{port}"), "-action", "watchdog=pause"].map(String::from);
+    let mut unit = Unit::start(
+        elf,
+        3,
+        Some(FED_ICOUNT),
+        &[("table.img", &image, calib)],
+        &[0],
+        crate::transport::Transport::Sockets,
+        &extra,
+    )?;
+    let mut g = Gdb::connect(port, Duration::from_secs(10))?;
+    g.set_breakpoint(wfi)?;
+    g.resume()?;
+    let mut c = FlightFaultCheck { nominal_3sigma_arcsec: nominal, fault_s, ..Default::default() };
+    let mut eval = Evaluator::for_unit(&table, &profile, sc.settle_s);
+    let mut reference = FlightCore::new(profile, &table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let (mut ref_fog, mut ref_star, mut ref_out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
+    let mut ref_frames = std::collections::VecDeque::new();
+    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut clock: Option<GuestClock> = None;
+    // Virtual time of the first tick (the scenario's step 1), s.
+    let mut t0_s: Option<f64> = None;
+    let mut next = 0usize;
+    let mut faulted_at: Option<f64> = None;
+    let mut reset_s: Option<f64> = None;
+    // After a reset, until its first feed: the steps due meanwhile are lost.
+    let mut lost = false;
+    // The loop's breakpoint is set.
+    let mut at_wfi = true;
+    // The first frame after the fault from which every frame has been within the bound.
+    let mut back_from: Option<f64> = None;
+    let patience = crate::progress::Patience::new(&unit.q.as_ref().context("no QEMU")?.child, 120.0);
+    let mut now_s;
+    loop {
+        let stop = loop {
+            if let Some(s) = g.wait_stop(Duration::from_millis(50))? {
+                break s;
+            }
+            anyhow::ensure!(unit.exited()?.is_none(), "QEMU exited");
+            if let Some(why) = patience.exhausted() {
+                anyhow::bail!("the flight build stopped coming back to the runner: {why}");
+            }
+        };
+        let watchdog = stop.starts_with("T0e");
+        let pc = g.register_u32(PC)?;
+        if pc == reset_at && !watchdog {
+            g.clear_breakpoint(reset_at)?;
+            clock = Some(GuestClock::start(&mut g, reset_s.context("a reset without the watchdog")?)?);
+            lost = true;
+            if !at_wfi {
+                g.set_breakpoint(wfi)?;
+                at_wfi = true;
+            }
+            g.resume()?;
+            continue;
+        }
+        anyhow::ensure!(watchdog || pc == wfi, "the guest stopped at {pc:#x}: {stop}");
+        if clock.is_none() {
+            clock = Some(GuestClock::start(&mut g, 0.0)?);
+        }
+        now_s = clock.as_ref().context("no clock")?.now_s(&mut g)?;
+        let t0 = *t0_s.get_or_insert(now_s);
+        if watchdog || faulted_at.is_none() && now_s - t0 >= fault_s {
+            // Before the fault and at the reset: every frame the guest sent is in (it is
+            // halted; the socket's bytes arrive within this wait).
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        // Output frames so far: sent by now_s at the latest.
+        let mut frames = Vec::new();
+        while let Ok((_, b)) = unit.rx.try_recv() {
+            dec.push_slice(&b, |r| frames.extend(r.ok()));
+        }
+        for f in frames {
+            match (faulted_at, reset_s) {
+                (None, _) => {
+                    c.frames_before += 1;
+                    c.equal_before += u64::from(ref_frames.pop_front().is_some_and(|r| masked(r) == masked(f)));
+                }
+                (Some(_), None) => c.frames_faulted += 1,
+                (Some(t_f), Some(_)) => {
+                    c.frames_after += 1;
+                    c.output_back_after_s.get_or_insert(now_s - t_f);
+                }
+            }
+            let rec = eval.evaluate(&Observed::from(&f));
+            if let Some(r) = rec.filter(|r| r.t_s >= sc.settle_s && claims_good(&f)) {
+                c.claimed += 1;
+                let share = r.att_err_arcsec.iter().zip(&bound).fold(0.0f64, |a, (e, b)| a.max(e.abs() / b));
+                let share = if share.is_nan() { f64::INFINITY } else { share };
+                c.worst_claimed_share = c.worst_claimed_share.max(share);
+                c.claimed_beyond += u64::from(share > 1.0);
+            }
+            if faulted_at.is_some() {
+                let within = rec.is_some_and(|r| r.att_err_arcsec.iter().zip(&bound).all(|(e, b)| e.abs() <= *b));
+                if !within {
+                    back_from = None;
+                } else if back_from.is_none() {
+                    back_from = Some(now_s);
+                }
+            }
+        }
+        if watchdog {
+            // The watchdog's action: the reset's instant, then the reset itself.
+            reset_s = Some(now_s);
+            c.reset_after_s = faulted_at.map(|f| now_s - f);
+            if let Some(a) = warnings_at {
+                c.warnings = u32::from_le_bytes(g.read_memory(a, 4)?.as_slice().try_into()?);
+            }
+            c.watchdog_pending = g.read_memory(WDOG_RIS, 4)?.first().is_some_and(|b| b & 1 != 0);
+            g.monitor("system_reset")?;
+            g.set_breakpoint(reset_at)?;
+            g.resume()?;
+            continue;
+        }
+        // The loop is about to sleep until its next tick: the scenario's steps due by then
+        // (step n at (n − 1)·Δt after the first) go into the rings now.
+        let csr = u32::from_le_bytes(g.read_memory(crate::upset::SYST_CSR, 4)?.as_slice().try_into()?);
+        let cvr = u32::from_le_bytes(g.read_memory(crate::upset::SYST_CSR + 8, 4)?.as_slice().try_into()?);
+        if csr & 1 != 0 {
+            if faulted_at.is_some() && reset_s.is_none() && c.tick_back_after_s.is_none() {
+                c.tick_back_after_s = faulted_at.map(|f| now_s - f);
+            }
+            let tick_s = now_s + f64::from(cvr) / SYSCLK_HZ - t0;
+            let due = ((tick_s / dt_s).round().max(0.0) as usize + 1).min(inputs.len());
+            if std::mem::take(&mut lost) {
+                next = next.max(due.saturating_sub(1));
+            }
+            let (mut fog, mut st) = (Vec::new(), Vec::new());
+            for input in inputs.get(next..due).unwrap_or_default() {
+                let bus = bus_bytes(input, &profile);
+                if let Some(t) = input.truth {
+                    eval.push_truth(t);
+                }
+                if faulted_at.is_none() {
+                    ref_fog.send(&bus);
+                    ref_star.send(&input.st_bytes);
+                    let mut links = Links { fog: FogLinks::Bus(&mut ref_fog), star: &mut ref_star, out: &mut ref_out };
+                    reference.step(&mut links);
+                    ref_frames.extend(OutputFrame::decode(&std::mem::take(&mut ref_out.bytes)).ok());
+                }
+                fog.extend(bus);
+                st.extend_from_slice(&input.st_bytes);
+            }
+            next = next.max(due);
+            fog_ring.push(&mut g, &fog)?;
+            st_ring.push(&mut g, &st)?;
+        }
+        if faulted_at.is_none() && now_s - t0 >= fault_s {
+            faulted_at = Some(now_s);
+            match fault {
+                LoopFault::TickStopped => g.write_device_u32(crate::upset::SYST_CSR, csr & !1)?,
+                LoopFault::Stall => g.write_memory(wfi, &[0xfe, 0xe7])?,
+                LoopFault::InterruptsMasked => g.mask_interrupts()?,
+            }
+            if fault != LoopFault::TickStopped {
+                // The loop no longer sleeps there: no more stops until the reset.
+                g.clear_breakpoint(wfi)?;
+                at_wfi = false;
+            }
+        }
+        if now_s - t0 >= fault_s + watch_s || next >= inputs.len() {
+            break;
+        }
+        // Past the `wfi` (a single step: the guest sleeps to its next timer deadline, as
+        // it would have), then on.
+        if at_wfi {
+            g.resume_past(wfi)?;
+        } else {
+            g.resume()?;
+        }
+    }
+    c.back_after_s = back_from.zip(faulted_at).map(|(b, f)| b - f);
+    c.flown_s = now_s;
     unit.kill();
     c.log = unit.log(elf);
     Ok(c)
