@@ -21,10 +21,12 @@ use ssis::flight::{FlightCore, FogLinks, Links, Profile};
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
-use ssis::frames::output::OutputFrame;
+use ssis::frames::output::{flags, OutputFrame};
 use ssis::frames::Frame;
 use ssis::telemetry::{page, Counter, PAGED};
 use ssis_common::mock::{MockLink, MockSink};
+use ssis_sim::harness::{Evaluator, Observed, Simulation, StepInput};
+use ssis_sim::scenario::Scenario;
 
 use crate::qemu::{masked, Unit};
 
@@ -322,5 +324,534 @@ pub fn loop_fault_on_flight_build(
     }
     unit.kill();
     c.log = unit.log(elf);
+    Ok(c)
+}
+
+/// A loop fault of a spacecraft build flown on its scenario, fed on time
+/// ([`loop_fault_in_flight`]).
+#[derive(Debug, Clone, Default)]
+pub struct FlightFaultCheck {
+    /// The unit flew in lockstep (the test build) rather than on its own tick.
+    pub lockstep: bool,
+    /// The undisturbed flight's attitude error 3σ per axis (|mean| + 3 std after
+    /// settling, the in-process core on the same scenario), ″.
+    pub nominal_3sigma_arcsec: [f64; 3],
+    /// The fault: the time tag of the last frame before it, s of the scenario.
+    pub fault_s: f64,
+    /// Output frames before the fault.
+    pub frames_before: u64,
+    /// Of those (from the first sample on), frames whose step took exactly the sample
+    /// after the previous frame's: the feed was on time for that step.
+    pub on_time_before: u64,
+    /// Frames before the fault whose step took no sample or more than one (its bytes
+    /// arrived after its tick): missed samples, caught up later.
+    pub missed_before: u64,
+    /// Frames before the fault equal to the in-process core's frame of the same time tag
+    /// (the core stepped once per scenario step on its bytes; masked as [`masked`]).
+    pub equal_before: u64,
+    /// From the fault to the watchdog's action, s of the unit's virtual time (`None`: no
+    /// reset).
+    pub reset_after_s: Option<f64>,
+    /// No reset: from the fault to the first output frame after it, s of virtual time
+    /// (the tick restored by the firmware).
+    pub tick_back_after_s: Option<f64>,
+    /// At the watchdog's action: the firmware's count of watchdog warnings.
+    pub warnings: u32,
+    /// At the watchdog's action: its raw interrupt status (a timeout not fed since).
+    pub watchdog_pending: bool,
+    /// Output frames between the fault and the reset (or the end, without one).
+    pub frames_faulted: u64,
+    /// From the fault to the first output frame after the reset, s of virtual time.
+    pub output_back_after_s: Option<f64>,
+    /// The firmware logged that it resumed from its snapshot after the reset.
+    pub resumed: bool,
+    /// From the fault to the frame from which every frame to the end is judged against
+    /// truth and within twice the nominal 3σ on each axis, s of the scenario (time tags).
+    pub back_after_s: Option<f64>,
+    /// Frames after settling that claim a good attitude (converged, not degraded, no
+    /// parity alarm) with an error beyond twice the nominal 3σ on an axis.
+    pub claimed_beyond: u64,
+    /// Frames after settling that claim a good attitude.
+    pub claimed: u64,
+    /// The largest error of a frame that claims a good attitude, after settling, as a
+    /// share of twice the nominal 3σ of its axis (1: on the bound).
+    pub worst_claimed_share: f64,
+    /// Output frames after the reset (or after the fault, without one).
+    pub frames_after: u64,
+    /// Virtual time flown from the fault, s.
+    pub watched_s: f64,
+    /// Wall time of the run, s.
+    pub wall_s: f64,
+    /// The firmware's defmt log.
+    pub log: Vec<String>,
+}
+
+/// The CMSDK timer the runner keeps as its clock of the guest's virtual time (mps2 TIMER0,
+/// unused by the firmware): CTRL, VALUE, RELOAD; it counts down at the 25 MHz system clock.
+const CLOCK_TIMER: u32 = 0x4000_0000;
+/// The system clock, Hz.
+const SYSCLK_HZ: f64 = 25e6;
+/// The CMSDK watchdog's raw interrupt status (WDOGRIS).
+const WDOG_RIS: u32 = 0x4000_8010;
+
+/// The runner's clock of the unit's virtual time: a CMSDK timer it starts itself
+/// (restarted after a reset, which stops it), plus the time before that restart.
+struct GuestClock {
+    /// Virtual time at the last (re)start, s.
+    base_s: f64,
+}
+
+impl GuestClock {
+    /// Starts the timer from its top (the guest halted at an instruction).
+    fn start(g: &mut crate::gdb::Gdb, base_s: f64) -> Result<GuestClock> {
+        g.write_device_u32(CLOCK_TIMER + 8, u32::MAX)?;
+        g.write_device_u32(CLOCK_TIMER + 4, u32::MAX)?;
+        g.write_device_u32(CLOCK_TIMER, 1)?;
+        Ok(GuestClock { base_s })
+    }
+
+    /// Virtual time now, s (the gdbstub's read of the counter: one packet).
+    fn now_s(&self, g: &mut crate::gdb::Gdb) -> Result<f64> {
+        let b = g.read_memory(CLOCK_TIMER + 4, 4)?;
+        let v = u32::from_le_bytes(b.as_slice().try_into()?);
+        Ok(self.base_s + f64::from(u32::MAX - v) / SYSCLK_HZ)
+    }
+}
+
+/// The unit's virtual time as the runner tracks it between two halts: exact at a halt
+/// (the [`GuestClock`]), and while the guest runs the host's time since it was resumed
+/// (QEMU without `-icount`, or idle under `sleep=on`: virtual time follows the host's).
+struct VirtualTime {
+    at_halt_s: f64,
+    running_since: Option<Instant>,
+}
+
+impl VirtualTime {
+    fn now_s(&self) -> f64 {
+        self.at_halt_s + self.running_since.map_or(0.0, |t| t.elapsed().as_secs_f64())
+    }
+
+    /// The guest halted: its clock read.
+    fn halted(&mut self, clock: &GuestClock, g: &mut crate::gdb::Gdb) -> Result<f64> {
+        self.at_halt_s = clock.now_s(g)?;
+        self.running_since = None;
+        Ok(self.at_halt_s)
+    }
+
+    /// The guest resumed.
+    fn resume(&mut self, g: &mut crate::gdb::Gdb) -> Result<()> {
+        g.resume()?;
+        self.running_since = Some(Instant::now());
+        Ok(())
+    }
+}
+
+/// The addresses of the main loop's `wfi` (where it sleeps until its next tick, or in
+/// lockstep its next STEP): every `wfi` in `firmware::fly` of `elf` (the flight build
+/// `ssis-fw` has one; its test build `ssis-fw-test` a second, its STALL's).
+fn loop_wfi(elf: &Path) -> Result<Vec<u32>> {
+    use object::{Object, ObjectSection, ObjectSymbol};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    let sym = file
+        .symbols()
+        .find(|s| {
+            s.kind() == object::SymbolKind::Text
+                && s.name().is_ok_and(|n| {
+                    n.contains("8firmware3fly17h") && (n.contains("7ssis_fw8") || n.contains("12ssis_fw_test8"))
+                })
+        })
+        .context("no firmware::fly")?;
+    let start = sym.address() & !1;
+    let text = file.section_by_name(".text").context("no .text")?;
+    let code = text.data_range(start, sym.size())?.context("fly outside .text")?;
+    let at: Vec<u64> = code
+        .chunks_exact(2)
+        .enumerate()
+        .filter(|(_, h)| h == &[0x30, 0xbf])
+        .map(|(i, _)| start + 2 * i as u64)
+        .collect();
+    anyhow::ensure!(!at.is_empty(), "no wfi in firmware::fly");
+    Ok(at.into_iter().map(|a| a as u32).collect())
+}
+
+/// The FOG bus bytes of one step (the profile's FOGs that sent a frame).
+fn bus_bytes(input: &StepInput, profile: &Profile) -> Vec<u8> {
+    let fitted =
+        input.fog_frames.iter().enumerate().filter(|(i, _)| profile.fogs.contains(*i) && input.present.contains(*i));
+    fitted.flat_map(|(_, f)| f.iter().copied()).collect()
+}
+
+/// Whether a frame claims a good attitude: converged, not degraded, no parity alarm.
+fn claims_good(f: &OutputFrame) -> bool {
+    f.flags & flags::CONVERGED != 0 && f.flags & (flags::DEGRADED | flags::FDI_ALARM) == 0
+}
+
+/// Where the fed flight is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Phase {
+    /// Undisturbed.
+    Before,
+    /// The fault injected; no reset yet.
+    Faulted,
+    /// The watchdog acted: the machine resetting, the guest held at `Reset`.
+    Resetting,
+    /// After the reset.
+    After,
+}
+
+/// Every output frame of the fed flight, judged.
+struct Judge {
+    eval: Evaluator,
+    bound: [f64; 3],
+    settle_s: f64,
+    dt_us: u64,
+    reference: std::collections::HashMap<u64, OutputFrame>,
+    /// The sample of the last frame (its time tag over Δt), once one came.
+    last_sample: Option<u64>,
+    /// The first frame after the fault from which every frame has been within the bound
+    /// (its time tag, s).
+    back_from: Option<f64>,
+    last_t_s: f64,
+}
+
+impl Judge {
+    fn frame(&mut self, f: &OutputFrame, phase: Phase, now_s: f64, fault_v: Option<f64>, c: &mut FlightFaultCheck) {
+        let sample = f.time_us / self.dt_us;
+        match phase {
+            Phase::Before => {
+                c.frames_before += 1;
+                if f.time_us > 0 {
+                    match self.last_sample {
+                        Some(s) if sample == s + 1 => c.on_time_before += 1,
+                        Some(_) => c.missed_before += 1,
+                        None => {}
+                    }
+                }
+                let r = self.reference.remove(&f.time_us);
+                c.equal_before += u64::from(r.is_some_and(|r| masked(r) == masked(*f)));
+            }
+            Phase::Faulted => {
+                c.frames_faulted += 1;
+                if let Some(t_f) = fault_v {
+                    c.tick_back_after_s.get_or_insert(now_s - t_f);
+                }
+            }
+            Phase::Resetting | Phase::After => {
+                c.frames_after += 1;
+                if let Some(t_f) = fault_v {
+                    c.output_back_after_s.get_or_insert(now_s - t_f);
+                }
+            }
+        }
+        if f.time_us > 0 {
+            self.last_sample = Some(sample);
+        }
+        let rec = self.eval.evaluate(&Observed::from(f));
+        if let Some(r) = rec.as_ref() {
+            self.last_t_s = r.t_s;
+        }
+        if let Some(r) = rec.as_ref().filter(|r| r.t_s >= self.settle_s && claims_good(f)) {
+            c.claimed += 1;
+            let share = r.att_err_arcsec.iter().zip(&self.bound).fold(0.0f64, |a, (e, b)| a.max(e.abs() / b));
+            let share = if share.is_nan() { f64::INFINITY } else { share };
+            c.worst_claimed_share = c.worst_claimed_share.max(share);
+            c.claimed_beyond += u64::from(share > 1.0);
+        }
+        if phase != Phase::Before {
+            match rec.filter(|r| r.att_err_arcsec.iter().zip(&self.bound).all(|(e, b)| e.abs() <= *b)) {
+                None => self.back_from = None,
+                Some(r) => {
+                    self.back_from.get_or_insert(r.t_s);
+                }
+            }
+        }
+    }
+}
+
+/// Steps of FOG bytes the flight build's receive ring holds (512 B, 64 B a step).
+const RING_STEPS: usize = 8;
+
+/// The sensor links as the fed flight writes them, and the byte totals a STEP names.
+struct Links3 {
+    fog_total: u32,
+    st_total: u32,
+}
+
+/// Flies the spacecraft firmware `elf` on scenario `sc` with its sensor bytes on time,
+/// injects `fault` at the first output frame whose time tag reaches `fault_s` (after
+/// convergence), and follows the unit for `watch_s` of virtual time after it.
+///
+/// The feed goes over the emulated UARTs, paced by the unit's own output: the bytes of
+/// step n + 1 go out as soon as the frame of sample n arrives, so they are in the receive
+/// ring before the next tick (the runner has the rest of the 5 ms period) and after the
+/// step that should not take them. Without frames (a stalled loop) the steps go out by
+/// virtual time, half a period before their tick, as the sensors keep sending. QEMU runs
+/// with `icount` (`None`: no `-icount`, virtual time the host's while the guest runs)
+/// and stopped only twice by its gdbstub: at the fault and at the watchdog's action
+/// (`-action watchdog=pause`), both instants read on a CMSDK timer the runner keeps
+/// (virtual time stands still while QEMU is halted). The runner then resets the machine
+/// (`system_reset`, what `-action watchdog=reset` does) and the flight goes on by
+/// virtual time: steps due while the unit was down are sent as the sensors would.
+///
+/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate: LOCKSTEP after
+/// its first frame and again at its reset vector, then step n's bytes and its STEP frame
+/// once step n − 1's output is in and not before step n's time.
+///
+/// Every output frame is judged against truth by its time tag ([`Evaluator`]); before the
+/// fault each is also compared with the in-process core's frame of the same time tag.
+pub fn loop_fault_in_flight(
+    elf: &Path,
+    sc: &Scenario,
+    fault: LoopFault,
+    fault_s: f64,
+    watch_s: f64,
+    icount: Option<&str>,
+) -> Result<FlightFaultCheck> {
+    use crate::gdb::{Gdb, PC};
+    crate::qemu::check_qemu_and_elf(elf)?;
+    let started = Instant::now();
+    let lockstep = crate::qemu::is_test_build(elf)?;
+    let mut sim = Simulation::new(sc)?;
+    let (table, profile) = (sim.table, sim.profile);
+    let dt_s = profile.dt_s();
+    let inputs: Vec<StepInput> = std::iter::from_fn(|| sim.next_step()).collect();
+    let nominal = ssis_sim::harness::run(sc, |_| {})?.accuracy.att.three_sigma();
+    let calib = crate::qemu::symbol(elf, "_calib_start")?;
+    let reset_at = (crate::qemu::symbol(elf, "Reset")? & !1) as u32;
+    let wfi = loop_wfi(elf)?;
+    let warnings_at = crate::upset::data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?;
+    let image = store::image(&table);
+    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+    let extra = ["-S", "-gdb", &format!("tcp:127.0.0.1:{port}"), "-action", "watchdog=pause"].map(String::from);
+    let mut unit = Unit::start(
+        elf,
+        3,
+        icount,
+        &[("table.img", &image, calib)],
+        &[0],
+        crate::transport::Transport::Sockets,
+        &extra,
+    )?;
+    let mut g = Gdb::connect(port, Duration::from_secs(10))?;
+    let mut clock = GuestClock::start(&mut g, 0.0)?;
+    let mut vt = VirtualTime { at_halt_s: 0.0, running_since: None };
+    let mut c = FlightFaultCheck { lockstep, nominal_3sigma_arcsec: nominal, ..Default::default() };
+    let mut judge = Judge {
+        eval: Evaluator::for_unit(&table, &profile, sc.settle_s),
+        bound: nominal.map(|s| 2.0 * s),
+        settle_s: sc.settle_s,
+        dt_us: u64::from(profile.dt_us),
+        reference: std::collections::HashMap::new(),
+        last_sample: None,
+        back_from: None,
+        last_t_s: 0.0,
+    };
+    let mut core = FlightCore::new(profile, &table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let (mut ref_fog, mut ref_star, mut ref_out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
+    let mut links = Links3 { fog_total: 0, st_total: 0 };
+    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
+    let mut phase = Phase::Before;
+    // The next step to send (index into `inputs`).
+    let mut next = 0usize;
+    // Virtual time of step 1's tick, s.
+    let mut t0_s: Option<f64> = None;
+    let mut fault_v: Option<f64> = None;
+    let mut fault_armed = false;
+    // Lockstep: a STEP sent whose output is not yet in.
+    let mut awaiting = false;
+    let mut last_poll = Instant::now();
+    let wall_cap = Duration::from_secs_f64(3.0 * (sc.duration_s + watch_s) + 120.0);
+
+    // Sends step `inputs[k]` (and its STEP frame in lockstep; the in-process core steps on
+    // it before the fault).
+    let mut send = |k: usize,
+                    unit: &mut Unit,
+                    links: &mut Links3,
+                    judge: &mut Judge,
+                    phase: Phase,
+                    reference: bool|
+     -> Result<()> {
+        let Some(input) = inputs.get(k) else { return Ok(()) };
+        let bus = bus_bytes(input, &profile);
+        unit.uarts[1].write_all(&bus)?;
+        unit.uarts[2].write_all(&input.st_bytes)?;
+        links.fog_total = links.fog_total.wrapping_add(bus.len() as u32);
+        links.st_total = links.st_total.wrapping_add(input.st_bytes.len() as u32);
+        if lockstep {
+            unit.control(&ControlFrame {
+                command: command::STEP,
+                fog_bytes: links.fog_total,
+                st_bytes: links.st_total,
+                arg: 0,
+            })?;
+        }
+        if let Some(t) = input.truth {
+            judge.eval.push_truth(t);
+        }
+        if reference && phase == Phase::Before {
+            ref_fog.send(&bus);
+            ref_star.send(&input.st_bytes);
+            let mut l = Links { fog: FogLinks::Bus(&mut ref_fog), star: &mut ref_star, out: &mut ref_out };
+            core.step(&mut l);
+            if let Ok(f) = OutputFrame::decode(&std::mem::take(&mut ref_out.bytes)) {
+                judge.reference.insert(f.time_us, f);
+            }
+        }
+        Ok(())
+    };
+
+    if lockstep {
+        vt.resume(&mut g)?;
+        let mut boot = Vec::new();
+        unit.enter_lockstep(|_, b| boot.extend_from_slice(b))?;
+        dec.push_slice(&boot, |r| {
+            if let Ok(f) = r {
+                c.frames_before += u64::from(f.time_us == 0);
+            }
+        });
+        t0_s = Some(vt.now_s() + dt_s);
+    } else {
+        // Step 1's bytes wait in the sockets for the UARTs; then the guest runs.
+        send(0, &mut unit, &mut links, &mut judge, phase, true)?;
+        next = 1;
+        vt.resume(&mut g)?;
+    }
+    loop {
+        anyhow::ensure!(unit.exited()?.is_none(), "QEMU exited");
+        anyhow::ensure!(started.elapsed() < wall_cap, "the fed flight took over {wall_cap:?} of wall time");
+        // Output frames.
+        let mut frames = Vec::new();
+        if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(1)) {
+            dec.push_slice(&b, |r| frames.extend(r.ok()));
+            while let Ok((_, b)) = unit.rx.try_recv() {
+                dec.push_slice(&b, |r| frames.extend(r.ok()));
+            }
+        }
+        let now_s = vt.now_s();
+        for f in &frames {
+            if t0_s.is_none() && f.time_us > 0 {
+                t0_s = Some(now_s - (f.time_us as f64 * 1e-6 - dt_s));
+            }
+            judge.frame(f, phase, now_s, fault_v, &mut c);
+            if phase == Phase::Before && !fault_armed && f.time_us as f64 * 1e-6 >= fault_s {
+                // The fault at the loop's `wfi`, where the guest goes next (the gdbstub
+                // takes a packet only from a halted guest; virtual time stands still).
+                g.halt()?;
+                vt.halted(&clock, &mut g)?;
+                for &a in &wfi {
+                    g.set_breakpoint(a)?;
+                }
+                vt.resume(&mut g)?;
+                fault_armed = true;
+            }
+        }
+        // The feed.
+        if lockstep {
+            awaiting &= frames.is_empty();
+            let due = t0_s.is_some_and(|t0| now_s >= t0 + next as f64 * dt_s);
+            if !awaiting && due && phase != Phase::Resetting && !fault_armed {
+                send(next, &mut unit, &mut links, &mut judge, phase, true)?;
+                next += 1;
+                awaiting = true;
+            }
+        } else if phase != Phase::Resetting {
+            // By the frames: step n + 1 once sample n is out; by time: half a period
+            // before its tick.
+            let by_frame = judge.last_sample.map_or(1, |s| s as usize + 1);
+            let by_time = t0_s.map_or(0, |t0| ((now_s - t0) / dt_s + 1.5).max(0.0) as usize);
+            // At most a receive ring's worth (8 steps) past the last frame: more would
+            // overflow the ring anyway, and a halted QEMU takes no byte from its sockets.
+            while next < by_frame.max(by_time).min(by_frame + RING_STEPS).min(inputs.len()) {
+                send(next, &mut unit, &mut links, &mut judge, phase, true)?;
+                next += 1;
+            }
+        }
+        // The gdbstub: a stop at the fault's breakpoint, the watchdog's action, the reset.
+        let watching = fault_armed || phase != Phase::Before;
+        if watching || last_poll.elapsed() > Duration::from_millis(20) {
+            last_poll = Instant::now();
+            if let Some(stop) = g.wait_stop(Duration::ZERO)? {
+                // Resetting, the timer was reset too: the reset's instant stands.
+                let now_s = if phase == Phase::Resetting {
+                    vt.running_since = None;
+                    vt.at_halt_s
+                } else {
+                    vt.halted(&clock, &mut g)?
+                };
+                if stop.starts_with("T0e") {
+                    // The watchdog's action: the reset's instant, then the reset itself.
+                    c.reset_after_s = fault_v.map(|f| now_s - f);
+                    if let Some(a) = warnings_at {
+                        c.warnings = u32::from_le_bytes(g.read_memory(a, 4)?.as_slice().try_into()?);
+                    }
+                    c.watchdog_pending = g.read_memory(WDOG_RIS, 4)?.first().is_some_and(|b| b & 1 != 0);
+                    g.monitor("system_reset")?;
+                    g.set_breakpoint(reset_at)?;
+                    phase = Phase::Resetting;
+                    vt.resume(&mut g)?;
+                    continue;
+                }
+                let pc = g.register_u32(PC)?;
+                if pc == reset_at && phase == Phase::Resetting {
+                    g.clear_breakpoint(reset_at)?;
+                    clock = GuestClock::start(&mut g, now_s)?;
+                    phase = Phase::After;
+                    if lockstep {
+                        // Back into lockstep; the byte counts start again.
+                        unit.control(&ControlFrame { command: command::LOCKSTEP, ..Default::default() })?;
+                        links = Links3 { fog_total: 0, st_total: 0 };
+                        vt.resume(&mut g)?;
+                        let mut boot = Vec::new();
+                        unit.await_silence(|_, b| boot.extend_from_slice(b), || Ok(()))?;
+                        let now_s = vt.now_s();
+                        dec.push_slice(&boot, |r| {
+                            if let Ok(f) = r {
+                                judge.frame(&f, phase, now_s, fault_v, &mut c);
+                            }
+                        });
+                        // The steps due meanwhile are lost.
+                        let t0 = t0_s.context("no first step")?;
+                        next = next.max(((now_s - t0) / dt_s).max(0.0) as usize);
+                        awaiting = false;
+                    } else {
+                        vt.resume(&mut g)?;
+                    }
+                    continue;
+                }
+                anyhow::ensure!(fault_armed && wfi.contains(&pc), "the guest stopped at {pc:#x}: {stop}");
+                fault_armed = false;
+                fault_v = Some(now_s);
+                c.fault_s = judge.last_t_s;
+                for &a in &wfi {
+                    g.clear_breakpoint(a)?;
+                }
+                match fault {
+                    LoopFault::TickStopped => {
+                        let csr = g.read_device_u32(crate::upset::SYST_CSR)?;
+                        g.write_device_u32(crate::upset::SYST_CSR, csr & !1)?;
+                    }
+                    LoopFault::Stall => g.write_memory(pc, &[0xfe, 0xe7])?,
+                    LoopFault::InterruptsMasked => g.mask_interrupts()?,
+                }
+                phase = Phase::Faulted;
+                vt.resume(&mut g)?;
+                continue;
+            }
+        }
+        if let Some(t_f) = fault_v {
+            c.watched_s = vt.now_s() - t_f;
+            if c.watched_s >= watch_s {
+                break;
+            }
+        }
+        anyhow::ensure!(next < inputs.len() || awaiting, "the scenario ended {} s after the fault", c.watched_s);
+    }
+    // A resumed unit's first frames carry its snapshot's (earlier) time tags.
+    c.back_after_s = judge.back_from.map(|b| (b - c.fault_s).max(0.0));
+    c.wall_s = started.elapsed().as_secs_f64();
+    unit.kill();
+    c.log = unit.log(elf);
+    c.resumed = c.log.iter().any(|l| l.contains("resumed from the snapshot"));
     Ok(c)
 }
