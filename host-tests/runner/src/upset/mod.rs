@@ -1684,6 +1684,19 @@ fn run_flight(
         }
         let Some(w) = watch.as_mut() else { continue };
         if let Some(lv) = &fl.lv {
+            // The navigation frame of the step comes on its own link: waited for (up to
+            // 100 ms of wall time; none comes from a unit whose navigation output a flip
+            // stopped), so that every step's verdict holds its navigation frame.
+            if let Some(t) = rx.frames.last().map(|f| f.time_us) {
+                let until = Instant::now() + Duration::from_millis(100);
+                while rx.nav.last().is_none_or(|x| x.time_tag_us < t) && Instant::now() < until {
+                    match unit.rx.recv_timeout(Duration::from_millis(5)) {
+                        Ok((i, b)) => rx.push(i, &b),
+                        Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                        Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+            }
             let f = rx.frames.last();
             let k = f.map_or(0, |f| (f.time_us / dt_us) as usize);
             let reference = k.checked_sub(1).and_then(|i| fl.frames.get(i)).and_then(Option::as_ref);
