@@ -1963,7 +1963,11 @@ fn campaign(
         }
         failed_run = 0;
         flights += 1;
-        anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
+        // A flight started just before the wall time ran out makes none: the campaign ends.
+        anyhow::ensure!(
+            flips.len() > before || ctx.out_of_time(),
+            "a flight made no flip: is the window longer than the flight?"
+        );
     }
     let paths = ctx.paths.borrow();
     let path_len = paths.get(&PathKind::Pass(false)).map_or(0, place::Traced::len);
