@@ -489,7 +489,7 @@ fn fly(
 /// Starts QEMU on the launch-vehicle firmware with the FOG table (two copies) and the
 /// LVDATA region (accelerometer table, pad initialisation block) at the addresses the
 /// ELF names; reads the flight (UART0) and navigation (UART2) outputs.
-fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit, extra: &[String]) -> Result<Unit> {
+pub(crate) fn boot(opts: &LvOptions, table: &CalibrationTable, init: &PadInit, extra: &[String]) -> Result<Unit> {
     let mut lvdata = vec![0xFFu8; INIT_OFFSET + ssis::nav::init::BLOCK_LEN];
     lvdata[..ssis::calib::accel::TABLE_LEN].copy_from_slice(&AccelTable::IDEAL.to_bytes());
     lvdata[INIT_OFFSET..].copy_from_slice(&init.to_bytes());

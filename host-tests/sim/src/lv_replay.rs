@@ -303,6 +303,12 @@ impl LvCore {
         &self.nav
     }
 
+    /// The flight core's next logged event (`FlightCore::take_event`): what the
+    /// firmware sends in its event frames.
+    pub fn take_event(&mut self) -> Option<ssis::telemetry::events::EventRecord> {
+        self.core.take_event()
+    }
+
     /// The navigation's reset snapshot now, into `s` (`NavUnit::snapshot_into`).
     pub fn snapshot_into(&self, s: &mut NavSnapshot) -> bool {
         self.nav.snapshot_into(s)

@@ -1,7 +1,9 @@
 //! `ssis-qemu-upset`: the upset campaign on the firmware in QEMU: single bit
 //! flips into the RAM in use and the registers through QEMU's gdbstub, at random
 //! instructions inside random steps after convergence, classed against truth and the
-//! undisturbed run (`ssis_runner::upset`). `--help` for options.
+//! undisturbed run (`ssis_runner::upset`). A spacecraft scenario flies on `ssis-fw-test`,
+//! a launch-vehicle ascent (`kind = "lv-ascent"`) on `ssis-fw-lv-test`. `--help` for
+//! options.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -11,7 +13,8 @@ use clap::Parser;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin};
 use ssis_runner::qemu::{build_firmware, default_elf};
-use ssis_runner::upset::{run_campaign_jobs, UpsetOptions};
+use ssis_runner::upset::{run_flown_jobs, Flown, UpsetOptions};
+use ssis_sim::lv_replay::LvScenario;
 use ssis_sim::scenario::Scenario;
 
 #[derive(Parser)]
@@ -21,7 +24,7 @@ use ssis_sim::scenario::Scenario;
     about = "Upset campaign on the firmware in QEMU (bit flips through the gdbstub)"
 )]
 struct Args {
-    /// Scenario file (TOML).
+    /// Scenario file (TOML): a spacecraft scenario, or a launch-vehicle ascent.
     #[arg(default_value = "scenarios/qemu-flight.toml")]
     scenario: PathBuf,
     /// Flips to make.
@@ -91,15 +94,33 @@ fn campaign(args: &Args) -> Result<bool> {
     if let Some(p) = &args.out {
         output::claim(p, Origin::Named)?;
     }
-    let mut sc = Scenario::from_file(&args.scenario)?;
-    if let Some(d) = args.duration {
-        sc.duration_s = d;
+    let lv = LvScenario::is_lv_file(&args.scenario);
+    let (mut sc, mut lv_sc) = (None, None);
+    if lv {
+        anyhow::ensure!(args.estimator.is_none(), "--estimator: the launch vehicle's scenario has no estimator choice");
+        let mut s = LvScenario::from_file(&args.scenario)?;
+        if let Some(d) = args.duration {
+            s.duration_s = d;
+        }
+        lv_sc = Some(s);
+    } else {
+        let mut s = Scenario::from_file(&args.scenario)?;
+        if let Some(d) = args.duration {
+            s.duration_s = d;
+        }
+        if args.estimator.is_some() {
+            s.table.estimator = args.estimator;
+        }
+        sc = Some(s);
     }
-    if args.estimator.is_some() {
-        sc.table.estimator = args.estimator;
-    }
+    let flown = match (&sc, &lv_sc) {
+        (Some(sc), _) => Flown::Spacecraft(sc),
+        (None, Some(sc)) => Flown::LaunchVehicle(sc),
+        (None, None) => anyhow::bail!("no scenario"),
+    };
     let elf = match &args.elf {
         Some(e) => e.clone(),
+        None if lv => ssis_runner::qemu_lv::build_firmware()?,
         None => {
             build_firmware()?;
             default_elf()
@@ -118,19 +139,26 @@ fn campaign(args: &Args) -> Result<bool> {
         forced_reset: args.forced_reset,
     };
     let mut k = 0;
-    let c = run_campaign_jobs(&sc, &o, &args.mix, args.jobs, |f: &ssis_runner::upset::Flip| {
+    let c = run_flown_jobs(flown, &o, &args.mix, args.jobs, |f: &ssis_runner::upset::Flip| {
         k += 1;
         if args.verbose || f.outcome.name() != "masked" {
             eprintln!(
-                "flip {k}/{}: {} step {}{} (+{} instr) {} -> {} (worst {:.1}″{})",
+                "flip {k}/{}: {} step {}{} (+{} instr) {} -> {} (worst {}{})",
                 o.flips,
                 f.population.name(),
                 f.step,
-                if f.star { " (star update)" } else { "" },
+                match (f.star, lv) {
+                    (false, _) => "",
+                    (true, false) => " (star update)",
+                    (true, true) => " (filter work)",
+                },
                 f.instr,
                 f.target.describe(),
                 f.outcome.name(),
-                f.worst_arcsec,
+                match f.nav_worst {
+                    Some(([p, v, a], r)) => format!("{p:.2} m, {v:.3} m/s, {a:.1}″, {r:.2} of the bound"),
+                    None => format!("{:.1}″", f.worst_arcsec),
+                },
                 match (&f.outcome, &f.reset_cause) {
                     (ssis_runner::upset::Outcome::Crash(w), _) => format!("; {w}"),
                     (_, Some(c)) => format!(

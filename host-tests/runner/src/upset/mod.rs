@@ -36,6 +36,7 @@
 //! ([`Target::TickStopped`]: the SysTick's enable bit cleared; [`Target::Stall`]: the test
 //! build's STALL): the watchdog must reset the unit (tests/qemu_exec.rs).
 
+mod lv;
 mod place;
 mod report;
 
@@ -47,14 +48,18 @@ use anyhow::{Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use ssis::frames::control::{command, ControlFrame};
+use ssis::frames::decoder::StreamDecoder;
+use ssis::frames::navout::NavOutputFrame;
 use ssis::frames::output::{flags, OutputFrame};
 use ssis::telemetry::events::EventRecord;
 use ssis_common::downlink::{Down, Downlink};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_sim::harness::{Evaluator, Observed, Simulation, StepInput};
+use ssis_sim::lv_replay::LvScenario;
 use ssis_sim::scenario::Scenario;
 
-pub use report::{Campaign, Interval};
+pub use lv::FLOOR as LV_BOUND_FLOOR;
+pub use report::{Campaign, Interval, LvBounds};
 
 use crate::gdb::{self, Gdb};
 use crate::qemu::{masked, symbol, QemuOptions, Unit};
@@ -440,9 +445,11 @@ pub struct Flip {
     pub target: Target,
     /// The class.
     pub outcome: Outcome,
-    /// Largest attitude error after the flip, ″ (any axis).
+    /// Largest attitude error after the flip, ″ (any axis); the launch vehicle: the
+    /// largest ratio of an error to its bound ([`Flip::nav_worst`]).
     pub worst_arcsec: f64,
-    /// Largest error in a frame that claimed a good attitude beyond the bound, ″.
+    /// Largest error in a frame that claimed a good attitude beyond the bound, ″ (the
+    /// launch vehicle: the ratio of the error to its bound).
     pub silent_arcsec: f64,
     /// From the flip to the last frame beyond the bound (recovered flips), s.
     pub recovery_s: Option<f64>,
@@ -461,6 +468,10 @@ pub struct Flip {
     pub events: Vec<String>,
     /// Flips made earlier in the same flight (classed masked or tolerated).
     pub earlier_in_flight: u32,
+    /// The launch vehicle: the largest navigation errors after the flip (position m,
+    /// velocity m/s, attitude ″) and the largest ratio of an error to its bound
+    /// (above 1 in a frame claiming a good solution: silent).
+    pub nav_worst: Option<([f64; 3], f64)>,
 }
 
 /// The undisturbed flight: every step's bytes and the in-process core's output frame and
@@ -475,6 +486,8 @@ struct Flight {
     /// The undisturbed flight's attitude error 3σ per axis (|mean| + 3 std after
     /// settling), ″: "nominal" of the reset goals.
     nominal_3sigma_arcsec: [f64; 3],
+    /// The launch vehicle's ascent (`inputs` then empty: its steps are here).
+    lv: Option<lv::LvFlight>,
 }
 
 impl Flight {
@@ -518,7 +531,30 @@ impl Flight {
             let var = errs.iter().map(|e| (e[k] - mean).powi(2)).sum::<f64>() / n;
             mean.abs() + 3.0 * var.sqrt()
         });
-        Ok(Flight { table, profile, settle_s: sc.settle_s, inputs, frames, events, nominal_3sigma_arcsec })
+        Ok(Flight { table, profile, settle_s: sc.settle_s, inputs, frames, events, nominal_3sigma_arcsec, lv: None })
+    }
+
+    /// The launch vehicle's undisturbed ascent `sc` (the in-process `LvCore`).
+    fn record_lv(sc: &LvScenario) -> Result<Flight> {
+        let (lv, frames, events) = lv::record(sc)?;
+        Ok(Flight {
+            table: ssis::calib::CalibrationTable::DEFAULT,
+            profile: ssis::flight::Profile::LAUNCH_VEHICLE,
+            settle_s: 0.0,
+            inputs: Vec::new(),
+            frames,
+            events,
+            nominal_3sigma_arcsec: [0.0; 3],
+            lv: Some(lv),
+        })
+    }
+
+    /// Steps in the flight.
+    fn len(&self) -> usize {
+        match &self.lv {
+            Some(lv) => lv.steps.len(),
+            None => self.inputs.len(),
+        }
     }
 }
 
@@ -556,6 +592,13 @@ type Inlined = (bool, u32, Vec<(u32, u32)>);
 
 /// The step's code in `elf` ([`StepCode`]).
 pub fn step_code(elf: &Path) -> Result<StepCode> {
+    step_code_of(elf, "10FlightCore4step17h")
+}
+
+/// The step's code in `elf` where the step is the inlined function whose mangled name
+/// contains `step` (`10FlightCore4step17h`, the spacecraft's; `10FlightCore9step_with17h`,
+/// the launch vehicle's step with the navigation in its hook).
+pub fn step_code_of(elf: &Path, step_name: &str) -> Result<StepCode> {
     use gimli::{AttributeValue, EndianSlice, RunTimeEndian};
     use object::{Object, ObjectSection, ObjectSymbol};
     let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
@@ -582,7 +625,7 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
             }
             let Some(name) = origin.attr_value(gimli::DW_AT_linkage_name)? else { continue };
             let name = dwarf.attr_string(&unit, name)?.to_string_lossy().into_owned();
-            let step = name.contains("10FlightCore4step17h");
+            let step = name.contains(step_name);
             let background = name.contains("FlightCore") && name.contains("10background17h");
             if !(step || background) {
                 continue;
@@ -825,6 +868,10 @@ struct Watch {
     /// After the reset: the first step with a frame, the first saying aligned, the last
     /// beyond twice the nominal 3σ.
     after_reset: (Option<u64>, Option<u64>, Option<u64>),
+    /// The launch vehicle: navigation frames received when the watch began or last
+    /// judged them, and the largest errors (m, m/s, ″).
+    nav_seen: usize,
+    worst_nav: [f64; 3],
 }
 
 impl Watch {
@@ -854,15 +901,72 @@ impl Watch {
         }
         let err = e.iter().fold(0.0f64, |a, e| a.max(e.abs()));
         if self.reset.is_some() {
-            let (first, aligned, beyond) = &mut self.after_reset;
-            first.get_or_insert(n);
-            if f.st_status & ssis::flight::st_status::ALIGNED != 0 {
-                aligned.get_or_insert(n);
+            let aligned = f.st_status & ssis::flight::st_status::ALIGNED != 0;
+            let beyond = e.iter().zip(&self.nominal2_arcsec).any(|(e, b)| e.abs() > *b || !e.is_finite());
+            self.after_reset_frame(n, aligned, beyond);
+        }
+        self.judged(n, bad, claims, err);
+    }
+
+    /// After a reset: a frame of step `n`, saying aligned or not, beyond the reset goal's
+    /// bound or not.
+    fn after_reset_frame(&mut self, n: u64, aligned: bool, beyond: bool) {
+        let (first, first_aligned, last_beyond) = &mut self.after_reset;
+        first.get_or_insert(n);
+        if aligned {
+            first_aligned.get_or_insert(n);
+        }
+        if beyond {
+            *last_beyond = Some(n);
+        }
+    }
+
+    /// The launch vehicle's step `n`: its flight output frame `f` against the undisturbed
+    /// one (changed or not; while it claims a good attitude, within max(20″, its 3σ) of
+    /// the undisturbed attitude), and its navigation frames `navs` judged ([`lv`]). The
+    /// error noted is the ratio of an error to its bound.
+    fn lv_step(&mut self, n: u64, f: Option<&OutputFrame>, reference: Option<&OutputFrame>, navs: &[lv::NavVerdict]) {
+        self.last_n = n;
+        if let Some(f) = f {
+            if reference.is_none_or(|r| masked(*r) != masked(*f)) {
+                self.changed = true;
+                self.last_diff = Some(n);
             }
-            if e.iter().zip(&self.nominal2_arcsec).any(|(e, b)| e.abs() > *b || !e.is_finite()) {
-                *beyond = Some(n);
+            if let Some(r) = reference {
+                let (o, ro) = (Observed::from(f), Observed::from(r));
+                let claims = f.flags & flags::CONVERGED != 0 && f.flags & (flags::DEGRADED | flags::FDI_ALARM) == 0;
+                let dev = ssis_sim::lv::angle_between(&o.q, &ro.q) * ssis_common::ARCSEC_PER_RAD;
+                let sigma3 = o.att_sigma_rad.iter().fold(0.0f64, |a, s| a.max(3.0 * s)) * ssis_common::ARCSEC_PER_RAD;
+                let bound = if sigma3.is_finite() { sigma3.max(BOUND_ARCSEC) } else { BOUND_ARCSEC };
+                let ratio = if dev.is_finite() { dev / bound } else { f64::INFINITY };
+                self.worst = self.worst.max(ratio);
+                // Judged only while it claims a good attitude (the navigation frames carry
+                // the launch vehicle's solution; a flagged flight frame is not a claim).
+                if claims {
+                    self.judged(n, ratio > 1.0, true, ratio);
+                }
             }
         }
+        for v in navs {
+            if v.changed {
+                self.changed = true;
+                self.last_diff = Some(n);
+            }
+            for (w, e) in self.worst_nav.iter_mut().zip(v.errors) {
+                *w = if e.is_finite() { w.max(e) } else { f64::INFINITY };
+            }
+            self.worst = self.worst.max(v.ratio);
+            let bad = v.ratio > 1.0;
+            if self.reset.is_some() {
+                self.after_reset_frame(n, v.claims, bad);
+            }
+            self.judged(n, bad, v.claims, v.ratio);
+        }
+    }
+
+    /// A frame of step `n` judged: beyond the bound or not, claiming a good solution or
+    /// not, its error.
+    fn judged(&mut self, n: u64, bad: bool, claims: bool, err: f64) {
         if bad || !claims {
             if bad && claims {
                 self.silent = self.silent.max(err);
@@ -972,6 +1076,8 @@ struct Snapshot {
     n: u64,
     fog_total: u32,
     st_total: u32,
+    /// The launch vehicle's: FOG, accelerometer, GNSS.
+    lv_totals: [u32; 3],
 }
 
 /// Removes the snapshot file when the campaign ends.
@@ -983,17 +1089,30 @@ impl Drop for RemoveOnDrop {
     }
 }
 
-/// The output link of one flight: output frames (with a sample) and event frames.
+/// The output links of one flight: output frames (with a sample) and event frames on
+/// UART0; the launch vehicle's navigation frames on UART2.
 #[derive(Default)]
 struct Received {
     link: Downlink,
     frames: Vec<OutputFrame>,
     events: Vec<ssis::frames::event::EventFrame>,
+    nav_dec: StreamDecoder<NavOutputFrame, 256>,
+    nav: Vec<NavOutputFrame>,
 }
 
 impl Received {
-    fn push(&mut self, bytes: &[u8]) {
-        let Received { link, frames, events } = self;
+    /// Takes a chunk of UART `uart`'s bytes.
+    fn push(&mut self, uart: usize, bytes: &[u8]) {
+        let Received { link, frames, events, nav_dec, nav } = self;
+        if uart == 2 {
+            // A frame that does not decode is no frame: the step's verdict misses it.
+            nav_dec.push_slice(bytes, |r| {
+                if let Ok(f) = r {
+                    nav.push(f);
+                }
+            });
+            return;
+        }
         link.push(bytes, |d| match d {
             Down::Output(f) if f.time_us != 0 => frames.push(f),
             Down::Events(e) => events.push(e),
@@ -1106,10 +1225,11 @@ pub(crate) fn data_symbol(elf: &Path, path: &str) -> Result<Option<u32>> {
     Ok(file.symbols().find(|s| s.name().is_ok_and(|n| demangle(n) == path)).map(|s| s.address() as u32))
 }
 
-/// The entry of the function whose (demangled) name ends in `::name`, if the ELF has one.
+/// The entry of the function whose (demangled) name ends in `::name` (in `name` itself when
+/// it holds a `::`), if the ELF has one.
 fn function_named(elf: &Path, name: &str) -> Result<Option<u32>> {
     let syms = Syms::of(elf)?;
-    let tail = format!("::{name}");
+    let tail = if name.contains("::") { name.to_string() } else { format!("::{name}") };
     Ok(syms.0.iter().find(|(_, _, n)| n.ends_with(&tail)).map(|(a, _, _)| *a))
 }
 
@@ -1198,7 +1318,7 @@ fn await_frame(
     }
     while rx.frames.len() < want {
         match unit.rx.recv_timeout(Duration::from_millis(20)) {
-            Ok((_, b)) => rx.push(&b),
+            Ok((i, b)) => rx.push(i, &b),
             Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => {
                 return Ok(Awaited::Stopped("QEMU closed its UARTs".into()))
             }
@@ -1283,7 +1403,7 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
     let mut boot = Received::default();
     let mut notes = Vec::new();
     unit.await_silence(
-        |_, b| boot.push(b),
+        |i, b| boot.push(i, b),
         || {
             if g.wait_stop(Duration::ZERO)?.is_some() {
                 let pc = g.register_u32(gdb::PC)?;
@@ -1301,6 +1421,7 @@ fn relock(ctx: &Ctx<'_>, unit: &mut Unit, g: &mut Gdb, rx: &mut Received) -> Res
         },
     )?;
     rx.link = Downlink::new();
+    rx.nav_dec = StreamDecoder::default();
     if !boot.frames.is_empty() {
         notes.push(format!("boot: {} steps on its own tick", boot.frames.len()));
     }
@@ -1358,7 +1479,13 @@ fn run_flight(
     if snap.is_some() {
         extra.extend(["-incoming".to_string(), format!("exec:cat {}", ctx.snapshot_path.display())]);
     }
-    let mut unit = Unit::boot_with(&fl.table, &QemuOptions::lockstep(o.elf.clone()), &extra)?;
+    let mut unit = match &fl.lv {
+        Some(lv) => {
+            let opts = crate::qemu_lv::LvOptions { elf: o.elf.clone(), progress: false };
+            crate::qemu_lv::boot(&opts, &fl.table, &lv.init, &extra)?
+        }
+        None => Unit::boot_with(&fl.table, &QemuOptions::lockstep(o.elf.clone()), &extra)?,
+    };
     if snap.is_none() {
         unit.enter_lockstep(|_, _| {})?;
     }
@@ -1378,7 +1505,7 @@ fn run_flight(
     }
     g.resume()?;
     let (quiet, window, gap) = (ctx.steps(o.quiet_s), ctx.steps(o.window_s), ctx.steps(o.gap_s));
-    let last_n = fl.inputs.last().map_or(0, |i| i.n);
+    let last_n = fl.inputs.last().map_or(fl.len() as u64, |i| i.n);
     let dt_us = u64::from(fl.profile.dt_us);
     let first = ctx.steps(o.first_s) + rng.random_range(0..=gap);
     let (mut next_flip, mut next_pop) = schedule(ctx, rng, first);
@@ -1387,16 +1514,19 @@ fn run_flight(
     let mut eval = Evaluator::for_unit(&fl.table, &fl.profile, fl.settle_s);
     let mut rx = Received::default();
     let (mut fog_total, mut st_total) = snap.map_or((0, 0), |s| (s.fog_total, s.st_total));
+    // The launch vehicle's byte totals: FOG, accelerometer, GNSS.
+    let mut lv_totals = snap.map_or([0; 3], |s| s.lv_totals);
     let mut crash = None;
     // STEP frames sent in this flight: one output frame each.
     let mut sent = 0usize;
     // After a reset: the last step of the unit's down time (not sent).
     let mut down_to = 0;
     let mut cause = None;
-    for input in &fl.inputs {
-        let n = input.n;
+    for i in 0..fl.len() {
+        let input = fl.inputs.get(i);
+        let n = input.map_or(i as u64 + 1, |x| x.n);
         if snap.is_some_and(|s| n <= s.n) || n <= down_to {
-            if let Some(t) = input.truth {
+            if let Some(t) = input.and_then(|x| x.truth) {
                 eval.push_truth(t);
             }
             continue;
@@ -1405,7 +1535,7 @@ fn run_flight(
             g.halt()?;
             g.save_state(&ctx.snapshot_path)?;
             g.resume()?;
-            *ctx.snapshot.borrow_mut() = Some(Snapshot { n: n - 1, fog_total, st_total });
+            *ctx.snapshot.borrow_mut() = Some(Snapshot { n: n - 1, fog_total, st_total, lv_totals });
         }
         let done = flips.len() >= o.flips || ctx.out_of_time() || next_flip + window > last_n;
         if watch.is_none() && done {
@@ -1421,27 +1551,45 @@ fn run_flight(
             },
             false => None,
         };
-        if let Some(t) = input.truth {
+        if let Some(t) = input.and_then(|x| x.truth) {
             eval.push_truth(t);
         }
         let awaited = match pending {
             Some(a) => a,
             None => {
-                let fb = fog_bytes(input, &fl.profile);
-                if let Err(e) = unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes)) {
-                    crash = Some(format!("the unit's links closed ({e})"));
-                    break;
-                }
-                fog_total = fog_total.wrapping_add(fb.len() as u32);
-                st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
-                let step = ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
-                let star = fl
-                    .inputs
-                    .iter()
-                    .position(|i| i.n == n)
-                    .and_then(|i| fl.frames.get(i))
-                    .and_then(Option::as_ref)
-                    .is_some_and(|f| f.st_status & ssis::flight::st_status::UPDATED != 0);
+                let (step, star) = match (input, &fl.lv) {
+                    (_, Some(lv)) => match lv.send(&mut unit, i, &mut lv_totals) {
+                        // A pass with filter work (covariance propagation, GNSS update)
+                        // in place of the spacecraft's star update.
+                        Ok(step) => (step, lv.filter_work.get(i).copied().unwrap_or(false)),
+                        Err(e) => {
+                            crash = Some(format!("the unit's links closed ({e})"));
+                            break;
+                        }
+                    },
+                    (Some(input), None) => {
+                        let fb = fog_bytes(input, &fl.profile);
+                        if let Err(e) =
+                            unit.uarts[1].write_all(&fb).and_then(|()| unit.uarts[2].write_all(&input.st_bytes))
+                        {
+                            crash = Some(format!("the unit's links closed ({e})"));
+                            break;
+                        }
+                        fog_total = fog_total.wrapping_add(fb.len() as u32);
+                        st_total = st_total.wrapping_add(input.st_bytes.len() as u32);
+                        let step =
+                            ControlFrame { command: command::STEP, fog_bytes: fog_total, st_bytes: st_total, arg: 0 };
+                        let star = fl
+                            .inputs
+                            .iter()
+                            .position(|i| i.n == n)
+                            .and_then(|i| fl.frames.get(i))
+                            .and_then(Option::as_ref)
+                            .is_some_and(|f| f.st_status & ssis::flight::st_status::UPDATED != 0);
+                        (step, star)
+                    }
+                    (None, None) => break,
+                };
                 if watch.is_none() && n == next_flip && !keep(ctx, rng, next_pop, star) {
                     // Uniform over the instructions of all passes: a pass is taken in proportion
                     // to its path's length.
@@ -1489,6 +1637,8 @@ fn run_flight(
                         reset_events: Vec::new(),
                         events_seen: rx.events.len(),
                         after_reset: (None, None, None),
+                        nav_seen: rx.nav.len(),
+                        worst_nav: [0.0; 3],
                     });
                     sent += 1;
                     if target.resets() {
@@ -1525,12 +1675,36 @@ fn run_flight(
                         break;
                     }
                 }
-                (sent, fog_total, st_total, down_to) = (rx.frames.len(), 0, 0, n + RESET_DOWN_STEPS);
+                // Down 100 ms: the spacecraft's RESET_DOWN_STEPS, the launch vehicle's 80.
+                let down = ctx.steps(RESET_DOWN_STEPS as f64 * 0.005);
+                (sent, fog_total, st_total, down_to) = (rx.frames.len(), 0, 0, n + down);
+                lv_totals = [0; 3];
                 continue;
             }
         }
         let Some(w) = watch.as_mut() else { continue };
-        if let Some(f) = rx.frames.last() {
+        if let Some(lv) = &fl.lv {
+            // The navigation frame of the step comes on its own link: waited for (up to
+            // 100 ms of wall time; none comes from a unit whose navigation output a flip
+            // stopped), so that every step's verdict holds its navigation frame.
+            if let Some(t) = rx.frames.last().map(|f| f.time_us) {
+                let until = Instant::now() + Duration::from_millis(100);
+                while rx.nav.last().is_none_or(|x| x.time_tag_us < t) && Instant::now() < until {
+                    match unit.rx.recv_timeout(Duration::from_millis(5)) {
+                        Ok((i, b)) => rx.push(i, &b),
+                        Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                        Err(std::sync::mpsc::RecvTimeoutError::Disconnected) => break,
+                    }
+                }
+            }
+            let f = rx.frames.last();
+            let k = f.map_or(0, |f| (f.time_us / dt_us) as usize);
+            let reference = k.checked_sub(1).and_then(|i| fl.frames.get(i)).and_then(Option::as_ref);
+            let navs: Vec<lv::NavVerdict> =
+                rx.nav.get(w.nav_seen..).unwrap_or(&[]).iter().filter_map(|f| lv.judge(f)).collect();
+            w.nav_seen = rx.nav.len();
+            w.lv_step(n, f, reference, &navs);
+        } else if let Some(f) = rx.frames.last() {
             if n == w.flip_step && std::env::var_os("SSIS_UPSET_TIMES").is_some() {
                 eprintln!("the flip's step took {} ticks on the unit's clock", f.counters.step_ticks);
             }
@@ -1651,18 +1825,45 @@ fn finish(w: &Watch, crash: Option<String>, ctx: &Ctx<'_>, rx: &Received) -> Fli
         reset_nominal_s,
         events,
         earlier_in_flight: w.earlier,
+        nav_worst: ctx.flight.lv.as_ref().map(|_| (w.worst_nav, w.worst)),
     }
 }
 
 /// Runs the campaign on scenario `sc`: `o.flips` flips (fewer if `o.max_wall_s` ends it),
 /// `on_flip` told of each.
 pub fn run_campaign(sc: &Scenario, o: &UpsetOptions, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
-    campaign(sc, o, &Mix::state(), None, on_flip)
+    campaign(Flown::Spacecraft(sc), o, &Mix::state(), None, on_flip)
+}
+
+/// What a campaign flies: a spacecraft scenario on `ssis-fw-test`, or a launch-vehicle
+/// ascent on `ssis-fw-lv-test`. The two differ only in the bytes a step sends, the step's
+/// code, the RAM in use (from the ELF) and the judgement of the outputs ([`lv`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Flown<'a> {
+    /// The spacecraft unit (5 ms step, FOG bus and star tracker).
+    Spacecraft(&'a Scenario),
+    /// The launch vehicle (1.25 ms step, FOG bus, accelerometer bus, GNSS; navigation
+    /// output frames judged).
+    LaunchVehicle(&'a LvScenario),
+}
+
+impl Flown<'_> {
+    fn name(&self) -> &str {
+        match self {
+            Flown::Spacecraft(sc) => &sc.name,
+            Flown::LaunchVehicle(sc) => &sc.name,
+        }
+    }
 }
 
 /// [`run_campaign`] with the flips drawn from the populations of `mix`.
 pub fn run_campaign_mix(sc: &Scenario, o: &UpsetOptions, mix: &Mix, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
-    campaign(sc, o, mix, None, on_flip)
+    campaign(Flown::Spacecraft(sc), o, mix, None, on_flip)
+}
+
+/// [`run_campaign_mix`] on what `flown` names (the launch vehicle's ascent, for one).
+pub fn run_flown_mix(flown: Flown<'_>, o: &UpsetOptions, mix: &Mix, on_flip: impl FnMut(&Flip)) -> Result<Campaign> {
+    campaign(flown, o, mix, None, on_flip)
 }
 
 /// [`run_campaign`] with a fault of the loop in place of each flip: `fault` is
@@ -1674,11 +1875,11 @@ pub fn run_injection(sc: &Scenario, o: &UpsetOptions, fault: Target, on_flip: im
         "{}: not a fault of the loop",
         fault.describe()
     );
-    campaign(sc, o, &Mix::state(), Some(fault), on_flip)
+    campaign(Flown::Spacecraft(sc), o, &Mix::state(), Some(fault), on_flip)
 }
 
 fn campaign(
-    sc: &Scenario,
+    sc: Flown<'_>,
     o: &UpsetOptions,
     mix: &Mix,
     inject: Option<Target>,
@@ -1691,9 +1892,14 @@ fn campaign(
         o.elf.display()
     );
     let started = Instant::now();
-    let flight = Flight::record(sc)?;
-    anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
-    let code = step_code(&o.elf)?;
+    let (flight, code) = match sc {
+        Flown::Spacecraft(sc) => {
+            let flight = Flight::record(sc)?;
+            anyhow::ensure!(flight.profile.dt_us == 5_000, "the QEMU firmware runs the spacecraft profile (5 ms)");
+            (flight, step_code(&o.elf)?)
+        }
+        Flown::LaunchVehicle(sc) => (Flight::record_lv(sc)?, step_code_of(&o.elf, "10FlightCore9step_with17h")?),
+    };
     let elf_hash = place::elf_hash(&o.elf)?;
     static CAMPAIGN: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let k = CAMPAIGN.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
@@ -1713,10 +1919,17 @@ fn campaign(
         mix: mix.clone(),
         snap_region: (
             symbol(&o.elf, "_snapshot_start")? as u32,
-            std::mem::size_of::<ssis::flight::snapshot::Snapshot>() as u32,
+            match flight.lv {
+                // The navigation's snapshot follows the core's (word-aligned).
+                Some(_) => {
+                    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4);
+                    (4 * core_words + std::mem::size_of::<ssis::nav::snapshot::NavSnapshot>()) as u32
+                }
+                None => std::mem::size_of::<ssis::flight::snapshot::Snapshot>() as u32,
+            },
         ),
         handler: (symbol(&o.elf, "DefaultHandler")? & !1) as u32,
-        snapshot_into: function_named(&o.elf, "snapshot_into")?,
+        snapshot_into: function_named(&o.elf, "FlightCore>::snapshot_into")?,
         snap_phase: Default::default(),
         snap_trap: Default::default(),
         awaiting: Default::default(),
@@ -1750,7 +1963,11 @@ fn campaign(
         }
         failed_run = 0;
         flights += 1;
-        anyhow::ensure!(flips.len() > before, "a flight made no flip: is the window longer than the flight?");
+        // A flight started just before the wall time ran out makes none: the campaign ends.
+        anyhow::ensure!(
+            flips.len() > before || ctx.out_of_time(),
+            "a flight made no flip: is the window longer than the flight?"
+        );
     }
     let paths = ctx.paths.borrow();
     let path_len = paths.get(&PathKind::Pass(false)).map_or(0, place::Traced::len);
@@ -1759,7 +1976,7 @@ fn campaign(
     drop(paths);
     let latent = *ctx.latent.borrow();
     Ok(Campaign {
-        name: sc.name.clone(),
+        name: sc.name().to_string(),
         options: o.clone(),
         flips,
         flights,
@@ -1774,6 +1991,8 @@ fn campaign(
         statics: ctx.ram.statics,
         nominal_3sigma_arcsec: flight.nominal_3sigma_arcsec,
         jobs: 1,
+        dt_s: flight.profile.dt_s(),
+        lv: flight.lv.as_ref().map(|l| LvBounds { bound: l.bound, undisturbed_max: l.undisturbed_max }),
     })
 }
 
@@ -1787,9 +2006,20 @@ pub fn run_campaign_jobs(
     jobs: usize,
     on_flip: impl FnMut(&Flip) + Send,
 ) -> Result<Campaign> {
+    run_flown_jobs(Flown::Spacecraft(sc), o, mix, jobs, on_flip)
+}
+
+/// [`run_campaign_jobs`] on what `sc` names (the launch vehicle's ascent, for one).
+pub fn run_flown_jobs(
+    sc: Flown<'_>,
+    o: &UpsetOptions,
+    mix: &Mix,
+    jobs: usize,
+    on_flip: impl FnMut(&Flip) + Send,
+) -> Result<Campaign> {
     let jobs = jobs.clamp(1, o.flips.max(1));
     if jobs == 1 {
-        return run_campaign_mix(sc, o, mix, on_flip);
+        return run_flown_mix(sc, o, mix, on_flip);
     }
     let started = Instant::now();
     let on_flip = std::sync::Mutex::new(on_flip);
@@ -1803,7 +2033,7 @@ pub fn run_campaign_jobs(
                 };
                 let on_flip = &on_flip;
                 scope.spawn(move || {
-                    run_campaign_mix(sc, &o, mix, |f| {
+                    run_flown_mix(sc, &o, mix, |f| {
                         if let Ok(mut g) = on_flip.lock() {
                             (*g)(f)
                         }

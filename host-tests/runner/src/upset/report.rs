@@ -95,6 +95,20 @@ pub struct Campaign {
     pub nominal_3sigma_arcsec: [f64; 3],
     /// Campaigns run side by side (`--jobs`), each in its own QEMU.
     pub jobs: usize,
+    /// The step, s.
+    pub dt_s: f64,
+    /// The launch vehicle's judgement: the bounds (position m, velocity m/s, attitude ″)
+    /// and the undisturbed flight's largest errors they come from.
+    pub lv: Option<LvBounds>,
+}
+
+/// The launch vehicle's bounds ([`super::lv`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LvBounds {
+    /// Position m, velocity m/s, attitude ″.
+    pub bound: [f64; 3],
+    /// The undisturbed flight's largest errors against truth: m, m/s, ″.
+    pub undisturbed_max: [f64; 3],
 }
 
 impl Campaign {
@@ -174,6 +188,9 @@ impl Campaign {
     /// intervals, per target class, the recovery times, events and crashes, and each
     /// changed flip.
     pub fn document(&self, command: &str) -> String {
+        if let Some(lv) = self.lv {
+            return self.document_lv(command, lv);
+        }
         let o = &self.options;
         let n = self.flips.len();
         let mut s = String::new();
@@ -284,6 +301,44 @@ impl Campaign {
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
             self.latent
         );
+        s.push_str(&self.outcomes());
+        let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
+        if changed.is_empty() {
+            let _ = writeln!(s, "No flip changed an output.");
+        } else {
+            let _ = writeln!(s, "Every flip that changed an output:\n");
+            let _ = writeln!(
+                s,
+                "| step (s) | instruction | at | bit | outcome | worst error ″ | recovery s | reset: aligned s | reset: within 2× 3σ s | events | cause |"
+            );
+            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
+            let opt = |v: Option<f64>| v.map_or(String::new(), |r| format!("{r:.2}"));
+            for f in changed {
+                let _ = writeln!(
+                    s,
+                    "| {:.3} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
+                    f.step as f64 * 0.005,
+                    f.instr,
+                    f.at.replace('|', "/"),
+                    f.target.describe(),
+                    f.outcome.name(),
+                    f.worst_arcsec,
+                    opt(f.recovery_s),
+                    opt(f.reset_aligned_s),
+                    opt(f.reset_nominal_s),
+                    f.events.join(", "),
+                    cause(f)
+                );
+            }
+        }
+        s
+    }
+
+    /// The outcome table by target class, the per-population table and the details
+    /// (Markdown).
+    fn outcomes(&self) -> String {
+        let n = self.flips.len();
+        let mut s = String::new();
         let classes: Vec<&str> = [
             "stack",
             "statics",
@@ -311,41 +366,141 @@ impl Campaign {
         let _ = writeln!(s, "| all | {n} | | {} |\n", totals.join(" | "));
         s.push_str(&self.populations());
         s.push_str(&self.details());
+        s
+    }
+}
+
+impl Campaign {
+    /// The launch vehicle's campaign document (Markdown): its method, bounds and classes,
+    /// then the tables the spacecraft's document has.
+    fn document_lv(&self, command: &str, lv: LvBounds) -> String {
+        let o = &self.options;
+        let n = self.flips.len();
+        let mut s = String::new();
+        let _ = writeln!(s, "# Upset campaign on the launch-vehicle firmware in QEMU\n");
+        let _ = writeln!(
+            s,
+            "Written by `ssis-qemu-upset` (host-tests/runner/src/upset/, the spacecraft's campaign \
+             runner: docs/UPSET-CAMPAIGN-QEMU.md describes its method, populations and classes) on a \
+             launch-vehicle ascent. Command (from host-tests/):\n\n```\n{command}\n```\n"
+        );
+        let [bp, bv, ba] = lv.bound;
+        let [up, uv, ua] = lv.undisturbed_max;
+        let _ = writeln!(
+            s,
+            "Scenario `{}` on `ssis-fw-lv-test` in QEMU mps2-an500, lockstep at 1.25 ms, `-icount \
+             shift=0,sleep=off`; the FOG table and the pad block in flash as `ssis-qemu` loads them. \
+             What differs from the spacecraft's campaign is only what the runner feeds and judges: each \
+             step sends the FOG bus (UART1), the accelerometer bus (UART3) and the GNSS receiver \
+             (UART4) and a STEP naming the byte totals; the step's first instruction is that of the \
+             inlined `FlightCore::step_with` ({:#x}, from the ELF's DWARF), whose hook runs the \
+             navigation step; a pass runs from there to the loop's next `wfi`, through the outputs and \
+             the navigation's filter work (the covariance propagation every 80 steps, the GNSS update \
+             once a second: these passes are traced as the spacecraft's star-update passes are, the \
+             column \"in star-update steps\" below counts flips in passes with filter work); the RAM \
+             in use is the live stack from SP to {:#x} and the statics {:#x}..{:#x} (from the ELF); \
+             the undisturbed run is the in-process `LvCore` (the same `FlightCore` and `NavUnit`) on \
+             the same bytes, bit-identical to the firmware. The populations are the spacecraft's \
+             (the device population draws from the same mps2 registers: UARTs 3 and 4, the \
+             accelerometer bus and the GNSS receiver, are not in it). First flip at {} s into the \
+             ascent, seed {}.\n",
+            self.name, self.entry, self.stack_top, self.statics.0, self.statics.1, o.first_s, o.seed
+        );
+        let _ = writeln!(
+            s,
+            "Judgement. A navigation output frame (UART2) **claims a good solution** when it carries \
+             neither `NAV_FAULT` (the step refused and the state held, or the navigation lost after a \
+             reset) nor `ACCEL_FAULT` (the accelerometer increment missing or refused, the last one \
+             held); `GNSS_OUTAGE` alone is free inertial navigation, a solution the unit stands \
+             behind with its σ grown. It is **beyond the bound** when, against truth, its position \
+             error exceeds max({bp:.2} m, 3 × its own position σ), its velocity error max({bv:.4} m/s, \
+             3 × its velocity σ), or its attitude error {ba:.1}″ (the frame carries no attitude σ). \
+             The bounds are twice the undisturbed flight's largest errors over the scenario \
+             ({up:.2} m, {uv:.4} m/s, {ua:.1}″), floored at {:.0} m, {:.2} m/s and {:.0}″. The flight \
+             output frame (UART0, the core's attitude) counts as an output too: it is compared with \
+             the undisturbed frame (changed or not), and while it claims a good attitude (converged, \
+             not degraded, no parity alarm) its attitude must lie within max({}″, its own 3σ) of the \
+             undisturbed frame's. Classes as the spacecraft's: **masked** every output and event \
+             frame identical to the undisturbed run's for {} s; **tolerated** changed, no frame \
+             beyond its bound; **detected and recovered** beyond it only in frames that do not claim \
+             a good solution, and back before the window ends ({} s after the flip); **reset and \
+             recovered** the unit reset and came back, every claimed-good frame within the bound and \
+             the last frames within it by the window's end; **silent** a claimed-good frame beyond \
+             its bound (the flip's run ends there); **crash** QEMU ended, the guest stopped at a \
+             breakpoint instruction, no output for {} s of QEMU's processor time, or a reset not \
+             back within the bound by the window's end (a unit stopped for good). The worst error \
+             in the table below is the largest ratio of an error to its bound (above 1 in a \
+             claimed-good frame: silent), with the largest navigation errors beside it.\n",
+            super::lv::FLOOR[0],
+            super::lv::FLOOR[1],
+            super::lv::FLOOR[2],
+            super::BOUND_ARCSEC,
+            o.quiet_s,
+            o.window_s,
+            super::HANG_CPU_S
+        );
+        let _ = writeln!(
+            s,
+            "Following a reset: as the spacecraft's (LOCKSTEP at `Reset`, the firmware followed back \
+             into lockstep), the unit taken to be down 100 ms (80 steps, their sensor frames not \
+             sent; the navigation's resume bridges them from its snapshot, `ssis::nav::snapshot`). \
+             Recovery is timed from the step the unit reset in: to the first navigation frame that \
+             claims a good solution, and to the frame from which every later one is within the \
+             bound.\n"
+        );
+        let _ = writeln!(
+            s,
+            "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time with {} job(s) side by side (job \
+             j draws with seed + j) ({:.0} flips an hour on this host). Of the changed flips below, {} \
+             had earlier flips before them in their flight; {} flights stopped with no flip being \
+             watched.\n",
+            self.flights,
+            self.wall_s,
+            self.jobs,
+            self.flips_per_hour(),
+            self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
+            self.latent
+        );
+        s.push_str(&self.outcomes());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
         if changed.is_empty() {
             let _ = writeln!(s, "No flip changed an output.");
-        } else {
-            let _ = writeln!(s, "Every flip that changed an output:\n");
+            return s;
+        }
+        let _ = writeln!(s, "Every flip that changed an output:\n");
+        let _ = writeln!(
+            s,
+            "| step (s) | instruction | at | bit | outcome | worst / bound | position m | velocity m/s | attitude ″ | recovery s | reset: claims good s | reset: within the bound s | events | cause |"
+        );
+        let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+        let opt = |v: Option<f64>| v.map_or(String::new(), |r| format!("{r:.2}"));
+        for f in changed {
+            let ([p, v, a], r) = f.nav_worst.unwrap_or(([f64::NAN; 3], f.worst_arcsec));
             let _ = writeln!(
                 s,
-                "| step (s) | instruction | at | bit | outcome | worst error ″ | recovery s | reset: aligned s | reset: within 2× 3σ s | events | cause |"
+                "| {:.4} | {} | {} | {} | {} | {r:.2} | {p:.2} | {v:.4} | {a:.1} | {} | {} | {} | {} | {} |",
+                f.step as f64 * self.dt_s,
+                f.instr,
+                f.at.replace('|', "/"),
+                f.target.describe(),
+                f.outcome.name(),
+                opt(f.recovery_s),
+                opt(f.reset_aligned_s),
+                opt(f.reset_nominal_s),
+                f.events.join(", "),
+                cause(f)
             );
-            let _ = writeln!(s, "|---|---|---|---|---|---|---|---|---|---|---|");
-            let opt = |v: Option<f64>| v.map_or(String::new(), |r| format!("{r:.2}"));
-            for f in changed {
-                let cause = match (&f.outcome, &f.reset_cause) {
-                    (Outcome::Crash(w), _) => w.replace('|', "/"),
-                    (_, Some(c)) => c.replace('|', "/"),
-                    _ => String::new(),
-                };
-                let _ = writeln!(
-                    s,
-                    "| {:.3} | {} | {} | {} | {} | {:.1} | {} | {} | {} | {} | {} |",
-                    f.step as f64 * 0.005,
-                    f.instr,
-                    f.at.replace('|', "/"),
-                    f.target.describe(),
-                    f.outcome.name(),
-                    f.worst_arcsec,
-                    opt(f.recovery_s),
-                    opt(f.reset_aligned_s),
-                    opt(f.reset_nominal_s),
-                    f.events.join(", "),
-                    cause
-                );
-            }
         }
         s
+    }
+}
+
+/// A flip's cause column: a crash's reason, or what reset it.
+fn cause(f: &Flip) -> String {
+    match (&f.outcome, &f.reset_cause) {
+        (Outcome::Crash(w), _) => w.replace('|', "/"),
+        (_, Some(c)) => c.replace('|', "/"),
+        _ => String::new(),
     }
 }
 
@@ -404,7 +559,7 @@ Traced paths (instructions): {}.
     /// causes (Markdown paragraphs).
     fn details(&self) -> String {
         let mut s = String::new();
-        let mut t: Vec<f64> = self.flips.iter().map(|f| f.step as f64 * 0.005).collect();
+        let mut t: Vec<f64> = self.flips.iter().map(|f| f.step as f64 * self.dt_s).collect();
         t.sort_by(f64::total_cmp);
         let q = |v: &[f64], p: f64| v.get(((v.len() as f64 - 1.0) * p).round() as usize).copied().unwrap_or(f64::NAN);
         let _ = writeln!(
@@ -450,10 +605,14 @@ Traced paths (instructions): {}.
             let mut nom: Vec<f64> = resets.iter().filter_map(|f| f.reset_nominal_s).collect();
             al.sort_by(f64::total_cmp);
             nom.sort_by(f64::total_cmp);
+            let (aligned, nominal) = match self.lv {
+                Some(_) => ("Claiming a good solution again", "within the bound"),
+                None => ("Aligned again", "within twice the nominal 3σ"),
+            };
             let _ = writeln!(
                 s,
-                "Resets: {} flips reset the unit ({}). Aligned again after median {:.2} s, worst {:.2} s \
-                 ({} of {} aligned in the window); within twice the nominal 3σ after median {:.2} s, \
+                "Resets: {} flips reset the unit ({}). {aligned} after median {:.2} s, worst {:.2} s \
+                 ({} of {} aligned in the window); {nominal} after median {:.2} s, \
                  worst {:.2} s ({} of {} back within it by the window's end).\n",
                 resets.len(),
                 list.join(", "),
