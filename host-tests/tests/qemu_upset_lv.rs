@@ -61,9 +61,9 @@ fn upset_sample_on_the_launch_vehicle_in_qemu() {
     assert_eq!(c.failed_flights, 0, "{}", c.report());
     // The bounds: twice the undisturbed flight's largest errors, floored.
     let b = c.lv.expect("the launch vehicle's bounds");
-    for k in 0..3 {
+    for (k, floor) in LV_BOUND_FLOOR.iter().enumerate() {
         assert!(b.undisturbed_max[k].is_finite() && b.undisturbed_max[k] > 0.0, "{b:?}");
-        assert_eq!(b.bound[k], (2.0 * b.undisturbed_max[k]).max(LV_BOUND_FLOOR[k]), "{b:?}");
+        assert_eq!(b.bound[k], (2.0 * b.undisturbed_max[k]).max(*floor), "{b:?}");
     }
     let dt_s = 0.00125;
     for f in &c.flips {
