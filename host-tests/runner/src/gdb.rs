@@ -71,6 +71,10 @@ impl Gdb {
         let mut g = Gdb { s, buf: Vec::new() };
         g.command("qSupported:swbreak+;xmlRegisters=arm")?;
         g.command("qXfer:features:read:target.xml:0,ffb")?;
+        // The stop QEMU makes on a debugger's attach, reported before anything else is
+        // sent: a `c` that overtook it would leave the machine paused.
+        g.send("?")?;
+        g.wait_stop(wait)?.context("gdbstub: no stop reply to `?`")?;
         Ok(g)
     }
 

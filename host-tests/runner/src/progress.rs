@@ -26,6 +26,10 @@ pub const QEMU_CPU_PATIENCE_S: f64 = 20.0;
 /// Wall time after which any wait gives up, whatever QEMU's state.
 pub const WALL_CAP: Duration = Duration::from_secs(30 * 60);
 
+/// Wall time after which a wait ends if QEMU has used no processor time in it (a running
+/// guest always uses some; a paused machine none).
+pub const IDLE_CAP: Duration = Duration::from_secs(120);
+
 /// User plus system time of process `pid` so far, s (Linux `/proc/PID/stat`); `None`
 /// where it cannot be read.
 pub fn process_cpu_s(pid: u32) -> Option<f64> {
@@ -77,6 +81,11 @@ impl Patience {
         if used >= self.cpu_s {
             Some(format!(
                 "QEMU used {used:.1} s of processor time ({:.1} s of wall time) without it",
+                wall.as_secs_f64()
+            ))
+        } else if wall >= IDLE_CAP && self.cpu0_s.is_some() && used < 0.05 {
+            Some(format!(
+                "QEMU used no processor time in {:.0} s of wall time: its guest is not running",
                 wall.as_secs_f64()
             ))
         } else if wall >= WALL_CAP {
