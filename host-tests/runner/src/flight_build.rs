@@ -23,7 +23,7 @@ use ssis::frames::decoder::StreamDecoder;
 use ssis::frames::fog::FogFrame;
 use ssis::frames::output::{flags, OutputFrame};
 use ssis::frames::Frame;
-use ssis::telemetry::{page, Counter, PAGED};
+use ssis::telemetry::{page, Counter, FogCounter, PAGED};
 use ssis_common::mock::{MockLink, MockSink};
 use ssis_sim::harness::{Evaluator, Observed, Simulation, StepInput};
 use ssis_sim::scenario::Scenario;
@@ -337,6 +337,16 @@ pub struct FlightFaultCheck {
     /// Frames before the fault whose step took no sample or more than one (its bytes
     /// arrived after its tick): missed samples, caught up later.
     pub missed_before: u64,
+    /// The flight build: ticks before the fault at which the runner put more than one
+    /// step's bytes into the rings because virtual time had passed more than one period
+    /// since the last tick. Asleep, the guest's virtual time follows the host's (`-icount
+    /// sleep=on`) and lands late on its deadline when the host is loaded; SysTick periods
+    /// that pass meanwhile become one tick, and the unit's step takes both samples (a
+    /// missed frame before the fault that the feed did not cause).
+    pub ticks_coalesced_before: u64,
+    /// Samples the unit counted missing before the fault (each FOG's `missing` counter, as
+    /// its frames' counter page last showed it): a sample the feed did not deliver in time.
+    pub samples_missing_before: u32,
     /// Frames before the fault equal to the in-process core's frame of the same time tag
     /// (the core stepped once per scenario step on its bytes; masked as [`masked`]).
     pub equal_before: u64,
@@ -504,6 +514,8 @@ struct Judge {
     /// (its time tag, s).
     back_from: Option<f64>,
     last_t_s: f64,
+    /// Each FOG's `missing` counter as the counter page last showed it.
+    missing: [u16; ssis::calib::N_FOG],
 }
 
 impl Judge {
@@ -519,12 +531,21 @@ impl Judge {
                         None => {}
                     }
                 }
+                if let Some(page::Entry::Fog(i, FogCounter::Missing)) = page::entry(f.page_id) {
+                    if let Some(m) = self.missing.get_mut(i) {
+                        *m = f.page_value;
+                    }
+                    c.samples_missing_before = self.missing.iter().map(|&m| u32::from(m)).sum();
+                }
                 let r = self.reference.remove(&f.time_us);
                 c.equal_before += u64::from(r.is_some_and(|r| masked(r) == masked(*f)));
             }
             Phase::Faulted => {
                 c.frames_faulted += 1;
-                if let Some(t_f) = fault_v {
+                // The flight build: not the step of the wake the fault came in at (its
+                // tick was counted already).
+                let late = c.lockstep || f.time_us > (c.fault_s * 1e6) as u64 + self.dt_us * 3 / 2;
+                if let Some(t_f) = fault_v.filter(|_| late) {
                     c.tick_back_after_s.get_or_insert(now_s - t_f);
                 }
             }
@@ -569,22 +590,6 @@ struct Links3 {
     st_total: u32,
 }
 
-/// Flies the spacecraft firmware `elf` on scenario `sc` with its sensor bytes on time,
-/// injects `fault` at the first output frame whose time tag reaches `fault_s` (after
-/// convergence), and follows the unit for `watch_s` of virtual time after it.
-///
-/// The feed goes over the emulated UARTs, paced by the unit's own output: the bytes of
-/// step n + 1 go out as soon as the frame of sample n arrives, so they are in the receive
-/// ring before the next tick (the runner has the rest of the 5 ms period) and after the
-/// step that should not take them. Without frames (a stalled loop) the steps go out by
-/// virtual time, half a period before their tick, as the sensors keep sending. QEMU runs
-/// with `icount` (`None`: no `-icount`, virtual time the host's while the guest runs)
-/// and stopped only twice by its gdbstub: at the fault and at the watchdog's action
-/// (`-action watchdog=pause`), both instants read on a CMSDK timer the runner keeps
-/// (virtual time stands still while QEMU is halted). The runner then resets the machine
-/// (`system_reset`, what `-action watchdog=reset` does) and the flight goes on by
-/// virtual time: steps due while the unit was down are sent as the sensors would.
-///
 /// Injects `fault` through the gdbstub into the guest halted at `pc`: the SysTick's
 /// enable bit cleared (the guest's own accesses), a branch to itself written at `pc`, or
 /// PRIMASK set.
@@ -599,9 +604,316 @@ fn inject(g: &mut crate::gdb::Gdb, fault: LoopFault, pc: u32) -> Result<()> {
     }
 }
 
-/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate: LOCKSTEP after
-/// its first frame and again at its reset vector, then step n's bytes and its STEP frame
-/// once step n − 1's output is in and not before step n's time.
+/// `-icount` of the flight build's fed flight: virtual time the instruction count while
+/// the guest runs; asleep, it waits the host's time to its next timer deadline and lands
+/// on it (`sleep=on`), and a stop at a breakpoint costs it only the host's time to the
+/// halt, not a jump to that deadline (`sleep=off` would make every stop a tick late).
+pub const FED_ICOUNT: &str = "shift=0,sleep=on";
+
+/// Where a receive ring (`ssis::link::RxRing`) of the firmware lies, and its fields, from
+/// the ELF's debug information: the runner puts a step's bytes into it as the UART
+/// interrupt would ([`RxRingAt::push`]).
+#[derive(Debug, Clone, Copy)]
+struct RxRingAt {
+    addr: u32,
+    size: usize,
+    /// The `RefCell`'s borrow flag.
+    borrow: usize,
+    buf: usize,
+    capacity: usize,
+    head: usize,
+    len: usize,
+    overflows: usize,
+    received: usize,
+}
+
+impl RxRingAt {
+    /// The ring the static `name` of `elf` is (its DWARF variable's name).
+    fn find(elf: &Path, name: &str) -> Result<RxRingAt> {
+        crate::upset::with_dwarf(elf, |_, dwarf| Self::find_in(elf, name, dwarf))
+    }
+
+    fn find_in(elf: &Path, name: &str, dwarf: &crate::upset::Dwarf<'_>) -> Result<RxRingAt> {
+        use gimli::AttributeValue;
+        let mut units = dwarf.units();
+        while let Some(header) = units.next()? {
+            let unit = dwarf.unit(header)?;
+            let mut entries = unit.entries();
+            while let Some((_, e)) = entries.next_dfs()? {
+                if e.tag() != gimli::DW_TAG_variable {
+                    continue;
+                }
+                let Some(n) = e.attr_value(gimli::DW_AT_name)? else { continue };
+                if dwarf.attr_string(&unit, n)?.to_string_lossy() != name {
+                    continue;
+                }
+                let Some(AttributeValue::Exprloc(loc)) = e.attr_value(gimli::DW_AT_location)? else { continue };
+                let mut ops = loc.operations(unit.encoding());
+                let Some(gimli::Operation::Address { address }) = ops.next()? else { continue };
+                let Some(AttributeValue::UnitRef(ty)) = e.attr_value(gimli::DW_AT_type)? else { continue };
+                let size = unit
+                    .entry(ty)?
+                    .attr_value(gimli::DW_AT_byte_size)?
+                    .and_then(|v| v.udata_value())
+                    .with_context(|| format!("{name}: its type has no size"))? as usize;
+                let mut fields = Vec::new();
+                members(dwarf, &unit, ty, 0, 0, &mut fields)?;
+                let at = |f: &str| -> Result<&(String, usize, usize)> {
+                    let mut it = fields.iter().filter(|(n, _, _)| n == f);
+                    let first = it.next().with_context(|| format!("{name}: no field {f} in its type"))?;
+                    anyhow::ensure!(it.next().is_none(), "{name}: two fields named {f}");
+                    Ok(first)
+                };
+                let buf = at("buf")?;
+                return Ok(RxRingAt {
+                    addr: address as u32,
+                    size,
+                    borrow: at("borrow")?.1,
+                    buf: buf.1,
+                    capacity: buf.2,
+                    head: at("head")?.1,
+                    len: at("len")?.1,
+                    overflows: at("overflows")?.1,
+                    received: at("received")?.1,
+                });
+            }
+        }
+        anyhow::bail!("{}: no static {name} in its debug information", elf.display())
+    }
+
+    /// Pushes `bytes` into the ring as `RxRing::push` does byte by byte (counted as
+    /// received; a full ring drops and counts an overflow). The guest must be halted
+    /// outside the ring's critical section (on entry to an interrupt handler it is: the
+    /// section masks interrupts).
+    fn push(&self, g: &mut crate::gdb::Gdb, bytes: &[u8]) -> Result<()> {
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        let mut m = g.read_memory(self.addr, self.size)?;
+        let word = |m: &[u8], o: usize| -> Result<u32> {
+            Ok(u32::from_le_bytes(m.get(o..o + 4).context("ring field")?.try_into()?))
+        };
+        anyhow::ensure!(word(&m, self.borrow)? == 0, "the ring at {:#x} is borrowed", self.addr);
+        let (head, mut len) = (word(&m, self.head)? as usize, word(&m, self.len)? as usize);
+        let (mut received, mut overflows) = (word(&m, self.received)?, word(&m, self.overflows)?);
+        for &b in bytes {
+            received = received.wrapping_add(1);
+            if len >= self.capacity {
+                overflows = overflows.saturating_add(1);
+                continue;
+            }
+            *m.get_mut(self.buf + (head + len) % self.capacity).context("ring slot")? = b;
+            len += 1;
+        }
+        for (o, v) in [(self.len, len as u32), (self.received, received), (self.overflows, overflows)] {
+            m.get_mut(o..o + 4).context("ring field")?.copy_from_slice(&v.to_le_bytes());
+        }
+        g.write_memory(self.addr, &m)
+    }
+}
+
+/// Every member reachable from the structure type at `ty` (offset `base`): (name, byte
+/// offset, element count of an array member, else 0).
+fn members<R: gimli::Reader<Offset = usize>>(
+    dwarf: &gimli::Dwarf<R>,
+    unit: &gimli::Unit<R>,
+    ty: gimli::UnitOffset,
+    base: usize,
+    depth: u32,
+    out: &mut Vec<(String, usize, usize)>,
+) -> Result<()> {
+    use gimli::AttributeValue;
+    anyhow::ensure!(depth < 16, "the ring's type nests too deep");
+    let mut tree = unit.entries_tree(Some(ty))?;
+    let root = tree.root()?;
+    let mut children = root.children();
+    while let Some(child) = children.next()? {
+        let e = child.entry();
+        if e.tag() != gimli::DW_TAG_member {
+            continue;
+        }
+        let Some(n) = e.attr_value(gimli::DW_AT_name)? else { continue };
+        let name = dwarf.attr_string(unit, n)?.to_string_lossy()?.into_owned();
+        let off =
+            base + e.attr_value(gimli::DW_AT_data_member_location)?.and_then(|v| v.udata_value()).unwrap_or(0) as usize;
+        let Some(AttributeValue::UnitRef(t)) = e.attr_value(gimli::DW_AT_type)? else { continue };
+        let te = unit.entry(t)?;
+        let mut count = 0;
+        if te.tag() == gimli::DW_TAG_array_type {
+            let mut at = unit.entries_tree(Some(t))?;
+            let r = at.root()?;
+            let mut sub = r.children();
+            while let Some(s) = sub.next()? {
+                if let Some(c) = s.entry().attr_value(gimli::DW_AT_count)?.and_then(|v| v.udata_value()) {
+                    count = c as usize;
+                }
+            }
+        }
+        out.push((name, off, count));
+        if te.tag() == gimli::DW_TAG_structure_type {
+            members(dwarf, unit, t, off, depth + 1, out)?;
+        }
+    }
+    Ok(())
+}
+
+/// What both feeds of a fed flight share: the scenario's steps, the QEMU unit and its
+/// gdbstub, the judge, and the in-process core that gives the frames to compare with.
+struct FedFlight {
+    inputs: Vec<StepInput>,
+    profile: Profile,
+    reset_at: u32,
+    wfi: Vec<u32>,
+    warnings_at: Option<u32>,
+    unit: Unit,
+    g: crate::gdb::Gdb,
+    judge: Judge,
+    core: FlightCore,
+    ref_links: (MockLink, MockLink, MockSink),
+    dec: StreamDecoder<OutputFrame, 256>,
+    c: FlightFaultCheck,
+    started: Instant,
+    wall_cap: Duration,
+}
+
+impl FedFlight {
+    /// QEMU started halted (`-S`) on `elf` with the table loaded, its gdbstub connected,
+    /// `-action watchdog=pause`.
+    fn start(elf: &Path, sc: &Scenario, watch_s: f64, icount: Option<&str>) -> Result<FedFlight> {
+        crate::qemu::check_qemu_and_elf(elf)?;
+        let started = Instant::now();
+        let lockstep = crate::qemu::is_test_build(elf)?;
+        let mut sim = Simulation::new(sc)?;
+        let (table, profile) = (sim.table, sim.profile);
+        let inputs: Vec<StepInput> = std::iter::from_fn(|| sim.next_step()).collect();
+        let nominal = ssis_sim::harness::run(sc, |_| {})?.accuracy.att.three_sigma();
+        let calib = crate::qemu::symbol(elf, "_calib_start")?;
+        let image = store::image(&table);
+        let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
+        let extra = ["-S", "-gdb", &format!("tcp:127.0.0.1:{port}"), "-action", "watchdog=pause"].map(String::from);
+        let unit = Unit::start(
+            elf,
+            3,
+            icount,
+            &[("table.img", &image, calib)],
+            &[0],
+            crate::transport::Transport::Sockets,
+            &extra,
+        )?;
+        let g = crate::gdb::Gdb::connect(port, Duration::from_secs(10))?;
+        Ok(FedFlight {
+            profile,
+            reset_at: (crate::qemu::symbol(elf, "Reset")? & !1) as u32,
+            wfi: loop_wfi(elf)?,
+            warnings_at: crate::upset::data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?,
+            unit,
+            g,
+            judge: Judge {
+                eval: Evaluator::for_unit(&table, &profile, sc.settle_s),
+                bound: nominal.map(|s| 2.0 * s),
+                settle_s: sc.settle_s,
+                dt_us: u64::from(profile.dt_us),
+                reference: std::collections::HashMap::new(),
+                last_sample: None,
+                back_from: None,
+                last_t_s: 0.0,
+                missing: [0; ssis::calib::N_FOG],
+            },
+            core: FlightCore::new(profile, &table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?,
+            ref_links: (MockLink::ideal(), MockLink::ideal(), MockSink::default()),
+            dec: StreamDecoder::new(),
+            c: FlightFaultCheck { lockstep, nominal_3sigma_arcsec: nominal, ..Default::default() },
+            wall_cap: Duration::from_secs_f64(3.0 * (sc.duration_s + watch_s) + 120.0),
+            started,
+            inputs,
+        })
+    }
+
+    /// Step `k`'s truth to the judge; before the fault, the in-process core steps on its
+    /// bytes and its frame is kept to compare with the unit's.
+    fn reference(&mut self, k: usize, phase: Phase) -> Option<(Vec<u8>, &[u8])> {
+        let input = self.inputs.get(k)?;
+        let bus = bus_bytes(input, &self.profile);
+        if let Some(t) = input.truth {
+            self.judge.eval.push_truth(t);
+        }
+        if phase == Phase::Before {
+            let (fog, star, out) = &mut self.ref_links;
+            fog.send(&bus);
+            star.send(&input.st_bytes);
+            self.core.step(&mut Links { fog: FogLinks::Bus(fog), star, out: &mut *out });
+            if let Ok(f) = OutputFrame::decode(&std::mem::take(&mut out.bytes)) {
+                self.judge.reference.insert(f.time_us, f);
+            }
+        }
+        Some((bus, &input.st_bytes))
+    }
+
+    /// The output bytes received so far, decoded and judged at virtual time `now_s`;
+    /// whether any frame came.
+    fn judge_output(&mut self, phase: Phase, now_s: f64, fault_v: Option<f64>) -> bool {
+        let mut frames = Vec::new();
+        while let Ok((_, b)) = self.unit.rx.try_recv() {
+            self.dec.push_slice(&b, |r| frames.extend(r.ok()));
+        }
+        for f in &frames {
+            self.judge.frame(f, phase, now_s, fault_v, &mut self.c);
+        }
+        !frames.is_empty()
+    }
+
+    /// The watchdog acted (the guest paused at `now_s`): its counts read, the machine
+    /// reset (what `-action watchdog=reset` does) and held at `Reset`.
+    fn watchdog_acted(&mut self, now_s: f64, fault_v: Option<f64>) -> Result<()> {
+        self.c.reset_after_s = fault_v.map(|f| now_s - f);
+        if let Some(a) = self.warnings_at {
+            self.c.warnings = u32::from_le_bytes(self.g.read_memory(a, 4)?.as_slice().try_into()?);
+        }
+        self.c.watchdog_pending = self.g.read_memory(WDOG_RIS, 4)?.first().is_some_and(|b| b & 1 != 0);
+        self.g.monitor("system_reset")?;
+        self.g.set_breakpoint(self.reset_at)
+    }
+
+    fn check_running(&mut self) -> Result<()> {
+        anyhow::ensure!(self.unit.exited()?.is_none(), "QEMU exited");
+        anyhow::ensure!(
+            self.started.elapsed() < self.wall_cap,
+            "the fed flight took over {:?} of wall time",
+            self.wall_cap
+        );
+        Ok(())
+    }
+
+    fn finish(mut self, elf: &Path) -> FlightFaultCheck {
+        // A resumed unit's first frames carry its snapshot's (earlier) time tags.
+        self.c.back_after_s = self.judge.back_from.map(|b| (b - self.c.fault_s).max(0.0));
+        self.c.wall_s = self.started.elapsed().as_secs_f64();
+        self.unit.kill();
+        self.c.log = self.unit.log(elf);
+        self.c.resumed = self.c.log.iter().any(|l| l.contains("resumed from the snapshot"));
+        self.c
+    }
+}
+
+/// Flies the spacecraft firmware `elf` on scenario `sc` with its sensor bytes on time,
+/// injects `fault` at the first output frame whose time tag reaches `fault_s` (after
+/// convergence), and follows the unit for `watch_s` of virtual time after it. The
+/// watchdog's action (`-action watchdog=pause`) gives the reset's instant; the runner then
+/// resets the machine (`system_reset`, what `-action watchdog=reset` does); the steps due
+/// while the unit was down are lost, as a real unit's sensors' would be.
+///
+/// The flight build (`ssis-fw`, its own SysTick) runs under `-icount` [`FED_ICOUNT`] with
+/// a breakpoint on its SysTick handler: at each tick, before the step it starts, the runner
+/// reads its clock of virtual time (a CMSDK timer it keeps, [`GuestClock`]) and puts the
+/// bytes of every scenario step due by then into the firmware's FOG and star-tracker
+/// receive rings ([`RxRingAt::push`]), as the UART interrupts would have by then. No host
+/// is in the timing: the feed is on time however loaded the host. The fault goes in at
+/// the loop's `wfi` after the step whose frame reaches `fault_s`.
+///
+/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate (`icount`:
+/// QEMU's `-icount`, or none): LOCKSTEP after its first frame and again at its reset
+/// vector, then step n's bytes over the UARTs and its STEP frame once step n − 1's output
+/// is in and not before step n's time.
 ///
 /// Every output frame is judged against truth by its time tag ([`Evaluator`]); before the
 /// fault each is also compared with the in-process core's frame of the same time tag.
@@ -613,248 +925,265 @@ pub fn loop_fault_in_flight(
     watch_s: f64,
     icount: Option<&str>,
 ) -> Result<FlightFaultCheck> {
-    use crate::gdb::{Gdb, PC};
-    crate::qemu::check_qemu_and_elf(elf)?;
-    let started = Instant::now();
-    let lockstep = crate::qemu::is_test_build(elf)?;
-    let mut sim = Simulation::new(sc)?;
-    let (table, profile) = (sim.table, sim.profile);
-    let dt_s = profile.dt_s();
-    let inputs: Vec<StepInput> = std::iter::from_fn(|| sim.next_step()).collect();
-    let nominal = ssis_sim::harness::run(sc, |_| {})?.accuracy.att.three_sigma();
-    let calib = crate::qemu::symbol(elf, "_calib_start")?;
-    let reset_at = (crate::qemu::symbol(elf, "Reset")? & !1) as u32;
-    let wfi = loop_wfi(elf)?;
-    let warnings_at = crate::upset::data_symbol(elf, "ssis_firmware::mps2::WATCHDOG_WARNINGS")?;
-    let image = store::image(&table);
-    let port = std::net::TcpListener::bind("127.0.0.1:0")?.local_addr()?.port();
-    let extra = ["-S", "-gdb", &format!("tcp:127.0.0.1:{port}"), "-action", "watchdog=pause"].map(String::from);
-    let mut unit = Unit::start(
-        elf,
-        3,
-        icount,
-        &[("table.img", &image, calib)],
-        &[0],
-        crate::transport::Transport::Sockets,
-        &extra,
-    )?;
-    let mut g = Gdb::connect(port, Duration::from_secs(10))?;
-    let mut clock = GuestClock::start(&mut g, 0.0)?;
+    if crate::qemu::is_test_build(elf)? {
+        in_lockstep(FedFlight::start(elf, sc, watch_s, icount)?, fault, fault_s, watch_s).map(|f| f.finish(elf))
+    } else {
+        at_ticks(FedFlight::start(elf, sc, watch_s, Some(FED_ICOUNT))?, elf, fault, fault_s, watch_s)
+            .map(|f| f.finish(elf))
+    }
+}
+
+/// The flight build fed at its ticks ([`loop_fault_in_flight`]).
+fn at_ticks(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
+    // Where the loop wakes from its `wfi`: the pass after it steps if a tick came.
+    let [wfi] = f.wfi.as_slice() else { anyhow::bail!("{} wfi in the flight build's loop, not one", f.wfi.len()) };
+    let woke = wfi + 2;
+    let (fog_ring, st_ring) = (RxRingAt::find(elf, "FOG_RX")?, RxRingAt::find(elf, "ST_RX")?);
+    let dt_s = f.profile.dt_s();
+    let mut clock = GuestClock::start(&mut f.g, 0.0)?;
+    f.g.set_breakpoint(woke)?;
+    f.g.resume()?;
+    let mut phase = Phase::Before;
+    // Virtual time of the first wake (the scenario's step 1), s.
+    let mut t0_s: Option<f64> = None;
+    let mut next = 0usize;
+    let mut fault_v: Option<f64> = None;
+    // After a reset, until its first wake: the steps due meanwhile are lost.
+    let mut lost = false;
+    // Virtual time at the last stop, s.
+    let mut now_s = 0.0;
+    // The ticks its SysTick handler had counted at the last wake.
+    let ticks_at = crate::upset::data_symbol(elf, "ssis_firmware::mps2::TICKS")?.context("no TICKS")?;
+    let mut ticks_seen = 0u32;
+    loop {
+        let stop = loop {
+            if let Some(s) = f.g.wait_stop(Duration::from_millis(20))? {
+                break s;
+            }
+            f.check_running()?;
+        };
+        if phase == Phase::Resetting {
+            // The timer was reset too: the reset's instant stands.
+            anyhow::ensure!(f.g.register_u32(crate::gdb::PC)? == f.reset_at, "the reset stopped elsewhere: {stop}");
+            f.g.clear_breakpoint(f.reset_at)?;
+            f.g.set_breakpoint(woke)?;
+            clock = GuestClock::start(&mut f.g, now_s)?;
+            phase = Phase::After;
+            lost = true;
+            ticks_seen = 0;
+            f.g.resume()?;
+            continue;
+        }
+        now_s = clock.now_s(&mut f.g)?;
+        // Frames sent before this stop (the guest is halted; its last bytes are in the socket).
+        f.judge_output(phase, now_s, fault_v);
+        // The watchdog's pause can meet a breakpoint's stop, which then reports it.
+        if stop.starts_with("T0e") || f.g.monitor("info status")?.contains("watchdog") {
+            f.watchdog_acted(now_s, fault_v)?;
+            phase = Phase::Resetting;
+            f.g.resume()?;
+            continue;
+        }
+        let pc = f.g.register_u32(crate::gdb::PC)?;
+        anyhow::ensure!(pc == woke, "the guest stopped at {pc:#x}: {stop}");
+        // Woken (by its tick): the next step's bytes go into the rings, as the FOGs sample
+        // on the unit's sync pulse; steps overdue by more than a period by virtual time
+        // (step n at (n − 1)·Δt after the first: the tick stopped, the unit down) go in
+        // with them, as the sensors would have sent them. Virtual time alone would not
+        // do: asleep, or stopped here until QEMU halts, the guest's time follows the
+        // host's, and a loaded host lands it late on its deadline.
+        let t0 = *t0_s.get_or_insert(now_s);
+        let overdue = ((now_s - t0) / dt_s - 1.0).max(0.0) as usize + 1;
+        if std::mem::take(&mut lost) {
+            next = next.max(overdue.saturating_sub(1));
+        }
+        // One step a tick its handler counted since the last wake (none when a pending
+        // interrupt it cannot take ends the `wfi`: interrupts masked).
+        let counted = u32::from_le_bytes(f.g.read_memory(ticks_at, 4)?.as_slice().try_into()?);
+        let ticks = counted.wrapping_sub(std::mem::replace(&mut ticks_seen, counted)) as usize;
+        let due = (next + ticks.min(RING_STEPS)).max(overdue).min(f.inputs.len());
+        if phase == Phase::Before && due > next + 1 && next > 0 {
+            f.c.ticks_coalesced_before += 1;
+        }
+        let (mut fog, mut st) = (Vec::new(), Vec::new());
+        for k in next..due {
+            if let Some((bus, st_bytes)) = f.reference(k, phase) {
+                fog.extend(bus);
+                st.extend_from_slice(st_bytes);
+            }
+        }
+        next = due;
+        fog_ring.push(&mut f.g, &fog)?;
+        st_ring.push(&mut f.g, &st)?;
+        if phase == Phase::Before && f.judge.last_t_s >= fault_s {
+            // The fault, before the step of this wake.
+            inject(&mut f.g, fault, pc)?;
+            fault_v = Some(now_s);
+            f.c.fault_s = f.judge.last_t_s;
+            phase = Phase::Faulted;
+            if fault != LoopFault::TickStopped {
+                // The loop spins here, or on a pending interrupt it cannot take, until the
+                // reset (a stop here could also take the place of the watchdog's pause).
+                f.g.clear_breakpoint(woke)?;
+                f.g.resume()?;
+                continue;
+            }
+        }
+        if fault_v.is_some_and(|t_f| now_s - t_f >= watch_s) {
+            f.c.watched_s = fault_v.map_or(0.0, |t_f| now_s - t_f);
+            return Ok(f);
+        }
+        anyhow::ensure!(next < f.inputs.len(), "the scenario ended before the watch did");
+        f.g.resume_past(woke)?;
+    }
+}
+
+/// The test build fed in lockstep ([`loop_fault_in_flight`]).
+fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
+    let dt_s = f.profile.dt_s();
+    let mut clock = GuestClock::start(&mut f.g, 0.0)?;
     let mut vt = VirtualTime { at_halt_s: 0.0, running_since: None };
-    let mut c = FlightFaultCheck { lockstep, nominal_3sigma_arcsec: nominal, ..Default::default() };
-    let mut judge = Judge {
-        eval: Evaluator::for_unit(&table, &profile, sc.settle_s),
-        bound: nominal.map(|s| 2.0 * s),
-        settle_s: sc.settle_s,
-        dt_us: u64::from(profile.dt_us),
-        reference: std::collections::HashMap::new(),
-        last_sample: None,
-        back_from: None,
-        last_t_s: 0.0,
-    };
-    let mut core = FlightCore::new(profile, &table, false).map_err(|e| anyhow::anyhow!("{e:?}"))?;
-    let (mut ref_fog, mut ref_star, mut ref_out) = (MockLink::ideal(), MockLink::ideal(), MockSink::default());
     let mut links = Links3 { fog_total: 0, st_total: 0 };
-    let mut dec: StreamDecoder<OutputFrame, 256> = StreamDecoder::new();
     let mut phase = Phase::Before;
     // The next step to send (index into `inputs`).
     let mut next = 0usize;
-    // Virtual time of step 1's tick, s.
-    let mut t0_s: Option<f64> = None;
     let mut fault_v: Option<f64> = None;
     let mut fault_armed = false;
-    // Lockstep: a STEP sent whose output is not yet in.
+    // A STEP sent whose output is not yet in.
     let mut awaiting = false;
     let mut last_poll = Instant::now();
-    let wall_cap = Duration::from_secs_f64(3.0 * (sc.duration_s + watch_s) + 120.0);
-
-    // Sends step `inputs[k]` (and its STEP frame in lockstep; the in-process core steps on
-    // it before the fault).
-    let mut send = |k: usize,
-                    unit: &mut Unit,
-                    links: &mut Links3,
-                    judge: &mut Judge,
-                    phase: Phase,
-                    reference: bool|
-     -> Result<()> {
-        let Some(input) = inputs.get(k) else { return Ok(()) };
-        let bus = bus_bytes(input, &profile);
-        unit.uarts[1].write_all(&bus)?;
-        unit.uarts[2].write_all(&input.st_bytes)?;
-        links.fog_total = links.fog_total.wrapping_add(bus.len() as u32);
-        links.st_total = links.st_total.wrapping_add(input.st_bytes.len() as u32);
-        if lockstep {
-            unit.control(&ControlFrame {
-                command: command::STEP,
-                fog_bytes: links.fog_total,
-                st_bytes: links.st_total,
-                arg: 0,
-            })?;
+    vt.resume(&mut f.g)?;
+    let mut boot = Vec::new();
+    f.unit.enter_lockstep(|_, b| boot.extend_from_slice(b))?;
+    f.dec.push_slice(&boot, |r| {
+        if let Ok(fr) = r {
+            f.c.frames_before += u64::from(fr.time_us == 0);
         }
-        if let Some(t) = input.truth {
-            judge.eval.push_truth(t);
-        }
-        if reference && phase == Phase::Before {
-            ref_fog.send(&bus);
-            ref_star.send(&input.st_bytes);
-            let mut l = Links { fog: FogLinks::Bus(&mut ref_fog), star: &mut ref_star, out: &mut ref_out };
-            core.step(&mut l);
-            if let Ok(f) = OutputFrame::decode(&std::mem::take(&mut ref_out.bytes)) {
-                judge.reference.insert(f.time_us, f);
-            }
-        }
-        Ok(())
-    };
-
-    if lockstep {
-        vt.resume(&mut g)?;
-        let mut boot = Vec::new();
-        unit.enter_lockstep(|_, b| boot.extend_from_slice(b))?;
-        dec.push_slice(&boot, |r| {
-            if let Ok(f) = r {
-                c.frames_before += u64::from(f.time_us == 0);
-            }
-        });
-        t0_s = Some(vt.now_s() + dt_s);
-    } else {
-        // Step 1's bytes wait in the sockets for the UARTs; then the guest runs.
-        send(0, &mut unit, &mut links, &mut judge, phase, true)?;
-        next = 1;
-        vt.resume(&mut g)?;
-    }
+    });
+    // Virtual time of step 1's tick, s.
+    let t0_s = vt.now_s() + dt_s;
     loop {
-        anyhow::ensure!(unit.exited()?.is_none(), "QEMU exited");
-        anyhow::ensure!(started.elapsed() < wall_cap, "the fed flight took over {wall_cap:?} of wall time");
+        f.check_running()?;
         // Output frames.
         let mut frames = Vec::new();
-        if let Ok((_, b)) = unit.rx.recv_timeout(Duration::from_millis(1)) {
-            dec.push_slice(&b, |r| frames.extend(r.ok()));
-            while let Ok((_, b)) = unit.rx.try_recv() {
-                dec.push_slice(&b, |r| frames.extend(r.ok()));
+        if let Ok((_, b)) = f.unit.rx.recv_timeout(Duration::from_millis(1)) {
+            f.dec.push_slice(&b, |r| frames.extend(r.ok()));
+            while let Ok((_, b)) = f.unit.rx.try_recv() {
+                f.dec.push_slice(&b, |r| frames.extend(r.ok()));
             }
         }
         let now_s = vt.now_s();
-        for f in &frames {
-            if t0_s.is_none() && f.time_us > 0 {
-                t0_s = Some(now_s - (f.time_us as f64 * 1e-6 - dt_s));
-            }
-            judge.frame(f, phase, now_s, fault_v, &mut c);
-            if phase == Phase::Before && !fault_armed && f.time_us as f64 * 1e-6 >= fault_s {
+        for fr in &frames {
+            f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
+            if phase == Phase::Before && !fault_armed && fr.time_us as f64 * 1e-6 >= fault_s {
                 // The fault at the loop's `wfi`, where the guest goes next (the gdbstub
                 // takes a packet only from a halted guest; virtual time stands still).
-                g.halt()?;
-                vt.halted(&clock, &mut g)?;
-                for &a in &wfi {
-                    g.set_breakpoint(a)?;
+                f.g.halt()?;
+                vt.halted(&clock, &mut f.g)?;
+                for &a in &f.wfi {
+                    f.g.set_breakpoint(a)?;
                 }
-                vt.resume(&mut g)?;
+                vt.resume(&mut f.g)?;
                 fault_armed = true;
             }
         }
         // The feed.
-        if lockstep {
-            awaiting &= frames.is_empty();
-            let due = t0_s.is_some_and(|t0| now_s >= t0 + next as f64 * dt_s);
-            if !awaiting && due && phase != Phase::Resetting && !fault_armed {
-                send(next, &mut unit, &mut links, &mut judge, phase, true)?;
-                next += 1;
-                awaiting = true;
+        awaiting &= frames.is_empty();
+        let due = now_s >= t0_s + next as f64 * dt_s;
+        if !awaiting && due && phase != Phase::Resetting && !fault_armed {
+            if let Some((bus, st)) = f.reference(next, phase) {
+                let st = st.to_vec();
+                f.unit.uarts[1].write_all(&bus)?;
+                f.unit.uarts[2].write_all(&st)?;
+                links.fog_total = links.fog_total.wrapping_add(bus.len() as u32);
+                links.st_total = links.st_total.wrapping_add(st.len() as u32);
+                f.unit.control(&ControlFrame {
+                    command: command::STEP,
+                    fog_bytes: links.fog_total,
+                    st_bytes: links.st_total,
+                    arg: 0,
+                })?;
             }
-        } else if phase != Phase::Resetting {
-            // By the frames: step n + 1 once sample n is out; by time: half a period
-            // before its tick.
-            let by_frame = judge.last_sample.map_or(1, |s| s as usize + 1);
-            let by_time = t0_s.map_or(0, |t0| ((now_s - t0) / dt_s + 1.5).max(0.0) as usize);
-            // At most a receive ring's worth (8 steps) past the last frame: more would
-            // overflow the ring anyway, and a halted QEMU takes no byte from its sockets.
-            while next < by_frame.max(by_time).min(by_frame + RING_STEPS).min(inputs.len()) {
-                send(next, &mut unit, &mut links, &mut judge, phase, true)?;
-                next += 1;
-            }
+            next += 1;
+            awaiting = true;
         }
         // The gdbstub: a stop at the fault's breakpoint, the watchdog's action, the reset.
         let watching = fault_armed || phase != Phase::Before;
         if watching || last_poll.elapsed() > Duration::from_millis(20) {
             last_poll = Instant::now();
-            if let Some(stop) = g.wait_stop(Duration::ZERO)? {
+            if let Some(stop) = f.g.wait_stop(Duration::ZERO)? {
                 // Resetting, the timer was reset too: the reset's instant stands.
                 let now_s = if phase == Phase::Resetting {
                     vt.running_since = None;
                     vt.at_halt_s
                 } else {
-                    vt.halted(&clock, &mut g)?
+                    vt.halted(&clock, &mut f.g)?
                 };
                 if stop.starts_with("T0e") {
-                    // The watchdog's action: the reset's instant, then the reset itself.
-                    c.reset_after_s = fault_v.map(|f| now_s - f);
-                    if let Some(a) = warnings_at {
-                        c.warnings = u32::from_le_bytes(g.read_memory(a, 4)?.as_slice().try_into()?);
-                    }
-                    c.watchdog_pending = g.read_memory(WDOG_RIS, 4)?.first().is_some_and(|b| b & 1 != 0);
-                    g.monitor("system_reset")?;
-                    g.set_breakpoint(reset_at)?;
+                    f.watchdog_acted(now_s, fault_v)?;
                     phase = Phase::Resetting;
-                    vt.resume(&mut g)?;
+                    vt.resume(&mut f.g)?;
                     continue;
                 }
-                let pc = g.register_u32(PC)?;
-                if pc == reset_at && phase == Phase::Resetting {
-                    g.clear_breakpoint(reset_at)?;
-                    clock = GuestClock::start(&mut g, now_s)?;
+                let pc = f.g.register_u32(crate::gdb::PC)?;
+                if pc == f.reset_at && phase == Phase::Resetting {
+                    f.g.clear_breakpoint(f.reset_at)?;
+                    clock = GuestClock::start(&mut f.g, now_s)?;
                     phase = Phase::After;
-                    if lockstep {
-                        // Back into lockstep; the byte counts start again.
-                        unit.control(&ControlFrame { command: command::LOCKSTEP, ..Default::default() })?;
-                        links = Links3 { fog_total: 0, st_total: 0 };
-                        vt.resume(&mut g)?;
-                        let mut boot = Vec::new();
-                        unit.await_silence(|_, b| boot.extend_from_slice(b), || Ok(()))?;
-                        let now_s = vt.now_s();
-                        dec.push_slice(&boot, |r| {
-                            if let Ok(f) = r {
-                                judge.frame(&f, phase, now_s, fault_v, &mut c);
-                            }
-                        });
-                        // The steps due meanwhile are lost.
-                        let t0 = t0_s.context("no first step")?;
-                        next = next.max(((now_s - t0) / dt_s).max(0.0) as usize);
-                        awaiting = false;
-                    } else {
-                        vt.resume(&mut g)?;
+                    // Back into lockstep; the byte counts start again.
+                    f.unit.control(&ControlFrame { command: command::LOCKSTEP, ..Default::default() })?;
+                    links = Links3 { fog_total: 0, st_total: 0 };
+                    vt.resume(&mut f.g)?;
+                    let mut boot = Vec::new();
+                    f.unit.await_silence(|_, b| boot.extend_from_slice(b), || Ok(()))?;
+                    let now_s = vt.now_s();
+                    let mut booted = Vec::new();
+                    f.dec.push_slice(&boot, |r| booted.extend(r.ok()));
+                    for fr in &booted {
+                        f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
                     }
+                    // The steps due meanwhile are lost.
+                    next = next.max(((now_s - t0_s) / dt_s).max(0.0) as usize);
+                    awaiting = false;
                     continue;
                 }
-                anyhow::ensure!(fault_armed && wfi.contains(&pc), "the guest stopped at {pc:#x}: {stop}");
+                anyhow::ensure!(fault_armed && f.wfi.contains(&pc), "the guest stopped at {pc:#x}: {stop}");
                 fault_armed = false;
                 fault_v = Some(now_s);
-                c.fault_s = judge.last_t_s;
-                for &a in &wfi {
-                    g.clear_breakpoint(a)?;
+                f.c.fault_s = f.judge.last_t_s;
+                for &a in &f.wfi {
+                    f.g.clear_breakpoint(a)?;
                 }
                 match fault {
                     // The test build clears it itself at its next pass (a guest access
                     // here can fault with an interrupt pending at the stop).
-                    LoopFault::TickStopped if lockstep => unit.command(command::TICK_STOP)?,
-                    _ => inject(&mut g, fault, pc)?,
+                    LoopFault::TickStopped => f.unit.command(command::TICK_STOP)?,
+                    _ => inject(&mut f.g, fault, pc)?,
                 }
                 phase = Phase::Faulted;
-                vt.resume(&mut g)?;
+                vt.resume(&mut f.g)?;
                 continue;
             }
         }
         if let Some(t_f) = fault_v {
-            c.watched_s = vt.now_s() - t_f;
-            if c.watched_s >= watch_s {
-                break;
+            f.c.watched_s = vt.now_s() - t_f;
+            if f.c.watched_s >= watch_s {
+                return Ok(f);
             }
         }
-        anyhow::ensure!(next < inputs.len() || awaiting, "the scenario ended {} s after the fault", c.watched_s);
+        anyhow::ensure!(
+            next < f.inputs.len() || awaiting,
+            "the scenario ended {} s after the fault ({} steps sent, the last frame's time tag {} s, fault {})",
+            f.c.watched_s,
+            next,
+            f.judge.last_t_s,
+            if fault_v.is_some() {
+                "in"
+            } else if fault_armed {
+                "armed"
+            } else {
+                "not armed"
+            }
+        );
     }
-    // A resumed unit's first frames carry its snapshot's (earlier) time tags.
-    c.back_after_s = judge.back_from.map(|b| (b - c.fault_s).max(0.0));
-    c.wall_s = started.elapsed().as_secs_f64();
-    unit.kill();
-    c.log = unit.log(elf);
-    c.resumed = c.log.iter().any(|l| l.contains("resumed from the snapshot"));
-    Ok(c)
 }

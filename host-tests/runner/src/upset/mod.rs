@@ -604,15 +604,12 @@ pub fn step_code(elf: &Path) -> Result<StepCode> {
 /// contains `step` (`10FlightCore4step17h`, the spacecraft's; `10FlightCore9step_with17h`,
 /// the launch vehicle's step with the navigation in its hook).
 pub fn step_code_of(elf: &Path, step_name: &str) -> Result<StepCode> {
-    use gimli::{AttributeValue, EndianSlice, RunTimeEndian};
-    use object::{Object, ObjectSection, ObjectSymbol};
-    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
-    let file = object::File::parse(&*data)?;
-    let load = |id: gimli::SectionId| -> Result<std::borrow::Cow<'_, [u8]>, gimli::Error> {
-        Ok(file.section_by_name(id.name()).and_then(|s| s.uncompressed_data().ok()).unwrap_or_default())
-    };
-    let sections = gimli::DwarfSections::load(load)?;
-    let dwarf = sections.borrow(|s| EndianSlice::new(s, RunTimeEndian::Little));
+    with_dwarf(elf, |file, dwarf| step_code_in(elf, step_name, file, dwarf))
+}
+
+fn step_code_in(elf: &Path, step_name: &str, file: &object::File<'_>, dwarf: &Dwarf<'_>) -> Result<StepCode> {
+    use gimli::AttributeValue;
+    use object::{Object, ObjectSymbol};
     // Every inlined instance of FlightCore::step and FlightCore::background.
     let mut found: Vec<Inlined> = Vec::new();
     let mut units = dwarf.units();
@@ -1215,6 +1212,22 @@ pub(crate) fn watchdog_at_reset(g: &mut Gdb, warnings: Option<u32>) -> Result<(u
 const WDOG_RIS: u32 = 0x4000_8010;
 
 /// The address of the data symbol whose demangled path is `path`, if the ELF has one.
+/// The debug information of an ELF as the runner reads it.
+pub(crate) type Dwarf<'a> = gimli::Dwarf<gimli::EndianSlice<'a, gimli::RunTimeEndian>>;
+
+/// Calls `f` with the ELF `elf` and its debug information.
+pub(crate) fn with_dwarf<T>(elf: &Path, f: impl FnOnce(&object::File<'_>, &Dwarf<'_>) -> Result<T>) -> Result<T> {
+    use object::{Object, ObjectSection};
+    let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
+    let file = object::File::parse(&*data)?;
+    let load = |id: gimli::SectionId| -> Result<std::borrow::Cow<'_, [u8]>, gimli::Error> {
+        Ok(file.section_by_name(id.name()).and_then(|s| s.uncompressed_data().ok()).unwrap_or_default())
+    };
+    let sections = gimli::DwarfSections::load(load)?;
+    let dwarf = sections.borrow(|s| gimli::EndianSlice::new(s, gimli::RunTimeEndian::Little));
+    f(&file, &dwarf)
+}
+
 pub(crate) fn data_symbol(elf: &Path, path: &str) -> Result<Option<u32>> {
     use object::{Object, ObjectSymbol};
     let data = std::fs::read(elf).with_context(|| format!("cannot read {}", elf.display()))?;
