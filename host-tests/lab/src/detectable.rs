@@ -255,26 +255,40 @@ pub fn sinusoid_curve(
 }
 
 impl SinusoidCurve {
-    /// A summary: the periods over which the amplitude stays within 1.5× its smallest value,
-    /// and the largest amplitude there: (amplitude rad/s, period from s, period to s).
+    /// A summary: the run of periods around the smallest amplitude over which it stays within
+    /// 1.5× of it, and the largest amplitude there: (amplitude rad/s, period from s, period to s).
     pub fn summary(&self) -> Option<(f64, f64, f64)> {
         let min = self.amp_rad_s.iter().copied().fold(f64::INFINITY, f64::min);
         if !min.is_finite() {
             return None;
         }
-        let ok: Vec<usize> = (0..self.amp_rad_s.len()).filter(|&i| self.amp_rad_s[i] <= 1.5 * min).collect();
-        let (&a, &b) = (ok.first()?, ok.last()?);
-        let amp = ok.iter().map(|&i| self.amp_rad_s[i]).fold(0.0, f64::max);
+        // The run of consecutive periods around the smallest amplitude.
+        let ok = |i: &usize| self.amp_rad_s[*i] <= 1.5 * min;
+        let best = (0..self.amp_rad_s.len()).find(|&i| self.amp_rad_s[i] == min)?;
+        let a = (0..=best).rev().take_while(ok).last()?;
+        let b = (best..self.amp_rad_s.len()).take_while(ok).last()?;
+        let amp = (a..=b).map(|i| self.amp_rad_s[i]).fold(0.0, f64::max);
         Some((amp, self.period_s[a], self.period_s[b]))
     }
 
-    /// The periods where the base model leaves less than `share` of a line's information
-    /// ([`SinusoidCurve::base_share`]) and the least share there: (from s, to s, share).
-    pub fn base_taken(&self, share: f64) -> Option<(f64, f64, f64)> {
-        let low: Vec<usize> = (0..self.base_share.len()).filter(|&i| self.base_share[i] < share).collect();
-        let (&a, &b) = (low.first()?, low.last()?);
-        let worst = low.iter().map(|&i| self.base_share[i]).fold(1.0, f64::min);
-        Some((self.period_s[a], self.period_s[b], worst))
+    /// The runs of consecutive periods where the base model leaves a share of a line's
+    /// information ([`SinusoidCurve::base_share`]) in `[from, below)`, each with the least
+    /// share in it: (period from s, period to s, share).
+    pub fn base_taken(&self, from: f64, below: f64) -> Vec<(f64, f64, f64)> {
+        let mut out: Vec<(f64, f64, f64)> = Vec::new();
+        let mut open = false;
+        for (&p, &sh) in self.period_s.iter().zip(&self.base_share) {
+            if !(from..below).contains(&sh) {
+                open = false;
+            } else if let (true, Some(last)) = (open, out.last_mut()) {
+                last.1 = p;
+                last.2 = last.2.min(sh);
+            } else {
+                out.push((p, p, sh));
+                open = true;
+            }
+        }
+        out
     }
 
     /// The amplitude at period `p_s` (log-interpolated), rad/s.
@@ -323,6 +337,14 @@ pub struct Detectable {
     pub sinusoid: Option<SinusoidCurve>,
 }
 
+/// Below this share of a line's information left by the base model
+/// ([`SinusoidCurve::base_share`]) the statement names the period.
+pub const BASE_SHARE_FULL: f64 = 0.95;
+
+/// Below this share the base model takes the whole line (its stated size more than 30×
+/// the line's alone): the sinusoid is called not identifiable there.
+pub const BASE_SHARE_NONE: f64 = 1e-3;
+
 /// A period in the unit that reads best: s below 2 min, min below 2 h, else h.
 pub fn period_text(p_s: f64) -> String {
     if p_s < 120.0 {
@@ -362,18 +384,79 @@ impl Detectable {
                     period_text(s.searched_s.1)
                 ));
             }
-            if let Some((lo, hi, worst)) = s.base_taken(0.95) {
+            let ranges = |r: &[(f64, f64, f64)]| -> String {
+                let v: Vec<String> =
+                    r.iter()
+                        .map(|&(lo, hi, _)| {
+                            if lo == hi {
+                                period_text(lo)
+                            } else {
+                                format!("{}–{}", period_text(lo), period_text(hi))
+                            }
+                        })
+                        .collect();
+                v.join(", ")
+            };
+            let taken = s.base_taken(BASE_SHARE_NONE, BASE_SHARE_FULL);
+            if !taken.is_empty() {
+                let worst = taken.iter().map(|r| r.2).fold(1.0, f64::min);
                 out.push(format!(
-                    "  {:<30}   at periods {}–{} the base model takes up to {:.0} % of a line (a base term follows \
+                    "  {:<30}   at periods {} the base model takes up to {:.0} % of a line (a base term follows \
                      it over a block); the sizes stated there are larger by up to {:.0} %",
                     "",
-                    period_text(lo),
-                    period_text(hi),
+                    ranges(&taken),
                     100.0 * (1.0 - worst),
                     100.0 * (1.0 / worst.sqrt() - 1.0)
                 ));
             }
+            let none = s.base_taken(0.0, BASE_SHARE_NONE);
+            if !none.is_empty() {
+                out.push(format!(
+                    "  {:<30}   at periods {} a sinusoid is not identifiable: the base model takes the whole line",
+                    "",
+                    ranges(&none)
+                ));
+            }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A curve over the periods 100, 200, … s with the base model's share of a line given.
+    fn curve(share: &[f64]) -> Detectable {
+        let period_s: Vec<f64> = (1..=share.len()).map(|i| 100.0 * i as f64).collect();
+        let amp_rad_s = share.iter().map(|s| 1e-7 / s.sqrt()).collect();
+        let sinusoid = SinusoidCurve {
+            searched_s: (period_s[0], period_s[share.len() - 1]),
+            period_s,
+            amp_rad_s,
+            base_share: share.to_vec(),
+        };
+        Detectable { alpha_per_fog: 1e-3, terms: Vec::new(), sinusoid: Some(sinusoid) }
+    }
+
+    #[test]
+    fn base_share_names_each_run_of_periods() {
+        // Two runs apart: 200–300 s and 600 s, not one range 200–600 s.
+        let text = curve(&[1.0, 0.5, 0.9, 1.0, 1.0, 0.8, 1.0]).lines().join("\n");
+        assert!(text.contains("at periods 3 min–5 min, 10 min the base model takes up to 50 %"), "{text}");
+        assert!(!text.contains("3 min–10 min"), "{text}");
+        assert!(!text.contains("not identifiable"), "{text}");
+    }
+
+    #[test]
+    fn a_line_the_base_takes_whole_is_not_identifiable() {
+        let text = curve(&[0.9, 1e-6, 1e-6, 1.0, 0.64]).lines().join("\n");
+        assert!(text.contains("at periods 3 min–5 min a sinusoid is not identifiable"), "{text}");
+        // The finite statement covers only the period where a size is stated.
+        assert!(text.contains("at periods 100 s, 8 min the base model takes up to 36 %"), "{text}");
+        assert!(text.contains("larger by up to 25 %"), "{text}");
+        assert!(!text.contains("99900"), "{text}");
+        // The stated range is the run around the smallest size, not across the gap.
+        assert!(text.contains("at periods 7 min–8 min (searched"), "{text}");
     }
 }

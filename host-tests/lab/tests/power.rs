@@ -19,7 +19,11 @@
 //! (indices into its configurations), `POWER_EFFECTS=sinusoid,magnetic` (labels containing
 //! a word), `POWER_SEEDS=12`, `POWER_SEED0=0` (the first seed), `POWER_PERIODS=600,2400`,
 //! `POWER_OPT=1,1.3` (multiples of the optimal test's MDE tried; empty: none),
-//! `POWER_VERBOSE=1` (each miss's lines).
+//! `POWER_VERBOSE=1` (each miss's lines). Two probes of the terms' statement, also
+//! `--ignored`: `null_spread` (on null sessions, whether the information Xᵀ Σ̂⁻¹ X the
+//! statement uses over-states the GLS estimate's real precision: the null F's mean) and
+//! `effect_spread` (at the stated size, the effect FOG's information against the null
+//! session's, its F and the F-test's predicted and measured power).
 
 use ssis_lab::detectable::{lambda_required, min_coef, POWER};
 use ssis_lab::diagnose::{diagnose, Diagnosis, Options};
@@ -149,7 +153,7 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
         _ => Kind::parse_arg(label(e).trim_start_matches("expr:")).map(|k| k.eng_units(0)[0].1).unwrap_or(1.0),
     };
     // POWER_SEED0: the first seed (a fresh set of draws); POWER_VERBOSE: each miss's lines.
-    let seed0: u64 = std::env::var("POWER_SEED0").ok().and_then(|v| v.parse().ok()).unwrap_or(0);
+    let seed0 = env_num("POWER_SEED0", 0);
     let verbose = std::env::var("POWER_VERBOSE").is_ok();
     for seed in seed0..seed0 + seeds {
         let fog = (seed % 4) as usize;
@@ -202,6 +206,19 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
         }
     }
     cell
+}
+
+/// The configurations `POWER_CONFIGS` picks of `all` (comma-separated indices; all when unset).
+fn env_configs(all: &[(f64, f64, bool)]) -> Vec<(f64, f64, bool)> {
+    match std::env::var("POWER_CONFIGS") {
+        Ok(v) => v.split(',').filter_map(|i| all.get(i.trim().parse::<usize>().ok()?).copied()).collect(),
+        Err(_) => all.to_vec(),
+    }
+}
+
+/// A whole number from the environment, `default` when unset.
+fn env_num(var: &str, default: u64) -> u64 {
+    std::env::var(var).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
 fn mean(v: &[f64]) -> f64 {
@@ -294,15 +311,113 @@ fn full_sweep() {
         (5.0, 6.0, false),
         (10.0, 10.0, true),
     ];
-    let configs: Vec<(f64, f64, bool)> = match std::env::var("POWER_CONFIGS") {
-        Ok(v) => v.split(',').filter_map(|i| all.get(i.trim().parse::<usize>().ok()?).copied()).collect(),
-        Err(_) => all.to_vec(),
-    };
-    let seeds = std::env::var("POWER_SEEDS").ok().and_then(|v| v.parse().ok()).unwrap_or(12);
+    let configs = env_configs(&all);
+    let seeds = env_num("POWER_SEEDS", 12);
     // POWER_PERIODS: the sinusoid's periods, s; POWER_OPT: multiples of the optimal test's
     // MDE tried on white data (empty: none).
     let list = |var: &str, default: &[f64]| -> Vec<f64> {
         std::env::var(var).map_or(default.to_vec(), |v| v.split(',').filter_map(|x| x.trim().parse().ok()).collect())
     };
     study(&configs, &list("POWER_PERIODS", &[600.0, 2400.0, 9000.0]), seeds, &list("POWER_OPT", &[1.0, 1.3]));
+}
+
+/// The spread of the candidates' GLS estimates on null sessions against what their
+/// information predicts: with no effect, ĉᵀ I ĉ / q (the F statistic times the whitened
+/// residual's mean square) has mean 1 when I = Xᵀ Σ̂⁻¹ X is the estimate's real precision,
+/// r > 1 when the noise model over-states it by r. `POWER_CONFIGS`, `POWER_SEEDS`,
+/// `POWER_SEED0` as in [`full_sweep`] (seeds 40 by default); every FOG of every null session
+/// counts.
+#[test]
+#[ignore]
+fn null_spread() {
+    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
+    let configs = env_configs(&all);
+    let (seeds, seed0) = (env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0));
+    let opt = Options::default();
+    for (dt_s, hours, wander) in configs {
+        let mut per: Vec<(String, Vec<f64>)> = Vec::new();
+        for seed in seed0..seed0 + seeds {
+            let spec =
+                PowerSpec { seed: 1000 + seed, dt_s, hours, effect: PowerEffect::Column, size: 0.0, fog: 0, wander };
+            let d = diagnose(&model(PowerEffect::Column), &session(&power_session(&spec)), &opt).unwrap();
+            for c in d.candidates.iter().filter(|c| !matches!(c.kind, Kind::Sinusoid(_))) {
+                let l = c.kind.label();
+                let i = per.iter().position(|(k, _)| *k == l).unwrap_or_else(|| {
+                    per.push((l.clone(), Vec::new()));
+                    per.len() - 1
+                });
+                per[i].1.extend(c.per_fog.iter().flatten().map(|t| t.f));
+            }
+        }
+        println!("{dt_s} s, {hours} h, {}:", if wander { "coloured" } else { "white" });
+        for (l, v) in &per {
+            let m = mean(v);
+            let sd = (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len().max(2) - 1) as f64).sqrt();
+            let se = sd / (v.len().max(1) as f64).sqrt();
+            println!("  {l:<20} null mean F {m:.3} ± {se:.3} (n {})", v.len());
+            // The information must not over-state the estimate's precision.
+            assert!(m <= 1.0 + 3.0 * se, "{l}: the null F's mean {m:.3} ± {se:.3} is above 1");
+        }
+    }
+}
+
+/// The column's test at the stated size against what its statement assumed: per seed the
+/// null session's information I₀ of the effect FOG (the statement's), the session with the
+/// effect at the stated size's information I₁ and F, and the F-test's power predicted from
+/// each (λ* I₁/I₀ against λ*). `POWER_CONFIGS`, `POWER_SEEDS`, `POWER_SEED0`,
+/// `POWER_EFFECTS` (one effect) as in [`full_sweep`].
+#[test]
+#[ignore]
+fn effect_spread() {
+    use ssis_lab::detectable::ncx2_sf;
+    use statrs::distribution::{ChiSquared, ContinuousCDF};
+    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
+    let configs = env_configs(&all);
+    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
+    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
+    let (seeds, seed0) = (env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0));
+    let opt = Options::default();
+    let info = |d: &Diagnosis, fog: usize| {
+        let c = d.candidates.iter().find(|c| c.kind.label() == label(e))?;
+        c.per_fog.get(fog)?.as_ref().map(|t| (t.info[0], t.f, t.p_f))
+    };
+    for (dt_s, hours, wander) in configs {
+        let (mut ratio, mut f1, mut lam, mut p_null, mut p_eff, mut hit, mut pf_hit) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new(), Tally::default(), Tally::default());
+        for seed in seed0..seed0 + seeds {
+            let fog = (seed % 4) as usize;
+            let spec = PowerSpec { seed: 1000 + seed, dt_s, hours, effect: e, size: 0.0, fog, wander };
+            let d0 = diagnose(&model(e), &session(&power_session(&spec)), &opt).unwrap();
+            let (Some(c), Some((i0, _, _))) = (stated(&d0, e, fog), info(&d0, fog)) else { continue };
+            let alpha = d0.detectable.alpha_per_fog;
+            let l_star = lambda_required(1, alpha, POWER);
+            let crit = ChiSquared::new(1.0).unwrap().inverse_cdf(1.0 - alpha);
+            let d1 = diagnose(&model(e), &session(&power_session(&PowerSpec { size: c, ..spec })), &opt).unwrap();
+            let Some((i1, f, pf)) = info(&d1, fog) else { continue };
+            ratio.push(i1 / i0);
+            f1.push(f);
+            lam.push(l_star);
+            p_null.push(ncx2_sf(crit, 1.0, l_star));
+            p_eff.push(ncx2_sf(crit, 1.0, l_star * i1 / i0));
+            hit.add(found(&d1, e, hours * 3600.0));
+            pf_hit.add(pf <= alpha);
+            println!(
+                "  seed {seed} fog {fog}: I1/I0 {:.3} F {f:.1} (λ* {l_star:.1}) p_F {pf:.1e} α {alpha:.1e}",
+                i1 / i0
+            );
+        }
+        println!(
+            "{dt_s} s, {hours} h, {}: I1/I0 mean {:.3} (min {:.3}); F at the stated size mean {:.1} (1 + λ* = {:.1}); \
+             F-test power predicted from I0 {:.3}, from I1 {:.3}; p_F ≤ α {pf_hit}; found {hit}",
+            if wander { "coloured" } else { "white" },
+            mean(&ratio),
+            ratio.iter().copied().fold(f64::INFINITY, f64::min),
+            mean(&f1),
+            1.0 + mean(&lam),
+            mean(&p_null),
+            mean(&p_eff),
+        );
+        // The noise model of the session with the effect must not take it up as wander.
+        assert!(mean(&ratio) >= 0.95, "the effect's information falls to {:.3} of the null's", mean(&ratio));
+    }
 }
