@@ -42,7 +42,7 @@
 
 use statrs::distribution::{ChiSquared, ContinuousCDF, Discrete, Poisson};
 
-use super::noise::NoiseModel;
+use super::noise::{row_spectrum_of_means, NoiseModel};
 use super::spectral::max_tail;
 
 /// Detection probability the minimum detectable effect is stated at.
@@ -123,31 +123,6 @@ pub fn min_coef(info: &[f64], lambda: f64) -> Option<f64> {
     let mu = m.symmetric_eigenvalues().iter().copied().fold(f64::INFINITY, f64::min);
     let scale = (0..q).map(|i| info[i * q + i].abs()).fold(0.0, f64::max);
     (mu > 1e-12 * scale && mu > 0.0).then(|| (lambda / mu).sqrt())
-}
-
-/// The residual's spectral density per row at `f_hz` under a noise model, (rad/s)² (a white
-/// residual of row variance σ² has σ²), for rows every `dt_s`.
-pub fn row_spectrum(nm: &NoiseModel, f_hz: f64, dt_s: f64) -> f64 {
-    row_spectrum_of_means(nm, f_hz, dt_s, 1)
-}
-
-/// [`row_spectrum`] of rows that are each the mean of `averaged` consecutive rows of the
-/// session (their white part is `averaged` times smaller; the wander's, at `f_hz` well below
-/// their rate, the same).
-pub fn row_spectrum_of_means(nm: &NoiseModel, f_hz: f64, dt_s: f64, averaged: usize) -> f64 {
-    let white = if nm.bin_rows > 1 { nm.white_row_var } else { nm.white_bin_var } / averaged.max(1) as f64;
-    // Rows per bin of this spacing (kept rows may be a sample of every row).
-    let rows_per_bin = (nm.bin_dt_s / dt_s).max(1.0);
-    let w = 2.0 * std::f64::consts::PI * f_hz * dt_s;
-    let gm: f64 = nm
-        .gm
-        .iter()
-        .map(|&(theta, tau_bins)| {
-            let r = (-1.0 / (tau_bins * rows_per_bin)).exp();
-            theta * (1.0 - r * r) / (1.0 - 2.0 * r * w.cos() + r * r)
-        })
-        .sum();
-    white + gm
 }
 
 /// The sinusoid's minimum detectable amplitude against period on one FOG.

@@ -14,7 +14,7 @@
 //!    sum of squares is each FOG's power P(f).
 //! 2. **Background.** Each FOG's power is divided by its background: the residual's spectrum
 //!    under the FOG's noise model (white plus its Gauss–Markov Lorentzians,
-//!    [`super::detectable::row_spectrum_of_means`]; flat without one) times the median over
+//!    [`super::noise::row_spectrum_of_means`]; flat without one) times the median over
 //!    the whole grid of the power over that spectrum, times 2 ln 2. The median of hundreds of
 //!    independent frequencies is known to a few per cent, so the normalised power of a FOG
 //!    without a line is χ²₂ far into its tail (a median over a few tens of neighbours, off by
@@ -42,8 +42,7 @@
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 use statrs::function::gamma::ln_gamma;
 
-use super::detectable::row_spectrum_of_means;
-use super::noise::NoiseModel;
+use super::noise::{row_spectrum_of_means, NoiseModel};
 
 /// Largest false-alarm probability of a line after the first (and of a harmonic, ×3).
 pub const LINE_FAP: f64 = 0.01;
