@@ -486,7 +486,7 @@ pub use ssis::bsp::exec::Times;
 /// Bytes of the control line's receive ring (control frames and telecommands).
 pub const CTL_RX_LEN: usize = 256;
 
-/// Whether this build honours the control frames (LOCKSTEP, STEP, END, STALL): only a
+/// Whether this build honours the control frames (LOCKSTEP, STEP, END, STALL, TICK_STOP): only a
 /// test build (`test-hooks`, the binaries that invoke [`mps2_test_hooks!`](crate::mps2_test_hooks)).
 pub const TEST_HOOKS: bool = cfg!(feature = "test-hooks");
 
@@ -593,6 +593,7 @@ impl Pacer {
                     }
                     command::END => *end = true,
                     command::STALL => *stall = true,
+                    command::TICK_STOP => stop_tick(),
                     _ => {}
                 }
             });
@@ -627,6 +628,18 @@ impl Pacer {
     pub fn lockstep(&self) -> bool {
         self.lockstep
     }
+}
+
+/// The TICK_STOP test hook: the SysTick's enable bit cleared by the guest's own store,
+/// as an upset of its control word would leave it (the register check and the watchdog
+/// must bring the tick back).
+#[inline(never)]
+#[cold]
+fn stop_tick() {
+    defmt::error!("test hook: SysTick stopped on command");
+    // SAFETY: a read-modify-write of the SysTick control word by the only code that runs
+    // here (the main loop); the test of a stopped tick.
+    unsafe { (*SYST::PTR).csr.modify(|c| c & !1) };
 }
 
 /// The STALL test hook: the loop stops for good, feeding nothing.

@@ -2,10 +2,13 @@
 //! by a step that completed within its deadline, so a loop that stops stepping is
 //! reset. `ssis-fw-test` flies the two-minute QEMU scenario in lockstep, cut to
 //! [`FLIGHT_S`]; at [`FAULT_S`], after convergence, the runner injects a fault of the
-//! loop through QEMU's gdbstub (`ssis_runner::upset::run_injection`) and follows the
+//! loop (`ssis_runner::upset::run_injection`), with the guest running, and follows a
 //! reset back into lockstep:
 //!
-//! - the SysTick's enable bit cleared (0xE000_E010 bit 0): the tick stops; the steps
+//! - the SysTick's enable bit cleared (0xE000_E010 bit 0, by the test build's TICK_STOP
+//!   control frame: a debugger stop after it would let QEMU warp its virtual time to the
+//!   watchdog's timeouts and reset the machine while the runner restores the registers
+//!   of its access, leaving the old loop on reset devices): the tick stops; the steps
 //!   that the runner's STEP frames still call for take no time on the stopped clock,
 //!   so none feeds the watchdog, and no idle pass sees a new tick;
 //! - a stall of the main loop (the test build's STALL control frame).

@@ -146,7 +146,6 @@ fn in_flight_masked_interrupts_are_recovered_within_their_goals() {
 }
 
 #[test]
-#[ignore = "flaky: in a fresh clone's debug test run the gdbstub's arming at SYST_CSR (0xe000e010) faulted; passed in 3 release runs"]
 fn in_lockstep_a_stopped_tick_is_recovered_within_its_goals() {
     in_flight(LoopFault::TickStopped, true);
 }

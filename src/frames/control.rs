@@ -14,7 +14,7 @@
 //! | 14 | 4 | crc | u32 | CRC-32C over bytes 0..14 |
 //!
 //! In lockstep the unit steps once per `STEP`, after it has received the totals named.
-//! `STALL` exists for the watchdog test.
+//! `STALL` and `TICK_STOP` exist for the watchdog and stopped-tick tests.
 
 use super::{kind, DecodeError, FieldReader, FieldWriter, Frame};
 
@@ -31,6 +31,9 @@ pub mod command {
     pub const END: u8 = 3;
     /// Fault injection: stop feeding the watchdog (the main loop spins).
     pub const STALL: u8 = 4;
+    /// Fault injection: the firmware clears the SysTick's enable bit itself, between
+    /// two steps (a stopped tick without the debugger halting the guest around it).
+    pub const TICK_STOP: u8 = 5;
 }
 
 /// One control frame.
@@ -73,7 +76,7 @@ impl Frame for ControlFrame {
 
     fn read_fields(r: &mut FieldReader<'_>) -> Result<Self, DecodeError> {
         let command = r.u8()?;
-        if !(command::LOCKSTEP..=command::STALL).contains(&command) {
+        if !(command::LOCKSTEP..=command::TICK_STOP).contains(&command) {
             return Err(DecodeError::BadField);
         }
         Ok(ControlFrame { command, fog_bytes: r.u32()?, st_bytes: r.u32()?, arg: r.u16()? })

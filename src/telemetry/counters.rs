@@ -142,7 +142,7 @@ events_table!(declare_counters {
         FogSamplesStale fog_samples_stale "FOG samples that came too late and were discarded",
         StFramesLate st_frames_late "star-tracker frames older than the attitude history (came late, or the unit bridged past them)",
         StFramesEarly st_frames_early "star-tracker frames too far ahead of the unit's clock (more than 1 s, or more than the pending queue holds)",
-        ControlIgnored control_ignored "control frames (LOCKSTEP, STEP, END, STALL) ignored: a flight build has no test hooks",
+        ControlIgnored control_ignored "control frames (LOCKSTEP, STEP, END, STALL, TICK_STOP) ignored: a flight build has no test hooks",
         TcAccepted tc_accepted "telecommands accepted (authenticated, in sequence) and acted on",
         TcCorrupt tc_corrupt "telecommand frames rejected by the decoder (CRC-32C, malformed fields)",
         TcUnauthenticated tc_unauthenticated "telecommands refused: the MAC does not verify (wrong key, forged, no key provisioned)",

@@ -30,7 +30,12 @@
 //!   disjoint rows, so the probability of finding the line is their product, and the
 //!   minimum detectable amplitude is the one at which the product reaches [`POWER`]. The
 //!   non-centrality that does it is the same at every period (only S(f) changes), so it is
-//!   solved for once.
+//!   solved for once. The line's non-centrality is what the base model leaves of it: the
+//!   search fits the training residual of the base model, the test fits the line beside
+//!   it, so n is scaled by the least share of the line's information left beside the base
+//!   design on either half, in the line's least informative phase (μ_min of its (sin, cos)
+//!   information over n/2; [`SinusoidCurve::base_share`]), as a term's statement holds in
+//!   any direction of its regressors.
 //!
 //! The power study (`host-tests/lab/tests/power.rs`) measures the detection rate at the
 //! stated size and at half of it.
@@ -154,6 +159,13 @@ pub struct SinusoidCurve {
     pub amp_rad_s: Vec<f64>,
     /// The period range the search covers, s.
     pub searched_s: (f64, f64),
+    /// Per period, the smallest over FOGs of the share of a line's information the base
+    /// model leaves, on the training rows (the search) or the test rows (the test), in the
+    /// line's least informative phase: μ_min of the (sin, cos) information beside the base
+    /// design over n/2. Below 1 where a base regressor follows the line over a block (a
+    /// slow temperature profile, a drift against a period comparable to a block); the
+    /// amplitude is divided by its square root.
+    pub base_share: Vec<f64>,
 }
 
 /// Inputs of [`sinusoid_curve`].
@@ -209,26 +221,37 @@ pub fn line_lambda(ld: &LineDesign, alpha: f64, power: f64) -> f64 {
 
 /// Minimum detectable sinusoid amplitude over `points` periods log-spaced across the
 /// searched range (see the module text), the largest over the FOGs' noise models.
-pub fn sinusoid_curve(noise: &[NoiseModel], ld: &LineDesign, alpha: f64, points: usize) -> SinusoidCurve {
+/// `share(fog, f)` is the share of a line's information at `f` Hz on FOG `fog` that the
+/// base model leaves, in its least informative phase (1: none taken; see
+/// [`SinusoidCurve::base_share`]).
+pub fn sinusoid_curve(
+    noise: &[NoiseModel],
+    ld: &LineDesign,
+    alpha: f64,
+    points: usize,
+    share: &dyn Fn(usize, f64) -> f64,
+) -> SinusoidCurve {
     let (f_min, f_max) = ld.range_hz;
     let lam = line_lambda(ld, alpha, POWER);
     let (p_lo, p_hi) = (1.0 / f_max, 1.0 / f_min);
     let mut period_s = Vec::new();
     let mut amp_rad_s = Vec::new();
+    let mut base_share = Vec::new();
     for i in 0..points.max(2) {
         let p = p_lo * (p_hi / p_lo).powf(i as f64 / (points.max(2) - 1) as f64);
         let f = 1.0 / p;
-        let a = noise
-            .iter()
-            .map(|nm| {
-                let s = row_spectrum_of_means(nm, f, ld.dt_s, ld.rows_averaged);
-                (2.0 * s * lam / ld.n_train.max(1) as f64).sqrt()
-            })
-            .fold(0.0, f64::max);
+        let (mut a, mut worst) = (0.0f64, 1.0f64);
+        for (fog, nm) in noise.iter().enumerate() {
+            let s = row_spectrum_of_means(nm, f, ld.dt_s, ld.rows_averaged);
+            let sh = share(fog, f).clamp(1e-6, 1.0);
+            worst = worst.min(sh);
+            a = a.max((2.0 * s * lam / (sh * ld.n_train.max(1) as f64)).sqrt());
+        }
         period_s.push(p);
         amp_rad_s.push(a);
+        base_share.push(worst);
     }
-    SinusoidCurve { period_s, amp_rad_s, searched_s: (p_lo, p_hi) }
+    SinusoidCurve { period_s, amp_rad_s, searched_s: (p_lo, p_hi), base_share }
 }
 
 impl SinusoidCurve {
@@ -243,6 +266,15 @@ impl SinusoidCurve {
         let (&a, &b) = (ok.first()?, ok.last()?);
         let amp = ok.iter().map(|&i| self.amp_rad_s[i]).fold(0.0, f64::max);
         Some((amp, self.period_s[a], self.period_s[b]))
+    }
+
+    /// The periods where the base model leaves less than `share` of a line's information
+    /// ([`SinusoidCurve::base_share`]) and the least share there: (from s, to s, share).
+    pub fn base_taken(&self, share: f64) -> Option<(f64, f64, f64)> {
+        let low: Vec<usize> = (0..self.base_share.len()).filter(|&i| self.base_share[i] < share).collect();
+        let (&a, &b) = (low.first()?, low.last()?);
+        let worst = low.iter().map(|&i| self.base_share[i]).fold(1.0, f64::min);
+        Some((self.period_s[a], self.period_s[b], worst))
     }
 
     /// The amplitude at period `p_s` (log-interpolated), rad/s.
@@ -328,6 +360,17 @@ impl Detectable {
                     period_text(p1),
                     period_text(s.searched_s.0),
                     period_text(s.searched_s.1)
+                ));
+            }
+            if let Some((lo, hi, worst)) = s.base_taken(0.95) {
+                out.push(format!(
+                    "  {:<30}   at periods {}–{} the base model takes up to {:.0} % of a line (a base term follows \
+                     it over a block); the sizes stated there are larger by up to {:.0} %",
+                    "",
+                    period_text(lo),
+                    period_text(hi),
+                    100.0 * (1.0 - worst),
+                    100.0 * (1.0 / worst.sqrt() - 1.0)
                 ));
             }
         }

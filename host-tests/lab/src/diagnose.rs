@@ -651,8 +651,35 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
         t_sd_s: time_spread_s(&train_t, &vec![1.0; n_train]),
         n_fog,
     };
-    let sinusoid = (ld.range_hz.1 > ld.range_hz.0 && n_train > 16).then(|| sinusoid_curve(&base.noise, &ld, alpha, 48));
+    let share = |fog: usize, f: f64| line_share(d, base, fog, f);
+    let sinusoid =
+        (ld.range_hz.1 > ld.range_hz.0 && n_train > 16).then(|| sinusoid_curve(&base.noise, &ld, alpha, 48, &share));
     Detectable { alpha_per_fog: alpha, terms, sinusoid }
+}
+
+/// The share of a line's information at `f_hz` on FOG `fog` that the base design leaves
+/// on the line rows, the smaller of the training and the test blocks', in the line's least
+/// informative phase: μ_min of the (sin, cos) information beside the base over n/2
+/// ([`super::detectable::SinusoidCurve::base_share`]).
+fn line_share(d: &Digest, base: &BaseFit, fog: usize, f_hz: f64) -> f64 {
+    let (_, s) = kept_with_sinusoid(d, fog, f_hz);
+    let (design, line) = with_line(&base.bases[fog], d.basis.m);
+    [&s.train, &s.test]
+        .iter()
+        .map(|g| {
+            let info = information(g, &design, &line);
+            let mu = nalgebra::Matrix2::new(info[0], info[1], info[2], info[3])
+                .symmetric_eigenvalues()
+                .iter()
+                .copied()
+                .fold(f64::INFINITY, f64::min);
+            if g.n > 0 {
+                (mu / (0.5 * g.n as f64)).clamp(0.0, 1.0)
+            } else {
+                1.0
+            }
+        })
+        .fold(1.0, f64::min)
 }
 
 /// The model as it stands, per FOG: its design, the sums, the held-out RMS, the training
@@ -746,9 +773,9 @@ fn candidate_list(d: &Digest, kinds: &[Kind], base: &BaseFit, opt: &Options) -> 
     list
 }
 
-/// The spectral line at `f`, Hz, tested per FOG on the kept rows; the tests and the origin.
-fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest>>, String) {
-    let (m, f) = (d.basis.m, line.f_hz);
+/// The base design `b` on a basis of `m` extended by sin and cos ([`kept_with_sinusoid`]),
+/// and the line's two functionals there.
+fn with_line(b: &Design, m: usize) -> (Design, [Vec<f64>; 2]) {
     let pad = |v: &Vec<f64>| {
         let mut w = v.clone();
         w.extend([0.0, 0.0]);
@@ -759,14 +786,19 @@ fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest
         w[k] = 1.0;
         w
     };
+    (Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() }, [unit(m), unit(m + 1)])
+}
+
+/// The spectral line at `f`, Hz, tested per FOG on the kept rows; the tests and the origin.
+fn spectral_line(d: &Digest, base: &BaseFit, line: &Line) -> (Vec<Option<FogTest>>, String) {
+    let (m, f) = (d.basis.m, line.f_hz);
     let per_fog = (0..d.basis.n_fog)
         .map(|fog| {
             let (z, s) = kept_with_sinusoid(d, fog, f);
-            let b = &base.bases[fog];
-            let design = Design { cols: b.cols.iter().map(pad).collect(), owner: b.owner.clone() };
+            let (design, sc) = with_line(&base.bases[fog], m);
             let bd = Binned::of_rows(&base.kept_bins, &z, m + 2, d.n_blocks);
             let ctx = NoiseCtx { base: &base.noise[fog], bd: &bd };
-            let mut t = test_fog(&s, &design, &[unit(m), unit(m + 1)], &ctx)?;
+            let mut t = test_fog(&s, &design, &sc, &ctx)?;
             if d.kept.stride > 1 {
                 // On means of runs the white part is smaller; the line's systematic drop of the
                 // mean square (a line slower than a run) is what it removes from every row.

@@ -114,6 +114,7 @@ pub fn diagnosis(d: &Diagnosis) -> Value {
             "period_s": s.period_s,
             "amplitude_deg_h": s.amp_rad_s.iter().map(|&a| dh(a)).collect::<Vec<_>>(),
             "searched_period_s": [s.searched_s.0, s.searched_s.1],
+            "base_share": s.base_share,
             "min_detectable_deg_h": sum.map(|x| dh(x.0)),
             "over_period_s": sum.map(|x| [x.1, x.2]),
         })

@@ -167,10 +167,18 @@ fn run_cell(e: PowerEffect, dt_s: f64, hours: f64, wander: bool, seeds: u64, opt
                 let lines: Vec<String> = d
                     .candidates
                     .iter()
-                    .filter(|c| matches!(c.kind, Kind::Sinusoid(_)) || c.significant)
+                    .filter(|c| matches!(c.kind, Kind::Sinusoid(_)) || c.significant || c.kind.label() == label(e))
                     .map(|c| {
+                        // The effect FOG's two tests and held-out RMS (both tests must reject
+                        // and the RMS fall).
+                        let t = c.per_fog.get(fog).and_then(|t| t.as_ref()).map_or(String::new(), |t| {
+                            format!(
+                                " [FOG{fog}: p_F {:.1e} p_dir {:.1e} RMS {:.4e} -> {:.4e}]",
+                                t.p_f, t.p_dir, t.before_rad_s, t.after_rad_s
+                            )
+                        });
                         format!(
-                            "{} p {:.1e}{} ({})",
+                            "{} p {:.1e}{}{t} ({})",
                             c.kind.label(),
                             c.p_value,
                             if c.significant { " *" } else { "" },

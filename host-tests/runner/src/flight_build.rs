@@ -274,17 +274,8 @@ pub fn loop_fault_on_flight_build(
         bytes.extend_from_slice(&b);
     }
     c.frames_before = count_frames(&bytes);
-    match fault {
-        LoopFault::TickStopped => {
-            let csr = g.read_device_u32(crate::upset::SYST_CSR)?;
-            g.write_device_u32(crate::upset::SYST_CSR, csr & !1)?;
-        }
-        LoopFault::Stall => {
-            let pc = g.register_u32(PC)?;
-            g.write_memory(pc & !1, &[0xfe, 0xe7])?;
-        }
-        LoopFault::InterruptsMasked => g.mask_interrupts()?,
-    }
+    let pc = g.register_u32(PC)?;
+    inject(&mut g, fault, pc)?;
     g.resume()?;
     let mut faulted = Vec::new();
     let patience = crate::progress::Patience::new(&unit.q.as_ref().context("no QEMU")?.child, 20.0);
@@ -594,6 +585,20 @@ struct Links3 {
 /// (`system_reset`, what `-action watchdog=reset` does) and the flight goes on by
 /// virtual time: steps due while the unit was down are sent as the sensors would.
 ///
+/// Injects `fault` through the gdbstub into the guest halted at `pc`: the SysTick's
+/// enable bit cleared (the guest's own accesses), a branch to itself written at `pc`, or
+/// PRIMASK set.
+fn inject(g: &mut crate::gdb::Gdb, fault: LoopFault, pc: u32) -> Result<()> {
+    match fault {
+        LoopFault::TickStopped => {
+            let csr = g.read_device_u32(crate::upset::SYST_CSR)?;
+            g.write_device_u32(crate::upset::SYST_CSR, csr & !1)
+        }
+        LoopFault::Stall => g.write_memory(pc & !1, &[0xfe, 0xe7]),
+        LoopFault::InterruptsMasked => g.mask_interrupts(),
+    }
+}
+
 /// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate: LOCKSTEP after
 /// its first frame and again at its reset vector, then step n's bytes and its STEP frame
 /// once step n − 1's output is in and not before step n's time.
@@ -827,12 +832,10 @@ pub fn loop_fault_in_flight(
                     g.clear_breakpoint(a)?;
                 }
                 match fault {
-                    LoopFault::TickStopped => {
-                        let csr = g.read_device_u32(crate::upset::SYST_CSR)?;
-                        g.write_device_u32(crate::upset::SYST_CSR, csr & !1)?;
-                    }
-                    LoopFault::Stall => g.write_memory(pc, &[0xfe, 0xe7])?,
-                    LoopFault::InterruptsMasked => g.mask_interrupts()?,
+                    // The test build clears it itself at its next pass (a guest access
+                    // here can fault with an interrupt pending at the stop).
+                    LoopFault::TickStopped if lockstep => unit.command(command::TICK_STOP)?,
+                    _ => inject(&mut g, fault, pc)?,
                 }
                 phase = Phase::Faulted;
                 vt.resume(&mut g)?;

@@ -33,8 +33,13 @@
 //! population's) is followed at once, wherever in the pass it lands; one that comes after
 //! the last step's outputs went out is found at the next step's start, before its bytes
 //! go out (`on_stop`). With [`run_injection`] it is a fault of the loop itself
-//! ([`Target::TickStopped`]: the SysTick's enable bit cleared; [`Target::Stall`]: the test
-//! build's STALL): the watchdog must reset the unit (tests/qemu_exec.rs).
+//! ([`Target::TickStopped`]: the SysTick's enable bit cleared, by the test build's
+//! TICK_STOP; [`Target::Stall`]: the test build's STALL): the register check or the
+//! watchdog must bring the unit back (tests/qemu_exec.rs). Both are sent on the control
+//! line with the guest running: under `-icount …,sleep=off` a debugger stop after the
+//! tick is stopped lets QEMU warp to the watchdog's timeouts, and a reset that lands while
+//! the runner restores the registers of a guest access leaves the old loop running on
+//! reset devices.
 
 mod lv;
 mod place;
@@ -151,8 +156,8 @@ pub enum Target {
     },
     /// No flip: the unit reset there ([`UpsetOptions::forced_reset`]).
     Reset,
-    /// No flip: the SysTick's enable bit cleared ([`SYST_CSR`]), the step tick stopped
-    /// ([`run_injection`]).
+    /// No flip: the SysTick's enable bit cleared ([`SYST_CSR`]) by the test build's
+    /// TICK_STOP control frame, the step tick stopped ([`run_injection`]).
     TickStopped,
     /// No flip: the test build's STALL control frame, the main loop stopped
     /// ([`run_injection`]).
@@ -827,16 +832,8 @@ fn flip(g: &mut Gdb, t: Target) -> Result<()> {
             g.write_register(reg, &v)
         }
         Target::Reset => g.monitor("system_reset").map(|_| ()),
-        Target::TickStopped => {
-            // A device register: written by the guest's own `str` (the gdbstub drops it).
-            let csr = g.read_device_u32(SYST_CSR)?;
-            g.write_device_u32(SYST_CSR, csr & !1)?;
-            let back = g.read_device_u32(SYST_CSR)?;
-            anyhow::ensure!(back & 1 == 0, "SYST_CSR still {back:#x} after the write");
-            Ok(())
-        }
         // Sent on the control line once the guest runs ([`place_flip`]).
-        Target::Stall => Ok(()),
+        Target::TickStopped | Target::Stall => Ok(()),
     }
 }
 

@@ -375,8 +375,10 @@ pub(super) fn place_flip(
     } else {
         g.resume()?;
     }
-    if target == Target::Stall {
-        unit.command(command::STALL)?;
+    match target {
+        Target::Stall => unit.command(command::STALL)?,
+        Target::TickStopped => unit.command(command::TICK_STOP)?,
+        _ => {}
     }
     if std::env::var_os("SSIS_UPSET_TIMES").is_some() {
         let plan = path_of(ctx, kind).map(|p| p.plan(k));
