@@ -43,18 +43,22 @@
 //!
 //! - up to [`MAX_BRIDGE_STEPS`]: the unit **bridges** them, one strapdown step per lost
 //!   sample:
-//!   - **attitude** on the window's fit: the angle summed over the window's blocks
-//!     (u = steps after the snapshot over the window's span, −1 at its start, 0 at the
-//!     snapshot) fitted by a cubic P(u) per axis, weighted least squares with a Hann
-//!     taper sin²(π(u+1)) + 10⁻³ (the vibration the window cuts off at its ends leaks
-//!     little into the fit); bridged step m of n takes P(m) − P(m−1) − φ₀/n, with
-//!     φ₀ = the angle at the snapshot − P(0), the vibration's displacement at the
-//!     snapshot, so the bridge ends on the smooth motion. What it cannot know is the
-//!     vibration's displacement at the bridge's end and the extrapolation's error: the
-//!     **stated attitude error** is ε = r (1 + n / span), r the fit's weighted RMS
-//!     residual (3-D), added to the attitude covariance as ε²/3 per axis. Measured in
-//!     the roll program (`host-tests/tests/lv_resume.rs`): 10–13″ from the
-//!     uninterrupted unit for gaps of 40–200 steps, within ε (12–16″) at every phase;
+//!   - **attitude** on the window's fit: the angle summed over the window's 48 full
+//!     blocks (v = steps from the window's start over its span − ½: −½ at its start, ½
+//!     at its end) fitted by a cubic P(v) per axis, weighted least squares with a Hann
+//!     taper sin²(π(v+½)) + 10⁻³ (the vibration the window cuts off at its ends leaks
+//!     little into the fit). The points are fixed (the blocks' ends), so the fit is
+//!     their projections on the polynomials orthogonal over them: one pass over the
+//!     window, no system to solve (`fit_window`). The snapshot lies p steps
+//!     after the window's end (p < 8, the block being summed); bridged step m of n takes
+//!     P at p + m steps − P at p + m − 1 − φ₀/n, with φ₀ = the angle at the snapshot −
+//!     P there, the vibration's displacement at the snapshot, so the bridge ends on the
+//!     smooth motion. What it cannot know is the vibration's displacement at the
+//!     bridge's end and the extrapolation's error: the **stated attitude error** is
+//!     ε = r (1 + (p + n) / span), r the fit's weighted RMS residual (3-D), added to the
+//!     attitude covariance as ε²/3 per axis. Measured in the roll program
+//!     (`host-tests/tests/lv_resume.rs`): 10–13″ from the uninterrupted unit for gaps
+//!     of 40–200 steps, within ε (12–16″) at every phase;
 //!   - **velocity** on the mean increment (constant specific force), with the
 //!     increments' spread about their mean as a random walk over the lost steps added to
 //!     the covariance (σ_v² = n s_υ²/3 per axis, σ_r² = n³ Δt² s_υ²/9,
@@ -369,88 +373,76 @@ impl NavSnapshot {
     }
 }
 
-/// The bridge's fit over the window (module documentation): the angle summed over the
-/// window's steps, P(u) = Σ c_k u^k per axis with u the steps after the snapshot over
-/// the window's span.
+/// The window's span, steps: [`WINDOW_BLOCKS`] blocks of [`BLOCK_STEPS`].
+const SPAN_STEPS: f64 = (WINDOW_BLOCKS as u32 * BLOCK_STEPS) as f64;
+
+/// The bridge's fit over the window (module documentation): the angle summed from the
+/// window's start, P(v) = Σ c_k v^k per axis, with v = t / span − ½ (t the steps from the
+/// window's start: v = −½ at its start, ½ at its last block's end).
 struct WindowFit {
-    /// c_0..c_3, rad.
-    c: [Vector3<f64>; 4],
-    /// The window's span, steps.
-    span: f64,
-    /// The angle at the snapshot less P(0): the vibration's displacement then, rad.
+    /// c_0..c_3 of each axis, rad.
+    c: [[f64; 4]; 3],
+    /// Steps from the window's end to the snapshot (the block being summed then).
+    lead: f64,
+    /// The angle at the snapshot less P there: the vibration's displacement then, rad.
     phi0: Vector3<f64>,
     /// The fit's weighted RMS residual (3-D), rad.
     resid_rad: f64,
 }
 
 impl WindowFit {
+    /// P at `steps` after the snapshot.
+    #[inline(never)]
     fn at(&self, steps: f64) -> Vector3<f64> {
-        let u = steps / self.span;
-        let [c0, c1, c2, c3] = &self.c;
-        c0 + (c1 + (c2 + c3 * u) * u) * u
-    }
-
-    /// The body angle increment of bridged step `m` (1-based) of `n`: the fit's, and the
-    /// vibration's displacement at the snapshot spread over the bridge.
-    fn increment(&self, m: u16, n: u16) -> Vector3<f64> {
-        let (m, n) = (f64::from(m), f64::from(n));
-        self.at(m) - self.at(m - 1.0) - self.phi0 / n
+        let v = (self.lead + steps) / SPAN_STEPS + 0.5;
+        Vector3::from_fn(|i, _| self.c.get(i).map_or(0.0, |c| c.iter().rev().fold(0.0, |p, ck| p * v + ck)))
     }
 
     /// The stated attitude error of a bridge over `n` steps (3-D), rad: the residual
     /// (the vibration's displacement at the bridge's end, which the fit cannot know),
-    /// grown with the extrapolation, `resid (1 + n / span)`.
+    /// grown with the extrapolation from the window's end, `resid (1 + (lead + n) / span)`.
     fn bound(&self, n: u16) -> f64 {
         if n == 0 {
             return 0.0;
         }
-        self.resid_rad * (1.0 + f64::from(n) / self.span)
+        self.resid_rad * (1.0 + (self.lead + f64::from(n)) / SPAN_STEPS)
     }
 }
 
-/// Solves the normal equations `[A | B]` (A 4×4 symmetric positive definite, B 4×3) by
-/// Gaussian elimination without pivoting: X with A X = B, or `None` for a pivot that is
-/// not positive or a result that is not finite.
+/// One axis of the window's fit (`NavUnit::fit_window` for the method) over `blocks`
+/// (the window's, oldest first): the cubic's c_0..c_3 in v, its weighted mean squared
+/// residual (rad²) and the angle summed over the blocks (rad).
 #[inline(never)]
-fn solve_normal(mut m: [[f64; 7]; 4]) -> Option<[[f64; 3]; 4]> {
-    // The loops over the rows run on an opaque count: kept rolled, the code is a quarter
-    // of the unrolled (flash is the launch vehicle's budget; this runs once per resume).
-    let n = core::hint::black_box(4usize);
-    for i in 0..n {
-        let (top, rest) = m.split_at_mut_checked(i + 1)?;
-        let pivot_row = top.last()?;
-        let p = *pivot_row.get(i)?;
-        if p.is_nan() || p <= 0.0 {
-            return None;
+fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f64; 4], f64, f64) {
+    let (mut y, mut wy2) = (0.0, 0.0);
+    // M_0, M_2, M_4, M_6; and Σ w v^k Y, k = 0..3.
+    let (mut m, mut s) = ([0.0f64; 4], [0.0f64; 4]);
+    let points = core::iter::once(0.0).chain(blocks.map(|b| b.get(axis).copied().unwrap_or(0.0)));
+    for (j, b) in points.enumerate() {
+        y += b;
+        let x = j as f64 / WINDOW_BLOCKS as f64;
+        let (sin, _) = crate::math::sin_cos(core::f64::consts::PI * x);
+        let (w, v) = (sin * sin + 1e-3, x - 0.5);
+        let mut wv = w;
+        for sk in &mut s {
+            *sk += wv * y;
+            wv *= v;
         }
-        for row in rest.iter_mut() {
-            let f = *row.get(i)? / p;
-            for (x, y) in row.iter_mut().zip(pivot_row.iter()) {
-                *x -= f * y;
-            }
+        let mut wv2 = w;
+        for mk in &mut m {
+            *mk += wv2;
+            wv2 *= v * v;
         }
+        wy2 += w * y * y;
     }
-    let mut x = [[0.0f64; 3]; 4];
-    for i in (0..n).rev() {
-        let row = m.get(i)?;
-        let (a, b) = row.split_at(4);
-        let mut v = [b.first().copied()?, b.get(1).copied()?, b.get(2).copied()?];
-        for (aij, xj) in a.iter().zip(x.iter()).skip(i + 1) {
-            for (vk, xk) in v.iter_mut().zip(xj) {
-                *vk -= aij * xk;
-            }
-        }
-        let p = *a.get(i)?;
-        *x.get_mut(i)? = v.map(|vk| vk / p);
-    }
-    x.iter().flatten().all(|v| v.is_finite()).then_some(x)
-}
-
-/// Weight of a window point at u ∈ [−1, 0]: a Hann taper (sin²), so the vibration the
-/// window cuts off at its ends leaks little into the fit, floored at 10⁻³.
-fn taper(u: f64) -> f64 {
-    let (s, _) = crate::math::sin_cos(core::f64::consts::PI * (u + 1.0));
-    s * s + 1e-3
+    let [m0, m2, m4, m6] = m;
+    let [s0, s1, s2, s3] = s;
+    let (a, b) = (m2 / m0, m4 / m2);
+    let n = [m0, m2, m4 - a * m2, m6 - b * m4];
+    let d = [s0 / m0, s1 / m2, (s2 - a * s0) / n[2], (s3 - b * s1) / n[3]];
+    let explained: f64 = d.iter().zip(n).map(|(dk, nk)| nk * dk * dk).sum();
+    let [d0, d1, d2, d3] = d;
+    ([d0 - a * d2, d1 - b * d3, d2, d3], (wy2 - explained).max(0.0) / m0, y)
 }
 
 impl NavUnit {
@@ -618,8 +610,19 @@ impl NavUnit {
         }
         let dv = self.mean_dv_m_s;
         // Bounded: at most MAX_BRIDGE_STEPS strapdown steps.
+        // Step m of n on the fit: P(m) − P(m − 1) − φ₀/n (the vibration's displacement at
+        // the snapshot spread over the bridge).
+        let mut before = fit.as_ref().map_or(Vector3::zeros(), |f| f.at(0.0));
         for m in 1..=lost {
-            let dtheta = fit.as_ref().map_or(self.mean_dtheta_rad, |f| f.increment(m, lost));
+            let dtheta = match &fit {
+                Some(f) => {
+                    let now = f.at(f64::from(m));
+                    let d = now - before - f.phi0 / f64::from(lost);
+                    before = now;
+                    d
+                }
+                None => self.mean_dtheta_rad,
+            };
             if self.nav.step_deferred(&dtheta, &dv).is_err() {
                 self.lost = Flag::SET;
                 return false;
@@ -650,63 +653,140 @@ impl NavUnit {
     }
 
     /// The bridge's fit over the window (module documentation), if the window is full of
-    /// measured increments and the fit is well posed.
+    /// measured increments and the fit is finite.
+    ///
+    /// The points: the angle summed from the window's start, Y_j, at its start and at each
+    /// block's end, v_j = j / 48 − ½ (j = 0..48, Y_0 = 0), weighted
+    /// w_j = sin²(π j / 48) + 10⁻³ (the Hann taper). They are fixed and symmetric about
+    /// v = 0 (the odd moments M_k = Σ w v^k vanish), so the polynomials orthogonal over
+    /// them (Gram) are q_0 = 1, q_1 = v, q_2 = v² − a, q_3 = v³ − b v with a = M_2/M_0,
+    /// b = M_4/M_2, and the weighted least-squares cubic is the sum of the projections
+    /// d_k q_k, d_k = Σ w q_k Y / N_k, N_k = Σ w q_k² (N_2 = M_4 − a M_2,
+    /// N_3 = M_6 − b M_4): one pass over the points per axis, no system to solve. The
+    /// weighted residual: r² = Σ_axes (Σ w Y² − Σ_k N_k d_k²) / M_0.
     #[inline(never)]
     #[cold]
     fn fit_window(&self) -> Option<WindowFit> {
-        // Over the blocks filled (the fit is used only with the window full).
-        let blocks = (self.blocks_filled as usize).min(WINDOW_BLOCKS);
-        let block = f64::from(BLOCK_STEPS);
-        let partial = self.block_steps.min(BLOCK_STEPS - 1);
-        let span = blocks as f64 * block + f64::from(partial);
-        if blocks == 0 || span <= 0.0 {
+        if self.blocks_filled as usize != WINDOW_BLOCKS {
             return None;
         }
-        let first = self.block_next as usize % WINDOW_BLOCKS + WINDOW_BLOCKS - blocks;
-        let ring = &self.blocks_rad;
-        let last = (partial > 0).then_some(self.block_rad);
-        // The angle summed from the window's start at each block's end and at the
-        // snapshot, against u = steps after the snapshot / span ∈ [−1, 0].
-        let sums = (0..blocks)
-            .map(|j| (((j + 1) as f64 * block - span) / span, ring.get((first + j) % WINDOW_BLOCKS)))
-            .map(|(u, b)| (u, b.copied().unwrap_or([0.0; 3])))
-            .chain(last.map(|b| (0.0, b)));
-        let points = core::iter::once((-1.0, Vector3::zeros())).chain(sums.scan(Vector3::zeros(), |sum, (u, b)| {
-            *sum += Vector3::from(b);
-            Some((u, *sum))
-        }));
-        // Weighted least squares of a cubic: the normal equations [A | B] (A 4×4, B one
-        // column per axis), solved by elimination (A is symmetric positive definite); the
-        // weighted residual from Σ w |y|² − Σ_axes cᵀ B.
-        let mut m = [[0.0f64; 7]; 4];
-        let (mut w_sum, mut wy2, mut sum) = (0.0, 0.0, Vector3::zeros());
-        for (u, y) in points {
-            let w = taper(u);
-            w_sum += w;
-            wy2 += w * y.norm_squared();
-            sum = y;
-            let pw = [1.0, u, u * u, u * u * u];
-            for (row, pi) in m.iter_mut().zip(pw) {
-                let (a, b) = row.split_at_mut(4);
-                for (x, pj) in a.iter_mut().zip(pw) {
-                    *x += w * pi * pj;
+        // The ring from its oldest block.
+        let (newer, older) = self.blocks_rad.split_at_checked(self.block_next as usize)?;
+        let mut c = [[0.0; 4]; 3];
+        let (mut resid2, mut y) = (0.0, self.block_rad);
+        for ((ci, yi), axis) in c.iter_mut().zip(y.iter_mut()).zip(0..) {
+            let (coefs, r2, sum) = fit_axis(older.iter().chain(newer), axis);
+            *ci = coefs;
+            resid2 += r2;
+            *yi += sum;
+        }
+        let lead = f64::from(self.block_steps.min(BLOCK_STEPS - 1));
+        let mut fit = WindowFit { c, lead, phi0: Vector3::zeros(), resid_rad: crate::math::sqrt(resid2) };
+        // The angle at the snapshot: the window's and the block being summed.
+        fit.phi0 = Vector3::from(y) - fit.at(0.0);
+        // All finite: their sum is (an infinity or NaN anywhere makes it not).
+        let sum = c.as_flattened().iter().sum::<f64>() + fit.resid_rad + fit.phi0.sum();
+        sum.is_finite().then_some(fit)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The weighted least-squares cubic over the window's points by its normal equations
+    /// (solved with partial pivoting): c_0..c_3 in v and the weighted mean squared residual.
+    fn normal_equations(y: &[f64]) -> ([f64; 4], f64) {
+        let n = WINDOW_BLOCKS as f64;
+        let mut m = [[0.0f64; 5]; 4];
+        let mut pts = Vec::new();
+        for (j, yj) in y.iter().enumerate() {
+            let x = j as f64 / n;
+            let w = (core::f64::consts::PI * x).sin().powi(2) + 1e-3;
+            let v = x - 0.5;
+            let p = [1.0, v, v * v, v * v * v];
+            for r in 0..4 {
+                for c in 0..4 {
+                    m[r][c] += w * p[r] * p[c];
                 }
-                for (x, yk) in b.iter_mut().zip(y.iter()) {
-                    *x += w * pi * yk;
+                m[r][4] += w * p[r] * yj;
+            }
+            pts.push((w, p, *yj));
+        }
+        for i in 0..4 {
+            let piv = (i..4).max_by(|a, b| m[*a][i].abs().total_cmp(&m[*b][i].abs())).unwrap();
+            m.swap(i, piv);
+            for r in i + 1..4 {
+                let (pivot, f) = (m[i], m[r][i] / m[i][i]);
+                for (x, p) in m[r].iter_mut().zip(pivot).skip(i) {
+                    *x -= f * p;
                 }
             }
         }
-        let c = solve_normal(m)?;
-        let cb: f64 = c
-            .iter()
-            .zip(m.iter())
-            .map(|(ci, row)| ci.iter().zip(row.iter().skip(4)).map(|(x, b)| x * b).sum::<f64>())
-            .sum();
-        let resid_rad = crate::math::sqrt((wy2 - cb).max(0.0) / w_sum);
-        let c = c.map(Vector3::from);
-        let phi0 = sum - c[0];
-        let fit = WindowFit { c, span, phi0, resid_rad };
-        let ok = fit.c.iter().all(|c| finite(c.as_slice())) && resid_rad.is_finite() && finite(phi0.as_slice());
-        (ok && blocks == WINDOW_BLOCKS).then_some(fit)
+        let mut c = [0.0; 4];
+        for i in (0..4).rev() {
+            c[i] = (m[i][4] - (i + 1..4).map(|k| m[i][k] * c[k]).sum::<f64>()) / m[i][i];
+        }
+        let (mut r2, mut w_sum) = (0.0, 0.0);
+        for (w, p, yj) in pts {
+            let e = yj - (0..4).map(|k| c[k] * p[k]).sum::<f64>();
+            r2 += w * e * e;
+            w_sum += w;
+        }
+        (c, r2 / w_sum)
+    }
+
+    /// The one-pass projection on the orthogonal polynomials is the weighted least-squares
+    /// cubic the normal equations give, on a smooth motion with vibration and noise, and
+    /// reproduces a cubic exactly.
+    #[test]
+    fn the_window_fit_is_the_weighted_least_squares_cubic() {
+        let mut x = 0x9E37_79B9_7F4A_7C15u64;
+        let mut noise = || {
+            x ^= x << 13;
+            x ^= x >> 7;
+            x ^= x << 17;
+            (x >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        for round in 0..40 {
+            let k = [noise() * 1e-2, noise() * 1e-3, noise() * 1e-4, noise() * 1e-5];
+            let (amp, f_hz) = (if round % 2 == 0 { 0.0 } else { 5e-5 }, 11.0 + round as f64);
+            // The angle summed over each block: a cubic in the step, a vibration, noise.
+            let angle = |t: f64| {
+                k[0] * t
+                    + k[1] * t * t / 40.0
+                    + k[2] * t.powi(3) / 1600.0
+                    + amp * (2.0 * core::f64::consts::PI * f_hz * t * 1.25e-3).sin()
+            };
+            let blocks: Vec<[f64; 3]> = (0..WINDOW_BLOCKS)
+                .map(|i| {
+                    let t0 = (i as u32 * BLOCK_STEPS) as f64;
+                    let d = angle(t0 + f64::from(BLOCK_STEPS)) - angle(t0);
+                    [d, -0.5 * d + amp * 1e-2 * noise(), k[3] * noise()]
+                })
+                .collect();
+            for axis in 0..3 {
+                let (c, r2, sum) = fit_axis(blocks.iter(), axis);
+                let mut y = vec![0.0];
+                for b in &blocks {
+                    y.push(y.last().unwrap() + b[axis]);
+                }
+                let (want, want_r2) = normal_equations(&y);
+                let scale = y.iter().fold(0.0f64, |a, v| a.max(v.abs())).max(1e-30);
+                for (ck, wk) in c.iter().zip(want) {
+                    assert!((ck - wk).abs() <= 1e-11 * scale, "round {round}, axis {axis}: {c:?} against {want:?}");
+                }
+                assert!(
+                    (r2 - want_r2).abs() <= 1e-11 * scale * scale,
+                    "round {round}, axis {axis}: {r2} against {want_r2}"
+                );
+                assert!((sum - y[WINDOW_BLOCKS]).abs() <= 1e-15 * scale);
+                // The residual is the difference of two sums of squares: exact to
+                // √ε of the angle's scale.
+                if amp == 0.0 && axis == 0 {
+                    assert!(r2.sqrt() <= 1e-7 * scale, "round {round}: a cubic fitted with residual {r2}");
+                }
+            }
+        }
     }
 }

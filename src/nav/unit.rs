@@ -238,6 +238,11 @@ impl NavUnit {
         self.resume_from.is_some()
     }
 
+    /// The accelerometer sample counter of the snapshot a pending resume bridges from.
+    pub fn resumed_from(&self) -> Option<u16> {
+        self.resume_from.get()
+    }
+
     /// What the last resume bridged (the samples lost over the reset), if one did.
     pub fn bridged(&self) -> Option<BridgeReport> {
         self.bridged.get()

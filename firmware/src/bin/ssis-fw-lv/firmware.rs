@@ -191,7 +191,7 @@ impl Mission for Ascent<'_> {
     fn resume(&mut self, _core: &mut FlightCore) {
         let Some(s) = self.snap.as_deref_mut() else { return };
         match self.nav.resume(s) {
-            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", s.accel_counter()),
+            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", self.nav.resumed_from()),
             Err(e) => defmt::info!("no navigation snapshot resumed ({}), lost: {}", e, self.nav.lost()),
         }
         s.invalidate();
