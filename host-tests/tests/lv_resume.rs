@@ -474,6 +474,20 @@ fn a_reset_in_the_roll_program_resumes_its_attitude() {
     check_attitude(&outcomes, "newest copy");
 }
 
+/// The same with the snapshot taken between two of the window's block ends (1 to 7 steps
+/// after one: 6,080 is one, 760 blocks of 8 steps in): the fit ends at the last full
+/// block and the bridge extrapolates over the steps of the block being summed too.
+#[test]
+fn a_snapshot_between_block_ends_resumes_its_attitude() {
+    let outcomes: Vec<_> = (1..8)
+        .flat_map(|p| {
+            let r = build_reference(SNAP_IN_ROLL + p);
+            (0..SNAPSHOT_STEPS).step_by(8).map(move |phase| reset(&r, phase, DOWN_STEPS))
+        })
+        .collect();
+    check_attitude(&outcomes, "between block ends");
+}
+
 /// Each resume's attitude: within the goal, within the bridge's stated error, and
 /// claimed (the bridge backs it).
 fn check_attitude(outcomes: &[ResetOutcome], what: &str) {
