@@ -63,6 +63,11 @@ pub mod flags {
     pub const NAV_FAULT: u8 = 1 << 2;
     /// Accelerometer data missing or faulty in this step.
     pub const ACCEL_FAULT: u8 = 1 << 3;
+    /// The attitude is not confirmed: a resume after a reset could not back it (its
+    /// bridge over the lost samples had no fit, or one whose stated error is too large,
+    /// `crate::nav::snapshot`); position and velocity stand. Held until a pad
+    /// initialisation.
+    pub const ATTITUDE_UNCONFIRMED: u8 = 1 << 4;
 }
 
 /// The navigation output as carried on the link (raw counts).

@@ -85,6 +85,13 @@ pub struct NavStepOutput {
 /// motion, not one phase of a vibration.
 pub const MEAN_STEPS: f64 = 256.0;
 
+/// Steps summed into one block of the bridge's window ([`NavUnit::step`]; the bridge's
+/// fit, [`super::snapshot`]): 10 ms.
+pub const BLOCK_STEPS: u32 = 8;
+/// Blocks in the bridge's window: 48 × 8 steps = 0.48 s, five periods of the airframe's
+/// slowest vibration (11 Hz), short beside the roll and pitch programs' changes.
+pub const WINDOW_BLOCKS: usize = 48;
+
 /// The three accelerometers' sample queues (an array of the state needs `Pod`
 /// elements, which a ring is not).
 #[derive(Clone, Copy, bytemuck::AnyBitPattern)]
@@ -158,6 +165,23 @@ state_struct! {
         pub(super) spread_dtheta_rad2: f64 = 0.0, reset(Keep);
         /// Running mean of |υ − ῡ|², (m/s)².
         pub(super) spread_dv_m2_s2: f64 = 0.0, reset(Keep);
+        /// The bridge's window ([`super::snapshot`]): the body angle increments summed
+        /// over blocks of [`BLOCK_STEPS`] steps, a ring of [`WINDOW_BLOCKS`], rad.
+        pub(super) blocks_rad: [[f64; 3]; WINDOW_BLOCKS] = [[0.0; 3]; WINDOW_BLOCKS], reset(Keep);
+        /// The block being summed, rad.
+        pub(super) block_rad: [f64; 3] = [0.0; 3], reset(Keep);
+        /// Steps summed into it.
+        pub(super) block_steps: u32 = 0, reset(Keep);
+        /// The ring's oldest block (the next one written).
+        pub(super) block_next: u32 = 0, reset(Keep);
+        /// Blocks of measured increments in the ring (up to [`WINDOW_BLOCKS`]; none after
+        /// a bridge: the window restarts on measured increments).
+        pub(super) blocks_filled: u32 = 0, reset(Keep);
+        /// The attitude is not confirmed: a resume's bridge could not back it (the
+        /// window not full, the gap or the fit's residual too large, [`super::snapshot`]).
+        /// Every output frame carries [`flags::ATTITUDE_UNCONFIRMED`] until a pad
+        /// initialisation builds the unit again; kept over a further reset.
+        pub(super) att_unconfirmed: Flag = Flag::CLEAR, reset(Keep);
         /// Resumed from a snapshot whose last accelerometer sample had this counter; the
         /// samples since are bridged at the first step that takes a frame.
         pub(super) resume_from: Maybe<u16> = Maybe::none();
@@ -189,6 +213,9 @@ pub struct BridgeReport {
     pub sigma_pos_m: f64,
     /// The bridge's 1σ velocity error growth (3-D), m/s.
     pub sigma_vel_m_s: f64,
+    /// The bridge's stated attitude error (3-D), rad: what its fit over the window
+    /// cannot know ([`super::snapshot`]); infinite when it had no fit.
+    pub att_bound_rad: f64,
 }
 
 impl NavUnit {
@@ -209,6 +236,11 @@ impl NavUnit {
     /// Whether a resume waits for its first accelerometer sample to bridge the reset.
     pub fn resume_pending(&self) -> bool {
         self.resume_from.is_some()
+    }
+
+    /// The accelerometer sample counter of the snapshot a pending resume bridges from.
+    pub fn resumed_from(&self) -> Option<u16> {
+        self.resume_from.get()
     }
 
     /// What the last resume bridged (the samples lost over the reset), if one did.
@@ -293,6 +325,10 @@ impl NavUnit {
             self.counters.add(NavCounter::NavFaults, 1);
         } else {
             self.track_means(dtheta_body_rad, &dv);
+            self.track_window(dtheta_body_rad);
+        }
+        if self.att_unconfirmed.get() {
+            fl |= flags::ATTITUDE_UNCONFIRMED;
         }
         // 4. GNSS: hold the newest valid fix for the filter work.
         let mut newest: Option<GnssFix> = None;
@@ -385,6 +421,31 @@ impl NavUnit {
         self.mean_dv_m_s += ev * W;
         self.spread_dtheta_rad2 += (eth.norm_squared() - self.spread_dtheta_rad2) * W;
         self.spread_dv_m2_s2 += (ev.norm_squared() - self.spread_dv_m2_s2) * W;
+    }
+
+    /// The bridge's window: `dtheta_rad` summed into the current block, a full block
+    /// into the ring ([`BLOCK_STEPS`], [`WINDOW_BLOCKS`]).
+    #[inline(always)]
+    pub(super) fn track_window(&mut self, dtheta_rad: &Vector3<f64>) {
+        for (b, d) in self.block_rad.iter_mut().zip(dtheta_rad.iter()) {
+            *b += d;
+        }
+        self.block_steps = self.block_steps.saturating_add(1);
+        if self.block_steps >= BLOCK_STEPS {
+            let i = self.block_next as usize % WINDOW_BLOCKS;
+            if let Some(slot) = self.blocks_rad.get_mut(i) {
+                *slot = self.block_rad;
+            }
+            self.block_rad = [0.0; 3];
+            self.block_steps = 0;
+            self.block_next = ((i + 1) % WINDOW_BLOCKS) as u32;
+            self.blocks_filled = self.blocks_filled.saturating_add(1).min(WINDOW_BLOCKS as u32);
+        }
+    }
+
+    /// Whether the attitude is unconfirmed since a resume ([`flags::ATTITUDE_UNCONFIRMED`]).
+    pub fn attitude_unconfirmed(&self) -> bool {
+        self.att_unconfirmed.get()
     }
 }
 

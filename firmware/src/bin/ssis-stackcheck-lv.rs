@@ -1,5 +1,5 @@
 //! On-target test of the stack-overflow protection in the memory layout `link/memory-lv.x` (the
-//! launch-vehicle firmware's: 56 KiB of stack at the bottom of RAM): the flight firmwares' board code
+//! launch-vehicle firmware's: 52 KiB of stack at the bottom of RAM): the flight firmwares' board code
 //! (`ssis_firmware::mps2`: MPU guard, HardFault report, logger) under the test harness's
 //! recursion (`ssis_firmware::harness::overflow_the_stack`), which must end in a fault
 //! reported below the stack with the statics intact. Run by `host-tests/tests/qemu.rs`;

@@ -41,8 +41,8 @@
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
 //! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
-//! (128 KiB flash, 64 KiB RAM: 56 KiB of stack at the bottom, 4 KiB of statics above,
-//! 4 KiB for the reset snapshot; FOG table, accelerometer section and pad
+//! (128 KiB flash, 64 KiB RAM: 52 KiB of stack at the bottom, 4 KiB of statics above,
+//! 8 KiB for the reset snapshot; FOG table, accelerometer section and pad
 //! initialisation block in their own regions, loaded separately). A reset resumes the
 //! core from its snapshot and the navigation from its own (`ssis::nav::snapshot`), which
 //! the executive writes with the core's ([`Mission::save`]) after it in the SNAP region.
@@ -70,6 +70,14 @@ use ssis_firmware::resilience;
 /// QEMU adds a host stall of its own process to virtual time in one jump, and a 25 ms
 /// stall on the loaded build machine reset the unit between two steps.
 const WATCHDOG_STEPS: u32 = 40;
+
+/// The SNAP region's length in `link/memory-lv.x`: the core's snapshot and the
+/// navigation's two copies must fit (else the navigation would have no snapshot).
+const SNAP_BYTES: usize = 8 * 1024;
+const _: () = assert!(
+    4 * core::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4) + core::mem::size_of::<NavSnapshot>()
+        <= SNAP_BYTES
+);
 
 /// Offset of the pad initialisation block in the LVDATA region (the accelerometer
 /// section is at 0).
@@ -125,8 +133,8 @@ struct Ascent<'a> {
     nav_links: NavLinks<RxRingReader<'static, 512>, RxRingReader<'static, 256>, TxRingWriter<'static, 256>>,
     /// The last filter work (the period's kind).
     work: FilterWork,
-    /// The navigation's reset snapshot, after the core's in the SNAP region (`None` when
-    /// the region cannot hold it).
+    /// The navigation's reset snapshot (two copies), after the core's in the SNAP region
+    /// (`None` when the region cannot hold it).
     snap: Option<&'static mut NavSnapshot>,
     event_wait: u32,
     nav_steps: u32,
@@ -167,22 +175,23 @@ impl Mission for Ascent<'_> {
         }
     }
 
-    /// The navigation's snapshot, written with the core's.
+    /// The navigation's snapshot, written with the core's over its older copy.
     fn save(&mut self) {
         if let Some(s) = self.snap.as_deref_mut() {
             self.nav.snapshot_into(s);
         }
     }
 
-    /// At boot: the navigation resumed from its snapshot if that passes its checks (the
-    /// samples lost over the reset bridged at the first step; a refused or stale one
-    /// leaves the navigation lost and flagged until the pad initialisation is loaded
-    /// again; none at all, a cold start, keeps the pad initialisation), then spoiled, so
-    /// one snapshot is resumed at most once.
+    /// At boot: the navigation resumed from the newest copy of its snapshot that passes
+    /// its checks (the samples lost over the reset bridged at the first step; both
+    /// refused, or the resumed one stale, leaves the navigation lost and flagged until
+    /// the pad initialisation is loaded again; none at all, a cold start, keeps the pad
+    /// initialisation), then both copies spoiled, so one snapshot is resumed at most
+    /// once.
     fn resume(&mut self, _core: &mut FlightCore) {
         let Some(s) = self.snap.as_deref_mut() else { return };
         match self.nav.resume(s) {
-            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", s.accel_counter()),
+            Ok(()) => defmt::warn!("reset: navigation resumed from its snapshot (sample {})", self.nav.resumed_from()),
             Err(e) => defmt::info!("no navigation snapshot resumed ({}), lost: {}", e, self.nav.lost()),
         }
         s.invalidate();

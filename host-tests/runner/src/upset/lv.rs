@@ -7,7 +7,10 @@
 //! [`flags::NAV_FAULT`] (the step refused, the state held, or the navigation lost after a
 //! reset) nor [`flags::ACCEL_FAULT`] (the accelerometer increment missing or refused, the
 //! last one held); [`flags::GNSS_OUTAGE`] alone is free inertial navigation, still a
-//! solution the unit stands behind, with its σ grown. A frame is **beyond the bound**
+//! solution the unit stands behind, with its σ grown; [`flags::ATTITUDE_UNCONFIRMED`]
+//! (a resume whose bridge could not back the attitude) withdraws the attitude from the
+//! claim, so such a frame is judged on its position and velocity only. A frame is
+//! **beyond the bound**
 //! when its position error against truth exceeds max(2 × the undisturbed flight's largest
 //! position error, 3 × the frame's own position σ), its velocity error max(2 × the
 //! undisturbed largest, 3 × its velocity σ), or its attitude error 2 × the undisturbed
@@ -124,7 +127,9 @@ impl LvFlight {
         let truth = self.steps.get(i)?.truth?;
         let errors = errors(f, &truth);
         let sigma = [3.0 * f.sigma_pos_m(), 3.0 * f.sigma_vel_m_s(), 0.0];
-        let ratio = (0..3)
+        // An unconfirmed attitude is not claimed: position and velocity only.
+        let judged = if f.flags & flags::ATTITUDE_UNCONFIRMED != 0 { 2 } else { 3 };
+        let ratio = (0..judged)
             .map(|k| {
                 let e = errors[k];
                 if e.is_finite() {
