@@ -144,6 +144,19 @@ struct ResetOutcome {
 const ARCSEC_PER_RAD: f64 = 180.0 / std::f64::consts::PI * 3600.0;
 
 /// The angle between two attitudes, arcsec.
+/// The resumed position and velocity within 3σ of the bridge's stated growth of the
+/// uninterrupted unit's.
+fn assert_continuous(o: &ResetOutcome, phase: u64) {
+    assert!(
+        o.jump_pos_m <= 3.0 * o.sigma_pos_m && o.jump_vel_m_s <= 3.0 * o.sigma_vel_m_s,
+        "phase {phase}: resumed {:.4} m, {:.5} m/s from the uninterrupted unit; bridge 3σ {:.4} m, {:.5} m/s",
+        o.jump_pos_m,
+        o.jump_vel_m_s,
+        3.0 * o.sigma_pos_m,
+        3.0 * o.sigma_vel_m_s
+    );
+}
+
 fn angle_arcsec(a: &NavState, b: &NavState) -> f64 {
     let c = a.q_eb.coords.dot(&b.q_eb.coords).abs().min(1.0);
     2.0 * c.acos() * 180.0 / std::f64::consts::PI * 3600.0
@@ -236,14 +249,7 @@ fn a_reset_at_any_phase_of_the_snapshot_period_resumes_continuous() {
             "phase {phase}: stated growth {o:?}",
             o = (o.sigma_pos_m, o.sigma_vel_m_s)
         );
-        assert!(
-            o.jump_pos_m <= 3.0 * o.sigma_pos_m && o.jump_vel_m_s <= 3.0 * o.sigma_vel_m_s,
-            "phase {phase}: resumed {:.4} m, {:.5} m/s from the uninterrupted unit; bridge 3σ {:.4} m, {:.5} m/s",
-            o.jump_pos_m,
-            o.jump_vel_m_s,
-            3.0 * o.sigma_pos_m,
-            3.0 * o.sigma_vel_m_s
-        );
+        assert_continuous(o, phase);
         assert!(
             o.excess_ratio <= 3.0,
             "phase {phase}: error against truth exceeds the uninterrupted unit's by {:.4} m, {:.5} m/s: {:.2}× the \
@@ -554,14 +560,7 @@ fn a_flipped_newest_copy_resumes_from_the_older_one() {
             phase + DOWN_STEPS + SNAPSHOT_STEPS,
             "phase {phase}: bridged from the older copy"
         );
-        assert!(
-            o.jump_pos_m <= 3.0 * o.sigma_pos_m && o.jump_vel_m_s <= 3.0 * o.sigma_vel_m_s,
-            "phase {phase}: resumed {:.4} m, {:.5} m/s from the uninterrupted unit; bridge 3σ {:.4} m, {:.5} m/s",
-            o.jump_pos_m,
-            o.jump_vel_m_s,
-            3.0 * o.sigma_pos_m,
-            3.0 * o.sigma_vel_m_s
-        );
+        assert_continuous(&o, phase);
         assert!(o.excess_ratio <= 3.0, "phase {phase}: {:.2}× the bridge's stated 1σ carried on", o.excess_ratio);
         outcomes.push(o);
     }

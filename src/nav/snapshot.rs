@@ -213,21 +213,6 @@ impl NavRecord {
         self.check_inv = self.check;
     }
 
-    /// Its bytes (as the board's RAM holds them).
-    pub fn as_bytes(&self) -> &[u8] {
-        bytemuck::bytes_of(self)
-    }
-
-    /// Its bytes, mutable.
-    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
-        bytemuck::bytes_of_mut(self)
-    }
-
-    /// A record from `bytes` (any content; `None` for a wrong length).
-    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
-        bytemuck::try_pod_read_unaligned(bytes).ok()
-    }
-
     /// Whether it carries this layout's magic and length (a copy was written here).
     pub fn present(&self) -> bool {
         self.magic == MAGIC && self.len as usize == core::mem::size_of::<NavRecord>()
@@ -316,27 +301,37 @@ pub struct NavSnapshot {
     pub copies: [NavRecord; 2],
 }
 
+/// A record's bytes as the board's RAM holds them: `as_bytes`, `as_bytes_mut`, and
+/// `from_bytes` (any content; `None` for a wrong length).
+macro_rules! ram_bytes {
+    ($($t:ty),*) => {$(
+        impl $t {
+            /// Its bytes (as the board's RAM holds them).
+            pub fn as_bytes(&self) -> &[u8] {
+                bytemuck::bytes_of(self)
+            }
+
+            /// Its bytes, mutable.
+            pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+                bytemuck::bytes_of_mut(self)
+            }
+
+            /// One from `bytes` (any content; `None` for a wrong length).
+            pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
+                bytemuck::try_pod_read_unaligned(bytes).ok()
+            }
+        }
+    )*};
+}
+
+ram_bytes!(NavRecord, NavSnapshot);
+
 /// Whether sequence number `a` is newer than `b` (wrapping).
 fn newer(a: u32, b: u32) -> bool {
     (a.wrapping_sub(b) as i32) > 0
 }
 
 impl NavSnapshot {
-    /// Its bytes (as the board's RAM holds them).
-    pub fn as_bytes(&self) -> &[u8] {
-        bytemuck::bytes_of(self)
-    }
-
-    /// Its bytes, mutable.
-    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
-        bytemuck::bytes_of_mut(self)
-    }
-
-    /// A snapshot from `bytes` (any content; `None` for a wrong length).
-    pub fn from_bytes(bytes: &[u8]) -> Option<Self> {
-        bytemuck::try_pod_read_unaligned(bytes).ok()
-    }
-
     /// The snapshot that starts `words` (a board's RAM the reset does not clear, as
     /// words): `None` when the words are too few.
     pub fn in_words(words: &mut [u32]) -> Option<&mut Self> {

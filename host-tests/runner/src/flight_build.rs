@@ -778,11 +778,10 @@ struct FedFlight {
 
 impl FedFlight {
     /// QEMU started halted (`-S`) on `elf` with the table loaded, its gdbstub connected,
-    /// `-action watchdog=pause`.
-    fn start(elf: &Path, sc: &Scenario, watch_s: f64, icount: Option<&str>) -> Result<FedFlight> {
+    /// `-action watchdog=pause`; `lockstep`: `elf` is a test build.
+    fn start(elf: &Path, sc: &Scenario, watch_s: f64, icount: Option<&str>, lockstep: bool) -> Result<FedFlight> {
         crate::qemu::check_qemu_and_elf(elf)?;
         let started = Instant::now();
-        let lockstep = crate::qemu::is_test_build(elf)?;
         let mut sim = Simulation::new(sc)?;
         let (table, profile) = (sim.table, sim.profile);
         let inputs: Vec<StepInput> = std::iter::from_fn(|| sim.next_step()).collect();
@@ -926,9 +925,9 @@ pub fn loop_fault_in_flight(
     icount: Option<&str>,
 ) -> Result<FlightFaultCheck> {
     if crate::qemu::is_test_build(elf)? {
-        in_lockstep(FedFlight::start(elf, sc, watch_s, icount)?, fault, fault_s, watch_s).map(|f| f.finish(elf))
+        in_lockstep(FedFlight::start(elf, sc, watch_s, icount, true)?, fault, fault_s, watch_s).map(|f| f.finish(elf))
     } else {
-        at_ticks(FedFlight::start(elf, sc, watch_s, Some(FED_ICOUNT))?, elf, fault, fault_s, watch_s)
+        at_ticks(FedFlight::start(elf, sc, watch_s, Some(FED_ICOUNT), false)?, elf, fault, fault_s, watch_s)
             .map(|f| f.finish(elf))
     }
 }
