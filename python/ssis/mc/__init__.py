@@ -26,6 +26,7 @@ Needs the ``mc`` extra: ``pip install 'ssis[mc]'`` (dask[distributed], pyarrow, 
 from __future__ import annotations
 
 import collections
+import contextlib
 import hashlib
 import itertools
 import json
@@ -428,15 +429,44 @@ def run(
 def _dask(c: Campaign, todo: List[int], scheduler: Optional[str], workers: Optional[int], memory_limit: str,
           series_every: int, retries: int, window: Optional[int], task_s: float, o: Outcome,
           finished: Callable[[int, Optional[Dict[str, Any]], Optional[BaseException]], None]) -> None:
-    from dask.distributed import Client, LocalCluster, as_completed
+    import dask
+    from dask.distributed import Client, LocalCluster
 
     cluster = None
+    quiet: Any = contextlib.nullcontext()
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               memory_limit=memory_limit, dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
+        # The local cluster is tuned for runs of whole CPU seconds, a user's own cluster keeps
+        # its configuration. Dask's nanny starts each worker with MALLOC_TRIM_THRESHOLD_ set,
+        # which also fixes glibc's mmap threshold: every large buffer of every run is then
+        # mapped, faulted in and unmapped again; a run frees its memory when it ends. And a
+        # worker's event loop wakes every 10 ms to sample the running task's stack (Dask's
+        # profiler) and every 20 ms for its tick: with one worker a core, these wake-ups take
+        # the runs' own CPU.
+        env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+        env.pop("MALLOC_TRIM_THRESHOLD_", None)
+        quiet = dask.config.set({
+            "distributed.nanny.pre-spawn-environ": env,
+            "distributed.worker.profile.enabled": False,
+            "distributed.admin.tick.interval": "1s",
+            "distributed.admin.system-monitor.interval": "2s",
+            "distributed.worker.memory.monitor-interval": "500ms",
+        })
+    with quiet:
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                                   memory_limit=memory_limit, dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)
+        _drive(c, todo, client, series_every, retries, window, task_s, o, finished, cluster)
+
+
+def _drive(c: Campaign, todo: List[int], client: Any, series_every: int, retries: int, window: Optional[int],
+           task_s: float, o: Outcome,
+           finished: Callable[[int, Optional[Dict[str, Any]], Optional[BaseException]], None],
+           cluster: Any) -> None:
+    from dask.distributed import as_completed
+
     try:
         o.workers = sum(client.nthreads().values()) or 1
         width = window or max(4, 2 * o.workers)
