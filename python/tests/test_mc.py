@@ -114,16 +114,24 @@ def test_failing_run_in_a_batch_is_retried_alone(tmp_path: Path, campaign: Calla
     from dask.distributed import LocalCluster
 
     c = campaign(40, 40.0)
-    real = mc.run_one
+    native = mc._ssis
+    real_one, real_many = native.mc_run, native.mc_runs
     tries: List[int] = []
 
-    def flaky(text: str, origin: str, i: int, series_every: int = 0) -> Any:
+    def one(text: str, origin: str, i: int, series_every: int = 0) -> Any:
         if i == 7:
             tries.append(i)
             raise RuntimeError("run 7 made to fail")
-        return real(text, origin, i, series_every)
+        return real_one(text, origin, i, series_every)
 
-    monkeypatch.setattr(mc, "run_one", flaky)
+    def many(text: str, origin: str, runs: List[int], series_every: int = 0) -> Any:
+        if 7 in runs:
+            tries.append(7)
+            raise RuntimeError("run 7 made to fail")
+        return real_many(text, origin, runs, series_every)
+
+    monkeypatch.setattr(native, "mc_run", one)
+    monkeypatch.setattr(native, "mc_runs", many)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
         out = mc.run(c, tmp_path / "out", scheduler=cl.scheduler_address, retries=1, task_s=60.0,
                       progress=False)
