@@ -262,7 +262,8 @@ impl AidedNav {
     /// increments' per-step spread `s_dv_m2_s2` (3-D mean square) as a random walk of the
     /// velocity (and so of the position), and the attitude's stated bound
     /// `att_bound_rad` (module documentation).
-    fn add_bridge_growth(&mut self, n: u16, att_bound_rad: f64, s_dv_m2_s2: f64) -> BridgeReport {
+    #[inline(never)]
+    pub(super) fn add_bridge_growth(&mut self, n: u16, att_bound_rad: f64, s_dv_m2_s2: f64) -> BridgeReport {
         let steps = u32::from(n);
         let n = f64::from(n);
         let dt = self.nav.dt_s();
