@@ -74,7 +74,7 @@ pub fn ncx2_sf(x: f64, q: f64, lambda: f64) -> f64 {
 /// regularised incomplete beta I_y(d1/2 + j, d2/2) at y = d1 x / (d1 x + d2).
 pub fn ncf_sf(x: f64, d1: f64, d2: f64, lambda: f64) -> f64 {
     use statrs::function::beta::checked_beta_reg;
-    if !(x > 0.0) {
+    if x.is_nan() || x <= 0.0 {
         return 1.0;
     }
     let y = d1 * x / (d1 * x + d2);
