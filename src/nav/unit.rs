@@ -222,6 +222,45 @@ pub struct BridgeReport {
     pub att_bound_rad: f64,
 }
 
+/// Most samples a resume bridges (0.5 s at 1.25 ms): the snapshot period (80 steps in
+/// the firmware) plus a reset and boot, with margin; older, the snapshot is stale.
+pub const MAX_BRIDGE_STEPS: u16 = 400;
+
+impl AidedNav {
+    /// Adds a bridge's error growth over `n` steps to the covariance: the velocity
+    /// increments' per-step spread `s_dv_m2_s2` (3-D mean square) as a random walk of the
+    /// velocity (and so of the position), and the attitude's stated bound
+    /// `att_bound_rad` (module documentation).
+    #[inline(never)]
+    pub(super) fn add_bridge_growth(&mut self, n: u16, att_bound_rad: f64, s_dv_m2_s2: f64) -> BridgeReport {
+        let steps = u32::from(n);
+        let n = f64::from(n);
+        let dt = self.nav.dt_s();
+        // The attitude's stated bound as a 1σ per axis (bound²/3 each); none when the
+        // bridge had no fit (the frames flag the attitude unconfirmed instead).
+        let qa = if att_bound_rad.is_finite() { att_bound_rad * att_bound_rad / 3.0 } else { 0.0 };
+        let qv = s_dv_m2_s2 / 3.0;
+        for i in 0..3 {
+            let add = |p: &mut Self, r: usize, c: usize, v: f64| {
+                if let Some(x) = p.p.get_mut((r, c)) {
+                    *x += v;
+                }
+            };
+            add(self, i, i, qa);
+            add(self, 3 + i, 3 + i, n * qv);
+            add(self, 6 + i, 6 + i, n * n * n * dt * dt * qv / 3.0);
+            add(self, 3 + i, 6 + i, n * n * dt * qv / 2.0);
+            add(self, 6 + i, 3 + i, n * n * dt * qv / 2.0);
+        }
+        BridgeReport {
+            steps,
+            sigma_pos_m: crate::math::sqrt(n * n * n * dt * dt * s_dv_m2_s2 / 3.0),
+            sigma_vel_m_s: crate::math::sqrt(n * s_dv_m2_s2),
+            att_bound_rad,
+        }
+    }
+}
+
 impl NavUnit {
     /// Where each field of the unit lies in the value, down to the filter and the
     /// strapdown: the upset campaign names the field a flipped bit belongs to
@@ -328,7 +367,7 @@ impl NavUnit {
         // An increment spanning n > 1 samples (n − 1 lost, bridged by the core) is n
         // strapdown steps, the angle spread evenly, the lost ones on the mean velocity
         // increment ([`NavUnit::spanned_bridged`]); more than MAX_BRIDGE_STEPS: lost.
-        let n = if spanned > 1 + u64::from(super::snapshot::MAX_BRIDGE_STEPS) {
+        let n = if spanned > 1 + u64::from(MAX_BRIDGE_STEPS) {
             self.lost = Flag::SET;
             0
         } else {

@@ -32,9 +32,8 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::detectable::{
-    first_reached, lambda_required_f, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER,
-};
+pub use super::detectable::f_critical;
+use super::detectable::{lambda_required_f, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
@@ -200,18 +199,6 @@ fn f_sf(f: f64, d1: usize, d2: usize) -> f64 {
         Ok(dist) => dist.sf(f.max(0.0)),
         Err(_) => 1.0,
     }
-}
-
-/// F quantile (critical value) at upper-tail probability `q`: the root of sf(x) = q by
-/// bisection on the upper tail to a relative 1e-13 (statrs' own inverse stops early: 2.37075
-/// for F(4, 2,399,990) at 5 %, where the value is 2.37194).
-pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
-    if !(q > 0.0 && q < 1.0) || d1 == 0 || d2 == 0 {
-        return f64::NAN;
-    }
-    let Ok(dist) = FisherSnedecor::new(d1 as f64, d2 as f64) else { return f64::NAN };
-    first_reached(|x| dist.sf(x) > q, 1.0, 1e300, |lo, hi, _| hi - lo > 1e-13 * hi)
-        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
 }
 
 /// The paper's ANOVA beside the main test, per FOG: for G (F_G against the candidate
