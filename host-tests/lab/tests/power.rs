@@ -361,6 +361,16 @@ fn null_spread() {
     }
 }
 
+/// The probes' arguments: the 24-h white and coloured configurations (`POWER_CONFIGS`),
+/// one effect (`POWER_EFFECTS`, default the user column), `POWER_SEEDS` seeds from
+/// `POWER_SEED0`.
+fn probe_args() -> (Vec<(f64, f64, bool)>, PowerEffect, u64, u64) {
+    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
+    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
+    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
+    (env_configs(&all), e, env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0))
+}
+
 /// The column's test at the stated size against what its statement assumed: per seed the
 /// null session's information I₀ of the effect FOG (the statement's), the session with the
 /// effect at the stated size's information I₁ and F, and the F-test's power predicted from
@@ -371,11 +381,7 @@ fn null_spread() {
 fn effect_spread() {
     use ssis_lab::detectable::ncx2_sf;
     use statrs::distribution::{ChiSquared, ContinuousCDF};
-    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
-    let configs = env_configs(&all);
-    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
-    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
-    let (seeds, seed0) = (env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0));
+    let (configs, e, seeds, seed0) = probe_args();
     let opt = Options::default();
     let info = |d: &Diagnosis, fog: usize| {
         let c = d.candidates.iter().find(|c| c.kind.label() == label(e))?;
@@ -442,11 +448,7 @@ fn wilson(hit: usize, n: usize) -> (f64, f64) {
 #[ignore]
 fn coupling() {
     use ssis_lab::diagnose::f_critical;
-    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
-    let configs = env_configs(&all);
-    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
-    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
-    let (seeds, seed0) = (env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0));
+    let (configs, e, seeds, seed0) = probe_args();
     let run = std::env::var("POWER_RUN").is_ok();
     let opt = Options::default();
     let test = |d: &Diagnosis, fog: usize| {
