@@ -8,6 +8,9 @@
 //!   cannot state one figure differently.
 //! - A figure with a `source` is checked against what declares it: the code, a linker
 //!   script, a directory, or the flight ELF when it is built.
+//! - The documents stand on their own: no path outside the repository, no development
+//!   label ("session 12", "issue 42": history lives in git); README.md stays a front page
+//!   (under 300 lines) and BENCHMARKS.md's current table under 100 rows.
 //!
 //! `cd host-tests && cargo test --release --test figures`.
 
@@ -461,6 +464,63 @@ fn documents_state_each_figure_as_its_source_does() {
     assert!(failures.is_empty(), "{} figure(s) disagree:\n{}", failures.len(), failures.join("\n"));
 }
 
+/// A development label in a line: `session` or `issue` as a word, then a number
+/// (`Session 12`, `issue #42`).
+fn development_label(line: &str) -> Option<String> {
+    let lower = line.to_lowercase();
+    for word in ["session", "issue"] {
+        for (at, _) in lower.match_indices(word) {
+            let starts_word = !lower[..at].chars().next_back().is_some_and(|c| c.is_alphanumeric() || c == '_');
+            let rest = lower[at + word.len()..].trim_start_matches(' ').trim_start_matches('#');
+            if starts_word
+                && lower[at + word.len()..].starts_with(' ')
+                && rest.starts_with(|c: char| c.is_ascii_digit())
+            {
+                let tail = lower[at + word.len()..].chars().take_while(|c| matches!(c, ' ' | '#' | '0'..='9'));
+                return Some(format!("{word}{}", tail.collect::<String>()));
+            }
+        }
+    }
+    None
+}
+
+#[test]
+fn documents_are_self_contained() {
+    let root = root();
+    let mut docs = Vec::new();
+    documents(&root, &mut docs);
+    docs.sort();
+    let mut failures = Vec::new();
+    for doc in &docs {
+        let rel = doc.strip_prefix(&root).unwrap_or(doc).display().to_string();
+        let text = std::fs::read_to_string(doc).unwrap_or_default();
+        for (n, line) in text.lines().enumerate() {
+            for outside in ["../shared", "NOTES.md", "/work/"] {
+                if line.contains(outside) {
+                    failures.push(format!("{rel}:{}: names `{outside}`, outside the repository", n + 1));
+                }
+            }
+            if let Some(label) = development_label(line) {
+                failures.push(format!("{rel}:{}: a development label `{label}` (history lives in git)", n + 1));
+            }
+        }
+    }
+    let readme = read("README.md").lines().count();
+    if readme >= 300 {
+        failures.push(format!("README.md: {readme} lines, a front page stays under 300"));
+    }
+    let bench = read("BENCHMARKS.md");
+    let rows = bench
+        .split_once("<!-- figures: current table")
+        .and_then(|(_, t)| t.split_once("<!-- figures: end -->"))
+        .map_or(usize::MAX, |(t, _)| t.lines().filter(|l| l.starts_with("| ")).count());
+    if rows >= 100 {
+        failures.push(format!("BENCHMARKS.md: the current table has {rows} rows, fewer than 100 are read"));
+    }
+    println!("{} documents read; README.md {readme} lines, BENCHMARKS.md's table {rows} rows", docs.len());
+    assert!(failures.is_empty(), "{} document(s) not self-contained:\n{}", failures.len(), failures.join("\n"));
+}
+
 #[test]
 fn numbers_are_read_as_written() {
     let n: Vec<f64> = numbers("3,888 instructions, 3.78 / 3.17 / 1.58″ 3σ at 0x0002_2000; v2 fog0 −0.47, 1, 2")
@@ -471,4 +531,7 @@ fn numbers_are_read_as_written() {
     assert!(quotes(&(3.8, "3.8".into()), 3.78));
     assert!(!quotes(&(3900.0, "3,900".into()), 3888.0));
     assert_eq!(thousands(131072), "131,072");
+    assert!(development_label("as in Session 12, the").is_some());
+    assert_eq!(development_label("see issue #42.").as_deref(), Some("issue #42"));
+    assert!(development_label("40 null sessions 1 at 1.0e-2; a session's 3 files; tissue 3").is_none());
 }
