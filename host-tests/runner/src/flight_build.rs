@@ -861,6 +861,45 @@ impl FedFlight {
         !frames.is_empty()
     }
 
+    /// Switches the test build to lockstep with none of the runner's time in the unit's:
+    /// a breakpoint after each `wfi` of its loop, and at the first wake (booted, in its
+    /// loop, halted: virtual time stands still) the LOCKSTEP frame is put into its
+    /// control ring as the UART's interrupt would ([`RxRingAt::push`]). The loop's next
+    /// wait drains the ring before it looks at the tick, so no step runs on the timer
+    /// after that wake and the feed may go at once. (Sent over the UART instead, the
+    /// frame's arrival could be proven only by a silence of the unit's own tick, some
+    /// hundreds of ms of virtual time on a loaded host.) Resumes the guest (halted or at
+    /// `Reset`) and leaves it running; returns the output sent before the wake.
+    fn enter_lockstep(&mut self, ctl: &RxRingAt, vt: &mut VirtualTime, clock: &GuestClock) -> Result<Vec<u8>> {
+        let woke: Vec<u32> = self.wfi.iter().map(|a| a + 2).collect();
+        for &a in &woke {
+            self.g.set_breakpoint(a)?;
+        }
+        vt.resume(&mut self.g)?;
+        let mut out = Vec::new();
+        let stop = loop {
+            while let Ok((_, b)) = self.unit.rx.try_recv() {
+                out.extend_from_slice(&b);
+            }
+            if let Some(s) = self.g.wait_stop(Duration::from_millis(20))? {
+                break s;
+            }
+            self.check_running()?;
+        };
+        vt.halted(clock, &mut self.g)?;
+        let pc = self.g.register_u32(crate::gdb::PC)?;
+        anyhow::ensure!(woke.contains(&pc), "entering lockstep, the guest stopped at {pc:#x}: {stop}");
+        while let Ok((_, b)) = self.unit.rx.try_recv() {
+            out.extend_from_slice(&b);
+        }
+        ctl.push(&mut self.g, &ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        for &a in &woke {
+            self.g.clear_breakpoint(a)?;
+        }
+        vt.resume(&mut self.g)?;
+        Ok(out)
+    }
+
     /// The watchdog acted (the guest paused at `now_s`): its counts read, the machine
     /// reset (what `-action watchdog=reset` does) and held at `Reset`.
     fn watchdog_acted(&mut self, now_s: f64, fault_v: Option<f64>) -> Result<()> {
@@ -910,9 +949,10 @@ impl FedFlight {
 /// the loop's `wfi` after the step whose frame reaches `fault_s`.
 ///
 /// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate (`icount`:
-/// QEMU's `-icount`, or none): LOCKSTEP after its first frame and again at its reset
-/// vector, then step n's bytes over the UARTs and its STEP frame once step n − 1's output
-/// is in and not before step n's time.
+/// QEMU's `-icount`, or none): LOCKSTEP into its control ring at the first wake of its
+/// loop after boot and again after the reset (`FedFlight::enter_lockstep`: the feed goes
+/// on at once, no virtual time spent on the switch), then step n's bytes over the UARTs
+/// and its STEP frame once step n − 1's output is in and not before step n's time.
 ///
 /// Every output frame is judged against truth by its time tag ([`Evaluator`]); before the
 /// fault each is also compared with the in-process core's frame of the same time tag.
@@ -925,7 +965,8 @@ pub fn loop_fault_in_flight(
     icount: Option<&str>,
 ) -> Result<FlightFaultCheck> {
     if crate::qemu::is_test_build(elf)? {
-        in_lockstep(FedFlight::start(elf, sc, watch_s, icount, true)?, fault, fault_s, watch_s).map(|f| f.finish(elf))
+        in_lockstep(FedFlight::start(elf, sc, watch_s, icount, true)?, elf, fault, fault_s, watch_s)
+            .map(|f| f.finish(elf))
     } else {
         at_ticks(FedFlight::start(elf, sc, watch_s, Some(FED_ICOUNT), false)?, elf, fault, fault_s, watch_s)
             .map(|f| f.finish(elf))
@@ -1038,7 +1079,7 @@ fn at_ticks(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, watch_
 }
 
 /// The test build fed in lockstep ([`loop_fault_in_flight`]).
-fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
+fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
     let dt_s = f.profile.dt_s();
     let mut clock = GuestClock::start(&mut f.g, 0.0)?;
     let mut vt = VirtualTime { at_halt_s: 0.0, running_since: None };
@@ -1051,9 +1092,8 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
     // A STEP sent whose output is not yet in.
     let mut awaiting = false;
     let mut last_poll = Instant::now();
-    vt.resume(&mut f.g)?;
-    let mut boot = Vec::new();
-    f.unit.enter_lockstep(|_, b| boot.extend_from_slice(b))?;
+    let ctl = RxRingAt::find(elf, "CTL_RX")?;
+    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
     f.dec.push_slice(&boot, |r| {
         if let Ok(fr) = r {
             f.c.frames_before += u64::from(fr.time_us == 0);
@@ -1129,12 +1169,9 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
                     f.g.clear_breakpoint(f.reset_at)?;
                     clock = GuestClock::start(&mut f.g, now_s)?;
                     phase = Phase::After;
-                    // Back into lockstep; the byte counts start again.
-                    f.unit.control(&ControlFrame { command: command::LOCKSTEP, ..Default::default() })?;
+                    // Back into lockstep at the first wake; the byte counts start again.
                     links = Links3 { fog_total: 0, st_total: 0 };
-                    vt.resume(&mut f.g)?;
-                    let mut boot = Vec::new();
-                    f.unit.await_silence(|_, b| boot.extend_from_slice(b), || Ok(()))?;
+                    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
                     let now_s = vt.now_s();
                     let mut booted = Vec::new();
                     f.dec.push_slice(&boot, |r| booted.extend(r.ok()));
