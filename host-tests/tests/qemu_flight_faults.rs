@@ -155,7 +155,7 @@ fn in_lockstep_a_stopped_tick_is_recovered_within_its_goals() {
 }
 
 #[test]
-#[ignore = "the runner's re-entry into lockstep after the reset takes 1.8 s of virtual time on a loaded host, which 'back within 2 s' then measures (the flight build's stall test holds the goal)"]
+#[ignore = "output is back 0.14 s after the fault, but a frame late in the watch is not judged within 2x the nominal 3 sigma, so 'back within 2 s' is not found (cause not isolated; the flight build's stall test holds the goal)"]
 fn in_lockstep_a_stalled_loop_is_recovered_within_its_goals() {
     in_flight(LoopFault::Stall, true);
 }
