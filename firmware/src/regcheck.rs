@@ -55,6 +55,8 @@ pub struct Table {
 pub const SYST_CSR: u32 = 0xE000_E010;
 /// SysTick reload value.
 pub const SYST_RVR: u32 = 0xE000_E014;
+/// SysTick current value (a write clears it; the counter reloads on the next cycle).
+pub const SYST_CVR: u32 = 0xE000_E018;
 /// The vector table's address.
 pub const SCB_VTOR: u32 = 0xE000_ED08;
 /// System handler priorities 12–15 (SysTick's in bits 24..32).
@@ -127,6 +129,13 @@ impl Table {
                 return out;
             }
             write(addr, (v & !mask) | value);
+            if addr == SYST_RVR {
+                // The counter reloads from RVR only when it wraps: cleared, the restored
+                // period holds from the next cycle, not after up to 2^24 cycles of the
+                // upset one (the board's clock, and with it the watchdog's deadline
+                // rule, would stand still meanwhile).
+                write(SYST_CVR, 0);
+            }
             if read(addr) & mask == value {
                 out.restored += 1;
             } else {

@@ -105,6 +105,43 @@ def test_real_cluster_worker_killed_and_restarted(tmp_path: Path, campaign: Call
             p.kill()
 
 
+def test_failing_run_in_a_batch_is_retried_alone(tmp_path: Path, campaign: Callable[..., Path],
+                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Short runs travel in batches; one run that always fails (run 7, made to raise in a
+    threaded in-process cluster) costs only itself: its batch's other runs are tried again
+    one by one and written, run 7 is tried once in its batch and 1 + `retries` times alone,
+    then listed with its error."""
+    from dask.distributed import LocalCluster
+
+    c = campaign(40, 40.0)
+    native = mc._ssis
+    real_one, real_many = native.mc_run, native.mc_runs
+    tries: List[int] = []
+
+    def one(text: str, origin: str, i: int, series_every: int = 0) -> Any:
+        if i == 7:
+            tries.append(i)
+            raise RuntimeError("run 7 made to fail")
+        return real_one(text, origin, i, series_every)
+
+    def many(text: str, origin: str, runs: List[int], series_every: int = 0) -> Any:
+        if 7 in runs:
+            tries.append(7)
+            raise RuntimeError("run 7 made to fail")
+        return real_many(text, origin, runs, series_every)
+
+    monkeypatch.setattr(native, "mc_run", one)
+    monkeypatch.setattr(native, "mc_runs", many)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None) as cl:
+        out = mc.run(c, tmp_path / "out", scheduler=cl.scheduler_address, retries=1, task_s=60.0,
+                      progress=False)
+    assert [e["run"] for e in out.errors] == [7], out.errors
+    assert "run 7 made to fail" in out.errors[0]["error"]
+    assert out.completed == 39
+    assert sorted(mc.done_runs(tmp_path / "out")) == [i for i in range(40) if i != 7]
+    assert len(tries) == 1 + 1 + 1, f"run 7 tried {len(tries)} times: once in its batch, then 1 + retries alone"
+
+
 def test_resume_after_driver_killed(tmp_path: Path, campaign: Callable[..., Path]) -> None:
     """The driver (`ssis-mc run` on a local cluster) killed with SIGKILL mid-campaign, then
     started again: it skips the runs written, and every run is there exactly once, with the

@@ -95,16 +95,14 @@ use bytemuck::{Pod, Zeroable};
 use nalgebra::Vector3;
 
 use super::gnss::AidedNav;
-use super::unit::{BridgeReport, NavKept, NavUnit, BLOCK_STEPS, WINDOW_BLOCKS};
+pub use super::unit::MAX_BRIDGE_STEPS;
+use super::unit::{NavKept, NavUnit, BLOCK_STEPS, WINDOW_BLOCKS};
 use super::{wgs84, NavState};
 use crate::frames::CRC32C;
 use crate::state::{Flag, Maybe};
 
 /// First word: "NSN" and the layout version 3.
 const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x03");
-/// Most samples a resume bridges (0.5 s at 1.25 ms): the snapshot period (80 steps in
-/// the firmware) plus a reset and boot, with margin; older, the snapshot is stale.
-pub const MAX_BRIDGE_STEPS: u16 = 400;
 /// Most samples whose attitude a resume bridges on the window's fit and still backs
 /// (0.3 s): the older copy's age (two snapshot periods of 80 steps) plus a reset and boot
 /// of 40 steps, with margin; beyond it the attitude is flagged unconfirmed.
@@ -256,38 +254,6 @@ impl AidedNav {
             d.update(&f.to_le_bytes());
         }
         d.finalize()
-    }
-
-    /// Adds a bridge's error growth over `n` steps to the covariance: the velocity
-    /// increments' per-step spread `s_dv_m2_s2` (3-D mean square) as a random walk of the
-    /// velocity (and so of the position), and the attitude's stated bound
-    /// `att_bound_rad` (module documentation).
-    fn add_bridge_growth(&mut self, n: u16, att_bound_rad: f64, s_dv_m2_s2: f64) -> BridgeReport {
-        let steps = u32::from(n);
-        let n = f64::from(n);
-        let dt = self.nav.dt_s();
-        // The attitude's stated bound as a 1σ per axis (bound²/3 each); none when the
-        // bridge had no fit (the frames flag the attitude unconfirmed instead).
-        let qa = if att_bound_rad.is_finite() { att_bound_rad * att_bound_rad / 3.0 } else { 0.0 };
-        let qv = s_dv_m2_s2 / 3.0;
-        for i in 0..3 {
-            let add = |p: &mut Self, r: usize, c: usize, v: f64| {
-                if let Some(x) = p.p.get_mut((r, c)) {
-                    *x += v;
-                }
-            };
-            add(self, i, i, qa);
-            add(self, 3 + i, 3 + i, n * qv);
-            add(self, 6 + i, 6 + i, n * n * n * dt * dt * qv / 3.0);
-            add(self, 3 + i, 6 + i, n * n * dt * qv / 2.0);
-            add(self, 6 + i, 3 + i, n * n * dt * qv / 2.0);
-        }
-        BridgeReport {
-            steps,
-            sigma_pos_m: crate::math::sqrt(n * n * n * dt * dt * s_dv_m2_s2 / 3.0),
-            sigma_vel_m_s: crate::math::sqrt(n * s_dv_m2_s2),
-            att_bound_rad,
-        }
     }
 }
 

@@ -189,6 +189,10 @@ state_struct! {
         pub(super) resume_wait: u32 = 0;
         /// What the last resume bridged.
         pub(super) bridged: Maybe<BridgeReport> = Maybe::none();
+        /// The unit time of the last step's increment, µs (`None` until the first, and
+        /// after a reset): an increment whose time lies more than one step after it spans
+        /// samples the flight core bridged ([`NavUnit::step`]).
+        last_t_us: Maybe<u64> = Maybe::none();
         /// The navigation is lost (a snapshot refused after a reset, or too old at its
         /// first sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
         /// initialisation builds the unit again ([`super::snapshot`]).
@@ -216,6 +220,45 @@ pub struct BridgeReport {
     /// The bridge's stated attitude error (3-D), rad: what its fit over the window
     /// cannot know ([`super::snapshot`]); infinite when it had no fit.
     pub att_bound_rad: f64,
+}
+
+/// Most samples a resume bridges (0.5 s at 1.25 ms): the snapshot period (80 steps in
+/// the firmware) plus a reset and boot, with margin; older, the snapshot is stale.
+pub const MAX_BRIDGE_STEPS: u16 = 400;
+
+impl AidedNav {
+    /// Adds a bridge's error growth over `n` steps to the covariance: the velocity
+    /// increments' per-step spread `s_dv_m2_s2` (3-D mean square) as a random walk of the
+    /// velocity (and so of the position), and the attitude's stated bound
+    /// `att_bound_rad` (module documentation).
+    #[inline(never)]
+    pub(super) fn add_bridge_growth(&mut self, n: u16, att_bound_rad: f64, s_dv_m2_s2: f64) -> BridgeReport {
+        let steps = u32::from(n);
+        let n = f64::from(n);
+        let dt = self.nav.dt_s();
+        // The attitude's stated bound as a 1σ per axis (bound²/3 each); none when the
+        // bridge had no fit (the frames flag the attitude unconfirmed instead).
+        let qa = if att_bound_rad.is_finite() { att_bound_rad * att_bound_rad / 3.0 } else { 0.0 };
+        let qv = s_dv_m2_s2 / 3.0;
+        for i in 0..3 {
+            let add = |p: &mut Self, r: usize, c: usize, v: f64| {
+                if let Some(x) = p.p.get_mut((r, c)) {
+                    *x += v;
+                }
+            };
+            add(self, i, i, qa);
+            add(self, 3 + i, 3 + i, n * qv);
+            add(self, 6 + i, 6 + i, n * n * n * dt * dt * qv / 3.0);
+            add(self, 3 + i, 6 + i, n * n * dt * qv / 2.0);
+            add(self, 6 + i, 3 + i, n * n * dt * qv / 2.0);
+        }
+        BridgeReport {
+            steps,
+            sigma_pos_m: crate::math::sqrt(n * n * n * dt * dt * s_dv_m2_s2 / 3.0),
+            sigma_vel_m_s: crate::math::sqrt(n * s_dv_m2_s2),
+            att_bound_rad,
+        }
+    }
 }
 
 impl NavUnit {
@@ -302,7 +345,10 @@ impl NavUnit {
         let counter = counter.or_else(|| self.accel_counter.get().map(|c| c.wrapping_add(1)));
         self.accel_counter.set(counter);
         // After a resume: bridge the samples lost over the reset, or hold.
+        let resuming = self.resume_from.is_some();
         let navigating = self.settle_resume(counter);
+        // Samples the flight core bridged into this one increment (lost on every link).
+        let spanned = self.spanned_steps(time_us, resuming);
         // 2. Compensation (or hold).
         let [x, y, z] = raw;
         let dv = if complete { self.comp.compensate(&Vector3::new(x, y, z), &temps, self.dt_s) } else { None };
@@ -318,11 +364,33 @@ impl NavUnit {
             }
         };
         // 3. Navigation (strapdown only; the covariance work is `filter_work`'s).
-        if !navigating {
+        // An increment spanning n > 1 samples (n − 1 lost, bridged by the core) is n
+        // strapdown steps, the angle spread evenly, the lost ones on the mean velocity
+        // increment ([`NavUnit::spanned_bridged`]); more than MAX_BRIDGE_STEPS: lost.
+        let n = if spanned > 1 + u64::from(MAX_BRIDGE_STEPS) {
+            self.lost = Flag::SET;
+            0
+        } else {
+            spanned as u16
+        };
+        let each = if n > 1 { dtheta_body_rad / f64::from(n) } else { *dtheta_body_rad };
+        let mean_dv = self.mean_dv_m_s;
+        let mut stepped = navigating && n > 0;
+        // Bounded: at most MAX_BRIDGE_STEPS + 1 strapdown steps.
+        for m in 1..=n {
+            if !stepped {
+                break;
+            }
+            let v = if m < n { &mean_dv } else { &dv };
+            if self.nav.step_deferred(&each, v).is_err() {
+                self.counters.add(NavCounter::NavFaults, 1);
+                stepped = false;
+            }
+        }
+        if !stepped {
             fl |= flags::NAV_FAULT;
-        } else if self.nav.step_deferred(dtheta_body_rad, &dv).is_err() {
-            fl |= flags::NAV_FAULT;
-            self.counters.add(NavCounter::NavFaults, 1);
+        } else if n > 1 {
+            self.spanned_bridged(n - 1);
         } else {
             self.track_means(dtheta_body_rad, &dv);
             self.track_window(dtheta_body_rad);
@@ -441,6 +509,36 @@ impl NavUnit {
             self.block_next = ((i + 1) % WINDOW_BLOCKS) as u32;
             self.blocks_filled = self.blocks_filled.saturating_add(1).min(WINDOW_BLOCKS as u32);
         }
+    }
+
+    /// Steps of the sample clock this step's increment covers (1 normally): more when
+    /// the flight core bridged samples lost on every link into it
+    /// ([`crate::flight::FlightCore::step_with`]). Not at the step a resume bridges (its
+    /// gap is the accelerometer counter's), nor at the first step.
+    #[inline(always)]
+    fn spanned_steps(&mut self, time_us: u64, resuming: bool) -> u64 {
+        let last = self.last_t_us.get();
+        self.last_t_us = Maybe::some(time_us);
+        let dt_us = u64::from((self.dt_s * 1e6) as u32);
+        match last {
+            Some(t) if !resuming && dt_us > 0 && time_us > t => (time_us - t + dt_us / 2) / dt_us,
+            _ => 1,
+        }
+    }
+
+    /// After a step whose increment spanned `lost` + 1 samples ([`NavUnit::step`]): the
+    /// lost steps' error growth into the covariance, as a resume's bridge's
+    /// ([`super::snapshot`]); the core's held increment backs no attitude, so it is
+    /// flagged unconfirmed, as after a resume's bridge without a fit; the window starts
+    /// again on measured increments; the frame counter goes on past the lost samples.
+    #[inline(never)]
+    fn spanned_bridged(&mut self, lost: u16) {
+        let _ = self.nav.add_bridge_growth(lost, f64::INFINITY, self.spread_dv_m2_s2);
+        self.att_unconfirmed = Flag::SET;
+        self.blocks_filled = 0;
+        self.block_steps = 0;
+        self.block_rad = [0.0; 3];
+        self.out_counter = self.out_counter.wrapping_add(lost);
     }
 
     /// Whether the attitude is unconfirmed since a resume ([`flags::ATTITUDE_UNCONFIRMED`]).

@@ -12,9 +12,10 @@
 //! - **A catalog term or a column.** Under the noise model, the GLS F-test of the candidate's
 //!   q regressors on the test blocks has non-centrality λ = cᵀ I c, with I = Xᵀ(I − H₀)X the
 //!   candidate's information beside the base model (whitened; [`super::diagnose::FogTest::info`])
-//!   and c the coefficients. The test reaches 80 % power when λ reaches λ*(q, α), the root
-//!   of P(χ²_q(λ) > χ²_q,α) = 0.8 (the F's denominator has as many degrees of freedom as
-//!   test rows, so χ²_q/q stands for it). The minimum detectable coefficient is
+//!   and c the coefficients. The test reaches 80 % power when λ reaches λ*(q, df2, α), the
+//!   root of P(F'(q, df2, λ) > F_crit) = 0.8 with F_crit the test's own critical value of
+//!   F(q, df2) ([`lambda_required_f`]; χ²_q/q in the limit of many test rows, which states
+//!   a λ* about 1 % too small at 700 rows and α 3e-4). The minimum detectable coefficient is
 //!   √(λ*/μ_min), μ_min the smallest eigenvalue of I (any direction of that norm is
 //!   detected): for a one-regressor term, √(λ*/I).
 //! - **A sinusoid** of amplitude A at frequency f is found when two things happen: the
@@ -40,7 +41,7 @@
 //! The power study (`host-tests/lab/tests/power.rs`) measures the detection rate at the
 //! stated size and at half of it.
 
-use statrs::distribution::{ChiSquared, ContinuousCDF, Discrete, Poisson};
+use statrs::distribution::{ChiSquared, ContinuousCDF, Discrete, FisherSnedecor, Poisson};
 
 use super::noise::{row_spectrum_of_means, NoiseModel};
 use super::spectral::max_tail;
@@ -68,12 +69,46 @@ pub fn ncx2_sf(x: f64, q: f64, lambda: f64) -> f64 {
     s.clamp(0.0, 1.0)
 }
 
+/// Upper tail of the non-central F with `d1`, `d2` degrees of freedom and non-centrality
+/// `lambda` at `x`: the Poisson(λ/2) mixture of the central F's of (d1 + 2j, d2), each the
+/// regularised incomplete beta I_y(d1/2 + j, d2/2) at y = d1 x / (d1 x + d2).
+pub fn ncf_sf(x: f64, d1: f64, d2: f64, lambda: f64) -> f64 {
+    use statrs::function::beta::checked_beta_reg;
+    if x.is_nan() || x <= 0.0 {
+        return 1.0;
+    }
+    let y = d1 * x / (d1 * x + d2);
+    let half = 0.5 * lambda.max(0.0);
+    let tail = |j: u64| checked_beta_reg(0.5 * d1 + j as f64, 0.5 * d2, y).map_or(0.0, |c| 1.0 - c);
+    if half == 0.0 {
+        return tail(0).clamp(0.0, 1.0);
+    }
+    let Ok(pois) = Poisson::new(half) else { return 1.0 };
+    let j_max = (half + 12.0 * half.sqrt() + 30.0) as u64;
+    let j_min = (half - 12.0 * half.sqrt()).max(0.0) as u64;
+    (j_min..=j_max).map(|j| pois.pmf(j) * tail(j)).sum::<f64>().clamp(0.0, 1.0)
+}
+
 /// The non-centrality at which a χ²_q test at level `alpha` has power `power`.
 pub fn lambda_required(q: usize, alpha: f64, power: f64) -> f64 {
     let q = q.max(1) as f64;
     let Ok(c) = ChiSquared::new(q) else { return f64::NAN };
     let crit = c.inverse_cdf(1.0 - alpha.clamp(1e-300, 0.5));
     lambda_to_beat(crit, q, power)
+}
+
+/// The non-centrality at which the F-test of `q` regressors with `df2` denominator degrees of
+/// freedom at level `alpha` has power `power`: the root of P(F'(q, df2, λ) > F_crit) = power,
+/// F_crit the upper-`alpha` point of F(q, df2) ([`f_critical`]), the test
+/// `diagnose` performs (its χ²_q root, [`lambda_required`], is the limit df2 → ∞).
+pub fn lambda_required_f(q: usize, df2: usize, alpha: f64, power: f64) -> f64 {
+    let crit = f_critical(alpha.clamp(1e-300, 0.5), q.max(1), df2);
+    if !crit.is_finite() {
+        return lambda_required(q, alpha, power);
+    }
+    let (q, d2) = (q.max(1) as f64, df2 as f64);
+    first_reached(|l| ncf_sf(crit, q, d2, l) < power, 1.0, 1e9, |_, _, k| k < 60)
+        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
 }
 
 /// The non-centrality at which χ²_q(λ) exceeds `crit` with probability `power`.
@@ -395,6 +430,18 @@ impl Detectable {
         }
         out
     }
+}
+
+/// F quantile (critical value) at upper-tail probability `q`: the root of sf(x) = q by
+/// bisection on the upper tail to a relative 1e-13 (statrs' own inverse stops early: 2.37075
+/// for F(4, 2,399,990) at 5 %, where the value is 2.37194).
+pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
+    if !(q > 0.0 && q < 1.0) || d1 == 0 || d2 == 0 {
+        return f64::NAN;
+    }
+    let Ok(dist) = FisherSnedecor::new(d1 as f64, d2 as f64) else { return f64::NAN };
+    first_reached(|x| dist.sf(x) > q, 1.0, 1e300, |lo, hi, _| hi - lo > 1e-13 * hi)
+        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
 }
 
 #[cfg(test)]

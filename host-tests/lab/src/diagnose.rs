@@ -32,9 +32,8 @@
 use indicatif::ProgressBar;
 use statrs::distribution::{ContinuousCDF, FisherSnedecor};
 
-use super::detectable::{
-    first_reached, lambda_required, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER,
-};
+pub use super::detectable::f_critical;
+use super::detectable::{lambda_required_f, min_coef, sinusoid_curve, Detectable, LineDesign, TermLimit, POWER};
 use super::fit::{design, held_out, kept_residual, pooled, spec_for, Design};
 use super::lsq::{design_gram, lstsq_gram, residual_functional, Gram};
 use super::model::{Catalog, Kind, Model};
@@ -88,6 +87,12 @@ pub struct FogTest {
     /// Information of the candidate's regressors on the test blocks under the noise model
     /// (whitened, beside the base model): q × q, row-major, in 1/(coefficient unit)².
     pub info: Vec<f64>,
+    /// GLS estimate of the candidate's coefficients on the test blocks (the F-test's fit),
+    /// SI, in the order of its regressors.
+    pub coef: Vec<f64>,
+    /// The F's denominator: the whitened residual's mean square of the fit with the
+    /// candidate, SSE₁ / df2 (1 in expectation when the noise model is right).
+    pub mse: f64,
     /// Test rows.
     pub n_test: usize,
 }
@@ -196,18 +201,6 @@ fn f_sf(f: f64, d1: usize, d2: usize) -> f64 {
     }
 }
 
-/// F quantile (critical value) at upper-tail probability `q`: the root of sf(x) = q by
-/// bisection on the upper tail to a relative 1e-13 (statrs' own inverse stops early: 2.37075
-/// for F(4, 2,399,990) at 5 %, where the value is 2.37194).
-pub fn f_critical(q: f64, d1: usize, d2: usize) -> f64 {
-    if !(q > 0.0 && q < 1.0) || d1 == 0 || d2 == 0 {
-        return f64::NAN;
-    }
-    let Ok(dist) = FisherSnedecor::new(d1 as f64, d2 as f64) else { return f64::NAN };
-    first_reached(|x| dist.sf(x) > q, 1.0, 1e300, |lo, hi, _| hi - lo > 1e-13 * hi)
-        .map_or(f64::INFINITY, |(lo, hi)| 0.5 * (lo + hi))
-}
-
 /// The paper's ANOVA beside the main test, per FOG: for G (F_G against the candidate
 /// `temp_rate`) and T (F_T against `thermal_t1`, or the first thermal term the model lacks),
 /// each with its degrees of freedom and p-value, and a one-line reason where one is
@@ -296,6 +289,8 @@ fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], nz: &NoiseCtx) -> Option
     let (g, sd) = gain.per_row();
     let p = if after < before { p_f.max(p_d) } else { 1.0 };
     let info = information(&ws.test, base, cand);
+    let k = base.k();
+    let coef = ls1.coef[k..k + cand.len()].to_vec();
     Some(FogTest {
         f,
         df1: q,
@@ -307,6 +302,8 @@ fn test_fog(s: &Sums, base: &Design, cand: &[Vec<f64>], nz: &NoiseCtx) -> Option
         before_rad_s: before,
         after_rad_s: after,
         info,
+        coef,
+        mse: ls1.sse / df2 as f64,
         n_test: s.test.n,
     })
 }
@@ -622,7 +619,7 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
             .map(|t| {
                 let t = t.as_ref()?;
                 let q = (t.info.len() as f64).sqrt().round() as usize;
-                min_coef(&t.info, lambda_required(q, alpha, POWER))
+                min_coef(&t.info, lambda_required_f(q, t.df2, alpha, POWER))
             })
             .collect();
         let unit = c.kind.eng_units(0).first().copied().unwrap_or(("SI", 1.0));

@@ -361,6 +361,16 @@ fn null_spread() {
     }
 }
 
+/// The probes' arguments: the 24-h white and coloured configurations (`POWER_CONFIGS`),
+/// one effect (`POWER_EFFECTS`, default the user column), `POWER_SEEDS` seeds from
+/// `POWER_SEED0`.
+fn probe_args() -> (Vec<(f64, f64, bool)>, PowerEffect, u64, u64) {
+    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
+    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
+    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
+    (env_configs(&all), e, env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0))
+}
+
 /// The column's test at the stated size against what its statement assumed: per seed the
 /// null session's information I₀ of the effect FOG (the statement's), the session with the
 /// effect at the stated size's information I₁ and F, and the F-test's power predicted from
@@ -371,11 +381,7 @@ fn null_spread() {
 fn effect_spread() {
     use ssis_lab::detectable::ncx2_sf;
     use statrs::distribution::{ChiSquared, ContinuousCDF};
-    let all = [(60.0, 24.0, false), (60.0, 24.0, true)];
-    let configs = env_configs(&all);
-    let only = std::env::var("POWER_EFFECTS").unwrap_or_else(|_| "supply_v".into());
-    let e = effects(&[]).into_iter().find(|e| label(*e).contains(only.as_str())).unwrap();
-    let (seeds, seed0) = (env_num("POWER_SEEDS", 40), env_num("POWER_SEED0", 0));
+    let (configs, e, seeds, seed0) = probe_args();
     let opt = Options::default();
     let info = |d: &Diagnosis, fog: usize| {
         let c = d.candidates.iter().find(|c| c.kind.label() == label(e))?;
@@ -419,5 +425,108 @@ fn effect_spread() {
         );
         // The noise model of the session with the effect must not take it up as wander.
         assert!(mean(&ratio) >= 0.95, "the effect's information falls to {:.3} of the null's", mean(&ratio));
+    }
+}
+
+/// Wilson 95 % interval of `hit` of `n`.
+fn wilson(hit: usize, n: usize) -> (f64, f64) {
+    let (n, p, z) = (n.max(1) as f64, hit as f64 / n.max(1) as f64, 1.96f64);
+    let c = (p + z * z / (2.0 * n)) / (1.0 + z * z / n);
+    let h = z * (p * (1.0 - p) / n + z * z / (4.0 * n * n)).sqrt() / (1.0 + z * z / n);
+    (c - h, c + h)
+}
+
+/// What decides a hit at the stated size: the GLS fit is linear, so with the same noise the
+/// effect session's standardised estimate z₁ = ĉ √I is the null session's z₀ plus √λ* (the
+/// stated size's non-centrality; exactly when the two sessions' noise models agree), and
+/// the F-test rejects when (z₀ + √λ*)² ≥ F_crit · s², s² its denominator. Per seed, on
+/// every FOG of the null session: z₀, s², and the hit that predicts; on the effect FOG
+/// (`POWER_RUN=1`) the effect session's z₁, s², I₁ and whether the diagnosis found it.
+/// Every FOG of a null session is one draw of the prediction (four a seed).
+/// `POWER_CONFIGS`, `POWER_SEEDS`, `POWER_SEED0`, `POWER_EFFECTS` as in [`full_sweep`].
+#[test]
+#[ignore]
+fn coupling() {
+    use ssis_lab::diagnose::f_critical;
+    let (configs, e, seeds, seed0) = probe_args();
+    let run = std::env::var("POWER_RUN").is_ok();
+    let opt = Options::default();
+    let test = |d: &Diagnosis, fog: usize| {
+        let c = d.candidates.iter().find(|c| c.kind.label() == label(e))?;
+        c.per_fog.get(fog)?.clone()
+    };
+    for (dt_s, hours, wander) in configs {
+        let (mut z0s, mut s2s, mut pred_all, mut pred_eff, mut found_eff, mut agree) =
+            (Vec::new(), Vec::new(), Tally::default(), Tally::default(), Tally::default(), Tally::default());
+        let mut shift = Vec::new();
+        for seed in seed0..seed0 + seeds {
+            let fog_e = (seed % 4) as usize;
+            let spec = PowerSpec { seed: 1000 + seed, dt_s, hours, effect: e, size: 0.0, fog: fog_e, wander };
+            let d0 = diagnose(&model(e), &session(&power_session(&spec)), &opt).unwrap();
+            let alpha = d0.detectable.alpha_per_fog;
+            let mut line = format!("  seed {seed} α {alpha:.2e}:");
+            let mut pred_e = None;
+            for fog in 0..4 {
+                let Some(t) = test(&d0, fog) else { continue };
+                // The stated size's non-centrality on this FOG, c² I₀.
+                let Some(c) = stated(&d0, e, fog) else { continue };
+                let l_star = c * c * t.info[0];
+                line.push_str(&format!(" λ {l_star:.2}"));
+                let z0 = t.coef[0] * t.info[0].sqrt();
+                let crit = f_critical(alpha, 1, t.df2);
+                let hit = z0 + l_star.sqrt() >= (crit * t.mse).sqrt();
+                z0s.push(t.coef[0] * t.info[0].sqrt());
+                s2s.push(t.mse);
+                pred_all.add(hit);
+                if fog == fog_e {
+                    pred_e = Some(hit);
+                    pred_eff.add(hit);
+                }
+                line.push_str(&format!(" fog{fog} z0 {z0:+.2} s² {:.3}{}", t.mse, if hit { "" } else { " MISS" }));
+            }
+            if run {
+                if let (Some(c), Some(t0)) = (stated(&d0, e, fog_e), test(&d0, fog_e)) {
+                    let l_star = c * c * t0.info[0];
+                    let d1 =
+                        diagnose(&model(e), &session(&power_session(&PowerSpec { size: c, ..spec })), &opt).unwrap();
+                    if let Some(t1) = test(&d1, fog_e) {
+                        let z1 = t1.coef[0] * t1.info[0].sqrt();
+                        let z0 = t0.coef[0] * t0.info[0].sqrt();
+                        let hit = found(&d1, e, hours * 3600.0);
+                        found_eff.add(hit);
+                        agree.add(Some(hit) == pred_e);
+                        shift.push(z1 - z0 - l_star.sqrt());
+                        line.push_str(&format!(
+                            " | effect fog{fog_e}: z1 {z1:+.2} (z0 + √λ* {:+.2}) I1/I0 {:.3} s² {:.3} α1 {:.2e} {}",
+                            z0 + l_star.sqrt(),
+                            t1.info[0] / t0.info[0],
+                            t1.mse,
+                            d1.detectable.alpha_per_fog,
+                            if hit { "found" } else { "MISSED" }
+                        ));
+                    }
+                }
+            }
+            println!("{line}");
+        }
+        let sd = |v: &[f64]| {
+            let m = mean(v);
+            (m, (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / (v.len().max(2) - 1) as f64).sqrt())
+        };
+        let (zm, zs) = sd(&z0s);
+        let (sm, ss) = sd(&s2s);
+        let (lo, hi) = wilson(pred_all.hit, pred_all.n);
+        println!(
+            "{dt_s} s, {hours} h, {}: null z0 = ĉ√I mean {zm:+.3} sd {zs:.3} (n {}); s² mean {sm:.3} sd {ss:.3}; \
+             predicted at the stated size: every FOG {pred_all} (Wilson {:.1}–{:.1} %), effect FOG {pred_eff}",
+            if wander { "coloured" } else { "white" },
+            z0s.len(),
+            100.0 * lo,
+            100.0 * hi
+        );
+        if run {
+            let (hm, hs) = sd(&shift);
+            println!("  effect sessions: found {found_eff}, prediction agrees {agree}; z1 − z0 − √λ* mean {hm:+.3} sd {hs:.3}");
+        }
     }
 }

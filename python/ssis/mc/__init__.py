@@ -12,7 +12,8 @@ order, so this module only distributes and keeps books:
   row per run, its drawn parameters and indices; ``series/``: the optional decimated time
   series). A campaign started again on the same ``out/`` skips the runs already there;
   a run that fails, or whose worker dies, is retried, then listed with its error
-  (``errors.jsonl``). In-flight runs are bounded (a window of futures), so is each worker's
+  (``errors.jsonl``). Short runs travel in batches (one Dask task of about ``task_s``
+  seconds); in-flight tasks are bounded (a window of futures), so is each worker's
   memory (``memory_limit``).
 - :func:`load`: the results as a ``pandas.DataFrame``, one row per run.
 - :func:`replay`: one run again, in this process, to the same bits.
@@ -24,7 +25,10 @@ Needs the ``mc`` extra: ``pip install 'ssis[mc]'`` (dask[distributed], pyarrow, 
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import hashlib
+import itertools
 import json
 import os
 import sys
@@ -32,7 +36,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, Iterator, List, Optional, Sequence, Union
+from typing import Any, Callable, Deque, Dict, Iterable, Iterator, List, Optional, Sequence, Union
 
 from .. import _ssis
 
@@ -100,6 +104,21 @@ def run_one(text: str, origin: str, i: int, series_every: int = 0) -> Dict[str, 
 
 
 _LOOPS: Dict[str, str] = {}
+
+
+def run_batch(text: str, origin: str, runs: Sequence[int], series_every: int = 0) -> List[Dict[str, Any]]:
+    """Runs ``runs`` of the campaign in turn: one Dask task for several short runs, so the
+    scheduler's cost per task is paid once per batch. An open-loop batch reads the campaign
+    (its scenario and table files) once; each run's ``wall_s`` and ``cpu_s`` are then the
+    batch's shared equally."""
+    if len(runs) == 1 or _loop_of(text, origin) == "closed":
+        return [run_one(text, origin, i, series_every) for i in runs]
+    t0, c0 = time.perf_counter(), time.thread_time()
+    rs = [dict(r) for r in _ssis.mc_runs(text, origin, list(runs), series_every)]
+    wall_s, cpu_s = (time.perf_counter() - t0) / len(rs), (time.thread_time() - c0) / len(rs)
+    for r in rs:
+        r["wall_s"], r["cpu_s"] = wall_s, cpu_s
+    return rs
 
 
 def _loop_of(text: str, origin: str) -> str:
@@ -343,6 +362,7 @@ def run(
     series_every: int = 0,
     retries: int = 2,
     window: Optional[int] = None,
+    task_s: float = 1.0,
     flush_rows: int = 256,
     flush_s: float = 5.0,
     progress: bool = True,
@@ -355,11 +375,16 @@ def run(
     machine's cores; each one thread, at most ``memory_limit``), a Dask scheduler's
     address (``tcp://host:8786``), or ``"serial"``: every run in this process, no Dask.
     ``retries``: how often a failed run (an error, or its worker died) is tried again
-    before it is listed in :attr:`Outcome.errors`. ``window``: runs in flight at once
-    (default: 2 per worker thread). ``series_every``: keep every n-th step of each run's
+    before it is listed in :attr:`Outcome.errors`. ``window``: tasks in flight at once
+    (default: 2 per worker thread). ``task_s``: short runs go to a worker
+    in batches of about this many seconds (sized from the runs already back; a failed batch's
+    runs are tried again one by one), so Dask's cost per task does not eat the workers' time.
+    ``series_every``: keep every n-th step of each run's
     time series (0: none). ``on_result`` is called in this process with each finished
     run's result (the test's hook).
     """
+    if not task_s > 0 or task_s == float("inf"):
+        raise ValueError(f"task_s: seconds per task must be positive and finite, got {task_s!r}")
     c = _campaign(campaign)
     outp = Path(out)
     _meta(outp, c)
@@ -402,7 +427,7 @@ def run(
                         err = e
                 finished(i, r, err)
         else:
-            _dask(c, todo, scheduler, workers, memory_limit, series_every, retries, window, o, finished)
+            _dask(c, todo, scheduler, workers, memory_limit, series_every, retries, window, task_s, o, finished)
     finally:
         writer.flush()
         bar.close()
@@ -411,45 +436,95 @@ def run(
 
 
 def _dask(c: Campaign, todo: List[int], scheduler: Optional[str], workers: Optional[int], memory_limit: str,
-          series_every: int, retries: int, window: Optional[int], o: Outcome,
+          series_every: int, retries: int, window: Optional[int], task_s: float, o: Outcome,
           finished: Callable[[int, Optional[Dict[str, Any]], Optional[BaseException]], None]) -> None:
-    from dask.distributed import Client, LocalCluster, as_completed
+    import dask
+    from dask.distributed import Client, LocalCluster
 
     cluster = None
+    quiet: Any = contextlib.nullcontext()
     if scheduler is None:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               memory_limit=memory_limit, dashboard_address=None)
-        client = Client(cluster)
-    else:
-        client = Client(scheduler)
+        # The local cluster is tuned for runs of whole CPU seconds, a user's own cluster keeps
+        # its configuration. Dask's nanny starts each worker with MALLOC_TRIM_THRESHOLD_ set,
+        # which also fixes glibc's mmap threshold: every large buffer of every run is then
+        # mapped, faulted in and unmapped again; a run frees its memory when it ends. And a
+        # worker's event loop wakes every 10 ms to sample the running task's stack (Dask's
+        # profiler) and every 20 ms for its tick: with one worker a core, these wake-ups take
+        # the runs' own CPU.
+        env = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}) or {})
+        env.pop("MALLOC_TRIM_THRESHOLD_", None)
+        quiet = dask.config.set({
+            "distributed.nanny.pre-spawn-environ": env,
+            "distributed.worker.profile.enabled": False,
+            "distributed.admin.tick.interval": "1s",
+            "distributed.admin.system-monitor.interval": "2s",
+            "distributed.worker.memory.monitor-interval": "500ms",
+        })
+    with quiet:
+        if scheduler is None:
+            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                                   memory_limit=memory_limit, dashboard_address=None)
+            client = Client(cluster)
+        else:
+            client = Client(scheduler)
+        _drive(c, todo, client, series_every, retries, window, task_s, o, finished, cluster)
+
+
+def _drive(c: Campaign, todo: List[int], client: Any, series_every: int, retries: int, window: Optional[int],
+           task_s: float, o: Outcome,
+           finished: Callable[[int, Optional[Dict[str, Any]], Optional[BaseException]], None],
+           cluster: Any) -> None:
+    from dask.distributed import as_completed
+
     try:
         o.workers = sum(client.nthreads().values()) or 1
         width = window or max(4, 2 * o.workers)
         tag = f"ssis-mc-{c.digest[:10]}-{uuid.uuid4().hex[:6]}"
-        which: Dict[Any, int] = {}
+        which: Dict[Any, List[int]] = {}
         ac = as_completed()
-        pending: Iterator[int] = iter(todo)
+        left: Deque[int] = collections.deque(todo)
+        alone: Deque[int] = collections.deque()  # runs of a failed batch, tried one by one
+        timed = [0, 0.0]  # runs returned, their wall seconds: the batch size's estimate
+        seq = itertools.count()
 
-        def submit(i: int) -> None:
-            f = client.submit(run_one, c.text, c.origin, i, series_every, key=f"{tag}-{i}", retries=retries, pure=False)
-            which[f.key] = i
+        def submit() -> bool:
+            if alone:
+                batch = [alone.popleft()]
+            elif left:
+                k = 1
+                if timed[0]:
+                    k = int(task_s / max(timed[1] / timed[0], 1e-6))
+                    k = max(1, min(k, len(left) // (4 * o.workers)))
+                batch = [left.popleft() for _ in range(min(k, len(left)))]
+            else:
+                return False
+            key = f"{tag}-{batch[0]}-{len(batch)}-{next(seq)}"
+            f = client.submit(run_batch, c.text, c.origin, batch, series_every, key=key, pure=False,
+                              retries=retries if len(batch) == 1 else 0)
+            which[f.key] = batch
             ac.add(f)
+            return True
 
-        for i in pending:
-            submit(i)
-            if len(which) >= width:
-                break
+        while len(which) < width and submit():
+            pass
         for f in ac:
-            i = which.pop(f.key)
+            batch = which.pop(f.key)
             try:
-                r, err = f.result(), None
+                rs, err = f.result(), None
             except Exception as e:  # the run's error after its retries, or KilledWorker
-                r, err = None, e
+                rs, err = None, e
             f.release()
-            finished(i, r, err)
-            nxt = next(pending, None)
-            if nxt is not None:
-                submit(nxt)
+            if rs is not None:
+                for i, r in zip(batch, rs):
+                    timed[0] += 1
+                    timed[1] += float(r.get("wall_s", 0.0))
+                    finished(i, r, None)
+            elif len(batch) == 1:
+                finished(batch[0], None, err)
+            else:
+                alone.extend(batch)  # which run failed is found by trying each alone
+            while len(which) < width and submit():
+                pass
     finally:
         client.close()
         if cluster is not None:

@@ -64,7 +64,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--runs", help="N: the first N runs; A:B: runs A … B-1 (default: all)")
     r.add_argument("--series-every", type=int, default=0, help="keep every N-th step's series (0: none)")
     r.add_argument("--retries", type=int, default=2, help="tries again of a failed run (default 2)")
-    r.add_argument("--window", type=int, help="runs in flight at once (default: 2 per worker thread)")
+    r.add_argument("--window", type=int, help="tasks in flight at once (default: 2 per worker thread)")
+    r.add_argument("--task-s", type=float, default=1.0,
+                   help="short runs go to a worker in batches of about this many seconds (default 1)")
     r.add_argument("--flush-rows", type=int, default=256, help="rows per Parquet part at most (default 256)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("--json", action="store_true", help="print the outcome as JSON")
@@ -105,7 +107,7 @@ def _main(a: argparse.Namespace) -> int:
         with _stdout_to_stderr(a.json):
             o = run(a.campaign, a.out, scheduler=a.scheduler, workers=a.workers, memory_limit=a.memory_limit,
                     runs=_runs(a.runs), series_every=a.series_every, retries=a.retries, window=a.window,
-                    flush_rows=a.flush_rows, progress=not a.no_progress)
+                    task_s=a.task_s, flush_rows=a.flush_rows, progress=not a.no_progress)
         if a.json:
             print(json.dumps({"out": str(o.out), "completed": o.completed, "done_before": o.done_before,
                               "errors": o.errors, "wall_s": o.wall_s, "workers": o.workers, "steps": o.steps,

@@ -1888,6 +1888,17 @@ pub fn run_injection(sc: &Scenario, o: &UpsetOptions, fault: Target, on_flip: im
     campaign(Flown::Spacecraft(sc), o, &Mix::state(), Some(fault), on_flip)
 }
 
+/// [`run_flown_mix`] with the one target `fault` in place of each drawn flip (a device
+/// register's bit, a loop fault): the flip replayed at the instants the campaign draws.
+pub fn run_flown_injection(
+    flown: Flown<'_>,
+    o: &UpsetOptions,
+    fault: Target,
+    on_flip: impl FnMut(&Flip),
+) -> Result<Campaign> {
+    campaign(flown, o, &Mix::state(), Some(fault), on_flip)
+}
+
 fn campaign(
     sc: Flown<'_>,
     o: &UpsetOptions,

@@ -1,0 +1,54 @@
+//! The launch-vehicle firmware's silent register flips of its QEMU upset campaign, replayed
+//! alone (a binary of its own, so its flights do not share the cores with the campaign
+//! sample's).
+
+use std::path::Path;
+
+use ssis_runner::qemu_lv::{build_firmware, LvScenario};
+use ssis_runner::upset::{run_flown_injection, Flown, Outcome, Target, UpsetOptions, DEVICE_REGS};
+
+/// The device-register flips the 500-flip campaign found silent, each replayed at a few
+/// drawn instants mid-ascent: the SysTick reload's bit 19 (the tick period 2^19 cycles
+/// longer) and one interrupt enable of NVIC_ISER0 cleared. No navigation frame may claim
+/// a good solution beyond its bound.
+#[test]
+fn the_campaigns_silent_register_flips_replayed() {
+    let elf = build_firmware().expect("ssis-fw-lv-test builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/lv-ascent.toml");
+    let mut sc = LvScenario::from_file(&path).expect("scenario");
+    let reg = |name: &str| DEVICE_REGS.iter().position(|d| d.name == name).expect("listed") as u8;
+    let only = std::env::var("SSIS_LV_REPLAY").ok();
+    for (name, bit, first_s) in [("SYST_RVR", 19u8, 5.1575), ("NVIC_ISER0", 7, 8.2075)] {
+        if only.as_deref().is_some_and(|o| o != name) {
+            continue;
+        }
+        sc.duration_s = first_s + 3.0;
+        let o = UpsetOptions {
+            elf: elf.clone(),
+            flips: 2,
+            seed: 38,
+            first_s,
+            quiet_s: 0.1,
+            window_s: 1.0,
+            gap_s: 0.05,
+            register_share: -1.0,
+            max_wall_s: None,
+            forced_reset: false,
+        };
+        let t = Target::Device { reg: reg(name), bit };
+        let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, t, |f| {
+            eprintln!(
+                "{name} bit {bit} at step {}: {} worst {:?} reset {:?} events {:?}",
+                f.step,
+                f.outcome.name(),
+                f.nav_worst,
+                f.reset_cause,
+                f.events
+            )
+        })
+        .expect("campaign");
+        for f in &c.flips {
+            assert_ne!(f.outcome, Outcome::Silent, "{name} bit {bit}: {f:?}\n{}", c.report());
+        }
+    }
+}
