@@ -379,7 +379,12 @@ pub struct FlightFaultCheck {
     pub worst_claimed_share: f64,
     /// Output frames after the reset (or after the fault, without one).
     pub frames_after: u64,
-    /// Virtual time flown from the fault, s.
+    /// In lockstep: sensor and control bytes sent before the reset that the unit had not
+    /// taken when it reset, dropped as a UART held in reset drops them (QEMU would
+    /// otherwise hand them to the booted unit).
+    pub dropped_at_reset: u64,
+    /// Time followed from the fault, s: of virtual time on the flight build; in lockstep
+    /// of the unit's time (its frames' time tags), or of virtual time without a frame.
     pub watched_s: f64,
     /// Wall time of the run, s.
     pub wall_s: f64,
@@ -394,6 +399,44 @@ const CLOCK_TIMER: u32 = 0x4000_0000;
 const SYSCLK_HZ: f64 = 25e6;
 /// The CMSDK watchdog's raw interrupt status (WDOGRIS).
 const WDOG_RIS: u32 = 0x4000_8010;
+/// The CMSDK UARTs the firmware receives on (mps2-an500 UART0–2: control, FOG bus, star
+/// tracker); their DATA, STATE and CTRL registers are at these offsets.
+const UART_BASE: [u32; 3] = [0x4000_4000, 0x4000_5000, 0x4000_6000];
+const UART_STATE: u32 = 0x04;
+const UART_CTRL: u32 = 0x08;
+/// STATE: a byte waits in the receive buffer; CTRL: receive enabled.
+const UART_RX_FULL: u32 = 1 << 1;
+const UART_RX_EN: u32 = 1 << 1;
+/// Host time without a byte after which a UART held in reset counts as drained.
+const DRAIN_QUIET: Duration = Duration::from_millis(50);
+
+/// Drops the bytes on the way to the unit's UARTs (the guest halted at `Reset`, the UARTs
+/// in their reset state): a real UART receives nothing while its unit is in reset, but
+/// QEMU's leaves what it has not taken in the host's socket and hands it to the booted
+/// firmware. Each UART's receiver is enabled for the drain (no interrupt), its data
+/// register read until no byte has come for [`DRAIN_QUIET`], and its control word put
+/// back to its reset value. Returns the bytes dropped.
+fn drain_uarts(g: &mut crate::gdb::Gdb) -> Result<u64> {
+    let word = |g: &mut crate::gdb::Gdb, a: u32| -> Result<u32> {
+        Ok(u32::from_le_bytes(g.read_memory(a, 4)?.as_slice().try_into()?))
+    };
+    let mut dropped = 0;
+    for base in UART_BASE {
+        let ctrl = g.read_device_u32(base + UART_CTRL)?;
+        g.write_device_u32(base + UART_CTRL, UART_RX_EN)?;
+        let mut quiet_since = Instant::now();
+        while quiet_since.elapsed() < DRAIN_QUIET {
+            // The gdbstub reads a device as the CPU would: reading DATA takes the byte.
+            if word(g, base + UART_STATE)? & UART_RX_FULL != 0 {
+                word(g, base)?;
+                dropped += 1;
+                quiet_since = Instant::now();
+            }
+        }
+        g.write_device_u32(base + UART_CTRL, ctrl)?;
+    }
+    Ok(dropped)
+}
 
 /// The runner's clock of the unit's virtual time: a CMSDK timer it starts itself
 /// (restarted after a reset, which stops it), plus the time before that restart.
@@ -951,11 +994,17 @@ impl FedFlight {
 /// is in the timing: the feed is on time however loaded the host. The fault goes in at
 /// the loop's `wfi` after the step whose frame reaches `fault_s`.
 ///
-/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate (`icount`:
-/// QEMU's `-icount`, or none): LOCKSTEP into its control ring at the first wake of its
-/// loop after boot and again after the reset (`FedFlight::enter_lockstep`: the feed goes
-/// on at once, no virtual time spent on the switch), then step n's bytes over the UARTs
-/// and its STEP frame once step n − 1's output is in and not before step n's time.
+/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate at most
+/// (`icount`: QEMU's `-icount`, or none): LOCKSTEP into its control ring at the first
+/// wake of its loop after boot and again after the reset (`FedFlight::enter_lockstep`:
+/// the feed goes on at once, no virtual time spent on the switch), then step n's bytes
+/// over the UARTs and its STEP frame once step n − 1's output is in and not before step
+/// n's time. On a loaded host a step's round trip outlasts its period and the feed runs
+/// behind the real rate, so the unit is followed for `watch_s` of its own time (its
+/// frames' time tags). At the reset the bytes the unit had not taken are dropped
+/// ([`drain_uarts`]: a UART in reset receives nothing), the steps whose time came while
+/// it was down (from the fault to its first wake, virtual time) are lost, and the
+/// scenario goes on from there at the real rate.
 ///
 /// Every output frame is judged against truth by its time tag ([`Evaluator`]); before the
 /// fault each is also compared with the in-process core's frame of the same time tag.
@@ -1086,6 +1135,11 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
     let dt_s = f.profile.dt_s();
     let mut clock = GuestClock::start(&mut f.g, 0.0)?;
     let mut vt = VirtualTime { at_halt_s: 0.0, running_since: None };
+    // The step due when the fault went in (its bytes and the later ones until the unit is
+    // back are the steps a unit that is down loses).
+    let mut fault_next = 0usize;
+    // Virtual time of the last output frame, s.
+    let mut last_frame_s = 0.0;
     let mut links = Links3 { fog_total: 0, st_total: 0 };
     let mut phase = Phase::Before;
     // The next step to send (index into `inputs`).
@@ -1102,8 +1156,9 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
             f.c.frames_before += u64::from(fr.time_us == 0);
         }
     });
-    // Virtual time of step 1's tick, s.
-    let t0_s = vt.now_s() + dt_s;
+    // Virtual time of step 1's tick, s (moved after a reset: the scenario goes on at the
+    // real rate from the re-entry).
+    let mut t0_s = vt.now_s() + dt_s;
     loop {
         f.check_running()?;
         // Output frames.
@@ -1115,6 +1170,9 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
             }
         }
         let now_s = vt.now_s();
+        if !frames.is_empty() {
+            last_frame_s = now_s;
+        }
         for fr in &frames {
             f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
             if phase == Phase::Before && !fault_armed && fr.time_us as f64 * 1e-6 >= fault_s {
@@ -1170,6 +1228,7 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
                 let pc = f.g.register_u32(crate::gdb::PC)?;
                 if pc == f.reset_at && phase == Phase::Resetting {
                     f.g.clear_breakpoint(f.reset_at)?;
+                    f.c.dropped_at_reset += drain_uarts(&mut f.g)?;
                     clock = GuestClock::start(&mut f.g, now_s)?;
                     phase = Phase::After;
                     // Back into lockstep at the first wake; the byte counts start again.
@@ -1181,14 +1240,22 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
                     for fr in &booted {
                         f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
                     }
-                    // The steps due meanwhile are lost.
-                    next = next.max(((now_s - t0_s) / dt_s).max(0.0) as usize);
+                    // The steps whose tick came while the unit was down (from the fault to
+                    // this wake, virtual time) are lost, and the scenario goes on from here
+                    // at the real rate. Not the runner's schedule from step 1: the lockstep
+                    // feed runs behind the real rate on a loaded host (a step's round
+                    // trip is longer than its period), and that backlog is not time the
+                    // unit was down.
+                    let down_s = fault_v.map_or(0.0, |t_f| (now_s - t_f).max(0.0));
+                    next = next.max(fault_next + (down_s / dt_s).ceil() as usize);
+                    t0_s = now_s - next as f64 * dt_s;
                     awaiting = false;
                     continue;
                 }
                 anyhow::ensure!(fault_armed && f.wfi.contains(&pc), "the guest stopped at {pc:#x}: {stop}");
                 fault_armed = false;
                 fault_v = Some(now_s);
+                fault_next = next;
                 f.c.fault_s = f.judge.last_t_s;
                 for &a in &f.wfi {
                     f.g.clear_breakpoint(a)?;
@@ -1204,9 +1271,14 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
                 continue;
             }
         }
+        // Followed for `watch_s` of the unit's time (its frames' tags: in lockstep the
+        // feed sets its pace, not virtual time), or of virtual time without a frame (the
+        // unit did not come back).
         if let Some(t_f) = fault_v {
-            f.c.watched_s = vt.now_s() - t_f;
-            if f.c.watched_s >= watch_s {
+            let now_s = vt.now_s();
+            f.c.watched_s = f.judge.last_t_s - f.c.fault_s;
+            if f.c.watched_s >= watch_s || now_s - last_frame_s.max(t_f) >= watch_s {
+                f.c.watched_s = f.c.watched_s.max(0.0);
                 return Ok(f);
             }
         }
