@@ -911,9 +911,10 @@ impl FedFlight {
     /// wait drains the ring before it looks at the tick, so no step runs on the timer
     /// after that wake and the feed may go at once. (Sent over the UART instead, the
     /// frame's arrival could be proven only by a silence of the unit's own tick, some
-    /// hundreds of ms of virtual time on a loaded host.) Resumes the guest (halted or at
-    /// `Reset`) and leaves it running; returns the output sent before the wake.
-    fn enter_lockstep(&mut self, ctl: &RxRingAt, vt: &mut VirtualTime) -> Result<Vec<u8>> {
+    /// hundreds of ms of virtual time on a loaded host.) The wake's virtual time is read
+    /// on `clock` into `vt`. Resumes the guest (halted or at `Reset`) and leaves it
+    /// running; returns the output sent before the wake.
+    fn enter_lockstep(&mut self, ctl: &RxRingAt, vt: &mut VirtualTime, clock: &GuestClock) -> Result<Vec<u8>> {
         let woke: Vec<u32> = self.wfi.iter().map(|a| a + 2).collect();
         for &a in &woke {
             self.g.set_breakpoint(a)?;
@@ -929,10 +930,7 @@ impl FedFlight {
             }
             self.check_running()?;
         };
-        // Halted: the host's time since the resume stands for the unit's (the runner's
-        // clock read here after a reset gives some 170 s: not yet explained).
-        vt.at_halt_s = vt.now_s();
-        vt.running_since = None;
+        vt.halted(clock, &mut self.g)?;
         let pc = self.g.register_u32(crate::gdb::PC)?;
         anyhow::ensure!(woke.contains(&pc), "entering lockstep, the guest stopped at {pc:#x}: {stop}");
         while let Ok((_, b)) = self.unit.rx.try_recv() {
@@ -1150,7 +1148,7 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
     let mut awaiting = false;
     let mut last_poll = Instant::now();
     let ctl = RxRingAt::find(elf, "CTL_RX")?;
-    let boot = f.enter_lockstep(&ctl, &mut vt)?;
+    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
     f.dec.push_slice(&boot, |r| {
         if let Ok(fr) = r {
             f.c.frames_before += u64::from(fr.time_us == 0);
@@ -1233,7 +1231,7 @@ fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, wat
                     phase = Phase::After;
                     // Back into lockstep at the first wake; the byte counts start again.
                     links = Links3 { fog_total: 0, st_total: 0 };
-                    let boot = f.enter_lockstep(&ctl, &mut vt)?;
+                    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
                     let now_s = vt.now_s();
                     let mut booted = Vec::new();
                     f.dec.push_slice(&boot, |r| booted.extend(r.ok()));
