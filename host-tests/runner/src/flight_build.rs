@@ -379,7 +379,12 @@ pub struct FlightFaultCheck {
     pub worst_claimed_share: f64,
     /// Output frames after the reset (or after the fault, without one).
     pub frames_after: u64,
-    /// Virtual time flown from the fault, s.
+    /// In lockstep: sensor and control bytes sent before the reset that the unit had not
+    /// taken when it reset, dropped as a UART held in reset drops them (QEMU would
+    /// otherwise hand them to the booted unit).
+    pub dropped_at_reset: u64,
+    /// Time followed from the fault, s: of virtual time on the flight build; in lockstep
+    /// of the unit's time (its frames' time tags), or of virtual time without a frame.
     pub watched_s: f64,
     /// Wall time of the run, s.
     pub wall_s: f64,
@@ -394,6 +399,44 @@ const CLOCK_TIMER: u32 = 0x4000_0000;
 const SYSCLK_HZ: f64 = 25e6;
 /// The CMSDK watchdog's raw interrupt status (WDOGRIS).
 const WDOG_RIS: u32 = 0x4000_8010;
+/// The CMSDK UARTs the firmware receives on (mps2-an500 UART0–2: control, FOG bus, star
+/// tracker); their DATA, STATE and CTRL registers are at these offsets.
+const UART_BASE: [u32; 3] = [0x4000_4000, 0x4000_5000, 0x4000_6000];
+const UART_STATE: u32 = 0x04;
+const UART_CTRL: u32 = 0x08;
+/// STATE: a byte waits in the receive buffer; CTRL: receive enabled.
+const UART_RX_FULL: u32 = 1 << 1;
+const UART_RX_EN: u32 = 1 << 1;
+/// Host time without a byte after which a UART held in reset counts as drained.
+const DRAIN_QUIET: Duration = Duration::from_millis(50);
+
+/// Drops the bytes on the way to the unit's UARTs (the guest halted at `Reset`, the UARTs
+/// in their reset state): a real UART receives nothing while its unit is in reset, but
+/// QEMU's leaves what it has not taken in the host's socket and hands it to the booted
+/// firmware. Each UART's receiver is enabled for the drain (no interrupt), its data
+/// register read until no byte has come for [`DRAIN_QUIET`], and its control word put
+/// back to its reset value. Returns the bytes dropped.
+fn drain_uarts(g: &mut crate::gdb::Gdb) -> Result<u64> {
+    let word = |g: &mut crate::gdb::Gdb, a: u32| -> Result<u32> {
+        Ok(u32::from_le_bytes(g.read_memory(a, 4)?.as_slice().try_into()?))
+    };
+    let mut dropped = 0;
+    for base in UART_BASE {
+        let ctrl = g.read_device_u32(base + UART_CTRL)?;
+        g.write_device_u32(base + UART_CTRL, UART_RX_EN)?;
+        let mut quiet_since = Instant::now();
+        while quiet_since.elapsed() < DRAIN_QUIET {
+            // The gdbstub reads a device as the CPU would: reading DATA takes the byte.
+            if word(g, base + UART_STATE)? & UART_RX_FULL != 0 {
+                word(g, base)?;
+                dropped += 1;
+                quiet_since = Instant::now();
+            }
+        }
+        g.write_device_u32(base + UART_CTRL, ctrl)?;
+    }
+    Ok(dropped)
+}
 
 /// The runner's clock of the unit's virtual time: a CMSDK timer it starts itself
 /// (restarted after a reset, which stops it), plus the time before that restart.
@@ -861,6 +904,46 @@ impl FedFlight {
         !frames.is_empty()
     }
 
+    /// Switches the test build to lockstep with none of the runner's time in the unit's:
+    /// a breakpoint after each `wfi` of its loop, and at the first wake (booted, in its
+    /// loop, halted: virtual time stands still) the LOCKSTEP frame is put into its
+    /// control ring as the UART's interrupt would ([`RxRingAt::push`]). The loop's next
+    /// wait drains the ring before it looks at the tick, so no step runs on the timer
+    /// after that wake and the feed may go at once. (Sent over the UART instead, the
+    /// frame's arrival could be proven only by a silence of the unit's own tick, some
+    /// hundreds of ms of virtual time on a loaded host.) The wake's virtual time is read
+    /// on `clock` into `vt`. Resumes the guest (halted or at `Reset`) and leaves it
+    /// running; returns the output sent before the wake.
+    fn enter_lockstep(&mut self, ctl: &RxRingAt, vt: &mut VirtualTime, clock: &GuestClock) -> Result<Vec<u8>> {
+        let woke: Vec<u32> = self.wfi.iter().map(|a| a + 2).collect();
+        for &a in &woke {
+            self.g.set_breakpoint(a)?;
+        }
+        vt.resume(&mut self.g)?;
+        let mut out = Vec::new();
+        let stop = loop {
+            while let Ok((_, b)) = self.unit.rx.try_recv() {
+                out.extend_from_slice(&b);
+            }
+            if let Some(s) = self.g.wait_stop(Duration::from_millis(20))? {
+                break s;
+            }
+            self.check_running()?;
+        };
+        vt.halted(clock, &mut self.g)?;
+        let pc = self.g.register_u32(crate::gdb::PC)?;
+        anyhow::ensure!(woke.contains(&pc), "entering lockstep, the guest stopped at {pc:#x}: {stop}");
+        while let Ok((_, b)) = self.unit.rx.try_recv() {
+            out.extend_from_slice(&b);
+        }
+        ctl.push(&mut self.g, &ControlFrame { command: command::LOCKSTEP, ..Default::default() }.to_bytes())?;
+        for &a in &woke {
+            self.g.clear_breakpoint(a)?;
+        }
+        vt.resume(&mut self.g)?;
+        Ok(out)
+    }
+
     /// The watchdog acted (the guest paused at `now_s`): its counts read, the machine
     /// reset (what `-action watchdog=reset` does) and held at `Reset`.
     fn watchdog_acted(&mut self, now_s: f64, fault_v: Option<f64>) -> Result<()> {
@@ -909,10 +992,17 @@ impl FedFlight {
 /// is in the timing: the feed is on time however loaded the host. The fault goes in at
 /// the loop's `wfi` after the step whose frame reaches `fault_s`.
 ///
-/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate (`icount`:
-/// QEMU's `-icount`, or none): LOCKSTEP after its first frame and again at its reset
-/// vector, then step n's bytes over the UARTs and its STEP frame once step n − 1's output
-/// is in and not before step n's time.
+/// A test build (`ssis-fw-test`) flies in lockstep, paced at the real rate at most
+/// (`icount`: QEMU's `-icount`, or none): LOCKSTEP into its control ring at the first
+/// wake of its loop after boot and again after the reset (`FedFlight::enter_lockstep`:
+/// the feed goes on at once, no virtual time spent on the switch), then step n's bytes
+/// over the UARTs and its STEP frame once step n − 1's output is in and not before step
+/// n's time. On a loaded host a step's round trip outlasts its period and the feed runs
+/// behind the real rate, so the unit is followed for `watch_s` of its own time (its
+/// frames' time tags). At the reset the bytes the unit had not taken are dropped
+/// ([`drain_uarts`]: a UART in reset receives nothing), the steps whose time came while
+/// it was down (from the fault to its first wake, virtual time) are lost, and the
+/// scenario goes on from there at the real rate.
 ///
 /// Every output frame is judged against truth by its time tag ([`Evaluator`]); before the
 /// fault each is also compared with the in-process core's frame of the same time tag.
@@ -925,7 +1015,8 @@ pub fn loop_fault_in_flight(
     icount: Option<&str>,
 ) -> Result<FlightFaultCheck> {
     if crate::qemu::is_test_build(elf)? {
-        in_lockstep(FedFlight::start(elf, sc, watch_s, icount, true)?, fault, fault_s, watch_s).map(|f| f.finish(elf))
+        in_lockstep(FedFlight::start(elf, sc, watch_s, icount, true)?, elf, fault, fault_s, watch_s)
+            .map(|f| f.finish(elf))
     } else {
         at_ticks(FedFlight::start(elf, sc, watch_s, Some(FED_ICOUNT), false)?, elf, fault, fault_s, watch_s)
             .map(|f| f.finish(elf))
@@ -1038,10 +1129,15 @@ fn at_ticks(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, watch_
 }
 
 /// The test build fed in lockstep ([`loop_fault_in_flight`]).
-fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
+fn in_lockstep(mut f: FedFlight, elf: &Path, fault: LoopFault, fault_s: f64, watch_s: f64) -> Result<FedFlight> {
     let dt_s = f.profile.dt_s();
     let mut clock = GuestClock::start(&mut f.g, 0.0)?;
     let mut vt = VirtualTime { at_halt_s: 0.0, running_since: None };
+    // The step due when the fault went in (its bytes and the later ones until the unit is
+    // back are the steps a unit that is down loses).
+    let mut fault_next = 0usize;
+    // Virtual time of the last output frame, s.
+    let mut last_frame_s = 0.0;
     let mut links = Links3 { fog_total: 0, st_total: 0 };
     let mut phase = Phase::Before;
     // The next step to send (index into `inputs`).
@@ -1051,16 +1147,16 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
     // A STEP sent whose output is not yet in.
     let mut awaiting = false;
     let mut last_poll = Instant::now();
-    vt.resume(&mut f.g)?;
-    let mut boot = Vec::new();
-    f.unit.enter_lockstep(|_, b| boot.extend_from_slice(b))?;
+    let ctl = RxRingAt::find(elf, "CTL_RX")?;
+    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
     f.dec.push_slice(&boot, |r| {
         if let Ok(fr) = r {
             f.c.frames_before += u64::from(fr.time_us == 0);
         }
     });
-    // Virtual time of step 1's tick, s.
-    let t0_s = vt.now_s() + dt_s;
+    // Virtual time of step 1's tick, s (moved after a reset: the scenario goes on at the
+    // real rate from the re-entry).
+    let mut t0_s = vt.now_s() + dt_s;
     loop {
         f.check_running()?;
         // Output frames.
@@ -1072,6 +1168,9 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
             }
         }
         let now_s = vt.now_s();
+        if !frames.is_empty() {
+            last_frame_s = now_s;
+        }
         for fr in &frames {
             f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
             if phase == Phase::Before && !fault_armed && fr.time_us as f64 * 1e-6 >= fault_s {
@@ -1127,28 +1226,34 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
                 let pc = f.g.register_u32(crate::gdb::PC)?;
                 if pc == f.reset_at && phase == Phase::Resetting {
                     f.g.clear_breakpoint(f.reset_at)?;
+                    f.c.dropped_at_reset += drain_uarts(&mut f.g)?;
                     clock = GuestClock::start(&mut f.g, now_s)?;
                     phase = Phase::After;
-                    // Back into lockstep; the byte counts start again.
-                    f.unit.control(&ControlFrame { command: command::LOCKSTEP, ..Default::default() })?;
+                    // Back into lockstep at the first wake; the byte counts start again.
                     links = Links3 { fog_total: 0, st_total: 0 };
-                    vt.resume(&mut f.g)?;
-                    let mut boot = Vec::new();
-                    f.unit.await_silence(|_, b| boot.extend_from_slice(b), || Ok(()))?;
+                    let boot = f.enter_lockstep(&ctl, &mut vt, &clock)?;
                     let now_s = vt.now_s();
                     let mut booted = Vec::new();
                     f.dec.push_slice(&boot, |r| booted.extend(r.ok()));
                     for fr in &booted {
                         f.judge.frame(fr, phase, now_s, fault_v, &mut f.c);
                     }
-                    // The steps due meanwhile are lost.
-                    next = next.max(((now_s - t0_s) / dt_s).max(0.0) as usize);
+                    // The steps whose tick came while the unit was down (from the fault to
+                    // this wake, virtual time) are lost, and the scenario goes on from here
+                    // at the real rate. Not the runner's schedule from step 1: the lockstep
+                    // feed runs behind the real rate on a loaded host (a step's round
+                    // trip is longer than its period), and that backlog is not time the
+                    // unit was down.
+                    let down_s = fault_v.map_or(0.0, |t_f| (now_s - t_f).max(0.0));
+                    next = next.max(fault_next + (down_s / dt_s).ceil() as usize);
+                    t0_s = now_s - next as f64 * dt_s;
                     awaiting = false;
                     continue;
                 }
                 anyhow::ensure!(fault_armed && f.wfi.contains(&pc), "the guest stopped at {pc:#x}: {stop}");
                 fault_armed = false;
                 fault_v = Some(now_s);
+                fault_next = next;
                 f.c.fault_s = f.judge.last_t_s;
                 for &a in &f.wfi {
                     f.g.clear_breakpoint(a)?;
@@ -1164,9 +1269,14 @@ fn in_lockstep(mut f: FedFlight, fault: LoopFault, fault_s: f64, watch_s: f64) -
                 continue;
             }
         }
+        // Followed for `watch_s` of the unit's time (its frames' tags: in lockstep the
+        // feed sets its pace, not virtual time), or of virtual time without a frame (the
+        // unit did not come back).
         if let Some(t_f) = fault_v {
-            f.c.watched_s = vt.now_s() - t_f;
-            if f.c.watched_s >= watch_s {
+            let now_s = vt.now_s();
+            f.c.watched_s = f.judge.last_t_s - f.c.fault_s;
+            if f.c.watched_s >= watch_s || now_s - last_frame_s.max(t_f) >= watch_s {
+                f.c.watched_s = f.c.watched_s.max(0.0);
                 return Ok(f);
             }
         }

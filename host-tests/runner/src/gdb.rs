@@ -118,7 +118,13 @@ impl Gdb {
             match self.s.read(&mut chunk) {
                 Ok(0) => bail!("QEMU's gdbstub closed the connection"),
                 Ok(n) => self.buf.extend_from_slice(&chunk[..n]),
-                Err(e) if matches!(e.kind(), std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut) => {}
+                // Interrupted: the runner stopped and continued (SIGSTOP, SIGCONT) in a read
+                // with a timeout, which the kernel does not restart.
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut | std::io::ErrorKind::Interrupted
+                    ) => {}
                 Err(e) => return Err(e.into()),
             }
         }
