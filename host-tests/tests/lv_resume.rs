@@ -658,3 +658,142 @@ fn samples_lost_in_flight_are_bridged_and_stated() {
         links.1
     );
 }
+
+/// The worst claimed-good navigation frame of `frames` (decoded from `nav` bytes) against
+/// truth at its time tag, as the QEMU campaign judges it: the largest ratio of an error
+/// to max(`bound`, 3 × the frame's own σ) (position m, velocity m/s, attitude ″; the
+/// attitude not judged while flagged unconfirmed).
+fn worst_claimed_frame(nav: &[u8], bytes: &[LvStepBytes], bound: [f64; 3]) -> (f64, [f64; 3]) {
+    let mut dec: StreamDecoder<NavOutputFrame, 256> = StreamDecoder::new();
+    let mut frames = Vec::new();
+    dec.push_slice(nav, |r| frames.extend(r.ok()));
+    let dt_us = ssis::flight::Profile::LAUNCH_VEHICLE.dt_us as u64;
+    let mut worst = (0.0f64, [0.0; 3]);
+    for f in frames.iter().filter(|f| f.flags & (flags::NAV_FAULT | flags::ACCEL_FAULT) == 0) {
+        let t = bytes[(f.time_tag_us / dt_us - 1) as usize].truth.expect("truth");
+        let s = f.state();
+        let sigma = [
+            3.0 * f64::from(f.sigma_pos_counts) * ssis::frames::navout::SIGMA_POS_LSB_M,
+            3.0 * f64::from(f.sigma_vel_counts) * ssis::frames::navout::SIGMA_VEL_LSB_M_S,
+            0.0,
+        ];
+        let e = [(s.r_e_m - t.r_e_m).norm(), (s.v_e_m_s - t.v_e_m_s).norm(), angle_arcsec(&s, &t)];
+        let judged = if f.flags & flags::ATTITUDE_UNCONFIRMED != 0 { 2 } else { 3 };
+        let r = (0..judged).map(|k| e[k] / bound[k].max(sigma[k])).fold(0.0, f64::max);
+        if r > worst.0 {
+            worst = (r, e);
+        }
+    }
+    worst
+}
+
+/// A watchdog reset (the campaign's silent signature, 5.22 s into the ascent): the
+/// accelerometer frames of the step the unit was stalled in are still in the link's
+/// queue when it comes back (their FOG frames were taken, and lost with the reset), so
+/// the first step after the resume finds that old frame ahead of its own. The
+/// navigation must take the frame of its step (the resumed state and its time tag from
+/// one record): no claimed-good frame beyond the campaign's bound (twice the
+/// uninterrupted unit's largest error, floored at 1 m, 0.01 m/s, 20″, or 3 × its σ).
+#[test]
+fn an_accelerometer_frame_queued_before_a_reset_is_not_taken_after_it() {
+    const SNAP: u64 = 4_160;
+    const STALLED: u64 = SNAP + 17;
+    const DOWN: u64 = 80;
+    const AFTER: u64 = 800;
+    let sc = scenario();
+    let mut sensors = AscentSensors::new(&sc);
+    let init = pad_init(sensors.initial());
+    let last = STALLED + DOWN + AFTER;
+    let bytes: Vec<_> = (1..=last).map(|k| sensors.step(k)).collect();
+    let mut unit = LvCore::new(&CalibrationTable::DEFAULT, &init).expect("unit");
+    let mut snap = NavSnapshot::default();
+    let mut worst = [0.0f64; 3];
+    for (k, b) in (1u64..).zip(&bytes) {
+        unit.period(b);
+        if k == SNAP - SNAPSHOT_STEPS || k == SNAP {
+            assert!(unit.snapshot_into(&mut snap));
+        }
+        if k > STALLED {
+            let (s, t) = (unit.nav().nav().state(), b.truth.expect("truth"));
+            let e = [(s.r_e_m - t.r_e_m).norm(), (s.v_e_m_s - t.v_e_m_s).norm(), angle_arcsec(s, &t)];
+            for (w, e) in worst.iter_mut().zip(e) {
+                *w = w.max(e);
+            }
+        }
+    }
+    let bound = [(2.0 * worst[0]).max(1.0), (2.0 * worst[1]).max(0.01), (2.0 * worst[2]).max(20.0)];
+    // Back after the reset: the stalled step's accelerometer frames first, then the
+    // steps after the unit's down time.
+    let mut unit = LvCore::new(&CalibrationTable::DEFAULT, &init).expect("unit");
+    unit.resume_nav(&snap).expect("resumed");
+    let mut nav = Vec::new();
+    for k in STALLED + DOWN + 1..=last {
+        let mut b = bytes[(k - 1) as usize].clone();
+        if k == STALLED + DOWN + 1 {
+            b.accel = [bytes[(STALLED - 1) as usize].accel.clone(), b.accel].concat();
+        }
+        nav.extend(unit.period(&b).nav);
+    }
+    let flags_seen = frame_flags(&nav);
+    assert!(flags_seen.iter().all(|f| f & flags::NAV_FAULT == 0), "the resumed unit navigates");
+    let (ratio, e) = worst_claimed_frame(&nav, &bytes, bound);
+    println!(
+        "after a watchdog reset with an old accelerometer frame queued: worst claimed-good {ratio:.2}× its bound \
+         ({:.2} m, {:.3} m/s, {:.0}″; bound {:.2} m, {:.3} m/s, {:.0}″)",
+        e[0], e[1], e[2], bound[0], bound[1], bound[2]
+    );
+    assert!(ratio <= 1.0, "a claimed-good frame {ratio:.2}× its bound: the state is not its time tag's");
+}
+
+/// Every bit of the last step's time (and of its complement that seals it) flipped
+/// between two steps, one at a time, mid-ascent: the navigation goes on, bit for bit
+/// the undisturbed unit's (no step refused, no samples taken as lost). Unsealed, the
+/// span of the next increment is the accelerometer counter's gap.
+#[test]
+fn a_flipped_bit_of_the_last_step_time_does_not_stop_navigation() {
+    use ssis_common::mock::MockLink;
+    let sc = scenario();
+    let mut sensors = AscentSensors::new(&sc);
+    let init = pad_init(sensors.initial());
+    let bytes: Vec<_> = (1..=400u64).map(|k| sensors.step(k)).collect();
+    let links = || ssis::nav::unit::NavLinks {
+        accel: ssis_common::mock::MockLink::ideal(),
+        gnss: ssis_common::mock::MockLink::ideal(),
+        out: ssis_common::mock::MockSink::default(),
+    };
+    let dtheta = Vector3::new(2e-6, -1e-6, 5e-7);
+    type Links = ssis::nav::unit::NavLinks<MockLink, MockLink, ssis_common::mock::MockSink>;
+    let fly = |u: &mut NavUnit, l: &mut Links, k: u64| {
+        let b: &LvStepBytes = &bytes[(k - 1) as usize];
+        l.accel.send(&b.accel);
+        l.gnss.send(&b.gnss);
+        let o = u.step(&dtheta, k * 1_250, l);
+        let _ = u.filter_work();
+        o
+    };
+    let (mut base, mut base_links) = (fresh_nav(&init), links());
+    for k in 1..=200 {
+        fly(&mut base, &mut base_links, k);
+    }
+    let map = NavUnit::state_map();
+    let mut flipped = 0;
+    for name in ["last_t_us", "last_t_inv_us"] {
+        let field = map.iter().find(|f| f.name == name).unwrap_or_else(|| panic!("{name} mapped"));
+        assert_eq!(field.size, 8);
+        for bit in 0..64 {
+            let (mut u, mut l, mut reference, mut rl) = (base, links(), base, links());
+            let off = field.offset + bit / 8;
+            // SAFETY: every bit pattern of NavUnit is a value (the `AnyBitPattern` derive).
+            let b = unsafe { std::slice::from_raw_parts_mut(&mut u as *mut NavUnit as *mut u8, size_of::<NavUnit>()) };
+            b[off] ^= 1 << (bit % 8);
+            for k in 201..=400 {
+                let (o, r) = (fly(&mut u, &mut l, k), fly(&mut reference, &mut rl, k));
+                assert_eq!(o.flags & flags::NAV_FAULT, 0, "{name} bit {bit}: step {k} refused");
+                assert_eq!(o, r, "{name} bit {bit}: step {k} differs from the undisturbed unit");
+            }
+            assert!(!u.lost(), "{name} bit {bit}: navigation lost");
+            flipped += 1;
+        }
+    }
+    assert_eq!(flipped, 128);
+}

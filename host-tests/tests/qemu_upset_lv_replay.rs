@@ -5,7 +5,19 @@
 use std::path::Path;
 
 use ssis_runner::qemu_lv::{build_firmware, LvScenario};
-use ssis_runner::upset::{run_flown_injection, Flown, Outcome, Target, UpsetOptions, DEVICE_REGS};
+use ssis_runner::upset::{run_flown_injection, Flip, Flown, Outcome, Target, UpsetOptions, DEVICE_REGS};
+
+/// One line per replayed flip on standard error.
+fn show(what: &str, f: &Flip) {
+    eprintln!(
+        "{what} at step {}: {} worst {:?} reset {:?} events {:?}",
+        f.step,
+        f.outcome.name(),
+        f.nav_worst,
+        f.reset_cause,
+        f.events
+    )
+}
 
 /// The device-register flips the 500-flip campaign found silent, each replayed at a few
 /// drawn instants mid-ascent: the SysTick reload's bit 19 (the tick period 2^19 cycles
@@ -36,19 +48,41 @@ fn the_campaigns_silent_register_flips_replayed() {
             forced_reset: false,
         };
         let t = Target::Device { reg: reg(name), bit };
-        let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, t, |f| {
-            eprintln!(
-                "{name} bit {bit} at step {}: {} worst {:?} reset {:?} events {:?}",
-                f.step,
-                f.outcome.name(),
-                f.nav_worst,
-                f.reset_cause,
-                f.events
-            )
-        })
-        .expect("campaign");
+        let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, t, |f| show(&format!("{name} bit {bit}"), f))
+            .expect("campaign");
         for f in &c.flips {
             assert_ne!(f.outcome, Outcome::Silent, "{name} bit {bit}: {f:?}\n{}", c.report());
         }
+    }
+}
+
+/// A watchdog reset mid-ascent, forced: the test build's STALL stops the main loop at a
+/// chosen instant (the flips' signature: a handler-stack flip at 5.22 s, a SysTick reload
+/// flip at 5.16 s, both ended in a watchdog reset). The unit resumes its navigation from
+/// the snapshot; no navigation frame may claim a good solution beyond its bound.
+#[test]
+fn a_watchdog_reset_mid_ascent_resumes_within_the_bound() {
+    let elf = build_firmware().expect("ssis-fw-lv-test builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/lv-ascent.toml");
+    let mut sc = LvScenario::from_file(&path).expect("scenario");
+    let first_s: f64 = std::env::var("SSIS_LV_STALL_AT").ok().and_then(|s| s.parse().ok()).unwrap_or(5.22);
+    sc.duration_s = first_s + 2.0;
+    let o = UpsetOptions {
+        elf,
+        flips: 1,
+        seed: 38,
+        first_s,
+        quiet_s: 0.1,
+        window_s: 1.0,
+        gap_s: 0.0,
+        register_share: -1.0,
+        max_wall_s: None,
+        forced_reset: false,
+    };
+    let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, Target::Stall, |f| show("stall", f)).expect("campaign");
+    assert_eq!(c.flips.len(), 1);
+    for f in &c.flips {
+        assert!(f.reset_cause.is_some(), "the stalled loop was not reset: {f:?}");
+        assert_ne!(f.outcome, Outcome::Silent, "{f:?}\n{}", c.report());
     }
 }

@@ -8,8 +8,9 @@
 //! numbers), so a copy torn by a reset during its write, or one an upset flipped a bit
 //! of, leaves the other. A [`NavRecord`] is a `#[repr(C, packed)]` plain-old-data
 //! record (any bit pattern is a value: it is judged by its checks only): a header (its
-//! write sequence number, the accelerometer sample counter of its last step and a
-//! digest of the step period and filter tuning it was taken under) and the fields the
+//! write sequence number, the accelerometer sample counter of its last step, the unit
+//! time of that step (the state's time tag) and a digest of the step period and filter
+//! tuning it was taken under) and the fields the
 //! stage's declaration marks
 //! `reset(Keep)` ([`NavKept`], derived from the declarations of [`NavUnit`],
 //! [`AidedNav`] and [`super::Strapdown`]: the navigation state (q_eb, v_e, r_e), the
@@ -35,8 +36,11 @@
 //! [`MAX_SPEED_M_S`], the covariance's diagonal ≥ 0, the bias estimates and the mean
 //! increments and the window's blocks within the sensors' ranges, the window's counters
 //! in range. Accepted, the unit takes the copy's state
-//! and holds it until its first step that takes an accelerometer frame; there the
-//! frame's counter tells the samples lost since the snapshot (its age: up to one
+//! and holds it until its first step that takes an accelerometer frame of that step:
+//! the steps since the record's time (the flight core's sample clock, modulo 2^16 as the
+//! counters) name the counter the frame must carry (the record's plus those steps);
+//! older frames (left in the link over the reset) are dropped, so the time and the
+//! counter agree; the counter tells the samples lost since the snapshot (its age: up to one
 //! snapshot period plus the time the unit was down for the newer copy, one period more
 //! for the older: 80 + 80 + 40 = 200 steps, 0.25 s, with the firmware's period and
 //! watchdog), and
@@ -101,8 +105,8 @@ use super::{wgs84, NavState};
 use crate::frames::CRC32C;
 use crate::state::{Flag, Maybe};
 
-/// First word: "NSN" and the layout version 3.
-const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x03");
+/// First word: "NSN" and the layout version 4.
+const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x04");
 /// Most samples whose attitude a resume bridges on the window's fit and still backs
 /// (0.3 s): the older copy's age (two snapshot periods of 80 steps) plus a reset and boot
 /// of 40 steps, with margin; beyond it the attitude is flagged unconfirmed.
@@ -156,6 +160,10 @@ pub struct NavRecord {
     accel_counter: u32,
     /// CRC-32C of the step period and the filter tuning.
     setup_crc: u32,
+    /// The unit time of its last step, µs: the time tag of its state (a resume counts
+    /// the steps to bridge from it, and takes only the accelerometer frame whose counter
+    /// agrees).
+    t_us: u64,
     /// The fields the unit's declaration keeps over a reset ([`NavUnit`]'s `reset`
     /// marks), down to the filter and the strapdown.
     kept: NavKept,
@@ -224,6 +232,11 @@ impl NavRecord {
     /// The accelerometer sample counter of the step it was taken after.
     pub fn accel_counter(&self) -> u16 {
         self.accel_counter as u16
+    }
+
+    /// The unit time of the step it was taken after, µs.
+    pub fn t_us(&self) -> u64 {
+        self.t_us
     }
 
     /// The navigation state it holds (unchecked).
@@ -427,7 +440,9 @@ impl NavUnit {
     #[inline(never)]
     pub fn record_into(&self, s: &mut NavRecord, seq: u32) -> bool {
         let Some(counter) = self.accel_counter.get() else { return false };
-        if self.lost.get() || self.resume_from.is_some() {
+        // The state's time tag sealed (it and its complement agree), or no record.
+        let t_us = self.last_t_us;
+        if self.lost.get() || self.resume_from.is_some() || t_us == 0 || self.last_t_inv_us != !t_us {
             return false;
         }
         // Spoiled first: a reset during the write leaves the check words disagreeing.
@@ -438,6 +453,7 @@ impl NavUnit {
         s.seq = seq;
         s.accel_counter = u32::from(counter);
         s.setup_crc = self.nav.setup_crc();
+        s.t_us = t_us;
         self.save_survivors(&mut s.kept);
         compiler_fence(Ordering::SeqCst);
         let c = s.crc();
@@ -535,6 +551,7 @@ impl NavUnit {
         }
         self.accel_counter = Maybe::none();
         self.resume_from = Maybe::some(s.accel_counter());
+        self.resume_t_us = s.t_us;
         self.resume_wait = 0;
         self.bridged = Maybe::none();
         self.lost = Flag::CLEAR;

@@ -10,8 +10,11 @@
 //!   [`crate::flight`]; the firmware calls it from the hook of
 //!   [`crate::flight::FlightCore::step_with`]); per call it:
 //!   1. drains the accelerometer link into per-accelerometer queues and takes one sample
-//!      of each (oldest first); a missing or faulty one holds the previous compensated
-//!      increment for the step and raises [`flags::ACCEL_FAULT`];
+//!      of each: the one whose counter the unit time names (the last step's counter plus
+//!      the steps since, by the flight core's sample clock; the oldest when the last
+//!      step's time is unsealed), older frames dropped as stale, newer ones left for
+//!      their steps; a missing or faulty one holds the previous compensated increment
+//!      for the step and raises [`flags::ACCEL_FAULT`];
 //!   2. compensates the three increments ([`crate::calib::accel::AccelCompensator`]);
 //!   3. runs the strapdown step ([`AidedNav::step_deferred`]: attitude, velocity,
 //!      position; no covariance work);
@@ -30,8 +33,10 @@
 //! sample-to-output latency. The navigation state is the same as with the covariance
 //! work done inside the step: the filter reads the state as of the last step either way.
 //!
-//! The accelerometer samples are assumed to be taken in step with the FOG samples (their
-//! counters are not matched).
+//! The accelerometer samples are taken in step with the FOG samples: an accelerometer
+//! frame is taken for the step whose time its counter names, so a frame left in a link
+//! over a gap or a reset is never taken for a later step (the state and its time tag
+//! stay one).
 
 use nalgebra::Vector3;
 
@@ -185,14 +190,21 @@ state_struct! {
         /// Resumed from a snapshot whose last accelerometer sample had this counter; the
         /// samples since are bridged at the first step that takes a frame.
         pub(super) resume_from: Maybe<u16> = Maybe::none();
+        /// The unit time of the resumed snapshot's last step, µs (its record's): the
+        /// steps since it tell the counter of the sample the resume bridges to.
+        pub(super) resume_t_us: u64 = 0;
         /// Steps waited since the resume for an accelerometer frame.
         pub(super) resume_wait: u32 = 0;
         /// What the last resume bridged.
         pub(super) bridged: Maybe<BridgeReport> = Maybe::none();
-        /// The unit time of the last step's increment, µs (`None` until the first, and
-        /// after a reset): an increment whose time lies more than one step after it spans
-        /// samples the flight core bridged ([`NavUnit::step`]).
-        last_t_us: Maybe<u64> = Maybe::none();
+        /// The unit time of the last step's increment, µs: an increment whose time lies
+        /// more than one step after it spans samples the flight core bridged
+        /// ([`NavUnit::step`]). Sealed by its complement `last_t_inv_us`
+        /// (both zero until the first step, and after a reset: unsealed, no span).
+        pub(super) last_t_us: u64 = 0;
+        /// `!last_t_us` while it holds a time: a flipped bit of either unseals it, and the
+        /// span falls back to the accelerometer counter's gap (`NavUnit::steps_by_time`).
+        pub(super) last_t_inv_us: u64 = 0;
         /// The navigation is lost (a snapshot refused after a reset, or too old at its
         /// first sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
         /// initialisation builds the unit again ([`super::snapshot`]).
@@ -206,6 +218,29 @@ state_struct! {
     constructor
     /// A stage starting from `state` (pad alignment) with step `dt_s`.
     pub fn new(state: NavState, dt_s: f64, comp: AccelCompensator, cfg: GnssConfig) -> Result<Self, NavError> => Ok {}
+}
+
+/// Takes the sample with counter `expected` from an accelerometer's queue (any, the
+/// oldest, when `None`): older frames are dropped as stale (counted in `stale`), a newer
+/// one is left queued for its own step.
+#[inline(always)]
+fn take_sample(q: &mut Ring<AccelSlot, ACCEL_QUEUE>, expected: Option<u16>, stale: &mut u32) -> Option<AccelSlot> {
+    // Bounded by the queue length.
+    for _ in 0..ACCEL_QUEUE {
+        let f = q.pop_front()?;
+        let Some(e) = expected else { return Some(f) };
+        let age = e.wrapping_sub(AccelFrame::from(f).counter);
+        if age == 0 {
+            return Some(f);
+        }
+        if age >= 0x8000 {
+            // Room is certain: it was just taken out.
+            let _ = q.push_front(f);
+            return None;
+        }
+        *stale = stale.saturating_add(1);
+    }
+    None
 }
 
 /// What a resume's bridge over a reset did ([`super::snapshot`]).
@@ -324,13 +359,21 @@ impl NavUnit {
             })
         });
         self.counters.add(NavCounter::IoErrors, rep.io_errors);
-        self.counters.add(NavCounter::AccelFramesRejected, rejected);
+        // The counter this step's sample carries by the unit time (the core's sample
+        // clock): the last step's counter (after a resume, the snapshot's) plus the
+        // steps since, when that time is sealed. A frame older is stale (queued before a
+        // gap or a reset) and dropped, a newer one waits for its step.
+        let last_counter = self.accel_counter.get();
+        let resuming = self.resume_from.is_some();
+        let by_time = self.steps_by_time(time_us);
+        let base = if resuming { self.resume_from.get() } else { last_counter };
+        let expected = base.zip(by_time).map(|(c, n)| c.wrapping_add(n.min(u64::from(u16::MAX)) as u16));
         let mut raw = [0.0; N_ACCEL];
         let mut temps = [0.0; N_ACCEL];
         let mut complete = true;
         let mut counter: Option<u16> = None;
         for ((q, r), t) in self.accel_q.iter_mut().zip(raw.iter_mut()).zip(temps.iter_mut()) {
-            let f = q.pop_front().map(AccelFrame::from);
+            let f = take_sample(q, expected, &mut rejected).map(AccelFrame::from);
             if let (None, Some(f)) = (counter, f) {
                 counter = Some(f.counter);
             }
@@ -342,13 +385,22 @@ impl NavUnit {
                 _ => complete = false,
             }
         }
-        let counter = counter.or_else(|| self.accel_counter.get().map(|c| c.wrapping_add(1)));
-        self.accel_counter.set(counter);
-        // After a resume: bridge the samples lost over the reset, or hold.
-        let resuming = self.resume_from.is_some();
+        self.counters.add(NavCounter::AccelFramesRejected, rejected);
+        // Samples the flight core bridged into this one increment (lost on every link):
+        // by the time, or, the last time unsealed (a flipped bit), by the accelerometer
+        // counter's gap (1 without a frame). Not at the step a resume bridges (its gap is
+        // the snapshot's), nor at the first step.
+        let spanned = match (resuming, by_time, counter.zip(last_counter)) {
+            (true, _, _) => 1,
+            (false, Some(n), _) => n,
+            (false, None, Some((c, p))) => u64::from(c.wrapping_sub(p).max(1)),
+            (false, None, None) => 1,
+        };
+        // A resume settles on a frame of its step only (the time and the counter agree).
         let navigating = self.settle_resume(counter);
-        // Samples the flight core bridged into this one increment (lost on every link).
-        let spanned = self.spanned_steps(time_us, resuming);
+        if self.resume_from.is_none() {
+            self.accel_counter.set(counter.or(expected).or_else(|| last_counter.map(|c| c.wrapping_add(1))));
+        }
         // 2. Compensation (or hold).
         let [x, y, z] = raw;
         let dv = if complete { self.comp.compensate(&Vector3::new(x, y, z), &temps, self.dt_s) } else { None };
@@ -511,19 +563,29 @@ impl NavUnit {
         }
     }
 
-    /// Steps of the sample clock this step's increment covers (1 normally): more when
-    /// the flight core bridged samples lost on every link into it
-    /// ([`crate::flight::FlightCore::step_with`]). Not at the step a resume bridges (its
-    /// gap is the accelerometer counter's), nor at the first step.
+    /// Steps of the sample clock from the last step's time to `time_us` (1 normally;
+    /// more when the flight core bridged samples lost on every link into this increment,
+    /// [`crate::flight::FlightCore::step_with`]); after a resume, from the snapshot's
+    /// time (its record's, sealed with its state). `None` when the last time is unsealed
+    /// (it and its complement disagree: a flipped bit; or no step yet). Records this
+    /// step's time, sealed.
     #[inline(always)]
-    fn spanned_steps(&mut self, time_us: u64, resuming: bool) -> u64 {
-        let last = self.last_t_us.get();
-        self.last_t_us = Maybe::some(time_us);
+    fn steps_by_time(&mut self, time_us: u64) -> Option<u64> {
+        let (t, sealed) = (self.last_t_us, self.last_t_inv_us == !self.last_t_us && self.last_t_us != 0);
+        self.last_t_us = time_us;
+        self.last_t_inv_us = !time_us;
         let dt_us = u64::from((self.dt_s * 1e6) as u32);
-        match last {
-            Some(t) if !resuming && dt_us > 0 && time_us > t => (time_us - t + dt_us / 2) / dt_us,
-            _ => 1,
+        if dt_us == 0 {
+            return None;
         }
+        if self.resume_from.is_some() {
+            // Modulo 2^16, as the counters: the sample clock's index and the FOG counter
+            // agree modulo 2^16, also after a cold start of the core (its snapshot
+            // refused), whose clock starts again at the FOG counter.
+            let (now, then) = (time_us / dt_us, self.resume_t_us / dt_us);
+            return Some(u64::from((now as u16).wrapping_sub(then as u16)));
+        }
+        sealed.then(|| time_us.saturating_sub(t).saturating_add(dt_us / 2) / dt_us)
     }
 
     /// After a step whose increment spanned `lost` + 1 samples ([`NavUnit::step`]): the
