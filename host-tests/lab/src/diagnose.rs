@@ -647,6 +647,7 @@ fn limits(d: &Digest, base: &BaseFit, cands: &[Candidate], skipped: &[(String, S
         range_hz: searchable_range(span_s, dt_s, opt.max_frequencies),
         t_sd_s: time_spread_s(&train_t, &vec![1.0; n_train]),
         n_fog,
+        base_cols: base.bases.iter().map(Design::k).max().unwrap_or(0),
     };
     let share = |fog: usize, f: f64| line_share(d, base, fog, f);
     let sinusoid =
