@@ -26,17 +26,24 @@
 //!   other frequency), λ_train = A² n_train / (2 S(f)) for n_train training rows; it is picked
 //!   when that power beats the maximum of the rest of the band, whose distribution is the
 //!   search's own false-alarm law ([`super::spectral::max_tail`], Rice's formula):
-//!   P_search(λ) = ∫ P(χ²_ν(λ) > u) dF_max(u). The test's χ²₂ then rejects at level α with
-//!   P_test = P(χ²₂(λ_test) > χ²₂,α), λ_test = A² n_test / (2 S(f)). The two happen on
-//!   disjoint rows, so the probability of finding the line is their product, and the
-//!   minimum detectable amplitude is the one at which the product reaches [`POWER`]. The
-//!   non-centrality that does it is the same at every period (only S(f) changes), so it is
-//!   solved for once. The line's non-centrality is what the base model leaves of it: the
-//!   search fits the training residual of the base model, the test fits the line beside
-//!   it, so n is scaled by the least share of the line's information left beside the base
-//!   design on either half, in the line's least informative phase (μ_min of its (sin, cos)
-//!   information over n/2; [`SinusoidCurve::base_share`]), as a term's statement holds in
-//!   any direction of its regressors.
+//!   P_search(λ) = ∫ P(χ²_ν(λ) > u) dF_max(u). The test on the test blocks is the one every
+//!   candidate gets (`diagnose`'s `test_fog`): the GLS F-test of (sin, cos) beside the base
+//!   model, F(2, df2) at its own critical value, **and** the held-out direction test (the
+//!   line fitted on the training blocks is one regressor on the test blocks, one-sided,
+//!   F(1, df2 + 1) at 2α); its power P_test(λ_test, λ_train) ([`line_test_power`]) is
+//!   that of both rejecting, λ_test = A² n_test / (2 S(f)): the F-test needs the test
+//!   estimate's norm, the direction test its projection on the training estimate's
+//!   direction, which misses the line's phase by an angle whose law is the projected normal
+//!   of λ_train. The search and the F-test use disjoint rows, so the probability of finding
+//!   the line is P_search × P_test, and the minimum detectable amplitude is the one at
+//!   which it reaches [`POWER`]. The non-centrality that does it is the same at every
+//!   period (only S(f) changes), so it is solved for once. The line's non-centrality is
+//!   what the base model leaves of it: the search fits the training residual of the base
+//!   model, the test fits the line beside it, so n is scaled by the least share of the
+//!   line's information left beside the base design on either half, in the line's least
+//!   informative phase (μ_min of its (sin, cos) information over n/2;
+//!   [`SinusoidCurve::base_share`]), as a term's statement holds in any direction of its
+//!   regressors.
 //!
 //! The power study (`host-tests/lab/tests/power.rs`) measures the detection rate at the
 //! stated size and at half of it.
@@ -195,6 +202,9 @@ pub struct LineDesign {
     pub n_fog: usize,
     /// Session rows each of those rows is the mean of.
     pub rows_averaged: usize,
+    /// Regressors of the base design the line is tested beside (the F-test's denominator
+    /// has n_test − base_cols − 2 degrees of freedom).
+    pub base_cols: usize,
 }
 
 /// Probability that the search picks a line of non-centrality `lambda` on one FOG (see the
@@ -223,10 +233,85 @@ pub fn search_power(lambda: f64, ld: &LineDesign) -> f64 {
 /// The training non-centrality λ_train at which a line on one FOG is found (picked and
 /// significant) with probability `power`; the test's is λ_train × n_test / n_train.
 pub fn line_lambda(ld: &LineDesign, alpha: f64, power: f64) -> f64 {
-    let crit = ChiSquared::new(2.0).map_or(f64::INFINITY, |c| c.inverse_cdf(1.0 - alpha.clamp(1e-300, 0.5)));
     let ratio = ld.n_test as f64 / ld.n_train.max(1) as f64;
-    let found = |l: f64| search_power(l, ld) * ncx2_sf(crit, 2.0, l * ratio);
+    let df2 = ld.n_test.saturating_sub(ld.base_cols + 2).max(1);
+    let found = |l: f64| search_power(l, ld) * line_test_power(l * ratio, l, df2, alpha);
     first_reached(|l| found(l) < power, 8.0, 1e7, |lo, hi, _| hi - lo > 1e-3 * hi).map_or(f64::INFINITY, |(_, hi)| hi)
+}
+
+/// Probability that `diagnose`'s test of a line at the right frequency rejects on one FOG
+/// (see the module text): the GLS F-test of (sin, cos) beside the base model, F(2, `df2`) at
+/// its critical value for `alpha`, and the held-out direction test, one-sided at `alpha`
+/// (F(1, df2 + 1) at 2α), both; `lambda_test` the line's non-centrality on the test rows,
+/// `lambda_train` on the training rows (the direction's).
+///
+/// In the test rows' whitened coordinates, with the axis on the training estimate's
+/// direction, the test estimate is z ~ N(√λ_test (cos ψ, sin ψ), I₂), ψ the training
+/// estimate's angle from the line's phase (the projected normal of √λ_train: density
+/// e^(−ρ²/2)/(2π) + ρ cos ψ Φ(ρ cos ψ) e^(−ρ² sin²ψ/2)/√(2π), ρ = √λ_train), and the fit's
+/// mean square s² ~ χ²_df2/df2 independent of z (the direction fit's differs from it by
+/// one row's worth of a residual of hundreds, neglected). The F-test rejects when
+/// |z|² ≥ 2 F_crit s² = R², the direction test when z₁ ≥ t_crit s = B; the probability of
+/// both is P(z₁ ≥ max(B, R)) + ∫_B^R φ(z₁ − m₁) P(|z₂| ≥ √(R² − z₁²)) dz₁, integrated
+/// over ψ and s². The (sin, cos) information is taken as isotropic (its two eigenvalues
+/// agree to a few per cent over a session of many periods; the base share scales λ to the
+/// least of them).
+pub fn line_test_power(lambda_test: f64, lambda_train: f64, df2: usize, alpha: f64) -> f64 {
+    use statrs::function::erf::erfc;
+    let alpha = alpha.clamp(1e-300, 0.25);
+    let f_crit = f_critical(alpha, 2, df2);
+    let t_crit = f_critical(2.0 * alpha, 1, df2 + 1).sqrt();
+    if !(f_crit.is_finite() && t_crit.is_finite()) {
+        return 0.0;
+    }
+    let upper = |x: f64| 0.5 * erfc(x / std::f64::consts::SQRT_2);
+    let pdf = |x: f64| (-0.5 * x * x).exp() / (2.0 * std::f64::consts::PI).sqrt();
+    let rho = lambda_train.max(0.0).sqrt();
+    let mu = lambda_test.max(0.0).sqrt();
+    let psi_density = |psi: f64| {
+        let c = rho * psi.cos();
+        (-0.5 * rho * rho).exp() / (2.0 * std::f64::consts::PI)
+            + c * (1.0 - upper(c)) * (-0.5 * (rho * psi.sin()).powi(2)).exp() / (2.0 * std::f64::consts::PI).sqrt()
+    };
+    // Given ψ and s: the probability that both reject.
+    let both = |psi: f64, s: f64| {
+        let (m1, m2) = (mu * psi.cos(), mu * psi.sin());
+        let (r, b) = ((2.0 * f_crit).sqrt() * s, t_crit * s);
+        if b >= r {
+            return upper(b - m1);
+        }
+        // z₁ = R cos θ over θ from 0 (z₁ = R) to acos(B/R) (z₁ = B), Simpson.
+        let th_b = (b / r).clamp(-1.0, 1.0).acos();
+        let g = |th: f64| {
+            let (z1, w) = (r * th.cos(), r * th.sin());
+            pdf(z1 - m1) * (upper(w - m2) + upper(w + m2)) * r * th.sin()
+        };
+        upper(r - m1) + simpson(&g, 0.0, th_b, 64)
+    };
+    // s² at the midpoints of equal-probability bins of χ²_df2 / df2.
+    const S_BINS: usize = 16;
+    let chi = ChiSquared::new(df2.max(1) as f64).ok();
+    let s_nodes: Vec<f64> = (0..S_BINS)
+        .map(|i| {
+            chi.as_ref().map_or(1.0, |c| (c.inverse_cdf((i as f64 + 0.5) / S_BINS as f64) / df2.max(1) as f64).sqrt())
+        })
+        .collect();
+    // ψ over [0, π] (the law is symmetric in ψ).
+    let p = simpson(
+        &|psi: f64| 2.0 * psi_density(psi) * s_nodes.iter().map(|&s| both(psi, s)).sum::<f64>() / S_BINS as f64,
+        0.0,
+        std::f64::consts::PI,
+        96,
+    );
+    p.clamp(0.0, 1.0)
+}
+
+/// Simpson's rule for `g` on [a, b] with `n` (even) intervals.
+fn simpson(g: &impl Fn(f64) -> f64, a: f64, b: f64, n: usize) -> f64 {
+    let n = (n.max(2) + 1) & !1;
+    let h = (b - a) / n as f64;
+    let inner: f64 = (1..n).map(|i| if i % 2 == 1 { 4.0 } else { 2.0 } * g(a + h * i as f64)).sum();
+    h / 3.0 * (g(a) + inner + g(b))
 }
 
 /// Minimum detectable sinusoid amplitude over `points` periods log-spaced across the
@@ -459,6 +544,37 @@ mod tests {
             base_share: share.to_vec(),
         };
         Detectable { alpha_per_fog: 1e-3, terms: Vec::new(), sinusoid: Some(sinusoid) }
+    }
+
+    /// The line test's power against a Monte Carlo of the two tests in the test rows' whitened
+    /// coordinates, and against the F-test alone (which it cannot exceed).
+    #[test]
+    fn line_test_power_is_both_tests() {
+        use rand::SeedableRng;
+        use rand_distr::{ChiSquared as Chi2, Distribution, Normal};
+        let (df2, alpha) = (715usize, 3.1e-4);
+        let f_crit = f_critical(alpha, 2, df2);
+        let t_crit = f_critical(2.0 * alpha, 1, df2 + 1).sqrt();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let n01 = Normal::new(0.0, 1.0).unwrap();
+        let chi = Chi2::new(df2 as f64).unwrap();
+        for (l_test, l_train) in [(22.0, 22.0), (30.0, 12.0)] {
+            let n = 40_000;
+            let mut hit = 0usize;
+            for _ in 0..n {
+                let s2: f64 = chi.sample(&mut rng) / df2 as f64;
+                let (a, b) = (f64::sqrt(l_train) + n01.sample(&mut rng), n01.sample(&mut rng));
+                let (x, y) = (f64::sqrt(l_test) + n01.sample(&mut rng), n01.sample(&mut rng));
+                let f_ok = 0.5 * (x * x + y * y) / s2 >= f_crit;
+                let d_ok = (x * a + y * b) / a.hypot(b) >= t_crit * s2.sqrt();
+                hit += usize::from(f_ok && d_ok);
+            }
+            let mc = hit as f64 / n as f64;
+            let p = line_test_power(l_test, l_train, df2, alpha);
+            assert!((p - mc).abs() < 0.01, "λ {l_test}/{l_train}: {p:.4} against Monte Carlo {mc:.4}");
+            let f_alone = ncf_sf(f_crit, 2.0, df2 as f64, l_test);
+            assert!(p <= f_alone + 1e-3 && p > f_alone - 0.1, "{p:.4} against the F-test alone {f_alone:.4}");
+        }
     }
 
     #[test]
