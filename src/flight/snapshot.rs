@@ -73,6 +73,14 @@ pub enum SnapshotError {
     TooOld = 5,
 }
 
+/// Data bits over which CRC-32C keeps a Hamming distance of 6 (Koopman's tables): the
+/// bytes before [`Snapshot`]'s check word must stay within them.
+pub const CHECKED_BITS_HD6: usize = 5_243;
+const _: () = assert!(
+    8 * core::mem::offset_of!(Snapshot, check) <= CHECKED_BITS_HD6,
+    "the snapshot outgrew CRC-32C's distance-6 length"
+);
+
 /// The snapshot: a plain-old-data record, its last word the CRC-32C of the bytes before
 /// it ([`Snapshot::checksum`]).
 #[derive(Debug, Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -126,9 +134,10 @@ impl Default for Snapshot {
 
 impl Snapshot {
     /// The check word of every byte before it: CRC-32C (the frames' polynomial, through
-    /// their table: [`crate::frames::crc32c_register`]). Over the record's 412 bytes
-    /// (3,296 bits) its Hamming distance is 6 (Koopman's tables: HD 6 up to 5,243 data
-    /// bits): every error of 1 to 5 bits is detected, and every burst up to 32 bits.
+    /// their table: [`crate::frames::crc32c_register`]). Over the bytes before the check
+    /// word (at most 655, [`CHECKED_BITS_HD6`], checked at build time) its
+    /// Hamming distance is 6 (Koopman's tables: HD 6 up to 5,243 data bits): every error
+    /// of 1 to 5 bits is detected, and every burst up to 32 bits.
     /// About 3 instructions a byte.
     pub fn checksum(&self) -> u32 {
         let bytes = bytemuck::bytes_of(self);
