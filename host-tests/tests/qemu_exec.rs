@@ -49,16 +49,11 @@ fn inject(fault: Target) {
     // settling time is longer than this flight).
     sc.settle_s = SETTLE_S;
     let o = UpsetOptions {
-        elf,
-        flips: 1,
-        seed: 11,
         first_s: FAULT_S,
-        quiet_s: 0.5,
         window_s: 4.0,
         gap_s: 0.0,
         register_share: 0.0,
-        max_wall_s: None,
-        forced_reset: false,
+        ..UpsetOptions::new(elf, 1, 11)
     };
     let c = run_injection(&sc, &o, fault, |_| {}).expect("campaign");
     let f = c.flips.first().expect("one fault");

@@ -27,16 +27,12 @@ fn a_reset_in_qemu_resumes_aligned_and_within_twice_the_nominal_3sigma() {
         let mut sc = Scenario::from_file(&path).expect("scenario");
         sc.table.estimator = Some(estimator);
         let o = UpsetOptions {
-            elf: elf.clone(),
-            flips: 1,
-            seed: 7,
             first_s: RESET_S,
-            quiet_s: 0.5,
             window_s,
             gap_s: 0.0,
             register_share: 0.0,
-            max_wall_s: None,
             forced_reset: true,
+            ..UpsetOptions::new(elf.clone(), 1, 7)
         };
         let c = run_campaign(&sc, &o, |_| {}).expect("campaign");
         let f = c.flips.first().expect("one reset");

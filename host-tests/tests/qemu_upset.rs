@@ -9,7 +9,7 @@
 use std::path::Path;
 
 use ssis_runner::qemu::build_firmware;
-use ssis_runner::upset::{run_campaign_mix, step_code, Mix, Outcome, Target, UpsetOptions, DEVICE_REGS};
+use ssis_runner::upset::{run_campaign_mix, step_code, Mix, Outcome, UpsetOptions};
 use ssis_sim::scenario::Scenario;
 
 #[test]
@@ -22,18 +22,7 @@ fn upset_sample_in_qemu() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
     let mut sc = Scenario::from_file(&path).expect("scenario");
     sc.duration_s = 15.0;
-    let o = UpsetOptions {
-        elf,
-        flips: 8,
-        seed: 3,
-        first_s: 12.0,
-        quiet_s: 0.25,
-        window_s: 1.0,
-        gap_s: 0.25,
-        register_share: -1.0,
-        max_wall_s: None,
-        forced_reset: false,
-    };
+    let o = UpsetOptions { quiet_s: 0.25, window_s: 1.0, gap_s: 0.25, ..UpsetOptions::new(elf, 8, 3) };
     let c = run_campaign_mix(&sc, &o, &Mix::all(), |f| {
         eprintln!(
             "{} at step {}: {} -> {} {:?}",
@@ -61,26 +50,7 @@ fn upset_sample_in_qemu() {
         assert!(f.step >= 2400 && f.step as f64 * 0.005 <= 15.0, "{f:?}");
         let longest = c.path_lens.iter().map(|(_, l)| *l).max().unwrap_or(0);
         assert!((f.instr as usize) < longest, "{f:?}");
-        match f.target {
-            Target::Stack { addr, .. } => assert!(addr < c.stack_top, "{f:?}"),
-            Target::Static { addr, .. } => assert!((c.statics.0..c.statics.1).contains(&addr), "{f:?}"),
-            Target::Core { reg, bit } => assert!((reg < 16 || reg == 25) && bit < 32, "{f:?}"),
-            Target::Fpu { reg, bit } => assert!((26..=42).contains(&reg) && bit < 64, "{f:?}"),
-            Target::Double { addr, bit, words } => {
-                let end = addr + if words { 8 } else { 4 };
-                assert!(end <= c.stack_top || (c.statics.0..=c.statics.1).contains(&end), "{f:?}");
-                assert!(bit < if words { 32 } else { 31 }, "{f:?}");
-            }
-            Target::Device { reg, bit } => {
-                let d = DEVICE_REGS.get(usize::from(reg)).expect("a listed register");
-                assert!(d.mask & (1 << bit) != 0, "{f:?}");
-            }
-            Target::SnapshotReset { .. } | Target::Reset => {}
-            Target::TickStopped | Target::Stall => panic!("no loop fault in a flip campaign: {f:?}"),
-        }
-        if f.outcome == Outcome::Masked {
-            assert!(f.events.is_empty() && f.recovery_s.is_none(), "{f:?}");
-        }
+        assert_eq!(c.out_of_reach(f), None);
     }
     let doc = c.document("ssis-qemu-upset --flips 6");
     assert!(doc.contains("| masked | ") && doc.contains("| silent | ") && doc.contains("| population |"), "{doc}");

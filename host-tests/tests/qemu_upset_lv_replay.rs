@@ -35,18 +35,8 @@ fn the_campaigns_silent_register_flips_replayed() {
             continue;
         }
         sc.duration_s = first_s + 3.0;
-        let o = UpsetOptions {
-            elf: elf.clone(),
-            flips: 2,
-            seed: 38,
-            first_s,
-            quiet_s: 0.1,
-            window_s: 1.0,
-            gap_s: 0.05,
-            register_share: -1.0,
-            max_wall_s: None,
-            forced_reset: false,
-        };
+        let o =
+            UpsetOptions { first_s, quiet_s: 0.1, window_s: 1.0, gap_s: 0.05, ..UpsetOptions::new(elf.clone(), 2, 38) };
         let t = Target::Device { reg: reg(name), bit };
         let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, t, |f| show(&format!("{name} bit {bit}"), f))
             .expect("campaign");
@@ -67,18 +57,7 @@ fn a_watchdog_reset_mid_ascent_resumes_within_the_bound() {
     let mut sc = LvScenario::from_file(&path).expect("scenario");
     let first_s: f64 = std::env::var("SSIS_LV_STALL_AT").ok().and_then(|s| s.parse().ok()).unwrap_or(5.22);
     sc.duration_s = first_s + 2.0;
-    let o = UpsetOptions {
-        elf,
-        flips: 1,
-        seed: 38,
-        first_s,
-        quiet_s: 0.1,
-        window_s: 1.0,
-        gap_s: 0.0,
-        register_share: -1.0,
-        max_wall_s: None,
-        forced_reset: false,
-    };
+    let o = UpsetOptions { first_s, quiet_s: 0.1, window_s: 1.0, gap_s: 0.0, ..UpsetOptions::new(elf, 1, 38) };
     let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, Target::Stall, |f| show("stall", f)).expect("campaign");
     assert_eq!(c.flips.len(), 1);
     for f in &c.flips {

@@ -96,6 +96,26 @@ pub struct UpsetOptions {
     pub forced_reset: bool,
 }
 
+impl UpsetOptions {
+    /// `flips` flips of `elf` drawn with `seed`, on the command line's schedule (first flip
+    /// at 12 s, masked after 0.5 s, followed 10 s, gaps up to 0.5 s), registers in
+    /// proportion to their bits, no wall-time limit, bit flips (not forced resets).
+    pub fn new(elf: PathBuf, flips: usize, seed: u64) -> Self {
+        UpsetOptions {
+            elf,
+            flips,
+            seed,
+            first_s: 12.0,
+            quiet_s: 0.5,
+            window_s: 10.0,
+            gap_s: 0.5,
+            register_share: -1.0,
+            max_wall_s: None,
+            forced_reset: false,
+        }
+    }
+}
+
 /// Where a bit was flipped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Target {

@@ -6,7 +6,7 @@ use std::fmt::Write;
 
 use ssis_common::cli::{json, Value};
 
-use super::{Flip, Mix, Outcome, PathKind, UpsetOptions, BOUND_ARCSEC, RESET_DOWN_STEPS};
+use super::{Flip, Mix, Outcome, PathKind, Target, UpsetOptions, BOUND_ARCSEC, DEVICE_REGS, RESET_DOWN_STEPS};
 
 /// A share with its 95 % Wilson score interval.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -124,6 +124,36 @@ impl Campaign {
     /// Flips classed silent.
     pub fn silent(&self) -> usize {
         self.count("silent", None)
+    }
+
+    /// Why a flip's drawn place lies outside what this campaign may flip (the live stack,
+    /// the statics, the core and FPU registers, a listed device register's writable
+    /// bits), or `None` when it lies within: a check on the drawing, for the tests.
+    pub fn out_of_reach(&self, f: &Flip) -> Option<String> {
+        let in_ram = |end: u32| end <= self.stack_top || (self.statics.0..=self.statics.1).contains(&end);
+        let ok = match f.target {
+            Target::Stack { addr, bit } => addr < self.stack_top && bit < 8,
+            Target::Static { addr, bit } => (self.statics.0..self.statics.1).contains(&addr) && bit < 8,
+            Target::Core { reg, bit } => (reg < 16 || reg == 25) && bit < 32,
+            Target::Fpu { reg, bit } => (26..=42).contains(&reg) && bit < 64,
+            Target::Double { addr, bit, words } => {
+                in_ram(addr + if words { 8 } else { 4 }) && bit < if words { 32 } else { 31 }
+            }
+            Target::Device { reg, bit } => {
+                DEVICE_REGS.get(usize::from(reg)).is_some_and(|d| bit < 32 && d.mask & (1 << bit) != 0)
+            }
+            Target::SnapshotReset { .. } | Target::Reset => true,
+            Target::TickStopped | Target::Stall => false,
+        };
+        let masked_clean = f.outcome != Outcome::Masked || (f.events.is_empty() && f.recovery_s.is_none());
+        match (ok, masked_clean) {
+            (true, true) => None,
+            (false, _) => Some(format!(
+                "drawn outside the campaign's reach (stack top {:#x}, statics {:#x}..{:#x}): {f:?}",
+                self.stack_top, self.statics.0, self.statics.1
+            )),
+            (true, false) => Some(format!("classed masked with events or a recovery: {f:?}")),
+        }
     }
 
     /// The summary as text.
