@@ -174,7 +174,10 @@ impl Campaign {
             let _ = writeln!(s, "  {row:<40} {k:>6}  {}", Interval::clopper_pearson(k, n).pct());
         }
         if let Some(w) = self.flips.iter().filter(|f| f.silent_arcsec > 0.0).map(|f| f.silent_arcsec).reduce(f64::max) {
-            let _ = writeln!(s, "  worst silent error {w:.0}″");
+            let _ = match self.lv {
+                Some(_) => writeln!(s, "  worst silent error {w:.2} × its bound"),
+                None => writeln!(s, "  worst silent error {w:.0}″"),
+            };
         }
         s
     }
