@@ -260,6 +260,8 @@ impl Frame for OutputFrame {
     const KIND: u8 = kind::OUTPUT;
     const LEN: usize = FRAME_LEN;
 
+    // Inlined into the frame's one encoder, where its length is a constant.
+    #[inline(always)]
     fn write_fields(&self, w: &mut FieldWriter<'_>) {
         w.u8(self.flags);
         w.u16(self.counter);
@@ -282,7 +284,10 @@ impl Frame for OutputFrame {
         w.u8(self.fdi);
         w.u8(self.page_id);
         w.u16(self.page_value);
-        for c in self.att_sigma_counts.into_iter().chain(self.drift_sigma_counts) {
+        for c in self.att_sigma_counts {
+            w.u16(c);
+        }
+        for c in self.drift_sigma_counts {
             w.u16(c);
         }
     }
