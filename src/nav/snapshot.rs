@@ -34,8 +34,8 @@
 //! is plausible: finite, ‖q_eb‖ within 1e-6 of 1, the position between
 //! [`super::wgs84::MIN_RADIUS_M`] and [`MAX_RADIUS_M`], the speed below
 //! [`MAX_SPEED_M_S`], the covariance's diagonal ≥ 0, the bias estimates and the mean
-//! increments and the window's blocks within the sensors' ranges, the window's counters
-//! in range. Accepted, the unit takes the copy's state
+//! increments and the block being summed within the sensors' ranges, the window's
+//! counters in range. Accepted, the unit takes the copy's state
 //! and holds it until its first step that takes an accelerometer frame of that step:
 //! the steps since the record's time (the flight core's sample clock, modulo 2^16 as the
 //! counters) name the counter the frame must carry (the record's plus those steps);
@@ -68,8 +68,16 @@
 //!     the covariance (σ_v² = n s_υ²/3 per axis, σ_r² = n³ Δt² s_υ²/9,
 //!     cov = n² Δt s_υ²/6), so the frames' σ and the next GNSS fix's weight cover it.
 //!
+//!   **The window's guard**: a CRC seals the window only when a record is written; a
+//!   bit flipped in the unit's RAM after a block's write and before the record's would
+//!   be sealed with it, and a block near the window's end (weight ~10⁻³ in the taper)
+//!   hardly moves r while it shifts φ₀ and so the bridged attitude by its whole error.
+//!   So the unit keeps `window_xor`, the XOR of every block's bit pattern (folded to 32
+//!   bits) and of the ring's next index, updated from its own value as each block is
+//!   written; the fit recomputes it over the ring it uses, and a mismatch gives no fit.
+//!
 //!   The attitude is **not backed** when the window was not full of measured increments
-//!   (0.48 s after the start or after a previous bridge), the gap exceeds
+//!   (0.48 s after the start or after a previous bridge) or fails its guard, the gap exceeds
 //!   [`ATT_BRIDGE_MAX_STEPS`], or ε exceeds [`ATT_BOUND_MAX_RAD`]: it is bridged all the
 //!   same (on the fit, or the mean increment without one), and every output frame from
 //!   then on carries [`flags::ATTITUDE_UNCONFIRMED`] (position and velocity stand) until
