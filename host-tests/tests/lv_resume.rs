@@ -9,7 +9,9 @@
 //! - every single bit flipped in a snapshot, and a snapshot torn at any byte of its
 //!   write, is refused (never resumed); a snapshot too old at its first sample leaves
 //!   the navigation lost and flagged, never resumed wrong; no snapshot (a power-on)
-//!   keeps the pad initialisation.
+//!   keeps the pad initialisation;
+//! - a bit of the live unit's window flipped before a record seals it is never resumed
+//!   as a claimed attitude beyond its stated error (the window's guard).
 
 use std::path::Path;
 
@@ -796,4 +798,81 @@ fn a_flipped_bit_of_the_last_step_time_does_not_stop_navigation() {
         }
     }
     assert_eq!(flipped, 128);
+}
+
+/// A bit of the live unit's window flipped in RAM before a record seals it (the record's
+/// CRC then covers the flipped value): in the roll program, at the write schedule of the
+/// LV campaign's snapshot-then-reset flip (the record after step 4,798, 6.0 s; the unit
+/// down 80 steps), over every bit of the newest block of the ring, of its index, and of
+/// the guard. A block near the window's end hardly moves the fit's residual (the Hann
+/// taper weighs it ~10⁻³) but shifts the angle at the snapshot, so its error passes into
+/// the bridged attitude undetected unless the window's guard finds it: each resume's
+/// attitude is within its stated error, or flagged unconfirmed.
+#[test]
+fn a_window_bit_flipped_before_sealing_is_never_claimed() {
+    const SNAP_AT_6S: u64 = 4_798;
+    let r = build_reference(SNAP_AT_6S);
+    let map = NavUnit::state_map();
+    let field = |name: &str| map.iter().find(|f| f.name == name).unwrap_or_else(|| panic!("{name} mapped"));
+    let (blocks, next, guard) = (field("blocks_rad"), field("block_next"), field("window_xor"));
+    // The unit as it was after the snapshot's step, on the reference's bytes.
+    let mut core = LvCore::new(&CalibrationTable::DEFAULT, &r.init).expect("unit");
+    for b in &r.bytes[..SNAP_AT_6S as usize] {
+        core.period(b);
+    }
+    let mut live = *core.nav();
+    let mut check = r.newest;
+    assert!(live.record_into(&mut check, r.newest.seq()) && check == r.newest, "the live unit seals the newest record");
+    let bytes_of = |u: &mut NavUnit| {
+        // SAFETY: every field of NavUnit is valid under any bit pattern (the
+        // `bytemuck::AnyBitPattern` derive in src/nav/unit.rs).
+        unsafe { std::slice::from_raw_parts_mut(u as *mut NavUnit as *mut u8, std::mem::size_of::<NavUnit>()) }
+    };
+    let next_idx = {
+        let b = bytes_of(&mut live);
+        u32::from_le_bytes(b[next.offset..next.offset + 4].try_into().unwrap()) as usize
+    };
+    let newest_block = blocks.offset + ((next_idx + 47) % 48) * 24;
+    let mut targets = Vec::new();
+    for axis in 0..3 {
+        for bit in 40..64 {
+            targets.push((newest_block + axis * 8 + bit / 8, bit % 8, format!("newest block axis {axis} bit {bit}")));
+        }
+    }
+    for bit in 0..8 {
+        targets.push((next.offset, bit, format!("block_next bit {bit}")));
+        targets.push((guard.offset + bit / 2, bit, format!("window_xor byte {} bit {bit}", bit / 2)));
+    }
+    let (mut claimed_beyond, mut flagged, mut refused, mut worst_claimed) = (Vec::new(), 0, 0, 0.0f64);
+    for (byte, bit, what) in &targets {
+        let mut u = live;
+        bytes_of(&mut u)[*byte] ^= 1 << bit;
+        // The unit's state is not that of the reference after the resume: only the
+        // record matters here (sealed over the flipped window).
+        let mut rec = r.newest;
+        assert!(u.record_into(&mut rec, r.newest.seq()), "{what}: sealed");
+        let s = alone(rec);
+        if LvCore::new(&CalibrationTable::DEFAULT, &r.init).expect("unit").resume_nav(&s).is_err() {
+            refused += 1;
+            continue;
+        }
+        let o = reset_from(&r, &s, 1, 80);
+        if o.unconfirmed {
+            flagged += 1;
+        } else {
+            worst_claimed = worst_claimed.max(o.jump_att_arcsec);
+            if o.jump_att_arcsec > o.att_bound_arcsec {
+                claimed_beyond.push(format!(
+                    "{what}: {:.1}″ from the uninterrupted unit, stated {:.1}″",
+                    o.jump_att_arcsec, o.att_bound_arcsec
+                ));
+            }
+        }
+    }
+    println!(
+        "{} flips of the window before sealing: {refused} refused, {flagged} flagged unconfirmed, the claimed ones \
+         within {worst_claimed:.1}″ of the uninterrupted unit",
+        targets.len()
+    );
+    assert!(claimed_beyond.is_empty(), "claimed beyond the stated error:\n{}", claimed_beyond.join("\n"));
 }

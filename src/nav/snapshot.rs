@@ -34,8 +34,8 @@
 //! is plausible: finite, ‖q_eb‖ within 1e-6 of 1, the position between
 //! [`super::wgs84::MIN_RADIUS_M`] and [`MAX_RADIUS_M`], the speed below
 //! [`MAX_SPEED_M_S`], the covariance's diagonal ≥ 0, the bias estimates and the mean
-//! increments and the window's blocks within the sensors' ranges, the window's counters
-//! in range. Accepted, the unit takes the copy's state
+//! increments and the block being summed within the sensors' ranges, the window's
+//! counters in range. Accepted, the unit takes the copy's state
 //! and holds it until its first step that takes an accelerometer frame of that step:
 //! the steps since the record's time (the flight core's sample clock, modulo 2^16 as the
 //! counters) name the counter the frame must carry (the record's plus those steps);
@@ -68,8 +68,16 @@
 //!     the covariance (σ_v² = n s_υ²/3 per axis, σ_r² = n³ Δt² s_υ²/9,
 //!     cov = n² Δt s_υ²/6), so the frames' σ and the next GNSS fix's weight cover it.
 //!
+//!   **The window's guard**: a CRC seals the window only when a record is written; a
+//!   bit flipped in the unit's RAM after a block's write and before the record's would
+//!   be sealed with it, and a block near the window's end (weight ~10⁻³ in the taper)
+//!   hardly moves r while it shifts φ₀ and so the bridged attitude by its whole error.
+//!   So the unit keeps `window_xor`, the XOR of every block's bit pattern (folded to 32
+//!   bits) and of the ring's next index, updated from its own value as each block is
+//!   written; the fit recomputes it over the ring it uses, and a mismatch gives no fit.
+//!
 //!   The attitude is **not backed** when the window was not full of measured increments
-//!   (0.48 s after the start or after a previous bridge), the gap exceeds
+//!   (0.48 s after the start or after a previous bridge) or fails its guard, the gap exceeds
 //!   [`ATT_BRIDGE_MAX_STEPS`], or ε exceeds [`ATT_BOUND_MAX_RAD`]: it is bridged all the
 //!   same (on the fit, or the mean increment without one), and every output frame from
 //!   then on carries [`flags::ATTITUDE_UNCONFIRMED`] (position and velocity stand) until
@@ -105,8 +113,8 @@ use super::{wgs84, NavState};
 use crate::frames::CRC32C;
 use crate::state::{Flag, Maybe};
 
-/// First word: "NSN" and the layout version 4.
-const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x04");
+/// First word: "NSN" and the layout version 5.
+const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x05");
 /// Most samples whose attitude a resume bridges on the window's fit and still backs
 /// (0.3 s): the older copy's age (two snapshot periods of 80 steps) plus a reset and boot
 /// of 40 steps, with margin; beyond it the attitude is flagged unconfirmed.
@@ -387,13 +395,14 @@ impl WindowFit {
 /// (the window's, oldest first): the cubic's c_0..c_3 in v, its weighted mean squared
 /// residual (rad²) and the angle summed over the blocks (rad).
 #[inline(never)]
-fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f64; 4], f64, f64) {
-    let (mut y, mut wy2) = (0.0, 0.0);
+fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f64; 4], f64, f64, u64) {
+    let (mut y, mut wy2, mut bits) = (0.0, 0.0, 0u64);
     // M_0, M_2, M_4, M_6; and Σ w v^k Y, k = 0..3.
     let (mut m, mut s) = ([0.0f64; 4], [0.0f64; 4]);
     let points = core::iter::once(0.0).chain(blocks.map(|b| b.get(axis).copied().unwrap_or(0.0)));
     for (j, b) in points.enumerate() {
         y += b;
+        bits ^= b.to_bits();
         let x = j as f64 / WINDOW_BLOCKS as f64;
         let (sin, _) = crate::math::sin_cos(core::f64::consts::PI * x);
         let (w, v) = (sin * sin + 1e-3, x - 0.5);
@@ -416,7 +425,7 @@ fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f6
     let d = [s0 / m0, s1 / m2, (s2 - a * s0) / n[2], (s3 - b * s1) / n[3]];
     let explained: f64 = d.iter().zip(n).map(|(dk, nk)| nk * dk * dk).sum();
     let [d0, d1, d2, d3] = d;
-    ([d0 - a * d2, d1 - b * d3, d2, d3], (wy2 - explained).max(0.0) / m0, y)
+    ([d0 - a * d2, d1 - b * d3, d2, d3], (wy2 - explained).max(0.0) / m0, y, bits)
 }
 
 impl NavUnit {
@@ -617,14 +626,15 @@ impl NavUnit {
         true
     }
 
-    /// The window's fields in a record: finite, each block's angle within the body rate
-    /// range, the ring's counters in range.
+    /// The window's fields in a record: the block being summed finite and within the
+    /// body rate range, the ring's counters in range (the ring's blocks are checked
+    /// against their guard, `NavUnit::window_xor`, by the fit that uses them).
     fn window_plausible(k: &NavKept, dt_s: f64) -> bool {
-        let blocks = k.blocks_rad;
         let block = k.block_rad;
         let (steps, next, filled) = (k.block_steps, k.block_next, k.blocks_filled);
         let most = sq(MAX_RATE_RAD_S * dt_s * f64::from(BLOCK_STEPS));
-        blocks.iter().chain(core::iter::once(&block)).all(|b| finite(b) && norm2(b) <= most)
+        finite(&block)
+            && norm2(&block) <= most
             && steps < BLOCK_STEPS
             && (next as usize) < WINDOW_BLOCKS
             && filled as usize <= WINDOW_BLOCKS
@@ -652,19 +662,24 @@ impl NavUnit {
         let (newer, older) = self.blocks_rad.split_at_checked(self.block_next as usize)?;
         let mut c = [[0.0; 4]; 3];
         let (mut resid2, mut y) = (0.0, self.block_rad);
+        // The guard of the ring: its blocks' bit patterns and its index, as they were
+        // written (`NavUnit::window_xor`).
+        let mut bits = self.block_next;
         for ((ci, yi), axis) in c.iter_mut().zip(y.iter_mut()).zip(0..) {
-            let (coefs, r2, sum) = fit_axis(older.iter().chain(newer), axis);
+            let (coefs, r2, sum, b) = fit_axis(older.iter().chain(newer), axis);
             *ci = coefs;
             resid2 += r2;
             *yi += sum;
+            bits ^= super::unit::fold(b);
         }
         let lead = f64::from(self.block_steps.min(BLOCK_STEPS - 1));
         let mut fit = WindowFit { c, lead, phi0: Vector3::zeros(), resid_rad: crate::math::sqrt(resid2) };
         // The angle at the snapshot: the window's and the block being summed.
         fit.phi0 = Vector3::from(y) - fit.at(0.0);
-        // All finite: their sum is (an infinity or NaN anywhere makes it not).
+        // All finite: their sum is (an infinity or NaN anywhere makes it not); and the
+        // ring as its guard says it was written (a bit flipped since: no fit).
         let sum = c.as_flattened().iter().sum::<f64>() + fit.resid_rad + fit.phi0.sum();
-        sum.is_finite().then_some(fit)
+        (sum.is_finite() && bits == self.window_xor).then_some(fit)
     }
 }
 
@@ -744,7 +759,7 @@ mod tests {
                 })
                 .collect();
             for axis in 0..3 {
-                let (c, r2, sum) = fit_axis(blocks.iter(), axis);
+                let (c, r2, sum, _) = fit_axis(blocks.iter(), axis);
                 let mut y = vec![0.0];
                 for b in &blocks {
                     y.push(y.last().unwrap() + b[axis]);

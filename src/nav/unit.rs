@@ -170,6 +170,12 @@ state_struct! {
         pub(super) spread_dtheta_rad2: f64 = 0.0, reset(Keep);
         /// Running mean of |υ − ῡ|², (m/s)².
         pub(super) spread_dv_m2_s2: f64 = 0.0, reset(Keep);
+        /// The window's guard: the XOR of the bit patterns of every block of the ring
+        /// (each folded to 32 bits, [`fold`]) and of the ring's next index, kept as each block is written (from its own value,
+        /// never recomputed from the ring). A bit of the ring, its index or the guard
+        /// flipped after the write (in RAM, before a record seals it) leaves them
+        /// disagreeing, and the window backs no attitude ([`super::snapshot`]).
+        pub(super) window_xor: u32 = 0, reset(Keep);
         /// The bridge's window ([`super::snapshot`]): the body angle increments summed
         /// over blocks of [`BLOCK_STEPS`] steps, a ring of [`WINDOW_BLOCKS`], rad.
         pub(super) blocks_rad: [[f64; 3]; WINDOW_BLOCKS] = [[0.0; 3]; WINDOW_BLOCKS], reset(Keep);
@@ -553,12 +559,19 @@ impl NavUnit {
         self.block_steps = self.block_steps.saturating_add(1);
         if self.block_steps >= BLOCK_STEPS {
             let i = self.block_next as usize % WINDOW_BLOCKS;
+            let next = ((i + 1) % WINDOW_BLOCKS) as u32;
+            // The guard, from its own value: the old block and index out, the new in.
+            let mut x = self.window_xor ^ self.block_next ^ next;
             if let Some(slot) = self.blocks_rad.get_mut(i) {
+                for (old, new) in slot.iter().zip(self.block_rad.iter()) {
+                    x ^= fold(old.to_bits() ^ new.to_bits());
+                }
                 *slot = self.block_rad;
             }
+            self.window_xor = x;
             self.block_rad = [0.0; 3];
             self.block_steps = 0;
-            self.block_next = ((i + 1) % WINDOW_BLOCKS) as u32;
+            self.block_next = next;
             self.blocks_filled = self.blocks_filled.saturating_add(1).min(WINDOW_BLOCKS as u32);
         }
     }
@@ -622,4 +635,11 @@ pub enum FilterWork {
     /// A fix was refused (gate, bad values, singular innovation covariance); the
     /// covariance was propagated first unless the fix itself was bad.
     Refused(GnssError),
+}
+
+/// A 64-bit pattern folded to 32 bits (its halves XORed): a single bit flipped in it
+/// flips one bit of the fold (the window's guard, `NavUnit::window_xor`).
+#[inline(always)]
+pub(super) fn fold(bits: u64) -> u32 {
+    (bits ^ (bits >> 32)) as u32
 }
