@@ -171,10 +171,12 @@ state_struct! {
         /// Running mean of |υ − ῡ|², (m/s)².
         pub(super) spread_dv_m2_s2: f64 = 0.0, reset(Keep);
         /// The window's guard: the XOR of the bit patterns of every block of the ring
-        /// (each folded to 32 bits, [`fold`]) and of the ring's next index, kept as each block is written (from its own value,
-        /// never recomputed from the ring). A bit of the ring, its index or the guard
-        /// flipped after the write (in RAM, before a record seals it) leaves them
-        /// disagreeing, and the window backs no attitude ([`super::snapshot`]).
+        /// (each folded to 32 bits, [`fold`]) and of the ring's next index, kept as
+        /// each block is written (from its own value, never recomputed from the ring).
+        /// A bit of the ring, its index or the guard flipped after the write (in RAM,
+        /// before a record seals it) leaves them disagreeing, and the window backs no
+        /// attitude ([`super::snapshot`]). Single flips only: the same bit flipped in
+        /// two 32-bit words of the ring (adjacent words among them) cancels in the fold.
         pub(super) window_xor: u32 = 0, reset(Keep);
         /// The bridge's window ([`super::snapshot`]): the body angle increments summed
         /// over blocks of [`BLOCK_STEPS`] steps, a ring of [`WINDOW_BLOCKS`], rad.
