@@ -58,7 +58,7 @@
 //! register corrupted between the seal and the frame's encoding (the frame wrong, the
 //! state not: the next step's check finds the state intact). Cost: the navigation part
 //! runs twice, the 52 words are walked six times and the covariance once a step (about
-//! 12,000 instructions a step in QEMU, `docs/LAUNCH-VEHICLE.md`); 2.2 KiB of RAM for
+//! 10,000 instructions more a step in QEMU, `docs/LAUNCH-VEHICLE.md`); 2.2 KiB of RAM for
 //! the shadows and 1.3 KiB of stack for the runs' results.
 
 use nalgebra::Vector3;
@@ -735,7 +735,6 @@ pub(super) struct NavGuard {
     /// resumed: its first step saves them unchecked).
     pub(super) sealed: u32,
 }
-
 
 /// The fields a step advances, borrowed from the unit (all but the guard's): the runs of
 /// the step's duplicated part compute on them in place, and the guard walks them.
