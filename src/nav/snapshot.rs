@@ -19,7 +19,9 @@
 //! increments ([`super::unit::MEAN_STEPS`]), the bridge's window of body angle
 //! increments ([`super::unit::WINDOW_BLOCKS`] blocks of [`super::unit::BLOCK_STEPS`]
 //! steps, 0.48 s), the output frame counter and the attitude-unconfirmed flag); sealed with
-//! CRC-32C (the `crc` crate's, [`crate::frames::CRC32C`]) and its complement. A field
+//! CRC-32C ([`crate::frames::CRC32C`]'s value, computed by the frames' table-driven
+//! [`crate::frames::crc32c_register`], whose tables the board links anyway) and its
+//! complement. A field
 //! marked there is carried over a reset with no other change here.
 //!
 //! **Writing** ([`NavUnit::snapshot_into`]): the complement is spoiled first, then the
@@ -113,7 +115,7 @@ use super::gnss::AidedNav;
 pub use super::unit::MAX_BRIDGE_STEPS;
 use super::unit::{window_index, window_word, NavKept, NavUnit, BLOCK_STEPS, WINDOW_BLOCKS};
 use super::{wgs84, NavState};
-use crate::frames::CRC32C;
+use crate::frames::crc32c_register;
 use crate::state::{Flag, Maybe};
 
 /// First word: "NSN" and the layout version 6.
@@ -216,7 +218,7 @@ impl NavRecord {
     /// CRC-32C of the covered bytes (one compiled copy for the write and the resume).
     #[inline(never)]
     fn crc(&self) -> u32 {
-        CRC32C.checksum(bytemuck::bytes_of(self).get(..COVERED).unwrap_or(&[]))
+        crc32c(bytemuck::bytes_of(self).get(..COVERED).unwrap_or(&[]))
     }
 
     /// Whether both check words match.
@@ -261,7 +263,7 @@ impl AidedNav {
     /// CRC-32C of the step period and the filter tuning.
     fn setup_crc(&self) -> u32 {
         let c = &self.cfg;
-        let mut d = CRC32C.digest();
+        let mut r = crc::CRC_32_ISCSI.init;
         let fields = [
             self.nav.dt_s(),
             c.init_att_rad,
@@ -276,10 +278,15 @@ impl AidedNav {
             c.gate_sigma,
         ];
         for f in fields {
-            d.update(&f.to_le_bytes());
+            r = crc32c_register(r, &f.to_le_bytes());
         }
-        d.finalize()
+        r ^ crc::CRC_32_ISCSI.xorout
     }
+}
+
+/// CRC-32C of `bytes` ([`crate::frames::CRC32C`]'s checksum).
+fn crc32c(bytes: &[u8]) -> u32 {
+    crc32c_register(crc::CRC_32_ISCSI.init, bytes) ^ crc::CRC_32_ISCSI.xorout
 }
 
 /// The navigation's reset snapshot as the board's RAM holds it: two sealed copies
