@@ -123,7 +123,8 @@ pub fn encode_body_into(t: &CalibrationTable, out: &mut [u8]) -> Result<usize, T
     Ok(w.pos)
 }
 
-/// Encodes into a fixed array.
+/// Encodes into a fixed array (out of line: one copy for its callers).
+#[inline(never)]
 pub fn encode(t: &CalibrationTable) -> [u8; TABLE_LEN] {
     let mut out = [0u8; TABLE_LEN];
     // The array has exactly TABLE_LEN bytes, so encoding cannot fail; keep the zeroed
