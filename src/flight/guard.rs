@@ -9,7 +9,7 @@
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
-//! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) | end of every step | start of every step |
+//! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) and the counter of the next sample | end of every step | start of every step |
 //! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed them | start of every step, and again before the first change of a step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
@@ -134,8 +134,8 @@ impl Guarded<Block> for Attitude {
 }
 
 impl Guarded<Block> for FogIntake {
-    /// The sample clock's index.
-    const WORDS: [usize; MAX_KINDS] = words(1, 0, 0, 0);
+    /// The sample clock's index and the counter of the next sample.
+    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
