@@ -98,6 +98,19 @@ impl Attitude {
         }
     }
 
+    /// Λ's storage (i, j, k, w), written back bit for bit by the in-step twin's repair
+    /// (`flight::twin`; no renormalisation).
+    pub fn words_mut(&mut self) -> &mut [f64] {
+        self.q.coords.as_mut_slice()
+    }
+
+    /// Flips bit `bit` of Λ's storage word `word` (i, j, k, w; tests: an upset).
+    #[cfg(test)]
+    pub fn flip_q(&mut self, word: usize, bit: u32) {
+        let c = &mut self.q.coords[word];
+        *c = f64::from_bits(c.to_bits() ^ 1 << bit);
+    }
+
     /// Λ's words, for the state guard ([`crate::shadow`]).
     #[inline(always)]
     pub fn visit_q<V: crate::shadow::Visit>(&mut self, v: &mut V) {

@@ -210,8 +210,9 @@ impl Visit for Pass<'_> {
     /// One pass over a run: the pass chosen once, not a word.
     #[inline(never)]
     fn f64s(&mut self, xs: &mut [f64]) {
+        // The sum is kept in a register over the run, stored once.
         match self {
-            Pass::Sum(s) => xs.iter().for_each(|x| s.0 ^= x.to_bits()),
+            Pass::Sum(s) => s.0 = xs.iter().fold(s.0, |a, x| a ^ x.to_bits()),
             Pass::Save(s) => xs.iter().for_each(|x| s.word(&mut x.to_bits())),
             Pass::Restore(r) => xs.iter_mut().for_each(|x| {
                 let mut b = x.to_bits();

@@ -17,7 +17,7 @@ fn settings() -> Settings {
     let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
     // A hang is a crash; the limit leaves room for a loaded machine (a child flies the
     // rest of a two-minute flight, about a second of CPU).
-    Settings { flips: 0, seed: 0, jobs, timeout_s: 600 }
+    Settings { flips: 0, seed: 0, jobs, timeout_s: 600, in_step: false }
 }
 
 #[test]
@@ -66,8 +66,8 @@ fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_is_restored(
     // The exponent's top bit (bit 62) of each of Λ's four f64 components.
     let (q, q_size) = field_span("attitude.q").expect("attitude.q in the map");
     assert_eq!(q_size, 32);
-    let mut flips = vec![Flip { step, byte: scratch, bit: 0 }];
-    flips.extend((0..4).map(|c| Flip { step, byte: q + 8 * c + 7, bit: 6 }));
+    let mut flips = vec![Flip { step, byte: scratch, bit: 0, point: None }];
+    flips.extend((0..4).map(|c| Flip { step, byte: q + 8 * c + 7, bit: 6, point: None }));
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
     assert_eq!(verdicts[0].outcome, Outcome::Masked, "{:?}", verdicts[0]);
     // The state guard finds each one at the next step and restores Λ bit for bit: the
@@ -95,4 +95,36 @@ fn no_flip_of_the_sample_is_silent_or_a_crash() {
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the campaign");
     let bad: Vec<_> = verdicts.iter().filter(|v| matches!(v.outcome, Outcome::Silent | Outcome::Crash)).collect();
     assert!(bad.is_empty(), "{} silent or crash: {bad:#?}", bad.len());
+}
+
+/// Λ flipped inside a step (the exponent's top bit of each component, at every numbered
+/// point between the guard's check and its seal, in a step with a star-tracker frame and
+/// one without): the twin finds each flip before the frame goes out or the flip is
+/// integrated, sealed or saved, and writes Λ back bit for bit; no frame claims a good
+/// attitude with the wrong one.
+#[test]
+#[cfg_attr(debug_assertions, ignore = "overflow checks: the unit flies a release build")]
+fn an_in_step_flip_of_the_quaternion_never_flies() {
+    use ssis::flight::probe;
+    let sc = scenario();
+    let reference = Reference::fly(&sc).expect("the undisturbed flight");
+    let (q, _) = field_span("attitude.q").expect("attitude.q in the map");
+    // 10 s after convergence, and the step that takes the next star-tracker frame.
+    let plain = reference.converged_step + 2000;
+    let star = (plain..plain + 100)
+        .find(|&i| reference.steps[i].out.st_status & ssis::flight::st_status::UPDATED != 0)
+        .expect("a star-tracker update");
+    let flips: Vec<Flip> = [plain, star]
+        .into_iter()
+        .flat_map(|step| {
+            (0..probe::COUNT)
+                .flat_map(move |p| (0..4).map(move |c| Flip { step, byte: q + 8 * c + 7, bit: 6, point: Some(p) }))
+        })
+        .collect();
+    let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
+    for v in &verdicts {
+        assert!(matches!(v.outcome, Outcome::Masked | Outcome::Tolerated), "{v:?}");
+        assert!(v.max_err_arcsec < upset::TOLERATED_ARCSEC, "{v:?}");
+        assert!(v.new_events.iter().any(|(name, _)| name == "state_restored"), "{v:?}");
+    }
 }

@@ -167,6 +167,8 @@ impl FlightCore {
         if !done {
             return;
         }
+        // Λ and Δω change below: compared with their twins first, sealed after.
+        self.twin_check_rare();
         let counters = &mut self.telemetry.counters;
         self.events.record(counters, now_us, Event::Isolated, u8::try_from(i + 1).unwrap_or(0), cause.code());
         match cause {
@@ -182,6 +184,7 @@ impl FlightCore {
             }
             IsolationCause::Parity | IsolationCause::ChannelRefused => self.on_isolation(i, now_us),
         }
+        self.twin_seal();
     }
 
     /// Integrity, parity: checks a sample of all four FOGs and drops a spike, or the

@@ -9,8 +9,8 @@
 //!
 //! | block | words | saved | checked |
 //! |---|---|---|---|
-//! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) | end of every step | start of every step |
-//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed them | start of every step |
+//! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) and the counter of the next sample | end of every step | start of every step |
+//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed them | start of every step, and again before the first change of a step |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
 //!
@@ -18,8 +18,9 @@
 //! them between two frames shows in the 1σ until the next frame's check restores them
 //! (at most one tracker period), never in the attitude or the drift estimate.
 //!
-//! A changed block is marked ([`FlightCore::guard_touch`], which first checks the `Frame`
-//! block, so what a step changes was good before) and saved at the end of the step. A
+//! A changed block is marked ([`FlightCore::guard_touch`], which first checks the `Steady`
+//! and `Frame` blocks, so what a step changes and saves was good before: a flip since the
+//! step's first check is restored, not saved) and saved at the end of the step. A
 //! step that changes a word of a block other than `Step` without marking it would see
 //! the change "restored" at the next check and logged as an upset: a debug build asserts
 //! at the end of every step that such blocks still match their checksums
@@ -31,8 +32,13 @@
 //! is derived again from the table (combiner, mount, gains) and the estimator starts
 //! again from the next star-tracker frame (the alignment path).
 //!
-//! Plausibility every step, for what the checksums cannot see (a flip during the step,
-//! or a bug): |Λ| within 1e-9 of 1, each drift component within ±1000 °/h, and at a
+//! Inside the step, between the check and the seal, Λ and Δω are carried twice
+//! ([`super::twin`]): compared with their twins before each change and before the output
+//! frame, so a flip there is written back before it is integrated, sent or sealed.
+//!
+//! Plausibility every step, for what the checksums cannot see (a flip during the step
+//! the twins do not hold, or a bug; an implausible Λ or Δω is first compared with its
+//! twin, which restores a flip the last step's seal took): |Λ| within 1e-9 of 1, each drift component within ±1000 °/h, and at a
 //! frame each variance of the estimator's covariance finite, ≥ 0 and bounded. On a
 //! failure the unit does not claim its attitude: the estimator starts again from the
 //! next star-tracker frame (not aligned, not converged until it converges again), and
@@ -128,8 +134,8 @@ impl Guarded<Block> for Attitude {
 }
 
 impl Guarded<Block> for FogIntake {
-    /// The sample clock's index.
-    const WORDS: [usize; MAX_KINDS] = words(1, 0, 0, 0);
+    /// The sample clock's index and the counter of the next sample.
+    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
@@ -317,6 +323,7 @@ impl FlightCore {
     #[inline(never)]
     #[cold]
     pub(super) fn guard_seal_all(&mut self) {
+        self.twin_seal();
         for b in Block::ALL {
             save(self, b);
         }
@@ -335,19 +342,31 @@ impl FlightCore {
             self.guard_seal_all();
         }
         self.guard_check_block(Block::Step);
-        self.guard_check_block(Block::Steady);
+        self.guard_check_steady();
         #[cfg(debug_assertions)]
         {
             self.guard.entry = self.guard_sums();
         }
-        let q = self.attitude.quaternion();
-        if (q.norm_squared() - 1.0).abs() > Q_NORM2_TOL || q.norm_squared().is_nan() {
+        if !self.quaternion_plausible() {
             self.implausible(Implausible::QuaternionNorm);
         }
-        let d = self.observer.drift_rad_s();
-        if !(d.x.abs() <= MAX_DRIFT_RAD_S && d.y.abs() <= MAX_DRIFT_RAD_S && d.z.abs() <= MAX_DRIFT_RAD_S) {
+        if !self.drift_plausible() {
             self.implausible(Implausible::Drift);
         }
+    }
+
+    /// |Λ|² within [`Q_NORM2_TOL`] of 1 (a NaN is not).
+    #[inline(always)]
+    fn quaternion_plausible(&self) -> bool {
+        let n2 = self.attitude.quaternion().norm_squared();
+        (n2 - 1.0).abs() <= Q_NORM2_TOL
+    }
+
+    /// Each drift component within ±[`MAX_DRIFT_RAD_S`] (a NaN is not).
+    #[inline(always)]
+    fn drift_plausible(&self) -> bool {
+        let d = self.observer.drift_rad_s();
+        d.x.abs() <= MAX_DRIFT_RAD_S && d.y.abs() <= MAX_DRIFT_RAD_S && d.z.abs() <= MAX_DRIFT_RAD_S
     }
 
     /// A block other than `Step` is about to change (a star-tracker frame is due, a FOG is
@@ -362,6 +381,9 @@ impl FlightCore {
             self.guard_seal_all();
         }
         self.guard.touched = 1;
+        // What the step is about to change and save at its end was good before: a flip
+        // since the step's first check is restored, not saved.
+        self.guard_check_steady();
         self.guard_check_block(Block::Frame);
         // One triad solution a touch, in turn (flown only after an isolation).
         let i = self.guard.next_without as usize % N_FOG;
@@ -427,6 +449,18 @@ impl FlightCore {
         self.guard.touched = 0;
     }
 
+    /// Saves the `Steady` block again (the in-step twin wrote back a Δω that the last
+    /// step's seal had saved with a flip in it).
+    #[inline(never)]
+    #[cold]
+    pub(super) fn guard_save_steady(&mut self) {
+        save(self, Block::Steady);
+        #[cfg(debug_assertions)]
+        {
+            self.guard.entry = self.guard_sums();
+        }
+    }
+
     /// The guarded state changed between steps (a resume): saved again, unchecked, at the
     /// next step's check.
     pub(super) fn guard_unseal(&mut self) {
@@ -438,6 +472,13 @@ impl FlightCore {
     pub(super) fn guard_touch_combiner(&mut self) {
         self.guard_touch();
         self.guard.touched |= COMBINER_TOUCHED;
+    }
+
+    /// The `Steady` block checked: out of line, one copy of its walk for the step's first
+    /// check and a touch's (flash).
+    #[inline(never)]
+    fn guard_check_steady(&mut self) {
+        self.guard_check_block(Block::Steady);
     }
 
     /// Checks `block` against its checksum and restores it.
@@ -466,15 +507,22 @@ impl FlightCore {
                 2
             }
         };
+        self.guard_logged(block.id(), how);
+    }
+
+    /// A repair logged (`state_restored`, a: `id`, b: `how`) and counted.
+    #[inline(never)]
+    #[cold]
+    pub(super) fn guard_logged(&mut self, id: u8, how: u16) {
         self.telemetry.counters.bump(Counter::StateRestored);
-        self.events.log(self.last_output.time_us, Event::StateRestored, block.id(), how);
+        self.events.log(self.last_output.time_us, Event::StateRestored, id, how);
     }
 
     /// A block neither copy restores: what derives from the table is derived again, and
     /// the estimator starts again from the next star-tracker frame.
     #[inline(never)]
     #[cold]
-    fn guard_rederive(&mut self) {
+    pub(super) fn guard_rederive(&mut self) {
         if let Ok(combiner) = checked_combiner(self.profile.get(), &self.table, &self.fog_map) {
             let noise_rad = sample_noise_rad(&self.table, self.profile.dt_s());
             self.install_geometry(combiner, noise_rad);
@@ -490,6 +538,12 @@ impl FlightCore {
     #[inline(never)]
     #[cold]
     fn implausible(&mut self, what: Implausible) {
+        // A flip in Λ or Δω after the last step's final compare, saved by the guard: the
+        // twin ([`super::twin`]) still holds the good value.
+        self.twin_check_rare();
+        if what != Implausible::Covariance && self.quaternion_plausible() && self.drift_plausible() {
+            return;
+        }
         self.telemetry.counters.bump(Counter::StateImplausible);
         self.events.log(self.last_output.time_us, Event::StateImplausible, what as u8, 0);
         self.observer.restart();
@@ -571,6 +625,11 @@ mod tests {
     /// Step `n` of a slow tumble with a star tracker at 4 Hz (50 ms latency): four FOG
     /// frames, and a star-tracker frame every 50th step.
     fn fly(core: &mut FlightCore, n: u32) -> StepOutput {
+        fly_probed(core, n, |_, _| {})
+    }
+
+    /// [`fly`], `probe` called at the step's numbered points ([`crate::flight::probe`]).
+    fn fly_probed(core: &mut FlightCore, n: u32, probe: impl FnMut(&mut FlightCore, u8)) -> StepOutput {
         let table = CalibrationTable::DEFAULT;
         let dt_s = Profile::SPACECRAFT.dt_s();
         let w = Vector3::from(RATE_RAD_S);
@@ -587,7 +646,11 @@ mod tests {
             star.0.extend_from_slice(&f.to_bytes());
         }
         let mut out = Sink;
-        core.step(&mut Links { fog: FogLinks::Bus(&mut bus), star: &mut star, out: &mut out })
+        core.step_probed_with(
+            &mut Links { fog: FogLinks::Bus(&mut bus), star: &mut star, out: &mut out },
+            |_, _| {},
+            probe,
+        )
     }
 
     /// A core flown `steps` steps.
@@ -815,5 +878,67 @@ mod tests {
         assert!(!core.observer().converged());
         let ev = core.events.pending().find(|e| e.event == Event::StateRestored).unwrap();
         assert_eq!((ev.event, ev.a, ev.b), (Event::StateRestored, Block::Steady.id(), 2));
+    }
+
+    /// A bit of Λ, of Δω or of their twins flipped inside a step, at each numbered point
+    /// between the guard's check and its seal (a star-tracker frame's step and a plain
+    /// one): the twin's compare finds it before the next use or the output frame, the good
+    /// copy is written back bit for bit, and every output frame is the undisturbed
+    /// flight's; `state_restored` logged once (a twin flipped before the next seal rewrites
+    /// it: at most once).
+    #[test]
+    fn a_flip_inside_the_step_never_flies() {
+        use crate::flight::probe;
+        for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
+            let core = flown(est, 2398);
+            let mut undisturbed = core.clone();
+            let reference: Vec<String> = (2399..2460).map(|s| format!("{:?}", fly(&mut undisturbed, s))).collect();
+            // Λ (i, j, k, w), Δω (x, y, z), and the twins' words and checksums.
+            type Target = fn(&mut FlightCore, u32);
+            let targets: [(&str, Target); 6] = [
+                ("q.i", |c, b| c.attitude.flip_q(0, b)),
+                ("q.w", |c, b| c.attitude.flip_q(3, b)),
+                ("drift.y", |c, b| c.observer.flip_drift(1, b)),
+                ("twin.q.k", |c, b| c.twin.flip_q(2, b)),
+                ("twin.q_sum", |c, b| c.twin.flip_q(4, b)),
+                ("twin.drift.z", |c, b| c.twin.flip_drift(2, b)),
+            ];
+            // Step 2400 takes a star-tracker frame, 2399 does not.
+            for step in [2399, 2400] {
+                for point in 0..probe::COUNT {
+                    for (name, flip) in targets {
+                        for bit in [0, 30, 51, 52, 61, 62, 63] {
+                            let mut c = core.clone();
+                            let mut done = false;
+                            let mut outs = Vec::new();
+                            for s in 2399..2460 {
+                                let o = fly_probed(&mut c, s, |c, p| {
+                                    if s == step && p >= point && !done {
+                                        flip(c, bit);
+                                        done = true;
+                                        // An upset, not a change the step made: the debug
+                                        // build's end-of-step assertion starts from it.
+                                        #[cfg(debug_assertions)]
+                                        {
+                                            c.guard.entry = c.guard_sums();
+                                        }
+                                    }
+                                });
+                                outs.push(format!("{o:?}"));
+                            }
+                            let what = format!("{est:?} step {step} point {point} {name} bit {bit}");
+                            assert!(done, "{what}: flipped");
+                            let first = outs.iter().zip(&reference).position(|(a, b)| a != b);
+                            assert_eq!(first.map(|k| (&outs[k], &reference[k])), None, "{what}");
+                            // A flip of a twin's word or checksum that the next seal
+                            // rewrites harms nothing and may go unseen.
+                            let seen = if name.starts_with("twin") { 0..=1 } else { 1..=1 };
+                            assert!(seen.contains(&restored(&c)), "{what}: restored {}", restored(&c));
+                            assert_eq!(c.telemetry.counters.get(Counter::StateImplausible), 0, "{what}");
+                        }
+                    }
+                }
+            }
+        }
     }
 }

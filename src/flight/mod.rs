@@ -31,6 +31,7 @@ mod report;
 mod scrub;
 pub mod snapshot;
 mod star_aid;
+mod twin;
 
 use guard::Block;
 use propagate::Integrated;
@@ -197,6 +198,9 @@ state_struct! {
         last_body_dtheta: Vector3<f64> = Vector3::zeros();
         attitude: Attitude = Attitude::new(Quaternion::identity(), Coning::ThreeSample),
             map(Attitude::STATE_MAP), guard(Block::Step);
+        /// Λ and Δω carried twice in the step ([`twin`]).
+        twin: twin::Twin = twin::Twin::of(&Quaternion::identity(), &Vector3::zeros()),
+            map(twin::Twin::STATE_MAP);
         mount: Quaternion<f64> = table.st_mount(), guard(Block::Frame);
         thermal: [ThermalTracker; N_FOG] = [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG];
         channel_monitors: [ChannelMonitor; N_FOG] = [ChannelMonitor::new(noise_rad); N_FOG], reset(Keep);
@@ -364,19 +368,46 @@ impl FlightCore {
     pub fn step_with<F: RxPort, S: StarPort, O: OutPort>(
         &mut self,
         links: &mut Links<F, S, O>,
+        on_increment: impl FnMut(u64, &Vector3<f64>),
+    ) -> StepOutput {
+        self.step_probed_with(links, on_increment, |_, _| {})
+    }
+
+    /// [`FlightCore::step`] with `probe` called at each numbered point of the step
+    /// ([`probe`]) with the core: the host's upset campaign flips a bit of the state
+    /// there, between the guard's check and its seal. Test builds only (feature
+    /// `step-probe`; the flight firmware never enables it).
+    #[cfg(feature = "step-probe")]
+    pub fn step_probed<F: RxPort, S: StarPort, O: OutPort>(
+        &mut self,
+        links: &mut Links<F, S, O>,
+        probe: impl FnMut(&mut FlightCore, u8),
+    ) -> StepOutput {
+        self.step_probed_with(links, |_, _| {}, probe)
+    }
+
+    /// The step, `probe` called at each point of [`probe`] (an empty one compiles away).
+    #[inline(always)]
+    fn step_probed_with<F: RxPort, S: StarPort, O: OutPort>(
+        &mut self,
+        links: &mut Links<F, S, O>,
         mut on_increment: impl FnMut(u64, &Vector3<f64>),
+        mut probe: impl FnMut(&mut FlightCore, u8),
     ) -> StepOutput {
         // The guarded state as the last step left it (restored if a bit flipped since).
         self.guard_check();
+        probe(self, probe::CHECKED);
         let dt_s = self.profile.dt_s();
         // Intake: the FOG links into the per-FOG sample queues.
         self.fog_intake.receive(&mut links.fog, &mut self.rx_scratch.0, &mut self.telemetry.counters);
+        probe(self, probe::RECEIVED);
         let mut acc = Integrated::NONE;
         // Bounded: at most one pass per queued sample.
         for _ in 0..FOG_QUEUE {
             let Some(target) = self.fog_intake.next_sample(&mut self.telemetry.counters) else { break };
             // Attitude: samples lost on every link are turned through on the last increment.
             self.bridge_lost(dt_s, &mut on_increment);
+            probe(self, probe::SAMPLE_DUE);
             // FOG channels: intake, channel checks, thermal tracking, compensation.
             let mut sample = self.take_sample(target, dt_s);
             let time_us = self.fog_intake.time_us(self.profile.dt_us);
@@ -384,9 +415,11 @@ impl FlightCore {
             self.mount_check_sample(&sample.dtheta, sample.used, time_us);
             // Parity: may drop a spike or an isolated FOG.
             acc.parity_rad = self.check_parity(&mut sample, time_us);
+            probe(self, probe::SAMPLE_CHECKED);
             // Combination, then attitude on the gyros corrected by the drift estimate.
             let body = self.combine(&sample, &mut acc);
             self.propagate(&body, time_us, dt_s, &mut acc);
+            probe(self, probe::PROPAGATED);
             on_increment(time_us, &body);
             self.fog_intake.integrated();
             if self.fog_intake.bridged() {
@@ -399,14 +432,19 @@ impl FlightCore {
         } else if let Some(taken_at) = self.resumed_at.get() {
             self.confirm_resume(taken_at);
         }
+        probe(self, probe::INTEGRATED);
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
         // Star-tracker aid: the frames due by now.
         let st = match links.star.link() {
             Some(star) if self.profile.star_tracker.get() => self.observe_star(star, now_us),
             _ => 0,
         };
+        probe(self, probe::OBSERVED);
+        // Λ and Δω as sealed ([`twin`]): the frame carries no flip made in the step.
+        self.twin_check();
         // Telemetry: the output, its status bits assembled from each stage's.
         let out = self.assemble_output(now_us, st, &acc, dt_s);
+        probe(self, probe::ASSEMBLED);
         self.last_output = out;
         // Paged by the sample clock (not the frame counter), so a replay of the same
         // data pages the same counters in the same frames.
@@ -416,7 +454,33 @@ impl FlightCore {
         let o = &self.last_output;
         let status = StatusBits { flags: o.flags, st_status: o.st_status, fdi: o.fdi };
         self.events.on_status(status, o.time_us, &self.fog_map);
+        probe(self, probe::SENT);
         self.guard_seal();
         out
     }
+}
+
+/// The numbered points of a step at which [`FlightCore::step_probed`] calls its probe, in
+/// the order a step reaches them (the per-sample ones once a sample, none without one).
+pub mod probe {
+    /// The guard has checked the state (start of the step).
+    pub const CHECKED: u8 = 0;
+    /// The FOG links are read.
+    pub const RECEIVED: u8 = 1;
+    /// A sample is due (lost samples bridged).
+    pub const SAMPLE_DUE: u8 = 2;
+    /// A sample is checked (channels, parity).
+    pub const SAMPLE_CHECKED: u8 = 3;
+    /// A sample is combined and integrated.
+    pub const PROPAGATED: u8 = 4;
+    /// Every due sample is integrated.
+    pub const INTEGRATED: u8 = 5;
+    /// The star-tracker frames due are applied.
+    pub const OBSERVED: u8 = 6;
+    /// The output frame is assembled.
+    pub const ASSEMBLED: u8 = 7;
+    /// The output frame is sent, the events noted (just before the guard's seal).
+    pub const SENT: u8 = 8;
+    /// Points.
+    pub const COUNT: u8 = 9;
 }

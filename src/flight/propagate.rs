@@ -1,7 +1,9 @@
 //! Combination and attitude for one sample: the compensated increments of the FOGs that
 //! fly combined into the body increment (held when no set can be combined), and the
 //! attitude propagated on it less the drift estimate, its history recorded for the
-//! star-tracker aid; samples lost on every link bridged on the last increment.
+//! star-tracker aid; samples lost on every link bridged on the last increment. Λ and Δω
+//! are compared with their twins before each change and Λ's twin sealed after
+//! ([`super::twin`]).
 
 use nalgebra::Vector3;
 
@@ -51,8 +53,10 @@ impl FlightCore {
     pub(super) fn bridge_lost(&mut self, dt_s: f64, on_increment: &mut impl FnMut(u64, &Vector3<f64>)) {
         let lost = self.fog_intake.take_lost();
         if lost > 0 {
+            self.twin_check_rare();
             let held = self.last_body_dtheta - self.observer.drift_rad_s() * dt_s;
             let _ = self.attitude.bridge(&held, lost);
+            self.twin_seal_q();
             let span_end_us = self.fog_intake.time_us(self.profile.dt_us);
             self.observer.record(span_end_us, self.attitude.quaternion());
             on_increment(span_end_us, &(self.last_body_dtheta * f64::from(lost)));
@@ -85,8 +89,11 @@ impl FlightCore {
     /// Attitude: one step on `body` less the drift estimate, recorded at `time_us`.
     #[inline(always)]
     pub(super) fn propagate(&mut self, body: &Vector3<f64>, time_us: u64, dt_s: f64, acc: &mut Integrated) {
+        // Λ and Δω as sealed ([`super::twin`]), then Λ sealed again after its change.
+        self.twin_check();
         acc.rate_dtheta = body - self.observer.drift_rad_s() * dt_s;
         let _ = self.attitude.step(&acc.rate_dtheta);
+        self.twin_seal_q();
         self.observer.record(time_us, self.attitude.quaternion());
         acc.integrated += 1;
     }

@@ -329,6 +329,7 @@ impl FlightCore {
             return;
         }
         self.guard_touch();
+        self.twin_check_rare();
         self.resumed_at = crate::state::Maybe::none();
         let age = self.fog_intake.index().saturating_sub(taken_at);
         let now_us = self.fog_intake.time_us(self.profile.dt_us);
@@ -348,6 +349,7 @@ impl FlightCore {
             self.telemetry.counters.bump(Counter::Resumes);
             self.events.log(now_us, Event::Resumed, 0, age as u16);
         }
+        self.twin_seal();
     }
 }
 

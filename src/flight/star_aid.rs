@@ -55,7 +55,11 @@ impl FlightCore {
             match self.star_intake.next_due(now_us, &mut self.telemetry.counters) {
                 Pending::Due(f) => {
                     self.guard_touch();
+                    // The estimator's update (or a mounting verdict, an isolation) changes
+                    // Λ and Δω: compared with their twins first, sealed after.
+                    self.twin_check_rare();
                     status |= self.apply_star(&f, now_us);
+                    self.twin_seal();
                 }
                 Pending::Refused => status |= st_status::REFUSED,
                 Pending::Wait => break,
@@ -85,7 +89,9 @@ impl FlightCore {
     }
 
     /// One star-tracker frame into the observer (or, while a parity alarm stands, into
-    /// the fault logic); returns status bits.
+    /// the fault logic); returns status bits. Out of line (flash: a step calls it only
+    /// when a frame is due).
+    #[inline(never)]
     fn apply_star(&mut self, f: &StarFrame, now_us: u64) -> u8 {
         let counters = &mut self.telemetry.counters;
         if !f.valid() {

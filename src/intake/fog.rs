@@ -128,10 +128,18 @@ state_struct! {
 }
 
 impl FogIntake {
-    /// The sample clock's index (unit time), for the state guard ([`crate::shadow`]).
+    /// The sample clock's index (unit time) and the counter of the next sample, for the
+    /// state guard ([`crate::shadow`]).
     #[inline(always)]
     pub fn visit_clock<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.word(&mut self.clock.index);
+        // The counter of the next sample (`None` as u64::MAX, never a counter): a flip
+        // would take the clock off by the samples it skips or repeats.
+        let mut e = self.clock.expected.get().map_or(u64::MAX, u64::from);
+        v.word(&mut e);
+        if V::WRITES {
+            self.clock.expected.set(u16::try_from(e).ok());
+        }
     }
 
     /// Index of the last sample taken since start (its end time is index × Δt).

@@ -495,6 +495,19 @@ impl<const H: usize> Observer<H> {
         self.drift_rad_s
     }
 
+    /// The drift estimate's storage (x, y, z), rad/s, written back bit for bit by the
+    /// in-step twin's repair (`flight::twin`).
+    pub fn drift_words_mut(&mut self) -> &mut [f64] {
+        self.drift_rad_s.as_mut_slice()
+    }
+
+    /// Flips bit `bit` of Δω's component `axis` (tests: an upset).
+    #[cfg(test)]
+    pub fn flip_drift(&mut self, axis: usize, bit: u32) {
+        let c = &mut self.drift_rad_s[axis];
+        *c = f64::from_bits(c.to_bits() ^ 1 << bit);
+    }
+
     /// Whether the first star-tracker frame has aligned the attitude.
     #[inline]
     pub fn aligned(&self) -> bool {

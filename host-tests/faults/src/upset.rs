@@ -11,6 +11,13 @@
 //! most `jobs` children run at once. Flips are drawn from a seed, so a campaign (and any
 //! prefix of it) is reproducible.
 //!
+//! In-step mode ([`Settings::in_step`]): the bit is flipped inside the flip's step instead,
+//! at a numbered point between the state guard's check and its seal drawn uniformly
+//! ([`ssis::flight::probe`], through the test-only `FlightCore::step_probed`; a point a
+//! step does not reach, a per-sample one in a step without a sample, falls to the next
+//! point it reaches), and only into the attitude and the estimator's state
+//! ([`IN_STEP_FIELDS`]).
+//!
 //! Outcomes ([`Outcome`]), in this order of precedence:
 //! - **crash**: the child died (signal, panic, hang);
 //! - **silent**: a frame that claims a good attitude ([`claims_good`]: converged, not
@@ -31,7 +38,7 @@ use anyhow::{bail, Context, Result};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
-use ssis::flight::{flags, FlightCore, StepOutput};
+use ssis::flight::{flags, probe, FlightCore, FogLinks, Links, StepOutput};
 use ssis::state_map::{locate, StateField};
 use ssis::telemetry::events::EventRecord;
 use ssis_common::downlink::{Down, Downlink};
@@ -65,6 +72,23 @@ pub struct Flight {
     downlink: Downlink,
     /// Steps flown.
     pub n: usize,
+    /// A flip to make inside the next step: at the first probe point at or after the
+    /// first, bit `.2` of byte `.1`.
+    in_step: Option<(u8, usize, u8)>,
+}
+
+/// Flips bit `bit` of byte `byte` of `core`'s value.
+fn flip_core(core: &mut FlightCore, byte: usize, bit: u8) {
+    assert!(byte < std::mem::size_of::<FlightCore>() && bit < 8, "flip outside the core");
+    let p = std::ptr::from_mut(core).cast::<u8>();
+    // SAFETY: `byte` is within the `FlightCore` value (checked above), which the caller
+    // holds exclusively; the byte is read and written as plain memory (a padding byte
+    // reads as whatever it holds). What the core makes of the flipped value is what the
+    // campaign measures, in a child process of its own.
+    unsafe {
+        let b = p.add(byte);
+        b.write_volatile(b.read_volatile() ^ (1 << bit));
+    }
 }
 
 /// What one step of a [`Flight`] gave.
@@ -100,6 +124,7 @@ impl Flight {
             eval,
             core,
             n: 0,
+            in_step: None,
         })
     }
 
@@ -110,14 +135,41 @@ impl Flight {
             self.eval.push_truth(t);
         }
         let fogs = self.sim.profile.fogs;
-        let out = step_on_mock_links(
-            &mut self.core,
-            &mut self.fog_links,
-            &mut self.star_link,
-            &mut self.out_link,
-            &input,
-            fogs,
-        );
+        let out = match self.in_step.take() {
+            None => step_on_mock_links(
+                &mut self.core,
+                &mut self.fog_links,
+                &mut self.star_link,
+                &mut self.out_link,
+                &input,
+                fogs,
+            ),
+            Some((point, byte, bit)) => {
+                // `step_on_mock_links`, the step probed.
+                for l in self.fog_links.iter_mut() {
+                    l.tick();
+                }
+                self.star_link.tick();
+                for (i, (link, f)) in self.fog_links.iter_mut().zip(input.fog_frames.iter()).enumerate() {
+                    if fogs.contains(i) && input.present.contains(i) {
+                        link.send(f);
+                    }
+                }
+                self.star_link.send(&input.st_bytes);
+                let mut links = Links {
+                    fog: FogLinks::PerFog(self.fog_links.each_mut()),
+                    star: &mut self.star_link,
+                    out: &mut self.out_link,
+                };
+                let mut done = false;
+                self.core.step_probed(&mut links, |core, at| {
+                    if at >= point && !done {
+                        flip_core(core, byte, bit);
+                        done = true;
+                    }
+                })
+            }
+        };
         self.core.send_events(&mut self.out_link);
         let down = std::mem::take(&mut self.out_link.bytes);
         let mut events = Vec::new();
@@ -138,16 +190,14 @@ impl Flight {
 
     /// Flips bit `bit` of byte `byte` of the core value.
     pub fn flip(&mut self, byte: usize, bit: u8) {
+        flip_core(&mut self.core, byte, bit);
+    }
+
+    /// Flips bit `bit` of byte `byte` of the core inside the next step, at the first
+    /// probe point at or after `point` ([`probe`]).
+    pub fn flip_in_step(&mut self, point: u8, byte: usize, bit: u8) {
         assert!(byte < std::mem::size_of::<FlightCore>() && bit < 8, "flip outside the core");
-        let p = std::ptr::addr_of_mut!(self.core).cast::<u8>();
-        // SAFETY: `byte` is within the `FlightCore` value (checked above), which this
-        // process owns exclusively; the byte is read and written as plain memory (a
-        // padding byte reads as whatever it holds). What the core makes of the flipped
-        // value is what the campaign measures, in a child process of its own.
-        unsafe {
-            let b = p.add(byte);
-            b.write_volatile(b.read_volatile() ^ (1 << bit));
-        }
+        self.in_step = Some((point, byte, bit));
     }
 }
 
@@ -184,7 +234,8 @@ impl Reference {
     }
 }
 
-/// One flip: before step `step` (after `step` steps), bit `bit` of byte `byte` of the core.
+/// One flip: before step `step` (after `step` steps), bit `bit` of byte `byte` of the core;
+/// with a `point`, inside that step at that probe point ([`probe`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Flip {
     /// Steps flown before the flip.
@@ -193,6 +244,9 @@ pub struct Flip {
     pub byte: usize,
     /// Bit of that byte (0: least significant).
     pub bit: u8,
+    /// Inside the step, at this probe point (`None`: between two steps).
+    #[serde(default)]
+    pub point: Option<u8>,
 }
 
 impl Flip {
@@ -229,6 +283,41 @@ pub fn draw_flips(seed: u64, n: usize, reference: &Reference) -> Vec<Flip> {
             step: rng.random_range(first..end),
             byte: rng.random_range(0..size),
             bit: rng.random_range(0..8),
+            point: None,
+        })
+        .collect()
+}
+
+/// The fields an in-step flip hits: the attitude Λ, its twin, and the estimator's state
+/// (the drift estimate Δω, the last update's time and Λ, the convergence state, the
+/// re-acquisition streak, the estimator's gains and covariance).
+pub const IN_STEP_FIELDS: [&str; 8] = [
+    "attitude.q",
+    "twin",
+    "observer.drift_rad_s",
+    "observer.last_update_tag_us",
+    "observer.last_q",
+    "observer.conv",
+    "observer.streak",
+    "observer.filter",
+];
+
+/// `n` in-step flips drawn from `seed`: a step after convergence (uniform to the end), a
+/// probe point (uniform), a field of [`IN_STEP_FIELDS`] (uniform: the estimator's 752
+/// bytes would otherwise take three flips in four), a byte of it and a bit (uniform). The
+/// first k of n flips are the k flips of a campaign of k.
+pub fn draw_in_step_flips(seed: u64, n: usize, reference: &Reference) -> Vec<Flip> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let (first, end) = (reference.converged_step + 1, reference.steps.len());
+    let spans: Vec<(usize, usize)> =
+        IN_STEP_FIELDS.iter().map(|f| field_span(f).unwrap_or_else(|| panic!("{f} in the state map"))).collect();
+    (0..n)
+        .map(|_| {
+            let step = rng.random_range(first..end);
+            let point = rng.random_range(0..probe::COUNT);
+            let (off, size) = spans[rng.random_range(0..spans.len())];
+            let byte = off + rng.random_range(0..size);
+            Flip { step, byte, bit: rng.random_range(0..8), point: Some(point) }
         })
         .collect()
 }
@@ -316,7 +405,10 @@ pub struct Verdict {
 
 /// Flies the rest of the flight after the flip and classes it against `reference`.
 pub fn fly_flipped(flight: &mut Flight, flip: Flip, reference: &Reference) -> Verdict {
-    flight.flip(flip.byte, flip.bit);
+    match flip.point {
+        None => flight.flip(flip.byte, flip.bit),
+        Some(p) => flight.flip_in_step(p, flip.byte, flip.bit),
+    }
     let t0 = reference.steps.get(flip.step).map_or(0.0, |s| s.t_s);
     let recover_arcsec = 2.0 * reference.nominal_3sigma_arcsec;
     let mut v = Verdict {
@@ -393,6 +485,8 @@ pub struct Settings {
     pub jobs: usize,
     /// A child with no verdict after this long is a hang, s.
     pub timeout_s: u32,
+    /// Flips inside the step ([`draw_in_step_flips`]) instead of between two steps.
+    pub in_step: bool,
 }
 
 /// A child at work: its flip and the read end of its pipe.
@@ -406,7 +500,11 @@ struct Child {
 /// the verdicts in the order of the drawn flips.
 pub fn campaign(sc: &Scenario, set: &Settings, on_done: impl FnMut(&Verdict)) -> Result<(Reference, Vec<Verdict>)> {
     let reference = Reference::fly(sc)?;
-    let flips = draw_flips(set.seed, set.flips, &reference);
+    let flips = if set.in_step {
+        draw_in_step_flips(set.seed, set.flips, &reference)
+    } else {
+        draw_flips(set.seed, set.flips, &reference)
+    };
     let verdicts = run_flips(sc, &reference, &flips, set, on_done)?;
     Ok((reference, verdicts))
 }

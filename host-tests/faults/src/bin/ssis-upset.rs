@@ -8,6 +8,10 @@
 //! ```text
 //! cargo run --release --bin ssis-upset -- --flips 2000 --out ../docs/UPSET-CAMPAIGN.md --force
 //! ```
+//!
+//! `--in-step` flips inside the step instead (at a drawn point between the state guard's
+//! check and its seal, into the attitude and the estimator's state) and writes its own
+//! section of the same document, between two markers, leaving the rest as it is.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -39,8 +43,12 @@ struct Args {
     /// The scenario.
     #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../scenarios/qemu-flight.toml"))]
     scenario: PathBuf,
+    /// Flip inside the step, into the attitude and the estimator's state, instead of
+    /// between two steps into any byte of the core.
+    #[arg(long)]
+    in_step: bool,
     /// Markdown to write (stdout always gets it); an existing file is replaced only with
-    /// --force.
+    /// --force (with --in-step: only its in-step section, between its markers).
     #[arg(long)]
     out: Option<PathBuf>,
     #[command(flatten)]
@@ -83,6 +91,24 @@ inside some); `(padding)` is a byte no field holds. Events: those the unit logge
 undisturbed flight did not log at the same time.
 ";
 
+/// What the in-step campaign flies (its section's legend; the outcomes are the
+/// between-step campaign's).
+const LEGEND_IN_STEP: &str = "\
+The same flight and the same outcomes as above, but each bit is flipped *inside* the flip's step, after the state \
+guard's check and before its seal: at one of the step's numbered points (`ssis::flight::probe`, drawn uniformly: \
+0 after the guard's check, 1 after the FOG links are read, 2–4 per sample: due, checked, integrated, 5 after the \
+samples, 6 after the star-tracker frames are applied, 7 after the output frame is assembled, 8 after it is sent; \
+a per-sample point in a step without a sample falls to the next), through the test-only \
+`FlightCore::step_probed` (feature `step-probe`, which no firmware enables). The field is drawn uniformly from \
+the attitude and the estimator's state, then a byte of it and a bit: `attitude.q` (Λ), `twin` (Λ's and Δω's \
+second copies and checksums), and in `observer` the drift estimate Δω, the last update's time tag and Λ, the \
+convergence state, the re-acquisition streak and the estimator (gains, covariance).
+";
+
+/// The markers of the in-step campaign's section in the document.
+const IN_STEP_BEGIN: &str = "<!-- ssis-upset --in-step: begin -->";
+const IN_STEP_END: &str = "<!-- ssis-upset --in-step: end -->";
+
 /// CPU time of this process and its waited-for children, s.
 fn cpu_s() -> f64 {
     let t = |who| {
@@ -109,7 +135,7 @@ fn run(args: &Args) -> Result<()> {
     output::input(&args.scenario);
     let sc = Scenario::from_file(&args.scenario).with_context(|| format!("reading {}", args.scenario.display()))?;
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let set = Settings { flips: args.flips, seed: args.seed, jobs, timeout_s: args.timeout_s };
+    let set = Settings { flips: args.flips, seed: args.seed, jobs, timeout_s: args.timeout_s, in_step: args.in_step };
     let started = std::time::Instant::now();
     let bar = ProgressBar::new(args.flips as u64)
         .with_style(ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} {eta}")?);
@@ -126,10 +152,12 @@ fn run(args: &Args) -> Result<()> {
     let wall_s = started.elapsed().as_secs_f64();
     let cpu_s = cpu_s();
     let command: Vec<String> = std::env::args().skip(1).collect();
+    let (title, legend) =
+        if args.in_step { ("## In-step campaign", LEGEND_IN_STEP) } else { ("# Upset campaign", LEGEND) };
     let mut md = format!(
-        "# Upset campaign\n\n\
+        "{title}\n\n\
          Produced by `cd host-tests && cargo run --release --bin ssis-upset -- {}` on {} ({:.0} s on the machine that \
-         ran it with {} jobs: {:.1} flips/s; CPU time {:.0} s, {:.1} ms a flip).\n\n{LEGEND}\n{}",
+         ran it with {} jobs: {:.1} flips/s; CPU time {:.0} s, {:.1} ms a flip).\n\n{legend}\n{}",
         command.join(" "),
         utc_date(),
         wall_s,
@@ -163,7 +191,17 @@ fn run(args: &Args) -> Result<()> {
                 .collect(),
         )
     });
-    if let Some(p) = &args.out {
+    if let (Some(p), true) = (&args.out, args.in_step) {
+        // Only the section between the markers (appended if none yet).
+        let old = std::fs::read_to_string(p).unwrap_or_default();
+        let section = format!("{IN_STEP_BEGIN}\n{md}{IN_STEP_END}");
+        let new = match (old.find(IN_STEP_BEGIN), old.find(IN_STEP_END)) {
+            (Some(b), Some(e)) if b < e => format!("{}{section}{}", &old[..b], &old[e + IN_STEP_END.len()..]),
+            _ => format!("{}\n\n{section}\n", old.trim_end()),
+        };
+        output::write(p, new.as_bytes())?;
+        eprintln!("wrote the in-step section of {}", p.display());
+    } else if let Some(p) = &args.out {
         // The hand-written part of the document stays.
         let old = std::fs::read_to_string(p).unwrap_or_default();
         if let Some(i) = old.find(HAND_WRITTEN) {
