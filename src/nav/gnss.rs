@@ -196,14 +196,19 @@ impl AidedNav {
     /// [`AidedNav::gnss_update`], which propagates first). Lets a unit run the heavy
     /// 15×15 products after the step's output (`crate::nav::unit`).
     pub fn step_deferred(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
-        let mut parts = StepParts {
+        self.step_parts().step(dtheta_rad, dv_m_s)
+    }
+
+    /// What [`AidedNav::step_deferred`] reads and advances, borrowed ([`StepParts`]).
+    #[inline(always)]
+    pub(super) fn step_parts(&mut self) -> StepParts<'_> {
+        StepParts {
             nav: &mut self.nav,
             accel_bias_m_s2: &self.accel_bias_m_s2,
             gyro_bias_rad_s: &self.gyro_bias_rad_s,
             sum_dv_e_m_s: &mut self.sum_dv_e_m_s,
             pending_steps: &mut self.pending_steps,
-        };
-        parts.step(dtheta_rad, dv_m_s)
+        }
     }
 
     /// Whether [`PROPAGATE_STEPS`] or more steps have passed since the last propagation.

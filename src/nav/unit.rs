@@ -63,7 +63,7 @@
 
 use nalgebra::Vector3;
 
-use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix, StepParts, N_X};
+use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix, N_X};
 use super::{NavError, NavState};
 use crate::calib::accel::{AccelCompensator, N_ACCEL};
 use crate::frames::accel::{AccelFrame, AccelSlot};
@@ -834,14 +834,7 @@ fn run(l: &mut Live<'_>, comp: &AccelCompensator, dt_s: f64, inp: &TwinInput) ->
     let each = if n > 1 { dtheta_rad / f64::from(n) } else { *dtheta_rad };
     let mean_dv = *l.mean_dv_m_s;
     let mut stepped = inp.navigating && n > 0;
-    let a = &mut *l.nav;
-    let mut parts = StepParts {
-        nav: &mut a.nav,
-        accel_bias_m_s2: &a.accel_bias_m_s2,
-        gyro_bias_rad_s: &a.gyro_bias_rad_s,
-        sum_dv_e_m_s: &mut a.sum_dv_e_m_s,
-        pending_steps: &mut a.pending_steps,
-    };
+    let mut parts = l.nav.step_parts();
     // Bounded: at most MAX_BRIDGE_STEPS + 1 strapdown steps.
     for m in 1..=n {
         if !stepped {
