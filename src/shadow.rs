@@ -440,6 +440,14 @@ impl<const N: usize> Shadow<N> {
         self.words[at] ^= 1 << bit;
     }
 
+    /// Whether `other` holds the same words as this shadow, bit for bit (two saves
+    /// compared: the navigation's step computed twice, `nav::unit`).
+    #[inline(never)]
+    pub fn same_words(&self, other: &Self) -> bool {
+        // Word by word (a byte-wise `memcmp` would take eight times the instructions).
+        self.len == other.len && self.words.iter().zip(other.words.iter()).all(|(a, b)| a == b)
+    }
+
     /// Words the shadow can hold.
     pub const CAPACITY: usize = N;
 }

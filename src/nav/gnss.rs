@@ -130,6 +130,31 @@ fn finite(v: &Vector3<f64>) -> bool {
     v.x.is_finite() && v.y.is_finite() && v.z.is_finite()
 }
 
+/// What [`AidedNav::step_deferred`] reads and advances, borrowed: the navigation unit
+/// runs the step on copies of them (`crate::nav::unit`, the step computed twice).
+pub(super) struct StepParts<'a> {
+    pub(super) nav: &'a mut Strapdown,
+    pub(super) accel_bias_m_s2: &'a Vector3<f64>,
+    pub(super) gyro_bias_rad_s: &'a Vector3<f64>,
+    pub(super) sum_dv_e_m_s: &'a mut Vector3<f64>,
+    pub(super) pending_steps: &'a mut u32,
+}
+
+impl StepParts<'_> {
+    /// [`AidedNav::step_deferred`] on the parts (one compiled copy for the unit's runs
+    /// and a resume's bridge).
+    #[inline(never)]
+    pub(super) fn step(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
+        let dt = self.nav.dt_s();
+        let dth = dtheta_rad - self.gyro_bias_rad_s * dt;
+        let dv = dv_m_s - self.accel_bias_m_s2 * dt;
+        self.nav.step(&dth, &dv)?;
+        *self.sum_dv_e_m_s += math::rotate(&self.nav.state().q_eb, &dv);
+        *self.pending_steps = self.pending_steps.saturating_add(1);
+        Ok(())
+    }
+}
+
 impl AidedNav {
     /// Navigation state.
     pub fn state(&self) -> &NavState {
@@ -171,13 +196,14 @@ impl AidedNav {
     /// [`AidedNav::gnss_update`], which propagates first). Lets a unit run the heavy
     /// 15×15 products after the step's output (`crate::nav::unit`).
     pub fn step_deferred(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {
-        let dt = self.nav.dt_s();
-        let dth = dtheta_rad - self.gyro_bias_rad_s * dt;
-        let dv = dv_m_s - self.accel_bias_m_s2 * dt;
-        self.nav.step(&dth, &dv)?;
-        self.sum_dv_e_m_s += math::rotate(&self.nav.state().q_eb, &dv);
-        self.pending_steps = self.pending_steps.saturating_add(1);
-        Ok(())
+        let mut parts = StepParts {
+            nav: &mut self.nav,
+            accel_bias_m_s2: &self.accel_bias_m_s2,
+            gyro_bias_rad_s: &self.gyro_bias_rad_s,
+            sum_dv_e_m_s: &mut self.sum_dv_e_m_s,
+            pending_steps: &mut self.pending_steps,
+        };
+        parts.step(dtheta_rad, dv_m_s)
     }
 
     /// Whether [`PROPAGATE_STEPS`] or more steps have passed since the last propagation.

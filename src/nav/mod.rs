@@ -197,6 +197,33 @@ impl Strapdown {
         self.steps
     }
 
+    /// Its words in a fixed order for a guard's pass ([`crate::shadow::Visit`]): the
+    /// state, the setup (step, corrections, Earth rotation) and the increment history
+    /// (the navigation unit's guard, [`unit`]).
+    #[inline(always)]
+    pub(super) fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
+        v.f64s(self.state.q_eb.coords.as_mut_slice());
+        v.f64s(self.state.v_e_m_s.as_mut_slice());
+        v.f64s(self.state.r_e_m.as_mut_slice());
+        v.f64(&mut self.dt_s);
+        let c = &mut self.corrections;
+        let mut bits = u64::from(c.coning.get()) | u64::from(c.rotation.get()) << 1 | u64::from(c.sculling.get()) << 2;
+        v.word(&mut bits);
+        if V::WRITES {
+            *c = CorrectionFlags {
+                coning: Flag::new(bits & 1 != 0),
+                rotation: Flag::new(bits & 2 != 0),
+                sculling: Flag::new(bits & 4 != 0),
+            };
+        }
+        v.f64s(self.prev_dtheta_rad.as_mut_slice());
+        v.f64s(self.prev_dv_m_s.as_mut_slice());
+        v.f64s(self.prev_gc_m_s2.as_mut_slice());
+        v.f64s(self.q_earth.coords.as_mut_slice());
+        v.f64(&mut self.zeta_rad);
+        v.word(&mut self.steps);
+    }
+
     /// Integrates one step of body increments: `dtheta_rad` = ∫ω_ib^b dt and
     /// `dv_m_s` = ∫f^b dt over the step. On error the state is unchanged.
     pub fn step(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) -> Result<(), NavError> {

@@ -19,7 +19,9 @@
 //! increments ([`super::unit::MEAN_STEPS`]), the bridge's window of body angle
 //! increments ([`super::unit::WINDOW_BLOCKS`] blocks of [`super::unit::BLOCK_STEPS`]
 //! steps, 0.48 s), the output frame counter and the attitude-unconfirmed flag); sealed with
-//! CRC-32C (the `crc` crate's, [`crate::frames::CRC32C`]) and its complement. A field
+//! CRC-32C ([`crate::frames::CRC32C`]'s value, computed by the frames' table-driven
+//! [`crate::frames::crc32c_register`], whose tables the board links anyway) and its
+//! complement. A field
 //! marked there is carried over a reset with no other change here.
 //!
 //! **Writing** ([`NavUnit::snapshot_into`]): the complement is spoiled first, then the
@@ -72,9 +74,12 @@
 //!   bit flipped in the unit's RAM after a block's write and before the record's would
 //!   be sealed with it, and a block near the window's end (weight ~10⁻³ in the taper)
 //!   hardly moves r while it shifts φ₀ and so the bridged attitude by its whole error.
-//!   So the unit keeps `window_xor`, the XOR of every block's bit pattern (folded to 32
-//!   bits) and of the ring's next index, updated from its own value as each block is
-//!   written; the fit recomputes it over the ring it uses, and a mismatch gives no fit.
+//!   So the unit keeps `window_xor`, the XOR of the ring's 32-bit half-words, each
+//!   rotated left by its position in the ring plus one (mod 32), and of the ring's next
+//!   index (rotated by 16), updated from its own value as each block is written; the fit
+//!   recomputes it over the ring it uses, and a mismatch gives no fit. The rotation keeps
+//!   two adjacent flipped bits, and the same bit flipped in two adjacent words, from
+//!   cancelling (`NavUnit::window_xor`).
 //!
 //!   The attitude is **not backed** when the window was not full of measured increments
 //!   (0.48 s after the start or after a previous bridge) or fails its guard, the gap exceeds
@@ -108,13 +113,13 @@ use nalgebra::Vector3;
 
 use super::gnss::AidedNav;
 pub use super::unit::MAX_BRIDGE_STEPS;
-use super::unit::{NavKept, NavUnit, BLOCK_STEPS, WINDOW_BLOCKS};
+use super::unit::{window_index, window_word, NavKept, NavUnit, BLOCK_STEPS, WINDOW_BLOCKS};
 use super::{wgs84, NavState};
-use crate::frames::CRC32C;
+use crate::frames::crc32c_register;
 use crate::state::{Flag, Maybe};
 
-/// First word: "NSN" and the layout version 5.
-const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x05");
+/// First word: "NSN" and the layout version 6.
+const MAGIC: u32 = u32::from_le_bytes(*b"NSN\x06");
 /// Most samples whose attitude a resume bridges on the window's fit and still backs
 /// (0.3 s): the older copy's age (two snapshot periods of 80 steps) plus a reset and boot
 /// of 40 steps, with margin; beyond it the attitude is flagged unconfirmed.
@@ -210,9 +215,10 @@ fn norm2(v: &[f64]) -> f64 {
 }
 
 impl NavRecord {
-    /// CRC-32C of the covered bytes.
+    /// CRC-32C of the covered bytes (one compiled copy for the write and the resume).
+    #[inline(never)]
     fn crc(&self) -> u32 {
-        CRC32C.checksum(bytemuck::bytes_of(self).get(..COVERED).unwrap_or(&[]))
+        crc32c(bytemuck::bytes_of(self).get(..COVERED).unwrap_or(&[]))
     }
 
     /// Whether both check words match.
@@ -257,7 +263,7 @@ impl AidedNav {
     /// CRC-32C of the step period and the filter tuning.
     fn setup_crc(&self) -> u32 {
         let c = &self.cfg;
-        let mut d = CRC32C.digest();
+        let mut r = crc::CRC_32_ISCSI.init;
         let fields = [
             self.nav.dt_s(),
             c.init_att_rad,
@@ -272,10 +278,15 @@ impl AidedNav {
             c.gate_sigma,
         ];
         for f in fields {
-            d.update(&f.to_le_bytes());
+            r = crc32c_register(r, &f.to_le_bytes());
         }
-        d.finalize()
+        r ^ crc::CRC_32_ISCSI.xorout
     }
+}
+
+/// CRC-32C of `bytes` ([`crate::frames::CRC32C`]'s checksum).
+fn crc32c(bytes: &[u8]) -> u32 {
+    crc32c_register(crc::CRC_32_ISCSI.init, bytes) ^ crc::CRC_32_ISCSI.xorout
 }
 
 /// The navigation's reset snapshot as the board's RAM holds it: two sealed copies
@@ -395,14 +406,13 @@ impl WindowFit {
 /// (the window's, oldest first): the cubic's c_0..c_3 in v, its weighted mean squared
 /// residual (rad²) and the angle summed over the blocks (rad).
 #[inline(never)]
-fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f64; 4], f64, f64, u64) {
-    let (mut y, mut wy2, mut bits) = (0.0, 0.0, 0u64);
+fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f64; 4], f64, f64) {
+    let (mut y, mut wy2) = (0.0, 0.0);
     // M_0, M_2, M_4, M_6; and Σ w v^k Y, k = 0..3.
     let (mut m, mut s) = ([0.0f64; 4], [0.0f64; 4]);
     let points = core::iter::once(0.0).chain(blocks.map(|b| b.get(axis).copied().unwrap_or(0.0)));
     for (j, b) in points.enumerate() {
         y += b;
-        bits ^= b.to_bits();
         let x = j as f64 / WINDOW_BLOCKS as f64;
         let (sin, _) = crate::math::sin_cos(core::f64::consts::PI * x);
         let (w, v) = (sin * sin + 1e-3, x - 0.5);
@@ -425,7 +435,7 @@ fn fit_axis<'a>(blocks: impl Iterator<Item = &'a [f64; 3]>, axis: usize) -> ([f6
     let d = [s0 / m0, s1 / m2, (s2 - a * s0) / n[2], (s3 - b * s1) / n[3]];
     let explained: f64 = d.iter().zip(n).map(|(dk, nk)| nk * dk * dk).sum();
     let [d0, d1, d2, d3] = d;
-    ([d0 - a * d2, d1 - b * d3, d2, d3], (wy2 - explained).max(0.0) / m0, y, bits)
+    ([d0 - a * d2, d1 - b * d3, d2, d3], (wy2 - explained).max(0.0) / m0, y)
 }
 
 impl NavUnit {
@@ -551,6 +561,8 @@ impl NavUnit {
 
     fn apply_snapshot(&mut self, s: &NavRecord) {
         self.load_survivors(&s.kept);
+        // A new state: the guard's shadows saved again by the next step, unchecked.
+        self.guard.sealed = 0;
         // The state again through the strapdown's own check (it normalises the
         // quaternion and rebuilds the gravity term); checked plausible above, a state it
         // refuses all the same is lost.
@@ -662,15 +674,17 @@ impl NavUnit {
         let (newer, older) = self.blocks_rad.split_at_checked(self.block_next as usize)?;
         let mut c = [[0.0; 4]; 3];
         let (mut resid2, mut y) = (0.0, self.block_rad);
-        // The guard of the ring: its blocks' bit patterns and its index, as they were
-        // written (`NavUnit::window_xor`).
-        let mut bits = self.block_next;
         for ((ci, yi), axis) in c.iter_mut().zip(y.iter_mut()).zip(0..) {
-            let (coefs, r2, sum, b) = fit_axis(older.iter().chain(newer), axis);
+            let (coefs, r2, sum) = fit_axis(older.iter().chain(newer), axis);
             *ci = coefs;
             resid2 += r2;
             *yi += sum;
-            bits ^= super::unit::fold(b);
+        }
+        // The guard of the ring: its words and its index, as they were written
+        // (`NavUnit::window_xor`).
+        let mut bits = window_index(self.block_next);
+        for (k, x) in self.blocks_rad.as_flattened().iter().enumerate() {
+            bits ^= window_word(x.to_bits(), k);
         }
         let lead = f64::from(self.block_steps.min(BLOCK_STEPS - 1));
         let mut fit = WindowFit { c, lead, phi0: Vector3::zeros(), resid_rad: crate::math::sqrt(resid2) };
@@ -759,7 +773,7 @@ mod tests {
                 })
                 .collect();
             for axis in 0..3 {
-                let (c, r2, sum, _) = fit_axis(blocks.iter(), axis);
+                let (c, r2, sum) = fit_axis(blocks.iter(), axis);
                 let mut y = vec![0.0];
                 for b in &blocks {
                     y.push(y.last().unwrap() + b[axis]);

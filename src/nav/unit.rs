@@ -17,7 +17,7 @@
 //!      for the step and raises [`flags::ACCEL_FAULT`];
 //!   2. compensates the three increments ([`crate::calib::accel::AccelCompensator`]);
 //!   3. runs the strapdown step ([`AidedNav::step_deferred`]: attitude, velocity,
-//!      position; no covariance work);
+//!      position; no covariance work); 2 and 3 computed twice and compared (below);
 //!   4. drains the GNSS link; the newest valid fix, if any, is held for the filter work
 //!      (its time tag is not used: a fix is applied as of the step it arrives in, so the
 //!      link latency is not compensated);
@@ -37,10 +37,33 @@
 //! frame is taken for the step whose time its counter names, so a frame left in a link
 //! over a gap or a reset is never taken for a later step (the state and its time tag
 //! stay one).
+//!
+//! **Protection against upsets.** What a step computes is kept only when it is computed
+//! twice alike, and the state it keeps is checked before the next step uses it:
+//!
+//! | what | how | when | on a mismatch |
+//! |---|---|---|---|
+//! | the step's navigation part: compensation of the three increments (or the held one), the strapdown step(s), the running means and spreads, the window's block sum | computed twice (`run`) from the same state, saved first into the guard's shadow; the results (52 words: [`NavUnit::TWIN_WORDS`]) and outcomes compared bit for bit | every step | a third run from the saved state decides (the result it agrees with is kept; counted, `nav_twin_mismatches`); no two alike: the step refused, the state as before the step, [`flags::NAV_FAULT`], counted (`nav_faults`) |
+//! | the state those runs advance: the strapdown's q, v, r, increment history, gravity term, step count and setup (Δt, corrections, Earth rotation), the filter's biases, pending sum and steps, the unit's held increment, means, spreads, block and its steps | a shadow copy and checksum ([`crate::shadow`], as the flight core's guard, `crate::flight::guard`), sealed after the step's navigation part and after the filter work | checked at the start of every step, and before the filter work when it is due | restored bit for bit from the shadow (counted, `nav_state_restored`); neither copy good: the navigation lost |
+//! | the covariance P (225 words) | its own shadow, sealed when the filter work or a bridge changed it | as the state | as the state |
+//! | the bridge's window (48 blocks) | `window_xor`: the XOR of the ring's half-words rotated by their position ([`window_word`]) | when a resume's bridge fits the window ([`super::snapshot`]) | no fit: the attitude flagged unconfirmed |
+//!
+//! A register corrupted inside one run (an interrupt's stack frame upset, a spilled
+//! value flipped) changes that run's result only: outvoted. A bit flipped in the state in
+//! RAM between two steps is restored before it is flown. The links' I/O (draining the
+//! accelerometer and GNSS links, writing the output frame) is done once: the frame is
+//! built from the state after its seal. Not covered: a bit flipped in a value both runs
+//! read (the increments as the flight core hands them, the accelerometer frames taken
+//! from the queues, the accelerometer compensator's table, the filter tuning), and a
+//! register corrupted between the seal and the frame's encoding (the frame wrong, the
+//! state not: the next step's check finds the state intact). Cost: the navigation part
+//! runs twice, the 52 words are walked six times and the covariance once a step (about
+//! 10,000 instructions more a step in QEMU, `docs/LAUNCH-VEHICLE.md`); 2.2 KiB of RAM for
+//! the shadows and 1.3 KiB of stack for the runs' results.
 
 use nalgebra::Vector3;
 
-use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix};
+use super::gnss::{AidedNav, GnssConfig, GnssError, GnssFix, StepParts, N_X};
 use super::{NavError, NavState};
 use crate::calib::accel::{AccelCompensator, N_ACCEL};
 use crate::frames::accel::{AccelFrame, AccelSlot};
@@ -49,6 +72,7 @@ use crate::frames::gnss::GnssFrame;
 use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
 use crate::link::{drain, write_frame, RxLink, TxLink};
+use crate::shadow::{Check, Pass, Shadow, Sum, Visit};
 use crate::state::{Flag, Maybe, Ring};
 use crate::state_map::{state_struct, StateField};
 
@@ -170,13 +194,18 @@ state_struct! {
         pub(super) spread_dtheta_rad2: f64 = 0.0, reset(Keep);
         /// Running mean of |υ − ῡ|², (m/s)².
         pub(super) spread_dv_m2_s2: f64 = 0.0, reset(Keep);
-        /// The window's guard: the XOR of the bit patterns of every block of the ring
-        /// (each folded to 32 bits, [`fold`]) and of the ring's next index, kept as
-        /// each block is written (from its own value, never recomputed from the ring).
-        /// A bit of the ring, its index or the guard flipped after the write (in RAM,
-        /// before a record seals it) leaves them disagreeing, and the window backs no
-        /// attitude ([`super::snapshot`]). Single flips only: the same bit flipped in
-        /// two 32-bit words of the ring (adjacent words among them) cancels in the fold.
+        /// The window's guard: the XOR of the ring's 32-bit half-words, half-word j
+        /// (the low then the high half of each f64, in the ring's storage order)
+        /// rotated left by (j + 1) mod 32 ([`window_word`]), and of the ring's next index
+        /// rotated by 16 ([`window_index`]), kept as each block is written (from its own
+        /// value, never recomputed from the ring). A bit of the ring, its index or the
+        /// guard flipped after the write (in RAM, before a record seals it) leaves them
+        /// disagreeing, and the window backs no attitude ([`super::snapshot`]). Two
+        /// flips of the ring cancel only when they land on the same bit of the guard:
+        /// bit c of half-word j and bit c' of half-word j' with c + j ≡ c' + j'
+        /// (mod 32); never two adjacent bits (of a half-word, or bits 31 and 32 of an
+        /// f64: 30 apart), nor the same bit of two adjacent 32-bit words (1 apart) or of
+        /// two adjacent f64 (2 apart).
         pub(super) window_xor: u32 = 0, reset(Keep);
         /// The bridge's window ([`super::snapshot`]): the body angle increments summed
         /// over blocks of [`BLOCK_STEPS`] steps, a ring of [`WINDOW_BLOCKS`], rad.
@@ -217,6 +246,10 @@ state_struct! {
         /// first sample): the state is held and flagged [`flags::NAV_FAULT`] until a pad
         /// initialisation builds the unit again ([`super::snapshot`]).
         pub(super) lost: Flag = Flag::CLEAR;
+        /// The navigation state's guard between steps (module documentation): shadows
+        /// of the strapdown state, the filter's biases and pending sum, the unit's
+        /// running means and block, and of the covariance.
+        pub(super) guard: NavGuard = NavGuard::default();
     }
     snapshot {
         /// The fields of the stage a reset snapshot carries ([`super::snapshot`]), in
@@ -352,7 +385,35 @@ impl NavUnit {
         time_us: u64,
         links: &mut NavLinks<A, G, O>,
     ) -> NavStepOutput {
+        self.step_inner(dtheta_body_rad, time_us, links, TwinUpset::NONE)
+    }
+
+    /// [`NavUnit::step`] with a bit of the step's duplicated part flipped in the runs
+    /// `upset` names (tests: a register corrupted in one computation). Not in flight
+    /// builds (the `test-hooks` feature).
+    #[cfg(feature = "test-hooks")]
+    pub fn step_upset<A: RxLink, G: RxLink, O: TxLink>(
+        &mut self,
+        dtheta_body_rad: &Vector3<f64>,
+        time_us: u64,
+        links: &mut NavLinks<A, G, O>,
+        upset: TwinUpset,
+    ) -> NavStepOutput {
+        self.step_inner(dtheta_body_rad, time_us, links, upset)
+    }
+
+    #[inline(always)]
+    fn step_inner<A: RxLink, G: RxLink, O: TxLink>(
+        &mut self,
+        dtheta_body_rad: &Vector3<f64>,
+        time_us: u64,
+        links: &mut NavLinks<A, G, O>,
+        upset: TwinUpset,
+    ) -> NavStepOutput {
         let mut fl = 0u8;
+        // 0. The state as the last step (or filter work) sealed it, restored if a bit of
+        // it flipped since.
+        let was_sealed = self.guard_check();
         // 1. Accelerometer frames.
         let (dec, queues) = (&mut self.accel_dec, &mut self.accel_q);
         let mut rejected = 0u32;
@@ -409,52 +470,53 @@ impl NavUnit {
         if self.resume_from.is_none() {
             self.accel_counter.set(counter.or(expected).or_else(|| last_counter.map(|c| c.wrapping_add(1))));
         }
-        // 2. Compensation (or hold).
-        let [x, y, z] = raw;
-        let dv = if complete { self.comp.compensate(&Vector3::new(x, y, z), &temps, self.dt_s) } else { None };
-        let dv = match dv {
-            Some(v) => {
-                self.last_dv_m_s = v;
-                v
-            }
-            None => {
-                fl |= flags::ACCEL_FAULT;
-                self.counters.add(NavCounter::AccelStepsHeld, 1);
-                self.last_dv_m_s
-            }
-        };
-        // 3. Navigation (strapdown only; the covariance work is `filter_work`'s).
-        // An increment spanning n > 1 samples (n − 1 lost, bridged by the core) is n
-        // strapdown steps, the angle spread evenly, the lost ones on the mean velocity
-        // increment ([`NavUnit::spanned_bridged`]); more than MAX_BRIDGE_STEPS: lost.
+        // 2–3. Compensation (or hold) and navigation (strapdown only; the covariance
+        // work is `filter_work`'s), computed twice from the same state and compared
+        // (module documentation). An increment spanning n > 1 samples (n − 1 lost,
+        // bridged by the core) is n strapdown steps, the angle spread evenly, the lost
+        // ones on the mean velocity increment ([`NavUnit::spanned_bridged`]); more than
+        // MAX_BRIDGE_STEPS: lost.
         let n = if spanned > 1 + u64::from(MAX_BRIDGE_STEPS) {
             self.lost = Flag::SET;
             0
         } else {
             spanned as u16
         };
-        let each = if n > 1 { dtheta_body_rad / f64::from(n) } else { *dtheta_body_rad };
-        let mean_dv = self.mean_dv_m_s;
-        let mut stepped = navigating && n > 0;
-        // Bounded: at most MAX_BRIDGE_STEPS + 1 strapdown steps.
-        for m in 1..=n {
-            if !stepped {
-                break;
-            }
-            let v = if m < n { &mean_dv } else { &dv };
-            if self.nav.step_deferred(&each, v).is_err() {
-                self.counters.add(NavCounter::NavFaults, 1);
-                stepped = false;
-            }
+        let input = TwinInput { raw, temps, complete, dtheta_rad: *dtheta_body_rad, n, navigating };
+        let (verdict, mismatch) = self.twin_step(&input, upset);
+        if mismatch {
+            self.counters.add(NavCounter::TwinMismatches, 1);
         }
+        let stepped = match verdict {
+            Some(run) => {
+                if run & RUN_HELD != 0 {
+                    fl |= flags::ACCEL_FAULT;
+                    self.counters.add(NavCounter::AccelStepsHeld, 1);
+                }
+                if run & RUN_REFUSED != 0 {
+                    self.counters.add(NavCounter::NavFaults, 1);
+                }
+                run & RUN_STEPPED != 0
+            }
+            None => {
+                // No two computations agree: the step refused, the state held.
+                if !complete {
+                    fl |= flags::ACCEL_FAULT;
+                }
+                self.counters.add(NavCounter::NavFaults, 1);
+                false
+            }
+        };
         if !stepped {
             fl |= flags::NAV_FAULT;
         } else if n > 1 {
             self.spanned_bridged(n - 1);
         } else {
-            self.track_means(dtheta_body_rad, &dv);
-            self.track_window(dtheta_body_rad);
+            self.flush_block();
         }
+        // Sealed before the output reads it: the covariance too when a bridge (the
+        // resume's or the span's) changed it, or nothing was sealed.
+        self.guard_seal(!was_sealed || (stepped && n > 1) || (resuming && navigating));
         if self.att_unconfirmed.get() {
             fl |= flags::ATTITUDE_UNCONFIRMED;
         }
@@ -518,6 +580,21 @@ impl NavUnit {
     /// fix's update (which propagates the covariance first), else the covariance
     /// propagation when [`AidedNav::propagation_due`]; at most one of each per call.
     pub fn filter_work(&mut self) -> FilterWork {
+        // The state and covariance the work reads, checked first when it is due (a bit
+        // flipped since the step's seal is not sealed into the filter's result).
+        if self.pending_fix.is_some() || self.nav.propagation_due() {
+            self.guard_check();
+        }
+        let work = self.filter_work_unsealed();
+        if work != FilterWork::None {
+            // The state (the fix's feedback, the pending sum) and the covariance changed.
+            self.guard_seal(true);
+        }
+        work
+    }
+
+    #[inline(always)]
+    fn filter_work_unsealed(&mut self) -> FilterWork {
         if self.lost.get() || self.resume_from.is_some() {
             return FilterWork::None;
         }
@@ -540,33 +617,17 @@ impl NavUnit {
 }
 
 impl NavUnit {
-    /// The running means and spreads of the increments ([`MEAN_STEPS`]).
+    /// A full block ([`BLOCK_STEPS`] steps summed) into the ring, its guard updated.
     #[inline(always)]
-    fn track_means(&mut self, dtheta_rad: &Vector3<f64>, dv_m_s: &Vector3<f64>) {
-        const W: f64 = 1.0 / MEAN_STEPS;
-        let (eth, ev) = (dtheta_rad - self.mean_dtheta_rad, dv_m_s - self.mean_dv_m_s);
-        self.mean_dtheta_rad += eth * W;
-        self.mean_dv_m_s += ev * W;
-        self.spread_dtheta_rad2 += (eth.norm_squared() - self.spread_dtheta_rad2) * W;
-        self.spread_dv_m2_s2 += (ev.norm_squared() - self.spread_dv_m2_s2) * W;
-    }
-
-    /// The bridge's window: `dtheta_rad` summed into the current block, a full block
-    /// into the ring ([`BLOCK_STEPS`], [`WINDOW_BLOCKS`]).
-    #[inline(always)]
-    pub(super) fn track_window(&mut self, dtheta_rad: &Vector3<f64>) {
-        for (b, d) in self.block_rad.iter_mut().zip(dtheta_rad.iter()) {
-            *b += d;
-        }
-        self.block_steps = self.block_steps.saturating_add(1);
+    fn flush_block(&mut self) {
         if self.block_steps >= BLOCK_STEPS {
             let i = self.block_next as usize % WINDOW_BLOCKS;
             let next = ((i + 1) % WINDOW_BLOCKS) as u32;
             // The guard, from its own value: the old block and index out, the new in.
-            let mut x = self.window_xor ^ self.block_next ^ next;
+            let mut x = self.window_xor ^ window_index(self.block_next) ^ window_index(next);
             if let Some(slot) = self.blocks_rad.get_mut(i) {
-                for (old, new) in slot.iter().zip(self.block_rad.iter()) {
-                    x ^= fold(old.to_bits() ^ new.to_bits());
+                for ((old, new), a) in slot.iter().zip(self.block_rad.iter()).zip(0..) {
+                    x ^= window_word(old.to_bits() ^ new.to_bits(), 3 * i + a);
                 }
                 *slot = self.block_rad;
             }
@@ -639,9 +700,359 @@ pub enum FilterWork {
     Refused(GnssError),
 }
 
-/// A 64-bit pattern folded to 32 bits (its halves XORed): a single bit flipped in it
-/// flips one bit of the fold (the window's guard, `NavUnit::window_xor`).
+/// Word `k` of the window's ring (block i, axis a: k = 3i + a, its bit pattern
+/// `bits`) as the window's guard holds it: its low half-word (j = 2k) rotated left by
+/// (j + 1) mod 32, its high one (j = 2k + 1) by (j + 1) mod 32, XORed
+/// (`NavUnit::window_xor`).
 #[inline(always)]
-pub(super) fn fold(bits: u64) -> u32 {
-    (bits ^ (bits >> 32)) as u32
+pub(super) fn window_word(bits: u64, k: usize) -> u32 {
+    let j = (2 * k) as u32;
+    (bits as u32).rotate_left((j + 1) % 32) ^ ((bits >> 32) as u32).rotate_left((j + 2) % 32)
+}
+
+/// The ring's next index as the window's guard holds it: rotated left by 16.
+#[inline(always)]
+pub(super) fn window_index(next: u32) -> u32 {
+    next.rotate_left(16)
+}
+
+/// Words of the navigation state the guard keeps between steps ([`Twin::visit`]): the
+/// strapdown's 27, the filter's 10 (biases, pending sum and steps) and the unit's 15
+/// (held increment, running means and spreads, the block being summed and its steps).
+const STATE_WORDS: usize = 52;
+/// Words of the covariance.
+const P_WORDS: usize = N_X * N_X;
+/// [`NavGuard::sealed`]'s value once the shadows hold the state (a flipped bit reads as
+/// not sealed: the state is saved again unchecked, at worst one check missed).
+const SEALED: u32 = 0x5EA1_ED00;
+
+/// The navigation state's guard between steps ([`NavUnit::step`], module documentation).
+#[derive(Clone, Copy, Default, bytemuck::AnyBitPattern)]
+pub(super) struct NavGuard {
+    state: Shadow<STATE_WORDS>,
+    p: Shadow<P_WORDS>,
+    /// [`SEALED`] when both shadows hold the live values (not after a unit is built or
+    /// resumed: its first step saves them unchecked).
+    pub(super) sealed: u32,
+}
+
+/// The fields a step advances, borrowed from the unit (all but the guard's): the runs of
+/// the step's duplicated part compute on them in place, and the guard walks them.
+struct Live<'a> {
+    nav: &'a mut AidedNav,
+    last_dv_m_s: &'a mut Vector3<f64>,
+    mean_dtheta_rad: &'a mut Vector3<f64>,
+    mean_dv_m_s: &'a mut Vector3<f64>,
+    spread_dtheta_rad2: &'a mut f64,
+    spread_dv_m2_s2: &'a mut f64,
+    block_rad: &'a mut [f64; 3],
+    block_steps: &'a mut u32,
+}
+
+/// The words of the state a step advances, in a fixed order ([`STATE_WORDS`]; one
+/// compiled walk: through a [`Pass`]).
+#[inline(never)]
+fn visit<V: Visit>(l: &mut Live<'_>, v: &mut V) {
+    let a = &mut *l.nav;
+    a.nav.visit(v);
+    v.f64s(a.accel_bias_m_s2.as_mut_slice());
+    v.f64s(a.gyro_bias_rad_s.as_mut_slice());
+    v.f64s(a.sum_dv_e_m_s.as_mut_slice());
+    v.u32(&mut a.pending_steps);
+    v.f64s(l.last_dv_m_s.as_mut_slice());
+    v.f64s(l.mean_dtheta_rad.as_mut_slice());
+    v.f64s(l.mean_dv_m_s.as_mut_slice());
+    v.f64(l.spread_dtheta_rad2);
+    v.f64(l.spread_dv_m2_s2);
+    v.f64s(l.block_rad);
+    v.u32(l.block_steps);
+}
+
+/// Saves the state `l` into `sh` (one compiled copy for the seal and the runs).
+#[inline(never)]
+fn save_state(l: &mut Live<'_>, sh: &mut Shadow<STATE_WORDS>) {
+    sh.save_pass(|p| visit(l, p));
+}
+
+/// Restores the state `l` from `sh`.
+#[inline(never)]
+fn restore_state(l: &mut Live<'_>, sh: &Shadow<STATE_WORDS>) {
+    sh.restore_pass(|p| visit(l, p));
+}
+
+/// The checksum of the words `visit` walks.
+#[inline(never)]
+fn sum_of(visit: impl FnOnce(&mut Pass<'_>)) -> u64 {
+    let mut pass = Pass::Sum(Sum::default());
+    visit(&mut pass);
+    match pass {
+        Pass::Sum(s) => s.0,
+        _ => 0,
+    }
+}
+
+/// What a run of the step's duplicated part reads besides the state.
+struct TwinInput {
+    raw: [f64; N_ACCEL],
+    temps: [f64; N_ACCEL],
+    /// Every accelerometer's sample taken and sound.
+    complete: bool,
+    dtheta_rad: Vector3<f64>,
+    /// Strapdown steps of the increment (0: none, the navigation lost).
+    n: u16,
+    navigating: bool,
+}
+
+/// A run's outcome bits: the previous increment held (no compensated one) ...
+const RUN_HELD: u8 = 1;
+/// ... a strapdown step refused ([`NavError`]) ...
+const RUN_REFUSED: u8 = 2;
+/// ... the state stepped.
+const RUN_STEPPED: u8 = 4;
+
+/// One run of the step's duplicated part on the state `l`: the compensation of the three
+/// increments (or the previous one held), the `n` strapdown steps
+/// ([`AidedNav::step_deferred`]'s arithmetic), and after a single step the running means
+/// ([`MEAN_STEPS`]) and the window's block (the unit writes a full one into the ring
+/// after the runs agree, `NavUnit::flush_block`). Its outcome bits ([`RUN_HELD`] ...).
+#[inline(never)]
+fn run(l: &mut Live<'_>, comp: &AccelCompensator, dt_s: f64, inp: &TwinInput) -> u8 {
+    let mut out = 0;
+    let [x, y, z] = inp.raw;
+    let dv = if inp.complete { comp.compensate(&Vector3::new(x, y, z), &inp.temps, dt_s) } else { None };
+    let dv = match dv {
+        Some(v) => {
+            *l.last_dv_m_s = v;
+            v
+        }
+        None => {
+            out |= RUN_HELD;
+            *l.last_dv_m_s
+        }
+    };
+    let (n, dtheta_rad) = (inp.n, &inp.dtheta_rad);
+    let each = if n > 1 { dtheta_rad / f64::from(n) } else { *dtheta_rad };
+    let mean_dv = *l.mean_dv_m_s;
+    let mut stepped = inp.navigating && n > 0;
+    let a = &mut *l.nav;
+    let mut parts = StepParts {
+        nav: &mut a.nav,
+        accel_bias_m_s2: &a.accel_bias_m_s2,
+        gyro_bias_rad_s: &a.gyro_bias_rad_s,
+        sum_dv_e_m_s: &mut a.sum_dv_e_m_s,
+        pending_steps: &mut a.pending_steps,
+    };
+    // Bounded: at most MAX_BRIDGE_STEPS + 1 strapdown steps.
+    for m in 1..=n {
+        if !stepped {
+            break;
+        }
+        let v = if m < n { &mean_dv } else { &dv };
+        if parts.step(&each, v).is_err() {
+            out |= RUN_REFUSED;
+            stepped = false;
+        }
+    }
+    if stepped {
+        out |= RUN_STEPPED;
+        if n <= 1 {
+            const W: f64 = 1.0 / MEAN_STEPS;
+            let (eth, ev) = (dtheta_rad - *l.mean_dtheta_rad, dv - *l.mean_dv_m_s);
+            *l.mean_dtheta_rad += eth * W;
+            *l.mean_dv_m_s += ev * W;
+            *l.spread_dtheta_rad2 += (eth.norm_squared() - *l.spread_dtheta_rad2) * W;
+            *l.spread_dv_m2_s2 += (ev.norm_squared() - *l.spread_dv_m2_s2) * W;
+            for (b, d) in l.block_rad.iter_mut().zip(dtheta_rad.iter()) {
+                *b += d;
+            }
+            *l.block_steps = l.block_steps.saturating_add(1);
+        }
+    }
+    out
+}
+
+/// A bit flipped in runs of the step's duplicated part ([`NavUnit::step_upset`]: tests
+/// of a register corrupted in one computation).
+#[cfg(feature = "test-hooks")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TwinUpset {
+    /// The runs it hits: bit r for run r (0 and 1 the compared pair, 2 the deciding one).
+    pub runs: u8,
+    /// The word of the run's result ([`NavUnit::TWIN_WORDS`] of them, the guard's order).
+    pub word: usize,
+    /// The bit of that word flipped in run 0; run r flips bit (`bit` + r) mod 64 (two
+    /// runs hit never agree).
+    pub bit: u32,
+}
+
+/// No upset (flight builds have no other).
+#[cfg(not(feature = "test-hooks"))]
+#[derive(Clone, Copy)]
+struct TwinUpset;
+
+impl TwinUpset {
+    /// No run hit.
+    #[cfg(feature = "test-hooks")]
+    pub const NONE: TwinUpset = TwinUpset { runs: 0, word: 0, bit: 0 };
+    #[cfg(not(feature = "test-hooks"))]
+    const NONE: TwinUpset = TwinUpset;
+
+    /// The flip into run `r`'s result, if it hits that run.
+    #[inline(always)]
+    fn apply(self, r: usize, l: &mut Live<'_>) {
+        #[cfg(feature = "test-hooks")]
+        if self.runs & (1 << r) != 0 {
+            visit(l, &mut crate::shadow::Flip::new(self.word, (self.bit + r as u32) % 64));
+        }
+        #[cfg(not(feature = "test-hooks"))]
+        let _ = (self, r, l);
+    }
+}
+
+impl NavUnit {
+    /// Words of the state a step computes twice and the guard keeps between steps.
+    pub const TWIN_WORDS: usize = STATE_WORDS;
+
+    /// The state a step advances, borrowed ([`Live`]), and the guard.
+    #[inline(always)]
+    fn split(&mut self) -> (Live<'_>, &mut NavGuard) {
+        let NavUnit {
+            nav,
+            last_dv_m_s,
+            mean_dtheta_rad,
+            mean_dv_m_s,
+            spread_dtheta_rad2,
+            spread_dv_m2_s2,
+            block_rad,
+            block_steps,
+            guard,
+            ..
+        } = self;
+        let l = Live {
+            nav,
+            last_dv_m_s,
+            mean_dtheta_rad,
+            mean_dv_m_s,
+            spread_dtheta_rad2,
+            spread_dv_m2_s2,
+            block_rad,
+            block_steps,
+        };
+        (l, guard)
+    }
+
+    /// The step's duplicated part ([`run`]) twice from the state as it is now (saved
+    /// first into the guard's shadow, which each later run starts from), the results
+    /// compared bit for bit (state and outcome); on a mismatch a third run decides: the
+    /// state is the result it agrees with. The agreed outcome, `None` when no two runs
+    /// agree (the state as it was); and whether the first two disagreed.
+    #[inline(never)]
+    fn twin_step(&mut self, inp: &TwinInput, upset: TwinUpset) -> (Option<u8>, bool) {
+        let (comp, dt_s) = (self.comp, self.dt_s);
+        let (mut l, guard) = self.split();
+        let pre = &mut guard.state;
+        save_state(&mut l, pre);
+        let mut w = [Shadow::<STATE_WORDS>::default(); 3];
+        let mut out = [0u8; 3];
+        // Bounded: three runs at most; the third only when the first two disagree.
+        for r in 0..3 {
+            if r > 0 {
+                restore_state(&mut l, pre);
+            }
+            let o = run(&mut l, &comp, dt_s, inp);
+            upset.apply(r, &mut l);
+            if let (Some(wr), Some(or)) = (w.get_mut(r), out.get_mut(r)) {
+                save_state(&mut l, wr);
+                *or = o;
+            }
+            let [w0, w1, w2] = &w;
+            let [o0, o1, o2] = out;
+            if r == 1 && o1 == o0 && w1.same_words(w0) {
+                return (Some(o1), false);
+            }
+            if r == 2 {
+                if (o2 == o0 && w2.same_words(w0)) || (o2 == o1 && w2.same_words(w1)) {
+                    return (Some(o2), true);
+                }
+                restore_state(&mut l, pre);
+                return (None, true);
+            }
+        }
+        (None, true)
+    }
+
+    /// Start of a step: the state and the covariance checked against their shadows
+    /// and restored bit for bit on a mismatch (counted); a block neither copy can
+    /// restore loses the navigation. Whether they were sealed (else nothing checked).
+    #[inline(never)]
+    fn guard_check(&mut self) -> bool {
+        if self.guard.sealed != SEALED {
+            return false;
+        }
+        let (mut l, guard) = self.split();
+        let state = guard.state.check(sum_of(|p| visit(&mut l, p)));
+        if state == Check::Restore {
+            restore_state(&mut l, &guard.state);
+        }
+        let p_words = self.nav.p.as_mut_slice();
+        let p = self.guard.p.check(sum_of(|s| s.f64s(p_words)));
+        if p == Check::Restore {
+            let p_words = self.nav.p.as_mut_slice();
+            self.guard.p.restore_pass(|r| r.f64s(p_words));
+        }
+        for c in [state, p] {
+            match c {
+                Check::Restore => self.counters.add(NavCounter::StateRestored, 1),
+                Check::Lost => self.lost = Flag::SET,
+                Check::Intact | Check::ShadowRepaired => {}
+            }
+        }
+        true
+    }
+
+    /// The state saved into its shadow, and the covariance with it when `p_too`; sealed.
+    #[inline(never)]
+    fn guard_seal(&mut self, p_too: bool) {
+        let (mut l, guard) = self.split();
+        save_state(&mut l, &mut guard.state);
+        if p_too || self.guard.sealed != SEALED {
+            let p_words = self.nav.p.as_mut_slice();
+            self.guard.p.save_pass(|s| s.f64s(p_words));
+        }
+        self.guard.sealed = SEALED;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The window's guard sees every double pattern of the upset campaigns: two adjacent
+    /// bits of one f64 (bits 31 and 32 among them), the same bit of the two halves of one
+    /// f64 (adjacent 32-bit words), the same bit of two adjacent f64; and the guard's own
+    /// bit with the same bit of the ring's first word.
+    #[test]
+    fn window_guard_sees_the_double_patterns() {
+        let n = 3 * WINDOW_BLOCKS;
+        let delta = |flips: &[(usize, u32)]| flips.iter().fold(0u32, |g, &(k, b)| g ^ window_word(1u64 << b, k));
+        for k in 0..n {
+            for b in 0..64 {
+                if b < 63 {
+                    assert_ne!(delta(&[(k, b), (k, b + 1)]), 0, "word {k} bits {b}, {}", b + 1);
+                }
+                if b < 32 {
+                    assert_ne!(delta(&[(k, b), (k, b + 32)]), 0, "word {k} halves, bit {b}");
+                    if k + 1 < n {
+                        assert_ne!(delta(&[(k, b + 32), (k + 1, b)]), 0, "words {k}, {} (32-bit) bit {b}", k + 1);
+                    }
+                }
+                if k + 1 < n {
+                    assert_ne!(delta(&[(k, b), (k + 1, b)]), 0, "words {k}, {} bit {b}", k + 1);
+                }
+            }
+        }
+        for b in 0..32 {
+            assert_ne!(delta(&[(0, b)]) ^ (1 << b), 0, "guard and first word, bit {b}");
+        }
+    }
 }

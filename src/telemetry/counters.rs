@@ -191,6 +191,8 @@ events_table!(declare_counters {
         AccelStepsHeld accel_steps_held "navigation steps in which at least one accelerometer sample was missing or faulty (previous increment held)",
         GnssFramesRejected gnss_frames_rejected "GNSS frames rejected by the decoder",
         NavFaults nav_faults "navigation steps refused (state held)",
+        TwinMismatches nav_twin_mismatches "navigation steps whose two computations disagreed (a third decided, or the step was refused)",
+        StateRestored nav_state_restored "navigation state or covariance restored from its shadow (a bit flipped between steps)",
         GnssFixesSuperseded gnss_fixes_superseded "valid GNSS fixes replaced by a newer one before the filter work used them",
         OutputDropped output_dropped "navigation output frames that could not be written",
         IoErrors io_errors "navigation link driver errors (accelerometer and GNSS links)",
