@@ -214,7 +214,7 @@ pub(super) struct Guard {
     /// seal), which a step that marked nothing must leave as it found
     /// ([`FlightCore::guard_seal`]).
     #[cfg(debug_assertions)]
-    entry: [u64; 3 + N_FOG],
+    entry: [crate::shadow::CheckWord; 3 + N_FOG],
 }
 
 /// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
@@ -427,7 +427,7 @@ impl FlightCore {
 
     /// Debug builds: the live checksum of every block ([`Block::ALL`]'s order).
     #[cfg(debug_assertions)]
-    fn guard_sums(&mut self) -> [u64; 3 + N_FOG] {
+    fn guard_sums(&mut self) -> [crate::shadow::CheckWord; 3 + N_FOG] {
         let (mut p, _) = split(self);
         Block::ALL.map(|block| {
             let mut live = Sum::default();

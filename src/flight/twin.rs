@@ -14,7 +14,7 @@
 //! 3. **seal** the twin from the new value with its checksum ([`FlightCore::twin_seal`]).
 //!
 //! A flip anywhere between two seals shows at the next compare. The checksum (the
-//! exclusive or of the copy's words, as it was sealed) says which copy is good: if the
+//! check word of the copy, as it was sealed) says which copy is good: if the
 //! twin still sums to it, the live value took the flip and is written back from the twin;
 //! if the live value sums to it, the twin (or the checksum) took the flip and is sealed
 //! again. Either way `state_restored` is logged with a = [`TWIN_ID`] (b = 0 the live
@@ -23,8 +23,10 @@
 //! from the table is derived again and the estimator starts again from the next
 //! star-tracker frame (b = 2); no frame claims a good attitude until it converges again.
 //!
-//! A compare folds the live words (four for Λ, three for Δω) and compares the fold with
-//! the checksum: any single flipped bit changes it; the copy itself is read only on a
+//! A compare folds the live words (four for Λ, three for Δω) into the state guard's check
+//! word ([`CheckWord`], a 128-bit interleaved parity: any pattern of flips within one word
+//! or within two neighbouring words changes it, the same bit of two adjacent words
+//! included) and compares the fold with the checksum; the copy itself is read only on a
 //! mismatch. A seal stores the words and their fold. The twin is not in the state guard's
 //! blocks: a flip in it between two steps shows at the step's first compare (the live
 //! value, checked by the guard, sums to the checksum and the twin does not: sealed again,
@@ -33,6 +35,7 @@
 use nalgebra::{Quaternion, Vector3};
 
 use super::FlightCore;
+use crate::shadow::CheckWord;
 use crate::state_map::{state_map, StateField};
 
 /// The `state_restored` event's block number for the in-step copies (the guard's blocks
@@ -44,18 +47,18 @@ pub const TWIN_ID: u8 = 8;
 pub struct Twin {
     /// Λ's words (w, i, j, k as nalgebra stores them: i, j, k, w).
     q: [u64; 4],
-    /// Exclusive or of `q` as sealed.
-    q_sum: u64,
+    /// Check word of `q` as sealed.
+    q_sum: CheckWord,
     /// Δω's words, rad/s.
     drift: [u64; 3],
-    /// Exclusive or of `drift` as sealed.
-    drift_sum: u64,
+    /// Check word of `drift` as sealed.
+    drift_sum: CheckWord,
 }
 
-/// The exclusive or of `w`.
+/// The check word of `w`.
 #[inline(always)]
-fn fold<const N: usize>(w: &[u64; N]) -> u64 {
-    w.iter().fold(0, |a, x| a ^ x)
+fn fold<const N: usize>(w: &[u64; N]) -> CheckWord {
+    CheckWord::of(w)
 }
 
 #[inline(always)]
@@ -71,7 +74,7 @@ fn drift_words(d: &Vector3<f64>) -> [u64; 3] {
 impl Twin {
     /// Where each field lies in the value ([`crate::state_map`]).
     pub const STATE_MAP: &'static [StateField] =
-        state_map!(Twin { q: [u64; 4], q_sum: u64, drift: [u64; 3], drift_sum: u64 });
+        state_map!(Twin { q: [u64; 4], q_sum: CheckWord, drift: [u64; 3], drift_sum: CheckWord });
 
     /// Twins of `q` and `drift_rad_s`.
     pub fn of(q: &Quaternion<f64>, drift_rad_s: &Vector3<f64>) -> Self {
@@ -79,21 +82,21 @@ impl Twin {
         Twin { q, q_sum: fold(&q), drift, drift_sum: fold(&drift) }
     }
 
-    /// Flips bit `bit` of Λ's twin word `word` (4: its checksum; tests).
+    /// Flips bit `bit` of Λ's twin word `word` (4: its checksum, bit 0..128; tests).
     #[cfg(test)]
     pub fn flip_q(&mut self, word: usize, bit: u32) {
         match self.q.get_mut(word) {
             Some(w) => *w ^= 1 << bit,
-            None => self.q_sum ^= 1 << bit,
+            None => self.q_sum.flip_bit(bit),
         }
     }
 
-    /// Flips bit `bit` of Δω's twin word `word` (3: its checksum; tests).
+    /// Flips bit `bit` of Δω's twin word `word` (3: its checksum, bit 0..128; tests).
     #[cfg(test)]
     pub fn flip_drift(&mut self, word: usize, bit: u32) {
         match self.drift.get_mut(word) {
             Some(w) => *w ^= 1 << bit,
-            None => self.drift_sum ^= 1 << bit,
+            None => self.drift_sum.flip_bit(bit),
         }
     }
 }
@@ -103,9 +106,9 @@ impl Twin {
 /// checksum) sealed again from the live words, 2 neither sums to the checksum (lost).
 /// Slices: one copy for Λ and Δω (flash).
 #[inline(never)]
-fn repair(live: &mut [f64], twin: &mut [u64], sum: &mut u64) -> Option<u8> {
-    let live_sum = live.iter().fold(0, |a, x| a ^ x.to_bits());
-    let twin_sum = twin.iter().fold(0, |a, x| a ^ x);
+fn repair(live: &mut [f64], twin: &mut [u64], sum: &mut CheckWord) -> Option<u8> {
+    let live_sum = CheckWord::of_f64s(live);
+    let twin_sum = CheckWord::of(twin);
     let same = live.iter().zip(twin.iter()).all(|(l, t)| l.to_bits() == *t);
     if live_sum == *sum {
         if same {
@@ -129,14 +132,14 @@ fn repair(live: &mut [f64], twin: &mut [u64], sum: &mut u64) -> Option<u8> {
 }
 
 impl FlightCore {
-    /// Compares Λ and Δω with the checksums of their twins (the exclusive or of the
-    /// words: any single flipped bit changes it); a mismatch is resolved
+    /// Compares Λ and Δω with the checksums of their twins (their check words, module
+    /// doc); a mismatch is resolved
     /// ([`FlightCore::twin_repair`]).
     #[inline(always)]
     pub(super) fn twin_check(&mut self) {
         let q = fold(&q_words(&self.attitude.quaternion()));
         let d = fold(&drift_words(&self.observer.drift_rad_s()));
-        if (q ^ self.twin.q_sum) | (d ^ self.twin.drift_sum) != 0 {
+        if q != self.twin.q_sum || d != self.twin.drift_sum {
             self.twin_repair();
         }
     }

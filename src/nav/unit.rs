@@ -72,7 +72,7 @@ use crate::frames::gnss::GnssFrame;
 use crate::frames::navout::{flags, NavOutputFrame};
 use crate::frames::Frame;
 use crate::link::{drain, write_frame, RxLink, TxLink};
-use crate::shadow::{Check, Pass, Shadow, Sum, Visit};
+use crate::shadow::{Check, CheckWord, Pass, Shadow, Sum, Visit};
 use crate::state::{Flag, Maybe, Ring};
 use crate::state_map::{state_struct, StateField};
 
@@ -782,12 +782,12 @@ fn restore_state(l: &mut Live<'_>, sh: &Shadow<STATE_WORDS>) {
 
 /// The checksum of the words `visit` walks.
 #[inline(never)]
-fn sum_of(visit: impl FnOnce(&mut Pass<'_>)) -> u64 {
+fn sum_of(visit: impl FnOnce(&mut Pass<'_>)) -> CheckWord {
     let mut pass = Pass::Sum(Sum::default());
     visit(&mut pass);
     match pass {
         Pass::Sum(s) => s.0,
-        _ => 0,
+        _ => CheckWord::ZERO,
     }
 }
 
