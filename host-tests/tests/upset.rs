@@ -4,7 +4,7 @@
 //! unit (0 silent, 0 crashes) is asserted here once the state's mitigations fly;
 //! until then this checks the campaign's accounting.
 
-use ssis_faults::upset::{self, draw_flips, field_span, run_flips, Flip, Outcome, Reference, Settings};
+use ssis_faults::upset::{self, draw_flips, field_span, run_flips, Flip, Outcome, Pattern, Reference, Settings};
 use ssis_sim::scenario::Scenario;
 
 /// The main job's two-minute scenario.
@@ -17,17 +17,27 @@ fn settings() -> Settings {
     let jobs = std::thread::available_parallelism().map_or(1, |n| n.get());
     // A hang is a crash; the limit leaves room for a loaded machine (a child flies the
     // rest of a two-minute flight, about a second of CPU).
-    Settings { flips: 0, seed: 0, jobs, timeout_s: 600, in_step: false }
+    Settings { flips: 0, seed: 0, jobs, timeout_s: 600, in_step: false, double_share: 0.0 }
 }
 
 #[test]
 fn a_sample_campaign_classes_every_flip_and_repeats_with_its_seed() {
     let sc = scenario();
     let reference = Reference::fly(&sc).expect("the undisturbed flight");
-    let flips = draw_flips(7, 300, &reference);
+    let flips = draw_flips(7, 300, &reference, 0.1);
     let size = std::mem::size_of::<ssis::flight::FlightCore>();
     assert!(flips.iter().all(|f| f.step > reference.converged_step && f.step < reference.steps.len()));
     assert!(flips.iter().all(|f| f.byte < size && f.bit < 8));
+    // About a tenth double-bit patterns, each second bit inside the core.
+    let doubles = flips.iter().filter(|f| f.pattern != Pattern::Single).count();
+    assert!((15..=50).contains(&doubles), "{doubles} double-bit flips of 300 at a share of 0.1");
+    assert!(flips.iter().all(|f| {
+        let (b, n) = f.bits(size);
+        n == if f.pattern == Pattern::Single { 1 } else { 2 }
+            && b.iter().all(|&(y, t)| y < size && t < 8)
+            && b[0] != b[1]
+            || n == 1
+    }));
     let mut done = 0;
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| done += 1).expect("the campaign");
     assert_eq!((verdicts.len(), done), (flips.len(), flips.len()));
@@ -49,8 +59,8 @@ fn a_sample_campaign_classes_every_flip_and_repeats_with_its_seed() {
     assert!(md.contains(&format!("| masked | {} |", counts[&Outcome::Masked])), "{md}");
     // The same seed draws the same flips (a shorter campaign, the first ones), and they
     // fly to the same verdicts; another seed draws others.
-    assert_eq!(draw_flips(7, 40, &reference), flips[..40]);
-    assert_ne!(draw_flips(8, 40, &reference), flips[..40]);
+    assert_eq!(draw_flips(7, 40, &reference, 0.1), flips[..40]);
+    assert_ne!(draw_flips(8, 40, &reference, 0.1), flips[..40]);
     let again = run_flips(&sc, &reference, &flips[..40], &settings(), |_| {}).expect("the campaign again");
     assert_eq!(again, verdicts[..40]);
 }
@@ -66,8 +76,8 @@ fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_is_restored(
     // The exponent's top bit (bit 62) of each of Λ's four f64 components.
     let (q, q_size) = field_span("attitude.q").expect("attitude.q in the map");
     assert_eq!(q_size, 32);
-    let mut flips = vec![Flip { step, byte: scratch, bit: 0, point: None }];
-    flips.extend((0..4).map(|c| Flip { step, byte: q + 8 * c + 7, bit: 6, point: None }));
+    let mut flips = vec![Flip { step, byte: scratch, bit: 0, point: None, pattern: Pattern::Single }];
+    flips.extend((0..4).map(|c| Flip { step, byte: q + 8 * c + 7, bit: 6, point: None, pattern: Pattern::Single }));
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
     assert_eq!(verdicts[0].outcome, Outcome::Masked, "{:?}", verdicts[0]);
     // The state guard finds each one at the next step and restores Λ bit for bit: the
@@ -91,7 +101,7 @@ fn a_flip_in_the_scratch_buffer_is_masked_and_one_in_the_quaternion_is_restored(
 fn no_flip_of_the_sample_is_silent_or_a_crash() {
     let sc = scenario();
     let reference = Reference::fly(&sc).expect("the undisturbed flight");
-    let flips = draw_flips(7, 300, &reference);
+    let flips = draw_flips(7, 300, &reference, 0.1);
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the campaign");
     let bad: Vec<_> = verdicts.iter().filter(|v| matches!(v.outcome, Outcome::Silent | Outcome::Crash)).collect();
     assert!(bad.is_empty(), "{} silent or crash: {bad:#?}", bad.len());
@@ -117,8 +127,15 @@ fn an_in_step_flip_of_the_quaternion_never_flies() {
     let flips: Vec<Flip> = [plain, star]
         .into_iter()
         .flat_map(|step| {
-            (0..probe::COUNT)
-                .flat_map(move |p| (0..4).map(move |c| Flip { step, byte: q + 8 * c + 7, bit: 6, point: Some(p) }))
+            (0..probe::COUNT).flat_map(move |p| {
+                (0..4).map(move |c| Flip {
+                    step,
+                    byte: q + 8 * c + 7,
+                    bit: 6,
+                    point: Some(p),
+                    pattern: Pattern::Single,
+                })
+            })
         })
         .collect();
     let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
@@ -126,5 +143,35 @@ fn an_in_step_flip_of_the_quaternion_never_flies() {
         assert!(matches!(v.outcome, Outcome::Masked | Outcome::Tolerated), "{v:?}");
         assert!(v.max_err_arcsec < upset::TOLERATED_ARCSEC, "{v:?}");
         assert!(v.new_events.iter().any(|(name, _)| name == "state_restored"), "{v:?}");
+    }
+}
+
+/// A multi-cell upset across two of Λ's words (the exponent's top bit of two neighbouring
+/// components, the same bit of adjacent 64-bit words), between two steps: an exclusive or
+/// of the words would not change, so neither the state guard nor the twin would see it.
+/// The guard's check word (two interleaved lanes) finds it and Λ comes back bit for bit.
+#[test]
+#[cfg_attr(debug_assertions, ignore = "overflow checks: the unit flies a release build")]
+fn the_same_bit_of_two_neighbouring_words_of_the_quaternion_is_restored() {
+    let sc = scenario();
+    let reference = Reference::fly(&sc).expect("the undisturbed flight");
+    let step = reference.converged_step + 2000;
+    let (q, _) = field_span("attitude.q").expect("attitude.q in the map");
+    let flips: Vec<Flip> = (0..3)
+        .flat_map(|c| {
+            [Pattern::SameBitWord64, Pattern::SameBitWord32, Pattern::AdjacentBits].map(|pattern| Flip {
+                step,
+                byte: q + 8 * c + 7,
+                bit: 6,
+                point: None,
+                pattern,
+            })
+        })
+        .collect();
+    let verdicts = run_flips(&sc, &reference, &flips, &settings(), |_| {}).expect("the flips");
+    for v in &verdicts {
+        assert!(!matches!(v.outcome, Outcome::Masked | Outcome::Silent | Outcome::Crash), "{v:?}");
+        assert!(v.new_events.iter().any(|(name, _)| name == "state_restored"), "{v:?}");
+        assert!(v.max_err_arcsec < 20.0, "{v:?}");
     }
 }

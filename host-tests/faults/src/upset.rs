@@ -234,8 +234,9 @@ impl Reference {
     }
 }
 
-/// One flip: before step `step` (after `step` steps), bit `bit` of byte `byte` of the core;
-/// with a `point`, inside that step at that probe point ([`probe`]).
+/// One flip: before step `step` (after `step` steps), bit `bit` of byte `byte` of the core,
+/// and with a double [`Pattern`] its second bit; with a `point`, inside that step at that
+/// probe point ([`probe`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Flip {
     /// Steps flown before the flip.
@@ -247,9 +248,72 @@ pub struct Flip {
     /// Inside the step, at this probe point (`None`: between two steps).
     #[serde(default)]
     pub point: Option<u8>,
+    /// One bit, or two in a multi-cell upset's pattern.
+    #[serde(default)]
+    pub pattern: Pattern,
+}
+
+/// The bits one upset flips: one, or two as a multi-cell upset flips them (cells next to
+/// each other in the array: the next bit of the same word, or the same bit of the
+/// neighbouring 32-bit or 64-bit word).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Pattern {
+    /// One bit.
+    #[default]
+    Single,
+    /// The bit and the next one up (bit 7 of a byte: bit 0 of the next byte).
+    AdjacentBits,
+    /// The same bit of the next 32-bit word (4 bytes on).
+    SameBitWord32,
+    /// The same bit of the next 64-bit word (8 bytes on).
+    SameBitWord64,
+}
+
+impl Pattern {
+    /// Every pattern, the report's order.
+    pub const ALL: [Pattern; 4] =
+        [Pattern::Single, Pattern::AdjacentBits, Pattern::SameBitWord32, Pattern::SameBitWord64];
+
+    /// The double patterns, drawn uniformly for a double-bit flip.
+    pub const DOUBLE: [Pattern; 3] = [Pattern::AdjacentBits, Pattern::SameBitWord32, Pattern::SameBitWord64];
+
+    /// As the report names it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Pattern::Single => "single bit",
+            Pattern::AdjacentBits => "two adjacent bits",
+            Pattern::SameBitWord32 => "same bit, adjacent 32-bit words",
+            Pattern::SameBitWord64 => "same bit, adjacent 64-bit words",
+        }
+    }
 }
 
 impl Flip {
+    /// The bits flipped (byte, bit): the drawn one, then the pattern's second (kept in a
+    /// core of `size` bytes: a second bit past its end is taken before the first).
+    pub fn bits(&self, size: usize) -> ([(usize, u8); 2], usize) {
+        let first = (self.byte, self.bit);
+        let second = match self.pattern {
+            Pattern::Single => return ([first, first], 1),
+            Pattern::AdjacentBits if self.bit < 7 => (self.byte, self.bit + 1),
+            Pattern::AdjacentBits => (self.byte + 1, 0),
+            Pattern::SameBitWord32 => (self.byte + 4, self.bit),
+            Pattern::SameBitWord64 => (self.byte + 8, self.bit),
+        };
+        let second = if second.0 < size {
+            second
+        } else {
+            // Below the first: the same distance the other way.
+            match self.pattern {
+                Pattern::AdjacentBits if self.bit > 0 => (self.byte, self.bit - 1),
+                Pattern::AdjacentBits => (self.byte.saturating_sub(1), 7),
+                _ => (self.byte.saturating_sub(second.0 - self.byte), self.bit),
+            }
+        };
+        ([first, second], 2)
+    }
+
     /// The field the flipped byte belongs to, outside in ("(padding)" for none), and the
     /// byte's offset within the innermost field.
     pub fn field(&self) -> (String, usize) {
@@ -273,17 +337,23 @@ pub fn field_of(map: &'static [StateField], byte: usize) -> (String, usize) {
 }
 
 /// `n` flips drawn from `seed`: a step after convergence (uniform to the end), a byte, a
-/// bit. The first k of n flips are the k flips of a campaign of k.
-pub fn draw_flips(seed: u64, n: usize, reference: &Reference) -> Vec<Flip> {
+/// bit; a share `double_share` of them double-bit patterns ([`Pattern::DOUBLE`], drawn
+/// uniformly). The first k of n flips are the k flips of a campaign of k (with the same
+/// share); with no doubles the draws are those of the single-bit campaign.
+pub fn draw_flips(seed: u64, n: usize, reference: &Reference, double_share: f64) -> Vec<Flip> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let (first, end) = (reference.converged_step + 1, reference.steps.len());
     let size = std::mem::size_of::<FlightCore>();
+    let double_share = if double_share.is_finite() { double_share.clamp(0.0, 1.0) } else { 0.0 };
     (0..n)
-        .map(|_| Flip {
-            step: rng.random_range(first..end),
-            byte: rng.random_range(0..size),
-            bit: rng.random_range(0..8),
-            point: None,
+        .map(|_| {
+            let (step, byte, bit) = (rng.random_range(first..end), rng.random_range(0..size), rng.random_range(0..8));
+            let pattern = if double_share > 0.0 && rng.random_bool(double_share) {
+                Pattern::DOUBLE[rng.random_range(0..Pattern::DOUBLE.len())]
+            } else {
+                Pattern::Single
+            };
+            Flip { step, byte, bit, point: None, pattern }
         })
         .collect()
 }
@@ -317,7 +387,7 @@ pub fn draw_in_step_flips(seed: u64, n: usize, reference: &Reference) -> Vec<Fli
             let point = rng.random_range(0..probe::COUNT);
             let (off, size) = spans[rng.random_range(0..spans.len())];
             let byte = off + rng.random_range(0..size);
-            Flip { step, byte, bit: rng.random_range(0..8), point: Some(point) }
+            Flip { step, byte, bit: rng.random_range(0..8), point: Some(point), pattern: Pattern::Single }
         })
         .collect()
 }
@@ -406,7 +476,12 @@ pub struct Verdict {
 /// Flies the rest of the flight after the flip and classes it against `reference`.
 pub fn fly_flipped(flight: &mut Flight, flip: Flip, reference: &Reference) -> Verdict {
     match flip.point {
-        None => flight.flip(flip.byte, flip.bit),
+        None => {
+            let (bits, n) = flip.bits(std::mem::size_of::<FlightCore>());
+            for &(byte, bit) in bits.iter().take(n) {
+                flight.flip(byte, bit);
+            }
+        }
         Some(p) => flight.flip_in_step(p, flip.byte, flip.bit),
     }
     let t0 = reference.steps.get(flip.step).map_or(0.0, |s| s.t_s);
@@ -487,6 +562,8 @@ pub struct Settings {
     pub timeout_s: u32,
     /// Flips inside the step ([`draw_in_step_flips`]) instead of between two steps.
     pub in_step: bool,
+    /// Between two steps: the share of double-bit patterns ([`draw_flips`]).
+    pub double_share: f64,
 }
 
 /// A child at work: its flip and the read end of its pipe.
@@ -503,7 +580,7 @@ pub fn campaign(sc: &Scenario, set: &Settings, on_done: impl FnMut(&Verdict)) ->
     let flips = if set.in_step {
         draw_in_step_flips(set.seed, set.flips, &reference)
     } else {
-        draw_flips(set.seed, set.flips, &reference)
+        draw_flips(set.seed, set.flips, &reference, set.double_share)
     };
     let verdicts = run_flips(sc, &reference, &flips, set, on_done)?;
     Ok((reference, verdicts))
@@ -744,6 +821,26 @@ pub fn report(reference: &Reference, verdicts: &[Verdict]) -> String {
         let _ = writeln!(s, "| {} | {k} | {} |", o.name(), share(k, n));
     }
     let _ = writeln!(s, "| all | {n} | | |\n");
+    // Per pattern, when the campaign drew double-bit ones.
+    if verdicts.iter().any(|v| v.flip.pattern != Pattern::Single) {
+        let _ = writeln!(s, "Per pattern (silent with its 95 % interval):\n");
+        let _ = write!(s, "| pattern | flips |");
+        for o in Outcome::ALL {
+            let _ = write!(s, " {} |", o.name());
+        }
+        let _ = writeln!(s, " silent, 95 % interval |\n|---|---|{}---|", "---|".repeat(Outcome::ALL.len()));
+        for p in Pattern::ALL {
+            let of: Vec<&Verdict> = verdicts.iter().filter(|v| v.flip.pattern == p).collect();
+            let _ = write!(s, "| {} | {} |", p.name(), of.len());
+            for o in Outcome::ALL {
+                let _ = write!(s, " {} |", of.iter().filter(|v| v.outcome == o).count());
+            }
+            let k = of.iter().filter(|v| v.outcome == Outcome::Silent).count() as u64;
+            let (lo, hi) = clopper_pearson(k, of.len() as u64);
+            let _ = writeln!(s, " {:.2}–{:.2} % |", 100.0 * lo, 100.0 * hi);
+        }
+        let _ = writeln!(s);
+    }
     let mut rec: Vec<f64> = verdicts
         .iter()
         .filter(|v| v.outcome == Outcome::DetectedRecovered)
@@ -819,9 +916,13 @@ pub fn report(reference: &Reference, verdicts: &[Verdict]) -> String {
             };
             let _ = writeln!(
                 s,
-                "| {} | {f} | {off}, {} | {:.3} | {} | {} | {} | {} | {} |",
+                "| {} | {f} | {off}, {}{} | {:.3} | {} | {} | {} | {} | {} |",
                 v.outcome.name(),
                 v.flip.bit,
+                match v.flip.pattern {
+                    Pattern::Single => String::new(),
+                    p => format!(" ({})", p.name()),
+                },
                 reference.steps.get(v.flip.step).map_or(0.0, |s| s.t_s),
                 shown(format!("{:.0}", v.worst_silent_arcsec)),
                 shown(v.silent_frames.to_string()),

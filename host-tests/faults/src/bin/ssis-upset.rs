@@ -47,6 +47,11 @@ struct Args {
     /// between two steps into any byte of the core.
     #[arg(long)]
     in_step: bool,
+    /// Between two steps: this share of the flips are double-bit patterns of a
+    /// multi-cell upset (two adjacent bits, the same bit of the adjacent 32-bit or 64-bit
+    /// word; drawn uniformly), 0 to 1.
+    #[arg(long, default_value_t = 0.0, value_parser = share)]
+    double_share: f64,
     /// Markdown to write (stdout always gets it); an existing file is replaced only with
     /// --force (with --in-step: only its in-step section, between its markers).
     #[arg(long)]
@@ -123,6 +128,15 @@ fn cpu_s() -> f64 {
     t(libc::RUSAGE_SELF) + t(libc::RUSAGE_CHILDREN)
 }
 
+/// A share, 0 to 1.
+fn share(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if (0.0..=1.0).contains(&x) => Ok(x),
+        Ok(x) => Err(format!("{x} is not a share between 0 and 1")),
+        Err(e) => Err(format!("not a number: {e}")),
+    }
+}
+
 fn main() -> ExitCode {
     let args = Args::parse();
     cli::finish_unit(args.flags.start("ssis-upset").and_then(|()| run(&args)))
@@ -135,7 +149,18 @@ fn run(args: &Args) -> Result<()> {
     output::input(&args.scenario);
     let sc = Scenario::from_file(&args.scenario).with_context(|| format!("reading {}", args.scenario.display()))?;
     let jobs = args.jobs.unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get()));
-    let set = Settings { flips: args.flips, seed: args.seed, jobs, timeout_s: args.timeout_s, in_step: args.in_step };
+    anyhow::ensure!(
+        !(args.in_step && args.double_share > 0.0),
+        "--double-share: the in-step campaign flips single bits only (give one of the two)"
+    );
+    let set = Settings {
+        flips: args.flips,
+        seed: args.seed,
+        jobs,
+        timeout_s: args.timeout_s,
+        in_step: args.in_step,
+        double_share: args.double_share,
+    };
     let started = std::time::Instant::now();
     let bar = ProgressBar::new(args.flips as u64)
         .with_style(ProgressStyle::with_template("{bar:40} {pos}/{len} {msg} {eta}")?);
