@@ -758,6 +758,10 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
         watchdog_warnings()
     }
 
+    fn check_tick(&mut self) -> ssis::bsp::exec::RegisterCheck {
+        crate::regcheck::verify_tick(&REGISTERS)
+    }
+
     fn check_registers(&mut self) -> ssis::bsp::exec::RegisterCheck {
         crate::regcheck::verify(&REGISTERS)
     }

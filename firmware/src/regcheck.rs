@@ -15,8 +15,10 @@
 //! FAULTMASK) are checked too: the firmwares never raise BASEPRI or FAULTMASK, and mask
 //! interrupts only inside critical sections, so between two steps PRIMASK is clear.
 //!
-//! A stopped SysTick (its ENABLE or TICKINT bit cleared) stops the steps, and with them
-//! the executive's check. The watchdog's first timeout (an NMI, one watchdog period
+//! The SysTick's own two registers are checked at every pass of the executive as well
+//! ([`verify_tick`]): a tick an upset stopped or slowed runs again at the loop's next wake
+//! (the next received byte). A stopped SysTick (its ENABLE or TICKINT bit cleared) with
+//! no byte arriving stops the steps, and with them the executive's checks. The watchdog's first timeout (an NMI, one watchdog period
 //! after the last step) runs [`verify_in_nmi`]: the entries before the first selection
 //! (the tick, the interrupt enables and priorities, the UARTs) restored from there, the
 //! steps resume and feed the watchdog before its second timeout; had the restore not
@@ -204,6 +206,14 @@ pub fn verify(list: &[Entry]) -> RegisterCheck {
     }
     out.restored += NMI_RESTORED.swap(0, Ordering::Relaxed);
     out
+}
+
+/// The step tick's check at every pass of the executive
+/// ([`ssis::bsp::exec::StepBoard::check_tick`]; thread mode): the list's first two
+/// entries, the SysTick's control word and reload ([`CORE`], which every board's list
+/// starts with).
+pub fn verify_tick(list: &[Entry]) -> RegisterCheck {
+    table().verify(list.get(..2).unwrap_or(list), true)
 }
 
 /// The watchdog warning's check (module doc): the entries before the first selection.

@@ -8,6 +8,9 @@
 //!
 //! Each pass of the loop:
 //!
+//! 0. **The tick's registers** ([`StepBoard::check_tick`]: the SysTick's control word and
+//!    reload) checked and restored, so a tick an upset stopped runs again at the next
+//!    wake; a restore logged (`register_restored`), one that does not hold resets.
 //! 1. **Wait** ([`StepBoard::wait`]): a step due on the timer (with the ticks it
 //!    missed: each an overrun), a step due in lockstep (test equipment), an idle wake,
 //!    or the end of a test run.
@@ -142,6 +145,16 @@ pub trait StepBoard: Board {
     /// (returns true then); a board without a command link has no key.
     fn check_key(&mut self) -> bool {
         false
+    }
+
+    /// Checks the step tick's own registers (the SysTick's control word and reload, the
+    /// first entries of a Cortex-M7 board's list) against their start-up values,
+    /// restoring them; run at the start of every pass, before the wait, so that a tick
+    /// an upset stopped or changed (its enable, its interrupt, its clock source, its
+    /// period) runs again at the loop's next wake (a received byte, the next step's
+    /// data), not a watchdog period later. Nothing by default.
+    fn check_tick(&mut self) -> RegisterCheck {
+        RegisterCheck::default()
     }
 
     /// Checks the configuration registers the unit depends on (the step tick, the
@@ -322,6 +335,10 @@ impl Executive {
         if crate::link::ring_faults() != 0 {
             self.fault_reset(board, mission, core, Fault::Ring);
         }
+        let tick = board.check_tick();
+        if tick != RegisterCheck::default() {
+            self.restored(board, mission, core, tick);
+        }
         let lockstep = match board.wait(core) {
             Wait::End => {
                 board.send();
@@ -435,6 +452,19 @@ impl Executive {
         core: &mut FlightCore,
     ) {
         let r = board.check_registers();
+        self.restored(board, mission, core, r);
+    }
+
+    /// What a register check found: restores logged (`register_restored`); a restore
+    /// that did not hold resets the unit.
+    #[inline(never)]
+    fn restored<B: StepBoard + ?Sized, M: Mission + ?Sized>(
+        &mut self,
+        board: &mut B,
+        mission: &mut M,
+        core: &mut FlightCore,
+        r: RegisterCheck,
+    ) {
         if r.restored != 0 {
             core.log_event(Event::RegisterRestored, u8::try_from(r.restored).unwrap_or(u8::MAX), 0);
         }
@@ -568,6 +598,8 @@ mod tests {
         key_checks: u32,
         regs: RegisterCheck,
         reg_checks: u32,
+        tick: RegisterCheck,
+        tick_checks: u32,
     }
 
     static IMAGE: [u8; 300] = [0x5A; 300];
@@ -617,6 +649,10 @@ mod tests {
             self.reg_checks += 1;
             core::mem::take(&mut self.regs)
         }
+        fn check_tick(&mut self) -> RegisterCheck {
+            self.tick_checks += 1;
+            core::mem::take(&mut self.tick)
+        }
         fn reset(&mut self) -> ! {
             panic!("the unit resets")
         }
@@ -650,15 +686,17 @@ mod tests {
     /// Flies the script `waits` (then END) with steps of `cost` clock counts; the board,
     /// the mission and the loop's figures after.
     fn fly(waits: &[Wait], cost: u32, ecc: MemoryErrors) -> (Sim, Cost, LoopStats, FlightCore) {
-        fly_with(waits, cost, ecc, RegisterCheck::default())
+        fly_with(waits, cost, ecc, RegisterCheck::default(), RegisterCheck::default())
     }
 
-    /// As [`fly`], the first register check finding `regs`.
+    /// As [`fly`], the first register check finding `regs` and the first check of the
+    /// tick's registers `tick`.
     fn fly_with(
         waits: &[Wait],
         cost: u32,
         ecc: MemoryErrors,
         regs: RegisterCheck,
+        tick: RegisterCheck,
     ) -> (Sim, Cost, LoopStats, FlightCore) {
         let mut core = FlightCore::new(Profile::SPACECRAFT, &CalibrationTable::DEFAULT, false).expect("core");
         let clock = Rc::new(Cell::new(0));
@@ -672,6 +710,8 @@ mod tests {
             key_checks: 0,
             regs,
             reg_checks: 0,
+            tick,
+            tick_checks: 0,
         };
         let mut m = Cost { clock, cost, steps: 0, began: 0, saves: 0 };
         let mut exec = Executive::start(&mut sim, &mut m, &mut core);
@@ -766,7 +806,7 @@ mod tests {
     fn a_restored_register_is_logged_and_the_unit_flies_on() {
         let waits = std::vec![Wait::Tick { missed: 0 }; REGISTER_STEPS as usize + 1];
         let regs = RegisterCheck { restored: 2, failed: 0 };
-        let (sim, m, _, core) = fly_with(&waits, 10, MemoryErrors::default(), regs);
+        let (sim, m, _, core) = fly_with(&waits, 10, MemoryErrors::default(), regs, RegisterCheck::default());
         assert_eq!((sim.reg_checks, m.steps), (1, REGISTER_STEPS + 1));
         let logged: std::vec::Vec<_> = core.events().pending().collect();
         assert!(logged.iter().any(|r| r.event == Event::RegisterRestored && r.a == 2), "{logged:?}");
@@ -777,6 +817,25 @@ mod tests {
     fn a_register_whose_restore_does_not_hold_resets_the_unit() {
         let waits = std::vec![Wait::Tick { missed: 0 }; REGISTER_STEPS as usize];
         let regs = RegisterCheck { restored: 0, failed: 1 };
-        let _ = fly_with(&waits, 10, MemoryErrors::default(), regs);
+        let _ = fly_with(&waits, 10, MemoryErrors::default(), regs, RegisterCheck::default());
+    }
+
+    #[test]
+    fn the_tick_is_checked_at_every_pass_and_a_restore_logged() {
+        let waits = [Wait::Idle { lockstep: false, tick: false }, Wait::Tick { missed: 0 }, Wait::Tick { missed: 0 }];
+        let tick = RegisterCheck { restored: 1, failed: 0 };
+        let (sim, m, stats, core) = fly_with(&waits, 10, MemoryErrors::default(), RegisterCheck::default(), tick);
+        assert_eq!(sim.tick_checks, stats.passes, "every pass, the idle one too");
+        assert_eq!(m.steps, 2);
+        let logged: std::vec::Vec<_> = core.events().pending().collect();
+        assert!(logged.iter().any(|r| r.event == Event::RegisterRestored && r.a == 1), "{logged:?}");
+    }
+
+    #[test]
+    #[should_panic(expected = "the unit resets")]
+    fn a_tick_whose_restore_does_not_hold_resets_the_unit() {
+        let waits = [Wait::Tick { missed: 0 }];
+        let tick = RegisterCheck { restored: 0, failed: 1 };
+        let _ = fly_with(&waits, 10, MemoryErrors::default(), RegisterCheck::default(), tick);
     }
 }
