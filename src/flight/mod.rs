@@ -441,7 +441,7 @@ impl FlightCore {
         };
         probe(self, probe::OBSERVED);
         // Λ and Δω as sealed ([`twin`]): the frame carries no flip made in the step.
-        self.twin_check();
+        self.twin_check_rare();
         // Telemetry: the output, its status bits assembled from each stage's.
         let out = self.assemble_output(now_us, st, &acc, dt_s);
         probe(self, probe::ASSEMBLED);
