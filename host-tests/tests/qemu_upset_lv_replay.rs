@@ -65,3 +65,32 @@ fn a_watchdog_reset_mid_ascent_resumes_within_the_bound() {
         assert_ne!(f.outcome, Outcome::Silent, "{f:?}\n{}", c.report());
     }
 }
+
+/// The SysTick's interrupt enable (TICKINT) and clock source (CLKSOURCE) cleared mid-step,
+/// mid-ascent: the executive's check of the tick's registers before its next wait restores
+/// them at once (`register_restored`), so the loop never stalls into the watchdog's
+/// warning (before that check, every such flip did, and the campaign's two silent flips
+/// were watchdog resets after one).
+#[test]
+fn a_tick_stopped_by_its_control_word_runs_again_at_the_next_pass() {
+    let elf = build_firmware().expect("ssis-fw-lv-test builds");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/lv-ascent.toml");
+    let mut sc = LvScenario::from_file(&path).expect("scenario");
+    let reg = DEVICE_REGS.iter().position(|d| d.name == "SYST_CSR").expect("listed") as u8;
+    for bit in [1u8, 2] {
+        let first_s = 6.03;
+        sc.duration_s = first_s + 2.0;
+        let o =
+            UpsetOptions { first_s, quiet_s: 0.1, window_s: 1.0, gap_s: 0.05, ..UpsetOptions::new(elf.clone(), 2, 38) };
+        let t = Target::Device { reg, bit };
+        let c = run_flown_injection(Flown::LaunchVehicle(&sc), &o, t, |f| show(&format!("SYST_CSR bit {bit}"), f))
+            .expect("campaign");
+        assert_eq!(c.flips.len(), 2);
+        for f in &c.flips {
+            assert!(f.reset_cause.is_none(), "bit {bit}: reset {f:?}");
+            assert!(!f.events.iter().any(|e| e == "watchdog_warning"), "bit {bit}: the loop stalled: {f:?}");
+            assert!(f.events.iter().any(|e| e == "register_restored"), "bit {bit}: not restored: {f:?}");
+            assert!(matches!(f.outcome, Outcome::Masked | Outcome::Tolerated), "bit {bit}: {f:?}\n{}", c.report());
+        }
+    }
+}
