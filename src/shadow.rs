@@ -137,7 +137,7 @@ pub trait Visit {
 /// exclusive or of the words whose number in the walk has the parity of the last word's
 /// plus one, lane `a` the others: after each word the lanes swap, so the word goes into
 /// the lane that then becomes `b`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C)]
 pub struct CheckWord {
     a: u64,
