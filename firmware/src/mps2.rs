@@ -150,12 +150,12 @@ unsafe impl cortex_m::interrupt::InterruptNumber for Irq {
 static TICKS: AtomicU32 = AtomicU32::new(0);
 
 /// First thing in `main`: the stack guard below RAM (0x1000_0000..0x2000_0000, where
-/// both layouts put the stack's bottom), the first 128 KiB of flash read-only (the
+/// both layouts put the stack's bottom), the first 256 KiB of flash read-only (the
 /// image; both layouts put their written regions, calibration and key or LV data, at
-/// 0x2_0000 and above) and the stack painted for the high-water mark.
+/// 0x4_0000 and above) and the stack painted for the high-water mark.
 pub fn start() {
     cortex_m7::protect_below_stack(0x1000_0000, 28);
-    cortex_m7::protect_image(17);
+    cortex_m7::protect_image(18);
     cortex_m7::paint_stack();
 }
 

@@ -41,7 +41,7 @@
 //! | 4 | GNSS receiver (kind 0x21) | — |
 //!
 //! Board: `ssis_firmware::mps2`, as the spacecraft firmware's. Memory: `link/memory-lv.x`
-//! (128 KiB flash, 64 KiB RAM: 52 KiB of stack at the bottom, 4 KiB of statics above,
+//! (264 KiB flash, 256 KiB of it the flight image's budget, 64 KiB RAM: 52 KiB of stack at the bottom, 4 KiB of statics above,
 //! 8 KiB for the reset snapshot; FOG table, accelerometer section and pad
 //! initialisation block in their own regions, loaded separately). A reset resumes the
 //! core from its snapshot and the navigation from its own (`ssis::nav::snapshot`), which

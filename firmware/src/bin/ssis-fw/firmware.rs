@@ -24,7 +24,7 @@
 //! | 1 | FOG bus: all four FOGs, told apart by `fog_id` | — |
 //! | 2 | star tracker | — |
 //!
-//! Memory: `memory.x` (136 KiB flash, 36 KiB RAM: 32 KiB of stack at the bottom, 3.5 KiB
+//! Memory: `memory.x` (264 KiB flash, 36 KiB RAM: 32 KiB of stack at the bottom, 3.5 KiB
 //! of statics above, 512 B for the reset snapshot; the calibration table's two copies
 //! and the command key in their own regions).
 //!
