@@ -44,7 +44,7 @@ use heapless::Deque;
 use crate::cortex_m7;
 use ssis::bsp::exec::{StepBoard, Wait};
 use ssis::bsp::Board;
-use ssis::flight::snapshot::Snapshot;
+use ssis::flight::snapshot::Snapshots;
 use ssis::flight::FlightCore;
 use ssis::frames::control::{command, ControlFrame};
 use ssis::frames::decoder::StreamDecoder;
@@ -683,7 +683,7 @@ pub struct Mps2Unit<L> {
     pub line: L,
     arrived: fn(&ControlFrame) -> bool,
     rx_overflows: fn() -> u32,
-    snap: Option<&'static mut Snapshot>,
+    snap: Option<&'static mut Snapshots>,
 }
 
 impl<L: ControlLine> Mps2Unit<L> {
@@ -742,7 +742,7 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
         self.line.after_step();
     }
 
-    fn snapshot(&mut self) -> Option<&mut Snapshot> {
+    fn snapshots(&mut self) -> Option<&mut Snapshots> {
         self.snap.as_deref_mut()
     }
 

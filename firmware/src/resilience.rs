@@ -2,7 +2,8 @@
 //! checks: the memory the executive's after-step work uses (`ssis::bsp::exec`, which
 //! runs it on one schedule for every board).
 //!
-//! - **Snapshot** ([`snapshot`]): one [`Snapshot`] at the start of the layout's SNAP
+//! - **Snapshot** ([`snapshot`]): two copies of the core's snapshot ([`Snapshots`],
+//!   written in turn, so a reset that tears one write leaves the other) at the start of the layout's SNAP
 //!   region, RAM no section is placed in (`memory.x`, `link/memory-lv.x`: neither
 //!   cortex-m-rt's start-up nor QEMU's system reset, which rewrites every ELF load
 //!   segment including `.uninit`, clears it), written by the executive every
@@ -16,7 +17,7 @@
 //!   executive's code check (`ssis::bsp::code::CodeCheck`) covers.
 #![allow(unsafe_code)]
 
-use ssis::flight::snapshot::Snapshot;
+use ssis::flight::snapshot::Snapshots;
 
 pub use ssis::bsp::exec::SNAPSHOT_STEPS;
 
@@ -26,29 +27,29 @@ extern "C" {
     static _snapshot_len: u8;
 }
 
-/// The snapshot in RAM the reset does not clear (the layout's SNAP region), as plain
-/// words (any bit pattern is a value: `Snapshot` holds only `u32`s). Only the main loop
-/// calls this, once, so the reference is unique; a layout whose region is too small
-/// gets `None`.
-pub fn snapshot() -> Option<&'static mut Snapshot> {
+/// The snapshot's two copies in RAM the reset does not clear (the layout's SNAP region),
+/// as plain words (any bit pattern is a value: `Snapshot` holds only plain numbers).
+/// Only the main loop calls this, once, so the reference is unique; a layout whose
+/// region is too small gets `None`.
+pub fn snapshot() -> Option<&'static mut Snapshots> {
     let len = core::ptr::addr_of!(_snapshot_len) as usize;
-    if len < core::mem::size_of::<Snapshot>() {
+    if len < core::mem::size_of::<Snapshots>() {
         return None;
     }
-    // SAFETY: the SNAP region is word-aligned RAM of at least `size_of::<Snapshot>()`
-    // bytes (checked), used by nothing else; `Snapshot` is `repr(C)` u32 words, valid for
-    // any bit pattern (RAM after a cold start holds some pattern; its CRC judges it); the
-    // main loop takes this reference once and no interrupt touches it.
-    unsafe { Some(&mut *(core::ptr::addr_of_mut!(_snapshot_start) as *mut Snapshot)) }
+    // SAFETY: the SNAP region is word-aligned RAM of at least `size_of::<Snapshots>()`
+    // bytes (checked), used by nothing else; `Snapshots` is `repr(C)` plain numbers,
+    // valid for any bit pattern (RAM after a cold start holds some pattern; each copy's
+    // CRC judges it); the main loop takes this reference once and no interrupt touches it.
+    unsafe { Some(&mut *(core::ptr::addr_of_mut!(_snapshot_start) as *mut Snapshots)) }
 }
 
-/// The part of the SNAP region after the core's [`Snapshot`]: the mission's extra
+/// The part of the SNAP region after the core's [`Snapshots`]: the mission's extra
 /// state that survives a reset (the launch vehicle's navigation), as plain words; empty
 /// when the region holds no more. Only the mission takes it, once, so the reference is
 /// unique.
 pub fn snapshot_extra() -> &'static mut [u32] {
     let len = core::ptr::addr_of!(_snapshot_len) as usize;
-    let core_words = core::mem::size_of::<Snapshot>().div_ceil(4);
+    let core_words = core::mem::size_of::<Snapshots>().div_ceil(4);
     let words = (len / 4).saturating_sub(core_words);
     // SAFETY: the words after the core's snapshot inside the SNAP region (its length
     // from the layout), word-aligned RAM used by nothing else; any bit pattern is a

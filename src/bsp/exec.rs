@@ -42,13 +42,15 @@
 //!    ([`crate::link::ring_faults`]): snapshot and reset ([`StepBoard::reset`]), as for
 //!    a register whose restore does not hold and a code image found changed.
 //!
-//! At boot [`run`] resumes the core from the board's snapshot if it passes
-//! ([`FlightCore::resume`]) and spoils it, so one snapshot is resumed at most once, then
+//! At boot [`run`] resumes the core from the newer of the board's two snapshot copies
+//! that passes ([`FlightCore::resume_from`]; the snapshot is written into them in turn,
+//! so a reset that tears one write leaves the other) and spoils both, so one snapshot
+//! is resumed at most once, then
 //! lets the mission resume its own ([`Mission::resume`]).
 
 use super::code::CodeCheck;
 use super::Board;
-use crate::flight::snapshot::Snapshot;
+use crate::flight::snapshot::Snapshots;
 use crate::flight::{st_status, FlightCore, StepOutput};
 use crate::telemetry::events::Event;
 
@@ -135,8 +137,8 @@ pub trait StepBoard: Board {
     /// status log), and the pass's time on the clock.
     fn after_step(&mut self, _core: &mut FlightCore, _busy: u32) {}
 
-    /// The snapshot in RAM the reset does not clear, if the layout has one.
-    fn snapshot(&mut self) -> Option<&mut Snapshot>;
+    /// The snapshot's two copies in RAM the reset does not clear, if the layout has them.
+    fn snapshots(&mut self) -> Option<&mut Snapshots>;
 
     /// The code image in flash the code check covers.
     fn code_image(&self) -> &'static [u8];
@@ -270,6 +272,8 @@ pub struct Executive {
     warnings: u32,
     /// A step has been taken in lockstep.
     lockstep: bool,
+    /// The snapshot copy the next write goes to (its low bit).
+    snap_slot: u32,
 }
 
 impl Executive {
@@ -281,18 +285,18 @@ impl Executive {
         mission: &mut M,
         core: &mut FlightCore,
     ) -> Executive {
-        if let Some(snap) = board.snapshot() {
-            match core.resume(snap) {
+        if let Some(snaps) = board.snapshots() {
+            match core.resume_from(snaps) {
                 Ok(()) => {
                     #[cfg(target_os = "none")]
-                    defmt::warn!("reset: resumed from the snapshot taken at sample {}", snap.index());
+                    defmt::warn!("reset: resumed from the snapshot");
                 }
                 Err(_e) => {
                     #[cfg(target_os = "none")]
                     defmt::info!("no snapshot resumed ({}): aligning on the star tracker", _e);
                 }
             }
-            snap.invalidate();
+            snaps.invalidate();
         }
         mission.resume(core);
         let code = CodeCheck::new(board.code_image());
@@ -308,6 +312,7 @@ impl Executive {
             awaited_run: 0,
             warnings: board.watchdog_warnings(),
             lockstep: false,
+            snap_slot: 0,
         }
     }
 
@@ -400,9 +405,7 @@ impl Executive {
         let steps = self.stats.steps.wrapping_add(1);
         self.stats.steps = steps;
         if steps.is_multiple_of(SNAPSHOT_STEPS) {
-            if let Some(snap) = board.snapshot() {
-                core.snapshot_into(snap);
-            }
+            self.write_snapshot(board, core);
             mission.save();
         }
         if steps.is_multiple_of(KEY_CHECK_STEPS) && board.check_key() {
@@ -487,11 +490,18 @@ impl Executive {
         defmt::error!("{}: snapshot and reset", why);
         #[cfg(not(target_os = "none"))]
         let _ = why;
-        if let Some(snap) = board.snapshot() {
-            core.snapshot_into(snap);
-        }
+        self.write_snapshot(board, core);
         mission.save();
         board.reset()
+    }
+
+    /// The core's snapshot into the copy whose turn it is (the other, one snapshot
+    /// period older, stays whole should a reset tear this write).
+    fn write_snapshot<B: StepBoard + ?Sized>(&mut self, board: &mut B, core: &FlightCore) {
+        if let Some(snaps) = board.snapshots() {
+            snaps.write(core, self.snap_slot);
+            self.snap_slot = (self.snap_slot & 1) ^ 1;
+        }
     }
 }
 
@@ -592,7 +602,7 @@ mod tests {
         waits: std::vec::Vec<Wait>,
         clock: Rc<Cell<u32>>,
         feeds: u32,
-        snap: Snapshot,
+        snap: Snapshots,
         calib: std::vec::Vec<u8>,
         ecc: MemoryErrors,
         key_checks: u32,
@@ -632,7 +642,7 @@ mod tests {
             PERIOD
         }
         fn send(&mut self) {}
-        fn snapshot(&mut self) -> Option<&mut Snapshot> {
+        fn snapshots(&mut self) -> Option<&mut Snapshots> {
             Some(&mut self.snap)
         }
         fn code_image(&self) -> &'static [u8] {
@@ -704,7 +714,7 @@ mod tests {
             waits: waits.iter().rev().copied().collect(),
             clock: clock.clone(),
             feeds: 0,
-            snap: Snapshot::default(),
+            snap: Snapshots::default(),
             calib: std::vec![0xFF; store::REGION_LEN],
             ecc,
             key_checks: 0,
@@ -797,7 +807,7 @@ mod tests {
         assert_eq!((core.counter(Counter::SramEccCorrected), core.counter(Counter::SramEccUncorrected)), (2, 1));
         // Spoiled at the start (resumed at most once); the core is not aligned (no FOG
         // samples), so nothing was written after.
-        let mut spoiled = Snapshot::default();
+        let mut spoiled = Snapshots::default();
         spoiled.invalidate();
         assert_eq!(bytemuck::bytes_of(&sim.snap), bytemuck::bytes_of(&spoiled));
     }

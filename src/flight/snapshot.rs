@@ -7,9 +7,12 @@
 //! clock), the alignment and the estimator's convergence and covariance, the FOG
 //! assignment, the mean body increment and the CRC of the table it was taken under, and
 //! the fields the core's declaration keeps over a reset ([`super::Survivors`], copied
-//! as they are). The board keeps it in RAM its reset does not clear
-//! (`ssis-firmware`: the `.uninit` section) and, after a reset, hands it to
-//! [`FlightCore::resume`], which resumes only a snapshot that passes every check
+//! as they are). The board keeps two copies ([`Snapshots`], written in turn by the
+//! executive, so a reset that tears one write, or an upset of one copy before a reset,
+//! leaves the other, one snapshot period older) in RAM its reset does not clear
+//! (`ssis-firmware`: the SNAP region) and, after a reset, hands them to
+//! [`FlightCore::resume_from`], which takes the newer copy that passes; each goes
+//! through [`FlightCore::resume`], which resumes only a snapshot that passes every check
 //! ([`SnapshotError`]): its check word, its format, the table in use, and plausibility (a unit
 //! quaternion, finite values, a drift within [`MAX_DRIFT_RAD_S`]). Its age is checked at
 //! the first FOG sample after the reset: the samples sent meanwhile are bridged on the
@@ -43,10 +46,10 @@ pub const MAX_AGE_STEPS: u64 = 200;
 /// How far the interval's mean increment may be from the last sample, beyond a tenth of
 /// the increment, before the last sample is bridged on instead, rad.
 const MEAN_TOLERANCE_RAD: f64 = 1e-6;
-/// Room the boards keep for the snapshot in RAM their reset does not clear (the SNAP
-/// region of the firmware's memory layout), bytes.
-pub const SNAPSHOT_ROOM_BYTES: usize = 512;
-const _: () = assert!(core::mem::size_of::<Snapshot>() <= SNAPSHOT_ROOM_BYTES);
+/// Room the boards keep for the snapshot's two copies ([`Snapshots`]) in RAM their reset
+/// does not clear (the SNAP region of the firmware's memory layout), bytes.
+pub const SNAPSHOT_ROOM_BYTES: usize = 1024;
+const _: () = assert!(core::mem::size_of::<Snapshots>() <= SNAPSHOT_ROOM_BYTES);
 
 /// [`Snapshot::flags`]: the mounting check had cleared the unit; bits 8..16: the FOG
 /// assignment.
@@ -124,6 +127,50 @@ pub struct Snapshot {
     reserved_end: u32,
     /// CRC-32C of every byte before it.
     check: u32,
+}
+
+/// The snapshot's two copies, written in turn ([`Snapshots::write`]): a copy torn by a
+/// reset during its write, or one an upset flipped a bit of before a reset, leaves the
+/// other, one snapshot period older, to resume from ([`FlightCore::resume_from`]).
+#[derive(Debug, Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
+pub struct Snapshots {
+    copies: [Snapshot; 2],
+}
+
+impl Snapshots {
+    /// Writes `core`'s snapshot into copy `slot` (taken modulo 2: the board's executive
+    /// alternates; an upset of its count at worst writes one copy twice, and the other,
+    /// older, is then refused by its age); false when the core has nothing to resume
+    /// (the copy is then left as it was).
+    #[inline]
+    pub fn write(&mut self, core: &FlightCore, slot: u32) -> bool {
+        let [a, b] = &mut self.copies;
+        core.snapshot_into(if slot & 1 == 0 { a } else { b })
+    }
+
+    /// Spoils both copies (the board after resuming: a snapshot is resumed at most once).
+    pub fn invalidate(&mut self) {
+        for c in &mut self.copies {
+            c.invalidate();
+        }
+    }
+
+    /// The copies, the one taken at the later unit time first (by the index each holds:
+    /// the resume checks each before it trusts anything else in it).
+    pub fn newest_first(&self) -> [&Snapshot; 2] {
+        let [a, b] = &self.copies;
+        if b.index() > a.index() {
+            [b, a]
+        } else {
+            [a, b]
+        }
+    }
+
+    /// Copy `k` (0 or 1; tests: a bit flipped in one copy, a copy torn).
+    pub fn copy_mut(&mut self, k: usize) -> Option<&mut Snapshot> {
+        self.copies.get_mut(k)
+    }
 }
 
 impl Default for Snapshot {
@@ -258,6 +305,15 @@ impl FlightCore {
             Err(e) => self.snapshot_refused(e),
         }
         r
+    }
+
+    /// Resumes from the newer of the two copies that passes every check, the newer
+    /// first ([`FlightCore::resume`] on each: a refused copy is logged, the core left
+    /// unchanged); the newer copy's refusal when neither is resumed.
+    #[inline(never)]
+    pub fn resume_from(&mut self, s: &Snapshots) -> Result<(), SnapshotError> {
+        let [newer, older] = s.newest_first();
+        self.resume(newer).or_else(|e| self.resume(older).map_err(|_| e))
     }
 
     fn check_snapshot(&self, s: &Snapshot) -> Result<(), SnapshotError> {

@@ -366,7 +366,7 @@ pub fn run_lv_reset(run: LvRun<'_>, opts: &LvOptions, reset: LvReset) -> Result<
 /// Where the navigation's snapshot lies: after the core's in the SNAP region
 /// (`resilience::snapshot_extra`).
 fn nav_snapshot_addr(elf: &std::path::Path) -> Result<u32> {
-    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4);
+    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshots>().div_ceil(4);
     Ok(symbol(elf, "_snapshot_start")? as u32 + 4 * core_words as u32)
 }
 

@@ -28,7 +28,7 @@ mod watchdog;
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{DWT, NVIC};
 use ssis::bsp::exec::{MemoryErrors, StepBoard, Wait};
-use ssis::flight::snapshot::Snapshot;
+use ssis::flight::snapshot::Snapshots;
 use ssis::flight::FlightCore;
 use ssis_firmware::cortex_m7;
 use stm32h7::stm32h743v::{self as pac, Interrupt};
@@ -99,7 +99,7 @@ pub struct Stm32h7 {
     /// The tick of the last step.
     handled: u32,
     /// The snapshot in the layout's SNAP region.
-    snap: Option<&'static mut Snapshot>,
+    snap: Option<&'static mut Snapshots>,
     /// Step times of the status log's window.
     window: ssis::bsp::exec::Times,
     /// Steps since start.
@@ -148,7 +148,7 @@ impl StepBoard for Stm32h7 {
         }
     }
 
-    fn snapshot(&mut self) -> Option<&mut Snapshot> {
+    fn snapshots(&mut self) -> Option<&mut Snapshots> {
         self.snap.as_deref_mut()
     }
 
@@ -308,7 +308,7 @@ pub fn init(step_us: u32) -> Result<Stm32h7, SetupError> {
     let mut snap = ssis_firmware::resilience::snapshot();
     if matches!(reset_reason, "power-on" | "brown-out") {
         if let Some(s) = snap.as_deref_mut() {
-            *s = Snapshot::default();
+            *s = Snapshots::default();
         }
     }
     ecc::enable();

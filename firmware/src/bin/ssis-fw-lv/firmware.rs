@@ -71,11 +71,11 @@ use ssis_firmware::resilience;
 /// stall on the loaded build machine reset the unit between two steps.
 const WATCHDOG_STEPS: u32 = 40;
 
-/// The SNAP region's length in `link/memory-lv.x`: the core's snapshot and the
+/// The SNAP region's length in `link/memory-lv.x`: the core's two snapshots and the
 /// navigation's two copies must fit (else the navigation would have no snapshot).
 const SNAP_BYTES: usize = 8 * 1024;
 const _: () = assert!(
-    4 * core::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4) + core::mem::size_of::<NavSnapshot>()
+    4 * core::mem::size_of::<ssis::flight::snapshot::Snapshots>().div_ceil(4) + core::mem::size_of::<NavSnapshot>()
         <= SNAP_BYTES
 );
 

@@ -24,8 +24,8 @@
 //! | 1 | FOG bus: all four FOGs, told apart by `fog_id` | — |
 //! | 2 | star tracker | — |
 //!
-//! Memory: `memory.x` (264 KiB flash, 36 KiB RAM: 32 KiB of stack at the bottom, 3.5 KiB
-//! of statics above, 512 B for the reset snapshot; the calibration table's two copies
+//! Memory: `memory.x` (264 KiB flash, 36.5 KiB RAM: 32 KiB of stack at the bottom, 3.5 KiB
+//! of statics above, 1 KiB for the reset snapshot's two copies; the calibration table's two copies
 //! and the command key in their own regions).
 //!
 //! Against upsets and resets: a HardFault resets the unit, as the watchdog does; at boot

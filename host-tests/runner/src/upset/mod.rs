@@ -1963,10 +1963,10 @@ fn campaign(
             match flight.lv {
                 // The navigation's snapshot follows the core's (word-aligned).
                 Some(_) => {
-                    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshot>().div_ceil(4);
+                    let core_words = std::mem::size_of::<ssis::flight::snapshot::Snapshots>().div_ceil(4);
                     (4 * core_words + std::mem::size_of::<ssis::nav::snapshot::NavSnapshot>()) as u32
                 }
-                None => std::mem::size_of::<ssis::flight::snapshot::Snapshot>() as u32,
+                None => std::mem::size_of::<ssis::flight::snapshot::Snapshots>() as u32,
             },
         ),
         handler: (symbol(&o.elf, "DefaultHandler")? & !1) as u32,
