@@ -274,12 +274,12 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
     let c = {
         let (mut p, g) = split(core);
         let live = match block {
-            Block::Step | Block::Steady => {
+            Block::Step | Block::Steady | Block::Frame => {
                 let mut live = Sum::default();
                 visit(&mut p, block, &mut live);
                 live
             }
-            Block::Frame | Block::Without(_) => {
+            Block::Without(_) => {
                 let mut pass = Pass::Sum(Sum::default());
                 visit_pass(&mut p, block, &mut pass);
                 match pass {
@@ -439,8 +439,13 @@ impl FlightCore {
     #[inline(never)]
     #[cold]
     fn guard_seal_changed(&mut self) {
-        save(self, Block::Steady);
-        save(self, Block::Frame);
+        // Each block's own walk (a star-tracker frame's step saves both: 95 words with the
+        // observer, 137 with the MEKF), not the shared `Pass` walk the rare saves take.
+        {
+            let (mut p, g) = split(self);
+            g.steady.save(|s| visit(&mut p, Block::Steady, s));
+            g.frame.save(|s| visit(&mut p, Block::Frame, s));
+        }
         if self.guard.touched & COMBINER_TOUCHED != 0 {
             for i in 0..N_FOG {
                 save(self, Block::Without(i));
