@@ -156,23 +156,6 @@ impl CheckWord {
         self.b = t;
     }
 
-    /// A run of words, as that many pushes leave the lanes: two words a turn, the first
-    /// into lane `a` and the second into `b`, so no swap is made until the run ends
-    /// (swapped after an odd number).
-    #[inline(always)]
-    fn run(&mut self, mut words: impl Iterator<Item = u64>) {
-        let (mut a, mut b) = (self.a, self.b);
-        while let Some(x) = words.next() {
-            a ^= x;
-            let Some(y) = words.next() else {
-                (self.a, self.b) = (b, a);
-                return;
-            };
-            b ^= y;
-        }
-        (self.a, self.b) = (a, b);
-    }
-
     /// Word `i` of a run: the even-numbered into lane `a`, the odd into `b`, no swap
     /// ([`CheckWord::end_run`] makes up for them).
     #[inline(always)]
@@ -193,7 +176,9 @@ impl CheckWord {
         }
     }
 
-    /// A run of `f64`, as [`CheckWord::run`] takes it: by pairs, then the odd one.
+    /// A run of `f64`, as that many pushes leave the lanes: two words a turn, the first
+    /// into lane `a` and the second into `b`, so no swap is made until the run ends
+    /// (swapped after an odd number).
     #[inline(always)]
     fn run_f64s(&mut self, xs: &[f64]) {
         let (mut a, mut b) = (self.a, self.b);
@@ -268,8 +253,21 @@ impl Visit for Sum {
 #[derive(Debug)]
 pub struct Save<'a> {
     /// The shadow's words not yet written.
-    words: core::slice::IterMut<'a, u64>,
+    words: &'a mut [u64],
     sum: CheckWord,
+}
+
+impl Save<'_> {
+    /// The next `n` words of the shadow (fewer if it holds fewer: the unit tests check
+    /// that every block fits its shadow), taken off the words not yet written.
+    #[inline(always)]
+    fn take(&mut self, n: usize) -> &mut [u64] {
+        let words = core::mem::take(&mut self.words);
+        let len = words.len();
+        let (head, rest) = words.split_at_mut_checked(n.min(len)).unwrap_or_default();
+        self.words = rest;
+        head
+    }
 }
 
 impl Visit for Save<'_> {
@@ -277,23 +275,37 @@ impl Visit for Save<'_> {
 
     #[inline(always)]
     fn word(&mut self, w: &mut u64) {
-        if let Some(s) = self.words.next() {
+        if let Some((s, rest)) = core::mem::take(&mut self.words).split_first_mut() {
             *s = *w;
+            self.words = rest;
         }
         self.sum.push(*w);
     }
 
-    /// The run copied into the shadow and summed ([`CheckWord`]'s run).
+    /// The run copied into the shadow and summed in one loop, two words a turn as
+    /// [`CheckWord`]'s runs take them.
     #[inline(always)]
     fn f64s(&mut self, xs: &mut [f64]) {
-        let words = &mut self.words;
-        self.sum.run(xs.iter().map(|x| {
-            let w = x.to_bits();
-            if let Some(s) = words.next() {
-                *s = w;
+        let (mut a, mut b) = (self.sum.a, self.sum.b);
+        let dst = self.take(xs.len());
+        let mut pairs = xs.chunks_exact(2);
+        let mut slots = dst.chunks_exact_mut(2);
+        for (p, s) in (&mut pairs).zip(&mut slots) {
+            if let ([x, y], [sx, sy]) = (p, s) {
+                let (x, y) = (x.to_bits(), y.to_bits());
+                *sx = x;
+                *sy = y;
+                a ^= x;
+                b ^= y;
             }
-            w
-        }));
+        }
+        (self.sum.a, self.sum.b) = match (pairs.remainder(), slots.into_remainder()) {
+            ([x], [s]) => {
+                *s = x.to_bits();
+                (b, a ^ x.to_bits())
+            }
+            _ => (a, b),
+        };
     }
 }
 
@@ -436,7 +448,7 @@ impl<const N: usize> Shadow<N> {
     /// Saves the block `visit` walks.
     #[inline(always)]
     pub fn save(&mut self, visit: impl FnOnce(&mut Save<'_>)) {
-        let mut s = Save { words: self.words.iter_mut(), sum: CheckWord::ZERO };
+        let mut s = Save { words: &mut self.words, sum: CheckWord::ZERO };
         visit(&mut s);
         let (left, sum) = (s.words.len(), s.sum);
         self.seal(left, sum);
@@ -451,7 +463,7 @@ impl<const N: usize> Shadow<N> {
 
     /// [`Shadow::save`] through a [`Pass`].
     pub fn save_pass(&mut self, visit: impl FnOnce(&mut Pass<'_>)) {
-        let mut pass = Pass::Save(Save { words: self.words.iter_mut(), sum: CheckWord::ZERO });
+        let mut pass = Pass::Save(Save { words: &mut self.words, sum: CheckWord::ZERO });
         visit(&mut pass);
         if let Pass::Save(s) = pass {
             let (left, sum) = (s.words.len(), s.sum);

@@ -329,6 +329,21 @@ impl<T: Pod, const N: usize> Ring<T, N> {
         Ok(())
     }
 
+    /// Puts `v` at the back, written straight into its slot (no value handed back); does
+    /// nothing when full.
+    #[inline(always)]
+    pub fn push_back_in_place(&mut self, v: T) {
+        let n = self.len();
+        if n < N {
+            let i = self.slot(n);
+            if let Some(s) = self.items.get_mut(i) {
+                *s = v;
+            }
+            self.head = self.slot(0) as u32;
+            self.len = (n + 1) as u32;
+        }
+    }
+
     /// Puts `v` in front; gives it back when full.
     #[inline(always)]
     pub fn push_front(&mut self, v: T) -> Result<(), T> {

@@ -394,7 +394,7 @@ impl MountCheck {
             }
             if !self.consistent(i, a, tau) {
                 self.faulty |= 1 << i;
-            } else if self.others_excluded(i, tau) {
+            } else if self.verified & (1 << i) == 0 && self.others_excluded(i, tau) {
                 self.verified |= 1 << i;
             }
         }

@@ -178,8 +178,8 @@ impl<const H: usize> History<H> {
                 }
             }
         }
-        let _ = self.fixes.push_back(fix);
         att.set_quaternion(fix.apply(&att.quaternion(), now_us));
+        self.fixes.push_back_in_place(fix);
     }
 }
 

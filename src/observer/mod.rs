@@ -602,6 +602,7 @@ impl<const H: usize> Observer<H> {
 
     /// Λ(t_s) and Λ* taken to the ICS (eq. 5: Λ* = Λ ∘ δΨ_Λ → Λ_ICS = Λ* ∘ q_bs⁻¹) for a
     /// frame, without using it.
+    #[inline(always)]
     fn at_frame(
         &self,
         time_us: u64,
