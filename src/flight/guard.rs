@@ -10,7 +10,8 @@
 //! | block | words | saved | checked |
 //! |---|---|---|---|
 //! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) and the counter of the next sample | end of every step | start of every step |
-//! | `Steady` | the drift estimate Δω, the convergence state, the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed them | start of every step, and again before the first change of a step |
+//! | `Steady` | the drift estimate Δω, the last update's time, the convergence state | end of a step that changed them | start of every step, and again before the first change of a step |
+//! | `Geometry` | the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed the combiner (a table, an isolation) | start of every step, and again before the combiner changes |
 //! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
 //!
@@ -64,6 +65,8 @@ const STEADY_WORDS: usize = GUARD_WORDS[1];
 const FRAME_WORDS: usize = GUARD_WORDS[2];
 /// Words of a `Without` block at most.
 const WITHOUT_WORDS: usize = GUARD_WORDS[3];
+/// Words of the `Geometry` block.
+const GEOMETRY_WORDS: usize = GUARD_WORDS[4];
 
 /// |Λ|² − 1 beyond this is implausible: Λ is normalised every step (to ~1e-16).
 const Q_NORM2_TOL: f64 = 1e-9;
@@ -80,28 +83,34 @@ const MAX_DRIFT_VAR_RAD2_S2: f64 = 1.0;
 pub enum Block {
     /// Λ and the increments: changed every step.
     Step,
-    /// The drift estimate, the convergence state, the nominal combiner: read every step.
+    /// The drift estimate and the convergence state: read every step, changed by a
+    /// star-tracker frame.
     Steady,
     /// What a star-tracker frame reads.
     Frame,
     /// The combiner without FOG i.
     Without(usize),
+    /// The nominal combiner and the profile: read every step, changed only with the
+    /// combiner (a table, an isolation), so a star-tracker frame's step neither checks
+    /// them again nor saves them.
+    Geometry,
 }
 
 impl Block {
     /// Its number in the `state_restored` event (1 `Step`, 2 `Steady`, 3 `Frame`, 4 + i
-    /// `Without(i)`).
+    /// `Without(i)`, 8 `Geometry`).
     pub fn id(self) -> u8 {
         match self {
             Block::Step => 1,
             Block::Steady => 2,
             Block::Frame => 3,
             Block::Without(i) => 4 + (i as u8 & 3),
+            Block::Geometry => 8,
         }
     }
 
     /// Every block.
-    pub const ALL: [Block; 3 + N_FOG] = [
+    pub const ALL: [Block; 4 + N_FOG] = [
         Block::Step,
         Block::Steady,
         Block::Frame,
@@ -109,21 +118,22 @@ impl Block {
         Block::Without(1),
         Block::Without(2),
         Block::Without(3),
+        Block::Geometry,
     ];
 }
 
 impl Blocks for Block {
-    const KINDS: &'static [Block] = &[Block::Step, Block::Steady, Block::Frame, Block::Without(0)];
+    const KINDS: &'static [Block] = &[Block::Step, Block::Steady, Block::Frame, Block::Without(0), Block::Geometry];
 }
 
-/// Words of a stage in the blocks of kind `Step`, `Steady`, `Frame`, `Without`.
-const fn words(step: usize, steady: usize, frame: usize, without: usize) -> [usize; MAX_KINDS] {
-    [step, steady, frame, without]
+/// Words of a stage in the blocks of kind `Step`, `Steady`, `Frame`, `Without`, `Geometry`.
+const fn words(step: usize, steady: usize, frame: usize, without: usize, geometry: usize) -> [usize; MAX_KINDS] {
+    [step, steady, frame, without, geometry]
 }
 
 impl Guarded<Block> for Attitude {
     /// Λ (4) and the coning terms' two previous increments (6).
-    const WORDS: [usize; MAX_KINDS] = words(10, 0, 0, 0);
+    const WORDS: [usize; MAX_KINDS] = words(10, 0, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
@@ -135,7 +145,7 @@ impl Guarded<Block> for Attitude {
 
 impl Guarded<Block> for FogIntake {
     /// The sample clock's index and the counter of the next sample.
-    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0);
+    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
@@ -146,10 +156,10 @@ impl Guarded<Block> for FogIntake {
 
 impl Guarded<Block> for ProfileState {
     /// The period, the FOGs fitted, the measuring range.
-    const WORDS: [usize; MAX_KINDS] = words(0, 3, 0, 0);
+    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 0, 3);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
-        if let Block::Steady = block {
+        if let Block::Geometry = block {
             self.visit(v);
         }
     }
@@ -158,11 +168,11 @@ impl Guarded<Block> for ProfileState {
 impl Guarded<Block> for Combiner {
     /// The four-FOG solution (12), the FOGs it solves (1) and the parity vector (4); a
     /// solution without one FOG (12).
-    const WORDS: [usize; MAX_KINDS] = words(0, 17, 0, 12);
+    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 12, 17);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         match block {
-            Block::Steady => self.visit_nominal(v),
+            Block::Geometry => self.visit_nominal(v),
             Block::Without(i) => self.visit_without(i, v),
             _ => {}
         }
@@ -172,7 +182,7 @@ impl Guarded<Block> for Combiner {
 impl Guarded<Block> for Observer<HISTORY> {
     /// Δω (3), the last update's time (1) and the convergence state (3); what a frame
     /// reads: 106 with the MEKF, fewer with the Luenberger observer (in acquisition too).
-    const WORDS: [usize; MAX_KINDS] = words(0, 7, 106, 0);
+    const WORDS: [usize; MAX_KINDS] = words(0, 7, 106, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         match block {
@@ -202,6 +212,7 @@ pub(super) struct Guard {
     steady: Shadow<STEADY_WORDS>,
     frame: Shadow<FRAME_WORDS>,
     without: crate::state::Quad<Shadow<WITHOUT_WORDS>>,
+    geometry: Shadow<GEOMETRY_WORDS>,
     /// Non-zero: this step changed a block other than `Step` (saved at its end); the
     /// `Frame` block was checked before.
     touched: u32,
@@ -214,7 +225,7 @@ pub(super) struct Guard {
     /// seal), which a step that marked nothing must leave as it found
     /// ([`FlightCore::guard_seal`]).
     #[cfg(debug_assertions)]
-    entry: [crate::shadow::CheckWord; 3 + N_FOG],
+    entry: [crate::shadow::CheckWord; 4 + N_FOG],
 }
 
 /// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
@@ -262,6 +273,7 @@ fn save(core: &mut FlightCore, block: Block) {
                 sh.save_pass(|s| visit_pass(&mut p, block, s));
             }
         }
+        Block::Geometry => g.geometry.save_pass(|s| visit_pass(&mut p, block, s)),
     }
 }
 
@@ -274,7 +286,7 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
     let c = {
         let (mut p, g) = split(core);
         let live = match block {
-            Block::Step | Block::Steady | Block::Frame => {
+            Block::Step | Block::Steady | Block::Frame | Block::Geometry => {
                 let mut live = Sum::default();
                 visit(&mut p, block, &mut live);
                 live
@@ -293,6 +305,7 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
             Block::Steady => g.steady.check(live.0),
             Block::Frame => g.frame.check(live.0),
             Block::Without(i) => g.without.get_mut(i).map_or(Check::Intact, |s| s.check(live.0)),
+            Block::Geometry => g.geometry.check(live.0),
         }
     };
     if c == Check::Restore {
@@ -314,6 +327,7 @@ fn restore(core: &mut FlightCore, block: Block) {
                 w.restore_pass(|b| visit_pass(&mut p, block, b));
             }
         }
+        Block::Geometry => g.geometry.restore_pass(|b| visit_pass(&mut p, block, b)),
     }
 }
 
@@ -343,6 +357,7 @@ impl FlightCore {
         }
         self.guard_check_block(Block::Step);
         self.guard_check_steady();
+        self.guard_check_block(Block::Geometry);
         #[cfg(debug_assertions)]
         {
             self.guard.entry = self.guard_sums();
@@ -407,17 +422,23 @@ impl FlightCore {
         }
     }
 
-    /// Debug builds: unless the step marked a change ([`FlightCore::guard_touch`]), the
-    /// blocks other than `Step` are as the step found them (an upset between two steps
-    /// included: the next check finds it). A change made without the mark would be taken
-    /// for an upset and undone at the next check.
+    /// Debug builds: the blocks other than `Step` that the step's mark does not cover are
+    /// as the step found them (an upset between two steps included: the next check finds
+    /// it): every one without a mark ([`FlightCore::guard_touch`]), the combiner's
+    /// (`Geometry`, `Without`) without its mark ([`FlightCore::guard_touch_combiner`]). A
+    /// change made without the mark would be taken for an upset and undone at the next
+    /// check.
     #[cfg(debug_assertions)]
     fn guard_assert_unchanged(&mut self) {
-        if self.guard.touched != 0 || self.guard.sealed != SEALED {
+        if self.guard.sealed != SEALED || self.guard.touched & COMBINER_TOUCHED != 0 {
             return;
         }
+        let touched = self.guard.touched != 0;
         let now = self.guard_sums();
         for (k, block) in Block::ALL.iter().enumerate().skip(1) {
+            if touched && matches!(block, Block::Steady | Block::Frame) {
+                continue;
+            }
             debug_assert_eq!(
                 now[k], self.guard.entry[k],
                 "{block:?} changed in a step without guard_touch: it would be undone as an upset"
@@ -427,7 +448,7 @@ impl FlightCore {
 
     /// Debug builds: the live checksum of every block ([`Block::ALL`]'s order).
     #[cfg(debug_assertions)]
-    fn guard_sums(&mut self) -> [crate::shadow::CheckWord; 3 + N_FOG] {
+    fn guard_sums(&mut self) -> [crate::shadow::CheckWord; 4 + N_FOG] {
         let (mut p, _) = split(self);
         Block::ALL.map(|block| {
             let mut live = Sum::default();
@@ -447,6 +468,7 @@ impl FlightCore {
             g.frame.save(|s| visit(&mut p, Block::Frame, s));
         }
         if self.guard.touched & COMBINER_TOUCHED != 0 {
+            save(self, Block::Geometry);
             for i in 0..N_FOG {
                 save(self, Block::Without(i));
             }
@@ -476,7 +498,13 @@ impl FlightCore {
     /// blocks saved at the step's end).
     pub(super) fn guard_touch_combiner(&mut self) {
         self.guard_touch();
-        self.guard.touched |= COMBINER_TOUCHED;
+        if self.guard.touched & COMBINER_TOUCHED == 0 {
+            // Marked first: a block found lost is derived again, through here.
+            self.guard.touched |= COMBINER_TOUCHED;
+            // What the step changes and saves at its end was good before (the `Geometry`
+            // block is not checked at every touch).
+            self.guard_check_block(Block::Geometry);
+        }
     }
 
     /// The `Steady` block checked: out of line, one copy of its walk for the step's first
@@ -513,6 +541,12 @@ impl FlightCore {
             }
         };
         self.guard_logged(block.id(), how);
+        // The block is as sealed again: what the step changes from here is what the seal's
+        // debug assertion judges.
+        #[cfg(debug_assertions)]
+        {
+            self.guard.entry = self.guard_sums();
+        }
     }
 
     /// A repair logged (`state_restored`, a: `id`, b: `how`) and counted.
@@ -703,6 +737,7 @@ mod tests {
                     Block::Steady => STEADY_WORDS,
                     Block::Frame => FRAME_WORDS,
                     Block::Without(_) => WITHOUT_WORDS,
+                    Block::Geometry => GEOMETRY_WORDS,
                 };
                 assert!(n <= capacity, "{block:?}: {n} words, shadow {capacity}");
                 let good = words(&mut core, block);
@@ -734,7 +769,7 @@ mod tests {
     /// (words left unsaved) nor long (RAM spent).
     #[test]
     fn every_shadow_fits_its_block_exactly() {
-        let mut most = [0; 3 + N_FOG];
+        let mut most = [0; 4 + N_FOG];
         for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
             let mut table = CalibrationTable::DEFAULT;
             table.observer.estimator = est;
@@ -749,7 +784,16 @@ mod tests {
         }
         assert_eq!(
             most,
-            [STEP_WORDS, STEADY_WORDS, FRAME_WORDS, WITHOUT_WORDS, WITHOUT_WORDS, WITHOUT_WORDS, WITHOUT_WORDS]
+            [
+                STEP_WORDS,
+                STEADY_WORDS,
+                FRAME_WORDS,
+                WITHOUT_WORDS,
+                WITHOUT_WORDS,
+                WITHOUT_WORDS,
+                WITHOUT_WORDS,
+                GEOMETRY_WORDS
+            ]
         );
     }
 
@@ -759,7 +803,7 @@ mod tests {
     fn the_guarded_fields_are_the_tables() {
         let blocks = |name: &str| {
             let (_, kinds) = FlightCore::GUARD_BLOCKS.iter().find(|(n, _)| *n == name).unwrap();
-            ["Step", "Steady", "Frame", "Without"]
+            ["Step", "Steady", "Frame", "Without", "Geometry"]
                 .iter()
                 .zip(kinds)
                 .filter(|(_, k)| **k)
@@ -768,8 +812,8 @@ mod tests {
         };
         assert_eq!(blocks("attitude"), ["Step"]);
         assert_eq!(blocks("fog_intake"), ["Step"]);
-        assert_eq!(blocks("profile"), ["Steady"]);
-        assert_eq!(blocks("combiner"), ["Steady", "Without"]);
+        assert_eq!(blocks("profile"), ["Geometry"]);
+        assert_eq!(blocks("combiner"), ["Without", "Geometry"]);
         assert_eq!(blocks("observer"), ["Steady", "Frame"]);
         assert_eq!(blocks("mount"), ["Frame"]);
     }
@@ -876,13 +920,14 @@ mod tests {
     fn a_lost_block_is_derived_again() {
         let mut core = flown(crate::calib::Estimator::Luenberger, 2400);
         let nominal = core.combiner;
-        core.guard.steady.flip_word(7, 12);
-        core.flip_guarded(Block::Steady, 8, 40);
+        // The combiner's words follow the profile's three in the `Geometry` block.
+        core.guard.geometry.flip_word(4, 12);
+        core.flip_guarded(Block::Geometry, 5, 40);
         fly(&mut core, 2401);
         assert_eq!(core.combiner, nominal);
         assert!(!core.observer().converged());
         let ev = core.events.pending().find(|e| e.event == Event::StateRestored).unwrap();
-        assert_eq!((ev.event, ev.a, ev.b), (Event::StateRestored, Block::Steady.id(), 2));
+        assert_eq!((ev.event, ev.a, ev.b), (Event::StateRestored, Block::Geometry.id(), 2));
     }
 
     /// A bit of Λ, of Δω or of their twins flipped inside a step, at each numbered point

@@ -194,7 +194,7 @@ state_struct! {
     #[repr(C)]
     #[derive(Clone)]
     pub struct FlightCore {
-        profile: ProfileState = ProfileState::of(profile), guard(Block::Steady);
+        profile: ProfileState = ProfileState::of(profile), guard(Block::Geometry);
         last_body_dtheta: Vector3<f64> = Vector3::zeros();
         attitude: Attitude = Attitude::new(Quaternion::identity(), Coning::ThreeSample),
             map(Attitude::STATE_MAP), guard(Block::Step);
@@ -211,7 +211,7 @@ state_struct! {
         fog_intake: FogIntake = FogIntake::new(profile.fogs), map(FogIntake::STATE_MAP), guard(Block::Step);
         table: CalibrationTable = *table, bits(Raw);
         combiner: Combiner = combiner,
-            map(Combiner::STATE_MAP), guard(Block::Steady | Block::Without(_));
+            map(Combiner::STATE_MAP), guard(Block::Geometry | Block::Without(_));
         /// Parity fault logic (`None` without four FOGs).
         fdi: Maybe<ParityMonitor> = fdi.into();
         star_intake: StarIntake = StarIntake::new(), map(StarIntake::STATE_MAP);
