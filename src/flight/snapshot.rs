@@ -141,12 +141,12 @@ pub struct Snapshots {
 impl Snapshots {
     /// Writes `core`'s snapshot into copy `slot` (taken modulo 2: the board's executive
     /// alternates; an upset of its count at worst writes one copy twice, and the other,
-    /// older, is then refused by its age); false when the core has nothing to resume
-    /// (the copy is then left as it was).
+    /// older, is then refused by its age); a core with nothing to resume leaves the copy
+    /// as it was.
     #[inline]
-    pub fn write(&mut self, core: &FlightCore, slot: u32) -> bool {
+    pub fn write(&mut self, core: &FlightCore, slot: u32) {
         let [a, b] = &mut self.copies;
-        core.snapshot_into(if slot & 1 == 0 { a } else { b })
+        let _ = core.snapshot_into(if slot & 1 == 0 { a } else { b });
     }
 
     /// Spoils both copies (the board after resuming: a snapshot is resumed at most once).
