@@ -224,7 +224,7 @@ state_struct! {
             map(Observer::<HISTORY>::STATE_MAP), guard(Block::Steady | Block::Frame);
         /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
         /// step, so after the hot state).
-        table_crc: u32 = table_crc(table);
+        table_crc: u32 = crc;
         /// The mounting check from power-on (`None` without four FOGs, a star tracker and
         /// the parity logic).
         mounting: Maybe<MountCheck> = mounting.into();
@@ -254,12 +254,17 @@ state_struct! {
         record: Survivors
     }
     constructor
-    /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
-    /// was invalid and `table` is the default; flagged in every output frame). Built in
-    /// the return value (a local moved into `Ok` would be one more copy of the core on
-    /// the boot stack); the guard seals the state on its first check.
-    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> => Ok {
-        let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
+    /// [`FlightCore::new`] with the combiner and the table's CRC-32 it has computed: out
+    /// of line, so that their deep calls (the table's encoding, the combiner's solution)
+    /// do not stack on this frame, which holds the core as it is built.
+    #[inline(never)]
+    fn build(
+        profile: Profile,
+        table: &CalibrationTable,
+        table_defaulted: bool,
+        combiner: Combiner,
+        crc: u32,
+    ) -> Result<Self, CoreError> => Ok {
         let mut observer = Observer::from_config(&table.observer)?;
         observer.set_noise(&flying_noise(&combiner, profile.fogs));
         let dt = profile.dt_s();
@@ -273,6 +278,14 @@ state_struct! {
 }
 
 impl FlightCore {
+    /// Builds the core for `profile` from `table` (`table_defaulted` = the stored table
+    /// was invalid and `table` is the default; flagged in every output frame); the guard
+    /// seals the state on its first check.
+    pub fn new(profile: Profile, table: &CalibrationTable, table_defaulted: bool) -> Result<Self, CoreError> {
+        let combiner = checked_combiner(profile, table, &IDENTITY_MAP)?;
+        Self::build(profile, table, table_defaulted, combiner, table_crc(table))
+    }
+
     /// The bytes of the core that hold the calibration table in use (offset range in the
     /// core): the part of the state that is not valid under every bit pattern (a test
     /// that writes random bytes over the core leaves them).
