@@ -29,7 +29,7 @@
 use nalgebra::{Quaternion, Vector3};
 
 /// Kinds of block a state's guard has at most ([`Blocks::KINDS`]).
-pub const MAX_KINDS: usize = 5;
+pub const MAX_KINDS: usize = 6;
 
 /// A state's guard blocks: one value of each kind (blocks of one kind, as one per FOG
 /// slot, hold the same words of the same fields).

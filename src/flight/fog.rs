@@ -174,7 +174,7 @@ impl FlightCore {
         match cause {
             IsolationCause::Mounting => {
                 counters.bump(Counter::MountIsolated);
-                self.guard_touch();
+                self.guard_touch_tuning();
                 self.observer.restart();
                 self.observer.set_noise(&super::geometry::flying_noise(&self.combiner, self.flying()));
             }

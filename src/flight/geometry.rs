@@ -45,7 +45,7 @@ impl FlightCore {
     pub(super) fn install_table(&mut self, table: &CalibrationTable) -> Result<(), CoreError> {
         let combiner = checked_combiner(self.profile.get(), table, &self.fog_map)?;
         crate::observer::steady_state(&table.observer)?;
-        self.guard_touch();
+        self.guard_touch_tuning();
         self.observer.retune(&table.observer)?;
         let dt = self.profile.dt_s();
         let noise_rad = sample_noise_rad(table, dt);
@@ -68,6 +68,7 @@ impl FlightCore {
     /// over an isolated FOG and the counters from the one before.
     pub(super) fn install_geometry(&mut self, combiner: Combiner, noise_rad: f64) {
         self.guard_touch_combiner();
+        self.guard_touch_tuning();
         let dt = self.profile.dt_s();
         let mut fdi = parity_monitor(self.profile.get(), &combiner, noise_rad, dt);
         if let (Some(new), Some(old)) = (fdi.as_mut(), self.fdi.as_ref()) {
@@ -90,7 +91,7 @@ impl FlightCore {
     /// estimate ([`Observer::remove_drift_share`]), and the estimators' noise follows
     /// the triad that flies from now on.
     pub(super) fn on_isolation(&mut self, i: usize, now_us: u64) {
-        self.guard_touch();
+        self.guard_touch_tuning();
         if let Some(fdi) = self.fdi.as_ref() {
             let (share, cov) = (fdi.drift_share_rad_s(i), fdi.drift_share_cov_rad2_s2(i));
             self.observer.remove_drift_share(now_us, &share, &cov);

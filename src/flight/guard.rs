@@ -12,10 +12,11 @@
 //! | `Step` | Λ, the coning terms' two previous increments, the sample clock's index (unit time) and the counter of the next sample | end of every step | start of every step |
 //! | `Steady` | the drift estimate Δω, the last update's time, the convergence state | end of a step that changed them | start of every step, and again before the first change of a step |
 //! | `Geometry` | the four-FOG combiner and parity vector, the profile (period, FOGs fitted, range) | end of a step that changed the combiner (a table, an isolation) | start of every step, and again before the combiner changes |
-//! | `Frame` | what a star-tracker frame reads: the last update's Λ, the alignment time, the re-acquisition streak, the noise figures, the estimator's gains and covariance, the tracker mount | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
+//! | `Frame` | what a star-tracker frame reads and changes: the last update's Λ, the alignment time, the re-acquisition streak, the drift covariance at alignment, the estimator's gains and covariance | as `Steady` | before the first change of a step (a frame due, an isolation, a table switch) |
+//! | `Tuning` | what a star-tracker frame reads and does not change: the noise figures, the initial drift variance, the acquisition stage's gains, the tracker mount | end of a step that changed them (a table, an isolation, a mounting verdict) | as `Frame` |
 //! | `Without(i)` | the combiner without FOG i (flown after an isolation) | end of a step that changed the combiner | one a touch, in turn (at 4 Hz, each within four tracker periods) |
 //!
-//! The covariance and the noise figures also give the reported 1σ every step: a flip in
+//! The covariance and the noise figures (`Frame`, `Tuning`) also give the reported 1σ every step: a flip in
 //! them between two frames shows in the 1σ until the next frame's check restores them
 //! (at most one tracker period), never in the attitude or the drift estimate.
 //!
@@ -67,6 +68,8 @@ const FRAME_WORDS: usize = GUARD_WORDS[2];
 const WITHOUT_WORDS: usize = GUARD_WORDS[3];
 /// Words of the `Geometry` block.
 const GEOMETRY_WORDS: usize = GUARD_WORDS[4];
+/// Words of the `Tuning` block at most.
+const TUNING_WORDS: usize = GUARD_WORDS[5];
 
 /// |Λ|² − 1 beyond this is implausible: Λ is normalised every step (to ~1e-16).
 const Q_NORM2_TOL: f64 = 1e-9;
@@ -94,23 +97,29 @@ pub enum Block {
     /// combiner (a table, an isolation), so a star-tracker frame's step neither checks
     /// them again nor saves them.
     Geometry,
+    /// What a star-tracker frame reads and does not change (the noise figures, the
+    /// tracker mount): checked with `Frame`, saved only under its own mark, so a
+    /// star-tracker frame's step does not save them.
+    Tuning,
 }
 
 impl Block {
     /// Its number in the `state_restored` event (1 `Step`, 2 `Steady`, 3 `Frame`, 4 + i
-    /// `Without(i)`, 8 `Geometry`).
+    /// `Without(i)`, 9 `Geometry`, 10 `Tuning`; 8 is Λ or Δω restored from its twin,
+    /// [`super::twin::TWIN_ID`]).
     pub fn id(self) -> u8 {
         match self {
             Block::Step => 1,
             Block::Steady => 2,
             Block::Frame => 3,
             Block::Without(i) => 4 + (i as u8 & 3),
-            Block::Geometry => 8,
+            Block::Geometry => 9,
+            Block::Tuning => 10,
         }
     }
 
     /// Every block.
-    pub const ALL: [Block; 4 + N_FOG] = [
+    pub const ALL: [Block; 5 + N_FOG] = [
         Block::Step,
         Block::Steady,
         Block::Frame,
@@ -119,21 +128,31 @@ impl Block {
         Block::Without(2),
         Block::Without(3),
         Block::Geometry,
+        Block::Tuning,
     ];
 }
 
 impl Blocks for Block {
-    const KINDS: &'static [Block] = &[Block::Step, Block::Steady, Block::Frame, Block::Without(0), Block::Geometry];
+    const KINDS: &'static [Block] =
+        &[Block::Step, Block::Steady, Block::Frame, Block::Without(0), Block::Geometry, Block::Tuning];
 }
 
-/// Words of a stage in the blocks of kind `Step`, `Steady`, `Frame`, `Without`, `Geometry`.
-const fn words(step: usize, steady: usize, frame: usize, without: usize, geometry: usize) -> [usize; MAX_KINDS] {
-    [step, steady, frame, without, geometry]
+/// Words of a stage in the blocks of kind `Step`, `Steady`, `Frame`, `Without`, `Geometry`,
+/// `Tuning`.
+const fn words(
+    step: usize,
+    steady: usize,
+    frame: usize,
+    without: usize,
+    geometry: usize,
+    tuning: usize,
+) -> [usize; MAX_KINDS] {
+    [step, steady, frame, without, geometry, tuning]
 }
 
 impl Guarded<Block> for Attitude {
     /// Λ (4) and the coning terms' two previous increments (6).
-    const WORDS: [usize; MAX_KINDS] = words(10, 0, 0, 0, 0);
+    const WORDS: [usize; MAX_KINDS] = words(10, 0, 0, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
@@ -145,7 +164,7 @@ impl Guarded<Block> for Attitude {
 
 impl Guarded<Block> for FogIntake {
     /// The sample clock's index and the counter of the next sample.
-    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0, 0);
+    const WORDS: [usize; MAX_KINDS] = words(2, 0, 0, 0, 0, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Step = block {
@@ -156,7 +175,7 @@ impl Guarded<Block> for FogIntake {
 
 impl Guarded<Block> for ProfileState {
     /// The period, the FOGs fitted, the measuring range.
-    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 0, 3);
+    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 0, 3, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         if let Block::Geometry = block {
@@ -168,7 +187,7 @@ impl Guarded<Block> for ProfileState {
 impl Guarded<Block> for Combiner {
     /// The four-FOG solution (12), the FOGs it solves (1) and the parity vector (4); a
     /// solution without one FOG (12).
-    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 12, 17);
+    const WORDS: [usize; MAX_KINDS] = words(0, 0, 0, 12, 17, 0);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         match block {
@@ -181,13 +200,15 @@ impl Guarded<Block> for Combiner {
 
 impl Guarded<Block> for Observer<HISTORY> {
     /// Δω (3), the last update's time (1) and the convergence state (3); what a frame
-    /// reads: 106 with the MEKF, fewer with the Luenberger observer (in acquisition too).
-    const WORDS: [usize; MAX_KINDS] = words(0, 7, 106, 0, 0);
+    /// reads and changes: 76 with the MEKF, fewer with the Luenberger observer; what it
+    /// reads only: 37 with the Luenberger observer in two stages, 30 otherwise.
+    const WORDS: [usize; MAX_KINDS] = words(0, 7, 76, 0, 0, 37);
     #[inline(always)]
     fn visit_block<V: Visit>(&mut self, block: Block, v: &mut V) {
         match block {
             Block::Steady => self.visit_steady(v),
             Block::Frame => self.visit_frame(v),
+            Block::Tuning => self.visit_tuning(v),
             _ => {}
         }
     }
@@ -213,6 +234,7 @@ pub(super) struct Guard {
     frame: Shadow<FRAME_WORDS>,
     without: crate::state::Quad<Shadow<WITHOUT_WORDS>>,
     geometry: Shadow<GEOMETRY_WORDS>,
+    tuning: Shadow<TUNING_WORDS>,
     /// Non-zero: this step changed a block other than `Step` (saved at its end); the
     /// `Frame` block was checked before.
     touched: u32,
@@ -225,7 +247,7 @@ pub(super) struct Guard {
     /// seal), which a step that marked nothing must leave as it found
     /// ([`FlightCore::guard_seal`]).
     #[cfg(debug_assertions)]
-    entry: [crate::shadow::CheckWord; 4 + N_FOG],
+    entry: [crate::shadow::CheckWord; 5 + N_FOG],
 }
 
 /// [`Guard::sealed`]'s value once the shadows hold the state (a flipped bit reads as not
@@ -234,6 +256,8 @@ const SEALED: u32 = 0x5EA1_ED5A;
 
 /// [`Guard::touched`]: the combiner changed too.
 const COMBINER_TOUCHED: u32 = 2;
+/// [`Guard::touched`]: the `Tuning` block changed too.
+const TUNING_TOUCHED: u32 = 4;
 
 /// The guarded fields and the shadows of `core`.
 #[inline(always)]
@@ -274,6 +298,7 @@ fn save(core: &mut FlightCore, block: Block) {
             }
         }
         Block::Geometry => g.geometry.save_pass(|s| visit_pass(&mut p, block, s)),
+        Block::Tuning => g.tuning.save_pass(|s| visit_pass(&mut p, block, s)),
     }
 }
 
@@ -286,7 +311,7 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
     let c = {
         let (mut p, g) = split(core);
         let live = match block {
-            Block::Step | Block::Steady | Block::Frame | Block::Geometry => {
+            Block::Step | Block::Steady | Block::Frame | Block::Geometry | Block::Tuning => {
                 let mut live = Sum::default();
                 visit(&mut p, block, &mut live);
                 live
@@ -306,6 +331,7 @@ fn check(core: &mut FlightCore, block: Block) -> Check {
             Block::Frame => g.frame.check(live.0),
             Block::Without(i) => g.without.get_mut(i).map_or(Check::Intact, |s| s.check(live.0)),
             Block::Geometry => g.geometry.check(live.0),
+            Block::Tuning => g.tuning.check(live.0),
         }
     };
     if c == Check::Restore {
@@ -328,6 +354,7 @@ fn restore(core: &mut FlightCore, block: Block) {
             }
         }
         Block::Geometry => g.geometry.restore_pass(|b| visit_pass(&mut p, block, b)),
+        Block::Tuning => g.tuning.restore_pass(|b| visit_pass(&mut p, block, b)),
     }
 }
 
@@ -400,6 +427,7 @@ impl FlightCore {
         // since the step's first check is restored, not saved.
         self.guard_check_steady();
         self.guard_check_block(Block::Frame);
+        self.guard_check_block(Block::Tuning);
         // One triad solution a touch, in turn (flown only after an isolation).
         let i = self.guard.next_without as usize % N_FOG;
         self.guard.next_without = (i as u32 + 1) % N_FOG as u32;
@@ -439,6 +467,9 @@ impl FlightCore {
             if touched && matches!(block, Block::Steady | Block::Frame) {
                 continue;
             }
+            if self.guard.touched & TUNING_TOUCHED != 0 && *block == Block::Tuning {
+                continue;
+            }
             debug_assert_eq!(
                 now[k], self.guard.entry[k],
                 "{block:?} changed in a step without guard_touch: it would be undone as an upset"
@@ -448,7 +479,7 @@ impl FlightCore {
 
     /// Debug builds: the live checksum of every block ([`Block::ALL`]'s order).
     #[cfg(debug_assertions)]
-    fn guard_sums(&mut self) -> [crate::shadow::CheckWord; 4 + N_FOG] {
+    fn guard_sums(&mut self) -> [crate::shadow::CheckWord; 5 + N_FOG] {
         let (mut p, _) = split(self);
         Block::ALL.map(|block| {
             let mut live = Sum::default();
@@ -460,12 +491,15 @@ impl FlightCore {
     #[inline(never)]
     #[cold]
     fn guard_seal_changed(&mut self) {
-        // Each block's own walk (a star-tracker frame's step saves both: 95 words with the
-        // observer, 137 with the MEKF), not the shared `Pass` walk the rare saves take.
+        // Each block's own walk (a star-tracker frame's step saves both: 41 words with the
+        // observer, 83 with the MEKF), not the shared `Pass` walk the rare saves take.
         {
             let (mut p, g) = split(self);
             g.steady.save(|s| visit(&mut p, Block::Steady, s));
             g.frame.save(|s| visit(&mut p, Block::Frame, s));
+        }
+        if self.guard.touched & TUNING_TOUCHED != 0 {
+            save(self, Block::Tuning);
         }
         if self.guard.touched & COMBINER_TOUCHED != 0 {
             save(self, Block::Geometry);
@@ -505,6 +539,14 @@ impl FlightCore {
             // block is not checked at every touch).
             self.guard_check_block(Block::Geometry);
         }
+    }
+
+    /// The noise figures, the tracker mount or the acquisition stage are about to change
+    /// ([`FlightCore::guard_touch`], which checked them, and the `Tuning` block saved at
+    /// the step's end).
+    pub(super) fn guard_touch_tuning(&mut self) {
+        self.guard_touch();
+        self.guard.touched |= TUNING_TOUCHED;
     }
 
     /// The `Steady` block checked: out of line, one copy of its walk for the step's first
@@ -738,6 +780,7 @@ mod tests {
                     Block::Frame => FRAME_WORDS,
                     Block::Without(_) => WITHOUT_WORDS,
                     Block::Geometry => GEOMETRY_WORDS,
+                    Block::Tuning => TUNING_WORDS,
                 };
                 assert!(n <= capacity, "{block:?}: {n} words, shadow {capacity}");
                 let good = words(&mut core, block);
@@ -764,14 +807,24 @@ mod tests {
         }
     }
 
-    /// Each shadow holds exactly its block's words (for the larger estimator; the other
-    /// may hold fewer), so the stages' word counts ([`Guarded::WORDS`]) are neither short
-    /// (words left unsaved) nor long (RAM spent).
+    /// Each shadow holds exactly its block's words (for the estimator that has the most;
+    /// another may hold fewer), so the stages' word counts ([`Guarded::WORDS`]) are
+    /// neither short (words left unsaved) nor long (RAM spent).
     #[test]
     fn every_shadow_fits_its_block_exactly() {
-        let mut most = [0; 4 + N_FOG];
-        for est in [crate::calib::Estimator::Luenberger, crate::calib::Estimator::Mekf] {
+        let mut most = [0; 5 + N_FOG];
+        let mut two_stage = CalibrationTable::DEFAULT.observer;
+        two_stage.gains_override = Some(crate::observer::steady_state_gains(&two_stage).unwrap());
+        two_stage.acquisition_s = 600.0;
+        for (est, stages) in [
+            (crate::calib::Estimator::Luenberger, None),
+            (crate::calib::Estimator::Luenberger, Some(two_stage)),
+            (crate::calib::Estimator::Mekf, None),
+        ] {
             let mut table = CalibrationTable::DEFAULT;
+            if let Some(o) = stages {
+                table.observer = o;
+            }
             table.observer.estimator = est;
             let mut core = FlightCore::new(Profile::SPACECRAFT, &table, false).unwrap();
             // Every state of the flight: before alignment, in acquisition, converged.
@@ -792,9 +845,21 @@ mod tests {
                 WITHOUT_WORDS,
                 WITHOUT_WORDS,
                 WITHOUT_WORDS,
-                GEOMETRY_WORDS
+                GEOMETRY_WORDS,
+                TUNING_WORDS
             ]
         );
+    }
+
+    /// Each block's number in `state_restored` is its own, and not the twin's.
+    #[test]
+    fn the_blocks_numbers_are_distinct() {
+        let mut ids: Vec<u8> = Block::ALL.iter().map(|b| b.id()).collect();
+        ids.push(super::super::twin::TWIN_ID);
+        let n = ids.len();
+        ids.sort_unstable();
+        ids.dedup();
+        assert_eq!(ids.len(), n, "{ids:?}");
     }
 
     /// What the guard covers, as the module's table says: a field dropped from a block in
@@ -803,7 +868,7 @@ mod tests {
     fn the_guarded_fields_are_the_tables() {
         let blocks = |name: &str| {
             let (_, kinds) = FlightCore::GUARD_BLOCKS.iter().find(|(n, _)| *n == name).unwrap();
-            ["Step", "Steady", "Frame", "Without", "Geometry"]
+            ["Step", "Steady", "Frame", "Without", "Geometry", "Tuning"]
                 .iter()
                 .zip(kinds)
                 .filter(|(_, k)| **k)
@@ -814,8 +879,8 @@ mod tests {
         assert_eq!(blocks("fog_intake"), ["Step"]);
         assert_eq!(blocks("profile"), ["Geometry"]);
         assert_eq!(blocks("combiner"), ["Without", "Geometry"]);
-        assert_eq!(blocks("observer"), ["Steady", "Frame"]);
-        assert_eq!(blocks("mount"), ["Frame"]);
+        assert_eq!(blocks("observer"), ["Steady", "Frame", "Tuning"]);
+        assert_eq!(blocks("mount"), ["Tuning"]);
     }
 
     /// A step that changes a guarded word outside the guard's path (no
@@ -836,7 +901,7 @@ mod tests {
     fn a_change_through_the_guard_is_sealed() {
         let mut core = flown(crate::calib::Estimator::Luenberger, 200);
         core.guard_check();
-        core.guard_touch();
+        core.guard_touch_tuning();
         core.mount.i += 1e-9;
         let changed = core.mount;
         core.guard_seal();
@@ -860,7 +925,7 @@ mod tests {
                         b.flip_guarded(block, word, bit);
                         for s in 2401..2621 {
                             let (mut oa, mut ob) = (fly(&mut a, s), fly(&mut b, s));
-                            if block == Block::Frame {
+                            if matches!(block, Block::Frame | Block::Tuning) {
                                 // Its covariance and noise figures give the 1σ of the
                                 // steps before the next frame's check.
                                 (oa.att_sigma_rad, oa.drift_sigma_rad_s) = ([0.0; 3], [0.0; 3]);

@@ -201,7 +201,7 @@ state_struct! {
         /// Λ and Δω carried twice in the step ([`twin`]).
         twin: twin::Twin = twin::Twin::of(&Quaternion::identity(), &Vector3::zeros()),
             map(twin::Twin::STATE_MAP);
-        mount: Quaternion<f64> = table.st_mount(), guard(Block::Frame);
+        mount: Quaternion<f64> = table.st_mount(), guard(Block::Tuning);
         thermal: [ThermalTracker; N_FOG] = [ThermalTracker::new(dt, table.t_rate_filter_s); N_FOG];
         channel_monitors: [ChannelMonitor; N_FOG] = [ChannelMonitor::new(noise_rad); N_FOG], reset(Keep);
         telemetry: Telemetry = Telemetry::new();
@@ -221,7 +221,7 @@ state_struct! {
         /// FOGs whose temperature sensor has failed (bit i).
         temp_failed_bits: u8 = 0;
         observer: Observer<HISTORY> = observer,
-            map(Observer::<HISTORY>::STATE_MAP), guard(Block::Steady | Block::Frame);
+            map(Observer::<HISTORY>::STATE_MAP), guard(Block::Steady | Block::Frame | Block::Tuning);
         /// CRC-32 of the table in use (its binary form's last four bytes; not touched by the
         /// step, so after the hot state).
         table_crc: u32 = crc;

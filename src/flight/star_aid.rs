@@ -235,6 +235,7 @@ impl FlightCore {
                 }
             }
         }
+        self.guard_touch_tuning();
         self.observer.restart();
         self.observer.set_noise(&flying_noise(&self.combiner, self.flying()));
     }

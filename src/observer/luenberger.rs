@@ -134,14 +134,19 @@ impl Luenberger {
         self.roots = [0.0; 6];
     }
 
-    /// Its gains and covariance, for the state guard ([`crate::shadow`]); the 1σ roots are
-    /// only a Newton step's start.
+    /// Its covariance and the gains in use, for the state guard ([`crate::shadow`]); the
+    /// 1σ roots are only a Newton step's start.
     pub fn visit<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         for c in self.cov.iter_mut() {
             v.f64s(c);
         }
         v.f64s(&mut self.gains.k_b);
         v.f64s(&mut self.gains.k_u_per_s);
+    }
+
+    /// The acquisition stage's gains and length (only a new table changes them), for the
+    /// state guard ([`crate::shadow`]).
+    pub fn visit_tuning<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         if let Some(a) = self.acquisition.as_mut() {
             v.f64s(&mut a.gains.k_b);
             v.f64s(&mut a.gains.k_u_per_s);

@@ -297,6 +297,14 @@ impl Filter {
         }
     }
 
+    /// What only a new table changes (the acquisition stage's gains), for the state guard
+    /// ([`crate::shadow`]).
+    pub fn visit_tuning<V: crate::shadow::Visit>(&mut self, v: &mut V) {
+        if let Estimator::Luenberger = self.estimator() {
+            self.luenberger.visit_tuning(v);
+        }
+    }
+
     /// Whether the covariance is plausible: every variance finite, at least 0, and at
     /// most `max_att_rad2` (attitude) or `max_drift_rad2_s2` (drift).
     pub fn cov_plausible(&self, max_att_rad2: f64, max_drift_rad2_s2: f64) -> bool {
@@ -538,17 +546,24 @@ impl<const H: usize> Observer<H> {
         self.conv.visit(v);
     }
 
-    /// What a star-tracker frame reads: the last update's Λ, the alignment time, the
-    /// re-acquisition streak, the noise figures, the estimator's gains and covariance,
-    /// for the state guard ([`crate::shadow`]).
+    /// What a star-tracker frame reads and changes: the last update's Λ, the alignment
+    /// time, the re-acquisition streak, the drift covariance at alignment, the estimator's
+    /// gains and covariance, for the state guard ([`crate::shadow`]).
     pub fn visit_frame<V: crate::shadow::Visit>(&mut self, v: &mut V) {
         v.f64s(self.last_q.coords.as_mut_slice());
         v.opt_u64(&mut self.aligned_us);
         self.streak.visit(v);
-        self.fig.visit(v);
-        v.f64(&mut self.initial_drift_var_rad2_s2);
         v.f64s(self.drift_cov0.as_mut_slice());
         self.filter.visit(v);
+    }
+
+    /// What a star-tracker frame reads and only a new table, an isolation or a mounting
+    /// verdict changes: the noise figures, the initial drift variance, the acquisition
+    /// stage's gains, for the state guard ([`crate::shadow`]).
+    pub fn visit_tuning<V: crate::shadow::Visit>(&mut self, v: &mut V) {
+        self.fig.visit(v);
+        v.f64(&mut self.initial_drift_var_rad2_s2);
+        self.filter.visit_tuning(v);
     }
 
     /// Re-aligns the attitude on the next star-tracker frame whatever its mismatch (the
