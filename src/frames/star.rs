@@ -112,14 +112,20 @@ impl StarFrame {
 
 /// Whether quaternion counts have a norm within [`NORM_TOLERANCE`] of 1.
 ///
-/// The sum of squares is exact in integers (`u128`), rounded once to f64, and compared
-/// with the squared bounds, so the test is the same on every machine.
+/// The sum of squares is exact in integers and compared with the squared bounds in
+/// integers, so the test is the same on every machine. Each square is at most 2⁶², so
+/// only four components of −2³¹ reach 2⁶⁴: the sum saturates there, far beyond the
+/// upper bound.
 pub fn norm_ok(q_counts: &[i32; 4]) -> bool {
-    const SCALE: f64 = 2_147_483_648.0 * 2_147_483_648.0; // (2^31)^2
-    const LO: f64 = (1.0 - NORM_TOLERANCE) * (1.0 - NORM_TOLERANCE) * SCALE;
-    const HI: f64 = (1.0 + NORM_TOLERANCE) * (1.0 + NORM_TOLERANCE) * SCALE;
-    let sum: u128 = q_counts.iter().map(|&c| u128::from(c.unsigned_abs()) * u128::from(c.unsigned_abs())).sum();
-    let sum = sum as f64;
+    // (2^31)^2; the bounds are integers already (multiples of 2^10 near 2^62), so the
+    // casts are exact.
+    const SCALE: f64 = 2_147_483_648.0 * 2_147_483_648.0;
+    const LO: u64 = ((1.0 - NORM_TOLERANCE) * (1.0 - NORM_TOLERANCE) * SCALE) as u64;
+    const HI: u64 = ((1.0 + NORM_TOLERANCE) * (1.0 + NORM_TOLERANCE) * SCALE) as u64;
+    let sum = q_counts.iter().fold(0u64, |sum, &c| {
+        let a = u64::from(c.unsigned_abs());
+        sum.saturating_add(a * a)
+    });
     (LO..=HI).contains(&sum)
 }
 
