@@ -758,8 +758,8 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
         watchdog_warnings()
     }
 
-    fn check_tick(&mut self) -> ssis::bsp::exec::RegisterCheck {
-        crate::regcheck::verify_tick(&REGISTERS)
+    fn check_pass(&mut self) -> ssis::bsp::exec::RegisterCheck {
+        crate::regcheck::verify_pass(&REGISTERS, PASS_ENTRIES)
     }
 
     fn check_registers(&mut self) -> ssis::bsp::exec::RegisterCheck {
@@ -776,6 +776,10 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
     }
 }
 
+/// The entries of [`REGISTERS`] checked at every pass (`StepBoard::check_pass`): the
+/// SysTick's two and the control words of the links' UARTs 0–2.
+const PASS_ENTRIES: usize = 5;
+
 /// The configuration registers the executive checks (`crate::regcheck`), as [`init`],
 /// [`start`] and [`watchdog_start`] leave them: SysTick, the vector table, the
 /// interrupt enables of UARTs 0–2 (all 32 bits: one enabled that should not be does
@@ -785,23 +789,23 @@ impl<L: ControlLine> StepBoard for Mps2Unit<L> {
 /// after). The same list for every firmware on the board.
 const REGISTERS: [crate::regcheck::Entry; 30] = {
     let [b0, b1, b2, b3, b4] = UART_BASE;
-    use crate::regcheck::{mpu_region, select, CORE, MPU_CTRL, NVIC_IPR, NVIC_ISER};
+    use crate::regcheck::{mpu_region, select, CORE, MPU_CTRL, NVIC_IPR, NVIC_ISER, TICK};
     let (r0, r1) = (mpu_region(0), mpu_region(1));
     [
+        TICK[0],
+        TICK[1],
+        ((b0 + CTRL) as u32, 0x7F),
+        ((b1 + CTRL) as u32, 0x7F),
+        ((b2 + CTRL) as u32, 0x7F),
         CORE[0],
         CORE[1],
-        CORE[2],
-        CORE[3],
         (NVIC_ISER, u32::MAX),
         (NVIC_IPR, u32::MAX),
         (NVIC_IPR + 4, u32::MAX),
         (NVIC_IPR + 16, u32::MAX),
         (NVIC_IPR + 20, u32::MAX),
-        ((b0 + CTRL) as u32, 0x7F),
         ((b0 + BAUDDIV) as u32, 0x000F_FFFF),
-        ((b1 + CTRL) as u32, 0x7F),
         ((b1 + BAUDDIV) as u32, 0x000F_FFFF),
-        ((b2 + CTRL) as u32, 0x7F),
         ((b2 + BAUDDIV) as u32, 0x000F_FFFF),
         ((b3 + CTRL) as u32, 0x7F),
         ((b3 + BAUDDIV) as u32, 0x000F_FFFF),

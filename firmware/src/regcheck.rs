@@ -15,9 +15,11 @@
 //! FAULTMASK) are checked too: the firmwares never raise BASEPRI or FAULTMASK, and mask
 //! interrupts only inside critical sections, so between two steps PRIMASK is clear.
 //!
-//! The SysTick's own two registers are checked at every pass of the executive as well
-//! ([`verify_tick`]): a tick an upset stopped or slowed runs again at the loop's next wake
-//! (the next received byte). A stopped SysTick (its ENABLE or TICKINT bit cleared) with
+//! The first entries of a list, the SysTick's own two registers and the links' control
+//! words, are checked at every pass of the executive as well ([`verify_pass`]): a tick an
+//! upset stopped or slowed runs again at the loop's next wake (the next received byte),
+//! and a link whose receiver an upset turned off receives again from then (in lockstep
+//! no step comes without it, and with no step the every-64-steps check never runs). A stopped SysTick (its ENABLE or TICKINT bit cleared) with
 //! no byte arriving stops the steps, and with them the executive's checks. The watchdog's first timeout (an NMI, one watchdog period
 //! after the last step) runs [`verify_in_nmi`]: the entries before the first selection
 //! (the tick, the interrupt enables and priorities, the UARTs) restored from there, the
@@ -76,10 +78,13 @@ pub const MPU_RBAR: u32 = 0xE000_ED9C;
 /// MPU region attributes and size.
 pub const MPU_RASR: u32 = 0xE000_EDA0;
 
-/// The entries every Cortex-M7 board keeps first: the SysTick (ENABLE, TICKINT,
-/// CLKSOURCE; the reload), its priority, the vector table's address.
-pub const CORE: [Entry; 4] =
-    [(SYST_CSR, 0b111), (SYST_RVR, 0x00FF_FFFF), (SCB_SHPR3, 0xFF00_0000), (SCB_VTOR, 0xFFFF_FF80)];
+/// The entries every Cortex-M7 board keeps first, checked at every pass
+/// ([`verify_pass`]): the SysTick's control (ENABLE, TICKINT, CLKSOURCE) and reload.
+pub const TICK: [Entry; 2] = [(SYST_CSR, 0b111), (SYST_RVR, 0x00FF_FFFF)];
+
+/// The entries every Cortex-M7 board keeps among the rest: the SysTick's priority, the
+/// vector table's address.
+pub const CORE: [Entry; 2] = [(SCB_SHPR3, 0xFF00_0000), (SCB_VTOR, 0xFFFF_FF80)];
 
 /// MPU region `r`'s entries: the selection, its base and its attributes.
 pub const fn mpu_region(r: u32) -> [Entry; 3] {
@@ -208,12 +213,12 @@ pub fn verify(list: &[Entry]) -> RegisterCheck {
     out
 }
 
-/// The step tick's check at every pass of the executive
-/// ([`ssis::bsp::exec::StepBoard::check_tick`]; thread mode): the list's first two
-/// entries, the SysTick's control word and reload ([`CORE`], which every board's list
-/// starts with).
-pub fn verify_tick(list: &[Entry]) -> RegisterCheck {
-    table().verify(list.get(..2).unwrap_or(list), true)
+/// The check at every pass of the executive
+/// ([`ssis::bsp::exec::StepBoard::check_pass`]; thread mode): the list's first `n`
+/// entries, the SysTick's control word and reload ([`TICK`], which every board's list
+/// starts with) and the links' control words the board lists after them.
+pub fn verify_pass(list: &[Entry], n: usize) -> RegisterCheck {
+    table().verify(list.get(..n).unwrap_or(list), true)
 }
 
 /// The watchdog warning's check (module doc): the entries before the first selection.

@@ -14,7 +14,7 @@
 //! - a stall of the main loop (the test build's STALL control frame).
 //!
 //! A stopped tick is put back by the executive's check of the tick's registers before its
-//! next wait (`StepBoard::check_tick`), at the loop's next wake (the next STEP's bytes),
+//! next wait (`StepBoard::check_pass`), at the loop's next wake (the next STEP's bytes),
 //! or by the watchdog's warning if that comes first: QEMU warps the idle guest's virtual
 //! time from one timer deadline to the next while the runner prepares the next step, so
 //! on a slow runner (a debug build) the warning can come before the bytes. Either way the
@@ -34,7 +34,7 @@
 use std::path::Path;
 
 use ssis_runner::qemu::build_firmware;
-use ssis_runner::upset::{run_injection, Outcome, Target, UpsetOptions};
+use ssis_runner::upset::{run_flown_injection, run_injection, Flown, Outcome, Target, UpsetOptions, DEVICE_REGS};
 use ssis_sim::scenario::Scenario;
 
 /// The flight, s.
@@ -110,6 +110,44 @@ fn a_stopped_tick_is_restored_or_reset_and_the_unit_flies_on() {
 #[test]
 fn a_stalled_loop_is_reset_by_the_watchdog_and_the_unit_resumes() {
     inject(Target::Stall);
+}
+
+/// A link's receiver turned off (the control link's receive enable, the FOG link's
+/// receive interrupt enable), as an upset of its UART's control word does: in lockstep
+/// no STEP comes without it (the control link's) or no step's FOG bytes arrive (the FOG
+/// link's), so no step runs and the every-64-steps register check never would. The
+/// executive's check at every pass (`StepBoard::check_pass`) turns it on again at the
+/// next wake (the tick): restored and logged, no reset, no frame beyond twice the
+/// nominal 3σ. (Before that check the QEMU campaign ended such a flip as a stalled
+/// lockstep.)
+#[test]
+fn a_link_turned_off_receives_again_at_the_next_pass() {
+    let elf = build_firmware().expect("firmware");
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenarios/qemu-flight.toml");
+    let mut sc = Scenario::from_file(&path).expect("scenario");
+    sc.duration_s = FLIGHT_S;
+    sc.settle_s = SETTLE_S;
+    let reg = |name: &str| DEVICE_REGS.iter().position(|d| d.name == name).expect("listed") as u8;
+    // UART CTRL (CMSDK APB UART): bit 1 receive enable, bit 3 receive interrupt enable.
+    for (name, bit) in [("UART0_CTRL", 1u8), ("UART1_CTRL", 3)] {
+        let o = UpsetOptions { first_s: FAULT_S, window_s: 4.0, gap_s: 0.0, ..UpsetOptions::new(elf.clone(), 1, 11) };
+        let t = Target::Device { reg: reg(name), bit };
+        let c = run_flown_injection(Flown::Spacecraft(&sc), &o, t, |_| {}).expect("campaign");
+        let f = c.flips.first().expect("one flip");
+        println!(
+            "{name} bit {bit}: {} worst {:.2}″ reset {:?} events {:?}",
+            f.outcome.name(),
+            f.worst_arcsec,
+            f.reset_cause,
+            f.events
+        );
+        assert_eq!(f.target, t);
+        assert_eq!(f.reset_cause, None, "{name} bit {bit}: {}", c.report());
+        assert!(matches!(f.outcome, Outcome::Masked | Outcome::Tolerated), "{name} bit {bit}: {}", c.report());
+        assert!(f.events.iter().any(|x| x == "register_restored"), "{name} bit {bit}: events {:?}", f.events);
+        let bound = 2.0 * c.nominal_3sigma_arcsec.iter().fold(0.0_f64, |a, &b| a.max(b));
+        assert!(f.worst_arcsec <= bound, "{name} bit {bit}: worst {:.2}″ within {bound:.2}″", f.worst_arcsec);
+    }
 }
 
 /// The gdb client's device-register access (`Gdb::write_device_u32`, `read_device_u32`:

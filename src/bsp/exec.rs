@@ -8,9 +8,11 @@
 //!
 //! Each pass of the loop:
 //!
-//! 0. **The tick's registers** ([`StepBoard::check_tick`]: the SysTick's control word and
-//!    reload) checked and restored, so a tick an upset stopped runs again at the next
-//!    wake; a restore logged (`register_restored`), one that does not hold resets.
+//! 0. **The pass's registers** ([`StepBoard::check_pass`]: the SysTick's control word and
+//!    reload, the links' control words) checked and restored, so a tick an upset stopped
+//!    runs again at the next wake, and a link whose receiver or its interrupt an upset
+//!    turned off receives again; a restore logged (`register_restored`), one that does
+//!    not hold resets.
 //! 1. **Wait** ([`StepBoard::wait`]): a step due on the timer (with the ticks it
 //!    missed: each an overrun), a step due in lockstep (test equipment), an idle wake,
 //!    or the end of a test run.
@@ -149,13 +151,16 @@ pub trait StepBoard: Board {
         false
     }
 
-    /// Checks the step tick's own registers (the SysTick's control word and reload, the
-    /// first entries of a Cortex-M7 board's list) against their start-up values,
-    /// restoring them; run at the start of every pass, before the wait, so that a tick
-    /// an upset stopped or changed (its enable, its interrupt, its clock source, its
-    /// period) runs again at the loop's next wake (a received byte, the next step's
-    /// data), not a watchdog period later. Nothing by default.
-    fn check_tick(&mut self) -> RegisterCheck {
+    /// Checks the registers every pass depends on (the SysTick's control word and
+    /// reload, the links' control words: the first entries of a Cortex-M7 board's list)
+    /// against their start-up values, restoring them; run at the start of every pass,
+    /// before the wait, so that a tick an upset stopped or changed (its enable, its
+    /// interrupt, its clock source, its period) runs again at the loop's next wake (a
+    /// received byte, the next tick), and a link whose receiver, transmitter or their
+    /// interrupts an upset turned off works again from then (in lockstep no step comes
+    /// without it: the steps' checks would never run), not a watchdog period or
+    /// [`REGISTER_STEPS`] later. Nothing by default.
+    fn check_pass(&mut self) -> RegisterCheck {
         RegisterCheck::default()
     }
 
@@ -340,7 +345,7 @@ impl Executive {
         if crate::link::ring_faults() != 0 {
             self.fault_reset(board, mission, core, Fault::Ring);
         }
-        let tick = board.check_tick();
+        let tick = board.check_pass();
         if tick != RegisterCheck::default() {
             self.restored(board, mission, core, tick);
         }
@@ -659,7 +664,7 @@ mod tests {
             self.reg_checks += 1;
             core::mem::take(&mut self.regs)
         }
-        fn check_tick(&mut self) -> RegisterCheck {
+        fn check_pass(&mut self) -> RegisterCheck {
             self.tick_checks += 1;
             core::mem::take(&mut self.tick)
         }

@@ -156,8 +156,8 @@ impl StepBoard for Stm32h7 {
         ssis_firmware::resilience::code_image()
     }
 
-    fn check_tick(&mut self) -> ssis::bsp::exec::RegisterCheck {
-        ssis_firmware::regcheck::verify_tick(&regs::REGISTERS)
+    fn check_pass(&mut self) -> ssis::bsp::exec::RegisterCheck {
+        ssis_firmware::regcheck::verify_pass(&regs::REGISTERS, regs::PASS_ENTRIES)
     }
 
     fn check_registers(&mut self) -> ssis::bsp::exec::RegisterCheck {
