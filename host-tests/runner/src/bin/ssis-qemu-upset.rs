@@ -8,12 +8,12 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::Result;
+use anyhow::{Context, Result};
 use clap::Parser;
 use ssis_common::cli;
 use ssis_common::output::{self, Origin};
 use ssis_runner::qemu::{build_firmware, default_elf};
-use ssis_runner::upset::{run_flown_jobs, Flown, UpsetOptions};
+use ssis_runner::upset::{run_flown_jobs, Campaign, Flown, UpsetOptions};
 use ssis_sim::lv_replay::LvScenario;
 use ssis_sim::scenario::Scenario;
 
@@ -76,6 +76,14 @@ struct Args {
     /// Write the campaign document here (docs/UPSET-CAMPAIGN-QEMU.md).
     #[arg(long)]
     out: Option<PathBuf>,
+    /// Also write the whole campaign, every flip, here (JSON), for a later `--merge`.
+    #[arg(long)]
+    save: Option<PathBuf>,
+    /// Run nothing: merge campaigns saved with `--save` by runs of the same firmware,
+    /// scenario, populations and schedule with seeds that do not overlap (run with
+    /// `--seed` at least the other runs' seed + jobs), and report them as one.
+    #[arg(long, num_args = 1.., conflicts_with_all = ["save", "elf", "flips", "seed", "jobs", "max_minutes"])]
+    merge: Vec<PathBuf>,
     /// One line per flip on standard error.
     #[arg(long)]
     verbose: bool,
@@ -88,12 +96,26 @@ fn main() -> ExitCode {
     cli::finish(args.flags.start("ssis-qemu-upset").and_then(|()| campaign(&args)))
 }
 
-/// Runs the campaign; `Ok(false)` when a flip was silent.
+/// Runs the campaign (or merges saved ones); `Ok(false)` when a flip was silent.
 fn campaign(args: &Args) -> Result<bool> {
-    output::input(&args.scenario);
-    if let Some(p) = &args.out {
+    for p in [&args.out, &args.save].into_iter().flatten() {
         output::claim(p, Origin::Named)?;
     }
+    if !args.merge.is_empty() {
+        let parts = args
+            .merge
+            .iter()
+            .map(|p| {
+                output::input(p);
+                let text = std::fs::read_to_string(p).with_context(|| format!("{}: cannot read", p.display()))?;
+                serde_json::from_str::<Campaign>(&text)
+                    .with_context(|| format!("{}: not a campaign saved by ssis-qemu-upset --save", p.display()))
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let c = Campaign::merge(parts).context("--merge")?;
+        return finish(args, &c);
+    }
+    output::input(&args.scenario);
     let lv = LvScenario::is_lv_file(&args.scenario);
     let (mut sc, mut lv_sc) = (None, None);
     if lv {
@@ -173,6 +195,15 @@ fn campaign(args: &Args) -> Result<bool> {
             eprintln!("flip {k}/{}", o.flips);
         }
     })?;
+    if let Some(p) = &args.save {
+        output::write(p, serde_json::to_string(&c)?.as_bytes())?;
+        println!("saved {}", p.display());
+    }
+    finish(args, &c)
+}
+
+/// Prints the report and writes the document; `Ok(false)` when a flip was silent.
+fn finish(args: &Args, c: &Campaign) -> Result<bool> {
     print!("{}", c.report());
     cli::report("campaign", || c.json());
     if let Some(p) = &args.out {

@@ -64,13 +64,13 @@ use ssis_sim::lv_replay::LvScenario;
 use ssis_sim::scenario::Scenario;
 
 pub use lv::FLOOR as LV_BOUND_FLOOR;
-pub use report::{Campaign, Interval, LvBounds};
+pub use report::{Campaign, Interval, LvBounds, Run};
 
 use crate::gdb::{self, Gdb};
 use crate::qemu::{masked, symbol, QemuOptions, Unit};
 
 /// How a campaign runs.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct UpsetOptions {
     /// Firmware ELF (a test build: lockstep).
     pub elf: PathBuf,
@@ -117,7 +117,7 @@ impl UpsetOptions {
 }
 
 /// Where a bit was flipped.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub enum Target {
     /// A byte of the live stack (SP to the stack's top) at the flip.
     Stack {
@@ -188,7 +188,7 @@ pub enum Target {
 pub const SYST_CSR: u32 = 0xE000_E010;
 
 /// Where a flip is drawn from, and at which instructions.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum Population {
     /// One bit of the state: the RAM in use (live stack, statics) and the core and FPU
     /// registers, uniform over their bits (or with [`UpsetOptions::register_share`]), at a
@@ -242,7 +242,7 @@ impl Population {
 }
 
 /// The campaign's populations and their shares of the flips (drawn per flip).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Mix(pub Vec<(Population, f64)>);
 
 impl Mix {
@@ -416,7 +416,7 @@ impl Target {
 }
 
 /// What a flip did, against truth and the undisturbed run.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
 pub enum Outcome {
     /// Every output identical to the undisturbed run's for the quiet time.
     Masked,
@@ -454,7 +454,7 @@ impl Outcome {
 }
 
 /// One flip and what it did.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Flip {
     /// The population it was drawn from.
     pub population: Population,
@@ -1069,7 +1069,7 @@ impl Ctx<'_> {
 }
 
 /// Which traced path a flip's instruction is drawn from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 pub enum PathKind {
     /// A pass whose step took a star-tracker update (`true`) or not.
     Pass(bool),
@@ -2034,6 +2034,8 @@ fn campaign(
         jobs: 1,
         dt_s: flight.profile.dt_s(),
         lv: flight.lv.as_ref().map(|l| LvBounds { bound: l.bound, undisturbed_max: l.undisturbed_max }),
+        elf_hash: ctx.elf_hash,
+        runs: Vec::new(),
     })
 }
 
@@ -2089,18 +2091,7 @@ pub fn run_flown_jobs(
         let c = r?;
         match all.as_mut() {
             None => all = Some(c),
-            Some(a) => {
-                a.flips.extend(c.flips);
-                a.flights += c.flights;
-                a.failed_flights += c.failed_flights;
-                a.latent += c.latent;
-                a.path_len = a.path_len.max(c.path_len);
-                for (k, l) in c.path_lens {
-                    if !a.path_lens.iter().any(|(ak, _)| *ak == k) {
-                        a.path_lens.push((k, l));
-                    }
-                }
-            }
+            Some(a) => a.absorb(c),
         }
     }
     let mut c = all.context("no job ran")?;

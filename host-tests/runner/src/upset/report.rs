@@ -62,7 +62,7 @@ const ROWS: [&str; 7] = [
 ];
 
 /// A campaign's flips and how it ran.
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct Campaign {
     /// Scenario name.
     pub name: String,
@@ -100,10 +100,27 @@ pub struct Campaign {
     /// The launch vehicle's judgement: the bounds (position m, velocity m/s, attitude ″)
     /// and the undisturbed flight's largest errors they come from.
     pub lv: Option<LvBounds>,
+    /// The FNV-1a hash of the firmware ELF's bytes: campaigns merged must share it.
+    pub elf_hash: u64,
+    /// The runs merged into this one ([`Campaign::merge`]); empty: one run.
+    pub runs: Vec<Run>,
+}
+
+/// One run of a campaign merged with others ([`Campaign::merge`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Run {
+    /// Its seed (job j drew with seed + j).
+    pub seed: u64,
+    /// Its jobs side by side.
+    pub jobs: usize,
+    /// Its flips.
+    pub flips: usize,
+    /// Its wall time, s.
+    pub wall_s: f64,
 }
 
 /// The launch vehicle's bounds ([`super::lv`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct LvBounds {
     /// Position m, velocity m/s, attitude ″.
     pub bound: [f64; 3],
@@ -112,6 +129,92 @@ pub struct LvBounds {
 }
 
 impl Campaign {
+    /// Adds the flips, flights and paths of `c`, a campaign of the same firmware and
+    /// scenario drawn with other seeds (a job of the same run, or another run).
+    pub(super) fn absorb(&mut self, c: Campaign) {
+        self.flips.extend(c.flips);
+        self.flights += c.flights;
+        self.failed_flights += c.failed_flights;
+        self.latent += c.latent;
+        self.path_len = self.path_len.max(c.path_len);
+        for (k, l) in c.path_lens {
+            if !self.path_lens.iter().any(|(ak, _)| *ak == k) {
+                self.path_lens.push((k, l));
+            }
+        }
+    }
+
+    /// This campaign's runs (itself, if it is one run).
+    fn own_runs(&self) -> Vec<Run> {
+        match self.runs.is_empty() {
+            true => {
+                vec![Run { seed: self.options.seed, jobs: self.jobs, flips: self.flips.len(), wall_s: self.wall_s }]
+            }
+            false => self.runs.clone(),
+        }
+    }
+
+    /// Campaigns saved by separate runs (`ssis-qemu-upset --save`) as one: the same
+    /// firmware (ELF hash), scenario, populations and schedule, drawn with seeds whose
+    /// jobs do not overlap (a run's job j draws with its seed + j), so the flips are
+    /// independent draws of one distribution. Wall time and flights are summed.
+    pub fn merge(parts: Vec<Campaign>) -> anyhow::Result<Campaign> {
+        let mut it = parts.into_iter();
+        let mut all = it.next().ok_or_else(|| anyhow::anyhow!("no campaign to merge"))?;
+        let mut runs = all.own_runs();
+        for c in it {
+            let (a, b) = (&all.options, &c.options);
+            anyhow::ensure!(
+                c.elf_hash == all.elf_hash,
+                "another firmware (ELF hash {:#x}, not {:#x})",
+                c.elf_hash,
+                all.elf_hash
+            );
+            anyhow::ensure!(c.name == all.name, "another scenario ({}, not {})", c.name, all.name);
+            anyhow::ensure!(format!("{:?}", c.mix) == format!("{:?}", all.mix), "other populations ({:?})", c.mix);
+            anyhow::ensure!(
+                (a.first_s, a.quiet_s, a.window_s, a.gap_s, a.register_share, a.forced_reset)
+                    == (b.first_s, b.quiet_s, b.window_s, b.gap_s, b.register_share, b.forced_reset),
+                "another schedule (first, quiet, window, gap, register share or forced reset differ)"
+            );
+            for r in c.own_runs() {
+                let end = |q: &Run| q.seed.saturating_add(q.jobs as u64);
+                anyhow::ensure!(
+                    !runs.iter().any(|q| r.seed < end(q) && q.seed < end(&r)),
+                    "seeds {}..{} overlap another run's: its flips would repeat",
+                    r.seed,
+                    end(&r)
+                );
+                runs.push(r);
+            }
+            all.wall_s += c.wall_s;
+            all.jobs = all.jobs.max(c.jobs);
+            all.absorb(c);
+        }
+        all.options.flips = all.flips.len();
+        all.runs = runs;
+        Ok(all)
+    }
+
+    /// The runs, for the document (nothing for one run).
+    fn runs_text(&self) -> String {
+        if self.runs.len() < 2 {
+            return String::new();
+        }
+        let each: Vec<String> = self
+            .runs
+            .iter()
+            .map(|r| format!("seed {} × {} job(s), {} flips, {:.0} s", r.seed, r.jobs, r.flips, r.wall_s))
+            .collect();
+        format!(
+            " Merged from {} runs of the same ELF (FNV-1a {:#018x}) by `--merge` of their `--save` files: {}; \
+             the wall time is their sum.",
+            self.runs.len(),
+            self.elf_hash,
+            each.join("; ")
+        )
+    }
+
     fn count(&self, row: &str, class: Option<&str>) -> usize {
         self.flips.iter().filter(|f| f.outcome.name() == row && class.is_none_or(|c| f.target.class() == c)).count()
     }
@@ -325,14 +428,15 @@ impl Campaign {
              Placing a flip costs a few milliseconds in straight-line code and up to some tenths of a second deep in a pass's loops (the single steps). 1,000 flips at this rate take {:.1} h. A corruption that stays invisible for the quiet time and shows \
              later is charged to a later flip of the same flight: of the changed flips below, {} had \
              earlier flips before them in their flight; {} flights stopped with no flip being \
-             watched (every flip in them already classed masked or tolerated).\n",
+             watched (every flip in them already classed masked or tolerated).{}\n",
             self.flights,
             self.wall_s,
             self.jobs,
             self.flips_per_hour(),
             1000.0 / self.flips_per_hour().max(1e-9),
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
-            self.latent
+            self.latent,
+            self.runs_text()
         );
         s.push_str(&self.outcomes());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
@@ -486,13 +590,14 @@ impl Campaign {
             "Cost: {n} flips in {} QEMU flights, {:.0} s of wall time with {} job(s) side by side (job \
              j draws with seed + j) ({:.0} flips an hour on this host). Of the changed flips below, {} \
              had earlier flips before them in their flight; {} flights stopped with no flip being \
-             watched.\n",
+             watched.{}\n",
             self.flights,
             self.wall_s,
             self.jobs,
             self.flips_per_hour(),
             self.flips.iter().filter(|f| f.outcome != Outcome::Masked && f.earlier_in_flight > 0).count(),
-            self.latent
+            self.latent,
+            self.runs_text()
         );
         s.push_str(&self.outcomes());
         let changed: Vec<&Flip> = self.flips.iter().filter(|f| f.outcome != Outcome::Masked).collect();
@@ -708,7 +813,74 @@ Traced paths (instructions): {}.
 
 #[cfg(test)]
 mod tests {
-    use super::Interval;
+    use super::{Campaign, Interval};
+    use crate::upset::{Flip, Mix, Outcome, Population, Target, UpsetOptions};
+
+    /// A campaign of one run: `seed`, `jobs` side by side, `n` masked flips, on the
+    /// firmware whose ELF hashes to `elf_hash`.
+    fn run(seed: u64, jobs: usize, n: usize, elf_hash: u64) -> Campaign {
+        let flip = Flip {
+            population: Population::State,
+            star: false,
+            step: 2400,
+            instr: 10,
+            at: "0x100 (f)".into(),
+            target: Target::Static { addr: 0x2000_8000, bit: 3 },
+            outcome: Outcome::Masked,
+            worst_arcsec: 2.0,
+            silent_arcsec: 0.0,
+            recovery_s: None,
+            reset_cause: None,
+            reset_after_s: None,
+            reset_aligned_s: None,
+            reset_nominal_s: None,
+            events: Vec::new(),
+            earlier_in_flight: 0,
+            nav_worst: None,
+        };
+        Campaign {
+            name: "qemu-flight".into(),
+            options: UpsetOptions::new("fw.elf".into(), n, seed),
+            flips: vec![flip; n],
+            flights: 2,
+            wall_s: 100.0,
+            entry: 0x23ac,
+            path_len: 8000,
+            path_lens: Vec::new(),
+            mix: Mix::all(),
+            failed_flights: 0,
+            latent: 0,
+            stack_top: 0x2000_8000,
+            statics: (0x2000_8000, 0x2000_8600),
+            nominal_3sigma_arcsec: [2.0; 3],
+            jobs,
+            dt_s: 0.005,
+            lv: None,
+            elf_hash,
+            runs: Vec::new(),
+        }
+    }
+
+    /// Runs saved apart (JSON, as `--save` writes) merge into one campaign: the flips and
+    /// wall times add up and each run is named; runs of another firmware, or whose seeds
+    /// overlap (the same flips drawn again), are refused.
+    #[test]
+    fn saved_runs_merge_into_one_campaign() {
+        let saved = |c: &Campaign| serde_json::from_str::<Campaign>(&serde_json::to_string(c).unwrap()).unwrap();
+        let m = Campaign::merge(vec![saved(&run(40, 2, 5, 7)), saved(&run(42, 2, 3, 7))]).unwrap();
+        assert_eq!((m.flips.len(), m.flights, m.wall_s, m.options.flips), (8, 4, 200.0, 8));
+        assert_eq!(m.runs.iter().map(|r| (r.seed, r.jobs, r.flips)).collect::<Vec<_>>(), [(40, 2, 5), (42, 2, 3)]);
+        assert!(m.document("merge").contains("Merged from 2 runs"));
+        // A merged campaign merges on.
+        let m3 = Campaign::merge(vec![m.clone(), run(50, 1, 1, 7)]).unwrap();
+        assert_eq!((m3.flips.len(), m3.runs.len()), (9, 3));
+        let e = Campaign::merge(vec![run(40, 2, 5, 7), run(42, 2, 3, 8)]).unwrap_err();
+        assert!(e.to_string().contains("another firmware"), "{e}");
+        let e = Campaign::merge(vec![run(40, 2, 5, 7), run(41, 2, 3, 7)]).unwrap_err();
+        assert!(e.to_string().contains("overlap"), "{e}");
+        let e = Campaign::merge(vec![m, run(41, 1, 1, 7)]).unwrap_err();
+        assert!(e.to_string().contains("overlap"), "{e}");
+    }
 
     #[test]
     fn wilson_interval() {
