@@ -300,17 +300,40 @@ impl<const N: usize> ByteFifo<N> {
 /// Borrows of a ring's state that failed since start ([`ring_faults`]).
 static RING_FAULTS: AtomicU32 = AtomicU32::new(0);
 
+/// A ring's indices, which every operation keeps within its buffer (the oldest byte's
+/// index below N, the count at most N): a state outside them is an upset.
+trait Sound {
+    fn sound(&self) -> bool;
+}
+
+impl<const N: usize> Sound for ByteFifo<N> {
+    #[inline(always)]
+    fn sound(&self) -> bool {
+        self.head < N && self.len <= N
+    }
+}
+
+impl<const N: usize> Sound for RingState<N> {
+    #[inline(always)]
+    fn sound(&self) -> bool {
+        self.bytes.sound()
+    }
+}
+
 /// Runs `f` on a ring's state inside a critical section. Only this function borrows the
 /// cell, one closure at a time with interrupts masked, so in a sound state the borrow
 /// cannot fail. It fails only when the cell's borrow flag is corrupted (a bit flipped in
 /// RAM, or in the register that writes the flag back), and then for good: the ring would
-/// take no byte again. So a failure skips `f`, returns `otherwise` and is counted in
+/// take no byte again. Its indices out of their range are an upset too, that would last:
+/// a count above the buffer's length (one high bit flipped) drops every byte received
+/// until it has been read down, seconds of a link's data, and in lockstep the STEP that
+/// paces the unit. So either skips `f`, returns `otherwise` and is counted in
 /// [`ring_faults`], for the main loop to reset the unit. (`borrow_ref_mut` would panic
 /// there: a panic path the release firmware may not link, README "No panics".)
-fn with_state<T, R>(m: &Mutex<RefCell<T>>, otherwise: R, f: impl FnOnce(&mut T) -> R) -> R {
+fn with_state<T: Sound, R>(m: &Mutex<RefCell<T>>, otherwise: R, f: impl FnOnce(&mut T) -> R) -> R {
     critical_section::with(|cs| match m.borrow(cs).try_borrow_mut() {
-        Ok(mut s) => f(&mut s),
-        Err(_) => {
+        Ok(mut s) if s.sound() => f(&mut s),
+        _ => {
             RING_FAULTS.fetch_add(1, Ordering::Relaxed);
             otherwise
         }
@@ -318,8 +341,8 @@ fn with_state<T, R>(m: &Mutex<RefCell<T>>, otherwise: R, f: impl FnOnce(&mut T) 
 }
 
 /// Borrows of an [`RxRing`]'s or a [`TxRing`]'s state that failed since start: not zero
-/// only when a ring's borrow flag is corrupted, which nothing but a reset clears (the
-/// firmware's main loop resets the unit, which resumes from its snapshot).
+/// only when a ring's borrow flag or its indices are corrupted, which nothing but a reset
+/// clears (the firmware's main loop resets the unit, which resumes from its snapshot).
 pub fn ring_faults() -> u32 {
     RING_FAULTS.load(Ordering::Relaxed)
 }
@@ -589,6 +612,36 @@ mod tests {
         assert_eq!(ring.received(), 22);
         assert_eq!(drain_all(&ring, 100), [0, 1, 2, 3, 4, 5, 6, 7]);
         assert!(drain_all(&ring, 100).is_empty());
+    }
+
+    /// A ring whose count or oldest index an upset put beyond its buffer takes no byte
+    /// and gives none, and is counted for the main loop, which resets the unit (the
+    /// count 2^17 higher: the QEMU campaign's control ring, which then dropped every
+    /// byte, the runner's STEP among them).
+    #[test]
+    fn indices_beyond_the_buffer_are_counted_not_used() {
+        for (head, len) in [(0, 3 + (1 << 17)), (8, 3), (1 << 20, 0), (0, 9)] {
+            let ring = RxRing::<8>::new();
+            for b in 0..3u8 {
+                ring.push(b);
+            }
+            critical_section::with(|cs| {
+                let mut s = ring.inner.borrow(cs).borrow_mut();
+                (s.bytes.head, s.bytes.len) = (head, len);
+            });
+            let before = ring_faults();
+            ring.push(9);
+            assert!(drain_all(&ring, 100).is_empty(), "head {head} len {len}");
+            assert!(ring_faults() >= before + 2, "head {head} len {len}");
+        }
+        // At the bounds: sound.
+        let ring = RxRing::<8>::new();
+        for b in 0..8u8 {
+            ring.push(b);
+        }
+        let before = ring_faults();
+        assert_eq!(drain_all(&ring, 100), [0, 1, 2, 3, 4, 5, 6, 7]);
+        assert_eq!(ring_faults(), before);
     }
 
     /// A borrow that fails (here: a push while the port holds the ring, the state a

@@ -40,8 +40,8 @@
 //!    tick has moved on also feeds it (the tick proves the clock runs), and those passes
 //!    are counted ([`LoopStats::awaited_ticks_max`]); an idle pass without a new tick
 //!    feeds nothing.
-//! 5. **Ring faults**: a link ring whose borrow flag is corrupted takes no byte again
-//!    ([`crate::link::ring_faults`]): snapshot and reset ([`StepBoard::reset`]), as for
+//! 5. **Ring faults**: a link ring whose borrow flag or indices are corrupted takes no
+//!    byte again, or drops them for seconds ([`crate::link::ring_faults`]): snapshot and reset ([`StepBoard::reset`]), as for
 //!    a register whose restore does not hold and a code image found changed.
 //!
 //! At boot [`run`] resumes the core from the newer of the board's two snapshot copies
@@ -514,7 +514,7 @@ impl Executive {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(target_os = "none", derive(defmt::Format))]
 enum Fault {
-    /// A link ring's borrow flag is corrupted ([`crate::link::ring_faults`]).
+    /// A link ring's borrow flag or indices are corrupted ([`crate::link::ring_faults`]).
     Ring,
     /// A configuration register whose restore did not hold.
     Register,
