@@ -19,9 +19,10 @@
 //! words, are checked at every pass of the executive as well ([`verify_pass`]): a tick an
 //! upset stopped or slowed runs again at the loop's next wake (the next received byte),
 //! and a link whose receiver an upset turned off receives again from then (in lockstep
-//! no step comes without it, and with no step the every-64-steps check never runs). A stopped SysTick (its ENABLE or TICKINT bit cleared) with
-//! no byte arriving stops the steps, and with them the executive's checks. The watchdog's first timeout (an NMI, one watchdog period
-//! after the last step) runs [`verify_in_nmi`]: the entries before the first selection
+//! no step comes without it, and with no step the every-64-steps check never runs). A
+//! stopped SysTick (its ENABLE or TICKINT bit cleared) with no byte arriving stops the
+//! steps, and with them the executive's checks. The watchdog's first timeout (an NMI, one
+//! watchdog period after the last step) runs [`verify_in_nmi`]: the entries before the first selection
 //! (the tick, the interrupt enables and priorities, the UARTs) restored from there, the
 //! steps resume and feed the watchdog before its second timeout; had the restore not
 //! held, the watchdog's second timeout resets the unit. An interrupt enabled that should
